@@ -1,0 +1,105 @@
+// Plain data types of a voxfmt asset (spec/voxfmt-format.md). No HDF5, CGAL or OpenVDB here: the runtime
+// loaders and the bake tools share these types.
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace voxfmt {
+
+using Vec3 = std::array<double, 3>;
+using Vec3f = std::array<float, 3>;
+
+/// [major, minor] of the file format.
+struct FormatVersion {
+  uint32_t major = 1;
+  uint32_t minor = 0;
+  friend bool operator==(const FormatVersion& a, const FormatVersion& b) {
+    return a.major == b.major && a.minor == b.minor;
+  }
+};
+
+/// The format version this library writes and fully understands.
+inline constexpr FormatVersion kFormatVersion{1, 0};
+
+/// Layered distance-field voxelmap (spec §3). Grids are x-fastest: index = (k * H + j) * W + i.
+struct Voxelmap {
+  Vec3 origin{};                   ///< centre of voxel (0,0,0), metres
+  double voxel_size = 0.0;         ///< voxel edge h, metres
+  std::array<uint32_t, 3> dims{};  ///< W, H, D (voxels along x, y, z)
+  double distance_band = 2.0;      ///< half-width of the stored-distance band, in voxels
+  std::optional<uint32_t> margin;  ///< outer voxels around the bounding box (optional in the file)
+  std::vector<int16_t> layers;     ///< coarse penetration depth in voxels; > 0 inside, 0 surface, < 0 outside
+  std::vector<float> distances;    ///< signed distance (negative inside), NaN where not stored
+
+  size_t voxel_count() const { return size_t(dims[0]) * dims[1] * dims[2]; }
+  size_t linear_index(uint32_t i, uint32_t j, uint32_t k) const {
+    return (size_t(k) * dims[1] + j) * dims[0] + i;
+  }
+  Vec3 voxel_center(uint32_t i, uint32_t j, uint32_t k) const {
+    return {origin[0] + voxel_size * i, origin[1] + voxel_size * j, origin[2] + voxel_size * k};
+  }
+  static bool is_stored(float distance) { return !std::isnan(distance); }
+};
+
+/// Point shell organised as a breadth-first point-sphere tree (spec §4). Node n is point n.
+struct PointShell {
+  std::vector<Vec3> points;
+  std::vector<Vec3f> normals;  ///< inward unit normals
+  std::vector<Vec3> sphere_centers;
+  std::vector<double> sphere_radii;
+  std::vector<uint32_t> child_begin;
+  std::vector<uint32_t> child_count;
+  std::vector<uint32_t> level_offsets;  ///< L+1 entries: level l is [level_offsets[l], level_offsets[l+1])
+  std::optional<double> point_spacing;
+  std::optional<uint32_t> branching;
+
+  size_t size() const { return points.size(); }
+  size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }
+};
+
+/// Unit-density mass properties of the closed surface (spec §5).
+struct MassProperties {
+  double volume = 0.0;                ///< m^3
+  Vec3 center_of_mass{};              ///< m
+  std::array<double, 9> inertia{};    ///< row-major 3x3 about the centre of mass, m^5
+};
+
+struct BuildWarning {
+  std::string code;
+  std::string message;
+  friend bool operator==(const BuildWarning& a, const BuildWarning& b) {
+    return a.code == b.code && a.message == b.message;
+  }
+};
+
+/// Where the asset came from (spec §6).
+struct Provenance {
+  std::string generator;
+  std::string generator_version;
+  std::string source_file;    ///< file name only
+  std::string source_sha256;  ///< 64 lowercase hex digits, or empty
+  std::string build_parameters_json = "{}";  ///< JSON object
+  std::map<std::string, std::string> dependency_versions;
+  std::vector<BuildWarning> build_warnings;
+  std::string created_utc;  ///< ISO 8601; empty = not recorded
+};
+
+struct Asset {
+  FormatVersion version = kFormatVersion;  ///< version found when read; written files use kFormatVersion
+  std::string up_axis = "+Y";
+  Vec3 bounds_min{};
+  Vec3 bounds_max{};
+  Voxelmap voxelmap;
+  PointShell point_shell;
+  MassProperties mass;
+  Provenance provenance;
+};
+
+}  // namespace voxfmt

@@ -1,0 +1,27 @@
+// Reading and writing voxfmt asset files (HDF5). Thread-compatible: do not call concurrently unless the
+// system HDF5 library was built thread-safe.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "voxfmt/asset.h"
+#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
+
+namespace voxfmt {
+
+struct WriteOptions {
+  int deflate_level = 4;      ///< 0..9 for the voxel grids; 0 = no compression
+  unsigned chunk_edge = 32;   ///< grid chunk edge in voxels (clamped to the grid)
+};
+
+/// Writes `asset` to `path` atomically: a temporary file beside it is written and renamed over `path`, so a
+/// failed write never leaves a partial file. Structural validation runs first; an invalid asset is refused.
+Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
+
+/// Reads and structurally validates an asset. Any error-severity finding fails the read (its message names
+/// the file, the object and the reason); warnings (e.g. a newer minor version) go to `warnings` if given.
+Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr);
+
+}  // namespace voxfmt

@@ -1,0 +1,396 @@
+#include "h5.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <new>
+#include <sstream>
+
+namespace voxfmt::h5 {
+
+void silence_hdf5_errors() { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); }
+
+namespace {
+herr_t collect_innermost(unsigned n, const H5E_error2_t* err, void* client) {
+  auto* out = static_cast<std::string*>(client);
+  if (n == 0 && err->desc && *err->desc) *out = err->desc;  // walking upward: entry 0 is the innermost
+  return 0;
+}
+
+std::string dims_to_string(const std::vector<uint64_t>& dims) {
+  if (dims.empty()) return "scalar";
+  std::ostringstream s;
+  s << '[';
+  for (size_t i = 0; i < dims.size(); ++i) s << (i ? ", " : "") << dims[i];
+  s << ']';
+  return s.str();
+}
+
+std::string shape_to_string(const Shape& shape) {
+  if (shape.empty()) return "scalar";
+  std::ostringstream s;
+  s << '[';
+  for (size_t i = 0; i < shape.size(); ++i) {
+    s << (i ? ", " : "");
+    if (shape[i] < 0) s << 'n'; else s << shape[i];
+  }
+  s << ']';
+  return s.str();
+}
+
+std::string describe_type(hid_t type) {
+  H5T_class_t cls = H5Tget_class(type);
+  size_t size = H5Tget_size(type);
+  std::ostringstream s;
+  switch (cls) {
+    case H5T_INTEGER: s << (H5Tget_sign(type) == H5T_SGN_NONE ? "unsigned " : "signed ") << size * 8 << "-bit integer"; break;
+    case H5T_FLOAT: s << size * 8 << "-bit float"; break;
+    case H5T_STRING: s << "string"; break;
+    case H5T_COMPOUND: s << "compound"; break;
+    case H5T_ARRAY: s << "array type"; break;
+    case H5T_VLEN: s << "variable-length sequence"; break;
+    case H5T_ENUM: s << "enum"; break;
+    default: s << "HDF5 type class " << int(cls); break;
+  }
+  return s.str();
+}
+}  // namespace
+
+std::string last_hdf5_reason() {
+  std::string reason;
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, collect_innermost, &reason);
+  H5Eclear2(H5E_DEFAULT);
+  return reason.empty() ? "unknown HDF5 error" : reason;
+}
+
+std::string join_path(const std::string& group_path, const std::string& name) {
+  if (group_path.empty() || group_path == "/") return "/" + name;
+  return group_path + "/" + name;
+}
+
+// ---------------------------------------------------------------- Reader
+
+void Reader::report(IssueCode code, const std::string& path, const std::string& message) {
+  issues_.push_back(Issue{code, severity_of(code), path, message});
+}
+
+bool Reader::open() {
+  silence_hdf5_errors();
+  if (FILE* f = std::fopen(file_.c_str(), "rb")) {
+    std::fclose(f);
+  } else {
+    report(IssueCode::FileNotFound, "/", std::string("cannot open file: ") + std::strerror(errno));
+    return false;
+  }
+  htri_t is_hdf5 = H5Fis_hdf5(file_.c_str());
+  if (is_hdf5 <= 0) {
+    std::string reason = is_hdf5 < 0 ? last_hdf5_reason() : "no HDF5 signature found";
+    report(IssueCode::NotHdf5, "/", "not an HDF5 file (" + reason + ")");
+    return false;
+  }
+  hid_t id = H5Fopen(file_.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (id < 0) {
+    report(IssueCode::NotHdf5, "/", "HDF5 cannot open the file (" + last_hdf5_reason() + ")");
+    return false;
+  }
+  file_handle_ = Handle(id, H5Fclose);
+  return true;
+}
+
+bool Reader::has_member(hid_t parent, const std::string& name) {
+  htri_t exists = H5Lexists(parent, name.c_str(), H5P_DEFAULT);
+  if (exists < 0) H5Eclear2(H5E_DEFAULT);
+  return exists > 0;
+}
+
+bool Reader::has_attribute(hid_t object, const std::string& name) {
+  htri_t exists = H5Aexists(object, name.c_str());
+  if (exists < 0) H5Eclear2(H5E_DEFAULT);
+  return exists > 0;
+}
+
+std::optional<Handle> Reader::group(hid_t parent, const std::string& parent_path, const std::string& name) {
+  const std::string path = join_path(parent_path, name);
+  if (!has_member(parent, name)) {
+    report(IssueCode::MissingObject, path, "required group is missing");
+    return std::nullopt;
+  }
+  hid_t obj = H5Oopen(parent, name.c_str(), H5P_DEFAULT);
+  if (obj < 0) {
+    report(IssueCode::ReadFailed, path, "cannot open object (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  if (H5Iget_type(obj) != H5I_GROUP) {
+    H5Oclose(obj);
+    report(IssueCode::WrongKind, path, "expected a group, found another kind of object");
+    return std::nullopt;
+  }
+  return Handle(obj, H5Oclose);
+}
+
+bool Reader::check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name,
+                        const std::string& path) {
+  bool ok = H5Tget_class(type) == cls && H5Tget_size(type) == size;
+  if (ok && cls == H5T_INTEGER) ok = (H5Tget_sign(type) != H5T_SGN_NONE) == is_signed;
+  if (!ok) {
+    report(IssueCode::WrongDtype, path,
+           std::string("dtype is ") + describe_type(type) + ", expected " + name + " (little-endian)");
+  }
+  return ok;
+}
+
+bool Reader::check_shape(hid_t space, const Shape& expected, const std::string& path,
+                         std::vector<uint64_t>& actual) {
+  H5S_class_t space_class = H5Sget_simple_extent_type(space);
+  actual.clear();
+  if (space_class == H5S_SIMPLE) {
+    int rank = H5Sget_simple_extent_ndims(space);
+    std::vector<hsize_t> dims(rank > 0 ? rank : 0);
+    if (rank > 0) H5Sget_simple_extent_dims(space, dims.data(), nullptr);
+    actual.assign(dims.begin(), dims.end());
+  } else if (space_class != H5S_SCALAR) {
+    report(IssueCode::WrongShape, path, "has an empty (null) dataspace, expected " + shape_to_string(expected));
+    return false;
+  }
+  bool ok = actual.size() == expected.size();
+  for (size_t i = 0; ok && i < expected.size(); ++i)
+    ok = expected[i] < 0 || uint64_t(expected[i]) == actual[i];
+  if (!ok) report(IssueCode::WrongShape, path, "shape is " + dims_to_string(actual) + ", expected " + shape_to_string(expected));
+  return ok;
+}
+
+std::optional<std::string> Reader::string_attribute(hid_t object, const std::string& object_path,
+                                                    const std::string& name) {
+  const std::string path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
+  if (!has_attribute(object, name)) {
+    report(IssueCode::MissingObject, path, "required attribute is missing");
+    return std::nullopt;
+  }
+  Handle attr(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose);
+  if (!attr.valid()) {
+    report(IssueCode::ReadFailed, path, "cannot open attribute (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  Handle type(H5Aget_type(attr.get()), H5Tclose);
+  if (H5Tget_class(type.get()) != H5T_STRING) {
+    report(IssueCode::WrongDtype, path, "dtype is " + describe_type(type.get()) + ", expected a string");
+    return std::nullopt;
+  }
+  Handle space(H5Aget_space(attr.get()), H5Sclose);
+  std::vector<uint64_t> actual;
+  if (!check_shape(space.get(), {}, path, actual)) return std::nullopt;
+
+  if (H5Tis_variable_str(type.get()) > 0) {
+    Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
+    H5Tset_size(memtype.get(), H5T_VARIABLE);
+    H5Tset_cset(memtype.get(), H5Tget_cset(type.get()));
+    char* buffer = nullptr;
+    if (H5Aread(attr.get(), memtype.get(), &buffer) < 0) {
+      report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
+      return std::nullopt;
+    }
+    std::string value = buffer ? buffer : "";
+    if (buffer) H5free_memory(buffer);
+    return value;
+  }
+  size_t size = H5Tget_size(type.get());
+  if (size == 0 || size > (64u << 20)) {
+    report(IssueCode::WrongDtype, path, "fixed-length string of implausible size " + std::to_string(size));
+    return std::nullopt;
+  }
+  Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Tset_size(memtype.get(), size);
+  H5Tset_strpad(memtype.get(), H5T_STR_NULLPAD);
+  std::string buffer(size, '\0');
+  if (H5Aread(attr.get(), memtype.get(), buffer.data()) < 0) {
+    report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  buffer.resize(std::strlen(buffer.c_str()));
+  if (H5Tget_strpad(type.get()) == H5T_STR_SPACEPAD)
+    while (!buffer.empty() && buffer.back() == ' ') buffer.pop_back();
+  return buffer;
+}
+
+template <class T>
+std::optional<std::vector<T>> Reader::numeric_attribute(hid_t object, const std::string& object_path,
+                                                        const std::string& name, const Shape& shape) {
+  const std::string path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
+  if (!has_attribute(object, name)) {
+    report(IssueCode::MissingObject, path, "required attribute is missing");
+    return std::nullopt;
+  }
+  Handle attr(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose);
+  if (!attr.valid()) {
+    report(IssueCode::ReadFailed, path, "cannot open attribute (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  Handle type(H5Aget_type(attr.get()), H5Tclose);
+  using Traits = TypeTraits<T>;
+  if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
+  Handle space(H5Aget_space(attr.get()), H5Sclose);
+  std::vector<uint64_t> actual;
+  if (!check_shape(space.get(), shape, path, actual)) return std::nullopt;
+  size_t count = 1;
+  for (uint64_t d : actual) count *= d;
+  std::vector<T> values(count);
+  if (H5Aread(attr.get(), Traits::memory_type(), values.data()) < 0) {
+    report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  return values;
+}
+
+template <class T>
+std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& group_path, const std::string& name,
+                                              const Shape& shape, std::vector<uint64_t>* shape_out) {
+  const std::string path = join_path(group_path, name);
+  if (!has_member(group, name)) {
+    report(IssueCode::MissingObject, path, "required dataset is missing");
+    return std::nullopt;
+  }
+  hid_t obj = H5Oopen(group, name.c_str(), H5P_DEFAULT);
+  if (obj < 0) {
+    report(IssueCode::ReadFailed, path, "cannot open object (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  if (H5Iget_type(obj) != H5I_DATASET) {
+    H5Oclose(obj);
+    report(IssueCode::WrongKind, path, "expected a dataset, found another kind of object");
+    return std::nullopt;
+  }
+  Handle dset(obj, H5Oclose);
+  Handle type(H5Dget_type(dset.get()), H5Tclose);
+  using Traits = TypeTraits<T>;
+  if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
+  Handle space(H5Dget_space(dset.get()), H5Sclose);
+  std::vector<uint64_t> actual;
+  if (!check_shape(space.get(), shape, path, actual)) return std::nullopt;
+  uint64_t count = 1;
+  for (uint64_t d : actual) count *= d;
+  if (count > (uint64_t(1) << 31)) {
+    report(IssueCode::ValueOutOfRange, path, "dataset has " + std::to_string(count) + " elements, more than 2^31");
+    return std::nullopt;
+  }
+  std::vector<T> values;
+  try {
+    values.resize(size_t(count));
+  } catch (const std::bad_alloc&) {
+    report(IssueCode::ReadFailed, path, "not enough memory for " + std::to_string(count) + " elements");
+    return std::nullopt;
+  }
+  if (count > 0 && H5Dread(dset.get(), Traits::memory_type(), H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()) < 0) {
+    report(IssueCode::ReadFailed, path, "cannot read dataset (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  if (shape_out) *shape_out = actual;
+  return values;
+}
+
+namespace {
+herr_t collect_link_name(hid_t, const char* name, const H5L_info_t*, void* out) {
+  static_cast<std::vector<std::string>*>(out)->emplace_back(name);
+  return 0;
+}
+herr_t collect_attr_name(hid_t, const char* name, const H5A_info_t*, void* out) {
+  static_cast<std::vector<std::string>*>(out)->emplace_back(name);
+  return 0;
+}
+}  // namespace
+
+std::vector<std::string> Reader::member_names(hid_t group) {
+  std::vector<std::string> names;
+  if (H5Literate(group, H5_INDEX_NAME, H5_ITER_INC, nullptr, collect_link_name, &names) < 0) H5Eclear2(H5E_DEFAULT);
+  return names;
+}
+
+std::vector<std::string> Reader::attribute_names(hid_t object) {
+  std::vector<std::string> names;
+  if (H5Aiterate2(object, H5_INDEX_NAME, H5_ITER_INC, nullptr, collect_attr_name, &names) < 0) H5Eclear2(H5E_DEFAULT);
+  return names;
+}
+
+// ---------------------------------------------------------------- Writer
+
+bool Writer::fail(const std::string& what) {
+  failure_ = what + " (" + last_hdf5_reason() + ")";
+  return false;
+}
+
+std::optional<Handle> Writer::create_group(hid_t parent, const std::string& name) {
+  hid_t id = H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  if (id < 0) {
+    fail("cannot create group " + name);
+    return std::nullopt;
+  }
+  return Handle(id, H5Gclose);
+}
+
+bool Writer::string_attribute(hid_t object, const std::string& name, const std::string& value) {
+  Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Tset_size(type.get(), H5T_VARIABLE);
+  H5Tset_cset(type.get(), H5T_CSET_UTF8);
+  Handle space(H5Screate(H5S_SCALAR), H5Sclose);
+  Handle attr(H5Acreate2(object, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+  if (!attr.valid()) return fail("cannot create attribute " + name);
+  const char* data = value.c_str();
+  if (H5Awrite(attr.get(), type.get(), &data) < 0) return fail("cannot write attribute " + name);
+  return true;
+}
+
+template <class T>
+bool Writer::numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape,
+                               const T* data) {
+  std::vector<hsize_t> dims(shape.begin(), shape.end());
+  Handle space(shape.empty() ? H5Screate(H5S_SCALAR) : H5Screate_simple(int(dims.size()), dims.data(), nullptr),
+               H5Sclose);
+  Handle attr(H5Acreate2(object, name.c_str(), TypeTraits<T>::file_type(), space.get(), H5P_DEFAULT, H5P_DEFAULT),
+              H5Aclose);
+  if (!attr.valid()) return fail("cannot create attribute " + name);
+  if (H5Awrite(attr.get(), TypeTraits<T>::memory_type(), data) < 0) return fail("cannot write attribute " + name);
+  return true;
+}
+
+template <class T>
+bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
+                     int deflate_level, unsigned chunk_edge) {
+  std::vector<hsize_t> dims(shape.begin(), shape.end());
+  Handle space(H5Screate_simple(int(dims.size()), dims.data(), nullptr), H5Sclose);
+  Handle dcpl(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+  uint64_t count = 1;
+  for (uint64_t d : shape) count *= d;
+  if (chunk_edge > 0 && count > 0) {
+    std::vector<hsize_t> chunk(dims.size());
+    for (size_t i = 0; i < dims.size(); ++i) chunk[i] = std::max<hsize_t>(1, std::min<hsize_t>(dims[i], chunk_edge));
+    H5Pset_chunk(dcpl.get(), int(chunk.size()), chunk.data());
+    if (deflate_level > 0) {
+      H5Pset_shuffle(dcpl.get());
+      H5Pset_deflate(dcpl.get(), unsigned(std::min(deflate_level, 9)));
+    }
+  }
+  Handle dset(H5Dcreate2(group, name.c_str(), TypeTraits<T>::file_type(), space.get(), H5P_DEFAULT, dcpl.get(),
+                         H5P_DEFAULT),
+              H5Dclose);
+  if (!dset.valid()) return fail("cannot create dataset " + name);
+  if (count > 0 && H5Dwrite(dset.get(), TypeTraits<T>::memory_type(), H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+    return fail("cannot write dataset " + name);
+  return true;
+}
+
+#define VOXFMT_INSTANTIATE(T)                                                                                   \
+  template std::optional<std::vector<T>> Reader::numeric_attribute<T>(hid_t, const std::string&,              \
+                                                                      const std::string&, const Shape&);      \
+  template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,    \
+                                                            const Shape&, std::vector<uint64_t>*);            \
+  template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&,         \
+                                             const T*);                                                       \
+  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,    \
+                                   unsigned);
+VOXFMT_INSTANTIATE(int16_t)
+VOXFMT_INSTANTIATE(uint32_t)
+VOXFMT_INSTANTIATE(float)
+VOXFMT_INSTANTIATE(double)
+#undef VOXFMT_INSTANTIATE
+
+}  // namespace voxfmt::h5

@@ -1,0 +1,157 @@
+// Small RAII layer over the HDF5 C API, private to libvoxfmt. Read helpers report problems as Issues
+// (code, HDF5 path, reason) instead of throwing, so one pass over a file can collect every finding.
+#pragma once
+
+#include <hdf5.h>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "voxfmt/issues.h"
+
+namespace voxfmt::h5 {
+
+/// Owns one HDF5 identifier and closes it with the matching H5?close.
+class Handle {
+ public:
+  using Closer = herr_t (*)(hid_t);
+  Handle() = default;
+  Handle(hid_t id, Closer closer) : id_(id), closer_(closer) {}
+  Handle(const Handle&) = delete;
+  Handle& operator=(const Handle&) = delete;
+  Handle(Handle&& other) noexcept : id_(other.id_), closer_(other.closer_) { other.id_ = H5I_INVALID_HID; }
+  Handle& operator=(Handle&& other) noexcept {
+    if (this != &other) {
+      reset();
+      id_ = other.id_;
+      closer_ = other.closer_;
+      other.id_ = H5I_INVALID_HID;
+    }
+    return *this;
+  }
+  ~Handle() { reset(); }
+  void reset() {
+    if (id_ >= 0 && closer_) closer_(id_);
+    id_ = H5I_INVALID_HID;
+  }
+  hid_t get() const { return id_; }
+  bool valid() const { return id_ >= 0; }
+
+ private:
+  hid_t id_ = H5I_INVALID_HID;
+  Closer closer_ = nullptr;
+};
+
+/// Turns off HDF5's own printing of error stacks (we report errors ourselves).
+void silence_hdf5_errors();
+/// The innermost reason on HDF5's current error stack, e.g. "truncated file: eof = 1024, ...".
+std::string last_hdf5_reason();
+
+/// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
+std::string join_path(const std::string& group_path, const std::string& name);
+
+/// Element types this project stores, with their little-endian file type and native memory type.
+template <class T>
+struct TypeTraits;
+template <>
+struct TypeTraits<int16_t> {
+  static constexpr H5T_class_t kClass = H5T_INTEGER;
+  static constexpr bool kSigned = true;
+  static constexpr const char* kName = "i16";
+  static hid_t file_type() { return H5T_STD_I16LE; }
+  static hid_t memory_type() { return H5T_NATIVE_INT16; }
+};
+template <>
+struct TypeTraits<uint32_t> {
+  static constexpr H5T_class_t kClass = H5T_INTEGER;
+  static constexpr bool kSigned = false;
+  static constexpr const char* kName = "u32";
+  static hid_t file_type() { return H5T_STD_U32LE; }
+  static hid_t memory_type() { return H5T_NATIVE_UINT32; }
+};
+template <>
+struct TypeTraits<float> {
+  static constexpr H5T_class_t kClass = H5T_FLOAT;
+  static constexpr bool kSigned = true;
+  static constexpr const char* kName = "f32";
+  static hid_t file_type() { return H5T_IEEE_F32LE; }
+  static hid_t memory_type() { return H5T_NATIVE_FLOAT; }
+};
+template <>
+struct TypeTraits<double> {
+  static constexpr H5T_class_t kClass = H5T_FLOAT;
+  static constexpr bool kSigned = true;
+  static constexpr const char* kName = "f64";
+  static hid_t file_type() { return H5T_IEEE_F64LE; }
+  static hid_t memory_type() { return H5T_NATIVE_DOUBLE; }
+};
+
+/// Expected shape: empty = scalar; -1 = any extent (the actual one is returned).
+using Shape = std::vector<int64_t>;
+
+/// Reads objects of one open file, appending every problem to `issues`.
+class Reader {
+ public:
+  Reader(std::string file, std::vector<Issue>& issues) : file_(std::move(file)), issues_(issues) {}
+
+  /// Opens the file read-only; FILE_NOT_FOUND or NOT_HDF5 on failure.
+  bool open();
+  hid_t file() const { return file_handle_.get(); }
+
+  /// Opens member `name` of group `parent` (at `parent_path`) as a group.
+  std::optional<Handle> group(hid_t parent, const std::string& parent_path, const std::string& name);
+  bool has_attribute(hid_t object, const std::string& name);
+  bool has_member(hid_t parent, const std::string& name);
+
+  std::optional<std::string> string_attribute(hid_t object, const std::string& object_path,
+                                              const std::string& name);
+  template <class T>
+  std::optional<std::vector<T>> numeric_attribute(hid_t object, const std::string& object_path,
+                                                  const std::string& name, const Shape& shape);
+  /// Reads dataset `name` of `group`; `shape_out` receives its extents.
+  template <class T>
+  std::optional<std::vector<T>> dataset(hid_t group, const std::string& group_path, const std::string& name,
+                                        const Shape& shape, std::vector<uint64_t>* shape_out = nullptr);
+
+  /// Names of the members and attributes of `object` (for UNKNOWN_OBJECT reporting).
+  std::vector<std::string> member_names(hid_t group);
+  std::vector<std::string> attribute_names(hid_t object);
+
+  void report(IssueCode code, const std::string& path, const std::string& message);
+
+ private:
+  bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name,
+                  const std::string& path);
+  bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
+
+  std::string file_;
+  std::vector<Issue>& issues_;
+  Handle file_handle_;
+};
+
+/// Writes objects into one file; every call returns false and records the reason on failure.
+class Writer {
+ public:
+  explicit Writer(hid_t file) : file_(file) {}
+  hid_t file() const { return file_; }
+
+  std::optional<Handle> create_group(hid_t parent, const std::string& name);
+  bool string_attribute(hid_t object, const std::string& name, const std::string& value);
+  template <class T>
+  bool numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape,
+                         const T* data);
+  template <class T>
+  bool dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
+               int deflate_level = 0, unsigned chunk_edge = 0);
+
+  const std::string& failure() const { return failure_; }
+
+ private:
+  bool fail(const std::string& what);
+  hid_t file_;
+  std::string failure_;
+};
+
+}  // namespace voxfmt::h5

@@ -1,0 +1,53 @@
+#include "voxfmt/issues.h"
+
+namespace voxfmt {
+
+namespace {
+struct CodeInfo {
+  IssueCode code;
+  const char* name;
+  Severity severity;
+};
+// One row per code of spec/issue-codes.md.
+constexpr CodeInfo kCodes[] = {
+    {IssueCode::FileNotFound, "FILE_NOT_FOUND", Severity::Error},
+    {IssueCode::NotHdf5, "NOT_HDF5", Severity::Error},
+    {IssueCode::ReadFailed, "READ_FAILED", Severity::Error},
+    {IssueCode::WriteFailed, "WRITE_FAILED", Severity::Error},
+    {IssueCode::FormatNameMismatch, "FORMAT_NAME_MISMATCH", Severity::Error},
+    {IssueCode::VersionUnsupported, "VERSION_UNSUPPORTED", Severity::Error},
+    {IssueCode::VersionNewerMinor, "VERSION_NEWER_MINOR", Severity::Warning},
+    {IssueCode::MissingObject, "MISSING_OBJECT", Severity::Error},
+    {IssueCode::WrongKind, "WRONG_KIND", Severity::Error},
+    {IssueCode::WrongDtype, "WRONG_DTYPE", Severity::Error},
+    {IssueCode::WrongShape, "WRONG_SHAPE", Severity::Error},
+    {IssueCode::BadAttributeValue, "BAD_ATTRIBUTE_VALUE", Severity::Error},
+    {IssueCode::ValueOutOfRange, "VALUE_OUT_OF_RANGE", Severity::Error},
+    {IssueCode::NonFiniteValue, "NON_FINITE_VALUE", Severity::Error},
+    {IssueCode::ChildRangeInvalid, "CHILD_RANGE_INVALID", Severity::Error},
+    {IssueCode::LevelOffsetsInvalid, "LEVEL_OFFSETS_INVALID", Severity::Error},
+    {IssueCode::TreeNotBreadthFirst, "TREE_NOT_BREADTH_FIRST", Severity::Error},
+    {IssueCode::InvalidJson, "INVALID_JSON", Severity::Error},
+    {IssueCode::BadSha256, "BAD_SHA256", Severity::Error},
+    {IssueCode::NormalNotUnit, "NORMAL_NOT_UNIT", Severity::Error},
+    {IssueCode::UnknownObject, "UNKNOWN_OBJECT", Severity::Info},
+};
+const CodeInfo& info(IssueCode code) {
+  for (const CodeInfo& c : kCodes)
+    if (c.code == code) return c;
+  return kCodes[2];  // unreachable: every enumerator has a row
+}
+}  // namespace
+
+const char* code_name(IssueCode code) { return info(code).name; }
+Severity severity_of(IssueCode code) { return info(code).severity; }
+const char* severity_name(Severity severity) {
+  switch (severity) {
+    case Severity::Error: return "error";
+    case Severity::Warning: return "warning";
+    case Severity::Info: return "info";
+  }
+  return "error";
+}
+
+}  // namespace voxfmt

@@ -1,0 +1,115 @@
+// Writing an asset: validate, write a temporary file beside the target, rename over it.
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+
+#include <atomic>
+#include <cstdio>
+#include <cstring>
+
+#include "h5.h"
+#include "voxfmt/io.h"
+#include "voxfmt/validate.h"
+
+namespace voxfmt {
+
+namespace {
+
+template <class T, size_t K>
+const T* flat(const std::vector<std::array<T, K>>& rows) {
+  return rows.empty() ? nullptr : rows.front().data();
+}
+
+bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
+  const hid_t root = w.file();
+  const uint32_t version[2] = {kFormatVersion.major, kFormatVersion.minor};
+  bool ok = w.string_attribute(root, "format", "voxfmt") && w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
+            w.string_attribute(root, "units", "m") && w.string_attribute(root, "frame", "right-handed") &&
+            w.string_attribute(root, "up_axis", a.up_axis) &&
+            w.numeric_attribute<double>(root, "bounds_min", {3}, a.bounds_min.data()) &&
+            w.numeric_attribute<double>(root, "bounds_max", {3}, a.bounds_max.data());
+  if (!ok) return false;
+
+  const Voxelmap& vm = a.voxelmap;
+  auto vg = w.create_group(root, "voxelmap");
+  if (!vg) return false;
+  const std::vector<uint64_t> grid = {vm.dims[2], vm.dims[1], vm.dims[0]};
+  ok = w.numeric_attribute<double>(vg->get(), "origin", {3}, vm.origin.data()) &&
+       w.numeric_attribute<double>(vg->get(), "voxel_size", {}, &vm.voxel_size) &&
+       w.numeric_attribute<uint32_t>(vg->get(), "dims", {3}, vm.dims.data()) &&
+       w.string_attribute(vg->get(), "index_order", "zyx") &&
+       w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
+       (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
+       w.dataset<int16_t>(vg->get(), "layers", grid, vm.layers.data(), opt.deflate_level, opt.chunk_edge) &&
+       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge);
+  if (!ok) return false;
+
+  const PointShell& ps = a.point_shell;
+  auto pg = w.create_group(root, "pointshell");
+  if (!pg) return false;
+  const uint64_t n = ps.points.size();
+  ok = w.dataset<double>(pg->get(), "points", {n, 3}, flat(ps.points)) &&
+       w.dataset<float>(pg->get(), "normals", {n, 3}, flat(ps.normals)) &&
+       w.dataset<double>(pg->get(), "sphere_centers", {n, 3}, flat(ps.sphere_centers)) &&
+       w.dataset<double>(pg->get(), "sphere_radii", {n}, ps.sphere_radii.data()) &&
+       w.dataset<uint32_t>(pg->get(), "child_begin", {n}, ps.child_begin.data()) &&
+       w.dataset<uint32_t>(pg->get(), "child_count", {n}, ps.child_count.data()) &&
+       w.dataset<uint32_t>(pg->get(), "level_offsets", {ps.level_offsets.size()}, ps.level_offsets.data()) &&
+       (!ps.point_spacing || w.numeric_attribute<double>(pg->get(), "point_spacing", {}, &*ps.point_spacing)) &&
+       (!ps.branching || w.numeric_attribute<uint32_t>(pg->get(), "branching", {}, &*ps.branching));
+  if (!ok) return false;
+
+  auto mg = w.create_group(root, "mass_properties");
+  if (!mg) return false;
+  ok = w.numeric_attribute<double>(mg->get(), "volume", {}, &a.mass.volume) &&
+       w.numeric_attribute<double>(mg->get(), "center_of_mass", {3}, a.mass.center_of_mass.data()) &&
+       w.numeric_attribute<double>(mg->get(), "inertia", {3, 3}, a.mass.inertia.data());
+  if (!ok) return false;
+
+  const Provenance& p = a.provenance;
+  nlohmann::json deps = nlohmann::json::object();
+  for (const auto& [name, version_string] : p.dependency_versions) deps[name] = version_string;
+  nlohmann::json warnings = nlohmann::json::array();
+  for (const BuildWarning& bw : p.build_warnings) warnings.push_back({{"code", bw.code}, {"message", bw.message}});
+  auto prov = w.create_group(root, "provenance");
+  if (!prov) return false;
+  return w.string_attribute(prov->get(), "generator", p.generator) &&
+         w.string_attribute(prov->get(), "generator_version", p.generator_version) &&
+         w.string_attribute(prov->get(), "source_file", p.source_file) &&
+         w.string_attribute(prov->get(), "source_sha256", p.source_sha256) &&
+         w.string_attribute(prov->get(), "build_parameters", p.build_parameters_json) &&
+         w.string_attribute(prov->get(), "dependency_versions", deps.dump()) &&
+         w.string_attribute(prov->get(), "build_warnings", warnings.dump()) &&
+         (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
+}
+
+}  // namespace
+
+Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
+  for (const Issue& issue : validate_asset(asset))
+    if (issue.severity == Severity::Error)
+      return Error{IssueCode::WriteFailed, path + ": refusing to write an invalid asset: " + issue.path + ": " + issue.message};
+
+  h5::silence_hdf5_errors();
+  static std::atomic<unsigned> counter{0};
+  const std::string temp = path + ".partial-" + std::to_string(getpid()) + "-" + std::to_string(counter++);
+  hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  if (file < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")"};
+  h5::Writer writer(file);
+  bool ok = write_contents(writer, asset, options);
+  std::string reason = writer.failure();
+  if (H5Fclose(file) < 0 && ok) {
+    ok = false;
+    reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
+  }
+  if (ok && std::rename(temp.c_str(), path.c_str()) != 0) {
+    ok = false;
+    reason = std::string("cannot rename temporary file into place: ") + std::strerror(errno);
+  }
+  if (!ok) {
+    std::remove(temp.c_str());
+    return Error{IssueCode::WriteFailed, path + ": " + reason};
+  }
+  return Status::success();
+}
+
+}  // namespace voxfmt

@@ -1,0 +1,34 @@
+// Writes a tiny asset with the installed library and reads it back.
+#include <voxfmt/io.h>
+#include <voxfmt/version.h>
+
+#include <cmath>
+#include <cstdio>
+
+int main(int argc, char** argv) {
+  if (argc != 2) return 2;
+  voxfmt::Asset a;
+  a.bounds_max = {1, 1, 1};
+  a.voxelmap.voxel_size = 0.5;
+  a.voxelmap.dims = {2, 2, 2};
+  a.voxelmap.layers.assign(8, 0);
+  a.voxelmap.distances.assign(8, 0.25f);
+  a.point_shell.points = {{0, 0, 0}};
+  a.point_shell.normals = {{0, 0, 1}};
+  a.point_shell.sphere_centers = {{0, 0, 0}};
+  a.point_shell.sphere_radii = {0};
+  a.point_shell.child_begin = {1};
+  a.point_shell.child_count = {0};
+  a.point_shell.level_offsets = {0, 1};
+  a.mass.volume = 1;
+  a.provenance.generator = "consumer";
+  a.provenance.generator_version = VOXFMT_VERSION_STRING;
+  if (!voxfmt::write_asset(argv[1], a)) return 1;
+  auto back = voxfmt::read_asset(argv[1]);
+  if (!back) {
+    std::fprintf(stderr, "%s\n", back.error().message.c_str());
+    return 1;
+  }
+  std::printf("consumer: read %zu voxels, voxfmt %s\n", back.value().voxelmap.voxel_count(), VOXFMT_VERSION_STRING);
+  return back.value().voxelmap.distances[7] == 0.25f ? 0 : 1;
+}

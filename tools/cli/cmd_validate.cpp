@@ -1,0 +1,52 @@
+// `voxfmt validate FILE... [--json]`: check assets against the spec. Exit 0 valid, 1 invalid, 2 unreadable.
+#include <iostream>
+
+#include "commands.h"
+#include "json_report.h"
+#include "voxfmt/validate.h"
+
+namespace voxfmt::cli {
+
+namespace {
+struct Options {
+  std::vector<std::string> files;
+  bool json = false;
+};
+}  // namespace
+
+void add_validate_command(CLI::App& app, int& exit_code) {
+  auto options = std::make_shared<Options>();
+  CLI::App* cmd = app.add_subcommand("validate", "Check assets against the format spec (exit 0 valid, 1 invalid, 2 unreadable)");
+  cmd->add_option("files", options->files, "Asset files (.vox.h5)")->required();
+  cmd->add_flag("--json", options->json, "Print findings as JSON on stdout");
+  cmd->callback([options, &exit_code] {
+    nlohmann::json report = {{"files", nlohmann::json::array()}};
+    bool any_invalid = false, any_unreadable = false;
+    for (const std::string& file : options->files) {
+      const std::vector<Issue> issues = validate_file(file);
+      const bool valid = !has_errors(issues);
+      any_invalid |= !valid;
+      for (const Issue& issue : issues) any_unreadable |= issue.code == IssueCode::FileNotFound;
+      if (options->json) {
+        report["files"].push_back({{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}});
+        continue;
+      }
+      bool unreadable = false;
+      size_t errors = 0, warnings = 0;
+      for (const Issue& issue : issues) {
+        errors += issue.severity == Severity::Error;
+        warnings += issue.severity == Severity::Warning;
+        unreadable |= issue.code == IssueCode::FileNotFound;
+      }
+      std::cout << file << ": " << (valid ? "valid" : unreadable ? "UNREADABLE" : "INVALID") << " (" << errors << " error(s), " << warnings
+                << " warning(s))\n";
+      for (const Issue& issue : issues)
+        std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "
+                  << issue.message << "\n";
+    }
+    if (options->json) std::cout << report.dump(2) << "\n";
+    exit_code = any_unreadable ? kExitUsageOrIo : any_invalid ? kExitInvalid : kExitOk;
+  });
+}
+
+}  // namespace voxfmt::cli

@@ -1,0 +1,14 @@
+// Subcommands of the one `voxfmt` CLI. Each registers itself on the app and sets the process exit code.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace voxfmt::cli {
+
+/// Exit codes shared by every subcommand.
+enum ExitCode : int { kExitOk = 0, kExitInvalid = 1, kExitUsageOrIo = 2 };
+
+void add_inspect_command(CLI::App& app, int& exit_code);
+void add_validate_command(CLI::App& app, int& exit_code);
+
+}  // namespace voxfmt::cli

@@ -1,0 +1,17 @@
+// JSON views of libvoxfmt types shared by the subcommands.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <vector>
+
+#include "voxfmt/asset.h"
+#include "voxfmt/issues.h"
+
+namespace voxfmt::cli {
+
+nlohmann::json issue_json(const Issue& issue);
+nlohmann::json issues_json(const std::vector<Issue>& issues);
+nlohmann::json provenance_json(const Provenance& provenance);
+
+}  // namespace voxfmt::cli

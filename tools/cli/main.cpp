@@ -1,0 +1,29 @@
+// voxfmt: the one command-line front end of the toolchain.
+#include <CLI/CLI.hpp>
+
+#include <iostream>
+
+#include "commands.h"
+#include "voxfmt/asset.h"
+#include "voxfmt/version.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"voxfmt — bake, inspect and validate Voxmap-PointShell collision assets (.vox.h5)"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version",
+                       std::string("voxfmt ") + VOXFMT_VERSION_STRING + " (asset format " +
+                           std::to_string(voxfmt::kFormatVersion.major) + "." +
+                           std::to_string(voxfmt::kFormatVersion.minor) + ")");
+  int exit_code = voxfmt::cli::kExitOk;
+  voxfmt::cli::add_inspect_command(app, exit_code);
+  voxfmt::cli::add_validate_command(app, exit_code);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::Success& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    app.exit(e);
+    return voxfmt::cli::kExitUsageOrIo;
+  }
+  return exit_code;
+}
