@@ -202,6 +202,7 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
   Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
   H5Tset_size(memtype.get(), size);
   H5Tset_strpad(memtype.get(), H5T_STR_NULLPAD);
+  H5Tset_cset(memtype.get(), H5Tget_cset(type.get()));  // HDF5 has no ASCII<->UTF-8 conversion
   std::string buffer(size, '\0');
   if (H5Aread(attr.get(), memtype.get(), buffer.data()) < 0) {
     report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
