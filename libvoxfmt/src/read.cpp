@@ -78,7 +78,7 @@ void read_point_shell(h5::Reader& r, hid_t g, PointShell& ps) {
   if (r.has_attribute(g, "point_spacing"))
     if (auto v = r.numeric_attribute<double>(g, p, "point_spacing", {})) ps.point_spacing = (*v)[0];
   if (r.has_attribute(g, "branching"))
-    if (auto v = r.numeric_attribute<uint32_t>(g, p, "branching", {})) ps.branching = (*v)[0];
+    if (auto v = r.numeric_attribute<double>(g, p, "branching", {})) ps.branching = (*v)[0];
   if (auto v = r.dataset<uint32_t>(g, p, "level_offsets", {-1})) ps.level_offsets = std::move(*v);
   if (!points) return;
   const int64_t n = int64_t(shape[0]);

@@ -157,6 +157,8 @@ void check_point_shell(const PointShell& ps, Checker& c) {
       break;
     }
   }
+  if (ps.branching && !(std::isfinite(*ps.branching) && *ps.branching >= 2))
+    c.add(IssueCode::ValueOutOfRange, g + "/@branching", "branching must be finite and >= 2");
   if (ps.point_spacing && !(std::isfinite(*ps.point_spacing) && *ps.point_spacing >= 0))
     c.add(IssueCode::ValueOutOfRange, g + "/@point_spacing", "point spacing must be finite and >= 0");
   if (sizes_ok) check_tree(ps, c);

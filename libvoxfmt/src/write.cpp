@@ -55,7 +55,7 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.dataset<uint32_t>(pg->get(), "child_count", {n}, ps.child_count.data()) &&
        w.dataset<uint32_t>(pg->get(), "level_offsets", {ps.level_offsets.size()}, ps.level_offsets.data()) &&
        (!ps.point_spacing || w.numeric_attribute<double>(pg->get(), "point_spacing", {}, &*ps.point_spacing)) &&
-       (!ps.branching || w.numeric_attribute<uint32_t>(pg->get(), "branching", {}, &*ps.branching));
+       (!ps.branching || w.numeric_attribute<double>(pg->get(), "branching", {}, &*ps.branching));
   if (!ok) return false;
 
   auto mg = w.create_group(root, "mass_properties");
@@ -83,6 +83,12 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
 }
 
 }  // namespace
+
+std::string hdf5_library_version() {
+  unsigned major = 0, minor = 0, release = 0;
+  H5get_libversion(&major, &minor, &release);
+  return std::to_string(major) + "." + std::to_string(minor) + "." + std::to_string(release);
+}
 
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
   for (const Issue& issue : validate_asset(asset))

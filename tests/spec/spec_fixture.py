@@ -87,7 +87,7 @@ SPEC_OBJECTS = [
     ("/pointshell/child_count", "dset", "u32", ("N",), True),
     ("/pointshell/level_offsets", "dset", "u32", ("L+1",), True),
     ("/pointshell/point_spacing", "attr", "f64", "scalar", False),
-    ("/pointshell/branching", "attr", "u32", "scalar", False),
+    ("/pointshell/branching", "attr", "f64", "scalar", False),
     # section 5: mass properties
     ("/mass_properties", "group", None, None, True),
     ("/mass_properties/volume", "attr", "f64", "scalar", True),
@@ -323,7 +323,7 @@ def fixture_values():
         "/pointshell/child_count": child_count_expected(),
         "/pointshell/level_offsets": level_offsets_expected(),
         "/pointshell/point_spacing": np.float64(point_spacing_expected()),
-        "/pointshell/branching": np.uint32(BRANCHING),
+        "/pointshell/branching": np.float64(BRANCHING),
         "/mass_properties/volume": np.float64(volume_expected()),
         "/mass_properties/center_of_mass": center(),
         "/mass_properties/inertia": inertia_expected(),

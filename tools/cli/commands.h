@@ -8,6 +8,7 @@ namespace voxfmt::cli {
 /// Exit codes shared by every subcommand.
 enum ExitCode : int { kExitOk = 0, kExitInvalid = 1, kExitUsageOrIo = 2 };
 
+void add_build_command(CLI::App& app, int& exit_code);
 void add_inspect_command(CLI::App& app, int& exit_code);
 void add_validate_command(CLI::App& app, int& exit_code);
 

@@ -58,7 +58,7 @@ struct PointShell {
   std::vector<uint32_t> child_count;
   std::vector<uint32_t> level_offsets;  ///< L+1 entries: level l is [level_offsets[l], level_offsets[l+1])
   std::optional<double> point_spacing;
-  std::optional<uint32_t> branching;
+  std::optional<double> branching;  ///< mean children per node aimed for
 
   size_t size() const { return points.size(); }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }

@@ -24,4 +24,7 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
 /// the file, the object and the reason); warnings (e.g. a newer minor version) go to `warnings` if given.
 Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr);
 
+/// Version of the HDF5 library libvoxfmt runs with, e.g. "1.10.8" (for provenance records).
+std::string hdf5_library_version();
+
 }  // namespace voxfmt

@@ -1,0 +1,148 @@
+// The whole bake: import -> repair -> voxelmap -> point shell -> tree -> mass -> asset with provenance.
+#include <CGAL/version.h>
+#include <assimp/version.h>
+#include <nlohmann/json.hpp>
+#include <openssl/evp.h>
+#include <openvdb/version.h>
+#include <oneapi/tbb/global_control.h>
+#include <oneapi/tbb/version.h>
+
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "bake.h"
+#include "voxfmt/io.h"
+#include "voxfmt/version.h"
+
+namespace voxfmt::bake {
+
+std::string sha256_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw BakeError("INPUT_NOT_FOUND", path + ": cannot open for hashing");
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
+  std::vector<char> buffer(1 << 16);
+  while (in) {
+    in.read(buffer.data(), std::streamsize(buffer.size()));
+    if (in.gcount() > 0) EVP_DigestUpdate(ctx.get(), buffer.data(), size_t(in.gcount()));
+  }
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  EVP_DigestFinal_ex(ctx.get(), digest, &length);
+  static const char* hex = "0123456789abcdef";
+  std::string out;
+  for (unsigned i = 0; i < length; ++i) {
+    out += hex[digest[i] >> 4];
+    out += hex[digest[i] & 15];
+  }
+  return out;
+}
+
+std::map<std::string, std::string> dependency_versions() {
+  return {{"voxfmt", VOXFMT_VERSION_STRING},
+          {"assimp", std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) + "." +
+                         std::to_string(aiGetVersionRevision())},
+          {"cgal", CGAL_VERSION_STR},
+          {"openvdb", OPENVDB_LIBRARY_VERSION_STRING},
+          {"tbb", std::to_string(TBB_VERSION_MAJOR) + "." + std::to_string(TBB_VERSION_MINOR)},
+          {"hdf5", hdf5_library_version()}};
+}
+
+std::string build_parameters_json(const BuildOptions& o) {
+  nlohmann::json j = {{"unit_scale", o.import.unit_scale},
+                      {"resolution", o.voxelmap.resolution},
+                      {"voxel_size", o.voxelmap.voxel_size},
+                      {"margin", o.voxelmap.margin},
+                      {"distance_band", o.voxelmap.distance_band},
+                      {"points", o.point_shell.points},
+                      {"point_spacing", o.point_shell.point_spacing},
+                      {"branching", o.point_shell.branching},
+                      {"seed", o.point_shell.seed},
+                      {"check_self_intersections", o.check_self_intersections},
+                      {"up_axis", o.up_axis}};
+  return j.dump();
+}
+
+namespace {
+std::string utc_now() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof buffer, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buffer;
+}
+}  // namespace
+
+Asset build_asset(const std::string& mesh_path, const BuildOptions& options, BuildReport& report,
+                  const ProgressCallback& progress) {
+  std::unique_ptr<tbb::global_control> thread_limit;
+  if (options.threads > 0)
+    thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.threads);
+  constexpr int kStages = 6;
+  int stage_index = 0;
+  auto clock = std::chrono::steady_clock::now();
+  auto stage = [&](const std::string& name) {
+    const auto now = std::chrono::steady_clock::now();
+    if (!report.timings.empty())
+      report.timings.back().seconds = std::chrono::duration<double>(now - clock).count();
+    clock = now;
+    if (name.empty()) return;
+    report.timings.push_back({name, 0});
+    if (progress) progress(++stage_index, kStages, name);
+  };
+
+  stage("import");
+  const TriangleMesh raw = import_mesh(mesh_path, options.import);
+  report.input_vertices = raw.vertices.size();
+  report.input_triangles = raw.triangles.size();
+
+  stage("repair");
+  const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
+  MassProperties mass = compute_mass_properties(mesh);
+  Vec3 lo = mesh.vertices.front(), hi = lo;
+  for (const Vec3& v : mesh.vertices)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], v[a]);
+      hi[a] = std::max(hi[a], v[a]);
+    }
+  const double diagonal = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                                    (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
+    throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (flat, open or inside-out mesh)");
+
+  stage("voxelmap");
+  Voxelmap voxelmap = build_voxelmap(mesh, options.voxelmap);
+
+  stage("point shell");
+  PointShell shell = sample_point_shell(mesh, options.point_shell);
+
+  stage("sphere tree");
+  build_sphere_tree(shell, options.point_shell.branching);
+
+  stage("assemble");
+  Asset asset;
+  asset.up_axis = options.up_axis;
+  asset.bounds_min = lo;
+  asset.bounds_max = hi;
+  asset.voxelmap = std::move(voxelmap);
+  asset.point_shell = std::move(shell);
+  asset.mass = mass;
+  Provenance& p = asset.provenance;
+  p.generator = "voxfmt build";
+  p.generator_version = VOXFMT_VERSION_STRING;
+  p.source_file = std::filesystem::path(mesh_path).filename().string();
+  p.source_sha256 = sha256_file(mesh_path);
+  p.build_parameters_json = build_parameters_json(options);
+  p.dependency_versions = dependency_versions();
+  p.build_warnings = report.repair.warnings;
+  p.created_utc = utc_now();
+  stage("");
+  return asset;
+}
+
+}  // namespace voxfmt::bake

@@ -1,0 +1,66 @@
+// Stage 1: any mesh format assimp reads -> one triangle soup in the file's frame (times unit_scale).
+#include <assimp/DefaultLogger.hpp>
+#include <assimp/Importer.hpp>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+
+#include <cmath>
+#include <filesystem>
+
+#include "bake.h"
+
+namespace voxfmt::bake {
+
+namespace {
+
+void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& parent, TriangleMesh& out,
+                 double scale, const std::string& path) {
+  const aiMatrix4x4 transform = parent * node.mTransformation;
+  for (unsigned m = 0; m < node.mNumMeshes; ++m) {
+    const aiMesh& mesh = *scene.mMeshes[node.mMeshes[m]];
+    const uint32_t base = uint32_t(out.vertices.size());
+    for (unsigned v = 0; v < mesh.mNumVertices; ++v) {
+      const aiVector3D p = transform * mesh.mVertices[v];
+      const Vec3 q = {double(p.x) * scale, double(p.y) * scale, double(p.z) * scale};
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
+        throw BakeError("NON_FINITE_COORDINATES", path + ": vertex " + std::to_string(v) + " of mesh '" +
+                                                      mesh.mName.C_Str() + "' has a non-finite coordinate");
+      out.vertices.push_back(q);
+    }
+    for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
+      const aiFace& face = mesh.mFaces[f];
+      if (face.mNumIndices != 3) continue;  // points and lines carry no surface
+      out.triangles.push_back({base + face.mIndices[0], base + face.mIndices[1], base + face.mIndices[2]});
+    }
+  }
+  for (unsigned c = 0; c < node.mNumChildren; ++c) append_node(scene, *node.mChildren[c], transform, out, scale, path);
+}
+
+}  // namespace
+
+TriangleMesh import_mesh(const std::string& path, const ImportOptions& options) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw BakeError("INPUT_NOT_FOUND", path + ": no such file");
+  if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
+    throw BakeError("BAD_OPTION", "unit scale must be a finite number > 0");
+
+  Assimp::Importer importer;
+  const std::string extension = std::filesystem::path(path).extension().string();
+  if (extension.empty() || !importer.IsExtensionSupported(extension))
+    throw BakeError("UNSUPPORTED_FORMAT",
+                    path + ": file type '" + extension + "' is not a mesh format assimp reads (see `assimp listext`)");
+  // Keep non-triangles out and split polygons; node transforms are applied by append_node.
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate | aiProcess_SortByPType);
+  if (!scene || !scene->mRootNode)
+    throw BakeError("IMPORT_FAILED", path + ": cannot read mesh (" + importer.GetErrorString() + ")");
+
+  TriangleMesh mesh;
+  append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
+  if (mesh.triangles.empty())
+    throw BakeError("EMPTY_SCENE", path + ": the scene contains no triangles");
+  return mesh;
+}
+
+}  // namespace voxfmt::bake
