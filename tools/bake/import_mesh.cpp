@@ -4,6 +4,8 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 
@@ -50,11 +52,18 @@ TriangleMesh import_mesh(const std::string& path, const ImportOptions& options) 
   if (extension.empty() || !importer.IsExtensionSupported(extension))
     throw BakeError("UNSUPPORTED_FORMAT",
                     path + ": file type '" + extension + "' is not a mesh format assimp reads (see `assimp listext`)");
-  // Keep non-triangles out and split polygons; node transforms are applied by append_node.
-  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
-  const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate | aiProcess_SortByPType);
-  if (!scene || !scene->mRootNode)
-    throw BakeError("IMPORT_FAILED", path + ": cannot read mesh (" + importer.GetErrorString() + ")");
+  // Split polygons into triangles; points and lines are skipped by append_node, which also applies the node
+  // transforms.
+  const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate);
+  if (!scene || !scene->mRootNode) {
+    const std::string reason = importer.GetErrorString();
+    // Some importers refuse a file with nothing in it instead of returning an empty scene.
+    std::string lower = reason;
+    std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    const bool empty = lower.find("no valid faces") != std::string::npos || lower.find("no meshes") != std::string::npos;
+    throw BakeError(empty ? "EMPTY_SCENE" : "IMPORT_FAILED",
+                    path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
+  }
 
   TriangleMesh mesh;
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);

@@ -3,10 +3,13 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Dense.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <unordered_map>
 
 #include "bake.h"
 
@@ -55,33 +58,167 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapOptions& options)
 // Two raster passes over a 3x3x3 mask with weights 1, sqrt2, sqrt3 give the exact shortest-path distance in
 // the 26-neighbour graph (every path can be reordered into forward moves then backward moves), so values of
 // 6-neighbours never differ by more than 1. Voxels marked `fixed` keep their exact distance.
-void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& fixed, const std::array<uint32_t, 3>& dims) {
+// A row (j, k) reads rows (j-1, k) and (j-1..j+1, k-1) only, so rows with equal j + 2k run in parallel.
+void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
+                       const std::array<uint32_t, 3>& dims) {
   const int64_t W = dims[0], H = dims[1], D = dims[2];
-  struct Step { int di, dj, dk; float w; };
+  struct Step { int di, dj, dk; float w; int64_t offset; };
   std::vector<Step> forward;
   for (int dk = -1; dk <= 1; ++dk)
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {
         if (dk > 0 || (dk == 0 && dj > 0) || (dk == 0 && dj == 0 && di >= 0)) continue;
-        forward.push_back({di, dj, dk, float(std::sqrt(double(di * di + dj * dj + dk * dk)))});
+        forward.push_back({di, dj, dk, float(std::sqrt(double(di * di + dj * dj + dk * dk))), (dk * H + dj) * W + di});
       }
-  auto relax = [&](int64_t i, int64_t j, int64_t k, int sign) {
-    const int64_t v = (k * H + j) * W + i;
-    if (fixed[v]) return;
-    float best = f[v];
-    for (const Step& s : forward) {
-      const int64_t ni = i + sign * s.di, nj = j + sign * s.dj, nk = k + sign * s.dk;
-      if (ni < 0 || ni >= W || nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
-      best = std::min(best, f[(nk * H + nj) * W + ni] + s.w);
+  float* values = f.data();
+  auto row = [&](int64_t j, int64_t k, int sign) {
+    const bool interior_row = j > 0 && j < H - 1 && k > 0 && k < D - 1;
+    const int64_t base = (k * H + j) * W;
+    auto slow = [&](int64_t i) {
+      float best = values[base + i];
+      for (const Step& s : forward) {
+        const int64_t ni = i + sign * s.di, nj = j + sign * s.dj, nk = k + sign * s.dk;
+        if (ni < 0 || ni >= W || nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
+        best = std::min(best, values[(nk * H + nj) * W + ni] + s.w);
+      }
+      values[base + i] = best;
+    };
+    auto fast = [&](int64_t i) {
+      float* v = values + base + i;
+      float best = *v;
+      for (const Step& s : forward) best = std::min(best, v[sign * s.offset] + s.w);
+      *v = best;
+    };
+    if (sign > 0) {
+      for (int64_t i = 0; i < W; ++i)
+        if (!(flags[base + i] & fixed_bit)) (interior_row && i > 0 && i < W - 1) ? fast(i) : slow(i);
+    } else {
+      for (int64_t i = W - 1; i >= 0; --i)
+        if (!(flags[base + i] & fixed_bit)) (interior_row && i > 0 && i < W - 1) ? fast(i) : slow(i);
     }
-    f[v] = best;
   };
-  for (int64_t k = 0; k < D; ++k)
+  const int64_t waves = H + 2 * D;
+  for (int sign : {+1, -1})
+    for (int64_t w = 0; w < waves; ++w) {
+      const int64_t t = sign > 0 ? w : waves - 1 - w;  // t = j + 2k
+      const int64_t k_lo = std::max<int64_t>(0, (t - (H - 1) + 1) / 2), k_hi = std::min<int64_t>(D - 1, t / 2);
+      if (k_lo > k_hi) continue;
+      tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) { row(t - 2 * k, k, sign); });
+    }
+}
+
+
+// ---- exact near-surface distances: OpenVDB finds the closest triangle of each band voxel; the distance is
+// recomputed in double precision and its sign taken from the angle-weighted pseudonormal of the closest
+// feature (face, edge or vertex; Baerentzen & Aanaes 2005), which is exact for closed, oriented surfaces.
+
+struct V3 {
+  double x, y, z;
+  V3 operator-(const V3& o) const { return {x - o.x, y - o.y, z - o.z}; }
+  V3 operator+(const V3& o) const { return {x + o.x, y + o.y, z + o.z}; }
+  V3 operator*(double s) const { return {x * s, y * s, z * s}; }
+};
+double dot(const V3& a, const V3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+V3 cross(const V3& a, const V3& b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+V3 normalized(const V3& a) {
+  const double l = std::sqrt(dot(a, a));
+  return l > 0 ? a * (1 / l) : V3{0, 0, 0};
+}
+
+struct Pseudonormals {
+  std::vector<V3> face, vertex;
+  std::vector<std::array<V3, 3>> edge;  // edge e of a face runs from corner e to corner (e+1)%3
+};
+
+Pseudonormals pseudonormals(const TriangleMesh& mesh) {
+  Pseudonormals pn;
+  pn.face.resize(mesh.triangles.size());
+  pn.vertex.assign(mesh.vertices.size(), V3{0, 0, 0});
+  pn.edge.resize(mesh.triangles.size());
+  auto vtx = [&](uint32_t i) { return V3{mesh.vertices[i][0], mesh.vertices[i][1], mesh.vertices[i][2]}; };
+  std::unordered_map<uint64_t, V3> edge_sum;
+  auto key = [](uint32_t a, uint32_t b) { return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a); };
+  for (size_t f = 0; f < mesh.triangles.size(); ++f) {
+    const auto& t = mesh.triangles[f];
+    const V3 p[3] = {vtx(t[0]), vtx(t[1]), vtx(t[2])};
+    pn.face[f] = normalized(cross(p[1] - p[0], p[2] - p[0]));
+    for (int c = 0; c < 3; ++c) {
+      const V3 a = normalized(p[(c + 1) % 3] - p[c]), b = normalized(p[(c + 2) % 3] - p[c]);
+      const double angle = std::acos(std::clamp(dot(a, b), -1.0, 1.0));
+      pn.vertex[t[c]] = pn.vertex[t[c]] + pn.face[f] * angle;
+      V3& e = edge_sum[key(t[c], t[(c + 1) % 3])];
+      e = e + pn.face[f];
+    }
+  }
+  for (size_t f = 0; f < mesh.triangles.size(); ++f)
+    for (int c = 0; c < 3; ++c) pn.edge[f][c] = edge_sum[key(mesh.triangles[f][c], mesh.triangles[f][(c + 1) % 3])];
+  return pn;
+}
+
+// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5) and the pseudonormal of
+// the feature it lies on.
+V3 closest_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c, const Pseudonormals& pn, size_t f,
+                       const std::array<uint32_t, 3>& t, V3& normal) {
+  const V3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) { normal = pn.vertex[t[0]]; return a; }
+  const V3 bp = p - b;
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) { normal = pn.vertex[t[1]]; return b; }
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) { normal = pn.edge[f][0]; return a + ab * (d1 / (d1 - d3)); }
+  const V3 cp = p - c;
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) { normal = pn.vertex[t[2]]; return c; }
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) { normal = pn.edge[f][2]; return a + ac * (d2 / (d2 - d6)); }
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+    normal = pn.edge[f][1];
+    return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  }
+  const double denom = 1 / (va + vb + vc);
+  normal = pn.face[f];
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
+                         const openvdb::Int32Grid& closest_polygon, std::vector<float>& signed_voxels) {
+  const Pseudonormals pn = pseudonormals(mesh);
+  const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
+  auto vtx = [&](uint32_t i) {  // index space, double precision
+    return V3{(mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
+              (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size};
+  };
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    auto accessor = closest_polygon.getConstAccessor();
     for (int64_t j = 0; j < H; ++j)
-      for (int64_t i = 0; i < W; ++i) relax(i, j, k, +1);
-  for (int64_t k = D - 1; k >= 0; --k)
-    for (int64_t j = H - 1; j >= 0; --j)
-      for (int64_t i = W - 1; i >= 0; --i) relax(i, j, k, -1);
+      for (int64_t i = 0; i < W; ++i) {
+        float& value = signed_voxels[size_t((k * H + j) * W + i)];
+        if (std::abs(value) >= half_width) continue;
+        const V3 p{double(i), double(j), double(k)};
+        // Candidates: this voxel's closest polygon and its 6 neighbours' (OpenVDB's choice is local).
+        double best = std::numeric_limits<double>::infinity(), sign = value < 0 ? -1 : 1;
+        const int offsets[7][3] = {{0, 0, 0}, {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+        int32_t previous = -1;
+        for (const auto& o : offsets) {
+          const int32_t f = accessor.getValue(openvdb::Coord(int(i) + o[0], int(j) + o[1], int(k) + o[2]));
+          if (f < 0 || size_t(f) >= mesh.triangles.size() || f == previous) continue;
+          previous = f;
+          const auto& t = mesh.triangles[size_t(f)];
+          V3 normal{};
+          const V3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, size_t(f), t, normal);
+          const V3 d = p - q;
+          const double dist = std::sqrt(dot(d, d));
+          if (dist < best) {
+            best = dist;
+            const double side = dot(d, normal);
+            if (side != 0) sign = side > 0 ? 1 : -1;
+          }
+        }
+        if (std::isfinite(best)) value = float(sign * best);
+      }
+  });
 }
 
 }  // namespace
@@ -101,9 +238,13 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
   triangles.reserve(mesh.triangles.size());
   for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
   const auto transform = openvdb::math::Transform::createLinearTransform(1.0);
-  const float half_width = float(options.distance_band) + 1.5f;  // a little past the band, for exact values at its edge
+  // Exact closest-triangle distances just past the band; no renormalisation, which would trade exactness
+  // of the values for level-set smoothness.
+  const float half_width = float(options.distance_band) + 0.5f;
   openvdb::tools::QuadAndTriangleDataAdapter<openvdb::Vec3s, openvdb::Vec3I> adapter(points, triangles);
-  openvdb::FloatGrid::Ptr sdf = openvdb::tools::meshToVolume<openvdb::FloatGrid>(adapter, *transform, half_width, half_width);
+  openvdb::Int32Grid::Ptr closest_polygon = openvdb::Int32Grid::create(-1);
+  openvdb::FloatGrid::Ptr sdf = openvdb::tools::meshToVolume<openvdb::FloatGrid>(
+      adapter, *transform, half_width, half_width, openvdb::tools::DISABLE_RENORMALIZATION, closest_polygon.get());
 
   Voxelmap vm;
   vm.origin = g.origin;
@@ -122,28 +263,36 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
     openvdb::tools::copyToDense(*sdf, dense);
   }
   sdf.reset();
+  refine_near_surface(mesh, g, float(options.distance_band) + 0.5f, *closest_polygon, signed_voxels);
+  closest_polygon.reset();
 
+  // In place: signed_voxels becomes the unsigned chamfer distance; flags keep band membership and sign.
   const float band = float(options.distance_band);
-  std::vector<float> magnitude(count);
-  std::vector<uint8_t> fixed(count);
+  std::vector<float>& magnitude = signed_voxels;
+  std::vector<uint8_t> flags(count);  // kFixed: exact distance in the band; kInside: negative signed distance
+  constexpr uint8_t kFixed = 1, kInside = 2;
   vm.distances.resize(count);
-  for (size_t v = 0; v < count; ++v) {
-    const float d = signed_voxels[v];
-    const bool in_band = std::abs(d) <= band;
-    fixed[v] = in_band;
-    magnitude[v] = in_band ? std::abs(d) : std::numeric_limits<float>::infinity();
-    vm.distances[v] = in_band ? float(d * g.voxel_size) : std::numeric_limits<float>::quiet_NaN();
-  }
-  chamfer_transform(magnitude, fixed, g.dims);
+  const float h = float(g.voxel_size);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t v = r.begin(); v < r.end(); ++v) {
+      const float d = signed_voxels[v];
+      const bool in_band = std::abs(d) <= band;
+      flags[v] = uint8_t((in_band ? kFixed : 0) | (d < 0 ? kInside : 0));
+      magnitude[v] = in_band ? std::abs(d) : std::numeric_limits<float>::infinity();
+      vm.distances[v] = in_band ? d * h : std::numeric_limits<float>::quiet_NaN();
+    }
+  });
+  chamfer_transform(magnitude, flags, kFixed, g.dims);
 
   vm.layers.resize(count);
-  for (size_t v = 0; v < count; ++v) {
-    // Penetration in voxels is positive inside (negative signed distance).
-    // In the band the layer follows the stored distance exactly (spec §3).
-    const double depth = fixed[v] ? -double(vm.distances[v]) / g.voxel_size
-                                  : signed_voxels[v] < 0 ? double(magnitude[v]) : -double(magnitude[v]);
-    vm.layers[v] = int16_t(std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0));
-  }
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t v = r.begin(); v < r.end(); ++v) {
+      // Penetration in voxels is positive inside; in the band it follows the stored distance exactly (spec §3).
+      const double depth = (flags[v] & kFixed) ? -double(vm.distances[v]) / g.voxel_size
+                           : (flags[v] & kInside) ? double(magnitude[v]) : -double(magnitude[v]);
+      vm.layers[v] = int16_t(std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0));
+    }
+  });
   return vm;
 }
 

@@ -1,0 +1,292 @@
+// voxfmt build stages against exact references: CGAL's AABB tree for the bunny, analytic distance for a torus.
+#include <gtest/gtest.h>
+
+#include <CGAL/AABB_face_graph_triangle_primitive.h>
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Side_of_triangle_mesh.h>
+#include <CGAL/Surface_mesh.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <random>
+
+#include "bake.h"
+#include "voxfmt/validate.h"
+
+namespace voxfmt::bake {
+namespace {
+
+using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Point = Kernel::Point_3;
+using Mesh = CGAL::Surface_mesh<Point>;
+using Primitive = CGAL::AABB_face_graph_triangle_primitive<Mesh>;
+using Tree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, Primitive>>;
+
+const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
+
+/// Exact distance and inside test of a closed mesh.
+class ExactSurface {
+ public:
+  explicit ExactSurface(const TriangleMesh& m) {
+    std::vector<Mesh::Vertex_index> v;
+    for (const Vec3& p : m.vertices) v.push_back(mesh_.add_vertex(Point(p[0], p[1], p[2])));
+    for (const auto& t : m.triangles) mesh_.add_face(v[t[0]], v[t[1]], v[t[2]]);
+    tree_ = std::make_unique<Tree>(faces(mesh_).first, faces(mesh_).second, mesh_);
+    tree_->accelerate_distance_queries();
+    inside_ = std::make_unique<CGAL::Side_of_triangle_mesh<Mesh, Kernel>>(*tree_);
+  }
+  double distance(const Vec3& p) const { return std::sqrt(tree_->squared_distance(Point(p[0], p[1], p[2]))); }
+  bool inside(const Vec3& p) const { return (*inside_)(Point(p[0], p[1], p[2])) == CGAL::ON_BOUNDED_SIDE; }
+
+ private:
+  Mesh mesh_;
+  std::unique_ptr<Tree> tree_;
+  std::unique_ptr<CGAL::Side_of_triangle_mesh<Mesh, Kernel>> inside_;
+};
+
+struct ErrorStats {
+  size_t samples = 0, sign_mismatches = 0;
+  double max_error = 0, mean_error = 0;  // in voxels
+};
+
+/// Compares stored distances at (up to) `wanted` stored voxels against `exact` (signed, negative inside).
+/// Signs are compared where the exact distance exceeds `sign_tolerance` (metres): a tessellated reference
+/// surface may lie on the other side of a voxel centre that close to it.
+ErrorStats compare_distances(const Voxelmap& vm, const std::function<double(const Vec3&)>& exact, size_t wanted,
+                             double sign_tolerance) {
+  std::vector<size_t> stored;
+  for (size_t v = 0; v < vm.voxel_count(); ++v)
+    if (Voxelmap::is_stored(vm.distances[v])) stored.push_back(v);
+  std::mt19937_64 rng(7);
+  std::shuffle(stored.begin(), stored.end(), rng);
+  if (stored.size() > wanted) stored.resize(wanted);
+  ErrorStats s;
+  for (size_t v : stored) {
+    const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
+                   k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
+    const double truth = exact(vm.voxel_center(i, j, k));
+    const double error = std::abs(double(vm.distances[v]) - truth) / vm.voxel_size;
+    s.max_error = std::max(s.max_error, error);
+    s.mean_error += error;
+    // A sign is only meaningful away from the surface itself.
+    if (std::abs(truth) > sign_tolerance && (truth < 0) != (vm.distances[v] < 0)) ++s.sign_mismatches;
+    ++s.samples;
+  }
+  s.mean_error /= double(std::max<size_t>(1, s.samples));
+  return s;
+}
+
+void expect_layers_consistent(const Voxelmap& vm) {
+  // 6-neighbours differ by at most one layer; stored voxels follow floor(-d/h + 1/2).
+  size_t bad_step = 0, bad_band = 0;
+  const uint32_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
+  for (uint32_t k = 0; k < D; ++k)
+    for (uint32_t j = 0; j < H; ++j)
+      for (uint32_t i = 0; i < W; ++i) {
+        const size_t v = vm.linear_index(i, j, k);
+        if (i + 1 < W) bad_step += std::abs(vm.layers[v] - vm.layers[v + 1]) > 1;
+        if (j + 1 < H) bad_step += std::abs(vm.layers[v] - vm.layers[v + W]) > 1;
+        if (k + 1 < D) bad_step += std::abs(vm.layers[v] - vm.layers[v + size_t(W) * H]) > 1;
+        if (Voxelmap::is_stored(vm.distances[v]))
+          bad_band += vm.layers[v] != int(std::floor(-double(vm.distances[v]) / vm.voxel_size + 0.5));
+        else
+          bad_band += std::abs(vm.layers[v]) < int(std::floor(vm.distance_band + 0.5));
+      }
+  EXPECT_EQ(bad_step, 0u);
+  EXPECT_EQ(bad_band, 0u);
+}
+
+void expect_tree_encloses_descendants(const PointShell& ps, double tolerance) {
+  // Every node's sphere contains the points of its whole subtree (walk each subtree explicitly).
+  size_t violations = 0;
+  std::vector<uint32_t> stack;
+  for (uint32_t node = 0; node < ps.size(); ++node) {
+    stack.assign(1, node);
+    while (!stack.empty()) {
+      const uint32_t d = stack.back();
+      stack.pop_back();
+      const Vec3 &c = ps.sphere_centers[node], &p = ps.points[d];
+      const double dist = std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2]));
+      violations += dist > ps.sphere_radii[node] + tolerance;
+      for (uint32_t ch = ps.child_begin[d]; ch < ps.child_begin[d] + ps.child_count[d]; ++ch) stack.push_back(ch);
+    }
+  }
+  EXPECT_EQ(violations, 0u);
+  // Every point exactly once: reachable from the root once.
+  std::vector<int> seen(ps.size(), 0);
+  stack.assign(1, 0);
+  while (!stack.empty()) {
+    const uint32_t d = stack.back();
+    stack.pop_back();
+    ++seen[d];
+    for (uint32_t ch = ps.child_begin[d]; ch < ps.child_begin[d] + ps.child_count[d]; ++ch) stack.push_back(ch);
+  }
+  EXPECT_EQ(std::count(seen.begin(), seen.end(), 1), std::ptrdiff_t(ps.size()));
+}
+
+void expect_points_on_surface_with_inward_normals(const PointShell& ps, const ExactSurface& surface, double diagonal) {
+  size_t off_surface = 0, not_unit = 0, not_inward = 0;
+  double worst = 0;
+  for (size_t n = 0; n < ps.size(); ++n) {
+    const double d = surface.distance(ps.points[n]);
+    worst = std::max(worst, d);
+    off_surface += d > 1e-5 * diagonal;
+    const Vec3f& nn = ps.normals[n];
+    const double len = std::sqrt(double(nn[0]) * nn[0] + double(nn[1]) * nn[1] + double(nn[2]) * nn[2]);
+    not_unit += std::abs(len - 1) > 1e-5;
+    const double eps = 1e-4 * diagonal;
+    const Vec3& p = ps.points[n];
+    const Vec3 in = {p[0] + eps * nn[0], p[1] + eps * nn[1], p[2] + eps * nn[2]};
+    const Vec3 out = {p[0] - eps * nn[0], p[1] - eps * nn[1], p[2] - eps * nn[2]};
+    not_inward += !surface.inside(in) || surface.inside(out);
+  }
+  EXPECT_EQ(off_surface, 0u) << "farthest point is " << worst / diagonal << " diagonals from the surface";
+  EXPECT_EQ(not_unit, 0u);
+  EXPECT_EQ(not_inward, 0u);
+}
+
+double diagonal_of(const Asset& a) {
+  double s = 0;
+  for (int i = 0; i < 3; ++i) s += (a.bounds_max[i] - a.bounds_min[i]) * (a.bounds_max[i] - a.bounds_min[i]);
+  return std::sqrt(s);
+}
+
+TEST(Bake, BunnyDistancesMatchExactSurface) {
+  BuildOptions options;
+  options.voxelmap.resolution = 128;
+  options.point_shell.points = 35000;
+  BuildReport report;
+  const Asset asset = build_asset(kMeshes + "/bunny00.off", options, report);
+  EXPECT_TRUE(report.repair.closed);
+  EXPECT_TRUE(validate_asset(asset).empty());
+
+  RepairReport again;
+  const TriangleMesh mesh = repair_mesh(import_mesh(kMeshes + "/bunny00.off"), again, false);
+  const ExactSurface surface(mesh);
+  const ErrorStats s = compare_distances(
+      asset.voxelmap, [&](const Vec3& p) { return surface.inside(p) ? -surface.distance(p) : surface.distance(p); }, 12000,
+      1e-9);
+  std::printf("bunny res 128: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", s.samples,
+              s.max_error, s.mean_error, s.sign_mismatches);
+  EXPECT_GE(s.samples, 10000u);
+  EXPECT_LE(s.max_error, 0.5);
+  EXPECT_LE(s.mean_error, 0.1);
+  EXPECT_EQ(s.sign_mismatches, 0u);
+  expect_layers_consistent(asset.voxelmap);
+
+  const PointShell& ps = asset.point_shell;
+  EXPECT_EQ(ps.size(), 35000u);
+  expect_points_on_surface_with_inward_normals(ps, surface, diagonal_of(asset));
+  expect_tree_encloses_descendants(ps, 1e-9 * diagonal_of(asset));
+  // The seed's coarse shell: some prefix of levels holds roughly 800 points.
+  bool coarse_level = false;
+  for (uint32_t offset : ps.level_offsets) coarse_level |= offset >= 600 && offset <= 1000;
+  EXPECT_TRUE(coarse_level);
+  // Mass properties of a closed mesh: the centre of mass lies inside the bounds; inertia is positive.
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GT(asset.mass.center_of_mass[a], asset.bounds_min[a]);
+    EXPECT_LT(asset.mass.center_of_mass[a], asset.bounds_max[a]);
+    EXPECT_GT(asset.mass.inertia[a * 4], 0);
+  }
+}
+
+// A torus (R = 0.3, r = 0.1, finely tessellated) written to OFF: distances have a closed form.
+std::string write_torus(const std::string& path, double R, double r, int segments, int rings) {
+  std::ofstream off(path);
+  off << "OFF\n" << segments * rings << " " << 2 * segments * rings << " 0\n";
+  off.precision(17);
+  const double pi = 3.14159265358979323846;
+  for (int s = 0; s < segments; ++s)
+    for (int q = 0; q < rings; ++q) {
+      const double u = 2 * pi * s / segments, v = 2 * pi * q / rings;
+      off << (R + r * std::cos(v)) * std::cos(u) << " " << (R + r * std::cos(v)) * std::sin(u) << " " << r * std::sin(v) << "\n";
+    }
+  for (int s = 0; s < segments; ++s)
+    for (int q = 0; q < rings; ++q) {
+      const int a = s * rings + q, b = ((s + 1) % segments) * rings + q, c = ((s + 1) % segments) * rings + (q + 1) % rings,
+                d = s * rings + (q + 1) % rings;
+      off << "3 " << a << " " << b << " " << c << "\n3 " << a << " " << c << " " << d << "\n";
+    }
+  return path;
+}
+
+TEST(Bake, TorusDistancesMatchClosedForm) {
+  const double R = 0.3, r = 0.1;
+  const std::string file = write_torus(::testing::TempDir() + "/torus.off", R, r, 720, 240);
+  BuildOptions options;
+  options.voxelmap.resolution = 160;
+  options.point_shell.points = 5000;
+  BuildReport report;
+  const Asset asset = build_asset(file, options, report);
+  EXPECT_TRUE(report.repair.closed);
+  // The tessellation is within 1e-4 of the ideal torus (sagitta), i.e. < 0.03 voxel here.
+  const ErrorStats s = compare_distances(
+      asset.voxelmap,
+      [&](const Vec3& p) { return std::hypot(std::hypot(p[0], p[1]) - R, p[2]) - r; }, 20000,
+      2e-5 /* > sagitta of the 720 x 240 tessellation, ~9e-6 m */);
+  std::printf("torus res 160: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", s.samples,
+              s.max_error, s.mean_error, s.sign_mismatches);
+  EXPECT_GE(s.samples, 10000u);
+  EXPECT_LE(s.max_error, 0.5);
+  EXPECT_LE(s.mean_error, 0.1);
+  EXPECT_EQ(s.sign_mismatches, 0u);
+  expect_layers_consistent(asset.voxelmap);
+  // Deep layers approximate the true depth: the tube centre is r deep.
+  const Voxelmap& vm = asset.voxelmap;
+  const double i = (R - vm.origin[0]) / vm.voxel_size, j = (0 - vm.origin[1]) / vm.voxel_size, k = (0 - vm.origin[2]) / vm.voxel_size;
+  const size_t centre = vm.linear_index(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k)));
+  EXPECT_NEAR(vm.layers[centre] * vm.voxel_size, r, 1.5 * vm.voxel_size);
+  // Analytic volume 2 pi^2 R r^2, within the tessellation's shrinkage.
+  EXPECT_NEAR(asset.mass.volume, 2 * M_PI * M_PI * R * r * r, 2e-3 * asset.mass.volume);
+  expect_tree_encloses_descendants(asset.point_shell, 1e-9);
+}
+
+TEST(Bake, SameInputSameDatasets) {
+  BuildOptions options;
+  options.voxelmap.resolution = 48;
+  options.point_shell.points = 3000;
+  BuildReport r1, r2;
+  const Asset a = build_asset(kMeshes + "/bunny00.off", options, r1);
+  const Asset b = build_asset(kMeshes + "/bunny00.off", options, r2);
+  EXPECT_EQ(a.voxelmap.layers, b.voxelmap.layers);
+  ASSERT_EQ(a.voxelmap.distances.size(), b.voxelmap.distances.size());
+  EXPECT_EQ(0, std::memcmp(a.voxelmap.distances.data(), b.voxelmap.distances.data(), a.voxelmap.distances.size() * 4));
+  EXPECT_EQ(a.point_shell.points, b.point_shell.points);
+  EXPECT_EQ(a.point_shell.normals, b.point_shell.normals);
+  EXPECT_EQ(a.point_shell.sphere_centers, b.point_shell.sphere_centers);
+  EXPECT_EQ(a.point_shell.sphere_radii, b.point_shell.sphere_radii);
+  EXPECT_EQ(a.point_shell.child_begin, b.point_shell.child_begin);
+  EXPECT_EQ(a.point_shell.level_offsets, b.point_shell.level_offsets);
+  EXPECT_EQ(a.mass.inertia, b.mass.inertia);
+}
+
+TEST(Bake, PointsAreEvenlySpread) {
+  // Poisson-disk: no two points closer than the sampling radius; far more even than uniform random.
+  RepairReport report;
+  const TriangleMesh mesh = repair_mesh(import_mesh(kMeshes + "/bunny00.off"), report, false);
+  PointShellOptions options;
+  options.points = 4000;
+  const PointShell ps = sample_point_shell(mesh, options);
+  ASSERT_EQ(ps.size(), 4000u);
+  double nearest_min = 1e300, nearest_mean = 0;
+  for (size_t a = 0; a < ps.size(); ++a) {
+    double best = 1e300;
+    for (size_t b = 0; b < ps.size(); ++b)
+      if (a != b) {
+        const Vec3 &p = ps.points[a], &q = ps.points[b];
+        best = std::min(best, (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) + (p[2] - q[2]) * (p[2] - q[2]));
+      }
+    nearest_min = std::min(nearest_min, std::sqrt(best));
+    nearest_mean += std::sqrt(best) / double(ps.size());
+  }
+  // Uniform random sampling gives a minimum nearest-neighbour distance near 0; Poisson-disk keeps it a large
+  // fraction of the mean.
+  EXPECT_GT(nearest_min, 0.5 * nearest_mean);
+}
+
+}  // namespace
+}  // namespace voxfmt::bake
