@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
-# The README's main job: install dependencies, build, then write a sample asset, validate and inspect it.
+# The README's main job: install dependencies, build, bake CGAL's Stanford bunny (the built-in default sample),
+# validate and inspect the asset. Pass another mesh as $1 to bake that instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
 OUT=${OUT_DIR:-out}
+MESH=${1:-build/cgal-data/data/meshes/bunny00.off}
 mkdir -p "$OUT"
-echo "== writing the analytic sphere asset to $OUT/sphere.vox.h5"
-build/bin/write_sphere_asset "$OUT/sphere.vox.h5"
+name=$(basename "${MESH%.*}")
+echo "== voxfmt build $MESH (seed settings: --resolution 306 --points 35000)"
+build/bin/voxfmt build "$MESH" -o "$OUT/$name.vox.h5" --resolution 306 --points 35000
 echo "== voxfmt validate"
-build/bin/voxfmt validate "$OUT/sphere.vox.h5"
+build/bin/voxfmt validate "$OUT/$name.vox.h5"
 echo "== voxfmt inspect"
-build/bin/voxfmt inspect "$OUT/sphere.vox.h5"
+build/bin/voxfmt inspect "$OUT/$name.vox.h5"
