@@ -64,6 +64,9 @@ struct VoxelmapOptions {
   double voxel_size = 0.0;              ///< metres; overrides resolution when > 0
   uint32_t margin = 4;                  ///< outer voxels around the bounding box on each side
   double distance_band = 3.0;           ///< voxels; exact distances stored within ±band
+  /// Inside = generalized winding number >= 1/2 (for open, non-manifold or self-intersecting surfaces).
+  /// Off: the sign of a closed surface (pseudonormals near it, OpenVDB's sign propagation elsewhere).
+  bool winding_number_sign = false;
 };
 /// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh with OpenVDB.
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options);

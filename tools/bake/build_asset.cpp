@@ -116,7 +116,10 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
     throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (flat, open or inside-out mesh)");
 
   stage("voxelmap");
-  Voxelmap voxelmap = build_voxelmap(mesh, options.voxelmap);
+  VoxelmapOptions voxelmap_options = options.voxelmap;
+  const RepairReport& r = report.repair;
+  voxelmap_options.winding_number_sign = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
+  Voxelmap voxelmap = build_voxelmap(mesh, voxelmap_options);
 
   stage("point shell");
   PointShell shell = sample_point_shell(mesh, options.point_shell);

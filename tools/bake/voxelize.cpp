@@ -12,6 +12,7 @@
 #include <unordered_map>
 
 #include "bake.h"
+#include "winding_number.h"
 
 namespace voxfmt::bake {
 
@@ -221,6 +222,53 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
   });
 }
 
+// Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
+// smooth, so it is evaluated on a lattice of every 4th voxel and interpolated trilinearly.
+void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
+                            std::vector<float>& signed_voxels) {
+  const WindingNumber winding(mesh);
+  const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
+  constexpr int64_t kStride = 4;
+  auto lattice = [](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
+  const int64_t cw = lattice(W), ch = lattice(H), cd = lattice(D);
+  auto at = [](int64_t a, int64_t n) { return std::min(a * kStride, n - 1); };
+  std::vector<float> coarse(size_t(cw * ch * cd));
+  tbb::parallel_for(int64_t(0), cd, [&](int64_t c) {
+    for (int64_t b = 0; b < ch; ++b)
+      for (int64_t a = 0; a < cw; ++a) {
+        const Vec3 p = {g.origin[0] + g.voxel_size * double(at(a, W)), g.origin[1] + g.voxel_size * double(at(b, H)),
+                        g.origin[2] + g.voxel_size * double(at(c, D))};
+        coarse[size_t((c * ch + b) * cw + a)] = float(winding(p));
+      }
+  });
+  auto weight = [&](int64_t i, int64_t n, int64_t& a) {
+    a = std::min(i / kStride, lattice(n) - 2 < 0 ? 0 : lattice(n) - 2);
+    const int64_t x0 = at(a, n), x1 = at(a + 1, n);
+    return x1 > x0 ? double(i - x0) / double(x1 - x0) : 0.0;
+  };
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    for (int64_t j = 0; j < H; ++j)
+      for (int64_t i = 0; i < W; ++i) {
+        float& value = signed_voxels[size_t((k * H + j) * W + i)];
+        double w;
+        if (std::abs(value) < half_width) {
+          w = winding(Vec3{g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
+                           g.origin[2] + g.voxel_size * double(k)});
+        } else {
+          int64_t a, b, c;
+          const double u = weight(i, W, a), v = weight(j, H, b), t = weight(k, D, c);
+          auto C = [&](int64_t da, int64_t db, int64_t dc) {
+            const int64_t aa = std::min(a + da, cw - 1), bb = std::min(b + db, ch - 1), cc = std::min(c + dc, cd - 1);
+            return double(coarse[size_t((cc * ch + bb) * cw + aa)]);
+          };
+          w = (1 - t) * ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
+              t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
+        }
+        value = w >= 0.5 ? -std::abs(value) : std::abs(value);
+      }
+  });
+}
+
 }  // namespace
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options) {
@@ -265,6 +313,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
   sdf.reset();
   refine_near_surface(mesh, g, float(options.distance_band) + 0.5f, *closest_polygon, signed_voxels);
   closest_polygon.reset();
+  if (options.winding_number_sign) sign_by_winding_number(mesh, g, float(options.distance_band) + 0.5f, signed_voxels);
 
   // In place: signed_voxels becomes the unsigned chamfer distance; flags keep band membership and sign.
   const float band = float(options.distance_band);
