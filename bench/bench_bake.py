@@ -56,10 +56,10 @@ def main():
         print(json.dumps(result, indent=2))
         return
     print(f"voxfmt build {result['mesh']} {' '.join(args.build_options)}  ({args.runs} runs, {result['cores']} cores)")
-    print(f"{'stage':<14}{'median s':>10}")
+    print(f"{'stage':<24}{'median s':>10}")
     for s, t in result["stage_s_median"].items():
-        print(f"{s:<14}{t:>10.3f}")
-    print(f"{'total':<14}{result['total_s_median']:>10.3f}   (min {result['total_s_min']:.3f})")
+        print(f"{s:<24}{t:>10.3f}")
+    print(f"{'total':<24}{result['total_s_median']:>10.3f}   (min {result['total_s_min']:.3f})")
     print(f"peak memory {result['peak_memory_mib']:.0f} MiB, file {result['file_size_mib']:.1f} MiB, "
           f"grid {'x'.join(map(str, result['dims']))}, {result['points']} points, levels {result['points_per_level']}")
 

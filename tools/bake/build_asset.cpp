@@ -5,9 +5,11 @@
 #include <openssl/evp.h>
 #include <openvdb/version.h>
 #include <oneapi/tbb/global_control.h>
+#include <oneapi/tbb/task_group.h>
 #include <oneapi/tbb/version.h>
 
 #include <chrono>
+#include <exception>
 #include <cmath>
 #include <ctime>
 #include <filesystem>
@@ -83,7 +85,7 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
   std::unique_ptr<tbb::global_control> thread_limit;
   if (options.threads > 0)
     thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.threads);
-  constexpr int kStages = 6;
+  constexpr int kStages = 4;
   int stage_index = 0;
   auto clock = std::chrono::steady_clock::now();
   auto stage = [&](const std::string& name) {
@@ -115,19 +117,42 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
   if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
     throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (flat, open or inside-out mesh)");
 
-  stage("voxelmap");
+  // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run
+  // beside the voxelmap's parallel work. Stage times are each task's own wall time.
+  stage("voxelmap + point shell");
   VoxelmapOptions voxelmap_options = options.voxelmap;
   const RepairReport& r = report.repair;
   voxelmap_options.winding_number_sign = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
-  Voxelmap voxelmap = build_voxelmap(mesh, voxelmap_options);
-
-  stage("point shell");
-  PointShell shell = sample_point_shell(mesh, options.point_shell);
-
-  stage("sphere tree");
-  build_sphere_tree(shell, options.point_shell.branching);
+  Voxelmap voxelmap;
+  PointShell shell;
+  double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
+  auto timed = [](double& seconds, auto&& work) {
+    const auto t0 = std::chrono::steady_clock::now();
+    work();
+    seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  tbb::task_group tasks;
+  std::exception_ptr shell_error;
+  tasks.run([&] {
+    try {
+      timed(shell_seconds, [&] { shell = sample_point_shell(mesh, options.point_shell); });
+      timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
+    } catch (...) {
+      shell_error = std::current_exception();
+    }
+  });
+  try {
+    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options); });
+  } catch (...) {
+    tasks.wait();
+    throw;
+  }
+  tasks.wait();
+  if (shell_error) std::rethrow_exception(shell_error);
 
   stage("assemble");
+  report.timings.insert(report.timings.end() - 2, {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds},
+                                                   {"sphere tree", tree_seconds}});
   Asset asset;
   asset.up_axis = options.up_axis;
   asset.bounds_min = lo;

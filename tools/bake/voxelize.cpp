@@ -72,30 +72,34 @@ void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& flags,
         forward.push_back({di, dj, dk, float(std::sqrt(double(di * di + dj * dj + dk * dk))), (dk * H + dj) * W + di});
       }
   float* values = f.data();
-  auto row = [&](int64_t j, int64_t k, int sign) {
-    const bool interior_row = j > 0 && j < H - 1 && k > 0 && k < D - 1;
+  // Per row: the 12 neighbours in previous rows are independent of each other (a vectorisable min over the
+  // row), then one sequential scan applies the in-row neighbour (i -/+ 1, weight 1).
+  auto row = [&](int64_t j, int64_t k, int sign, std::vector<float>& candidate) {
     const int64_t base = (k * H + j) * W;
-    auto slow = [&](int64_t i) {
-      float best = values[base + i];
-      for (const Step& s : forward) {
-        const int64_t ni = i + sign * s.di, nj = j + sign * s.dj, nk = k + sign * s.dk;
-        if (ni < 0 || ni >= W || nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
-        best = std::min(best, values[(nk * H + nj) * W + ni] + s.w);
-      }
-      values[base + i] = best;
-    };
-    auto fast = [&](int64_t i) {
-      float* v = values + base + i;
-      float best = *v;
-      for (const Step& s : forward) best = std::min(best, v[sign * s.offset] + s.w);
-      *v = best;
-    };
+    candidate.assign(size_t(W), std::numeric_limits<float>::infinity());
+    for (const Step& s : forward) {
+      if (s.dj == 0 && s.dk == 0) continue;  // the in-row step
+      const int64_t nj = j + sign * s.dj, nk = k + sign * s.dk;
+      if (nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
+      const float* neighbour_row = values + (nk * H + nj) * W;
+      const int64_t di = sign * s.di;
+      const int64_t lo = std::max<int64_t>(0, -di), hi = std::min<int64_t>(W, W - di);
+      float* c = candidate.data();
+      const float w = s.w;
+      for (int64_t i = lo; i < hi; ++i) c[i] = std::min(c[i], neighbour_row[i + di] + w);
+    }
+    float* v = values + base;
+    const uint8_t* fl = flags.data() + base;
     if (sign > 0) {
-      for (int64_t i = 0; i < W; ++i)
-        if (!(flags[base + i] & fixed_bit)) (interior_row && i > 0 && i < W - 1) ? fast(i) : slow(i);
+      for (int64_t i = 0; i < W; ++i) {
+        float best = std::min(candidate[size_t(i)], i > 0 ? v[i - 1] + 1.0f : candidate[size_t(i)]);
+        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
+      }
     } else {
-      for (int64_t i = W - 1; i >= 0; --i)
-        if (!(flags[base + i] & fixed_bit)) (interior_row && i > 0 && i < W - 1) ? fast(i) : slow(i);
+      for (int64_t i = W - 1; i >= 0; --i) {
+        float best = std::min(candidate[size_t(i)], i + 1 < W ? v[i + 1] + 1.0f : candidate[size_t(i)]);
+        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
+      }
     }
   };
   const int64_t waves = H + 2 * D;
@@ -104,7 +108,10 @@ void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& flags,
       const int64_t t = sign > 0 ? w : waves - 1 - w;  // t = j + 2k
       const int64_t k_lo = std::max<int64_t>(0, (t - (H - 1) + 1) / 2), k_hi = std::min<int64_t>(D - 1, t / 2);
       if (k_lo > k_hi) continue;
-      tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) { row(t - 2 * k, k, sign); });
+      tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) {
+        thread_local std::vector<float> candidate;
+        row(t - 2 * k, k, sign, candidate);
+      });
     }
 }
 
@@ -201,11 +208,13 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
         // Candidates: this voxel's closest polygon and its 6 neighbours' (OpenVDB's choice is local).
         double best = std::numeric_limits<double>::infinity(), sign = value < 0 ? -1 : 1;
         const int offsets[7][3] = {{0, 0, 0}, {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-        int32_t previous = -1;
+        int32_t seen[7];
+        int seen_count = 0;
         for (const auto& o : offsets) {
           const int32_t f = accessor.getValue(openvdb::Coord(int(i) + o[0], int(j) + o[1], int(k) + o[2]));
-          if (f < 0 || size_t(f) >= mesh.triangles.size() || f == previous) continue;
-          previous = f;
+          if (f < 0 || size_t(f) >= mesh.triangles.size() || std::find(seen, seen + seen_count, f) != seen + seen_count)
+            continue;
+          seen[seen_count++] = f;
           const auto& t = mesh.triangles[size_t(f)];
           V3 normal{};
           const V3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, size_t(f), t, normal);

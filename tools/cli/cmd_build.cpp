@@ -2,6 +2,7 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <iomanip>
@@ -35,7 +36,9 @@ int run(const Options& o) {
   const bool show_progress = !o.quiet && !o.json && isatty(STDERR_FILENO);
   const auto start = std::chrono::steady_clock::now();
   bake::BuildReport report;
+  int bake_stages = 0;  // the bake's own stages; "write" comes after them
   auto progress = [&](int index, int count, const std::string& stage) {
+    bake_stages = std::max(bake_stages, count);
     if (!show_progress) return;
     const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::cerr << "\r\033[K[" << index << "/" << count + 1 << "] " << stage << "  (" << std::fixed << std::setprecision(1)
@@ -43,7 +46,7 @@ int run(const Options& o) {
   };
   try {
     Asset asset = bake::build_asset(o.mesh, o.build, report, progress);
-    progress(7, 6, "write");
+    progress(bake_stages + 1, bake_stages, "write");
     const auto write_start = std::chrono::steady_clock::now();
     WriteOptions write_options;
     write_options.deflate_level = o.deflate;
