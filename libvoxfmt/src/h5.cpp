@@ -114,10 +114,12 @@ bool Reader::has_attribute(hid_t object, const std::string& name) {
   return exists > 0;
 }
 
-std::optional<Handle> Reader::group(hid_t parent, const std::string& parent_path, const std::string& name) {
+std::optional<Handle> Reader::open_member(hid_t parent, const std::string& parent_path, const std::string& name,
+                                         bool want_group) {
   const std::string path = join_path(parent_path, name);
+  const char* kind = want_group ? "group" : "dataset";
   if (!has_member(parent, name)) {
-    report(IssueCode::MissingObject, path, "required group is missing");
+    report(IssueCode::MissingObject, path, std::string("required ") + kind + " is missing");
     return std::nullopt;
   }
   hid_t obj = H5Oopen(parent, name.c_str(), H5P_DEFAULT);
@@ -125,12 +127,31 @@ std::optional<Handle> Reader::group(hid_t parent, const std::string& parent_path
     report(IssueCode::ReadFailed, path, "cannot open object (" + last_hdf5_reason() + ")");
     return std::nullopt;
   }
-  if (H5Iget_type(obj) != H5I_GROUP) {
+  if (H5Iget_type(obj) != (want_group ? H5I_GROUP : H5I_DATASET)) {
     H5Oclose(obj);
-    report(IssueCode::WrongKind, path, "expected a group, found another kind of object");
+    report(IssueCode::WrongKind, path, std::string("expected a ") + kind + ", found another kind of object");
     return std::nullopt;
   }
   return Handle(obj, H5Oclose);
+}
+
+std::optional<Handle> Reader::group(hid_t parent, const std::string& parent_path, const std::string& name) {
+  return open_member(parent, parent_path, name, true);
+}
+
+std::optional<Handle> Reader::open_attribute(hid_t object, const std::string& object_path, const std::string& name,
+                                            std::string& path) {
+  path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
+  if (!has_attribute(object, name)) {
+    report(IssueCode::MissingObject, path, "required attribute is missing");
+    return std::nullopt;
+  }
+  Handle attr(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose);
+  if (!attr.valid()) {
+    report(IssueCode::ReadFailed, path, "cannot open attribute (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
+  return attr;
 }
 
 bool Reader::check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name,
@@ -166,16 +187,10 @@ bool Reader::check_shape(hid_t space, const Shape& expected, const std::string& 
 
 std::optional<std::string> Reader::string_attribute(hid_t object, const std::string& object_path,
                                                     const std::string& name) {
-  const std::string path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
-  if (!has_attribute(object, name)) {
-    report(IssueCode::MissingObject, path, "required attribute is missing");
-    return std::nullopt;
-  }
-  Handle attr(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose);
-  if (!attr.valid()) {
-    report(IssueCode::ReadFailed, path, "cannot open attribute (" + last_hdf5_reason() + ")");
-    return std::nullopt;
-  }
+  std::string path;
+  std::optional<Handle> opened = open_attribute(object, object_path, name, path);
+  if (!opened) return std::nullopt;
+  const Handle& attr = *opened;
   Handle type(H5Aget_type(attr.get()), H5Tclose);
   if (H5Tget_class(type.get()) != H5T_STRING) {
     report(IssueCode::WrongDtype, path, "dtype is " + describe_type(type.get()) + ", expected a string");
@@ -221,16 +236,10 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
 template <class T>
 std::optional<std::vector<T>> Reader::numeric_attribute(hid_t object, const std::string& object_path,
                                                         const std::string& name, const Shape& shape) {
-  const std::string path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
-  if (!has_attribute(object, name)) {
-    report(IssueCode::MissingObject, path, "required attribute is missing");
-    return std::nullopt;
-  }
-  Handle attr(H5Aopen(object, name.c_str(), H5P_DEFAULT), H5Aclose);
-  if (!attr.valid()) {
-    report(IssueCode::ReadFailed, path, "cannot open attribute (" + last_hdf5_reason() + ")");
-    return std::nullopt;
-  }
+  std::string path;
+  std::optional<Handle> opened = open_attribute(object, object_path, name, path);
+  if (!opened) return std::nullopt;
+  const Handle& attr = *opened;
   Handle type(H5Aget_type(attr.get()), H5Tclose);
   using Traits = TypeTraits<T>;
   if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
@@ -251,21 +260,9 @@ template <class T>
 std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& group_path, const std::string& name,
                                               const Shape& shape, std::vector<uint64_t>* shape_out) {
   const std::string path = join_path(group_path, name);
-  if (!has_member(group, name)) {
-    report(IssueCode::MissingObject, path, "required dataset is missing");
-    return std::nullopt;
-  }
-  hid_t obj = H5Oopen(group, name.c_str(), H5P_DEFAULT);
-  if (obj < 0) {
-    report(IssueCode::ReadFailed, path, "cannot open object (" + last_hdf5_reason() + ")");
-    return std::nullopt;
-  }
-  if (H5Iget_type(obj) != H5I_DATASET) {
-    H5Oclose(obj);
-    report(IssueCode::WrongKind, path, "expected a dataset, found another kind of object");
-    return std::nullopt;
-  }
-  Handle dset(obj, H5Oclose);
+  std::optional<Handle> opened = open_member(group, group_path, name, false);
+  if (!opened) return std::nullopt;
+  const Handle& dset = *opened;
   Handle type(H5Dget_type(dset.get()), H5Tclose);
   using Traits = TypeTraits<T>;
   if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;

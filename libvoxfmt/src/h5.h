@@ -122,6 +122,11 @@ class Reader {
   void report(IssueCode code, const std::string& path, const std::string& message);
 
  private:
+  /// Opens member `name` of `parent` and checks it is a group (or a dataset).
+  std::optional<Handle> open_member(hid_t parent, const std::string& parent_path, const std::string& name, bool want_group);
+  /// Opens attribute `name` of `object`; `path` receives its "/group/@name" path for messages.
+  std::optional<Handle> open_attribute(hid_t object, const std::string& object_path, const std::string& name,
+                                       std::string& path);
   bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name,
                   const std::string& path);
   bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
