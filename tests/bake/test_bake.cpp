@@ -178,6 +178,27 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
   EXPECT_LE(s.mean_error, 0.1);
   EXPECT_EQ(s.sign_mismatches, 0u);
   expect_layers_consistent(asset.voxelmap);
+  // Spec §3: every voxel within (band - 1/2) voxels of the surface has its distance stored.
+  {
+    const Voxelmap& vm = asset.voxelmap;
+    std::mt19937_64 rng(11);
+    size_t missing = 0, checked = 0;
+    for (int n = 0; n < 200000; ++n) {
+      const size_t v = rng() % vm.voxel_count();
+      if (Voxelmap::is_stored(vm.distances[v])) continue;
+      const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
+                     k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
+      ++checked;
+      const double exact = surface.distance(vm.voxel_center(i, j, k));
+      if (exact <= (vm.distance_band - 0.5) * vm.voxel_size) {
+        ++missing;
+        std::printf("not stored: voxel (%u, %u, %u) at %.4f voxels from the surface, layer %d\n", i, j, k,
+                    exact / vm.voxel_size, vm.layers[v]);
+      }
+    }
+    EXPECT_GT(checked, 100000u);
+    EXPECT_EQ(missing, 0u);
+  }
 
   const PointShell& ps = asset.point_shell;
   EXPECT_EQ(ps.size(), 35000u);
@@ -244,6 +265,25 @@ TEST(Bake, TorusDistancesMatchClosedForm) {
   // Analytic volume 2 pi^2 R r^2, within the tessellation's shrinkage.
   EXPECT_NEAR(asset.mass.volume, 2 * M_PI * M_PI * R * r * r, 2e-3 * asset.mass.volume);
   expect_tree_encloses_descendants(asset.point_shell, 1e-9);
+}
+
+TEST(Bake, BoxFacesOnVoxelBoundariesKeepLayersConsistent) {
+  // Regression (review): faces exactly on voxel boundaries give distances of k + 1/2 voxels; with an inexact
+  // voxel size (resolution 100) band layers and chamfer layers used to round apart by 2.
+  const std::string file = ::testing::TempDir() + "/box.off";
+  std::ofstream(file) << "OFF\n8 12 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n"
+                         "3 0 2 1\n3 0 3 2\n3 4 5 6\n3 4 6 7\n3 0 1 5\n3 0 5 4\n3 1 2 6\n3 1 6 5\n3 2 3 7\n3 2 7 6\n"
+                         "3 3 0 4\n3 3 4 7\n";
+  for (uint32_t resolution : {25u, 50u, 100u}) {
+    BuildOptions options;
+    options.voxelmap.resolution = resolution;
+    options.point_shell.points = 500;
+    BuildReport report;
+    const Asset asset = build_asset(file, options, report);
+    ASSERT_TRUE(report.repair.closed);
+    expect_layers_consistent(asset.voxelmap);
+    EXPECT_NEAR(asset.mass.volume, 1.0, 1e-12);
+  }
 }
 
 TEST(Bake, SameInputSameDatasets) {

@@ -60,44 +60,44 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapOptions& options)
 // the 26-neighbour graph (every path can be reordered into forward moves then backward moves), so values of
 // 6-neighbours never differ by more than 1. Voxels marked `fixed` keep their exact distance.
 // A row (j, k) reads rows (j-1, k) and (j-1..j+1, k-1) only, so rows with equal j + 2k run in parallel.
-void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
+void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
                        const std::array<uint32_t, 3>& dims) {
   const int64_t W = dims[0], H = dims[1], D = dims[2];
-  struct Step { int di, dj, dk; float w; int64_t offset; };
+  struct Step { int di, dj, dk; double w; int64_t offset; };
   std::vector<Step> forward;
   for (int dk = -1; dk <= 1; ++dk)
     for (int dj = -1; dj <= 1; ++dj)
       for (int di = -1; di <= 1; ++di) {
         if (dk > 0 || (dk == 0 && dj > 0) || (dk == 0 && dj == 0 && di >= 0)) continue;
-        forward.push_back({di, dj, dk, float(std::sqrt(double(di * di + dj * dj + dk * dk))), (dk * H + dj) * W + di});
+        forward.push_back({di, dj, dk, std::sqrt(double(di * di + dj * dj + dk * dk)), (dk * H + dj) * W + di});
       }
-  float* values = f.data();
+  double* values = f.data();
   // Per row: the 12 neighbours in previous rows are independent of each other (a vectorisable min over the
   // row), then one sequential scan applies the in-row neighbour (i -/+ 1, weight 1).
-  auto row = [&](int64_t j, int64_t k, int sign, std::vector<float>& candidate) {
+  auto row = [&](int64_t j, int64_t k, int sign, std::vector<double>& candidate) {
     const int64_t base = (k * H + j) * W;
-    candidate.assign(size_t(W), std::numeric_limits<float>::infinity());
+    candidate.assign(size_t(W), std::numeric_limits<double>::infinity());
     for (const Step& s : forward) {
       if (s.dj == 0 && s.dk == 0) continue;  // the in-row step
       const int64_t nj = j + sign * s.dj, nk = k + sign * s.dk;
       if (nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
-      const float* neighbour_row = values + (nk * H + nj) * W;
+      const double* neighbour_row = values + (nk * H + nj) * W;
       const int64_t di = sign * s.di;
       const int64_t lo = std::max<int64_t>(0, -di), hi = std::min<int64_t>(W, W - di);
-      float* c = candidate.data();
-      const float w = s.w;
+      double* c = candidate.data();
+      const double w = s.w;
       for (int64_t i = lo; i < hi; ++i) c[i] = std::min(c[i], neighbour_row[i + di] + w);
     }
-    float* v = values + base;
+    double* v = values + base;
     const uint8_t* fl = flags.data() + base;
     if (sign > 0) {
       for (int64_t i = 0; i < W; ++i) {
-        float best = std::min(candidate[size_t(i)], i > 0 ? v[i - 1] + 1.0f : candidate[size_t(i)]);
+        double best = std::min(candidate[size_t(i)], i > 0 ? v[i - 1] + 1.0 : candidate[size_t(i)]);
         if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
       }
     } else {
       for (int64_t i = W - 1; i >= 0; --i) {
-        float best = std::min(candidate[size_t(i)], i + 1 < W ? v[i + 1] + 1.0f : candidate[size_t(i)]);
+        double best = std::min(candidate[size_t(i)], i + 1 < W ? v[i + 1] + 1.0 : candidate[size_t(i)]);
         if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
       }
     }
@@ -109,7 +109,7 @@ void chamfer_transform(std::vector<float>& f, const std::vector<uint8_t>& flags,
       const int64_t k_lo = std::max<int64_t>(0, (t - (H - 1) + 1) / 2), k_hi = std::min<int64_t>(D - 1, t / 2);
       if (k_lo > k_hi) continue;
       tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) {
-        thread_local std::vector<float> candidate;
+        thread_local std::vector<double> candidate;
         row(t - 2 * k, k, sign, candidate);
       });
     }
@@ -232,15 +232,16 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
 }
 
 // Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
-// smooth, so it is evaluated on a lattice of every 4th voxel and interpolated trilinearly.
+// smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough that
+// every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
 void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
                             std::vector<float>& signed_voxels) {
   const WindingNumber winding(mesh);
   const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
-  constexpr int64_t kStride = 4;
-  auto lattice = [](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
+  const int64_t kStride = std::clamp<int64_t>(int64_t(std::floor(2.0 * half_width / std::sqrt(3.0))), 1, 4);
+  auto lattice = [&](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
   const int64_t cw = lattice(W), ch = lattice(H), cd = lattice(D);
-  auto at = [](int64_t a, int64_t n) { return std::min(a * kStride, n - 1); };
+  auto at = [&](int64_t a, int64_t n) { return std::min(a * kStride, n - 1); };
   std::vector<float> coarse(size_t(cw * ch * cd));
   tbb::parallel_for(int64_t(0), cd, [&](int64_t c) {
     for (int64_t b = 0; b < ch; ++b)
@@ -320,34 +321,35 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
     openvdb::tools::copyToDense(*sdf, dense);
   }
   sdf.reset();
-  refine_near_surface(mesh, g, float(options.distance_band) + 0.5f, *closest_polygon, signed_voxels);
+  refine_near_surface(mesh, g, half_width, *closest_polygon, signed_voxels);
   closest_polygon.reset();
-  if (options.winding_number_sign) sign_by_winding_number(mesh, g, float(options.distance_band) + 0.5f, signed_voxels);
+  if (options.winding_number_sign) sign_by_winding_number(mesh, g, half_width, signed_voxels);
 
-  // In place: signed_voxels becomes the unsigned chamfer distance; flags keep band membership and sign.
+  // Distances are stored in the band; the chamfer (in double) is seeded from exactly the stored values, so a
+  // band voxel's layer and its neighbours' chamfer layers round consistently (6-neighbours differ by <= 1).
   const float band = float(options.distance_band);
-  std::vector<float>& magnitude = signed_voxels;
   std::vector<uint8_t> flags(count);  // kFixed: exact distance in the band; kInside: negative signed distance
   constexpr uint8_t kFixed = 1, kInside = 2;
   vm.distances.resize(count);
   const float h = float(g.voxel_size);
+  std::vector<double> magnitude(count);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
       const float d = signed_voxels[v];
       const bool in_band = std::abs(d) <= band;
       flags[v] = uint8_t((in_band ? kFixed : 0) | (d < 0 ? kInside : 0));
-      magnitude[v] = in_band ? std::abs(d) : std::numeric_limits<float>::infinity();
       vm.distances[v] = in_band ? d * h : std::numeric_limits<float>::quiet_NaN();
+      magnitude[v] = in_band ? std::abs(double(vm.distances[v])) / g.voxel_size : std::numeric_limits<double>::infinity();
     }
   });
+  std::vector<float>().swap(signed_voxels);
   chamfer_transform(magnitude, flags, kFixed, g.dims);
 
   vm.layers.resize(count);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
       // Penetration in voxels is positive inside; in the band it follows the stored distance exactly (spec §3).
-      const double depth = (flags[v] & kFixed) ? -double(vm.distances[v]) / g.voxel_size
-                           : (flags[v] & kInside) ? double(magnitude[v]) : -double(magnitude[v]);
+      const double depth = (flags[v] & kInside) ? magnitude[v] : -magnitude[v];
       vm.layers[v] = int16_t(std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0));
     }
   });
