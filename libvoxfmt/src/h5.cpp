@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <atomic>
+#include <functional>
+#include <system_error>
 #include <thread>
 #include <cerrno>
 #include <cstdio>
@@ -375,7 +377,15 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
   std::vector<std::vector<unsigned char>> compressed(chunk_count);
   std::atomic<size_t> next{0};
   std::atomic<bool> failed{false};
-  auto worker = [&] {
+  std::function<void()> compress_chunks;
+  auto worker = [&]() noexcept {
+    try {
+      compress_chunks();
+    } catch (...) {
+      failed = true;
+    }
+  };
+  compress_chunks = [&] {
     std::vector<T> block(elements);
     std::vector<unsigned char> shuffled(elements * sizeof(T));
     for (size_t c = next++; c < chunk_count && !failed; c = next++) {
@@ -399,7 +409,11 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
   };
   const unsigned threads = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
   std::vector<std::thread> pool;
-  for (unsigned t = 1; t < threads; ++t) pool.emplace_back(worker);
+  try {
+    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(worker);
+  } catch (const std::system_error&) {
+    // Fewer threads than hoped: the ones started and this one share the work.
+  }
   worker();
   for (std::thread& t : pool) t.join();
   if (failed) return false;

@@ -77,8 +77,8 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
          w.string_attribute(prov->get(), "source_file", p.source_file) &&
          w.string_attribute(prov->get(), "source_sha256", p.source_sha256) &&
          w.string_attribute(prov->get(), "build_parameters", p.build_parameters_json) &&
-         w.string_attribute(prov->get(), "dependency_versions", deps.dump()) &&
-         w.string_attribute(prov->get(), "build_warnings", warnings.dump()) &&
+         w.string_attribute(prov->get(), "dependency_versions", deps.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
+         w.string_attribute(prov->get(), "build_warnings", warnings.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
          (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
 }
 
@@ -101,8 +101,14 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   if (file < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")"};
   h5::Writer writer(file);
-  bool ok = write_contents(writer, asset, options);
-  std::string reason = writer.failure();
+  bool ok = false;
+  std::string reason;
+  try {
+    ok = write_contents(writer, asset, options);
+    reason = writer.failure();
+  } catch (const std::exception& e) {  // allocation or thread failures: still close and remove the temporary
+    reason = std::string("write failed: ") + e.what();
+  }
   if (H5Fclose(file) < 0 && ok) {
     ok = false;
     reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";

@@ -66,7 +66,7 @@ std::string build_parameters_json(const BuildOptions& o) {
                       {"seed", o.point_shell.seed},
                       {"check_self_intersections", o.check_self_intersections},
                       {"up_axis", o.up_axis}};
-  return j.dump();
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 namespace {

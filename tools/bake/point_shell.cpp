@@ -66,9 +66,10 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
 
 /// Dart throwing over the candidates (already in random order): keeps a candidate when no kept point lies
 /// within `radius`. A hash grid of cell `radius` makes each test look at 27 cells.
-std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit) {
+std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit,
+                               size_t expected) {
   std::unordered_map<uint64_t, std::vector<uint32_t>> cells;
-  cells.reserve(limit * 2);
+  cells.reserve(2 * std::min(limit, expected));
   auto key = [](int64_t x, int64_t y, int64_t z) {
     return (uint64_t(x & 0x1fffff) << 42) | (uint64_t(y & 0x1fffff) << 21) | uint64_t(z & 0x1fffff);
   };
@@ -76,8 +77,9 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
   std::vector<size_t> kept;
   for (size_t c = 0; c < candidates.size() && kept.size() < limit; ++c) {
     const Vec3& p = candidates[c].point;
-    const int64_t x = int64_t(std::floor(p[0] / radius)), y = int64_t(std::floor(p[1] / radius)),
-                  z = int64_t(std::floor(p[2] / radius));
+    // Cell coordinates, clamped before the conversion (hash collisions are harmless: distances decide).
+    auto cell = [&](double c) { return int64_t(std::clamp(std::floor(c / radius), -4e18, 4e18)); };
+    const int64_t x = cell(p[0]), y = cell(p[1]), z = cell(p[2]);
     bool free = true;
     for (int64_t dz = -1; dz <= 1 && free; ++dz)
       for (int64_t dy = -1; dy <= 1 && free; ++dy)
@@ -100,21 +102,23 @@ PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellOptions&
   double area = 0;
   // Probe the area with a few candidates first, to size the candidate pool.
   surface_candidates(mesh, 1, options.seed, area);
-  size_t target = options.points;
-  if (options.point_spacing > 0) target = size_t(std::ceil(area / (0.75 * options.point_spacing * options.point_spacing)));
-  if (target == 0) throw BakeError("BAD_OPTION", "the point shell needs at least one point");
-  if (target > 50'000'000) throw BakeError("BAD_OPTION", "more than 50 million points requested");
+  double wanted = double(options.points);
+  if (options.point_spacing > 0) wanted = std::ceil(area / (0.75 * options.point_spacing * options.point_spacing));
+  if (!(wanted >= 1)) throw BakeError("BAD_OPTION", "the point shell needs at least one point");
+  if (!(wanted <= 50e6))
+    throw BakeError("BAD_OPTION", "the point shell would need more than 50 million points (point spacing too small)");
+  const size_t target = size_t(wanted);
   const std::vector<Candidate> candidates = surface_candidates(mesh, std::max<size_t>(8 * target, 64), options.seed, area);
 
   std::vector<size_t> kept;
   if (options.point_spacing > 0) {
-    kept = dart_throw(candidates, options.point_spacing, candidates.size());
+    kept = dart_throw(candidates, options.point_spacing, candidates.size(), target);
   } else {
     // A maximal Poisson-disk set of radius r holds about 0.7 * area / r^2 points; aim a little denser than
     // the target, then keep the first `target` accepted (a random subset, still at least r apart).
     double radius = std::sqrt(0.7 * area / double(target));
     for (int iteration = 0; iteration < 8; ++iteration) {
-      kept = dart_throw(candidates, radius, candidates.size());
+      kept = dart_throw(candidates, radius, candidates.size(), target);
       if (kept.size() >= target) break;
       radius *= std::sqrt(double(kept.size()) / double(target)) * 0.97;
     }

@@ -86,6 +86,8 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
   if (report.components > 1)
     warn(report, "MULTIPLE_COMPONENTS", std::to_string(report.components) + " connected components");
 
+  if (!check_self_intersections)
+    warn(report, "SELF_INTERSECTION_CHECK_SKIPPED", "self-intersections were not checked; the sign assumes there are none");
   if (check_self_intersections) {
     std::vector<std::pair<SurfaceMesh::Face_index, SurfaceMesh::Face_index>> pairs;
     PMP::self_intersections<CGAL::Parallel_if_available_tag>(sm.faces(), sm, std::back_inserter(pairs));

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <unordered_map>
 
@@ -44,9 +45,15 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapOptions& options)
   // Voxels tile the bounding box exactly from its min corner, plus `margin` voxels on every side.
   uint64_t total = 1;
   for (int a = 0; a < 3; ++a) {
-    const double cells = std::ceil((hi[a] - lo[a]) / g.voxel_size - 1e-9);
-    const uint64_t n = uint64_t(std::max(1.0, cells)) + 2ull * options.margin;
-    if (n > 65535) throw BakeError("GRID_TOO_LARGE", "the grid would have " + std::to_string(n) + " voxels along an axis");
+    const double cells = std::max(1.0, std::ceil((hi[a] - lo[a]) / g.voxel_size - 1e-9)) + 2.0 * options.margin;
+    if (!(cells <= 65535))
+    {
+      char count[32];
+      std::snprintf(count, sizeof count, "%.3g", cells);
+      throw BakeError("GRID_TOO_LARGE", std::string("the grid would have ") + count +
+                                            " voxels along an axis (at most 65535): voxel size too small");
+    }
+    const uint64_t n = uint64_t(cells);
     g.dims[a] = uint32_t(n);
     g.origin[a] = lo[a] + (0.5 - options.margin) * g.voxel_size;
     total *= n;

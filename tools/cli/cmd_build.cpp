@@ -69,7 +69,7 @@ int run(const Options& o) {
       const Voxelmap& vm = asset.voxelmap;
       size_t stored = 0;
       for (float d : vm.distances) stored += Voxelmap::is_stored(d);
-      std::cout << nlohmann::json{{"status", "ok"},
+      std::cout << to_text(nlohmann::json{{"status", "ok"},
                                   {"input", o.mesh},
                                   {"output", o.output},
                                   {"input_vertices", report.input_vertices},
@@ -82,8 +82,7 @@ int run(const Options& o) {
                                   {"voxelmap", {{"dims", vm.dims}, {"voxel_size", vm.voxel_size}, {"stored_distances", stored}}},
                                   {"pointshell", {{"points", ps.size()}, {"levels", ps.level_count()}, {"points_per_level", per_level}}},
                                   {"volume", asset.mass.volume},
-                                  {"warnings", warnings}}
-                       .dump(2)
+                                  {"warnings", warnings}})
                 << "\n";
     } else if (!o.quiet) {
       for (const auto& w : report.repair.warnings) std::cerr << "warning: " << w.code << ": " << w.message << "\n";
@@ -95,12 +94,12 @@ int run(const Options& o) {
     return kExitOk;
   } catch (const bake::BakeError& e) {
     if (show_progress) std::cerr << "\r\033[K";
-    if (o.json) std::cout << nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", e.code()}, {"message", e.what()}}.dump(2) << "\n";
+    if (o.json) std::cout << to_text(nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", e.code()}, {"message", e.what()}}) << "\n";
     std::cerr << "voxfmt build: error: " << e.code() << ": " << e.what() << "\n";
     return e.code() == "BAD_OPTION" ? kExitUsageOrIo : kExitInvalid;
   } catch (const std::exception& e) {  // library failures (OpenVDB, CGAL, allocation) still get a clean message
     if (show_progress) std::cerr << "\r\033[K";
-    if (o.json) std::cout << nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", "INTERNAL"}, {"message", e.what()}}.dump(2) << "\n";
+    if (o.json) std::cout << to_text(nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", "INTERNAL"}, {"message", e.what()}}) << "\n";
     std::cerr << "voxfmt build: error: " << o.mesh << ": " << e.what() << "\n";
     return kExitInvalid;
   }

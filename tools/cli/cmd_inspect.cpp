@@ -156,7 +156,7 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
     }
     const Summary summary = summarize(options->file, asset.value());
     if (options->json)
-      std::cout << to_json(options->file, asset.value(), summary, warnings).dump(2) << "\n";
+      std::cout << to_text(to_json(options->file, asset.value(), summary, warnings)) << "\n";
     else
       print_text(options->file, asset.value(), summary, warnings);
     exit_code = kExitOk;

@@ -44,7 +44,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
         std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "
                   << issue.message << "\n";
     }
-    if (options->json) std::cout << report.dump(2) << "\n";
+    if (options->json) std::cout << to_text(report) << "\n";
     exit_code = any_unreadable ? kExitUsageOrIo : any_invalid ? kExitInvalid : kExitOk;
   });
 }

@@ -2,6 +2,10 @@
 
 namespace voxfmt::cli {
 
+std::string to_text(const nlohmann::json& value) {
+  return value.dump(2, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
 nlohmann::json issue_json(const Issue& issue) {
   return {{"code", code_name(issue.code)},
           {"severity", severity_name(issue.severity)},
