@@ -31,6 +31,14 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::BadSha256, "BAD_SHA256", Severity::Error},
     {IssueCode::NormalNotUnit, "NORMAL_NOT_UNIT", Severity::Error},
     {IssueCode::UnknownObject, "UNKNOWN_OBJECT", Severity::Info},
+    {IssueCode::LayerDistanceMismatch, "LAYER_DISTANCE_MISMATCH", Severity::Error},
+    {IssueCode::LayerOutsideBandTooSmall, "LAYER_OUTSIDE_BAND_TOO_SMALL", Severity::Error},
+    {IssueCode::LayerStepTooLarge, "LAYER_STEP_TOO_LARGE", Severity::Error},
+    {IssueCode::DistanceJump, "DISTANCE_JUMP", Severity::Error},
+    {IssueCode::NormalNotInward, "NORMAL_NOT_INWARD", Severity::Warning},
+    {IssueCode::SphereNotEnclosing, "SPHERE_NOT_ENCLOSING", Severity::Error},
+    {IssueCode::InertiaNotPositiveDefinite, "INERTIA_NOT_POSITIVE_DEFINITE", Severity::Error},
+    {IssueCode::CenterOfMassOutsideBounds, "CENTER_OF_MASS_OUTSIDE_BOUNDS", Severity::Error},
 };
 const CodeInfo& info(IssueCode code) {
   for (const CodeInfo& c : kCodes)

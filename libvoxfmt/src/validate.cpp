@@ -2,7 +2,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
+#include <optional>
 #include <new>
 #include <sstream>
 
@@ -192,9 +194,133 @@ void check_provenance(const Provenance& p, Checker& c) {
   if (!sha_ok) c.add(IssueCode::BadSha256, g + "/@source_sha256", "'" + p.source_sha256 + "' is not 64 lowercase hex digits");
 }
 
+// ---- full level: semantic rules (spec §3-§5)
+
+bool has_surface_defects(const Provenance& p) {
+  for (const BuildWarning& w : p.build_warnings)
+    if (w.code == "OPEN_BORDER" || w.code == "NON_MANIFOLD" || w.code == "SELF_INTERSECTIONS") return true;
+  return false;
+}
+
+std::string voxel_name(const Voxelmap& vm, size_t v) {
+  const size_t i = v % vm.dims[0], j = v / vm.dims[0] % vm.dims[1], k = v / (size_t(vm.dims[0]) * vm.dims[1]);
+  return "voxel (" + std::to_string(i) + ", " + std::to_string(j) + ", " + std::to_string(k) + ")";
+}
+
+void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {
+  const std::string g = "/voxelmap";
+  const double h = vm.voxel_size;
+  const int min_outside = int(std::floor(vm.distance_band + 0.5));
+  bool layer_reported = false, band_reported = false, step_reported = false, jump_reported = false;
+  const size_t W = vm.dims[0], WH = size_t(vm.dims[0]) * vm.dims[1];
+  for (size_t v = 0; v < vm.voxel_count(); ++v) {
+    const float d = vm.distances[v];
+    const int layer = vm.layers[v];
+    if (Voxelmap::is_stored(d)) {
+      const double expected = std::clamp(std::floor(-double(d) / h + 0.5), -32767.0, 32767.0);
+      if (!layer_reported && layer != int(expected)) {
+        c.add(IssueCode::LayerDistanceMismatch, g + "/layers",
+              voxel_name(vm, v) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) + " m gives " +
+                  std::to_string(int(expected)));
+        layer_reported = true;
+      }
+    } else if (!band_reported && std::abs(layer) < min_outside) {
+      c.add(IssueCode::LayerOutsideBandTooSmall, g + "/layers",
+            voxel_name(vm, v) + " has no stored distance but layer " + std::to_string(layer) + " (|layer| must be >= " +
+                std::to_string(min_outside) + " outside the band)");
+      band_reported = true;
+    }
+    if (!closed_surface) continue;  // across a closed hole both rules may break (spec §3)
+    const size_t i = v % W, j = v / W % vm.dims[1], k = v / WH;
+    const size_t neighbours[3] = {i + 1 < W ? v + 1 : v, j + 1 < vm.dims[1] ? v + W : v, k + 1 < vm.dims[2] ? v + WH : v};
+    for (size_t n : neighbours) {
+      if (n == v) continue;
+      if (!step_reported && std::abs(layer - vm.layers[n]) > 1) {
+        c.add(IssueCode::LayerStepTooLarge, g + "/layers",
+              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " differ by " + std::to_string(std::abs(layer - vm.layers[n])) +
+                  " layers");
+        step_reported = true;
+      }
+      // Exact distances of 6-neighbours differ by at most h; the rule allows the voxel diagonal, so that a
+      // producer's near-band approximations pass and only gross errors (wrong sign, garbage) are flagged.
+      if (!jump_reported && Voxelmap::is_stored(d) && Voxelmap::is_stored(vm.distances[n]) &&
+          std::abs(double(d) - double(vm.distances[n])) > h * std::sqrt(3.0)) {
+        c.add(IssueCode::DistanceJump, g + "/distances",
+              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " are one voxel apart but their distances differ by more than the voxel diagonal: " +
+                  fmt(std::abs(double(d) - double(vm.distances[n])) / h) + " voxels");
+        jump_reported = true;
+      }
+    }
+  }
+}
+
+// Distance at the voxel nearest to p, if stored there.
+std::optional<double> nearest_distance(const Voxelmap& vm, const Vec3& p) {
+  size_t index[3];
+  for (int a = 0; a < 3; ++a) {
+    const double x = std::floor((p[a] - vm.origin[a]) / vm.voxel_size + 0.5);
+    if (!(x >= 0 && x < vm.dims[a])) return std::nullopt;
+    index[a] = size_t(x);
+  }
+  const float d = vm.distances[(index[2] * vm.dims[1] + index[1]) * vm.dims[0] + index[0]];
+  if (!Voxelmap::is_stored(d)) return std::nullopt;
+  return double(d);
+}
+
+void check_point_shell_semantics(const Asset& a, Checker& c) {
+  const PointShell& ps = a.point_shell;
+  const Voxelmap& vm = a.voxelmap;
+  // Inward: one voxel along the normal the distance is lower than one voxel against it. Thin features and
+  // sharp edges can fool a nearest-voxel lookup, so only a clear majority of outward normals is reported.
+  size_t tested = 0, outward = 0;
+  for (size_t n = 0; n < ps.size(); ++n) {
+    const Vec3& p = ps.points[n];
+    const Vec3f& nn = ps.normals[n];
+    const double h = vm.voxel_size;
+    const auto in = nearest_distance(vm, {p[0] + h * nn[0], p[1] + h * nn[1], p[2] + h * nn[2]});
+    const auto out = nearest_distance(vm, {p[0] - h * nn[0], p[1] - h * nn[1], p[2] - h * nn[2]});
+    if (!in || !out) continue;
+    ++tested;
+    outward += *in > *out;
+  }
+  if (tested > 0 && outward * 10 > tested)
+    c.add(IssueCode::NormalNotInward, "/pointshell/normals",
+          std::to_string(outward) + " of " + std::to_string(tested) + " normals point out of the voxelmap's inside");
+  // Spec §4: every node's sphere encloses its own point and the points of all its descendants. Each point is
+  // checked against the spheres of all its ancestors (N x depth work).
+  std::vector<uint32_t> parent(ps.size(), UINT32_MAX);
+  for (uint32_t n = 0; n < ps.size(); ++n)
+    for (uint32_t ch = ps.child_begin[n]; ch < ps.child_begin[n] + ps.child_count[n]; ++ch) parent[ch] = n;
+  for (uint32_t p = 0; p < ps.size(); ++p)
+    for (uint32_t node = p; node != UINT32_MAX; node = parent[node]) {
+      const Vec3 &centre = ps.sphere_centers[node], &q = ps.points[p];
+      const double dx = q[0] - centre[0], dy = q[1] - centre[1], dz = q[2] - centre[2];
+      if (std::sqrt(dx * dx + dy * dy + dz * dz) > ps.sphere_radii[node] * (1 + 1e-9) + 1e-12) {
+        c.add(IssueCode::SphereNotEnclosing, "/pointshell/sphere_radii",
+              "the sphere of node " + std::to_string(node) + " does not enclose point " + std::to_string(p) +
+                  " of its subtree");
+        return;
+      }
+    }
+}
+
+void check_mass_semantics(const Asset& a, Checker& c) {
+  const auto& I = a.mass.inertia;
+  const double m1 = I[0], m2 = I[0] * I[4] - I[1] * I[3],
+               m3 = I[0] * (I[4] * I[8] - I[5] * I[7]) - I[1] * (I[3] * I[8] - I[5] * I[6]) + I[2] * (I[3] * I[7] - I[4] * I[6]);
+  if (!(m1 > 0 && m2 > 0 && m3 > 0))
+    c.add(IssueCode::InertiaNotPositiveDefinite, "/mass_properties/@inertia", "the inertia tensor is not positive definite");
+  for (int axis = 0; axis < 3; ++axis)
+    if (!(a.mass.center_of_mass[axis] >= a.bounds_min[axis] && a.mass.center_of_mass[axis] <= a.bounds_max[axis])) {
+      c.add(IssueCode::CenterOfMassOutsideBounds, "/mass_properties/@center_of_mass",
+            "the centre of mass lies outside the bounds on axis " + std::to_string(axis));
+      break;
+    }
+}
+
 }  // namespace
 
-std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel) {
+std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   std::vector<Issue> issues;
   Checker c(issues);
   c.finite(asset.bounds_min, "/@bounds_min");
@@ -212,6 +338,12 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel) {
   check_point_shell(asset.point_shell, c);
   check_mass(asset.mass, c);
   check_provenance(asset.provenance, c);
+  // Semantic rules need a structurally sound asset (sizes, tree ranges) to index safely.
+  if (level == ValidationLevel::Full && !has_errors(issues)) {
+    check_voxelmap_semantics(asset.voxelmap, !has_surface_defects(asset.provenance), c);
+    check_point_shell_semantics(asset, c);
+    check_mass_semantics(asset, c);
+  }
   return issues;
 }
 

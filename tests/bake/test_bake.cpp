@@ -97,7 +97,9 @@ void expect_layers_consistent(const Voxelmap& vm, bool closed_surface = true) {
         else
           bad_band += std::abs(vm.layers[v]) < int(std::floor(vm.distance_band + 0.5));
       }
-  if (closed_surface) EXPECT_EQ(bad_step, 0u);
+  if (closed_surface) {
+    EXPECT_EQ(bad_step, 0u);
+  }
   EXPECT_EQ(bad_band, 0u);
 }
 
@@ -370,6 +372,137 @@ TEST(Bake, OpenCubeIsFilledByWindingNumber) {
   EXPECT_LE(inside, 40u * 40 * 41);
   // Layers may jump across the missing face (spec §3: the step rule holds for closed surfaces only).
   expect_layers_consistent(asset.voxelmap, /*closed_surface=*/false);
+}
+
+}  // namespace
+}  // namespace voxfmt::bake
+
+namespace voxfmt::bake {
+namespace {
+
+// Full validation: a baked asset is clean; breaking one rule at a time yields exactly that rule's code.
+class FullValidation : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    BuildOptions options;
+    options.voxelmap.resolution = 48;
+    options.point_shell.points = 2000;
+    BuildReport report;
+    asset_ = new Asset(build_asset(kMeshes + "/bunny00.off", options, report));
+  }
+  static void TearDownTestSuite() { delete asset_; }
+
+  static std::vector<std::string> codes(const Asset& a) {
+    std::vector<std::string> out;
+    for (const Issue& issue : validate_asset(a, ValidationLevel::Full)) out.push_back(code_name(issue.code));
+    return out;
+  }
+  // Finds a voxel whose stored distance and 6-neighbours satisfy `pick`.
+  static size_t find_voxel(const Voxelmap& vm, const std::function<bool(size_t, const std::vector<size_t>&)>& pick) {
+    const size_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
+    for (size_t k = 1; k + 1 < D; ++k)
+      for (size_t j = 1; j + 1 < H; ++j)
+        for (size_t i = 1; i + 1 < W; ++i) {
+          const size_t v = (k * H + j) * W + i;
+          if (pick(v, {v - 1, v + 1, v - W, v + W, v - W * H, v + W * H})) return v;
+        }
+    ADD_FAILURE() << "no suitable voxel";
+    return 0;
+  }
+  static Asset* asset_;
+};
+Asset* FullValidation::asset_ = nullptr;
+
+TEST_F(FullValidation, BakedAssetIsClean) { EXPECT_TRUE(codes(*asset_).empty()); }
+
+TEST_F(FullValidation, LayerDistanceMismatch) {
+  Asset a = *asset_;
+  Voxelmap& vm = a.voxelmap;
+  const double h = vm.voxel_size;
+  // A stored voxel just above a rounding boundary: nudging its distance by 0.03 h changes the rounded layer,
+  // while its own layer (and so every layer step) and the neighbour distance bound stay as they were.
+  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>&) {
+    if (!Voxelmap::is_stored(vm.distances[c])) return false;
+    const double x = -double(vm.distances[c]) / h + 0.5;
+    return x - std::floor(x) < 0.02;
+  });
+  vm.distances[v] += float(0.03 * h);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_DISTANCE_MISMATCH"});
+}
+
+TEST_F(FullValidation, LayerOutsideBandTooSmall) {
+  Asset a = *asset_;
+  Voxelmap& vm = a.voxelmap;
+  const int limit = int(std::floor(vm.distance_band + 0.5));
+  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>& n) {
+    if (Voxelmap::is_stored(vm.distances[c]) || vm.layers[c] != limit) return false;
+    for (size_t m : n)
+      if (std::abs(vm.layers[m] - (limit - 1)) > 1) return false;
+    return true;
+  });
+  vm.layers[v] = int16_t(limit - 1);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_OUTSIDE_BAND_TOO_SMALL"});
+}
+
+TEST_F(FullValidation, LayerStepTooLarge) {
+  Asset a = *asset_;
+  Voxelmap& vm = a.voxelmap;
+  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>&) {
+    return !Voxelmap::is_stored(vm.distances[c]) && vm.layers[c] >= 6;
+  });
+  vm.layers[v] = int16_t(vm.layers[v] + 3);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_STEP_TOO_LARGE"});
+}
+
+TEST_F(FullValidation, DistanceJump) {
+  Asset a = *asset_;
+  Voxelmap& vm = a.voxelmap;
+  const double h = vm.voxel_size;
+  // Give a stored voxel a distance 1.8 voxels from a neighbour's whose depth sits just above an integer, and
+  // the layer that distance implies: layers stay consistent (step 1), only the distance jump is wrong.
+  auto depth = [&](size_t v) { return -double(vm.distances[v]) / h + 0.5; };
+  double new_depth = 0;
+  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>& n) {
+    if (!Voxelmap::is_stored(vm.distances[c])) return false;
+    for (size_t m : n) {
+      if (!Voxelmap::is_stored(vm.distances[m]) || depth(m) - std::floor(depth(m)) > 0.1) continue;
+      const double candidate = depth(m) + 1.8;
+      const int layer = int(std::floor(candidate));
+      bool steps_ok = true;
+      for (size_t o : n) steps_ok = steps_ok && std::abs(vm.layers[o] - layer) <= 1;
+      if (!steps_ok) continue;
+      new_depth = candidate;
+      return true;
+    }
+    return false;
+  });
+  vm.distances[v] = float(-(new_depth - 0.5) * h);
+  vm.layers[v] = int16_t(std::floor(-double(vm.distances[v]) / h + 0.5));
+  EXPECT_EQ(codes(a), std::vector<std::string>{"DISTANCE_JUMP"});
+}
+
+TEST_F(FullValidation, NormalNotInward) {
+  Asset a = *asset_;
+  for (Vec3f& n : a.point_shell.normals) n = {-n[0], -n[1], -n[2]};
+  EXPECT_EQ(codes(a), std::vector<std::string>{"NORMAL_NOT_INWARD"});
+}
+
+TEST_F(FullValidation, SphereNotEnclosing) {
+  Asset a = *asset_;
+  a.point_shell.sphere_radii[0] *= 0.5;
+  EXPECT_EQ(codes(a), std::vector<std::string>{"SPHERE_NOT_ENCLOSING"});
+}
+
+TEST_F(FullValidation, InertiaNotPositiveDefinite) {
+  Asset a = *asset_;
+  a.mass.inertia[4] = -a.mass.inertia[4];
+  EXPECT_EQ(codes(a), std::vector<std::string>{"INERTIA_NOT_POSITIVE_DEFINITE"});
+}
+
+TEST_F(FullValidation, CenterOfMassOutsideBounds) {
+  Asset a = *asset_;
+  a.mass.center_of_mass[1] = a.bounds_max[1] + 1;
+  EXPECT_EQ(codes(a), std::vector<std::string>{"CENTER_OF_MASS_OUTSIDE_BOUNDS"});
 }
 
 }  // namespace

@@ -11,6 +11,8 @@ namespace {
 struct Options {
   std::vector<std::string> files;
   bool json = false;
+  std::string level = "full";
+  size_t max_issues = 100;
 };
 }  // namespace
 
@@ -19,16 +21,23 @@ void add_validate_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("validate", "Check assets against the format spec (exit 0 valid, 1 invalid, 2 unreadable)");
   cmd->add_option("files", options->files, "Asset files (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print findings as JSON on stdout");
+  cmd->add_option("--level", options->level, "quick: structure, types, shapes, ranges, tree; full: also the semantic rules")
+      ->capture_default_str()->check(CLI::IsMember({"quick", "full"}));
+  cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
+      ->capture_default_str()->check(CLI::PositiveNumber);
   cmd->callback([options, &exit_code] {
     nlohmann::json report = {{"files", nlohmann::json::array()}};
     bool any_invalid = false, any_unreadable = false;
     for (const std::string& file : options->files) {
-      const std::vector<Issue> issues = validate_file(file);
+      std::vector<Issue> issues =
+          validate_file(file, options->level == "full" ? ValidationLevel::Full : ValidationLevel::Quick);
+      const size_t found = issues.size();
+      if (issues.size() > options->max_issues) issues.resize(options->max_issues);
       const bool valid = !has_errors(issues);
       any_invalid |= !valid;
       for (const Issue& issue : issues) any_unreadable |= issue.code == IssueCode::FileNotFound;
       if (options->json) {
-        report["files"].push_back({{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}});
+        report["files"].push_back({{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
         continue;
       }
       bool unreadable = false;
@@ -40,6 +49,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
       }
       std::cout << file << ": " << (valid ? "valid" : unreadable ? "UNREADABLE" : "INVALID") << " (" << errors << " error(s), " << warnings
                 << " warning(s))\n";
+      if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
       for (const Issue& issue : issues)
         std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "
                   << issue.message << "\n";

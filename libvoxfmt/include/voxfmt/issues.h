@@ -28,6 +28,14 @@ enum class IssueCode {
   BadSha256,
   NormalNotUnit,
   UnknownObject,
+  LayerDistanceMismatch,
+  LayerOutsideBandTooSmall,
+  LayerStepTooLarge,
+  DistanceJump,
+  NormalNotInward,
+  SphereNotEnclosing,
+  InertiaNotPositiveDefinite,
+  CenterOfMassOutsideBounds,
 };
 
 enum class Severity { Error, Warning, Info };

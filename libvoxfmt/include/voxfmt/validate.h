@@ -11,6 +11,7 @@ namespace voxfmt {
 
 enum class ValidationLevel {
   Quick,  ///< structure, dtypes, shapes, ranges, tree structure
+  Full,   ///< plus semantic rules: layers vs distances, neighbours, normals, spheres, mass properties
 };
 
 /// Rules that can be checked on the in-memory asset (ranges, tree structure, JSON, ...).
