@@ -30,6 +30,12 @@ struct TriangleMesh {
   std::vector<std::array<uint32_t, 3>> triangles;
 };
 
+struct Bounds {
+  Vec3 lo, hi;
+};
+/// Axis-aligned bounding box of the mesh's vertices (the mesh must have at least one vertex).
+Bounds bounding_box(const TriangleMesh& mesh);
+
 // ---------------------------------------------------------------- 1. import
 
 struct ImportOptions {

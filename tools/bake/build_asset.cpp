@@ -17,10 +17,21 @@
 #include <memory>
 
 #include "bake.h"
+#include "vec3_math.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 
 namespace voxfmt::bake {
+
+Bounds bounding_box(const TriangleMesh& mesh) {
+  Bounds b{mesh.vertices.front(), mesh.vertices.front()};
+  for (const Vec3& v : mesh.vertices)
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = std::min(b.lo[a], v[a]);
+      b.hi[a] = std::max(b.hi[a], v[a]);
+    }
+  return b;
+}
 
 std::string sha256_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -106,14 +117,8 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
   stage("repair");
   const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
   MassProperties mass = compute_mass_properties(mesh);
-  Vec3 lo = mesh.vertices.front(), hi = lo;
-  for (const Vec3& v : mesh.vertices)
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], v[a]);
-      hi[a] = std::max(hi[a], v[a]);
-    }
-  const double diagonal = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                                    (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  const auto [lo, hi] = bounding_box(mesh);
+  const double diagonal = length(hi - lo);
   if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
     throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (flat, open or inside-out mesh)");
 

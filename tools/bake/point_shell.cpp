@@ -11,20 +11,11 @@
 #include <unordered_map>
 
 #include "bake.h"
+#include "vec3_math.h"
 
 namespace voxfmt::bake {
 
 namespace {
-
-Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-Vec3 cross(const Vec3& a, const Vec3& b) {
-  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
-}
-double norm(const Vec3& a) { return std::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); }
-double dist2(const Vec3& a, const Vec3& b) {
-  const Vec3 d = sub(a, b);
-  return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-}
 
 // Uniform double in [0,1) from raw generator bits: identical on every platform (std distributions are not).
 double unit(std::mt19937_64& rng) { return double(rng() >> 11) * 0x1.0p-53; }
@@ -41,8 +32,8 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
   area = 0;
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     const auto& tri = mesh.triangles[t];
-    const Vec3 n = cross(sub(mesh.vertices[tri[1]], mesh.vertices[tri[0]]), sub(mesh.vertices[tri[2]], mesh.vertices[tri[0]]));
-    const double len = norm(n);
+    const Vec3 n = cross(mesh.vertices[tri[1]] - mesh.vertices[tri[0]], mesh.vertices[tri[2]] - mesh.vertices[tri[0]]);
+    const double len = length(n);
     area += 0.5 * len;
     cumulative[t] = area;
     normals[t] = len > 0 ? Vec3f{float(-n[0] / len), float(-n[1] / len), float(-n[2] / len)} : Vec3f{0, 0, 1};
@@ -78,7 +69,7 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
   for (size_t c = 0; c < candidates.size() && kept.size() < limit; ++c) {
     const Vec3& p = candidates[c].point;
     // Cell coordinates, clamped before the conversion (hash collisions are harmless: distances decide).
-    auto cell = [&](double c) { return int64_t(std::clamp(std::floor(c / radius), -4e18, 4e18)); };
+    auto cell = [&](double coordinate) { return int64_t(std::clamp(std::floor(coordinate / radius), -4e18, 4e18)); };
     const int64_t x = cell(p[0]), y = cell(p[1]), z = cell(p[2]);
     bool free = true;
     for (int64_t dz = -1; dz <= 1 && free; ++dz)
@@ -87,7 +78,7 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
           auto it = cells.find(key(x + dx, y + dy, z + dz));
           if (it == cells.end()) continue;
           for (uint32_t other : it->second)
-            if (dist2(candidates[kept[other]].point, p) < r2) { free = false; break; }
+            if (distance2(candidates[kept[other]].point, p) < r2) { free = false; break; }
         }
     if (!free) continue;
     cells[key(x, y, z)].push_back(uint32_t(kept.size()));
@@ -208,7 +199,7 @@ void build_sphere_tree(PointShell& shell, double branching) {
       const Vec3 com = {sum[0] / count, sum[1] / count, sum[2] / count};
       size_t best = begin;
       for (size_t i = begin + 1; i < end; ++i)
-        if (dist2(centre_of[level[i]], com) < dist2(centre_of[level[best]], com)) best = i;
+        if (distance2(centre_of[level[i]], com) < distance2(centre_of[level[best]], com)) best = i;
       const uint32_t parent = level[best];
       std::vector<uint32_t> orphans = std::move(nodes[parent].children);
       nodes[parent].children.clear();
@@ -220,7 +211,7 @@ void build_sphere_tree(PointShell& shell, double branching) {
           for (int a = 0; a < 3; ++a) orphan_centre[a] += centre_of[o][a] / double(orphans.size());
         uint32_t adopter = nodes[parent].children.front();
         for (uint32_t c : nodes[parent].children)
-          if (dist2(centre_of[c], orphan_centre) < dist2(centre_of[adopter], orphan_centre)) adopter = c;
+          if (distance2(centre_of[c], orphan_centre) < distance2(centre_of[adopter], orphan_centre)) adopter = c;
         auto& kids = nodes[adopter].children;
         kids.insert(kids.end(), orphans.begin(), orphans.end());
       }
@@ -279,7 +270,7 @@ void build_sphere_tree(PointShell& shell, double branching) {
     // Guard against rounding: the sphere must contain its own point and its children's spheres.
     for (const auto& s : spheres) {
       const Vec3 sc = {s.first.x(), s.first.y(), s.first.z()};
-      radius = std::max(radius, std::sqrt(dist2(sc, out.sphere_centers[i])) + s.second);
+      radius = std::max(radius, std::sqrt(distance2(sc, out.sphere_centers[i])) + s.second);
     }
     out.sphere_radii[i] = radius * (1 + 1e-12);
   }

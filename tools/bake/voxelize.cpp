@@ -13,6 +13,7 @@
 #include <unordered_map>
 
 #include "bake.h"
+#include "vec3_math.h"
 #include "winding_number.h"
 
 namespace voxfmt::bake {
@@ -26,12 +27,7 @@ struct GridGeometry {
 };
 
 GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapOptions& options) {
-  Vec3 lo = mesh.vertices.front(), hi = lo;
-  for (const Vec3& v : mesh.vertices)
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], v[a]);
-      hi[a] = std::max(hi[a], v[a]);
-    }
+  const auto [lo, hi] = bounding_box(mesh);
   const double longest = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
   GridGeometry g;
   if (options.voxel_size > 0) {
@@ -127,41 +123,28 @@ void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags
 // recomputed in double precision and its sign taken from the angle-weighted pseudonormal of the closest
 // feature (face, edge or vertex; Baerentzen & Aanaes 2005), which is exact for closed, oriented surfaces.
 
-struct V3 {
-  double x, y, z;
-  V3 operator-(const V3& o) const { return {x - o.x, y - o.y, z - o.z}; }
-  V3 operator+(const V3& o) const { return {x + o.x, y + o.y, z + o.z}; }
-  V3 operator*(double s) const { return {x * s, y * s, z * s}; }
-};
-double dot(const V3& a, const V3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-V3 cross(const V3& a, const V3& b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
-V3 normalized(const V3& a) {
-  const double l = std::sqrt(dot(a, a));
-  return l > 0 ? a * (1 / l) : V3{0, 0, 0};
-}
-
 struct Pseudonormals {
-  std::vector<V3> face, vertex;
-  std::vector<std::array<V3, 3>> edge;  // edge e of a face runs from corner e to corner (e+1)%3
+  std::vector<Vec3> face, vertex;
+  std::vector<std::array<Vec3, 3>> edge;  // edge e of a face runs from corner e to corner (e+1)%3
 };
 
 Pseudonormals pseudonormals(const TriangleMesh& mesh) {
   Pseudonormals pn;
   pn.face.resize(mesh.triangles.size());
-  pn.vertex.assign(mesh.vertices.size(), V3{0, 0, 0});
+  pn.vertex.assign(mesh.vertices.size(), Vec3{0, 0, 0});
   pn.edge.resize(mesh.triangles.size());
-  auto vtx = [&](uint32_t i) { return V3{mesh.vertices[i][0], mesh.vertices[i][1], mesh.vertices[i][2]}; };
-  std::unordered_map<uint64_t, V3> edge_sum;
+  auto vtx = [&](uint32_t i) { return Vec3{mesh.vertices[i][0], mesh.vertices[i][1], mesh.vertices[i][2]}; };
+  std::unordered_map<uint64_t, Vec3> edge_sum;
   auto key = [](uint32_t a, uint32_t b) { return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a); };
   for (size_t f = 0; f < mesh.triangles.size(); ++f) {
     const auto& t = mesh.triangles[f];
-    const V3 p[3] = {vtx(t[0]), vtx(t[1]), vtx(t[2])};
+    const Vec3 p[3] = {vtx(t[0]), vtx(t[1]), vtx(t[2])};
     pn.face[f] = normalized(cross(p[1] - p[0], p[2] - p[0]));
     for (int c = 0; c < 3; ++c) {
-      const V3 a = normalized(p[(c + 1) % 3] - p[c]), b = normalized(p[(c + 2) % 3] - p[c]);
+      const Vec3 a = normalized(p[(c + 1) % 3] - p[c]), b = normalized(p[(c + 2) % 3] - p[c]);
       const double angle = std::acos(std::clamp(dot(a, b), -1.0, 1.0));
       pn.vertex[t[c]] = pn.vertex[t[c]] + pn.face[f] * angle;
-      V3& e = edge_sum[key(t[c], t[(c + 1) % 3])];
+      Vec3& e = edge_sum[key(t[c], t[(c + 1) % 3])];
       e = e + pn.face[f];
     }
   }
@@ -172,17 +155,17 @@ Pseudonormals pseudonormals(const TriangleMesh& mesh) {
 
 // Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5) and the pseudonormal of
 // the feature it lies on.
-V3 closest_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c, const Pseudonormals& pn, size_t f,
-                       const std::array<uint32_t, 3>& t, V3& normal) {
-  const V3 ab = b - a, ac = c - a, ap = p - a;
+Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, const Pseudonormals& pn, size_t f,
+                       const std::array<uint32_t, 3>& t, Vec3& normal) {
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
   const double d1 = dot(ab, ap), d2 = dot(ac, ap);
   if (d1 <= 0 && d2 <= 0) { normal = pn.vertex[t[0]]; return a; }
-  const V3 bp = p - b;
+  const Vec3 bp = p - b;
   const double d3 = dot(ab, bp), d4 = dot(ac, bp);
   if (d3 >= 0 && d4 <= d3) { normal = pn.vertex[t[1]]; return b; }
   const double vc = d1 * d4 - d3 * d2;
   if (vc <= 0 && d1 >= 0 && d3 <= 0) { normal = pn.edge[f][0]; return a + ab * (d1 / (d1 - d3)); }
-  const V3 cp = p - c;
+  const Vec3 cp = p - c;
   const double d5 = dot(ab, cp), d6 = dot(ac, cp);
   if (d6 >= 0 && d5 <= d6) { normal = pn.vertex[t[2]]; return c; }
   const double vb = d5 * d2 - d1 * d6;
@@ -202,7 +185,7 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
   const Pseudonormals pn = pseudonormals(mesh);
   const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
   auto vtx = [&](uint32_t i) {  // index space, double precision
-    return V3{(mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
+    return Vec3{(mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
               (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size};
   };
   tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
@@ -211,7 +194,7 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
       for (int64_t i = 0; i < W; ++i) {
         float& value = signed_voxels[size_t((k * H + j) * W + i)];
         if (std::abs(value) >= half_width) continue;
-        const V3 p{double(i), double(j), double(k)};
+        const Vec3 p{double(i), double(j), double(k)};
         // Candidates: this voxel's closest polygon and its 6 neighbours' (OpenVDB's choice is local).
         double best = std::numeric_limits<double>::infinity(), sign = value < 0 ? -1 : 1;
         const int offsets[7][3] = {{0, 0, 0}, {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
@@ -223,9 +206,9 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
             continue;
           seen[seen_count++] = f;
           const auto& t = mesh.triangles[size_t(f)];
-          V3 normal{};
-          const V3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, size_t(f), t, normal);
-          const V3 d = p - q;
+          Vec3 normal{};
+          const Vec3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, size_t(f), t, normal);
+          const Vec3 d = p - q;
           const double dist = std::sqrt(dot(d, d));
           if (dist < best) {
             best = dist;
