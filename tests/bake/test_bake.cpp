@@ -81,6 +81,16 @@ ErrorStats compare_distances(const Voxelmap& vm, const std::function<double(cons
   return s;
 }
 
+/// The accuracy bar: >= 10,000 samples, max error <= 0.5 voxel, mean <= 0.1 voxel, no sign mismatch.
+void expect_accurate(const ErrorStats& s, const char* label) {
+  std::printf("%s: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", label, s.samples,
+              s.max_error, s.mean_error, s.sign_mismatches);
+  EXPECT_GE(s.samples, 10000u);
+  EXPECT_LE(s.max_error, 0.5);
+  EXPECT_LE(s.mean_error, 0.1);
+  EXPECT_EQ(s.sign_mismatches, 0u);
+}
+
 void expect_layers_consistent(const Voxelmap& vm, bool closed_surface = true) {
   // 6-neighbours differ by at most one layer; stored voxels follow floor(-d/h + 1/2).
   size_t bad_step = 0, bad_band = 0;
@@ -173,12 +183,7 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
   const ErrorStats s = compare_distances(
       asset.voxelmap, [&](const Vec3& p) { return surface.inside(p) ? -surface.distance(p) : surface.distance(p); }, 12000,
       1e-9);
-  std::printf("bunny res 128: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", s.samples,
-              s.max_error, s.mean_error, s.sign_mismatches);
-  EXPECT_GE(s.samples, 10000u);
-  EXPECT_LE(s.max_error, 0.5);
-  EXPECT_LE(s.mean_error, 0.1);
-  EXPECT_EQ(s.sign_mismatches, 0u);
+  expect_accurate(s, "bunny res 128");
   expect_layers_consistent(asset.voxelmap);
   // Spec §3: every voxel within (band - 1/2) voxels of the surface has its distance stored.
   {
@@ -252,12 +257,7 @@ TEST(Bake, TorusDistancesMatchClosedForm) {
       asset.voxelmap,
       [&](const Vec3& p) { return std::hypot(std::hypot(p[0], p[1]) - R, p[2]) - r; }, 20000,
       2e-5 /* > sagitta of the 720 x 240 tessellation, ~9e-6 m */);
-  std::printf("torus res 160: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", s.samples,
-              s.max_error, s.mean_error, s.sign_mismatches);
-  EXPECT_GE(s.samples, 10000u);
-  EXPECT_LE(s.max_error, 0.5);
-  EXPECT_LE(s.mean_error, 0.1);
-  EXPECT_EQ(s.sign_mismatches, 0u);
+  expect_accurate(s, "torus res 160");
   expect_layers_consistent(asset.voxelmap);
   // Deep layers approximate the true depth: the tube centre is r deep.
   const Voxelmap& vm = asset.voxelmap;

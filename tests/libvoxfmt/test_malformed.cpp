@@ -39,6 +39,14 @@ class Malformed : public ::testing::Test {
     for (const Issue& issue : validate_file(file_)) found |= issue.code == code;
     EXPECT_TRUE(found);
   }
+  // Replaces dataset `path` by an (unwritten) one of another file type or shape.
+  static void replace_dataset(hid_t f, const char* path, hid_t file_type, std::vector<hsize_t> dims) {
+    H5Ldelete(f, path, H5P_DEFAULT);
+    hid_t s = H5Screate_simple(int(dims.size()), dims.data(), nullptr);
+    hid_t d = H5Dcreate2(f, path, file_type, s, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    H5Dclose(d);
+    H5Sclose(s);
+  }
   static void write_u32(hid_t f, const char* path, std::vector<uint32_t> values) {
     hid_t d = H5Dopen2(f, path, H5P_DEFAULT);
     ASSERT_GE(H5Dwrite(d, H5T_NATIVE_UINT32, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
@@ -72,26 +80,12 @@ TEST_F(Malformed, MissingDataset) {
 }
 
 TEST_F(Malformed, WrongDtype) {
-  mutate([](hid_t f) {
-    H5Ldelete(f, "/voxelmap/layers", H5P_DEFAULT);
-    hsize_t dims[3] = {5, 9, 13};
-    hid_t s = H5Screate_simple(3, dims, nullptr);
-    hid_t d = H5Dcreate2(f, "/voxelmap/layers", H5T_IEEE_F32LE, s, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    H5Dclose(d);
-    H5Sclose(s);
-  });
+  mutate([](hid_t f) { replace_dataset(f, "/voxelmap/layers", H5T_IEEE_F32LE, {5, 9, 13}); });
   expect_refused(IssueCode::WrongDtype, "/voxelmap/layers");
 }
 
 TEST_F(Malformed, WrongShape) {
-  mutate([](hid_t f) {
-    H5Ldelete(f, "/pointshell/points", H5P_DEFAULT);
-    hsize_t dims[2] = {7, 2};
-    hid_t s = H5Screate_simple(2, dims, nullptr);
-    hid_t d = H5Dcreate2(f, "/pointshell/points", H5T_IEEE_F64LE, s, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    H5Dclose(d);
-    H5Sclose(s);
-  });
+  mutate([](hid_t f) { replace_dataset(f, "/pointshell/points", H5T_IEEE_F64LE, {7, 2}); });
   expect_refused(IssueCode::WrongShape, "/pointshell/points");
 }
 
