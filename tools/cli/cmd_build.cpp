@@ -59,16 +59,12 @@ int run(const Options& o) {
     std::error_code ec;
     const uint64_t file_size = std::filesystem::file_size(o.output, ec);
     const PointShell& ps = asset.point_shell;
-    std::vector<uint32_t> per_level;
-    for (size_t l = 0; l < ps.level_count(); ++l) per_level.push_back(ps.level_offsets[l + 1] - ps.level_offsets[l]);
     if (o.json) {
       nlohmann::json timings = nlohmann::json::object();
       for (const auto& t : report.timings) timings[t.stage] = t.seconds;
       nlohmann::json warnings = nlohmann::json::array();
       for (const auto& w : report.repair.warnings) warnings.push_back({{"code", w.code}, {"message", w.message}});
       const Voxelmap& vm = asset.voxelmap;
-      size_t stored = 0;
-      for (float d : vm.distances) stored += Voxelmap::is_stored(d);
       std::cout << to_text(nlohmann::json{{"status", "ok"},
                                   {"input", o.mesh},
                                   {"output", o.output},
@@ -79,8 +75,8 @@ int run(const Options& o) {
                                   {"total_s", total},
                                   {"peak_memory_bytes", peak_memory_bytes()},
                                   {"file_size_bytes", file_size},
-                                  {"voxelmap", {{"dims", vm.dims}, {"voxel_size", vm.voxel_size}, {"stored_distances", stored}}},
-                                  {"pointshell", {{"points", ps.size()}, {"levels", ps.level_count()}, {"points_per_level", per_level}}},
+                                  {"voxelmap", {{"dims", vm.dims}, {"voxel_size", vm.voxel_size}, {"stored_distances", vm.stored_count()}}},
+                                  {"pointshell", {{"points", ps.size()}, {"levels", ps.level_count()}, {"points_per_level", ps.points_per_level()}}},
                                   {"volume", asset.mass.volume},
                                   {"warnings", warnings}})
                 << "\n";

@@ -32,14 +32,14 @@ Summary summarize(const std::string& file, const Asset& a) {
   std::error_code ec;
   s.file_size = std::filesystem::file_size(file, ec);
   const Voxelmap& vm = a.voxelmap;
-  for (float d : vm.distances) s.stored_distances += Voxelmap::is_stored(d);
+  s.stored_distances = vm.stored_count();
   if (!vm.layers.empty()) {
     auto [lo, hi] = std::minmax_element(vm.layers.begin(), vm.layers.end());
     s.layer_min = *lo;
     s.layer_max = *hi;
   }
   const PointShell& ps = a.point_shell;
-  for (size_t l = 0; l < ps.level_count(); ++l) s.points_per_level.push_back(ps.level_offsets[l + 1] - ps.level_offsets[l]);
+  s.points_per_level = ps.points_per_level();
   const size_t n = ps.size();
   s.memory_bytes = vm.layers.size() * sizeof(int16_t) + vm.distances.size() * sizeof(float) +
                    n * (2 * sizeof(Vec3) + sizeof(Vec3f) + sizeof(double) + 2 * sizeof(uint32_t)) +

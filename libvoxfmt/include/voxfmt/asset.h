@@ -46,6 +46,12 @@ struct Voxelmap {
     return {origin[0] + voxel_size * i, origin[1] + voxel_size * j, origin[2] + voxel_size * k};
   }
   static bool is_stored(float distance) { return !std::isnan(distance); }
+  /// Number of voxels with a stored distance.
+  size_t stored_count() const {
+    size_t count = 0;
+    for (float d : distances) count += is_stored(d);
+    return count;
+  }
 };
 
 /// Point shell organised as a breadth-first point-sphere tree (spec §4). Node n is point n.
@@ -62,6 +68,12 @@ struct PointShell {
 
   size_t size() const { return points.size(); }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }
+  /// Number of nodes on each tree level, root first.
+  std::vector<uint32_t> points_per_level() const {
+    std::vector<uint32_t> sizes;
+    for (size_t l = 0; l < level_count(); ++l) sizes.push_back(level_offsets[l + 1] - level_offsets[l]);
+    return sizes;
+  }
 };
 
 /// Unit-density mass properties of the closed surface (spec §5).
