@@ -1,13 +1,6 @@
 // voxfmt build stages against exact references: CGAL's AABB tree for the bunny, analytic distance for a torus.
 #include <gtest/gtest.h>
 
-#include <CGAL/AABB_face_graph_triangle_primitive.h>
-#include <CGAL/AABB_traits.h>
-#include <CGAL/AABB_tree.h>
-#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <CGAL/Side_of_triangle_mesh.h>
-#include <CGAL/Surface_mesh.h>
-
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -15,39 +8,16 @@
 #include <random>
 
 #include "bake.h"
+#include "exact_surface.h"
 #include "winding_number.h"
 #include "voxfmt/validate.h"
 
 namespace voxfmt::bake {
 namespace {
 
-using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
-using Point = Kernel::Point_3;
-using Mesh = CGAL::Surface_mesh<Point>;
-using Primitive = CGAL::AABB_face_graph_triangle_primitive<Mesh>;
-using Tree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, Primitive>>;
-
 const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
 
-/// Exact distance and inside test of a closed mesh.
-class ExactSurface {
- public:
-  explicit ExactSurface(const TriangleMesh& m) {
-    std::vector<Mesh::Vertex_index> v;
-    for (const Vec3& p : m.vertices) v.push_back(mesh_.add_vertex(Point(p[0], p[1], p[2])));
-    for (const auto& t : m.triangles) mesh_.add_face(v[t[0]], v[t[1]], v[t[2]]);
-    tree_ = std::make_unique<Tree>(faces(mesh_).first, faces(mesh_).second, mesh_);
-    tree_->accelerate_distance_queries();
-    inside_ = std::make_unique<CGAL::Side_of_triangle_mesh<Mesh, Kernel>>(*tree_);
-  }
-  double distance(const Vec3& p) const { return std::sqrt(tree_->squared_distance(Point(p[0], p[1], p[2]))); }
-  bool inside(const Vec3& p) const { return (*inside_)(Point(p[0], p[1], p[2])) == CGAL::ON_BOUNDED_SIDE; }
-
- private:
-  Mesh mesh_;
-  std::unique_ptr<Tree> tree_;
-  std::unique_ptr<CGAL::Side_of_triangle_mesh<Mesh, Kernel>> inside_;
-};
+using test::ExactSurface;
 
 struct ErrorStats {
   size_t samples = 0, sign_mismatches = 0;

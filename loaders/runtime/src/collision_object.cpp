@@ -1,0 +1,93 @@
+#include "vps/collision_object.h"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+
+#include "voxfmt/io.h"
+#include "voxfmt/validate.h"
+
+namespace vps {
+namespace {
+
+Eigen::Vector3f to_float(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]).cast<float>(); }
+Eigen::Vector3f to_float(const voxfmt::Vec3f& v) { return Eigen::Vector3f(v[0], v[1], v[2]); }
+Eigen::Vector3d to_double(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
+
+PointTree make_tree(const voxfmt::PointShell& shell) {
+  PointTree tree;
+  const size_t n = shell.size();
+  tree.points.reserve(n);
+  tree.normals.reserve(n);
+  tree.sphere_centers.reserve(n);
+  for (size_t i = 0; i < n; ++i) {
+    tree.points.push_back(to_float(shell.points[i]));
+    tree.normals.push_back(to_float(shell.normals[i]));
+    tree.sphere_centers.push_back(to_float(shell.sphere_centers[i]));
+  }
+  tree.sphere_radii.reserve(n);
+  // Single precision rounds centres and points by ~1e-7 relative; grow radii so spheres still enclose.
+  for (double r : shell.sphere_radii) tree.sphere_radii.push_back(float(r) * (1.0f + 1e-6f) + 1e-7f);
+  tree.child_begin = shell.child_begin;
+  tree.child_count = shell.child_count;
+  tree.level_offsets = shell.level_offsets;
+  return tree;
+}
+
+}  // namespace
+
+size_t PointTree::memory_bytes() const {
+  return points.capacity() * sizeof(Eigen::Vector3f) + normals.capacity() * sizeof(Eigen::Vector3f) +
+         sphere_centers.capacity() * sizeof(Eigen::Vector3f) + sphere_radii.capacity() * sizeof(float) +
+         (child_begin.capacity() + child_count.capacity() + level_offsets.capacity()) * sizeof(uint32_t);
+}
+
+voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(const std::string& path,
+                                                                             const LoadOptions& options) {
+  voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
+  if (!asset) return asset.error();
+  return from_asset(asset.value(), options);
+}
+
+voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_asset(const voxfmt::Asset& asset,
+                                                                                   const LoadOptions& options) {
+  const std::vector<voxfmt::Issue> issues = voxfmt::validate_asset(asset, voxfmt::ValidationLevel::Quick);
+  for (const voxfmt::Issue& issue : issues)
+    if (issue.severity == voxfmt::Severity::Error)
+      return voxfmt::Error{issue.code, "asset is not valid: " + issue.path + ": " + issue.message};
+  if (!options.load_voxelmap && !options.load_point_shell)
+    return voxfmt::Error{voxfmt::IssueCode::ReadFailed, "LoadOptions asks for neither voxelmap nor point shell"};
+
+  auto object = std::make_shared<CollisionObject>();
+  object->bounds_min_ = to_double(asset.bounds_min);
+  object->bounds_max_ = to_double(asset.bounds_max);
+  if (options.load_voxelmap)
+    object->voxelmap_ =
+        SparseVoxelmap::from_dense(asset.voxelmap, asset.bounds_min, asset.bounds_max, options.voxelmap);
+  if (options.load_point_shell) object->tree_ = make_tree(asset.point_shell);
+
+  object->volume_ = asset.mass.volume;
+  object->center_of_mass_ = to_double(asset.mass.center_of_mass);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) object->inertia_(r, c) = asset.mass.inertia[size_t(r * 3 + c)];
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(0.5 * (object->inertia_ + object->inertia_.transpose()));
+  object->principal_moments_ = eigen.eigenvalues().cwiseMax(0.0);
+  object->principal_axes_ = eigen.eigenvectors();
+  if (object->principal_axes_.determinant() < 0) object->principal_axes_.col(2) *= -1.0;
+
+  double radius2 = 0.0;
+  for (const Eigen::Vector3f& p : object->tree_.points)
+    radius2 = std::max(radius2, (p.cast<double>() - object->center_of_mass_).squaredNorm());
+  for (int corner = 0; corner < 8; ++corner) {  // the box also bounds a point-less object
+    const Eigen::Vector3d c((corner & 1) ? object->bounds_max_.x() : object->bounds_min_.x(),
+                            (corner & 2) ? object->bounds_max_.y() : object->bounds_min_.y(),
+                            (corner & 4) ? object->bounds_max_.z() : object->bounds_min_.z());
+    if (object->tree_.size() == 0) radius2 = std::max(radius2, (c - object->center_of_mass_).squaredNorm());
+  }
+  object->bounding_radius_ = std::sqrt(radius2);
+  object->point_spacing_ = asset.point_shell.point_spacing.value_or(0.0);
+  return std::shared_ptr<const CollisionObject>(std::move(object));
+}
+
+}  // namespace vps

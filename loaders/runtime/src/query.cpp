@@ -1,0 +1,93 @@
+#include "vps/query.h"
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+
+namespace vps {
+namespace {
+
+struct VoxelmapTarget {
+  const SparseVoxelmap& map;
+  float lower_bound(const Eigen::Vector3f& u) const { return map.distance_lower_bound(u); }
+  float distance(const Eigen::Vector3f& u, bool& exact) const {
+    const FieldSample s = map.sample(u);
+    exact = s.exact;
+    return s.distance;
+  }
+};
+
+// `shell` carries the points, `field` the voxelmap. Contacts are expressed for the pair (A, B) given by the
+// caller: if the shell is B's, the separating direction for A is the opposite of the shell object's.
+void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const CollisionObject& field,
+                    const Pose& field_pose, bool shell_is_b, const QueryOptions& options, ContactSet& out,
+                    QueryScratch& scratch) {
+  if (!shell.has_point_shell() || !field.has_voxelmap()) return;
+  const SparseVoxelmap& map = field.voxelmap();
+  const PointTree& tree = shell.point_tree();
+  // shell asset frame -> world -> field asset frame -> field grid (voxel units).
+  const double to_voxels = 1.0 / (field_pose.scale * map.voxel_size());
+  const Eigen::Matrix3d field_rotation_t = field_pose.rotation.transpose();
+  const Eigen::Matrix3d M = to_voxels * field_rotation_t * shell_pose.rotation * shell_pose.scale;
+  const Eigen::Vector3d m = to_voxels * field_rotation_t * (shell_pose.translation - field_pose.translation) -
+                            map.origin() / map.voxel_size();
+  const double metres_per_unit = field_pose.scale * map.voxel_size();
+  const float proximity = float(options.proximity / metres_per_unit);
+  const float radius_scale = float(shell_pose.scale * to_voxels);
+  const double sign = shell_is_b ? -1.0 : 1.0;
+  const Eigen::Matrix3f Mf = M.cast<float>();
+  const Eigen::Vector3f mf = m.cast<float>();
+
+  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats,
+                        scratch.queue, [&](uint32_t node, float d, bool exact) {
+                          Contact contact;
+                          contact.point = shell_pose.apply(tree.points[node].cast<double>());
+                          Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+                          if (options.normal_source == NormalSource::kDistanceGradient) {
+                            Eigen::Vector3f gradient;
+                            map.sample(Mf * tree.points[node] + mf, &gradient);
+                            if (gradient.squaredNorm() > 0.0f)
+                              normal = field_pose.rotation * gradient.cast<double>().normalized();
+                          }
+                          if (normal.squaredNorm() == 0.0)  // classical VPS, or a flat field
+                            normal = (shell_pose.rotation * tree.normals[node].cast<double>()).normalized();
+                          contact.normal = sign * normal;
+                          contact.depth = -double(d) * metres_per_unit;
+                          contact.point_index = node;
+                          contact.point_of_b = shell_is_b;
+                          contact.exact = exact;
+                          out.contacts.push_back(contact);
+                        });
+}
+
+}  // namespace
+
+QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b,
+                                 const Pose& pose_b, QueryDirection requested) {
+  const bool a_in_b = a.has_point_shell() && b.has_voxelmap();
+  const bool b_in_a = b.has_point_shell() && a.has_voxelmap();
+  if (requested != QueryDirection::kAuto) return requested;
+  if (!a_in_b) return QueryDirection::kBPointsInA;
+  if (!b_in_a) return QueryDirection::kAPointsInB;
+  // The smaller object's points sample the contact region of the larger one densely; for similar sizes,
+  // one direction keeps the cost down and A's points decide.
+  const double ra = a.bounding_radius() * pose_a.scale, rb = b.bounding_radius() * pose_b.scale;
+  return rb < 0.9 * ra ? QueryDirection::kBPointsInA : QueryDirection::kAPointsInB;
+}
+
+void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
+                    const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
+  const QueryDirection direction = resolve_direction(a, pose_a, b, pose_b, options.direction);
+  if (direction == QueryDirection::kAPointsInB || direction == QueryDirection::kBoth)
+    shell_in_field(a, pose_a, b, pose_b, false, options, out, scratch);
+  if (direction == QueryDirection::kBPointsInA || direction == QueryDirection::kBoth)
+    shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch);
+}
+
+void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
+                    const QueryOptions& options, ContactSet& out) {
+  QueryScratch scratch;
+  query_contacts(a, pose_a, b, pose_b, options, out, scratch);
+}
+
+}  // namespace vps

@@ -1,0 +1,344 @@
+// Runtime (loaders/runtime) against exact references: the bricked voxelmap against the dense grids it came
+// from, and VPS contacts against CGAL's exact distance to the bunny mesh.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+#include <iostream>
+#include <random>
+
+#include "bake.h"
+#include "exact_surface.h"
+#include "vps/collision_object.h"
+#include "vps/forces.h"
+#include "vps/query.h"
+
+namespace vps {
+namespace {
+
+using voxfmt::Vec3;
+
+const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
+
+/// The seed's bunny (resolution 306, 35k points), baked once for all tests.
+struct Bunny {
+  voxfmt::Asset asset;
+  std::shared_ptr<const CollisionObject> object;
+  std::unique_ptr<voxfmt::test::ExactSurface> exact;
+  voxfmt::bake::TriangleMesh mesh;
+  double h = 0;
+
+  static const Bunny& get() {
+    static const Bunny bunny = [] {
+      Bunny b;
+      voxfmt::bake::BuildOptions options;
+      options.voxelmap.resolution = 306;
+      options.point_shell.points = 35000;
+      voxfmt::bake::BuildReport report;
+      b.asset = voxfmt::bake::build_asset(kMeshes + "/bunny00.off", options, report);
+      voxfmt::bake::RepairReport repair;
+      b.mesh = voxfmt::bake::repair_mesh(voxfmt::bake::import_mesh(kMeshes + "/bunny00.off"), repair, false);
+      b.exact = std::make_unique<voxfmt::test::ExactSurface>(b.mesh);
+      auto loaded = CollisionObject::from_asset(b.asset);
+      if (!loaded) throw std::runtime_error(loaded.error().message);
+      b.object = loaded.value();
+      b.h = b.asset.voxelmap.voxel_size;
+      return b;
+    }();
+    return bunny;
+  }
+};
+
+Vec3 to_vec3(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
+
+Pose make_pose(double angle_deg, const Eigen::Vector3d& axis, const Eigen::Vector3d& translation) {
+  Pose pose;
+  pose.rotation = Eigen::AngleAxisd(angle_deg * M_PI / 180.0, axis.normalized()).toRotationMatrix();
+  pose.translation = translation;
+  return pose;
+}
+
+/// Exact signed distance of a world point to the bunny placed at `pose`.
+double exact_distance(const Bunny& bunny, const Pose& pose, const Eigen::Vector3d& world) {
+  const Eigen::Vector3d local = pose.rotation.transpose() * (world - pose.translation) / pose.scale;
+  return bunny.exact->signed_distance(to_vec3(local)) * pose.scale;
+}
+
+TEST(SparseVoxelmap, ReproducesTheDenseGrids) {
+  const Bunny& bunny = Bunny::get();
+  const voxfmt::Voxelmap& dense = bunny.asset.voxelmap;
+  const SparseVoxelmap& map = bunny.object->voxelmap();
+  const int far = -SparseVoxelmap::Options{}.outer_layers_kept - 1;
+  size_t layer_mismatches = 0, distance_mismatches = 0, clamped = 0;
+  double max_distance_error = 0;
+  for (uint32_t k = 0; k < dense.dims[2]; ++k)
+    for (uint32_t j = 0; j < dense.dims[1]; ++j)
+      for (uint32_t i = 0; i < dense.dims[0]; ++i) {
+        const size_t v = dense.linear_index(i, j, k);
+        const int layer = map.layer_at(int(i), int(j), int(k));
+        if (dense.layers[v] > far) {
+          layer_mismatches += layer != dense.layers[v];
+        } else {
+          // Far outside, a brick keeps the layer closest to the surface: a bound, never farther than the truth.
+          ++clamped;
+          layer_mismatches += layer < dense.layers[v] || layer > far;
+        }
+        const float stored = map.stored_distance_at(int(i), int(j), int(k));
+        if (voxfmt::Voxelmap::is_stored(dense.distances[v]) != !std::isnan(stored)) {
+          ++distance_mismatches;
+        } else if (!std::isnan(stored)) {
+          max_distance_error = std::max(max_distance_error, std::fabs(stored - dense.distances[v] / bunny.h));
+        }
+      }
+  std::cout << "[ figures  ] far-outside voxels kept as a bound: " << clamped << ", max distance quantisation "
+            << max_distance_error << " voxel\n";
+  EXPECT_EQ(layer_mismatches, 0u);
+  EXPECT_EQ(distance_mismatches, 0u);
+  EXPECT_LT(max_distance_error, 1e-3);
+}
+
+TEST(SparseVoxelmap, BunnyAt306FitsIn16MB) {
+  const Bunny& bunny = Bunny::get();
+  const double dense_mb = double(bunny.asset.voxelmap.voxel_count()) * sizeof(float) / 1e6;
+  const double map_mb = double(bunny.object->voxelmap().memory_bytes()) / 1e6;
+  const double total_mb = double(bunny.object->memory_bytes()) / 1e6;
+  std::cout << "[ figures  ] voxelmap " << map_mb << " MB (dense float grid " << dense_mb << " MB), with point tree "
+            << total_mb << " MB; bricks " << bunny.object->voxelmap().brick_count() << ", with layers "
+            << bunny.object->voxelmap().layer_brick_count() << ", with distances "
+            << bunny.object->voxelmap().distance_brick_count() << "\n";
+  EXPECT_LE(total_mb, 16.0);
+}
+
+TEST(SparseVoxelmap, LowerBoundNeverExceedsExactDistance) {
+  const Bunny& bunny = Bunny::get();
+  const SparseVoxelmap& map = bunny.object->voxelmap();
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> unit(-0.7, 0.7);  // bunny bounds are about +-0.5 m: also outside the grid
+  size_t violations = 0;
+  for (int n = 0; n < 20000; ++n) {
+    const Eigen::Vector3d p(unit(rng), unit(rng), unit(rng));
+    const double bound = map.distance_lower_bound(map.to_grid(p)) * bunny.h;
+    if (bound > bunny.exact->signed_distance(to_vec3(p)) + 1e-6) ++violations;
+  }
+  EXPECT_EQ(violations, 0u);
+}
+
+TEST(SparseVoxelmap, SampleMatchesExactDistanceNearTheSurface) {
+  const Bunny& bunny = Bunny::get();
+  const SparseVoxelmap& map = bunny.object->voxelmap();
+  const PointTree& tree = bunny.object->point_tree();
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> offset(-2.0, 2.0);
+  double max_error = 0, sum_error = 0;
+  size_t inexact = 0, sign_mismatches = 0;
+  const size_t n = 10000;
+  for (size_t s = 0; s < n; ++s) {
+    const size_t i = size_t(rng() % tree.size());
+    const double t = offset(rng) * bunny.h;  // along the inward normal, within two voxels of the surface
+    const Eigen::Vector3d p = tree.points[i].cast<double>() + t * tree.normals[i].cast<double>();
+    const FieldSample sample = map.sample(map.to_grid(p));
+    const double exact = bunny.exact->signed_distance(to_vec3(p));
+    const double error = std::fabs(sample.distance * bunny.h - exact) / bunny.h;
+    max_error = std::max(max_error, error);
+    sum_error += error;
+    // Within 3/4 voxel of the surface all 8 cell corners lie inside the complete part of the band (2.5 voxels).
+    if (std::fabs(t) <= 0.75 * bunny.h) inexact += !sample.exact;
+    if (std::fabs(exact) > 0.1 * bunny.h && (sample.distance < 0) != (exact < 0)) ++sign_mismatches;
+  }
+  std::cout << "[ figures  ] sample vs exact within 2 voxels of the surface: max " << max_error << " voxel, mean "
+            << sum_error / n << " voxel, " << inexact << " within 3/4 voxel not from stored distances\n";
+  EXPECT_LE(max_error, 0.5);
+  EXPECT_LE(sum_error / n, 0.1);
+  EXPECT_EQ(inexact, 0u);
+  EXPECT_EQ(sign_mismatches, 0u);
+}
+
+/// Checks a contact set against the exact meshes: depths within one voxel, and every finest-level point
+/// deeper than one voxel reported. Returns the number of contacts.
+size_t check_against_exact(const Bunny& bunny, const Pose& pa, const Pose& pb, const QueryOptions& options,
+                           double proximity_reach, double tolerance_voxels, double tolerance_fraction) {
+  ContactSet set;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, set);
+  const double voxel = bunny.h * pb.scale;
+  std::vector<bool> reported(bunny.object->point_tree().size(), false);
+  double max_error = 0, max_depth = 0;
+  size_t beyond_tolerance = 0;
+  for (const Contact& c : set.contacts) {
+    EXPECT_FALSE(c.point_of_b);
+    const double exact = exact_distance(bunny, pb, c.point);
+    const double error = std::fabs(-c.depth - exact);
+    max_error = std::max(max_error, error / voxel);
+    max_depth = std::max(max_depth, -exact / voxel);
+    beyond_tolerance += error > tolerance_voxels * voxel + tolerance_fraction * std::fabs(exact);
+    EXPECT_NEAR(c.normal.norm(), 1.0, 1e-6);
+    reported[c.point_index] = true;
+  }
+  size_t missed = 0;
+  const PointTree& tree = bunny.object->point_tree();
+  for (size_t i = 0; i < tree.size(); ++i) {
+    const double d = exact_distance(bunny, pb, pa.apply(tree.points[i].cast<double>()));
+    if (d < proximity_reach - voxel && !reported[i]) ++missed;
+  }
+  std::cout << "[ figures  ] " << set.contacts.size() << " contacts, depth error max " << max_error
+            << " voxel at exact depths up to " << max_depth << " voxel; visited " << set.stats.nodes_visited
+            << " nodes, tested " << set.stats.points_tested << " points\n";
+  EXPECT_EQ(beyond_tolerance, 0u);
+  EXPECT_EQ(missed, 0u);
+  return set.contacts.size();
+}
+
+/// Distance along `direction` to translate a rotated copy A of the bunny so that it is `gap` metres from B
+/// (negative gap: overlapping by that much), by bisection on exact vertex-to-mesh distances both ways.
+double translation_for_gap(const Bunny& bunny, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& direction,
+                           double gap) {
+  // Only vertices on the facing sides can be closest: A's back along `direction`, B's front.
+  double a_min = 1e9, b_max = -1e9;
+  for (const Vec3& v : bunny.mesh.vertices) {
+    const Eigen::Vector3d p(v[0], v[1], v[2]);
+    a_min = std::min(a_min, (rotation * p).dot(direction));
+    b_max = std::max(b_max, p.dot(direction));
+  }
+  std::vector<Eigen::Vector3d> a_side, b_side;
+  for (const Vec3& v : bunny.mesh.vertices) {
+    const Eigen::Vector3d p(v[0], v[1], v[2]);
+    if ((rotation * p).dot(direction) < a_min + 0.2) a_side.push_back(rotation * p);
+    if (p.dot(direction) > b_max - 0.2) b_side.push_back(p);
+  }
+  auto signed_gap = [&](double t) {
+    double d = std::numeric_limits<double>::max();
+    for (const Eigen::Vector3d& p : a_side) d = std::min(d, bunny.exact->signed_distance(to_vec3(p + t * direction)));
+    for (const Eigen::Vector3d& p : b_side)
+      d = std::min(d, bunny.exact->signed_distance(to_vec3(rotation.transpose() * (p - t * direction))));
+    return d;
+  };
+  double lo = b_max - a_min - 0.3, hi = b_max - a_min + 0.05;  // overlapping .. apart
+  for (int it = 0; it < 30; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (signed_gap(mid) < gap ? lo : hi) = mid;
+  }
+  return hi;
+}
+
+TEST(Query, ShallowContactsAgreeWithExactMeshes) {
+  const Bunny& bunny = Bunny::get();
+  QueryOptions options;
+  options.direction = QueryDirection::kAPointsInB;
+  const Pose pb;
+  struct Case { double angle; Eigen::Vector3d axis, direction; double depth_voxels; };
+  const Case cases[] = {{0, Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitX(), 2},
+                        {35, Eigen::Vector3d(1, 2, 0.5), Eigen::Vector3d(0.2, 1, 0.1), 4},
+                        {120, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, -1, 0.3), 6}};
+  for (const Case& c : cases) {
+    Pose pa = make_pose(c.angle, c.axis, Eigen::Vector3d::Zero());
+    const Eigen::Vector3d e = c.direction.normalized();
+    pa.translation = translation_for_gap(bunny, pa.rotation, e, -c.depth_voxels * bunny.h) * e;
+    EXPECT_GT(check_against_exact(bunny, pa, pb, options, 0.0, 1.0, 0.0), 3u);
+  }
+}
+
+TEST(Query, DeepContactsFollowTheLayers) {
+  // Deep inside, depth comes from layers (a chamfer distance transform in our bake): spec §3 promises
+  // layer * h ~ depth; a 26-neighbour chamfer overestimates by up to ~11% (direction (3,2,1)), so allow one
+  // voxel plus 12% of the depth.
+  const Bunny& bunny = Bunny::get();
+  QueryOptions options;
+  options.direction = QueryDirection::kAPointsInB;
+  const Pose pb;
+  const Pose poses[] = {make_pose(0, Eigen::Vector3d::UnitY(), Eigen::Vector3d(0.55, 0.0, 0.0)),
+                        make_pose(90, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.05, 0.05, 0.0))};
+  for (const Pose& pa : poses) EXPECT_GT(check_against_exact(bunny, pa, pb, options, 0.0, 1.0, 0.12), 100u);
+}
+
+TEST(Query, ScaledPosesScaleDepths) {
+  const Bunny& bunny = Bunny::get();
+  QueryOptions options;
+  options.direction = QueryDirection::kAPointsInB;
+  Pose pa, pb;
+  pa.translation = translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), -3 * bunny.h) *
+                   Eigen::Vector3d::UnitX();
+  pa.scale = pb.scale = 0.15;  // a 15 cm bunny
+  pa.translation *= 0.15;
+  EXPECT_GT(check_against_exact(bunny, pa, pb, options, 0.0, 1.0, 0.0), 3u);
+}
+
+TEST(Query, OneMillimetreGapHasNoContactButProximityPoints) {
+  const Bunny& bunny = Bunny::get();
+  const double gap = 0.001;
+  Pose pa, pb;
+  pa.translation = translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), gap) * Eigen::Vector3d::UnitX();
+  QueryOptions options;
+  options.direction = QueryDirection::kBoth;
+  ContactSet set;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, set);
+  EXPECT_TRUE(set.contacts.empty()) << set.contacts.size() << " contacts at a 1 mm gap";
+
+  options.direction = QueryDirection::kAPointsInB;
+  options.proximity = 0.01;  // three voxels
+  const size_t near = check_against_exact(bunny, pa, pb, options, options.proximity, 1.0, 0.0);
+  EXPECT_GT(near, 0u);
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, set);
+  for (const Contact& c : set.contacts) {
+    EXPECT_LT(c.depth, 0.0);
+    EXPECT_LE(-c.depth, options.proximity);
+  }
+}
+
+TEST(Query, PointBudgetStopsAtATreeLevel) {
+  const Bunny& bunny = Bunny::get();
+  const PointTree& tree = bunny.object->point_tree();
+  const Pose pa = make_pose(0, Eigen::Vector3d::UnitY(), Eigen::Vector3d(0.55, 0.0, 0.0)), pb;
+  QueryOptions options;
+  options.direction = QueryDirection::kAPointsInB;
+  options.point_budget = 828;  // the seed's coarse shell: levels 0..4 of this tree
+  ContactSet coarse, fine;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, coarse);
+  options.point_budget = std::numeric_limits<size_t>::max();
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, fine);
+  EXPECT_LE(coarse.stats.points_tested, 828u);
+  EXPECT_LT(coarse.stats.deepest_level, fine.stats.deepest_level);
+  EXPECT_EQ(fine.stats.deepest_level, tree.level_count() - 1);
+  EXPECT_GT(coarse.contacts.size(), 0u);
+  EXPECT_LT(coarse.contacts.size(), fine.contacts.size());
+  for (const Contact& c : coarse.contacts) EXPECT_LT(c.point_index, tree.points_up_to_level(coarse.stats.deepest_level));
+}
+
+TEST(Query, BothDirectionsMirror) {
+  const Bunny& bunny = Bunny::get();
+  const Pose pa = make_pose(30, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.5, 0.1, 0.0)), pb;
+  QueryOptions options;
+  ContactSet ab, ba;
+  options.direction = QueryDirection::kAPointsInB;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, ab);
+  options.direction = QueryDirection::kBPointsInA;
+  query_contacts(*bunny.object, pb, *bunny.object, pa, options, ba);
+  // Same geometry seen from the other side: same points, normals reversed.
+  ASSERT_EQ(ab.contacts.size(), ba.contacts.size());
+  for (size_t i = 0; i < ab.contacts.size(); ++i) {
+    EXPECT_EQ(ab.contacts[i].point_index, ba.contacts[i].point_index);
+    EXPECT_TRUE(ba.contacts[i].point_of_b);
+    EXPECT_NEAR((ab.contacts[i].normal + ba.contacts[i].normal).norm(), 0.0, 1e-9);
+    EXPECT_NEAR(ab.contacts[i].depth, ba.contacts[i].depth, 1e-9);
+  }
+}
+
+TEST(Forces, WrenchSumsPenaltyForces) {
+  ContactSet set;
+  set.contacts.push_back({Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.002, 0, false, true});
+  set.contacts.push_back({Eigen::Vector3d(-1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.001, 1, false, true});
+  set.contacts.push_back({Eigen::Vector3d(0, 5, 0), Eigen::Vector3d(0, 0, 1), -0.003, 2, false, true});  // proximity only
+  const Wrench w = vps_wrench(set, Eigen::Vector3d::Zero(), 1000.0);
+  EXPECT_NEAR((w.force - Eigen::Vector3d(0, 0, 3.0)).norm(), 0.0, 1e-12);
+  // (1,0,0) x (0,0,2) + (-1,0,0) x (0,0,1) = (0,-2,0) + (0,1,0)
+  EXPECT_NEAR((w.torque - Eigen::Vector3d(0, -1.0, 0)).norm(), 0.0, 1e-12);
+}
+
+TEST(Load, MissingFileIsAnError) {
+  auto result = CollisionObject::load("/nonexistent/bunny.vox.h5");
+  ASSERT_FALSE(result);
+  EXPECT_EQ(result.error().code, voxfmt::IssueCode::FileNotFound);
+  EXPECT_NE(result.error().message.find("/nonexistent/bunny.vox.h5"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace vps
