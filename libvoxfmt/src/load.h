@@ -13,5 +13,7 @@ namespace voxfmt::detail {
 /// Reads every object of `path` it can, appending findings to `issues`. Returns the asset only when no
 /// error-severity finding was made while reading (value rules are validate_asset's job).
 std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues);
+/// Reads only the root header (format name, version) and the provenance group.
+std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues);
 
 }  // namespace voxfmt::detail

@@ -136,6 +136,38 @@ void read_provenance(h5::Reader& r, hid_t g, Provenance& prov) {
                  true);
 }
 
+// Checks the root's format name and major version (spec §7); false when the file must not be read further.
+bool check_header(h5::Reader& r, FormatVersion& version) {
+  const hid_t root = r.file();
+  auto format = r.string_attribute(root, "/", "format");
+  if (!format) return false;
+  if (*format != "voxfmt") {
+    r.report(IssueCode::FormatNameMismatch, "/@format", "format is '" + *format + "', expected 'voxfmt'");
+    return false;
+  }
+  auto numbers = r.numeric_attribute<uint32_t>(root, "/", "format_version", {2});
+  if (!numbers) return false;
+  version = {(*numbers)[0], (*numbers)[1]};
+  if (version.major != kFormatVersion.major) {
+    r.report(IssueCode::VersionUnsupported, "/@format_version",
+             "format version " + std::to_string(version.major) + "." + std::to_string(version.minor) +
+                 " is not supported (this reader knows " + std::to_string(kFormatVersion.major) + ".x)");
+    return false;
+  }
+  if (version.minor > kFormatVersion.minor)
+    r.report(IssueCode::VersionNewerMinor, "/@format_version",
+             "format version " + std::to_string(version.major) + "." + std::to_string(version.minor) +
+                 " is newer than this reader's " + std::to_string(kFormatVersion.major) + "." +
+                 std::to_string(kFormatVersion.minor) + "; objects it does not know are ignored");
+  return true;
+}
+
+bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
+  for (size_t i = first; i < issues.size(); ++i)
+    if (issues[i].severity == Severity::Error) return false;
+  return true;
+}
+
 }  // namespace
 
 std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues) {
@@ -144,26 +176,7 @@ std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& iss
   if (!r.open()) return std::nullopt;
   const hid_t root = r.file();
   Asset asset;
-  auto format = r.string_attribute(root, "/", "format");
-  if (!format) return std::nullopt;
-  if (*format != "voxfmt") {
-    r.report(IssueCode::FormatNameMismatch, "/@format", "format is '" + *format + "', expected 'voxfmt'");
-    return std::nullopt;
-  }
-  auto version = r.numeric_attribute<uint32_t>(root, "/", "format_version", {2});
-  if (!version) return std::nullopt;
-  asset.version = {(*version)[0], (*version)[1]};
-  if (asset.version.major != kFormatVersion.major) {
-    r.report(IssueCode::VersionUnsupported, "/@format_version",
-             "format version " + std::to_string(asset.version.major) + "." + std::to_string(asset.version.minor) +
-                 " is not supported (this reader knows " + std::to_string(kFormatVersion.major) + ".x)");
-    return std::nullopt;
-  }
-  if (asset.version.minor > kFormatVersion.minor)
-    r.report(IssueCode::VersionNewerMinor, "/@format_version",
-             "format version " + std::to_string(asset.version.major) + "." + std::to_string(asset.version.minor) +
-                 " is newer than this reader's " + std::to_string(kFormatVersion.major) + "." +
-                 std::to_string(kFormatVersion.minor) + "; objects it does not know are ignored");
+  if (!check_header(r, asset.version)) return std::nullopt;
 
   check_vocabulary(r, r.string_attribute(root, "/", "units"), "/@units", {"m"});
   check_vocabulary(r, r.string_attribute(root, "/", "frame"), "/@frame", {"right-handed"});
@@ -177,9 +190,20 @@ std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& iss
   report_unknown(r, root, "/", {"voxelmap", "pointshell", "mass_properties", "provenance"},
                  {"format", "format_version", "units", "frame", "up_axis", "bounds_min", "bounds_max"}, true);
 
-  for (size_t i = first; i < issues.size(); ++i)
-    if (issues[i].severity == Severity::Error) return std::nullopt;
+  if (!no_errors_since(issues, first)) return std::nullopt;
   return asset;
+}
+
+std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues) {
+  const size_t first = issues.size();
+  h5::Reader r(path, issues);
+  if (!r.open()) return std::nullopt;
+  FormatVersion version;
+  if (!check_header(r, version)) return std::nullopt;
+  Provenance provenance;
+  if (auto g = r.group(r.file(), "/", "provenance")) read_provenance(r, g->get(), provenance);
+  if (!no_errors_since(issues, first)) return std::nullopt;
+  return provenance;
 }
 
 }  // namespace detail
@@ -200,6 +224,18 @@ Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings) 
     return std::move(*asset);
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::ReadFailed, path + ": not enough memory to read the asset"};
+  }
+}
+
+Result<Provenance> read_provenance(const std::string& path) {
+  std::vector<Issue> issues;
+  try {
+    std::optional<Provenance> provenance = detail::load_provenance(path, issues);
+    for (const Issue& issue : issues)
+      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message};
+    return std::move(*provenance);
+  } catch (const std::bad_alloc&) {
+    return Error{IssueCode::ReadFailed, path + ": not enough memory to read the provenance"};
   }
 }
 

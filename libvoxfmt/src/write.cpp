@@ -1,8 +1,10 @@
-// Writing an asset: validate, write a temporary file beside the target, rename over it.
+// Writing an asset: validate, write a temporary file beside the target, flush it, rename over it.
+#include <fcntl.h>
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 
 #include <atomic>
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 
@@ -82,6 +84,23 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
          (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
 }
 
+// fsync by path (HDF5 has closed its descriptor). A rename is only durable once the data it exposes is on
+// disk, and the rename itself once its directory is: without both, a power cut could leave an empty or torn
+// file under the final name.
+bool sync_path(const std::string& path, bool directory) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | (directory ? O_DIRECTORY : 0));
+  if (fd < 0) return false;
+  const int error = ::fsync(fd) == 0 ? 0 : errno;
+  ::close(fd);
+  errno = error;
+  return error == 0 || error == EINVAL;  // EINVAL: this file system cannot sync that kind of object
+}
+
+std::string parent_directory(const std::string& path) {
+  const size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? "." : slash == 0 ? "/" : path.substr(0, slash);
+}
+
 }  // namespace
 
 std::string hdf5_library_version() {
@@ -113,10 +132,15 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
     ok = false;
     reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
   }
+  if (ok && !sync_path(temp, false)) {
+    ok = false;
+    reason = std::string("cannot flush the temporary file to disk: ") + std::strerror(errno);
+  }
   if (ok && std::rename(temp.c_str(), path.c_str()) != 0) {
     ok = false;
     reason = std::string("cannot rename temporary file into place: ") + std::strerror(errno);
   }
+  if (ok) sync_path(parent_directory(path), true);  // best effort: the file is complete either way
   if (!ok) {
     std::remove(temp.c_str());
     return Error{IssueCode::WriteFailed, path + ": " + reason};

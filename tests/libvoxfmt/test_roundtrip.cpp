@@ -2,6 +2,7 @@
 
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 
 #include "test_support.h"
 #include "voxfmt/io.h"
@@ -89,6 +90,26 @@ TEST(RoundTrip, WriteReplacesAnExistingFileAndLeavesNoTemporary) {
   size_t entries = 0;
   for (auto it = std::filesystem::directory_iterator(dir); it != std::filesystem::directory_iterator(); ++it) ++entries;
   EXPECT_EQ(entries, 1u);
+}
+
+TEST(ReadProvenance, ReadsOnlyTheProvenanceAndRefusesWhatReadAssetRefuses) {
+  const std::string dir = test::scratch_dir("provenance");
+  const Asset a = test::make_full_asset();
+  ASSERT_TRUE(write_asset(dir + "/a.vox.h5", a));
+  Result<Provenance> p = read_provenance(dir + "/a.vox.h5");
+  ASSERT_TRUE(p) << p.error().message;
+  EXPECT_EQ(p.value().generator, a.provenance.generator);
+  EXPECT_EQ(p.value().source_sha256, a.provenance.source_sha256);
+  EXPECT_EQ(p.value().build_parameters_json, a.provenance.build_parameters_json);
+  EXPECT_EQ(p.value().build_warnings, a.provenance.build_warnings);
+
+  Result<Provenance> missing = read_provenance(dir + "/none.vox.h5");
+  ASSERT_FALSE(missing);
+  EXPECT_EQ(missing.error().code, IssueCode::FileNotFound);
+  { std::ofstream(dir + "/text.vox.h5") << "not hdf5"; }
+  Result<Provenance> text = read_provenance(dir + "/text.vox.h5");
+  ASSERT_FALSE(text);
+  EXPECT_EQ(text.error().code, IssueCode::NotHdf5);
 }
 
 TEST(Write, RefusesAnInvalidAssetAndWritesNothing) {

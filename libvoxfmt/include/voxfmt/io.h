@@ -16,13 +16,18 @@ struct WriteOptions {
   unsigned chunk_edge = 32;   ///< grid chunk edge in voxels (clamped to the grid)
 };
 
-/// Writes `asset` to `path` atomically: a temporary file beside it is written and renamed over `path`, so a
-/// failed write never leaves a partial file. Structural validation runs first; an invalid asset is refused.
+/// Writes `asset` to `path` atomically: a temporary file `PATH.partial-<pid>-<n>` beside it is written, flushed
+/// to disk and renamed over `path` (then the directory is flushed), so neither a failed write nor a crash ever
+/// leaves a partial file under `path`. Structural validation runs first; an invalid asset is refused.
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
 
 /// Reads and structurally validates an asset. Any error-severity finding fails the read (its message names
 /// the file, the object and the reason); warnings (e.g. a newer minor version) go to `warnings` if given.
 Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr);
+
+/// Reads only the format header and `/provenance` (no grids): a cheap look at where an asset came from, e.g.
+/// to decide whether it is up to date. Fails like read_asset on a file that is not a readable voxfmt asset.
+Result<Provenance> read_provenance(const std::string& path);
 
 /// Version of the HDF5 library libvoxfmt runs with, e.g. "1.10.8" (for provenance records).
 std::string hdf5_library_version();
