@@ -84,6 +84,30 @@ void query_contacts(const CollisionObject& a, const Pose& pose_a, const Collisio
     shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch);
 }
 
+void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points,
+                              size_t count, double radius, const QueryOptions& options, ContactSet& out) {
+  if (!a.has_voxelmap()) return;
+  const SparseVoxelmap& map = a.voxelmap();
+  const double metres_per_unit = pose_a.scale * map.voxel_size();
+  for (size_t i = 0; i < count; ++i) {
+    const Eigen::Vector3d asset = pose_a.rotation.transpose() * (points[i] - pose_a.translation) / pose_a.scale;
+    Eigen::Vector3f gradient;
+    const FieldSample s = map.sample(map.to_grid(asset), &gradient);
+    ++out.stats.points_tested;
+    const double distance = double(s.distance) * metres_per_unit - radius;
+    if (distance >= options.proximity || gradient.squaredNorm() == 0.0f) continue;
+    const Eigen::Vector3d outward = pose_a.rotation * gradient.cast<double>().normalized();
+    Contact contact;
+    contact.point = points[i] - radius * outward;
+    contact.normal = -outward;
+    contact.depth = -distance;
+    contact.point_index = uint32_t(i);
+    contact.point_of_b = true;
+    contact.exact = s.exact;
+    out.contacts.push_back(contact);
+  }
+}
+
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
                     const QueryOptions& options, ContactSet& out) {
   QueryScratch scratch;

@@ -1,0 +1,42 @@
+#include "vps/bullet/world.h"
+
+#include <chrono>
+
+namespace vps::bullet {
+
+void TimedDispatcher::dispatchAllCollisionPairs(btOverlappingPairCache* pairs, const btDispatcherInfo& info,
+                                                btDispatcher* dispatcher) {
+  const auto start = std::chrono::steady_clock::now();
+  btCollisionDispatcher::dispatchAllCollisionPairs(pairs, info, dispatcher);
+  last_us_ = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count();
+}
+
+World::World(const CollisionSettings& settings, bool register_vps) {
+  btDefaultCollisionConstructionInfo info;
+  prepare_construction_info(info);
+  configuration_ = std::make_unique<btDefaultCollisionConfiguration>(info);
+  dispatcher_ = std::make_unique<TimedDispatcher>(configuration_.get());
+  broadphase_ = std::make_unique<btDbvtBroadphase>();
+  solver_ = std::make_unique<btSequentialImpulseConstraintSolver>();
+  world_ = std::make_unique<btDiscreteDynamicsWorld>(dispatcher_.get(), broadphase_.get(), solver_.get(),
+                                                     configuration_.get());
+  if (register_vps) registration_ = register_vps_collision(*dispatcher_, settings);
+}
+
+World::~World() {
+  // Bodies leave the world before anything they point to is destroyed.
+  for (auto& body : bodies_) world_->removeRigidBody(body.get());
+}
+
+btRigidBody* World::add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform) {
+  btVector3 inertia(0, 0, 0);
+  if (mass > 0) shape->calculateLocalInertia(mass, inertia);
+  motion_states_.push_back(std::make_unique<btDefaultMotionState>(transform));
+  btRigidBody::btRigidBodyConstructionInfo info(mass, motion_states_.back().get(), shape.get(), inertia);
+  bodies_.push_back(std::make_unique<btRigidBody>(info));
+  shapes_.push_back(std::move(shape));
+  world_->addRigidBody(bodies_.back().get());
+  return bodies_.back().get();
+}
+
+}  // namespace vps::bullet

@@ -1,0 +1,231 @@
+// Bullet integration: a bunny settles on a plane at the exact rest height, a bunny rests on a bunny, and
+// Bullet's own pairs still work in a world with VPS registered.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+
+#include "bake.h"
+#include "vps/bullet/vps_shape.h"
+#include "vps/bullet/world.h"
+
+namespace vps::bullet {
+namespace {
+
+const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
+constexpr btScalar kDt = btScalar(1e-3);  // 1 kHz, the haptic rate
+
+struct Bunny {
+  std::shared_ptr<const CollisionObject> object;
+  voxfmt::bake::TriangleMesh mesh;
+  double h = 0;
+
+  static const Bunny& get() {
+    static const Bunny bunny = [] {
+      Bunny b;
+      voxfmt::bake::BuildOptions options;
+      options.voxelmap.resolution = 306;
+      options.point_shell.points = 35000;
+      voxfmt::bake::BuildReport report;
+      const voxfmt::Asset asset = voxfmt::bake::build_asset(kMeshes + "/bunny00.off", options, report);
+      voxfmt::bake::RepairReport repair;
+      b.mesh = voxfmt::bake::repair_mesh(voxfmt::bake::import_mesh(kMeshes + "/bunny00.off"), repair, false);
+      auto loaded = CollisionObject::from_asset(asset);
+      if (!loaded) throw std::runtime_error(loaded.error().message);
+      b.object = loaded.value();
+      b.h = asset.voxelmap.voxel_size;
+      return b;
+    }();
+    return bunny;
+  }
+};
+
+/// Lowest mesh vertex along +Y for a body whose shape is `shape`.
+double lowest_vertex_y(const Bunny& bunny, const VpsShape& shape, const btTransform& t) {
+  const Pose pose = shape.asset_pose(t);
+  double lowest = 1e9;
+  for (const voxfmt::Vec3& v : bunny.mesh.vertices)
+    lowest = std::min(lowest, pose.apply(Eigen::Vector3d(v[0], v[1], v[2])).y());
+  return lowest;
+}
+
+/// Transform placing the bunny's asset frame at `asset_offset` (no rotation) for `shape`.
+btTransform place_asset(const VpsShape& shape, const btVector3& asset_offset) {
+  btTransform t = shape.asset_to_shape().inverse();
+  t.setOrigin(t.getOrigin() + asset_offset);
+  return t;
+}
+
+Eigen::Vector3d to_eigen_vector(const btVector3& v) { return Eigen::Vector3d(v.x(), v.y(), v.z()); }
+
+bool finite(const btTransform& t) {
+  for (int i = 0; i < 3; ++i)
+    if (!std::isfinite(double(t.getOrigin()[i])) || !std::isfinite(double(t.getBasis()[i][0])) ||
+        !std::isfinite(double(t.getBasis()[i][1])) || !std::isfinite(double(t.getBasis()[i][2])))
+      return false;
+  return true;
+}
+
+TEST(Bullet, BunnySettlesOnPlaneAtExactRestHeight) {
+  const Bunny& bunny = Bunny::get();
+  World world;
+  world.dynamics().setGravity(btVector3(0, -9.81f, 0));
+  // The plane is added first, so Bullet meets the pair as (plane, bunny): the swapped algorithm.
+  auto plane = std::make_shared<btStaticPlaneShape>(btVector3(0, 1, 0), 0);
+  world.add_body(plane, 0, btTransform::getIdentity());
+  auto shape = std::make_shared<VpsMixedShape>(bunny.object);
+  const double drop = 0.05;  // lowest vertex 5 cm above the plane
+  const btScalar lift = btScalar(-bunny.object->bounds_min().y() + drop);
+  btRigidBody* body = world.add_body(shape, 1.0, place_asset(*shape, btVector3(0, lift, 0)));
+  body->setFriction(0.8f);
+  for (int step = 0; step < 1000; ++step) world.step(kDt);
+  const double speed = double(body->getLinearVelocity().length());
+  const double gap = lowest_vertex_y(bunny, *shape, body->getWorldTransform());
+  std::cout << "[ figures  ] after 1 s: speed " << speed << " m/s, lowest vertex " << gap / bunny.h
+            << " voxel from the plane, angular speed " << body->getAngularVelocity().length() << " rad/s\n";
+  ASSERT_TRUE(finite(body->getWorldTransform()));
+  EXPECT_LT(speed, 1e-3);
+  EXPECT_LE(std::fabs(gap), bunny.h);
+}
+
+/// Deepest penetration between two VPS bodies, both directions.
+double deepest_penetration(const VpsShape& a, const btTransform& ta, const VpsShape& b, const btTransform& tb) {
+  ContactSet contacts;
+  QueryOptions options;
+  options.direction = QueryDirection::kBoth;
+  query_contacts(a.object(), a.asset_pose(ta), b.object(), b.asset_pose(tb), options, contacts);
+  double deepest = 0;
+  for (const Contact& c : contacts.contacts) deepest = std::max(deepest, c.depth);
+  return deepest;
+}
+
+TEST(Bullet, BunnyDroppedOnBunnyComesToRestWithoutSinking) {
+  const Bunny& bunny = Bunny::get();
+  World world;
+  world.dynamics().setGravity(btVector3(0, -9.81f, 0));
+  world.add_body(std::make_shared<btStaticPlaneShape>(btVector3(0, 1, 0), 0), 0, btTransform::getIdentity());
+  auto lower_shape = std::make_shared<VpsMixedShape>(bunny.object);
+  auto upper_shape = std::make_shared<VpsMixedShape>(bunny.object);
+  const btScalar floor_lift = btScalar(-bunny.object->bounds_min().y());
+  btRigidBody* lower = world.add_body(lower_shape, 1.0, place_asset(*lower_shape, btVector3(0, floor_lift, 0)));
+  const double height = bunny.object->bounds_max().y() - bunny.object->bounds_min().y();
+  btRigidBody* upper = world.add_body(
+      upper_shape, 1.0, place_asset(*upper_shape, btVector3(0.2f, btScalar(floor_lift + height + 0.02), 0.05f)));
+  for (btRigidBody* body : {lower, upper}) body->setFriction(0.8f);
+  double deepest = 0;
+  bool touched = false;
+  for (int step = 0; step < 5000; ++step) {
+    world.step(kDt);
+    ASSERT_TRUE(finite(upper->getWorldTransform()) && finite(lower->getWorldTransform())) << "step " << step;
+    if (step % 10 == 0) {
+      const double d = deepest_penetration(*upper_shape, upper->getWorldTransform(), *lower_shape,
+                                           lower->getWorldTransform());
+      deepest = std::max(deepest, d);
+      touched |= d > 0;
+    }
+  }
+  const double speed = std::max(double(upper->getLinearVelocity().length()), double(lower->getLinearVelocity().length()));
+  std::cout << "[ figures  ] after 5 s: speed " << speed << " m/s, upper centre of mass y "
+            << upper->getCenterOfMassPosition().y() << ", deepest bunny-bunny penetration " << deepest / bunny.h
+            << " voxel\n";
+  EXPECT_TRUE(touched);
+  EXPECT_LT(speed, 1e-2);
+  EXPECT_LE(deepest, 2 * bunny.h);
+  // Neither bunny went through the floor.
+  for (auto [shape, body] : {std::pair{upper_shape.get(), upper}, std::pair{lower_shape.get(), lower}})
+    EXPECT_GT(lowest_vertex_y(bunny, *shape, body->getWorldTransform()), -bunny.h);
+}
+
+TEST(Bullet, BulletsOwnPairsStillWork) {
+  const Bunny& bunny = Bunny::get();
+  World world;
+  world.dynamics().setGravity(btVector3(0, -9.81f, 0));
+  world.add_body(std::make_shared<btStaticPlaneShape>(btVector3(0, 1, 0), 0), 0, btTransform::getIdentity());
+  auto box_shape = std::make_shared<btBoxShape>(btVector3(0.1f, 0.1f, 0.1f));
+  btTransform t = btTransform::getIdentity();
+  t.setOrigin(btVector3(5, 0.1f, 0));
+  world.add_body(box_shape, 0, t);  // a static box on the plane
+  t.setOrigin(btVector3(5, 0.5f, 0));
+  btRigidBody* box = world.add_body(box_shape, 1.0, t);  // box on box
+  t.setOrigin(btVector3(-5, 0.5f, 0));
+  btRigidBody* ball = world.add_body(std::make_shared<btSphereShape>(0.1f), 1.0, t);  // sphere on plane
+  auto bunny_shape = std::make_shared<VpsMixedShape>(bunny.object);  // a VPS body in the same world
+  world.add_body(bunny_shape, 1.0, place_asset(*bunny_shape, btVector3(0, btScalar(-bunny.object->bounds_min().y()), 0)));
+  for (int step = 0; step < 1500; ++step) world.step(kDt);
+  EXPECT_NEAR(box->getCenterOfMassPosition().y(), 0.3f, 0.01f);
+  EXPECT_NEAR(ball->getCenterOfMassPosition().y(), 0.1f, 0.01f);
+  ASSERT_NE(world.vps(), nullptr);
+  EXPECT_GT(world.vps()->counters().pair_tests, 0u);  // the bunny against the plane
+}
+
+TEST(Bullet, BoxesAndSpheresBounceOffAStaticBunny) {
+  const Bunny& bunny = Bunny::get();
+  World world;
+  world.dynamics().setGravity(btVector3(0, -9.81f, 0));
+  auto bunny_shape = std::make_shared<VpsMixedShape>(bunny.object);
+  const btTransform bunny_transform = place_asset(*bunny_shape, btVector3(0, 0, 0));
+  world.add_body(bunny_shape, 0, bunny_transform);
+  // Drop a ball and a box onto the bunny's highest points.
+  const Pose pose = bunny_shape->asset_pose(bunny_transform);
+  std::vector<Eigen::Vector3d> tops;
+  for (const Eigen::Vector3f& p : bunny.object->point_tree().points) tops.push_back(pose.apply(p.cast<double>()));
+  std::sort(tops.begin(), tops.end(), [](const auto& a, const auto& b) { return a.y() > b.y(); });
+  const double r = 0.05;
+  btTransform t = btTransform::getIdentity();
+  t.setOrigin(btVector3(btScalar(tops[0].x()), btScalar(tops[0].y() + 0.2), btScalar(tops[0].z())));
+  btRigidBody* ball = world.add_body(std::make_shared<btSphereShape>(btScalar(r)), 0.2f, t);
+  t.setOrigin(btVector3(btScalar(tops[0].x()), btScalar(tops[0].y() + 0.5), btScalar(tops[0].z())));
+  auto box_shape = std::make_shared<btBoxShape>(btVector3(0.04f, 0.04f, 0.04f));
+  btRigidBody* box = world.add_body(box_shape, 0.2f, t);
+  double ball_depth = 0, box_depth = 0;
+  for (int step = 0; step < 800; ++step) {
+    world.step(kDt);
+    // Penetration of the ball (centre against the bunny's distance field) and of the box's corners.
+    ContactSet contacts;
+    const Eigen::Vector3d centre = to_eigen_vector(ball->getCenterOfMassPosition());
+    query_points_in_voxelmap(*bunny.object, pose, &centre, 1, r, QueryOptions{}, contacts);
+    for (const Contact& c : contacts.contacts) ball_depth = std::max(ball_depth, c.depth);
+    contacts.clear();
+    std::array<Eigen::Vector3d, 8> corners;
+    const btTransform& tb = box->getWorldTransform();
+    for (int k = 0; k < 8; ++k)
+      corners[size_t(k)] = to_eigen_vector(tb(btVector3((k & 1) ? 0.04f : -0.04f, (k & 2) ? 0.04f : -0.04f,
+                                                        (k & 4) ? 0.04f : -0.04f)));
+    query_points_in_voxelmap(*bunny.object, pose, corners.data(), corners.size(), 0.0, QueryOptions{}, contacts);
+    for (const Contact& c : contacts.contacts) box_depth = std::max(box_depth, c.depth);
+  }
+  std::cout << "[ figures  ] deepest penetration into the bunny: ball " << ball_depth / bunny.h << " voxel, box corners "
+            << box_depth / bunny.h << " voxel; " << world.vps()->counters().raw_contacts << " raw contacts\n";
+  EXPECT_GT(world.vps()->counters().raw_contacts, 0u);
+  EXPECT_LE(ball_depth, 2 * bunny.h);
+  EXPECT_LE(box_depth, 2 * bunny.h);
+  // Both were stopped or deflected by the bunny rather than falling through it.
+  EXPECT_GT(ball->getCenterOfMassPosition().y(), btScalar(tops[0].y() - 0.5));
+}
+
+TEST(Bullet, ShapeInertiaComesFromTheAsset) {
+  const Bunny& bunny = Bunny::get();
+  VpsMixedShape shape(bunny.object);
+  btVector3 inertia;
+  shape.calculateLocalInertia(2.0f, inertia);
+  const Eigen::Vector3d expected = bunny.object->principal_moments() * 2.0 / bunny.object->volume();
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(double(inertia[i]), expected[i], 1e-6 * expected.maxCoeff());
+  shape.setLocalScaling(btVector3(0.5f, 0.5f, 0.5f));
+  shape.calculateLocalInertia(2.0f, inertia);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(double(inertia[i]), 0.25 * expected[i], 1e-6 * expected.maxCoeff());
+  // The AABB holds every point at any pose.
+  btTransform t(btQuaternion(btVector3(1, 1, 0).normalized(), 0.7f), btVector3(1, 2, 3));
+  btVector3 lo, hi;
+  shape.getAabb(t, lo, hi);
+  const Pose pose = shape.asset_pose(t);
+  for (const Eigen::Vector3f& p : bunny.object->point_tree().points) {
+    const Eigen::Vector3d w = pose.apply(p.cast<double>());
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_GE(w[a], double(lo[a]) - 1e-5);
+      EXPECT_LE(w[a], double(hi[a]) + 1e-5);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace vps::bullet
