@@ -28,9 +28,15 @@ World::~World() {
   for (auto& body : bodies_) world_->removeRigidBody(body.get());
 }
 
-btRigidBody* World::add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform) {
+btRigidBody* World::add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform,
+                             const btVector3* given_inertia) {
   btVector3 inertia(0, 0, 0);
-  if (mass > 0) shape->calculateLocalInertia(mass, inertia);
+  if (mass > 0) {
+    if (given_inertia)
+      inertia = *given_inertia;
+    else
+      shape->calculateLocalInertia(mass, inertia);
+  }
   motion_states_.push_back(std::make_unique<btDefaultMotionState>(transform));
   btRigidBody::btRigidBodyConstructionInfo info(mass, motion_states_.back().get(), shape.get(), inertia);
   bodies_.push_back(std::make_unique<btRigidBody>(info));

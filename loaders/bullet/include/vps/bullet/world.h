@@ -36,8 +36,10 @@ class World {
   /// Null for a world without VPS.
   VpsCollisionRegistration* vps() { return registration_.get(); }
 
-  /// Adds a body; mass 0 makes it static. The world keeps the shape alive.
-  btRigidBody* add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform);
+  /// Adds a body; mass 0 makes it static. The world keeps the shape alive. Without `inertia`, the shape's
+  /// calculateLocalInertia decides.
+  btRigidBody* add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform,
+                        const btVector3* inertia = nullptr);
   /// One fixed step of `dt` seconds (no sub-stepping: a haptic loop steps at its own rate).
   void step(btScalar dt) { world_->stepSimulation(dt, 0, dt); }
 
