@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The README's main job: install dependencies, build, bake CGAL's Stanford bunny (the built-in default sample),
-# validate and inspect the asset. Pass another mesh as $1 to bake that instead.
+# validate and inspect the asset, then drop it in Bullet with every collision method (bunny_drop). Pass another
+# mesh as $1 to use that instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
@@ -14,3 +15,5 @@ echo "== voxfmt validate"
 build/bin/voxfmt validate "$OUT/$name.vox.h5"
 echo "== voxfmt inspect"
 build/bin/voxfmt inspect "$OUT/$name.vox.h5"
+echo "== bunny_drop (the seed's Figure 2; the first run computes and caches the HACD decomposition: minutes)"
+build/bin/bunny_drop --asset "$OUT/$name.vox.h5" --mesh "$MESH" -o "$OUT/bunny_drop"
