@@ -45,6 +45,10 @@ struct ImportOptions {
 /// triangle soup. Throws BakeError: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
 /// NON_FINITE_COORDINATES.
 TriangleMesh import_mesh(const std::string& path, const ImportOptions& options = {});
+/// True when `path`'s extension (case-insensitive, e.g. ".obj", ".mesh.xml") is a mesh format assimp reads.
+/// Formats without surfaces (animation, camera) and suffixes too generic to mean a mesh in a directory scan
+/// (".xml", ".raw") are left out; import_mesh still accepts them.
+bool is_mesh_file_name(const std::string& path);
 
 // ---------------------------------------------------------------- 2. check and repair
 

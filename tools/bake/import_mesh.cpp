@@ -8,6 +8,8 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <string>
+#include <vector>
 
 #include "bake.h"
 
@@ -38,7 +40,36 @@ void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& pa
   for (unsigned c = 0; c < node.mNumChildren; ++c) append_node(scene, *node.mChildren[c], transform, out, scale, path);
 }
 
+std::string lowercase(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return text;
+}
+
 }  // namespace
+
+bool is_mesh_file_name(const std::string& path) {
+  static const std::vector<std::string> extensions = [] {
+    std::string list;  // "*.3d;*.3ds;...;*.mesh.xml;..."
+    Assimp::Importer().GetExtensionList(list);
+    const std::vector<std::string> excluded = {".bvh", ".md5anim", ".md5camera", ".xml", ".raw"};
+    std::vector<std::string> out;
+    size_t start = 0;
+    while (start < list.size()) {
+      size_t end = list.find(';', start);
+      if (end == std::string::npos) end = list.size();
+      std::string pattern = lowercase(list.substr(start, end - start));
+      if (pattern.rfind("*", 0) == 0) pattern.erase(0, 1);
+      if (!pattern.empty() && std::find(excluded.begin(), excluded.end(), pattern) == excluded.end()) out.push_back(pattern);
+      start = end + 1;
+    }
+    return out;
+  }();
+  const std::string name = lowercase(std::filesystem::path(path).filename().string());
+  for (const std::string& extension : extensions)
+    if (name.size() > extension.size() && name.compare(name.size() - extension.size(), extension.size(), extension) == 0)
+      return true;
+  return false;
+}
 
 TriangleMesh import_mesh(const std::string& path, const ImportOptions& options) {
   std::error_code ec;
@@ -58,8 +89,7 @@ TriangleMesh import_mesh(const std::string& path, const ImportOptions& options) 
   if (!scene || !scene->mRootNode) {
     const std::string reason = importer.GetErrorString();
     // Some importers refuse a file with nothing in it instead of returning an empty scene.
-    std::string lower = reason;
-    std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    const std::string lower = lowercase(reason);
     const bool empty = lower.find("no valid faces") != std::string::npos || lower.find("no meshes") != std::string::npos;
     throw BakeError(empty ? "EMPTY_SCENE" : "IMPORT_FAILED",
                     path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");

@@ -9,9 +9,11 @@
 #include <iostream>
 
 #include "bake.h"
+#include "bake_options.h"
 #include "commands.h"
 #include "json_report.h"
 #include "voxfmt/io.h"
+#include "voxfmt/validate.h"
 
 namespace voxfmt::cli {
 
@@ -20,8 +22,7 @@ namespace {
 struct Options {
   std::string mesh;
   std::string output;
-  bake::BuildOptions build;
-  int deflate = 4;
+  BakeSettings bake;
   bool json = false;
   bool quiet = false;
 };
@@ -30,6 +31,18 @@ uint64_t peak_memory_bytes() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
   return uint64_t(usage.ru_maxrss) * 1024;  // Linux reports KiB
+}
+
+// The spec's semantic rules, checked before anything is written: an asset `validate --level full` would reject
+// is a bake bug, reported as such instead of being written.
+void verify(const std::string& mesh, const Asset& asset, bake::BuildReport& report) {
+  const auto start = std::chrono::steady_clock::now();
+  for (const Issue& issue : validate_asset(asset, ValidationLevel::Full))
+    if (issue.severity == Severity::Error)
+      throw bake::BakeError("INVALID_ASSET", mesh + ": the baked asset breaks spec rule " + code_name(issue.code) + " at " +
+                                                 issue.path + ": " + issue.message +
+                                                 " (a bake bug: please report it; --no-verify writes the asset anyway)");
+  report.timings.push_back({"verify", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count()});
 }
 
 int run(const Options& o) {
@@ -44,12 +57,21 @@ int run(const Options& o) {
     std::cerr << "\r\033[K[" << index << "/" << count + 1 << "] " << stage << "  (" << std::fixed << std::setprecision(1)
               << t << " s)" << std::flush;
   };
+  // The one way a failed bake is reported: a code and a message naming the input, on stderr and in --json.
+  auto fail = [&](const std::string& code, const std::string& message) {
+    if (show_progress) std::cerr << "\r\033[K";
+    if (o.json)
+      std::cout << to_text(nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", code}, {"message", message}}) << "\n";
+    std::cerr << "voxfmt build: error: " << code << ": " << message << "\n";
+    return code == "BAD_OPTION" ? kExitUsageOrIo : kExitInvalid;
+  };
   try {
-    Asset asset = bake::build_asset(o.mesh, o.build, report, progress);
+    Asset asset = bake::build_asset(o.mesh, o.bake.build, report, progress);
+    if (o.bake.verify) verify(o.mesh, asset, report);
     progress(bake_stages + 1, bake_stages, "write");
     const auto write_start = std::chrono::steady_clock::now();
     WriteOptions write_options;
-    write_options.deflate_level = o.deflate;
+    write_options.deflate_level = o.bake.deflate;
     const Status written = write_asset(o.output, asset, write_options);
     if (!written) throw bake::BakeError("WRITE_FAILED", written.error().message);
     report.timings.push_back({"write", std::chrono::duration<double>(std::chrono::steady_clock::now() - write_start).count()});
@@ -68,6 +90,7 @@ int run(const Options& o) {
       std::cout << to_text(nlohmann::json{{"status", "ok"},
                                   {"input", o.mesh},
                                   {"output", o.output},
+                                  {"source_sha256", asset.provenance.source_sha256},
                                   {"input_vertices", report.input_vertices},
                                   {"input_triangles", report.input_triangles},
                                   {"closed", report.repair.closed},
@@ -89,15 +112,11 @@ int run(const Options& o) {
     }
     return kExitOk;
   } catch (const bake::BakeError& e) {
-    if (show_progress) std::cerr << "\r\033[K";
-    if (o.json) std::cout << to_text(nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", e.code()}, {"message", e.what()}}) << "\n";
-    std::cerr << "voxfmt build: error: " << e.code() << ": " << e.what() << "\n";
-    return e.code() == "BAD_OPTION" ? kExitUsageOrIo : kExitInvalid;
-  } catch (const std::exception& e) {  // library failures (OpenVDB, CGAL, allocation) still get a clean message
-    if (show_progress) std::cerr << "\r\033[K";
-    if (o.json) std::cout << to_text(nlohmann::json{{"status", "error"}, {"input", o.mesh}, {"code", "INTERNAL"}, {"message", e.what()}}) << "\n";
-    std::cerr << "voxfmt build: error: " << o.mesh << ": " << e.what() << "\n";
-    return kExitInvalid;
+    return fail(e.code(), e.what());
+  } catch (const std::bad_alloc&) {
+    return fail("OUT_OF_MEMORY", o.mesh + ": out of memory (try a coarser --resolution or --voxel-size)");
+  } catch (const std::exception& e) {  // library failures (OpenVDB, CGAL) still get a clean message
+    return fail("INTERNAL", o.mesh + ": " + e.what());
   }
 }
 
@@ -108,33 +127,7 @@ void add_build_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("build", "Bake a mesh (any format assimp reads) into a voxfmt asset");
   cmd->add_option("mesh", o->mesh, "Input mesh file (OBJ, PLY, STL, OFF, glTF/GLB, FBX, DAE, ...)")->required();
   cmd->add_option("-o,--output", o->output, "Output asset file (.vox.h5); written atomically")->required();
-  auto* resolution = cmd->add_option("--resolution", o->build.voxelmap.resolution,
-                                     "Voxels along the longest bounding-box axis")
-                         ->capture_default_str()->check(CLI::Range(1u, 4096u));
-  auto* voxel_size = cmd->add_option("--voxel-size", o->build.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
-                         ->check(CLI::PositiveNumber);
-  resolution->excludes(voxel_size);
-  auto* points = cmd->add_option("--points", o->build.point_shell.points, "Target number of surface points")
-                     ->capture_default_str()->check(CLI::Range(1u, 50'000'000u));
-  auto* spacing = cmd->add_option("--point-spacing", o->build.point_shell.point_spacing,
-                                  "Minimum distance between points in metres (instead of --points)")
-                      ->check(CLI::PositiveNumber);
-  points->excludes(spacing);
-  cmd->add_option("--branching", o->build.point_shell.branching, "Mean children per point-sphere tree node")
-      ->capture_default_str()->check(CLI::Range(2.0, 64.0));
-  cmd->add_option("--margin", o->build.voxelmap.margin, "Outer voxels around the bounding box on each side")
-      ->capture_default_str()->check(CLI::Range(0u, 1024u));
-  cmd->add_option("--band", o->build.voxelmap.distance_band, "Half-width in voxels of the band of exact distances")
-      ->capture_default_str()->check(CLI::Range(1.0, 64.0));
-  cmd->add_option("--unit-scale", o->build.import.unit_scale, "Multiply coordinates by this to get metres (0.001 for mm)")
-      ->capture_default_str()->check(CLI::PositiveNumber);
-  cmd->add_option("--up-axis", o->build.up_axis, "Up direction recorded in the asset")
-      ->capture_default_str()->check(CLI::IsMember({"+X", "-X", "+Y", "-Y", "+Z", "-Z"}));
-  cmd->add_flag("!--no-self-intersection-check", o->build.check_self_intersections,
-                "Skip the self-intersection check (faster on huge meshes)");
-  cmd->add_option("--seed", o->build.point_shell.seed, "Seed of the point sampling (deterministic)")->capture_default_str();
-  cmd->add_option("--deflate", o->deflate, "gzip level 0-9 for the voxel grids")->capture_default_str()->check(CLI::Range(0, 9));
-  cmd->add_option("--threads", o->build.threads, "Worker threads (0 = all cores)")->capture_default_str();
+  add_bake_options(*cmd, o->bake);
   cmd->add_flag("--json", o->json, "Print a JSON summary (timings, peak memory, sizes, warnings) on stdout");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress, warnings or summary");
   cmd->callback([o, &exit_code] { exit_code = run(*o); });

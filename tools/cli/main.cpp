@@ -16,6 +16,7 @@ int main(int argc, char** argv) {
                            std::to_string(voxfmt::kFormatVersion.minor) + ")");
   int exit_code = voxfmt::cli::kExitOk;
   voxfmt::cli::add_build_command(app, exit_code);
+  voxfmt::cli::add_batch_command(app, exit_code);
   voxfmt::cli::add_inspect_command(app, exit_code);
   voxfmt::cli::add_validate_command(app, exit_code);
   try {

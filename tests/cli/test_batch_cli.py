@@ -1,0 +1,225 @@
+"""`voxfmt batch`: naming, failures, up-to-date skipping, --force, shards, SIGKILL and resume."""
+import json
+import os
+import signal
+import subprocess
+import tempfile
+import time
+import unittest
+
+VOXFMT = os.environ.get("VOXFMT_BIN")
+SMALL = ["--resolution", "12", "--points", "100"]
+
+TET_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n"
+
+
+def cube_off(size, offset=0.0):
+    v = [(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)]
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    lines = ["OFF", "8 6 0"]
+    lines += ["%g %g %g" % (offset + size * x, size * y, size * z) for x, y, z in v]
+    lines += ["4 %d %d %d %d" % q for q in quads]
+    return "\n".join(lines) + "\n"
+
+
+FLAT_OFF = "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"
+
+
+@unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
+class Batch(unittest.TestCase):
+    def setUp(self):
+        self.tmp = tempfile.TemporaryDirectory()
+        self.root = self.tmp.name
+        self.lib = os.path.join(self.root, "lib")
+        self.out = os.path.join(self.root, "out")
+        self.write("lib/a/model.obj", TET_OBJ)
+        self.write("lib/b/model.obj", TET_OBJ.replace("v 0 0 1", "v 0 0 2"))
+        self.write("lib/b/cube.off", cube_off(2.0))
+        self.write("lib/broken/flat.off", FLAT_OFF)
+        self.write("lib/notes.md", "not a mesh\n")  # not an extension assimp reads: ignored by the scan
+
+    def tearDown(self):
+        self.tmp.cleanup()
+
+    def write(self, relative, text):
+        path = os.path.join(self.root, relative)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "w") as f:
+            f.write(text)
+        return path
+
+    def batch(self, *args, out=None, expect=None):
+        r = subprocess.run([VOXFMT, "batch", *args, "-o", out or self.out, "--json", "-j", "2", *SMALL],
+                           capture_output=True, text=True, timeout=120)
+        if expect is not None:
+            self.assertEqual(r.returncode, expect, r.stdout + r.stderr)
+        return r, (json.loads(r.stdout) if r.stdout.strip() else None)
+
+    def manifest(self, path=None):
+        with open(path or os.path.join(self.out, "manifest.jsonl")) as f:
+            return [json.loads(line) for line in f]
+
+    def last_records(self, path=None):
+        return {rec["output"]: rec for rec in self.manifest(path)}
+
+    def assets(self, directory=None):
+        found = []
+        for dirpath, _, files in os.walk(directory or self.out):
+            found += [os.path.relpath(os.path.join(dirpath, f), directory or self.out) for f in files if f.endswith(".vox.h5")]
+        return sorted(found)
+
+    def assert_valid(self, directory=None):
+        files = [os.path.join(directory or self.out, a) for a in self.assets(directory)]
+        v = subprocess.run([VOXFMT, "validate", *files], capture_output=True, text=True)
+        self.assertEqual(v.returncode, 0, v.stdout)
+
+    def test_names_failures_and_manifest(self):
+        r, summary = self.batch(self.lib, expect=1)  # one mesh failed
+        self.assertEqual((summary["built"], summary["up_to_date"], summary["failed"]), (3, 0, 1), r.stderr)
+        # Same-named meshes in different folders: distinct outputs mirroring the folders.
+        self.assertEqual(self.assets(), ["a/model.obj.vox.h5", "b/cube.off.vox.h5", "b/model.obj.vox.h5"])
+        self.assert_valid()
+        records = self.last_records()
+        self.assertEqual(len(self.manifest()), 4)
+        failed = records[os.path.join(self.out, "broken/flat.off.vox.h5")]
+        self.assertEqual(failed["status"], "failed")
+        self.assertEqual(failed["error"]["code"], "ZERO_VOLUME")
+        self.assertIn("flat.off", failed["error"]["message"])
+        self.assertIn("build", failed["command"])
+        ok = records[os.path.join(self.out, "b/cube.off.vox.h5")]
+        self.assertEqual(ok["status"], "ok")
+        self.assertIsNone(ok["error"])
+        for key in ("input", "timings_s", "file_size_bytes", "input_bytes", "warnings", "source_sha256", "build_parameters"):
+            self.assertIn(key, ok)
+        self.assertEqual(ok["file_size_bytes"], os.path.getsize(ok["output"]))
+        self.assertEqual(summary["failures"][0]["code"], "ZERO_VOLUME")
+        self.assertFalse([f for f in os.listdir(os.path.join(self.out, "broken"))] if os.path.isdir(os.path.join(self.out, "broken")) else [])
+
+    def test_rerun_skips_force_rebuilds_and_option_change_rebuilds(self):
+        self.batch(self.lib, expect=1)
+        before = {a: os.stat(os.path.join(self.out, a)).st_mtime_ns for a in self.assets()}
+        # Everything up to date; the deterministic failure is not retried but still counts.
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"], summary["failed"], summary["failed_not_retried"]), (0, 3, 1, 1))
+        self.assertEqual(before, {a: os.stat(os.path.join(self.out, a)).st_mtime_ns for a in self.assets()})
+        self.assertEqual(len(self.manifest()), 4, "a rerun with nothing to do keeps one record per mesh")
+        # Without the manifest the assets' provenance proves them up to date.
+        os.remove(os.path.join(self.out, "manifest.jsonl"))
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"]), (0, 3))
+        self.assertEqual({rec["status"] for rec in self.manifest()}, {"up_to_date", "failed"})
+        # --force rebuilds (and retries the failure).
+        r, summary = self.batch(self.lib, "--force", expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"], summary["failed_not_retried"]), (3, 0, 0))
+        # A changed build option rebuilds; so does a changed source.
+        r, summary = self.batch(self.lib, "--seed", "7", expect=1)
+        self.assertEqual(summary["built"], 3)
+        self.write("lib/a/model.obj", TET_OBJ.replace("v 1 0 0", "v 3 0 0"))
+        r, summary = self.batch(self.lib, "--seed", "7", expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"]), (1, 2))
+        # A fixed mesh is retried (its source hash changed) and succeeds.
+        self.write("lib/broken/flat.off", cube_off(1.0, offset=5))
+        r, summary = self.batch(self.lib, "--seed", "7", expect=0)
+        self.assertEqual((summary["built"], summary["failed"]), (1, 0))
+        self.assert_valid()
+
+    def test_shards_cover_the_library_disjointly(self):
+        for i in range(8):  # enough meshes that both shards get some
+            self.write("lib/many/tet%d.obj" % i, TET_OBJ.replace("v 0 0 1", "v 0 0 %d" % (i + 1)))
+        outputs = []
+        for shard in ("0/2", "1/2"):
+            r, summary = self.batch(self.lib, "--shard", shard, out=self.out)
+            name = "manifest.shard-%s-of-2.jsonl" % shard[0]
+            outputs.append({rec["output"] for rec in self.manifest(os.path.join(self.out, name))})
+            self.assertEqual(summary["meshes"], len(outputs[-1]))
+            self.assertEqual(summary["meshes_all_shards"], 12)
+            self.assertGreater(len(outputs[-1]), 0)
+        self.assertEqual(outputs[0] & outputs[1], set())
+        self.assertEqual(len(outputs[0] | outputs[1]), 12)
+        self.assertEqual(len(self.assets()), 11)  # all but the flat one
+        # The same split again (deterministic), and every shard's work is now up to date.
+        r, summary = self.batch(self.lib, "--shard", "1/2")
+        self.assertEqual(summary["built"], 0)
+
+    def test_sigkill_then_rerun_completes(self):
+        for i in range(10):
+            self.write("lib/many/cube%d.off" % i, cube_off(1.0 + 0.1 * i))
+        args = [VOXFMT, "batch", self.lib, "-o", self.out, "-j", "2", "--resolution", "40", "--points", "2000", "-q"]
+        proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        manifest = os.path.join(self.out, "manifest.jsonl")
+        deadline = time.time() + 60
+        while time.time() < deadline:  # wait until some but not all meshes are done
+            if os.path.exists(manifest):
+                with open(manifest) as f:
+                    if len(f.read().splitlines()) >= 3:
+                        break
+            time.sleep(0.02)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        done_before = len(self.manifest())
+        self.assertLess(done_before, 14, "the batch finished before it could be killed; make the work larger")
+        # The bakes die with the batch: no orphan keeps writing into the library.
+        time.sleep(0.3)
+        orphans = []
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                with open("/proc/%s/cmdline" % pid, "rb") as f:
+                    if self.out.encode() in f.read():
+                        orphans.append(pid)
+            except OSError:
+                pass
+        self.assertEqual(orphans, [])
+        # A temporary of a bake killed mid-write, and a manifest line torn by a crash.
+        self.write("out/many/cube0.off.vox.h5.partial-999999-0", "torn")
+        with open(manifest, "a") as f:
+            f.write('{"input": "x", "outp')
+        r = subprocess.run(args[:-1] + ["--json"], capture_output=True, text=True, timeout=120)
+        self.assertEqual(r.returncode, 1, r.stderr)  # only the flat mesh fails
+        summary = json.loads(r.stdout)
+        self.assertEqual(summary["built"] + summary["up_to_date"], 13)
+        self.assertGreater(summary["up_to_date"], 0, "finished assets were kept")
+        leftovers = [f for _, _, files in os.walk(self.out) for f in files if ".partial-" in f]
+        self.assertEqual(leftovers, [])
+        self.assertEqual(len(self.assets()), 13)
+        self.assert_valid()
+        records = self.last_records()
+        self.assertEqual(len(records), 14)
+        self.assertEqual(sum(rec["status"] != "failed" for rec in records.values()), 13)
+
+    def test_list_file_and_single_files(self):
+        self.write("more/x/box.off", cube_off(1.0))
+        self.write("lists/local/chair.obj", TET_OBJ)
+        self.write("lists/meshes.txt", "# my library\n../lib/a/model.obj\n\n  ../more  \nlocal/chair.obj\n")
+        r, summary = self.batch(os.path.join(self.root, "lists/meshes.txt"), expect=0)
+        # A ../ entry: its file name; a listed directory: scanned; a relative entry keeps its path.
+        self.assertEqual(self.assets(), ["local/chair.obj.vox.h5", "model.obj.vox.h5", "x/box.off.vox.h5"])
+        # The same list with @ and a directory whose model.obj would take the same name: refused.
+        self.write("lists/more.lst", "../lib/a/model.obj\n../lib/b\n")
+        r, _ = self.batch("@" + os.path.join(self.root, "lists/more.lst"), expect=2)
+        self.assertIn("same asset 'model.obj.vox.h5'", r.stderr)
+
+    def test_usage_errors(self):
+        r, _ = self.batch(os.path.join(self.lib, "a/model.obj"), os.path.join(self.lib, "b/model.obj"), expect=2)
+        self.assertIn("same asset", r.stderr)
+        self.assertIn("model.obj", r.stderr)
+        r, _ = self.batch(self.lib, "--shard", "2/2", expect=2)
+        self.assertIn("--shard", r.stderr)
+        r, _ = self.batch(os.path.join(self.root, "nope"), expect=2)
+        self.assertIn("nope", r.stderr)
+        os.makedirs(os.path.join(self.root, "empty"))
+        r, _ = self.batch(os.path.join(self.root, "empty"), expect=2)
+        self.assertIn("no meshes", r.stderr)
+        self.assertFalse(self.assets())
+
+    def test_timeout_is_a_recorded_failure(self):
+        r, summary = self.batch(os.path.join(self.lib, "b/cube.off"), "--timeout", "0.001", expect=1)
+        self.assertEqual(summary["failures"][0]["code"], "TIMEOUT")
+        self.assertEqual(self.assets(), [])
+        self.assertEqual([f for f in os.listdir(self.out) if ".partial-" in f], [])
+        # A timeout is not the mesh's fault: the next run retries it.
+        r, summary = self.batch(os.path.join(self.lib, "b/cube.off"), expect=0)
+        self.assertEqual(summary["built"], 1)
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,563 @@
+// `voxfmt batch INPUT... -o OUTDIR`: bake a library of meshes, in parallel, resumable, shardable.
+//
+// Each mesh is baked by a child process, `voxfmt build MESH -o OUT --json` of this very executable, rather
+// than by a task in this process:
+//  - a broken mesh can crash (CGAL/OpenVDB assertions, stack overflow), exhaust memory or hang; in a child that
+//    costs one recorded failure (CRASHED, OUT_OF_MEMORY, TIMEOUT) instead of the whole batch, and a timeout is
+//    a plain SIGKILL;
+//  - libvoxfmt's HDF5 calls are not thread-safe and TBB's thread limit is process-wide, so in-process meshes
+//    would have to serialise their writes and share one --threads setting;
+//  - SIGKILL semantics stay simple: children die with the parent (PR_SET_PDEATHSIG), every asset appears by an
+//    atomic rename, and the manifest is appended and fsynced line by line, so a rerun sees finished assets as
+//    up to date and cleans the `*.partial-*` files of killed bakes.
+// The cost, one process start per mesh (~30 ms), is small beside a bake. `build` and `batch` share the option
+// registration (bake_options.h), and a child gets the same settings spelled out in full.
+#include <signal.h>
+#include <sys/ioctl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "bake.h"
+#include "bake_options.h"
+#include "batch_inputs.h"
+#include "batch_manifest.h"
+#include "child_process.h"
+#include "commands.h"
+#include "json_report.h"
+#include "voxfmt/io.h"
+#include "voxfmt/version.h"
+
+namespace voxfmt::cli {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Options {
+  std::vector<std::string> inputs;
+  std::string output_dir;
+  unsigned jobs = 0;
+  std::string shard = "0/1";
+  bool force = false;
+  bool retry_failed = false;
+  double timeout = 0;
+  size_t max_memory_mib = 0;
+  std::string manifest;
+  bool json = false;
+  bool quiet = false;
+  BakeSettings bake;
+};
+
+volatile std::sig_atomic_t g_interrupted = 0;
+void on_signal(int signal_number) { g_interrupted = signal_number; }
+
+std::string utc_now() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return text;
+}
+
+std::string clock_text(double seconds) {
+  const long s = long(std::lround(std::max(0.0, seconds)));
+  char text[32];
+  if (s >= 3600)
+    std::snprintf(text, sizeof text, "%ld:%02ld:%02ld", s / 3600, s / 60 % 60, s % 60);
+  else
+    std::snprintf(text, sizeof text, "%ld:%02ld", s / 60, s % 60);
+  return text;
+}
+
+struct FileStamp {
+  bool exists = false;
+  uint64_t size = 0;
+  int64_t mtime_ns = 0;
+};
+FileStamp stamp(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return {};
+  return {true, uint64_t(st.st_size), int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec};
+}
+
+// Removes `NAME.partial-*` beside each of `outputs` (temporaries of bakes killed mid-write). Only this run's
+// outputs: shards sharing a directory never touch each other's files.
+size_t remove_stale_partials(const std::vector<std::string>& outputs) {
+  std::map<fs::path, std::set<std::string>> by_dir;
+  for (const std::string& output : outputs) by_dir[fs::path(output).parent_path()].insert(fs::path(output).filename().string());
+  size_t removed = 0;
+  for (const auto& [dir, names] : by_dir) {
+    std::error_code ec;
+    for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
+      const std::string name = it->path().filename().string();
+      const size_t mark = name.rfind(".partial-");
+      if (mark == std::string::npos || !names.count(name.substr(0, mark))) continue;
+      std::error_code remove_error;
+      removed += fs::remove(it->path(), remove_error);
+    }
+  }
+  return removed;
+}
+
+bool same_parameters(const nlohmann::json& stored, const nlohmann::json& wanted) {
+  if (stored.is_string()) {  // provenance keeps the JSON text
+    const nlohmann::json parsed = nlohmann::json::parse(stored.get<std::string>(), nullptr, false);
+    return !parsed.is_discarded() && parsed == wanted;
+  }
+  return stored == wanted;
+}
+
+std::string signal_name(int signal_number) {
+  const char* name = ::strsignal(signal_number);
+  return name ? name : "unknown signal";
+}
+
+// Per-mesh time model for the ETA: seconds = a + b * input bytes, least squares over the finished meshes.
+class EtaModel {
+ public:
+  void add(double bytes, double seconds) {
+    n_ += 1;
+    sx_ += bytes;
+    sy_ += seconds;
+    sxx_ += bytes * bytes;
+    sxy_ += bytes * seconds;
+  }
+  bool ready() const { return n_ >= 1; }
+  double predict(double bytes) const {
+    const double mx = sx_ / n_, my = sy_ / n_, var = sxx_ / n_ - mx * mx;
+    double b = var > 1e-9 * (mx * mx + 1) ? (sxy_ / n_ - mx * my) / var : 0;
+    if (b < 0) b = 0;
+    return std::max(0.0, my + b * (bytes - mx));
+  }
+
+ private:
+  double n_ = 0, sx_ = 0, sy_ = 0, sxx_ = 0, sxy_ = 0;
+};
+
+struct Counts {
+  size_t built = 0, up_to_date = 0, failed = 0;
+  size_t failed_before = 0;  ///< of `failed`: unchanged since a run that failed deterministically, not retried
+};
+
+// Failures that depend on the machine or the moment, not on the mesh: always retried.
+bool transient_failure(const std::string& code) {
+  return code == "TIMEOUT" || code == "CRASHED" || code == "OUT_OF_MEMORY" || code == "INTERNAL" || code == "WRITE_FAILED" ||
+         code == "INPUT_NOT_FOUND";
+}
+
+class Runner {
+ public:
+  explicit Runner(const Options& o) : o_(o) {}
+  int run();
+
+ private:
+  nlohmann::json base_record(const BatchItem& item) const;
+  bool up_to_date(const BatchItem& item, const std::string& sha, nlohmann::json& record) const;
+  const nlohmann::json* failed_before(const BatchItem& item, const std::string& sha) const;
+  nlohmann::json finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command);
+  void report_line(const nlohmann::json& record, size_t done, size_t total);
+  void draw_progress(bool final);
+
+  const Options& o_;
+  std::unique_ptr<Manifest> manifest_;
+  nlohmann::json parameters_;
+  bool tty_ = false;
+  unsigned jobs_ = 1, threads_ = 1;
+  std::chrono::steady_clock::time_point start_;
+  // Work of this run.
+  struct Job {
+    BatchItem item;
+    std::string sha;  ///< of the source when planned; empty if unreadable
+  };
+  std::vector<Job> todo_;
+  size_t next_ = 0;
+  struct Running {
+    size_t index;
+    std::chrono::steady_clock::time_point start;
+    std::vector<std::string> command;
+  };
+  std::map<size_t, Running> running_;
+  size_t finished_ = 0;
+  Counts counts_;
+  EtaModel eta_;
+  std::vector<nlohmann::json> failures_;
+};
+
+nlohmann::json Runner::base_record(const BatchItem& item) const {
+  return {{"input", item.input},          {"output", item.output},      {"status", "ok"},
+          {"error", nullptr},             {"input_bytes", item.input_bytes}, {"build_parameters", parameters_},
+          {"tool_version", VOXFMT_VERSION_STRING}};
+}
+
+// Same source bytes, build parameters and tool version: by the manifest (its record for this output, and the
+// file still has the size and mtime recorded there), else by the asset's own provenance.
+bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann::json& record) const {
+  if (o_.force || sha.empty()) return false;
+  const FileStamp file = stamp(item.output);
+  if (!file.exists) return false;
+  if (const nlohmann::json* last = manifest_->last(item.output)) {
+    const std::string status = last->value("status", "");
+    if ((status == "ok" || status == "up_to_date") && last->value("source_sha256", "") == sha &&
+        last->value("tool_version", "") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
+        same_parameters((*last)["build_parameters"], parameters_) && last->value("file_size_bytes", uint64_t(0)) == file.size &&
+        last->value("output_mtime_ns", int64_t(0)) == file.mtime_ns) {
+      record = nullptr;  // the manifest already says so
+      return true;
+    }
+  }
+  Result<Provenance> provenance = read_provenance(item.output);
+  if (!provenance) return false;  // unreadable, foreign or damaged: rebuild
+  const Provenance& p = provenance.value();
+  if (p.source_sha256 != sha || p.generator_version != VOXFMT_VERSION_STRING ||
+      !same_parameters(p.build_parameters_json, parameters_))
+    return false;
+  record = base_record(item);
+  record["status"] = "up_to_date";
+  record["source_sha256"] = sha;
+  record["file_size_bytes"] = file.size;
+  record["output_mtime_ns"] = file.mtime_ns;
+  nlohmann::json warnings = nlohmann::json::array();
+  for (const BuildWarning& w : p.build_warnings) warnings.push_back({{"code", w.code}, {"message", w.message}});
+  record["warnings"] = warnings;
+  record["created_utc"] = p.created_utc;
+  record["finished_utc"] = utc_now();
+  return true;
+}
+
+// The manifest's last record for this output is a failure that would happen again: same source, parameters and
+// tool version, and a code that depends only on the mesh.
+const nlohmann::json* Runner::failed_before(const BatchItem& item, const std::string& sha) const {
+  if (o_.force || o_.retry_failed || sha.empty()) return nullptr;
+  const nlohmann::json* last = manifest_->last(item.output);
+  if (!last || last->value("status", "") != "failed" || !last->contains("error") || !(*last)["error"].is_object()) return nullptr;
+  const std::string code = (*last)["error"].value("code", "");
+  if (code.empty() || transient_failure(code) || last->value("source_sha256", "") != sha ||
+      last->value("tool_version", "") != VOXFMT_VERSION_STRING || !last->contains("build_parameters") ||
+      !same_parameters((*last)["build_parameters"], parameters_))
+    return nullptr;
+  return last;
+}
+
+nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command) {
+  nlohmann::json record = base_record(item);
+  record["wall_s"] = child.seconds;
+  record["finished_utc"] = utc_now();
+  const nlohmann::json summary = nlohmann::json::parse(child.out, nullptr, false);
+  const bool has_summary = summary.is_object() && summary.contains("status");
+  if (child.exit_code == 0 && has_summary && summary["status"] == "ok") {
+    for (const char* key : {"source_sha256", "timings_s", "total_s", "peak_memory_bytes", "file_size_bytes", "input_vertices",
+                            "input_triangles", "closed", "voxelmap", "pointshell", "volume", "warnings"})
+      if (summary.contains(key)) record[key] = summary[key];
+    record["output_mtime_ns"] = stamp(item.output).mtime_ns;
+    return record;
+  }
+  // Failed: one code and one message, whatever the way the child ended.
+  std::string code, message;
+  std::string last_error_line;  // the child's own last words, for crashes
+  {
+    std::istringstream lines(child.err);
+    for (std::string line; std::getline(lines, line);)
+      if (!line.empty()) last_error_line = line;
+  }
+  if (child.timed_out) {
+    code = "TIMEOUT";
+    std::ostringstream text;
+    text << item.input << ": not finished after " << o_.timeout << " s (--timeout); the bake was killed";
+    message = text.str();
+  } else if (child.signal) {
+    code = "CRASHED";
+    message = item.input + ": voxfmt build was killed by signal " + std::to_string(child.signal) + " (" +
+              signal_name(child.signal) + ")" +
+              (child.signal == SIGKILL ? " — by the kernel's out-of-memory killer or by another process" : "") +
+              (last_error_line.empty() ? "" : "; its last message: " + last_error_line);
+  } else if (has_summary && summary["status"] == "error") {
+    code = summary.value("code", "INTERNAL");
+    message = summary.value("message", "");
+  } else {
+    code = "INTERNAL";
+    message = item.input + ": voxfmt build exited with code " + std::to_string(child.exit_code) + " without a summary" +
+              (last_error_line.empty() ? "" : ": " + last_error_line);
+  }
+  if (has_summary && summary.contains("source_sha256")) record["source_sha256"] = summary["source_sha256"];
+  record["status"] = "failed";
+  record["error"] = {{"code", code}, {"message", message}};
+  record["command"] = command;  // to reproduce it alone
+  remove_stale_partials({item.output});
+  return record;
+}
+
+void Runner::report_line(const nlohmann::json& record, size_t done, size_t total) {
+  const bool failed = record["status"] == "failed";
+  if (o_.quiet || o_.json) return;
+  if (tty_) {
+    if (!failed) return;  // the progress bar shows the rest
+    std::cerr << "\r\033[K";
+  }
+  std::ostringstream line;
+  line << "[" << done << "/" << total << "] ";
+  if (failed)
+    line << "FAILED " << record["error"]["code"].get<std::string>() << ": " << record["error"]["message"].get<std::string>();
+  else
+    line << "ok     " << record["input"].get<std::string>() << " (" << std::fixed << std::setprecision(2)
+         << record.value("wall_s", 0.0) << " s)";
+  std::cerr << line.str() << "\n";
+}
+
+void Runner::draw_progress(bool final) {
+  if (!tty_ || o_.quiet || o_.json) return;
+  const auto now = std::chrono::steady_clock::now();
+  const double elapsed = std::chrono::duration<double>(now - start_).count();
+  const size_t total = todo_.size();
+  std::ostringstream eta;
+  if (final) {
+    std::cerr << "\r\033[K" << std::flush;
+    return;
+  }
+  if (eta_.ready()) {
+    double work = 0;
+    for (size_t i = next_; i < todo_.size(); ++i) work += eta_.predict(double(todo_[i].item.input_bytes));
+    double longest_running = 0;
+    for (const auto& [id, r] : running_) {
+      const double left = std::max(0.0, eta_.predict(double(todo_[r.index].item.input_bytes)) -
+                                            std::chrono::duration<double>(now - r.start).count());
+      work += left;
+      longest_running = std::max(longest_running, left);
+    }
+    const size_t lanes = std::max<size_t>(1, std::min<size_t>(jobs_, total - finished_));
+    eta << "ETA " << clock_text(std::max(work / double(lanes), longest_running));
+  } else {
+    eta << "ETA --:--";
+  }
+  winsize ws{};
+  const int columns = ::ioctl(STDERR_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 20 ? ws.ws_col : 80;
+  constexpr int kBar = 24;
+  const int filled = total ? int(double(kBar) * double(finished_) / double(total)) : kBar;
+  std::ostringstream line;
+  line << "[" << std::string(size_t(filled), '#') << std::string(size_t(kBar - filled), '.') << "] " << finished_ << "/"
+       << total << "  " << counts_.failed << " failed  " << clock_text(elapsed) << " elapsed  " << eta.str();
+  for (const auto& [id, r] : running_) line << "  " << fs::path(todo_[r.index].item.input).filename().string();
+  std::string text = line.str();
+  if (text.size() > size_t(columns - 1)) text.resize(size_t(columns - 1));
+  std::cerr << "\r\033[K" << text << std::flush;
+}
+
+int Runner::run() {
+  start_ = std::chrono::steady_clock::now();
+  tty_ = ::isatty(STDERR_FILENO);
+  const Shard shard = parse_shard(o_.shard);
+  std::error_code ec;
+  fs::create_directories(o_.output_dir, ec);
+  if (ec || !fs::is_directory(o_.output_dir)) throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""));
+
+  std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir);
+  if (all.empty()) throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
+  std::vector<BatchItem> mine;
+  for (BatchItem& item : all)
+    if (shard.contains(item.key)) mine.push_back(std::move(item));
+
+  const std::string manifest_path =
+      !o_.manifest.empty() ? o_.manifest
+      : shard.count == 1
+          ? (fs::path(o_.output_dir) / "manifest.jsonl").string()
+          : (fs::path(o_.output_dir) / ("manifest.shard-" + std::to_string(shard.index) + "-of-" + std::to_string(shard.count) + ".jsonl")).string();
+  try {
+    manifest_ = std::make_unique<Manifest>(manifest_path);
+  } catch (const std::runtime_error& e) {
+    throw UsageError(e.what());
+  }
+  std::vector<std::string> outputs;
+  for (const BatchItem& item : mine) outputs.push_back(item.output);
+  outputs.push_back(manifest_path);
+  const size_t stale = remove_stale_partials(outputs);
+  parameters_ = build_parameters(o_.bake);
+
+  // Plan: what is up to date is recorded (if the manifest does not say so already) and skipped.
+  for (const BatchItem& item : mine) {
+    std::string sha;
+    try {
+      sha = bake::sha256_file(item.input);
+    } catch (const bake::BakeError&) {  // unreadable: the bake reports it properly
+    }
+    nlohmann::json record;
+    if (up_to_date(item, sha, record)) {
+      ++counts_.up_to_date;
+      if (!record.is_null()) manifest_->append(record);
+      continue;
+    }
+    if (const nlohmann::json* failure = failed_before(item, sha)) {
+      ++counts_.failed;
+      ++counts_.failed_before;
+      failures_.push_back({{"input", item.input}, {"output", item.output}, {"code", (*failure)["error"]["code"]},
+                           {"message", (*failure)["error"]["message"]}, {"retried", false}});
+      continue;
+    }
+    todo_.push_back({item, sha});
+  }
+  // Largest first: the long bakes start early and the small ones fill the gaps (shorter makespan).
+  std::stable_sort(todo_.begin(), todo_.end(), [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
+
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  jobs_ = o_.jobs ? o_.jobs : cores;
+  BakeSettings settings = o_.bake;
+  if (settings.build.threads == 0)
+    settings.build.threads = std::max(1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
+  threads_ = settings.build.threads;
+  const std::vector<std::string> option_args = bake_option_args(settings);
+  const std::string exe = self_executable();
+  ChildLimits limits;
+  limits.timeout_seconds = o_.timeout;
+  limits.max_memory_bytes = o_.max_memory_mib * 1024 * 1024;
+
+  if (!o_.quiet && !o_.json) {
+    std::cerr << "voxfmt batch: " << mine.size() << " mesh(es)";
+    if (shard.count > 1) std::cerr << " in shard " << shard.index << "/" << shard.count << " (of " << all.size() << ")";
+    std::cerr << ": " << counts_.up_to_date << " up to date, ";
+    if (counts_.failed_before) std::cerr << counts_.failed_before << " failed before (unchanged), ";
+    std::cerr << todo_.size() << " to bake with -j " << jobs_ << " ("
+              << threads_ << " thread(s) each)";
+    if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
+    std::cerr << "\n";
+  }
+
+  struct sigaction action {};
+  action.sa_handler = on_signal;
+  sigemptyset(&action.sa_mask);
+  for (int s : {SIGINT, SIGTERM, SIGHUP}) sigaction(s, &action, nullptr);
+
+  ChildPool pool;
+  while ((next_ < todo_.size() || pool.running() > 0) && !g_interrupted) {
+    while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
+      const BatchItem& item = todo_[next_].item;
+      fs::create_directories(fs::path(item.output).parent_path(), ec);
+      std::vector<std::string> command = {exe, "build", item.input, "-o", item.output, "--json"};
+      command.insert(command.end(), option_args.begin(), option_args.end());
+      pool.start(next_, command, limits);
+      running_[next_] = {next_, std::chrono::steady_clock::now(), command};
+      ++next_;
+    }
+    draw_progress(false);
+    for (const ChildResult& child : pool.poll(250)) {
+      // A bake killed by the signal that stops the batch (Slurm's scancel signals every process) is not the
+      // mesh's fault: not recorded, its temporary removed below, baked again by the next run.
+      if (g_interrupted && child.signal) continue;
+      const Running r = running_[child.id];
+      running_.erase(child.id);
+      const BatchItem& item = todo_[r.index].item;
+      nlohmann::json record = finish_record(item, child, r.command);
+      if (!record.contains("source_sha256")) record["source_sha256"] = todo_[r.index].sha;
+      manifest_->append(record);
+      ++finished_;
+      eta_.add(double(item.input_bytes), child.seconds);
+      if (record["status"] == "failed") {
+        ++counts_.failed;
+        failures_.push_back({{"input", item.input}, {"output", item.output}, {"code", record["error"]["code"]},
+                             {"message", record["error"]["message"]}, {"retried", true}});
+      } else {
+        ++counts_.built;
+      }
+      report_line(record, finished_, todo_.size());
+    }
+  }
+  const bool interrupted = g_interrupted != 0;
+  if (interrupted) {
+    pool.kill_all();
+    std::vector<std::string> unfinished;
+    for (const auto& [id, r] : running_) unfinished.push_back(todo_[r.index].item.output);
+    remove_stale_partials(unfinished);
+  }
+  draw_progress(true);
+
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  if (o_.json) {
+    std::cout << to_text(nlohmann::json{{"meshes", mine.size()},
+                                        {"meshes_all_shards", all.size()},
+                                        {"shard", {shard.index, shard.count}},
+                                        {"built", counts_.built},
+                                        {"up_to_date", counts_.up_to_date},
+                                        {"failed", counts_.failed},
+                                        {"failed_not_retried", counts_.failed_before},
+                                        {"not_started", todo_.size() - finished_},
+                                        {"interrupted", interrupted},
+                                        {"seconds", seconds},
+                                        {"jobs", jobs_},
+                                        {"threads_per_bake", threads_},
+                                        {"output_dir", o_.output_dir},
+                                        {"manifest", manifest_path},
+                                        {"failures", failures_}})
+              << "\n";
+  } else {
+    std::cout << "voxfmt batch: " << mine.size() << " mesh(es) in " << o_.output_dir;
+    if (shard.count > 1) std::cout << " (shard " << shard.index << "/" << shard.count << ")";
+    std::cout << ": " << counts_.built << " built, " << counts_.up_to_date << " up to date, " << counts_.failed << " failed";
+    if (counts_.failed_before)
+      std::cout << " (" << counts_.failed_before << " unchanged since they failed before: not retried; --retry-failed retries them)";
+    if (interrupted) std::cout << ", " << todo_.size() - finished_ << " not finished (interrupted)";
+    std::cout << " in " << std::fixed << std::setprecision(1) << seconds << " s\n";
+    if (!failures_.empty()) {
+      std::cout << "failed:\n";
+      for (const nlohmann::json& f : failures_)
+        std::cout << "  " << f["code"].get<std::string>() << ": " << f["message"].get<std::string>() << "\n";
+    }
+    std::cout << "manifest: " << manifest_path << "\n";
+  }
+  if (interrupted) return 128 + int(g_interrupted);
+  return counts_.failed ? kExitInvalid : kExitOk;
+}
+
+}  // namespace
+
+void add_batch_command(CLI::App& app, int& exit_code) {
+  auto o = std::make_shared<Options>();
+  CLI::App* cmd = app.add_subcommand(
+      "batch", "Bake many meshes into OUTDIR: parallel, skips what is up to date, resumable after a kill, shardable");
+  cmd->add_option("inputs", o->inputs,
+                  "Mesh files, directories (scanned recursively for extensions assimp reads) and list files "
+                  "(@FILE, or *.txt/*.lst/*.list: one path per line, relative to the list)")
+      ->required();
+  cmd->add_option("-o,--output", o->output_dir, "Output directory; OUTDIR/<path below the input root>.vox.h5 per mesh")
+      ->required();
+  cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")->capture_default_str()->check(CLI::Range(0u, 1024u));
+  cmd->add_option("--shard", o->shard, "Bake only shard I of N (I/N, 0-based): mesh k belongs to hash(name) mod N")
+      ->capture_default_str();
+  cmd->add_flag("--force", o->force, "Rebuild assets that are up to date (and retry every failure)");
+  cmd->add_flag("--retry-failed", o->retry_failed,
+                "Retry meshes whose earlier failure would recur (same source, options and tool version); TIMEOUT, "
+                "CRASHED, OUT_OF_MEMORY, INTERNAL and WRITE_FAILED are always retried");
+  cmd->add_option("--timeout", o->timeout, "Seconds one mesh may take before it is killed (TIMEOUT); 0 = no limit")
+      ->capture_default_str()->check(CLI::Range(0.0, 1e7));
+  cmd->add_option("--max-memory", o->max_memory_mib, "MiB of address space one bake may use (OUT_OF_MEMORY beyond); 0 = no limit")
+      ->capture_default_str();
+  cmd->add_option("--manifest", o->manifest,
+                  "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
+  add_bake_options(*cmd, o->bake);
+  cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
+  cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
+  cmd->callback([o, &exit_code] {
+    try {
+      exit_code = Runner(*o).run();
+    } catch (const UsageError& e) {
+      std::cerr << "voxfmt batch: error: " << e.what() << "\n";
+      exit_code = kExitUsageOrIo;
+    } catch (const std::exception& e) {
+      std::cerr << "voxfmt batch: error: " << e.what() << "\n";
+      exit_code = kExitUsageOrIo;
+    }
+  });
+}
+
+}  // namespace voxfmt::cli
