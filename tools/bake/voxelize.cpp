@@ -180,6 +180,20 @@ Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
   return a + ab * (vb * denom) + ac * (vc * denom);
 }
 
+// Layers round distances (in voxels) at half-integers, so ties matter. A distance within 1e-6 (relative, and
+// so more than a float's half ulp) of a tie is put on it (a face half a voxel from the voxel centres, with float input coordinates, gives 0.49999995
+// here and 1.49999995 at the next voxel; exact ties round alike), and the float kept for the voxel stays on
+// the double's side of every tie (1.49999995 would otherwise round to the float 1.5 and jump a layer).
+float tie_safe_float(double distance) {
+  const double tie = std::floor(distance) + 0.5;
+  if (std::abs(distance - tie) < 1e-6 * std::max(1.0, std::abs(tie))) distance = tie;
+  float f = float(distance);
+  const double layer = std::floor(distance + 0.5);
+  while (std::floor(double(f) + 0.5) > layer) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+  while (std::floor(double(f) + 0.5) < layer) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
 void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
                          const openvdb::Int32Grid& closest_polygon, std::vector<float>& signed_voxels) {
   const Pseudonormals pn = pseudonormals(mesh);
@@ -216,7 +230,7 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
             if (side != 0) sign = side > 0 ? 1 : -1;
           }
         }
-        if (std::isfinite(best)) value = float(sign * best);
+        if (std::isfinite(best)) value = tie_safe_float(sign * best);
       }
   });
 }
@@ -269,6 +283,43 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
   });
 }
 
+// Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
+// differ by at most one. Computed distances can exceed that by ~1e-6 voxel (the closest triangle is found among
+// OpenVDB's local candidates), enough to straddle two ties and step two layers. Such a pair has one value
+// within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are real
+// errors and are left for the validator to report. Returns the number of values moved.
+size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<uint32_t, 3>& dims) {
+  constexpr double kSlack = 1e-4;
+  const int64_t W = dims[0], H = dims[1], D = dims[2];
+  auto layer = [&](size_t v) { return std::floor(-double(d[v]) + 0.5); };  // penetration, positive inside
+  size_t moved = 0;
+  for (int pass = 0; pass < 4; ++pass) {
+    size_t moved_now = 0;
+    for (int64_t k = 0; k < D; ++k)
+      for (int64_t j = 0; j < H; ++j)
+        for (int64_t i = 0; i < W; ++i) {
+          const size_t v = size_t((k * H + j) * W + i);
+          if (!(std::abs(d[v]) <= band)) continue;
+          const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v, k + 1 < D ? v + size_t(W * H) : v};
+          for (size_t n : next) {
+            if (n == v || !(std::abs(d[n]) <= band) || std::abs(layer(v) - layer(n)) < 2) continue;
+            const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
+            const double gap_lo = layer(lo) + 0.5 - (-double(d[lo]));  // below the tie that would raise it
+            const double gap_hi = -double(d[hi]) - (layer(hi) - 0.5);  // above the tie that would lower it
+            if (std::min(gap_lo, gap_hi) > kSlack) continue;
+            if (gap_lo <= gap_hi)
+              d[lo] = -float(layer(lo) + 0.5);  // exactly on the tie: rounds up
+            else
+              d[hi] = -std::nextafter(float(layer(hi) - 0.5), -std::numeric_limits<float>::infinity());
+            ++moved_now;
+          }
+        }
+    moved += moved_now;
+    if (moved_now == 0) break;
+  }
+  return moved;
+}
+
 }  // namespace
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options) {
@@ -314,33 +365,54 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
   refine_near_surface(mesh, g, half_width, *closest_polygon, signed_voxels);
   closest_polygon.reset();
   if (options.winding_number_sign) sign_by_winding_number(mesh, g, half_width, signed_voxels);
+  repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
 
-  // Distances are stored in the band; the chamfer (in double) is seeded from exactly the stored values, so a
-  // band voxel's layer and its neighbours' chamfer layers round consistently (6-neighbours differ by <= 1).
+  // Distances are stored in the band. Layers are rounded from the distances in voxel units, where a voxel
+  // centre exactly half a voxel off a face (common: the grid is aligned to the bounding box) is an exact tie,
+  // so neighbours round alike; the chamfer is seeded with the same values, so band and chamfer layers of
+  // 6-neighbours differ by <= 1. Converting to metres in float would turn such ties into +-1 ulp noise and
+  // round 2.5 up but 1.5 down (a step of 2), so each stored value is then nudged by ulps until the spec's
+  // floor(-d/h + 1/2), evaluated on the stored float as a reader does, gives the layer chosen here.
   const float band = float(options.distance_band);
   std::vector<uint8_t> flags(count);  // kFixed: exact distance in the band; kInside: negative signed distance
   constexpr uint8_t kFixed = 1, kInside = 2;
   vm.distances.resize(count);
-  const float h = float(g.voxel_size);
+  vm.layers.resize(count);
   std::vector<double> magnitude(count);
+  const double h = g.voxel_size;
+  auto layer_of = [](double depth) { return std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0); };
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
       const float d = signed_voxels[v];
       const bool in_band = std::abs(d) <= band;
       flags[v] = uint8_t((in_band ? kFixed : 0) | (d < 0 ? kInside : 0));
-      vm.distances[v] = in_band ? d * h : std::numeric_limits<float>::quiet_NaN();
-      magnitude[v] = in_band ? std::abs(double(vm.distances[v])) / g.voxel_size : std::numeric_limits<double>::infinity();
+      if (!in_band) {
+        vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
+        magnitude[v] = std::numeric_limits<double>::infinity();
+        continue;
+      }
+      magnitude[v] = std::abs(double(d));
+      const double layer = layer_of(-double(d));
+      float stored = float(double(d) * h);
+      for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
+        const double read = layer_of(-double(stored) / h);
+        if (read == layer) break;
+        // A larger distance gives a smaller layer.
+        stored = std::nextafter(stored, read > layer ? std::numeric_limits<float>::infinity()
+                                                     : -std::numeric_limits<float>::infinity());
+      }
+      vm.distances[v] = stored;
+      vm.layers[v] = int16_t(layer);
     }
   });
   std::vector<float>().swap(signed_voxels);
   chamfer_transform(magnitude, flags, kFixed, g.dims);
 
-  vm.layers.resize(count);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
-      // Penetration in voxels is positive inside; in the band it follows the stored distance exactly (spec §3).
-      const double depth = (flags[v] & kInside) ? magnitude[v] : -magnitude[v];
-      vm.layers[v] = int16_t(std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0));
+      if (flags[v] & kFixed) continue;
+      // Penetration in voxels is positive inside.
+      vm.layers[v] = int16_t(layer_of((flags[v] & kInside) ? magnitude[v] : -magnitude[v]));
     }
   });
   return vm;
