@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "commands.h"
+#include "inspect_exports.h"
 #include "json_report.h"
 #include "voxfmt/io.h"
 
@@ -17,6 +18,13 @@ namespace {
 struct Options {
   std::string file;
   bool json = false;
+  std::string slice;   // AXIS=INDEX
+  std::string png;
+  std::string field = "layers";
+  int zoom = 0;
+  std::string ply;
+  int level = -1;
+  bool inward_normals = false;
 };
 
 struct Summary {
@@ -139,13 +147,73 @@ void print_text(const std::string& file, const Asset& a, const Summary& s, const
   for (const Issue& w : warnings) o << "warning: " << code_name(w.code) << " " << w.path << ": " << w.message << "\n";
 }
 
+// Writes the files asked for; returns a JSON description of each. Throws ExportRangeError (usage) and
+// std::runtime_error (I/O).
+nlohmann::json write_exports(const Options& o, const Asset& asset) {
+  nlohmann::json exports = nlohmann::json::array();
+  if (!o.png.empty()) {
+    SliceSpec spec = parse_slice(o.slice);
+    spec.distances = o.field == "distances";
+    spec.zoom = o.zoom;
+    const SliceInfo s = write_slice_png(asset, spec, o.png);
+    const char* axis = spec.axis == 0 ? "x" : spec.axis == 1 ? "y" : "z";
+    exports.push_back({{"file", o.png}, {"kind", "slice"}, {"axis", axis}, {"index", spec.index}, {"field", o.field},
+                       {"width", s.width}, {"height", s.height}, {"zoom", s.zoom}, {"columns", s.columns},
+                       {"rows", s.rows}, {"surface_in_slice", s.has_surface}});
+  }
+  if (!o.ply.empty()) {
+    const PlyInfo p = write_point_shell_ply(asset, o.level, o.inward_normals, o.ply);
+    exports.push_back({{"file", o.ply}, {"kind", "point_shell"}, {"level", p.level}, {"levels", p.levels},
+                       {"points", p.points}, {"normals", o.inward_normals ? "inward" : "outward"}});
+  }
+  return exports;
+}
+
+void print_export(const nlohmann::json& e) {
+  if (e["kind"] == "slice")
+    std::cout << e["file"].get<std::string>() << ": " << e["field"].get<std::string>() << " of slice "
+              << e["axis"].get<std::string>() << " = " << e["index"] << ", " << e["columns"] << " x " << e["rows"]
+              << " voxels at " << e["zoom"] << " px, " << e["width"] << " x " << e["height"] << " px"
+              << (e["surface_in_slice"].get<bool>() ? "" : " (the surface does not cross this slice)") << "\n";
+  else
+    std::cout << e["file"].get<std::string>() << ": point shell levels 0.." << e["level"] << " of 0.."
+              << e["levels"].get<uint32_t>() - 1 << ", " << e["points"] << " points with "
+              << e["normals"].get<std::string>() << " normals (binary PLY)\n";
+}
+
 }  // namespace
 
 void add_inspect_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<Options>();
-  CLI::App* cmd = app.add_subcommand("inspect", "Print a summary of an asset: grid, point shell, mass, provenance");
+  CLI::App* cmd = app.add_subcommand(
+      "inspect", "Print a summary of an asset (grid, point shell, mass, provenance); draw a slice; export the point shell");
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print the summary as JSON on stdout");
+  auto* slice = cmd->add_option("--slice", options->slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
+                    ->check(CLI::Validator(
+                        [](std::string& text) {
+                          try {
+                            parse_slice(text);
+                            return std::string();
+                          } catch (const std::invalid_argument& e) {
+                            return std::string(e.what());
+                          }
+                        },
+                        "AXIS=INDEX"));
+  auto* png = cmd->add_option("--png", options->png,
+                              "Write the --slice picture here (PNG: colour map inside red / outside blue, surface "
+                              "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)");
+  slice->needs(png);
+  png->needs(slice);
+  cmd->add_option("--field", options->field, "What the slice colours: layers (every voxel) or distances (the band)")
+      ->capture_default_str()->check(CLI::IsMember({"layers", "distances"}))->needs(slice);
+  cmd->add_option("--zoom", options->zoom, "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
+      ->check(CLI::Range(1, 64))->needs(slice);
+  auto* ply = cmd->add_option("--ply", options->ply,
+                              "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)");
+  cmd->add_option("--level", options->level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
+      ->check(CLI::NonNegativeNumber)->needs(ply);
+  cmd->add_flag("--inward-normals", options->inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
   cmd->callback([options, &exit_code] {
     std::vector<Issue> warnings;
     Result<Asset> asset = read_asset(options->file, &warnings);
@@ -154,12 +222,26 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
       exit_code = asset.error().code == IssueCode::FileNotFound ? kExitUsageOrIo : kExitInvalid;
       return;
     }
+    nlohmann::json exports;
+    try {
+      exports = write_exports(*options, asset.value());
+    } catch (const std::exception& e) {  // a slice or level outside the asset, or a file that cannot be written
+      std::cerr << "voxfmt inspect: error: " << e.what() << "\n";
+      exit_code = kExitUsageOrIo;
+      return;
+    }
+    exit_code = kExitOk;
+    if (!exports.empty() && !options->json) {
+      for (const nlohmann::json& e : exports) print_export(e);
+      return;
+    }
     const Summary summary = summarize(options->file, asset.value());
+    nlohmann::json out = to_json(options->file, asset.value(), summary, warnings);
+    if (!exports.empty()) out["exports"] = exports;
     if (options->json)
-      std::cout << to_text(to_json(options->file, asset.value(), summary, warnings)) << "\n";
+      std::cout << to_text(out) << "\n";
     else
       print_text(options->file, asset.value(), summary, warnings);
-    exit_code = kExitOk;
   });
 }
 

@@ -1,0 +1,179 @@
+"""`voxfmt inspect --slice ... --png` and `--ply [--level L]` on a small baked asset, and their usage errors."""
+import json
+import os
+import struct
+import subprocess
+import tempfile
+import unittest
+import zlib
+
+import h5py
+import numpy as np
+
+VOXFMT = os.environ.get("VOXFMT_BIN")
+
+# A torus-like closed box with a hole is overkill: a tetrahedron has inside, outside and a surface in most slices.
+TET_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n"
+
+
+def read_png(path):
+    """Minimal PNG reader (8-bit RGB, no interlace): returns (width, height, pixels[h, w, 3])."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG signature"
+    pos, idat, header = 8, b"", None
+    while pos < len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + length]
+        (crc,) = struct.unpack(">I", data[pos + 8 + length:pos + 12 + length])
+        assert zlib.crc32(kind + body) & 0xFFFFFFFF == crc, "bad CRC in chunk %r" % kind
+        if kind == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body)
+        elif kind == b"IDAT":
+            idat += body
+        elif kind == b"IEND":
+            break
+        pos += 12 + length
+    width, height, depth, colour, _, _, interlace = header
+    assert (depth, colour, interlace) == (8, 2, 0)
+    raw = zlib.decompress(idat)
+    stride = width * 3
+    out = np.zeros((height, stride), dtype=np.int32)
+    prev = np.zeros(stride, dtype=np.int32)
+    for y in range(height):
+        kind = raw[y * (stride + 1)]
+        line = np.frombuffer(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)], dtype=np.uint8).astype(np.int32)
+        cur = np.zeros(stride, dtype=np.int32)
+        for x in range(stride):
+            a = cur[x - 3] if x >= 3 else 0
+            b = prev[x]
+            c = prev[x - 3] if x >= 3 else 0
+            if kind == 0:
+                pred = 0
+            elif kind == 1:
+                pred = a
+            elif kind == 2:
+                pred = b
+            elif kind == 3:
+                pred = (a + b) // 2
+            else:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+            cur[x] = (line[x] + pred) & 0xFF
+        out[y] = cur
+        prev = cur
+    return width, height, out.reshape(height, width, 3)
+
+
+def read_ply(path):
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    assert header[0] == "ply" and header[1] == "format binary_little_endian 1.0", header[:2]
+    count = next(int(line.split()[2]) for line in header if line.startswith("element vertex"))
+    props = [line.split()[2] for line in header if line.startswith("property")]
+    assert props == ["x", "y", "z", "nx", "ny", "nz"], props
+    assert all(line.split()[1] == "float" for line in header if line.startswith("property"))
+    body = np.frombuffer(data[end:], dtype="<f4")
+    assert body.size == count * 6, "body has %d floats for %d vertices" % (body.size, count)
+    return body.reshape(count, 6)
+
+
+@unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
+class InspectExports(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.TemporaryDirectory()
+        cls.dir = cls.tmp.name
+        mesh = os.path.join(cls.dir, "tet.obj")
+        with open(mesh, "w") as f:
+            f.write(TET_OBJ)
+        cls.asset = os.path.join(cls.dir, "tet.vox.h5")
+        r = subprocess.run([VOXFMT, "build", mesh, "-o", cls.asset, "--resolution", "20", "--points", "400", "-q"],
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        with h5py.File(cls.asset, "r") as f:
+            cls.dims = [int(v) for v in f["voxelmap"].attrs["dims"]]
+            cls.layers = f["voxelmap/layers"][()]
+            cls.offsets = f["pointshell/level_offsets"][()]
+            cls.points = f["pointshell/points"][()]
+            cls.normals = f["pointshell/normals"][()]
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.tmp.cleanup()
+
+    def inspect(self, *args):
+        return subprocess.run([VOXFMT, "inspect", self.asset, *args], capture_output=True, text=True, timeout=60)
+
+    def test_ply_of_every_level(self):
+        levels = len(self.offsets) - 1
+        for level in range(levels):
+            out = os.path.join(self.dir, "level%d.ply" % level)
+            r = self.inspect("--ply", out, "--level", str(level))
+            self.assertEqual(r.returncode, 0, r.stderr)
+            cloud = read_ply(out)
+            self.assertEqual(len(cloud), self.offsets[level + 1])  # the breadth-first prefix
+            np.testing.assert_allclose(cloud[:, :3], self.points[:len(cloud)], atol=1e-6)
+            np.testing.assert_allclose(cloud[:, 3:], -self.normals[:len(cloud)], atol=1e-7)  # outward
+        full = os.path.join(self.dir, "all.ply")
+        r = self.inspect("--ply", full, "--inward-normals", "--json")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(json.loads(r.stdout)["exports"][0]["points"], len(self.points))
+        cloud = read_ply(full)
+        self.assertEqual(len(cloud), len(self.points))
+        np.testing.assert_allclose(cloud[:, 3:], self.normals, atol=1e-7)
+        np.testing.assert_allclose(np.linalg.norm(cloud[:, 3:], axis=1), 1, atol=1e-3)
+
+    def test_slice_png_size_colours_and_contour(self):
+        W, H, D = self.dims
+        for axis, index, cols, rows in (("z", D // 3, W, H), ("y", H // 3, W, D), ("x", W // 3, H, D)):
+            for field in ("layers", "distances"):
+                out = os.path.join(self.dir, "slice-%s-%s.png" % (axis, field))
+                r = self.inspect("--slice", "%s=%d" % (axis, index), "--png", out, "--zoom", "5", "--field", field, "--json")
+                self.assertEqual(r.returncode, 0, r.stderr)
+                info = json.loads(r.stdout)["exports"][0]
+                width, height, pixels = read_png(out)
+                # The documented layout: P * columns + 200 by max(P * rows, 240) + 42 pixels.
+                self.assertEqual((width, height), (5 * cols + 200, max(5 * rows, 240) + 42))
+                self.assertEqual((info["width"], info["height"], info["columns"], info["rows"]), (width, height, cols, rows))
+                self.assertTrue(info["surface_in_slice"])
+                top = 10 + 14 + 8  # margin + title + gap
+                area = pixels[top:top + 5 * rows, 10:10 + 5 * cols]
+                red = (area[:, :, 0] > 150) & (area[:, :, 2] < 120)
+                blue = (area[:, :, 2] > 150) & (area[:, :, 0] < 120)
+                black = area.sum(axis=2) == 0
+                self.assertTrue(red.any() and blue.any() and black.any(), "inside, outside and the contour appear")
+        # The first row of map pixels is the top row of voxels (rows go up): z slice, j = H - 1 is outside.
+        r = self.inspect("--slice", "z=%d" % (D // 3), "--png", os.path.join(self.dir, "z.png"), "--zoom", "1")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        width, height, pixels = read_png(os.path.join(self.dir, "z.png"))
+        self.assertLess(self.layers[D // 3, H - 1, 0], 0)
+        corner = pixels[10 + 14 + 8, 10]
+        self.assertGreater(corner[2], corner[0], "top-left voxel (outside) is blue")
+
+    def test_bad_arguments_exit_2_with_a_message(self):
+        png = os.path.join(self.dir, "bad.png")
+        cases = [
+            (["--slice", "z=99999", "--png", png], "0..%d" % (self.dims[2] - 1)),
+            (["--slice", "w=3", "--png", png], "AXIS"),
+            (["--slice", "z=-1", "--png", png], "index"),
+            (["--slice", "z", "--png", png], "AXIS=INDEX"),
+            (["--slice", "z=3"], "--png"),
+            (["--png", png], "--slice"),
+            (["--ply", os.path.join(self.dir, "bad.ply"), "--level", "99"], "levels 0.."),
+            (["--level", "1"], "--ply"),
+            (["--slice", "x=1", "--png", os.path.join(self.dir, "no-such-dir", "x.png")], "no-such-dir"),
+        ]
+        for args, message in cases:
+            r = self.inspect(*args)
+            self.assertEqual(r.returncode, 2, (args, r.stdout, r.stderr))
+            self.assertIn(message, r.stderr, args)
+        self.assertFalse(os.path.exists(png))
+        self.assertEqual([f for f in os.listdir(self.dir) if "partial" in f], [])
+
+
+if __name__ == "__main__":
+    unittest.main()
