@@ -99,6 +99,10 @@ void build_sphere_tree(PointShell& shell, double branching);
 
 /// Volume, centre of mass and inertia (unit density) of a closed, outward-oriented mesh.
 MassProperties compute_mass_properties(const TriangleMesh& mesh);
+/// The same for the voxelmap's inside, for surfaces whose inside is the winding number's (open, non-manifold,
+/// self-intersecting: a surface integral would depend on the origin or count overlaps twice). A voxel counts
+/// with the fraction clamp(1/2 - d/h, 0, 1) where its distance d is stored, wholly where its layer is > 0.
+MassProperties voxelmap_mass_properties(const Voxelmap& voxelmap);
 
 // ---------------------------------------------------------------- the whole bake
 

@@ -8,6 +8,7 @@
 #include <oneapi/tbb/task_group.h>
 #include <oneapi/tbb/version.h>
 
+#include <algorithm>
 #include <chrono>
 #include <exception>
 #include <cmath>
@@ -116,18 +117,27 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
 
   stage("repair");
   const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
-  MassProperties mass = compute_mass_properties(mesh);
   const auto [lo, hi] = bounding_box(mesh);
   const double diagonal = length(hi - lo);
-  if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
-    throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (flat, open or inside-out mesh)");
+  // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
+  // winding number is >= 1/2, and the mass properties are integrated over that inside, on the voxelmap.
+  const RepairReport& r = report.repair;
+  const bool winding_inside = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
+  MassProperties mass;
+  auto check_volume = [&](const char* what) {
+    if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
+      throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume (" + what + ")");
+  };
+  if (!winding_inside) {
+    mass = compute_mass_properties(mesh);
+    check_volume("flat or inside-out mesh");
+  }
 
   // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run
   // beside the voxelmap's parallel work. Stage times are each task's own wall time.
   stage("voxelmap + point shell");
   VoxelmapOptions voxelmap_options = options.voxelmap;
-  const RepairReport& r = report.repair;
-  voxelmap_options.winding_number_sign = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
+  voxelmap_options.winding_number_sign = winding_inside;
   Voxelmap voxelmap;
   PointShell shell;
   double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
@@ -156,6 +166,19 @@ Asset build_asset(const std::string& mesh_path, const BuildOptions& options, Bui
   if (shell_error) std::rethrow_exception(shell_error);
 
   stage("assemble");
+  if (winding_inside) {
+    // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
+    // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
+    if (*std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1)
+      throw BakeError("ZERO_VOLUME", mesh_path + ": the surface encloses no volume at this resolution: no voxel is more "
+                                                 "than half a voxel inside (winding number >= 1/2); an open sheet, or "
+                                                 "thinner than a voxel (a finer --resolution or --voxel-size may help)");
+    mass = voxelmap_mass_properties(voxelmap);
+    check_volume("an open sheet");
+    // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can
+    // put the centre a fraction of a voxel past a flat side.
+    for (int a = 0; a < 3; ++a) mass.center_of_mass[a] = std::clamp(mass.center_of_mass[a], lo[a], hi[a]);
+  }
   report.timings.insert(report.timings.end() - 2, {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds},
                                                    {"sphere tree", tree_seconds}});
   Asset asset;

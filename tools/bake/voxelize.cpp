@@ -1,5 +1,9 @@
 // Stage 3: layered distance-field voxelmap. OpenVDB computes exact signed distances in a narrow band; a
 // two-pass 26-neighbour chamfer transform seeded with them gives the layers everywhere else.
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/AABB_triangle_primitive.h>
+#include <CGAL/Simple_cartesian.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Dense.h>
 #include <openvdb/tools/MeshToVolume.h>
@@ -10,6 +14,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <memory>
 #include <unordered_map>
 
 #include "bake.h"
@@ -194,6 +199,33 @@ float tie_safe_float(double distance) {
   return f;
 }
 
+// Exact closest triangle of any point (index space), for the voxels where OpenVDB's local candidates are wrong.
+class ClosestTriangle {
+ public:
+  ClosestTriangle(const TriangleMesh& mesh, const GridGeometry& g) {
+    auto vtx = [&](uint32_t i) {
+      return Point((mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
+                   (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size);
+    };
+    triangles_.reserve(mesh.triangles.size());
+    for (const auto& t : mesh.triangles) triangles_.emplace_back(vtx(t[0]), vtx(t[1]), vtx(t[2]));
+    tree_.insert(triangles_.begin(), triangles_.end());
+    tree_.build();
+    tree_.accelerate_distance_queries();
+  }
+  size_t operator()(const Vec3& p) const {
+    return size_t(tree_.closest_point_and_primitive(Point(p[0], p[1], p[2])).second - triangles_.begin());
+  }
+
+ private:
+  using Kernel = CGAL::Simple_cartesian<double>;
+  using Point = Kernel::Point_3;
+  using Triangles = std::vector<Kernel::Triangle_3>;
+  using Tree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, CGAL::AABB_triangle_primitive<Kernel, Triangles::const_iterator>>>;
+  Triangles triangles_;
+  Tree tree_;
+};
+
 void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
                          const openvdb::Int32Grid& closest_polygon, std::vector<float>& signed_voxels) {
   const Pseudonormals pn = pseudonormals(mesh);
@@ -201,6 +233,16 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
   auto vtx = [&](uint32_t i) {  // index space, double precision
     return Vec3{(mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
               (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size};
+  };
+  // Signed distance from voxel centre p to triangle f, the sign from the pseudonormal of the closest feature.
+  auto signed_distance_to = [&](const Vec3& p, size_t f, double& sign) {
+    const auto& t = mesh.triangles[f];
+    Vec3 normal{};
+    const Vec3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, f, t, normal);
+    const Vec3 d = p - q;
+    const double side = dot(d, normal);
+    if (side != 0) sign = side > 0 ? 1 : -1;
+    return std::sqrt(dot(d, d));
   };
   tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
     auto accessor = closest_polygon.getConstAccessor();
@@ -219,20 +261,91 @@ void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float 
           if (f < 0 || size_t(f) >= mesh.triangles.size() || std::find(seen, seen + seen_count, f) != seen + seen_count)
             continue;
           seen[seen_count++] = f;
-          const auto& t = mesh.triangles[size_t(f)];
-          Vec3 normal{};
-          const Vec3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, size_t(f), t, normal);
-          const Vec3 d = p - q;
-          const double dist = std::sqrt(dot(d, d));
+          double candidate_sign = sign;
+          const double dist = signed_distance_to(p, size_t(f), candidate_sign);
           if (dist < best) {
             best = dist;
-            const double side = dot(d, normal);
-            if (side != 0) sign = side > 0 ? 1 : -1;
+            sign = candidate_sign;
           }
         }
         if (std::isfinite(best)) value = tie_safe_float(sign * best);
       }
   });
+
+  // The local candidates can miss the closest triangle where surfaces come close (thin walls, folds): the
+  // distance is then too large and its sign may be wrong. A distance field changes by at most one voxel per
+  // voxel, so any 6-neighbour pair that changes more marks suspects, and so does a voxel outside the band next to
+  // one so close to the surface that it must be inside the band too. Suspects get the exact closest triangle
+  // (AABB tree), and the neighbours of every value that changed are checked again, until all agree.
+  const size_t count = signed_voxels.size();
+  auto in_band = [&](size_t v) { return std::abs(signed_voxels[v]) < half_width; };
+  auto suspect = [&](size_t v, size_t n) {
+    if (in_band(v) && in_band(n)) return std::abs(double(signed_voxels[v]) - double(signed_voxels[n])) > 1.001;
+    if (in_band(v) == in_band(n)) return false;
+    return std::abs(signed_voxels[in_band(v) ? v : n]) + 1.001f < half_width;  // the other must be in the band
+  };
+  auto neighbours = [&](size_t v, size_t out[6]) {
+    const int64_t i = int64_t(v % size_t(W)), j = int64_t(v / size_t(W) % size_t(H)), k = int64_t(v / size_t(W * H));
+    int n = 0;
+    if (i > 0) out[n++] = v - 1;
+    if (i + 1 < W) out[n++] = v + 1;
+    if (j > 0) out[n++] = v - size_t(W);
+    if (j + 1 < H) out[n++] = v + size_t(W);
+    if (k > 0) out[n++] = v - size_t(W * H);
+    if (k + 1 < D) out[n++] = v + size_t(W * H);
+    return n;
+  };
+  std::vector<uint8_t> exact(count, 0);
+  std::vector<std::vector<size_t>> slab_suspects(static_cast<size_t>(D));
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    const size_t slab = size_t(W * H);
+    for (size_t v = size_t(k) * slab; v < size_t(k + 1) * slab; ++v) {
+      size_t next[6];
+      const int n = neighbours(v, next);
+      for (int e = 0; e < n; ++e)
+        if (next[e] > v && suspect(v, next[e])) {
+          slab_suspects[size_t(k)].push_back(v);
+          slab_suspects[size_t(k)].push_back(next[e]);
+        }
+    }
+  });
+  std::vector<size_t> work;
+  for (const auto& slab : slab_suspects) work.insert(work.end(), slab.begin(), slab.end());
+  std::unique_ptr<ClosestTriangle> closest;
+  while (!work.empty()) {
+    std::sort(work.begin(), work.end());
+    work.erase(std::unique(work.begin(), work.end()), work.end());
+    work.erase(std::remove_if(work.begin(), work.end(), [&](size_t v) { return exact[v] != 0; }), work.end());
+    if (work.empty()) break;
+    if (!closest) closest = std::make_unique<ClosestTriangle>(mesh, g);
+    std::vector<uint8_t> changed(work.size(), 0);
+    tbb::parallel_for(size_t(0), work.size(), [&](size_t w) {
+      const size_t v = work[w];
+      const Vec3 p{double(v % size_t(W)), double(v / size_t(W) % size_t(H)), double(v / size_t(W * H))};
+      double sign = signed_voxels[v] < 0 ? -1 : 1;
+      const double dist = signed_distance_to(p, (*closest)(p), sign);
+      const float value = dist < half_width ? tie_safe_float(sign * dist) : float(sign) * half_width;
+      changed[w] = std::abs(value - signed_voxels[v]) > 1e-6f;
+      signed_voxels[v] = value;
+      exact[v] = 1;
+    });
+    std::vector<size_t> next_work;
+    for (size_t w = 0; w < work.size(); ++w) {
+      if (!changed[w]) continue;
+      size_t around[6];
+      const int n = neighbours(work[w], around);
+      for (int e = 0; e < n; ++e) {
+        size_t second[6];
+        const int m = neighbours(around[e], second);
+        for (int f = 0; f < m; ++f)
+          if (suspect(around[e], second[f])) {
+            next_work.push_back(around[e]);
+            next_work.push_back(second[f]);
+          }
+      }
+    }
+    work.swap(next_work);
+  }
 }
 
 // Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
@@ -242,6 +355,17 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
                             std::vector<float>& signed_voxels) {
   const WindingNumber winding(mesh);
   const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
+  // Outside the surface's bounding box a plane separates the point from the whole surface, which then covers at
+  // most a hemisphere of directions: |winding number| <= 1/2, never inside. Approximation error (far field,
+  // interpolation) must not make it so.
+  const auto [lo, hi] = bounding_box(mesh);
+  auto inside_bounds = [&](int64_t i, int64_t j, int64_t k) {
+    const double p[3] = {g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
+                         g.origin[2] + g.voxel_size * double(k)};
+    for (int a = 0; a < 3; ++a)
+      if (p[a] < lo[a] || p[a] > hi[a]) return false;
+    return true;
+  };
   const int64_t kStride = std::clamp<int64_t>(int64_t(std::floor(2.0 * half_width / std::sqrt(3.0))), 1, 4);
   auto lattice = [&](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
   const int64_t cw = lattice(W), ch = lattice(H), cd = lattice(D);
@@ -278,7 +402,7 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
           w = (1 - t) * ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
               t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
         }
-        value = w >= 0.5 ? -std::abs(value) : std::abs(value);
+        value = w >= 0.5 && inside_bounds(i, j, k) ? -std::abs(value) : std::abs(value);
       }
   });
 }
