@@ -211,6 +211,40 @@ class Batch(unittest.TestCase):
         self.assertIn("no meshes", r.stderr)
         self.assertFalse(self.assets())
 
+    def children_of_this_test(self):
+        found = []
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                with open("/proc/%s/cmdline" % pid, "rb") as f:
+                    args = f.read().split(b"\0")
+            except OSError:
+                continue
+            if b"build" in args and any(self.out.encode() in a for a in args):
+                found.append(int(pid))
+        return found
+
+    def test_a_crashing_bake_is_recorded_and_retried(self):
+        # A bake that dies of a signal (here SIGSEGV sent by the test, as a broken library would) costs one
+        # recorded failure; the batch goes on, and the next run retries it.
+        mesh = os.path.join(self.lib, "b/cube.off")
+        proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
+                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        deadline = time.time() + 30
+        children = []
+        while not children and time.time() < deadline:
+            children = self.children_of_this_test()
+            time.sleep(0.01)
+        self.assertTrue(children, "the bake child was not seen")
+        os.kill(children[0], signal.SIGSEGV)
+        out, _ = proc.communicate(timeout=60)
+        self.assertEqual(proc.returncode, 1)
+        failure = json.loads(out)["failures"][0]
+        self.assertEqual(failure["code"], "CRASHED")
+        self.assertIn("signal %d" % signal.SIGSEGV, failure["message"])
+        self.assertEqual(self.assets(), [])
+        r, summary = self.batch(mesh, expect=0)
+        self.assertEqual(summary["built"], 1)
+
     def test_timeout_is_a_recorded_failure(self):
         r, summary = self.batch(os.path.join(self.lib, "b/cube.off"), "--timeout", "0.001", expect=1)
         self.assertEqual(summary["failures"][0]["code"], "TIMEOUT")
