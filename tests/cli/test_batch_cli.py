@@ -171,7 +171,9 @@ class Batch(unittest.TestCase):
         self.assertEqual(orphans, [])
         # A temporary of a bake killed mid-write, and a manifest line torn by a crash.
         self.write("out/many/cube0.off.vox.h5.partial-999999-0", "torn")
-        with open(manifest, "a") as f:
+        with open(manifest, "a") as f:  # a record with the wrong types (hand-edited), then a torn line
+            f.write('{"output": %s, "status": 5, "source_sha256": null, "error": "x"}\n' %
+                    json.dumps(os.path.join(self.out, "many/cube1.off.vox.h5")))
             f.write('{"input": "x", "outp')
         r = subprocess.run(args[:-1] + ["--json"], capture_output=True, text=True, timeout=120)
         self.assertEqual(r.returncode, 1, r.stderr)  # only the flat mesh fails

@@ -114,6 +114,17 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
   return removed;
 }
 
+// Fields of a manifest record, read defensively: a record edited by hand or written by another tool must not
+// stop the batch, it just does not count.
+std::string text_field(const nlohmann::json& record, const char* key) {
+  const auto it = record.find(key);
+  return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+int64_t integer_field(const nlohmann::json& record, const char* key) {
+  const auto it = record.find(key);
+  return it != record.end() && it->is_number_integer() ? it->get<int64_t>() : -1;
+}
+
 bool same_parameters(const nlohmann::json& stored, const nlohmann::json& wanted) {
   if (stored.is_string()) {  // provenance keeps the JSON text
     const nlohmann::json parsed = nlohmann::json::parse(stored.get<std::string>(), nullptr, false);
@@ -211,11 +222,11 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   const FileStamp file = stamp(item.output);
   if (!file.exists) return false;
   if (const nlohmann::json* last = manifest_->last(item.output)) {
-    const std::string status = last->value("status", "");
-    if ((status == "ok" || status == "up_to_date") && last->value("source_sha256", "") == sha &&
-        last->value("tool_version", "") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
-        same_parameters((*last)["build_parameters"], parameters_) && last->value("file_size_bytes", uint64_t(0)) == file.size &&
-        last->value("output_mtime_ns", int64_t(0)) == file.mtime_ns) {
+    const std::string status = text_field(*last, "status");
+    if ((status == "ok" || status == "up_to_date") && text_field(*last, "source_sha256") == sha &&
+        text_field(*last, "tool_version") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
+        same_parameters((*last)["build_parameters"], parameters_) && integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
+        integer_field(*last, "output_mtime_ns") == file.mtime_ns) {
       record = nullptr;  // the manifest already says so
       return true;
     }
@@ -244,10 +255,12 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
 const nlohmann::json* Runner::failed_before(const BatchItem& item, const std::string& sha) const {
   if (o_.force || o_.retry_failed || sha.empty()) return nullptr;
   const nlohmann::json* last = manifest_->last(item.output);
-  if (!last || last->value("status", "") != "failed" || !last->contains("error") || !(*last)["error"].is_object()) return nullptr;
-  const std::string code = (*last)["error"].value("code", "");
-  if (code.empty() || transient_failure(code) || last->value("source_sha256", "") != sha ||
-      last->value("tool_version", "") != VOXFMT_VERSION_STRING || !last->contains("build_parameters") ||
+  if (!last || text_field(*last, "status") != "failed" || !last->contains("error") || !(*last)["error"].is_object() ||
+      text_field((*last)["error"], "message").empty())
+    return nullptr;
+  const std::string code = text_field((*last)["error"], "code");
+  if (code.empty() || transient_failure(code) || text_field(*last, "source_sha256") != sha ||
+      text_field(*last, "tool_version") != VOXFMT_VERSION_STRING || !last->contains("build_parameters") ||
       !same_parameters((*last)["build_parameters"], parameters_))
     return nullptr;
   return last;
@@ -285,9 +298,9 @@ nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& c
               signal_name(child.signal) + ")" +
               (child.signal == SIGKILL ? " — by the kernel's out-of-memory killer or by another process" : "") +
               (last_error_line.empty() ? "" : "; its last message: " + last_error_line);
-  } else if (has_summary && summary["status"] == "error") {
-    code = summary.value("code", "INTERNAL");
-    message = summary.value("message", "");
+  } else if (has_summary && summary["status"] == "error" && !text_field(summary, "code").empty()) {
+    code = text_field(summary, "code");
+    message = text_field(summary, "message");
   } else {
     code = "INTERNAL";
     message = item.input + ": voxfmt build exited with code " + std::to_string(child.exit_code) + " without a summary" +
