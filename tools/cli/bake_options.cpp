@@ -31,7 +31,7 @@ void add_bake_options(CLI::App& cmd, BakeSettings& s) {
                "Skip the self-intersection check (faster on huge meshes)");
   cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")->capture_default_str();
   cmd.add_option("--deflate", s.deflate, "gzip level 0-9 for the voxel grids")->capture_default_str()->check(CLI::Range(0, 9));
-  cmd.add_option("--threads", b.threads, "Worker threads (0 = all cores)")->capture_default_str();
+  cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")->capture_default_str();
   cmd.add_flag("!--no-verify", s.verify,
                "Write the asset even if it breaks a rule of `voxfmt validate --level full` (by default such an "
                "asset is an INVALID_ASSET error and nothing is written)");
