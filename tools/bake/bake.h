@@ -139,5 +139,7 @@ std::string build_parameters_json(const BuildOptions& options);
 std::map<std::string, std::string> dependency_versions();
 /// Lowercase hex SHA-256 of a file's bytes.
 std::string sha256_file(const std::string& path);
+/// The current time as ISO 8601 UTC, e.g. "2026-11-22T04:00:14Z" (provenance, manifests).
+std::string utc_now();
 
 }  // namespace voxfmt::bake

@@ -81,7 +81,6 @@ std::string build_parameters_json(const BuildOptions& o) {
   return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
-namespace {
 std::string utc_now() {
   const std::time_t now = std::time(nullptr);
   std::tm tm{};
@@ -90,7 +89,6 @@ std::string utc_now() {
   std::strftime(buffer, sizeof buffer, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buffer;
 }
-}  // namespace
 
 Asset build_asset(const std::string& mesh_path, const BuildOptions& options, BuildReport& report,
                   const ProgressCallback& progress) {

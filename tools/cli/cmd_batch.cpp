@@ -65,15 +65,6 @@ struct Options {
 volatile std::sig_atomic_t g_interrupted = 0;
 void on_signal(int signal_number) { g_interrupted = signal_number; }
 
-std::string utc_now() {
-  const std::time_t now = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  char text[32];
-  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return text;
-}
-
 std::string clock_text(double seconds) {
   const long s = long(std::lround(std::max(0.0, seconds)));
   char text[32];
@@ -246,7 +237,7 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   for (const BuildWarning& w : p.build_warnings) warnings.push_back({{"code", w.code}, {"message", w.message}});
   record["warnings"] = warnings;
   record["created_utc"] = p.created_utc;
-  record["finished_utc"] = utc_now();
+  record["finished_utc"] = bake::utc_now();
   return true;
 }
 
@@ -269,7 +260,7 @@ const nlohmann::json* Runner::failed_before(const BatchItem& item, const std::st
 nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command) {
   nlohmann::json record = base_record(item);
   record["wall_s"] = child.seconds;
-  record["finished_utc"] = utc_now();
+  record["finished_utc"] = bake::utc_now();
   const nlohmann::json summary = nlohmann::json::parse(child.out, nullptr, false);
   const bool has_summary = summary.is_object() && summary.contains("status");
   if (child.exit_code == 0 && has_summary && summary["status"] == "ok") {
