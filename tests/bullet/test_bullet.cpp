@@ -5,40 +5,16 @@
 #include <cmath>
 #include <iostream>
 
-#include "bake.h"
+#include "baked_bunny.h"
 #include "vps/bullet/vps_shape.h"
 #include "vps/bullet/world.h"
 
 namespace vps::bullet {
 namespace {
 
-const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
 constexpr btScalar kDt = btScalar(1e-3);  // 1 kHz, the haptic rate
 
-struct Bunny {
-  std::shared_ptr<const CollisionObject> object;
-  voxfmt::bake::TriangleMesh mesh;
-  double h = 0;
-
-  static const Bunny& get() {
-    static const Bunny bunny = [] {
-      Bunny b;
-      voxfmt::bake::BuildOptions options;
-      options.voxelmap.resolution = 306;
-      options.point_shell.points = 35000;
-      voxfmt::bake::BuildReport report;
-      const voxfmt::Asset asset = voxfmt::bake::build_asset(kMeshes + "/bunny00.off", options, report);
-      voxfmt::bake::RepairReport repair;
-      b.mesh = voxfmt::bake::repair_mesh(voxfmt::bake::import_mesh(kMeshes + "/bunny00.off"), repair, false);
-      auto loaded = CollisionObject::from_asset(asset);
-      if (!loaded) throw std::runtime_error(loaded.error().message);
-      b.object = loaded.value();
-      b.h = asset.voxelmap.voxel_size;
-      return b;
-    }();
-    return bunny;
-  }
-};
+using Bunny = voxfmt::test::BakedBunny;
 
 /// Lowest mesh vertex along +Y for a body whose shape is `shape`.
 double lowest_vertex_y(const Bunny& bunny, const VpsShape& shape, const btTransform& t) {

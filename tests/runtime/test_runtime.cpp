@@ -8,7 +8,7 @@
 #include <iostream>
 #include <random>
 
-#include "bake.h"
+#include "baked_bunny.h"
 #include "exact_surface.h"
 #include "vps/collision_object.h"
 #include "vps/forces.h"
@@ -19,32 +19,18 @@ namespace {
 
 using voxfmt::Vec3;
 
-const std::string kMeshes = VOXFMT_SAMPLE_MESHES;
-
-/// The seed's bunny (resolution 306, 35k points), baked once for all tests.
+/// The baked bunny plus CGAL's exact distance to its mesh.
 struct Bunny {
-  voxfmt::Asset asset;
+  const voxfmt::Asset& asset;
   std::shared_ptr<const CollisionObject> object;
+  const voxfmt::bake::TriangleMesh& mesh;
+  double h;
   std::unique_ptr<voxfmt::test::ExactSurface> exact;
-  voxfmt::bake::TriangleMesh mesh;
-  double h = 0;
 
   static const Bunny& get() {
     static const Bunny bunny = [] {
-      Bunny b;
-      voxfmt::bake::BuildOptions options;
-      options.voxelmap.resolution = 306;
-      options.point_shell.points = 35000;
-      voxfmt::bake::BuildReport report;
-      b.asset = voxfmt::bake::build_asset(kMeshes + "/bunny00.off", options, report);
-      voxfmt::bake::RepairReport repair;
-      b.mesh = voxfmt::bake::repair_mesh(voxfmt::bake::import_mesh(kMeshes + "/bunny00.off"), repair, false);
-      b.exact = std::make_unique<voxfmt::test::ExactSurface>(b.mesh);
-      auto loaded = CollisionObject::from_asset(b.asset);
-      if (!loaded) throw std::runtime_error(loaded.error().message);
-      b.object = loaded.value();
-      b.h = b.asset.voxelmap.voxel_size;
-      return b;
+      const voxfmt::test::BakedBunny& b = voxfmt::test::BakedBunny::get();
+      return Bunny{b.asset, b.object, b.mesh, b.h, std::make_unique<voxfmt::test::ExactSurface>(b.mesh)};
     }();
     return bunny;
   }
