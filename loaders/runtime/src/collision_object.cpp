@@ -79,11 +79,13 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_ass
   double radius2 = 0.0;
   for (const Eigen::Vector3f& p : object->tree_.points)
     radius2 = std::max(radius2, (p.cast<double>() - object->center_of_mass_).squaredNorm());
-  for (int corner = 0; corner < 8; ++corner) {  // the box also bounds a point-less object
-    const Eigen::Vector3d c((corner & 1) ? object->bounds_max_.x() : object->bounds_min_.x(),
-                            (corner & 2) ? object->bounds_max_.y() : object->bounds_min_.y(),
-                            (corner & 4) ? object->bounds_max_.z() : object->bounds_min_.z());
-    if (object->tree_.size() == 0) radius2 = std::max(radius2, (c - object->center_of_mass_).squaredNorm());
+  if (object->tree_.size() == 0) {  // a point-less object is bounded by its box
+    for (int corner = 0; corner < 8; ++corner) {
+      const Eigen::Vector3d c((corner & 1) ? object->bounds_max_.x() : object->bounds_min_.x(),
+                              (corner & 2) ? object->bounds_max_.y() : object->bounds_min_.y(),
+                              (corner & 4) ? object->bounds_max_.z() : object->bounds_min_.z());
+      radius2 = std::max(radius2, (c - object->center_of_mass_).squaredNorm());
+    }
   }
   object->bounding_radius_ = std::sqrt(radius2);
   object->point_spacing_ = asset.point_shell.point_spacing.value_or(0.0);

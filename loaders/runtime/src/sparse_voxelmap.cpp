@@ -162,6 +162,11 @@ float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
   return distance_in(brick, local, distance) ? distance : std::nanf("");
 }
 
+bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
+  return !bricks_.empty() && u.x() > -0.5f && u.y() > -0.5f && u.z() > -0.5f && u.x() < float(dims_[0]) - 0.5f &&
+         u.y() < float(dims_[1]) - 0.5f && u.z() < float(dims_[2]) - 0.5f;
+}
+
 float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
   const Eigen::Vector3f outside =
       (object_min_ - u).cwiseMax(u - object_max_).cwiseMax(Eigen::Vector3f::Zero());
@@ -170,9 +175,7 @@ float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
 
 FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient) const {
   FieldSample result;
-  const bool in_grid = u.x() > -0.5f && u.y() > -0.5f && u.z() > -0.5f && u.x() < float(dims_[0]) - 0.5f &&
-                       u.y() < float(dims_[1]) - 0.5f && u.z() < float(dims_[2]) - 0.5f;
-  if (!in_grid || bricks_.empty()) {
+  if (!covers(u)) {
     // Outside the grid the object is at least as far as its bounding box (margin voxels are all outside).
     result.distance = bounds_distance(u);
     if (gradient) {
@@ -214,9 +217,7 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
 
 float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {
   const float box = bounds_distance(u);
-  const bool in_grid = u.x() > -0.5f && u.y() > -0.5f && u.z() > -0.5f && u.x() < float(dims_[0]) - 0.5f &&
-                       u.y() < float(dims_[1]) - 0.5f && u.z() < float(dims_[2]) - 0.5f;
-  if (!in_grid || bricks_.empty()) return box;
+  if (!covers(u)) return box;
   const int i = int(std::lround(u.x())), j = int(std::lround(u.y())), k = int(std::lround(u.z()));
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);

@@ -86,6 +86,8 @@ class SparseVoxelmap {
   bool distance_in(const Brick& brick, int local, float& distance) const;
   float estimate_at(int i, int j, int k, bool& exact) const;
   float bounds_distance(const Eigen::Vector3f& u) const;
+  /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
+  bool covers(const Eigen::Vector3f& u) const;
 
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
   double voxel_size_ = 1.0;
