@@ -45,15 +45,10 @@ struct Options {
 /// The bunny in the shape frame shared by every method: principal axes at the centre of mass.
 struct BunnyGeometry {
   std::shared_ptr<const vps::CollisionObject> object;
-  std::vector<btVector3> vertices;  // shape frame
+  std::shared_ptr<VpsMixedShape> frame;  ///< defines the shared frame and the inertia of every method
+  std::vector<btVector3> vertices;       // shape frame
   std::vector<int> indices;
-  double mass_per_volume = 0;
 };
-
-btVector3 principal_inertia(const BunnyGeometry& bunny, btScalar mass) {
-  const Eigen::Vector3d m = bunny.object->principal_moments() * double(mass) / bunny.object->volume();
-  return btVector3(btScalar(m.x()), btScalar(m.y()), btScalar(m.z()));
-}
 
 // ------------------------------------------------------------------------------------- HACD with a disk cache
 
@@ -218,12 +213,9 @@ MethodShapes make_shapes(const std::string& method, const BunnyGeometry& bunny, 
 
 /// Body transform that puts the bunny's asset frame at `offset` (shape frame = principal frame).
 btTransform place(const BunnyGeometry& bunny, const btVector3& offset) {
-  const Eigen::Matrix3d q = bunny.object->principal_axes();
-  const Eigen::Vector3d com = bunny.object->center_of_mass();
-  btMatrix3x3 basis;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) basis[i][j] = btScalar(q(i, j));
-  return btTransform(basis, btVector3(btScalar(com.x()), btScalar(com.y()), btScalar(com.z())) + offset);
+  btTransform t = bunny.frame->asset_to_shape().inverse();
+  t.setOrigin(t.getOrigin() + offset);
+  return t;
 }
 
 RunResult run(const std::string& scene, const std::string& method, const MethodShapes& shapes,
@@ -244,7 +236,8 @@ RunResult run(const std::string& scene, const std::string& method, const MethodS
   }
   const btScalar mass = 1;
   // Same mass properties for every method: those of the asset.
-  const btVector3 inertia = principal_inertia(bunny, mass);
+  btVector3 inertia;
+  bunny.frame->calculateLocalInertia(mass, inertia);
   btRigidBody* body = world.add_body(shapes.dynamic_shape, mass,
                                      place(bunny, btVector3(0.1f, drop_base - bottom + 0.1f, 0.05f)), &inertia);
   body->setFriction(0.6f);
@@ -340,12 +333,9 @@ int main(int argc, char** argv) {
               << runtime_mb << " MB in runtime structures (voxelmap "
               << double(bunny.object->voxelmap().memory_bytes()) / 1e6 << " MB)\n";
     const voxfmt::bake::TriangleMesh mesh = voxfmt::bake::import_mesh(options.mesh);
-    // Vertices in the shape frame: x_shape = Q^T (x - com).
-    const Eigen::Matrix3d qt = bunny.object->principal_axes().transpose();
-    for (const voxfmt::Vec3& v : mesh.vertices) {
-      const Eigen::Vector3d p = qt * (Eigen::Vector3d(v[0], v[1], v[2]) - bunny.object->center_of_mass());
-      bunny.vertices.emplace_back(btScalar(p.x()), btScalar(p.y()), btScalar(p.z()));
-    }
+    bunny.frame = std::make_shared<VpsMixedShape>(bunny.object);
+    for (const voxfmt::Vec3& v : mesh.vertices)
+      bunny.vertices.push_back(bunny.frame->asset_to_shape()(btVector3(btScalar(v[0]), btScalar(v[1]), btScalar(v[2]))));
     for (const auto& t : mesh.triangles)
       for (uint32_t i : t) bunny.indices.push_back(int(i));
     btTriangleIndexVertexArray triangles(int(bunny.indices.size() / 3), bunny.indices.data(), 3 * sizeof(int),
