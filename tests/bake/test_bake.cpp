@@ -507,7 +507,7 @@ TEST(LibraryRegressions, HalfVoxelTiesDoNotStepTwoLayers) {
 }
 
 TEST(LibraryRegressions, MissedClosestTrianglesAreFoundExactly) {
-  // Thin parts: OpenVDB's local closest-triangle candidates missed the closest one, giving distances a voxel
+  // Thin parts: the earlier band search (OpenVDB meshToVolume's local closest-triangle candidates) missed the closest one, giving distances a voxel
   // too large with the wrong sign inside the femur and homer.
   for (const char* name : {"femur.off", "homer.off"}) {
     BuildReport report;
@@ -518,6 +518,40 @@ TEST(LibraryRegressions, MissedClosestTrianglesAreFoundExactly) {
     expect_accurate(compare_distances(asset.voxelmap, [&](const Vec3& p) { return surface.signed_distance(p); }, 10000,
                                       1e-3 * asset.voxelmap.voxel_size),
                     name);
+  }
+}
+
+TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
+  // Every voxel, not a sample: a distance is stored exactly where the exact distance is within the band (up to
+  // float rounding at its edge), and every voxel more than half a voxel from the surface has a layer on the
+  // exact side: the sign carried along rows outside the band and the band's culling leave nothing out.
+  // Thin parts (femur, homer) and sharp features (fandisk) at a coarse resolution.
+  for (const char* name : {"bunny00.off", "femur.off", "homer.off", "fandisk.off"}) {
+    BuildOptions options;
+    options.voxelmap.resolution = 40;
+    options.point_shell.points = 200;
+    BuildReport report;
+    const Asset asset = build_asset(kMeshes + "/" + name, options, report);
+    ASSERT_TRUE(report.repair.closed) << name;
+    RepairReport again;
+    const ExactSurface surface(repair_mesh(import_mesh(kMeshes + "/" + name), again, false));
+    const Voxelmap& vm = asset.voxelmap;
+    const double h = vm.voxel_size, edge = 1e-5;  // voxels
+    size_t wrong_band = 0, wrong_side = 0, wrong_distance = 0;
+    for (uint32_t k = 0; k < vm.dims[2]; ++k)
+      for (uint32_t j = 0; j < vm.dims[1]; ++j)
+        for (uint32_t i = 0; i < vm.dims[0]; ++i) {
+          const size_t v = vm.linear_index(i, j, k);
+          const double exact = surface.signed_distance(vm.voxel_center(i, j, k)) / h;
+          const bool stored = Voxelmap::is_stored(vm.distances[v]);
+          if (std::abs(std::abs(exact) - vm.distance_band) > edge) wrong_band += stored != (std::abs(exact) <= vm.distance_band);
+          if (stored) wrong_distance += std::abs(vm.distances[v] / h - exact) > 1e-4;
+          if (exact < -0.5 - edge) wrong_side += vm.layers[v] < 1;
+          if (exact > 0.5 + edge) wrong_side += vm.layers[v] > -1;
+        }
+    EXPECT_EQ(wrong_band, 0u) << name;
+    EXPECT_EQ(wrong_distance, 0u) << name;
+    EXPECT_EQ(wrong_side, 0u) << name;
   }
 }
 

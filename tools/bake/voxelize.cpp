@@ -1,20 +1,14 @@
-// Stage 3: layered distance-field voxelmap. OpenVDB computes exact signed distances in a narrow band; a
-// two-pass 26-neighbour chamfer transform seeded with them gives the layers everywhere else.
-#include <CGAL/AABB_traits.h>
-#include <CGAL/AABB_tree.h>
-#include <CGAL/AABB_triangle_primitive.h>
-#include <CGAL/Simple_cartesian.h>
-#include <openvdb/openvdb.h>
-#include <openvdb/tools/Dense.h>
-#include <openvdb/tools/MeshToVolume.h>
+// Stage 3: layered distance-field voxelmap. Exact signed distances in a narrow band (every triangle rasterised
+// into the voxels near it); a two-pass 26-neighbour chamfer transform seeded with them gives the layers
+// everywhere else.
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
-#include <memory>
 #include <unordered_map>
 
 #include "bake.h"
@@ -124,9 +118,11 @@ void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags
 }
 
 
-// ---- exact near-surface distances: OpenVDB finds the closest triangle of each band voxel; the distance is
-// recomputed in double precision and its sign taken from the angle-weighted pseudonormal of the closest
-// feature (face, edge or vertex; Baerentzen & Aanaes 2005), which is exact for closed, oriented surfaces.
+// ---- exact near-surface distances. Every triangle is rasterised into the voxels within `half_width` of it
+// (closest-point distance in double precision) and each voxel keeps its nearest triangle, so the band is exact
+// by construction, also between thin walls and in folds, where a local closest-triangle search (OpenVDB's
+// meshToVolume, used before) picks wrong ones. The sign comes from the angle-weighted pseudonormal of the
+// closest feature (face, edge or vertex; Baerentzen & Aanaes 2005), exact for closed, oriented surfaces.
 
 struct Pseudonormals {
   std::vector<Vec3> face, vertex;
@@ -158,31 +154,46 @@ Pseudonormals pseudonormals(const TriangleMesh& mesh) {
   return pn;
 }
 
-// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5) and the pseudonormal of
-// the feature it lies on.
-Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, const Pseudonormals& pn, size_t f,
-                       const std::array<uint32_t, 3>& t, Vec3& normal) {
+// The feature of triangle abc that holds a closest point: a corner, an edge (named by its first corner, as in
+// Pseudonormals::edge) or the face.
+enum class Feature : uint8_t { kCornerA, kCornerB, kCornerC, kEdgeAB, kEdgeBC, kEdgeCA, kFace };
+
+// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5) and its feature.
+inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Feature& feature) {
   const Vec3 ab = b - a, ac = c - a, ap = p - a;
   const double d1 = dot(ab, ap), d2 = dot(ac, ap);
-  if (d1 <= 0 && d2 <= 0) { normal = pn.vertex[t[0]]; return a; }
+  if (d1 <= 0 && d2 <= 0) { feature = Feature::kCornerA; return a; }
   const Vec3 bp = p - b;
   const double d3 = dot(ab, bp), d4 = dot(ac, bp);
-  if (d3 >= 0 && d4 <= d3) { normal = pn.vertex[t[1]]; return b; }
+  if (d3 >= 0 && d4 <= d3) { feature = Feature::kCornerB; return b; }
   const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) { normal = pn.edge[f][0]; return a + ab * (d1 / (d1 - d3)); }
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) { feature = Feature::kEdgeAB; return a + ab * (d1 / (d1 - d3)); }
   const Vec3 cp = p - c;
   const double d5 = dot(ab, cp), d6 = dot(ac, cp);
-  if (d6 >= 0 && d5 <= d6) { normal = pn.vertex[t[2]]; return c; }
+  if (d6 >= 0 && d5 <= d6) { feature = Feature::kCornerC; return c; }
   const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) { normal = pn.edge[f][2]; return a + ac * (d2 / (d2 - d6)); }
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) { feature = Feature::kEdgeCA; return a + ac * (d2 / (d2 - d6)); }
   const double va = d3 * d6 - d5 * d4;
   if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-    normal = pn.edge[f][1];
+    feature = Feature::kEdgeBC;
     return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
   }
   const double denom = 1 / (va + vb + vc);
-  normal = pn.face[f];
+  feature = Feature::kFace;
   return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+Vec3 feature_pseudonormal(const Pseudonormals& pn, const TriangleMesh& mesh, size_t f, Feature feature) {
+  switch (feature) {
+    case Feature::kCornerA: return pn.vertex[mesh.triangles[f][0]];
+    case Feature::kCornerB: return pn.vertex[mesh.triangles[f][1]];
+    case Feature::kCornerC: return pn.vertex[mesh.triangles[f][2]];
+    case Feature::kEdgeAB: return pn.edge[f][0];
+    case Feature::kEdgeBC: return pn.edge[f][1];
+    case Feature::kEdgeCA: return pn.edge[f][2];
+    case Feature::kFace: break;
+  }
+  return pn.face[f];
 }
 
 // Layers round distances (in voxels) at half-integers, so ties matter. A distance within 1e-6 (relative, and
@@ -199,153 +210,116 @@ float tie_safe_float(double distance) {
   return f;
 }
 
-// Exact closest triangle of any point (index space), for the voxels where OpenVDB's local candidates are wrong.
-class ClosestTriangle {
- public:
-  ClosestTriangle(const TriangleMesh& mesh, const GridGeometry& g) {
-    auto vtx = [&](uint32_t i) {
-      return Point((mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
-                   (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size);
+// Signed distances (voxels, index space) of every voxel within `half_width` of the surface; every other voxel
+// gets +-half_width with its inside/outside sign. That sign is carried along each x row from the last band
+// voxel: a row starts outside (its first voxel centre is at most half a voxel inside the bounding box, so were
+// it inside, a face would be within half a voxel: a band voxel), and a step between a band voxel and one
+// outside the band stays more than half_width - 1 from the surface, so it cannot cross it.
+std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeometry& g, float half_width) {
+  const int64_t dims[3] = {g.dims[0], g.dims[1], g.dims[2]};
+  const int64_t W = dims[0], H = dims[1], D = dims[2];
+  const double r = half_width, r2 = r * r;
+  struct IndexTriangle {
+    Vec3 a, b, c, normal;
+    int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
+  };
+  const size_t triangle_count = mesh.triangles.size();
+  std::vector<IndexTriangle> triangles(triangle_count);
+  tbb::parallel_for(size_t(0), triangle_count, [&](size_t f) {
+    auto to_index = [&](uint32_t v) {
+      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+                  (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
     };
-    triangles_.reserve(mesh.triangles.size());
-    for (const auto& t : mesh.triangles) triangles_.emplace_back(vtx(t[0]), vtx(t[1]), vtx(t[2]));
-    tree_.insert(triangles_.begin(), triangles_.end());
-    tree_.build();
-    tree_.accelerate_distance_queries();
-  }
-  size_t operator()(const Vec3& p) const {
-    return size_t(tree_.closest_point_and_primitive(Point(p[0], p[1], p[2])).second - triangles_.begin());
+    IndexTriangle& t = triangles[f];
+    t.a = to_index(mesh.triangles[f][0]);
+    t.b = to_index(mesh.triangles[f][1]);
+    t.c = to_index(mesh.triangles[f][2]);
+    t.normal = normalized(cross(t.b - t.a, t.c - t.a));
+    for (int axis = 0; axis < 3; ++axis) {
+      const double lo = std::min({t.a[axis], t.b[axis], t.c[axis]}), hi = std::max({t.a[axis], t.b[axis], t.c[axis]});
+      t.lo[axis] = std::max<int64_t>(0, int64_t(std::ceil(lo - r)));
+      t.hi[axis] = std::min<int64_t>(dims[axis] - 1, int64_t(std::floor(hi + r)));
+    }
+  });
+
+  // Slabs of z layers, each listing the triangles that reach it (a counting sort: deterministic, and every
+  // slab is written by one task only).
+  constexpr int64_t kSlab = 4;
+  const int64_t slabs = (D + kSlab - 1) / kSlab;
+  std::vector<size_t> first(size_t(slabs) + 1, 0);
+  auto reached = [&](const IndexTriangle& t, auto&& visit) {
+    if (t.lo[0] > t.hi[0] || t.lo[1] > t.hi[1] || t.lo[2] > t.hi[2]) return;
+    for (int64_t s = t.lo[2] / kSlab; s <= t.hi[2] / kSlab; ++s) visit(size_t(s));
+  };
+  for (const IndexTriangle& t : triangles) reached(t, [&](size_t s) { ++first[s + 1]; });
+  for (size_t s = 0; s < size_t(slabs); ++s) first[s + 1] += first[s];
+  std::vector<uint32_t> members(first.back());
+  {
+    std::vector<size_t> next(first.begin(), first.end() - 1);
+    for (size_t f = 0; f < triangle_count; ++f) reached(triangles[f], [&](size_t s) { members[next[s]++] = uint32_t(f); });
   }
 
- private:
-  using Kernel = CGAL::Simple_cartesian<double>;
-  using Point = Kernel::Point_3;
-  using Triangles = std::vector<Kernel::Triangle_3>;
-  using Tree = CGAL::AABB_tree<CGAL::AABB_traits<Kernel, CGAL::AABB_triangle_primitive<Kernel, Triangles::const_iterator>>>;
-  Triangles triangles_;
-  Tree tree_;
-};
-
-void refine_near_surface(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
-                         const openvdb::Int32Grid& closest_polygon, std::vector<float>& signed_voxels) {
   const Pseudonormals pn = pseudonormals(mesh);
-  const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
-  auto vtx = [&](uint32_t i) {  // index space, double precision
-    return Vec3{(mesh.vertices[i][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[i][1] - g.origin[1]) / g.voxel_size,
-              (mesh.vertices[i][2] - g.origin[2]) / g.voxel_size};
-  };
-  // Signed distance from voxel centre p to triangle f, the sign from the pseudonormal of the closest feature.
-  auto signed_distance_to = [&](const Vec3& p, size_t f, double& sign) {
-    const auto& t = mesh.triangles[f];
-    Vec3 normal{};
-    const Vec3 q = closest_on_triangle(p, vtx(t[0]), vtx(t[1]), vtx(t[2]), pn, f, t, normal);
-    const Vec3 d = p - q;
-    const double side = dot(d, normal);
-    if (side != 0) sign = side > 0 ? 1 : -1;
-    return std::sqrt(dot(d, d));
-  };
-  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
-    auto accessor = closest_polygon.getConstAccessor();
-    for (int64_t j = 0; j < H; ++j)
-      for (int64_t i = 0; i < W; ++i) {
-        float& value = signed_voxels[size_t((k * H + j) * W + i)];
-        if (std::abs(value) >= half_width) continue;
-        const Vec3 p{double(i), double(j), double(k)};
-        // Candidates: this voxel's closest polygon and its 6 neighbours' (OpenVDB's choice is local).
-        double best = std::numeric_limits<double>::infinity(), sign = value < 0 ? -1 : 1;
-        const int offsets[7][3] = {{0, 0, 0}, {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-        int32_t seen[7];
-        int seen_count = 0;
-        for (const auto& o : offsets) {
-          const int32_t f = accessor.getValue(openvdb::Coord(int(i) + o[0], int(j) + o[1], int(k) + o[2]));
-          if (f < 0 || size_t(f) >= mesh.triangles.size() || std::find(seen, seen + seen_count, f) != seen + seen_count)
+  std::vector<float> signed_voxels(size_t(W * H * D));
+  constexpr uint64_t kNone = ~uint64_t(0);
+  tbb::parallel_for(int64_t(0), slabs, [&](int64_t s) {
+    const int64_t k0 = s * kSlab, k1 = std::min(D, k0 + kSlab);
+    // Per voxel: (squared distance as float bits, triangle) packed so that the smallest key is the nearest
+    // triangle, ties to the lower index; the order triangles arrive in does not matter.
+    thread_local std::vector<uint64_t> nearest;
+    nearest.assign(size_t((k1 - k0) * H * W), kNone);
+    for (size_t m = first[size_t(s)]; m < first[size_t(s) + 1]; ++m) {
+      const uint32_t f = members[m];
+      const IndexTriangle& t = triangles[f];
+      const Vec3& n = t.normal;
+      for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
+        for (int64_t j = t.lo[1]; j <= t.hi[1]; ++j) {
+          // Only voxels within r of the triangle's plane: n.x * i + offset in (-r, r).
+          int64_t i0 = t.lo[0], i1 = t.hi[0];
+          const double offset = n[1] * (double(j) - t.a[1]) + n[2] * (double(k) - t.a[2]) - n[0] * t.a[0];
+          if (std::abs(n[0]) > 1e-9) {
+            double x0 = (-r - offset) / n[0], x1 = (r - offset) / n[0];
+            if (x0 > x1) std::swap(x0, x1);
+            i0 = std::max(i0, int64_t(std::ceil(x0 - 1e-9)));
+            i1 = std::min(i1, int64_t(std::floor(x1 + 1e-9)));
+          } else if (std::abs(offset) >= r + 1e-9) {
             continue;
-          seen[seen_count++] = f;
-          double candidate_sign = sign;
-          const double dist = signed_distance_to(p, size_t(f), candidate_sign);
-          if (dist < best) {
-            best = dist;
-            sign = candidate_sign;
+          }
+          uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
+          for (int64_t i = i0; i <= i1; ++i) {
+            const Vec3 p{double(i), double(j), double(k)};
+            Feature feature;
+            const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
+            if (!(d2 < r2)) continue;
+            uint32_t bits;
+            const float d2f = float(d2);
+            std::memcpy(&bits, &d2f, sizeof bits);
+            row[i] = std::min(row[i], uint64_t(bits) << 32 | f);
           }
         }
-        if (std::isfinite(best)) value = tie_safe_float(sign * best);
-      }
-  });
-
-  // The local candidates can miss the closest triangle where surfaces come close (thin walls, folds): the
-  // distance is then too large and its sign may be wrong. A distance field changes by at most one voxel per
-  // voxel, so any 6-neighbour pair that changes more marks suspects, and so does a voxel outside the band next to
-  // one so close to the surface that it must be inside the band too. Suspects get the exact closest triangle
-  // (AABB tree), and the neighbours of every value that changed are checked again, until all agree.
-  const size_t count = signed_voxels.size();
-  auto in_band = [&](size_t v) { return std::abs(signed_voxels[v]) < half_width; };
-  auto suspect = [&](size_t v, size_t n) {
-    if (in_band(v) && in_band(n)) return std::abs(double(signed_voxels[v]) - double(signed_voxels[n])) > 1.001;
-    if (in_band(v) == in_band(n)) return false;
-    return std::abs(signed_voxels[in_band(v) ? v : n]) + 1.001f < half_width;  // the other must be in the band
-  };
-  auto neighbours = [&](size_t v, size_t out[6]) {
-    const int64_t i = int64_t(v % size_t(W)), j = int64_t(v / size_t(W) % size_t(H)), k = int64_t(v / size_t(W * H));
-    int n = 0;
-    if (i > 0) out[n++] = v - 1;
-    if (i + 1 < W) out[n++] = v + 1;
-    if (j > 0) out[n++] = v - size_t(W);
-    if (j + 1 < H) out[n++] = v + size_t(W);
-    if (k > 0) out[n++] = v - size_t(W * H);
-    if (k + 1 < D) out[n++] = v + size_t(W * H);
-    return n;
-  };
-  std::vector<uint8_t> exact(count, 0);
-  std::vector<std::vector<size_t>> slab_suspects(static_cast<size_t>(D));
-  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
-    const size_t slab = size_t(W * H);
-    for (size_t v = size_t(k) * slab; v < size_t(k + 1) * slab; ++v) {
-      size_t next[6];
-      const int n = neighbours(v, next);
-      for (int e = 0; e < n; ++e)
-        if (next[e] > v && suspect(v, next[e])) {
-          slab_suspects[size_t(k)].push_back(v);
-          slab_suspects[size_t(k)].push_back(next[e]);
-        }
     }
-  });
-  std::vector<size_t> work;
-  for (const auto& slab : slab_suspects) work.insert(work.end(), slab.begin(), slab.end());
-  std::unique_ptr<ClosestTriangle> closest;
-  while (!work.empty()) {
-    std::sort(work.begin(), work.end());
-    work.erase(std::unique(work.begin(), work.end()), work.end());
-    work.erase(std::remove_if(work.begin(), work.end(), [&](size_t v) { return exact[v] != 0; }), work.end());
-    if (work.empty()) break;
-    if (!closest) closest = std::make_unique<ClosestTriangle>(mesh, g);
-    std::vector<uint8_t> changed(work.size(), 0);
-    tbb::parallel_for(size_t(0), work.size(), [&](size_t w) {
-      const size_t v = work[w];
-      const Vec3 p{double(v % size_t(W)), double(v / size_t(W) % size_t(H)), double(v / size_t(W * H))};
-      double sign = signed_voxels[v] < 0 ? -1 : 1;
-      const double dist = signed_distance_to(p, (*closest)(p), sign);
-      const float value = dist < half_width ? tie_safe_float(sign * dist) : float(sign) * half_width;
-      changed[w] = std::abs(value - signed_voxels[v]) > 1e-6f;
-      signed_voxels[v] = value;
-      exact[v] = 1;
-    });
-    std::vector<size_t> next_work;
-    for (size_t w = 0; w < work.size(); ++w) {
-      if (!changed[w]) continue;
-      size_t around[6];
-      const int n = neighbours(work[w], around);
-      for (int e = 0; e < n; ++e) {
-        size_t second[6];
-        const int m = neighbours(around[e], second);
-        for (int f = 0; f < m; ++f)
-          if (suspect(around[e], second[f])) {
-            next_work.push_back(around[e]);
-            next_work.push_back(second[f]);
+    for (int64_t k = k0; k < k1; ++k)
+      for (int64_t j = 0; j < H; ++j) {
+        const uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
+        float* out = signed_voxels.data() + (k * H + j) * W;
+        float side_of_row = 1;  // outside until a band voxel says otherwise
+        for (int64_t i = 0; i < W; ++i) {
+          if (row[i] == kNone) {
+            out[i] = side_of_row * half_width;
+            continue;
           }
+          const size_t f = size_t(row[i] & 0xffffffffu);
+          const IndexTriangle& t = triangles[f];
+          const Vec3 p{double(i), double(j), double(k)};
+          Feature feature;
+          const Vec3 d = p - closest_on_triangle(p, t.a, t.b, t.c, feature);
+          const double sign = dot(d, feature_pseudonormal(pn, mesh, f, feature)) < 0 ? -1 : 1;
+          out[i] = tie_safe_float(sign * length(d));
+          side_of_row = float(sign);
+        }
       }
-    }
-    work.swap(next_work);
-  }
+  });
+  return signed_voxels;
 }
 
 // Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
@@ -448,26 +422,11 @@ size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<ui
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options) {
   if (!(options.distance_band >= 1)) throw BakeError("BAD_OPTION", "distance band must be >= 1 voxel");
-  openvdb::initialize();
   const GridGeometry g = plan_grid(mesh, options);
 
-  // Mesh in index space: voxel (i,j,k) centre sits at integer coordinates, so OpenVDB's grid is ours.
-  std::vector<openvdb::Vec3s> points;
-  points.reserve(mesh.vertices.size());
-  for (const Vec3& v : mesh.vertices)
-    points.emplace_back(float((v[0] - g.origin[0]) / g.voxel_size), float((v[1] - g.origin[1]) / g.voxel_size),
-                        float((v[2] - g.origin[2]) / g.voxel_size));
-  std::vector<openvdb::Vec3I> triangles;
-  triangles.reserve(mesh.triangles.size());
-  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
-  const auto transform = openvdb::math::Transform::createLinearTransform(1.0);
-  // Exact closest-triangle distances just past the band; no renormalisation, which would trade exactness
-  // of the values for level-set smoothness.
+  // Exact distances just past the band (voxels at exactly `band` must be exact too).
   const float half_width = float(options.distance_band) + 0.5f;
-  openvdb::tools::QuadAndTriangleDataAdapter<openvdb::Vec3s, openvdb::Vec3I> adapter(points, triangles);
-  openvdb::Int32Grid::Ptr closest_polygon = openvdb::Int32Grid::create(-1);
-  openvdb::FloatGrid::Ptr sdf = openvdb::tools::meshToVolume<openvdb::FloatGrid>(
-      adapter, *transform, half_width, half_width, openvdb::tools::DISABLE_RENORMALIZATION, closest_polygon.get());
+  std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width);
 
   Voxelmap vm;
   vm.origin = g.origin;
@@ -477,17 +436,6 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options
   vm.margin = options.margin;
   const size_t count = vm.voxel_count();
 
-  // Dense copy, x fastest like the file: inactive voxels hold +-background with the inside/outside sign.
-  std::vector<float> signed_voxels(count);
-  {
-    openvdb::tools::Dense<float, openvdb::tools::LayoutXYZ> dense(
-        openvdb::CoordBBox(openvdb::Coord(0, 0, 0), openvdb::Coord(int(g.dims[0]) - 1, int(g.dims[1]) - 1, int(g.dims[2]) - 1)),
-        signed_voxels.data());
-    openvdb::tools::copyToDense(*sdf, dense);
-  }
-  sdf.reset();
-  refine_near_surface(mesh, g, half_width, *closest_polygon, signed_voxels);
-  closest_polygon.reset();
   if (options.winding_number_sign) sign_by_winding_number(mesh, g, half_width, signed_voxels);
   repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
 
