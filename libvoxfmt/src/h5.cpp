@@ -365,11 +365,26 @@ bool little_endian_host() {
   return first == 1;
 }
 
+// Whether the part of chunk (c0, c1, c2) inside the grid holds only `value` (bitwise: NaN fills compare equal).
+template <class T>
+bool all_equal_to(const T* data, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk, hsize_t c0,
+                  hsize_t c1, hsize_t c2, const T& value) {
+  for (hsize_t a = 0; a < chunk[0] && c0 * chunk[0] + a < dims[0]; ++a)
+    for (hsize_t b = 0; b < chunk[1] && c1 * chunk[1] + b < dims[1]; ++b) {
+      const T* row = data + ((c0 * chunk[0] + a) * dims[1] + (c1 * chunk[1] + b)) * dims[2] + c2 * chunk[2];
+      const hsize_t n = std::min<hsize_t>(chunk[2], dims[2] - c2 * chunk[2]);
+      for (hsize_t e = 0; e < n; ++e)
+        if (std::memcmp(&row[e], &value, sizeof(T)) != 0) return false;
+    }
+  return true;
+}
+
 // Compresses every chunk of a 3-D grid exactly as HDF5's shuffle + deflate pipeline would, on all cores, and
-// writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread).
+// writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose every value
+// is bitwise `*fill` are skipped.
 template <class T>
 bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk, const T* data,
-                              int level) {
+                              int level, const T* fill) {
   const hsize_t grid[3] = {(dims[0] + chunk[0] - 1) / chunk[0], (dims[1] + chunk[1] - 1) / chunk[1],
                            (dims[2] + chunk[2] - 1) / chunk[2]};
   const size_t chunk_count = size_t(grid[0] * grid[1] * grid[2]);
@@ -390,6 +405,7 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
     std::vector<unsigned char> shuffled(elements * sizeof(T));
     for (size_t c = next++; c < chunk_count && !failed; c = next++) {
       const hsize_t c0 = c / (grid[1] * grid[2]), c1 = c / grid[2] % grid[1], c2 = c % grid[2];
+      if (fill && all_equal_to(data, dims, chunk, c0, c1, c2, *fill)) continue;  // compressed[c] stays empty
       // Edge chunks are stored full-size; the part outside the dataset is padding (zeros here).
       std::fill(block.begin(), block.end(), T{});
       for (hsize_t a = 0; a < chunk[0] && c0 * chunk[0] + a < dims[0]; ++a)
@@ -418,6 +434,7 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
   for (std::thread& t : pool) t.join();
   if (failed) return false;
   for (size_t c = 0; c < chunk_count; ++c) {
+    if (compressed[c].empty()) continue;
     const hsize_t offset[3] = {c / (grid[1] * grid[2]) * chunk[0], c / grid[2] % grid[1] * chunk[1], c % grid[2] * chunk[2]};
     if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset, compressed[c].size(), compressed[c].data()) < 0) return false;
   }
@@ -428,7 +445,7 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
 
 template <class T>
 bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
-                     int deflate_level, unsigned chunk_edge) {
+                     int deflate_level, unsigned chunk_edge, const T* fill) {
   std::vector<hsize_t> dims(shape.begin(), shape.end());
   Handle space(H5Screate_simple(int(dims.size()), dims.data(), nullptr), H5Sclose);
   Handle dcpl(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
@@ -438,6 +455,8 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
     std::vector<hsize_t> chunk(dims.size());
     for (size_t i = 0; i < dims.size(); ++i) chunk[i] = std::max<hsize_t>(1, std::min<hsize_t>(dims[i], chunk_edge));
     H5Pset_chunk(dcpl.get(), int(chunk.size()), chunk.data());
+    if (fill && H5Pset_fill_value(dcpl.get(), TypeTraits<T>::memory_type(), fill) < 0)
+      return fail("cannot set the fill value of dataset " + name);
     if (deflate_level > 0) {
       H5Pset_shuffle(dcpl.get());
       H5Pset_deflate(dcpl.get(), unsigned(std::min(deflate_level, 9)));
@@ -451,7 +470,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   if (chunk_edge > 0 && deflate_level > 0 && dims.size() == 3 && little_endian_host()) {
     std::vector<hsize_t> chunk(3);
     H5Pget_chunk(dcpl.get(), 3, chunk.data());
-    if (!write_chunks_in_parallel(dset.get(), dims, chunk, data, std::min(deflate_level, 9)))
+    if (!write_chunks_in_parallel(dset.get(), dims, chunk, data, std::min(deflate_level, 9), fill))
       return fail("cannot write dataset " + name);
     return true;
   }
@@ -468,7 +487,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&,         \
                                              const T*);                                                       \
   template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,    \
-                                   unsigned);
+                                   unsigned, const T*);
 VOXFMT_INSTANTIATE(int16_t)
 VOXFMT_INSTANTIATE(uint32_t)
 VOXFMT_INSTANTIATE(float)

@@ -147,9 +147,11 @@ class Writer {
   template <class T>
   bool numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape,
                          const T* data);
+  /// With `fill` (chunked only): the dataset's fill value; chunks holding nothing else are not written (they
+  /// read back as the fill value), which saves their compression and their space.
   template <class T>
   bool dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
-               int deflate_level = 0, unsigned chunk_edge = 0);
+               int deflate_level = 0, unsigned chunk_edge = 0, const T* fill = nullptr);
 
   const std::string& failure() const { return failure_; }
 

@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 
 #include "h5.h"
 #include "voxfmt/io.h"
@@ -15,6 +16,9 @@
 namespace voxfmt {
 
 namespace {
+
+// Written where no distance is stored; chunks holding nothing else are left out of the file (fill value).
+const float kNotStored = std::numeric_limits<float>::quiet_NaN();
 
 template <class T, size_t K>
 const T* flat(const std::vector<std::array<T, K>>& rows) {
@@ -42,7 +46,7 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
        (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
        w.dataset<int16_t>(vg->get(), "layers", grid, vm.layers.data(), opt.deflate_level, opt.chunk_edge) &&
-       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge);
+       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge, &kNotStored);
   if (!ok) return false;
 
   const PointShell& ps = a.point_shell;

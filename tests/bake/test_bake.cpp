@@ -258,6 +258,67 @@ TEST(Bake, BoxFacesOnVoxelBoundariesKeepLayersConsistent) {
   }
 }
 
+// Repair on small hand-made soups: what it reports and how it orients.
+TriangleMesh tetrahedron(const Vec3& offset, bool flip_one_face) {
+  TriangleMesh m;
+  for (const Vec3& v : {Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{0, 1, 0}, Vec3{0, 0, 1}})
+    m.vertices.push_back({v[0] + offset[0], v[1] + offset[1], v[2] + offset[2]});
+  m.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};  // outward
+  if (flip_one_face) std::swap(m.triangles[3][1], m.triangles[3][2]);
+  return m;
+}
+
+TriangleMesh append(TriangleMesh a, const TriangleMesh& b) {
+  const uint32_t base = uint32_t(a.vertices.size());
+  a.vertices.insert(a.vertices.end(), b.vertices.begin(), b.vertices.end());
+  for (auto t : b.triangles) a.triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
+  return a;
+}
+
+bool has_warning(const RepairReport& r, const std::string& code) {
+  return std::any_of(r.warnings.begin(), r.warnings.end(), [&](const BuildWarning& w) { return w.code == code; });
+}
+
+TEST(Repair, KeepsAnOrientedManifoldAndOrientsAFlippedFace) {
+  for (bool flipped : {false, true}) {
+    RepairReport report;
+    const TriangleMesh out = repair_mesh(tetrahedron({0, 0, 0}, flipped), report);
+    EXPECT_TRUE(report.closed);
+    EXPECT_TRUE(report.consistently_oriented);
+    EXPECT_EQ(report.non_manifold_vertices, 0u);
+    EXPECT_TRUE(report.warnings.empty());
+    EXPECT_NEAR(compute_mass_properties(out).volume, 1.0 / 6.0, 1e-12) << "outward after repair";
+  }
+}
+
+TEST(Repair, ReportsAPinchedVertexAndSplitsIt) {
+  // Two tetrahedra touching at one vertex (the second is the first mirrored through the origin; the soup's two
+  // copies of the origin are merged): every edge is manifold, that vertex is not.
+  TriangleMesh mirrored = tetrahedron({0, 0, 0}, false);
+  for (Vec3& v : mirrored.vertices) v = {-v[0], -v[1], -v[2]};
+  for (auto& t : mirrored.triangles) std::swap(t[1], t[2]);  // a mirror turns faces inside out
+  RepairReport report;
+  const TriangleMesh out = repair_mesh(append(tetrahedron({0, 0, 0}, false), mirrored), report);
+  EXPECT_EQ(report.merged_vertices, 1u);
+  EXPECT_FALSE(report.consistently_oriented);
+  EXPECT_EQ(report.non_manifold_vertices, 1u);
+  EXPECT_TRUE(has_warning(report, "NON_MANIFOLD"));
+  EXPECT_EQ(report.components, 2u);
+  EXPECT_EQ(out.vertices.size(), 8u);
+  EXPECT_TRUE(report.closed);
+}
+
+TEST(Repair, ReportsAnEdgeSharedByThreeFaces) {
+  TriangleMesh fin = tetrahedron({0, 0, 0}, false);
+  fin.vertices.push_back({1, 1, -1});
+  fin.triangles.push_back({0, 1, 4});  // a third face on edge 0-1
+  RepairReport report;
+  repair_mesh(fin, report);
+  EXPECT_FALSE(report.consistently_oriented);
+  EXPECT_TRUE(has_warning(report, "NON_MANIFOLD"));
+  EXPECT_TRUE(has_warning(report, "OPEN_BORDER"));
+}
+
 TEST(Bake, SameInputSameDatasets) {
   BuildOptions options;
   options.voxelmap.resolution = 48;

@@ -8,6 +8,9 @@
 #include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Surface_mesh.h>
 
+#include <algorithm>
+#include <numeric>
+
 #include "bake.h"
 
 namespace voxfmt::bake {
@@ -21,6 +24,52 @@ namespace PMP = CGAL::Polygon_mesh_processing;
 
 void warn(RepairReport& report, const char* code, const std::string& message) {
   report.warnings.push_back({code, message});
+}
+
+// Whether the soup already is what orient_polygon_soup makes of it: every directed edge used once (edges
+// shared by at most two faces, in opposite directions) and the faces around every vertex one fan (no pinched
+// vertices). Most meshes are; this check is a sort and a union-find, far cheaper than CGAL's orientation of
+// the soup or its is_polygon_soup_a_polygon_mesh (std::set based: ~0.2 s each for the bunny's 75k faces).
+bool is_oriented_manifold_soup(const std::vector<std::array<size_t, 3>>& triangles, size_t vertex_count) {
+  const size_t corners = 3 * triangles.size();
+  struct DirectedEdge {
+    uint64_t key;     // from << 32 | to
+    uint32_t corner;  // 3 * face + the corner the edge starts at
+  };
+  std::vector<DirectedEdge> edges(corners);
+  for (size_t f = 0; f < triangles.size(); ++f)
+    for (size_t c = 0; c < 3; ++c) {
+      const size_t from = triangles[f][c], to = triangles[f][(c + 1) % 3];
+      if (from == to || from >= vertex_count || to >= vertex_count || vertex_count > (size_t(1) << 32)) return false;
+      edges[3 * f + c] = {uint64_t(from) << 32 | uint64_t(to), uint32_t(3 * f + c)};
+    }
+  std::sort(edges.begin(), edges.end(), [](const DirectedEdge& a, const DirectedEdge& b) { return a.key < b.key; });
+  for (size_t e = 1; e < corners; ++e)
+    if (edges[e].key == edges[e - 1].key) return false;
+  // Corners at the same vertex are joined across each edge they share: corner (f, c) starts edge v -> w; the
+  // face holding w -> v has its corner at v right after that edge's start.
+  std::vector<uint32_t> parent(corners);
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto root = [&](uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  for (const DirectedEdge& e : edges) {
+    const uint64_t reverse = (e.key & 0xffffffffu) << 32 | (e.key >> 32);
+    const auto it = std::lower_bound(edges.begin(), edges.end(), reverse,
+                                     [](const DirectedEdge& a, uint64_t k) { return a.key < k; });
+    if (it == edges.end() || it->key != reverse) continue;  // a border edge
+    const uint32_t other_at_v = it->corner - it->corner % 3 + (it->corner % 3 + 1) % 3;
+    parent[root(e.corner)] = root(other_at_v);
+  }
+  std::vector<uint32_t> fan(vertex_count, ~0u);
+  for (uint32_t corner = 0; corner < corners; ++corner) {
+    uint32_t& first = fan[triangles[corner / 3][corner % 3]];
+    const uint32_t r = root(corner);
+    if (first == ~0u) first = r;
+    else if (first != r) return false;
+  }
+  return true;
 }
 
 // Signed volume of the (possibly open) surface: the sign tells whether faces point outward.
@@ -66,7 +115,8 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
     warn(report, "DEGENERATE_FACES", std::to_string(report.removed_faces) + " degenerate or duplicate face(s) removed");
 
   const size_t points_oriented_before = points.size();
-  report.consistently_oriented = PMP::orient_polygon_soup(points, triangles);
+  report.consistently_oriented =
+      is_oriented_manifold_soup(triangles, points.size()) || PMP::orient_polygon_soup(points, triangles);
   report.non_manifold_vertices = points.size() - points_oriented_before;
   if (!report.consistently_oriented)
     warn(report, "NON_MANIFOLD",
