@@ -140,6 +140,13 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
     ok = false;
     reason = std::string("cannot flush the temporary file to disk: ") + std::strerror(errno);
   }
+  if (ok && options.before_commit) {
+    const Status check = options.before_commit();
+    if (!check) {
+      std::remove(temp.c_str());
+      return check;
+    }
+  }
   if (ok && std::rename(temp.c_str(), path.c_str()) != 0) {
     ok = false;
     reason = std::string("cannot rename temporary file into place: ") + std::strerror(errno);

@@ -3,6 +3,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "test_support.h"
 #include "voxfmt/io.h"
@@ -121,6 +122,37 @@ TEST(Write, RefusesAnInvalidAssetAndWritesNothing) {
   EXPECT_EQ(status.error().code, IssueCode::WriteFailed);
   EXPECT_NE(status.error().message.find("/pointshell/child_begin"), std::string::npos) << status.error().message;
   EXPECT_TRUE(std::filesystem::is_empty(dir));
+}
+
+TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
+  const std::string dir = test::scratch_dir("before-commit");
+  const std::string path = dir + "/a.vox.h5";
+  ASSERT_TRUE(write_asset(path, test::make_full_asset()));
+  const auto old_size = std::filesystem::file_size(path);
+
+  Asset changed = test::make_full_asset();
+  changed.voxelmap.distances.assign(changed.voxelmap.distances.size(), std::numeric_limits<float>::quiet_NaN());
+  WriteOptions options;
+  bool temporary_was_complete = false;
+  options.before_commit = [&]() -> Status {
+    // The temporary is flushed and closed by now: it reads back as a whole asset.
+    for (const auto& entry : std::filesystem::directory_iterator(dir))
+      if (entry.path().string().find(".partial-") != std::string::npos)
+        temporary_was_complete = bool(read_asset(entry.path().string()));
+    return Error{IssueCode::WriteFailed, "checked and refused"};
+  };
+  const Status status = write_asset(path, changed, options);
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().message, "checked and refused");
+  EXPECT_TRUE(temporary_was_complete);
+  EXPECT_EQ(std::filesystem::file_size(path), old_size);
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()), 1);
+
+  options.before_commit = [] { return Status::success(); };
+  ASSERT_TRUE(write_asset(path, changed, options));
+  const Result<Asset> back = read_asset(path);
+  ASSERT_TRUE(back);
+  EXPECT_EQ(back.value().voxelmap.stored_count(), 0u);  // all-NaN distances: no chunk written, all read as NaN
 }
 
 TEST(Write, ReportsAnUnwritableDirectory) {

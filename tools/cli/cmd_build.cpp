@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <future>
 #include <iomanip>
 #include <iostream>
 
@@ -67,12 +68,31 @@ int run(const Options& o) {
   };
   try {
     Asset asset = bake::build_asset(o.mesh, o.bake.build, report, progress);
-    if (o.bake.verify) verify(o.mesh, asset, report);
-    progress(bake_stages + 1, bake_stages, "write");
+    progress(bake_stages + 1, bake_stages, o.bake.verify ? "verify + write" : "write");
     const auto write_start = std::chrono::steady_clock::now();
+    // Verify on one thread while the file is written (its compression takes the others); the file replaces
+    // OUT only once verify has passed. The future's destructor waits for it on every path.
+    std::future<void> verified;
+    if (o.bake.verify) verified = std::async(std::launch::async, [&] { verify(o.mesh, asset, report); });
+    std::exception_ptr verify_error;
+    auto wait_for_verify = [&] {
+      if (!verified.valid()) return;
+      try {
+        verified.get();
+      } catch (...) {
+        verify_error = std::current_exception();
+      }
+    };
     WriteOptions write_options;
     write_options.deflate_level = o.bake.deflate;
+    write_options.before_commit = [&]() -> Status {
+      wait_for_verify();
+      if (verify_error) return Error{IssueCode::WriteFailed, "verify failed"};
+      return Status::success();
+    };
     const Status written = write_asset(o.output, asset, write_options);
+    wait_for_verify();
+    if (verify_error) std::rethrow_exception(verify_error);  // outranks the write failure it caused
     if (!written) throw bake::BakeError("WRITE_FAILED", written.error().message);
     report.timings.push_back({"write", std::chrono::duration<double>(std::chrono::steady_clock::now() - write_start).count()});
     if (show_progress) std::cerr << "\r\033[K";

@@ -2,6 +2,7 @@
 // system HDF5 library was built thread-safe.
 #pragma once
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -14,6 +15,10 @@ namespace voxfmt {
 struct WriteOptions {
   int deflate_level = 4;      ///< 0..9 for the voxel grids; 0 = no compression
   unsigned chunk_edge = 32;   ///< grid chunk edge in voxels (clamped to the grid)
+  /// Runs once the temporary file is complete and flushed, just before it replaces the target: an error aborts
+  /// the write (the temporary is removed, the target left as it was) and is returned. Lets a caller check the
+  /// asset while it is being written.
+  std::function<Status()> before_commit;
 };
 
 /// Writes `asset` to `path` atomically: a temporary file `PATH.partial-<pid>-<n>` beside it is written, flushed
