@@ -1,4 +1,5 @@
-"""`voxfmt inspect --slice ... --png` and `--ply [--level L]` on a small baked asset, and their usage errors."""
+"""`voxfmt inspect --slice ... --png`, `--ply [--level L]` and `--vdb` on a small baked asset, and their usage
+errors. (The VDB grids' contents are checked with OpenVDB itself in test_vdb_export.cpp.)"""
 import json
 import os
 import struct
@@ -127,6 +128,18 @@ class InspectExports(unittest.TestCase):
         np.testing.assert_allclose(cloud[:, 3:], self.normals, atol=1e-7)
         np.testing.assert_allclose(np.linalg.norm(cloud[:, 3:], axis=1), 1, atol=1e-3)
 
+    def test_vdb_file_and_summary(self):
+        out = os.path.join(self.dir, "tet.vdb")
+        r = self.inspect("--vdb", out, "--json")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        export = json.loads(r.stdout)["exports"][0]
+        self.assertEqual(export["kind"], "vdb")
+        self.assertEqual(export["layer_voxels"], int(np.prod(self.dims)))
+        with h5py.File(self.asset, "r") as f:
+            self.assertEqual(export["distance_voxels"], int(np.count_nonzero(~np.isnan(f["voxelmap/distances"][()]))))
+        with open(out, "rb") as f:
+            self.assertEqual(f.read(4), b" BDV", "OpenVDB's magic number 0x56444220, little-endian")
+
     def test_slice_png_size_colours_and_contour(self):
         W, H, D = self.dims
         for axis, index, cols, rows in (("z", D // 3, W, H), ("y", H // 3, W, D), ("x", W // 3, H, D)):
@@ -166,6 +179,7 @@ class InspectExports(unittest.TestCase):
             (["--ply", os.path.join(self.dir, "bad.ply"), "--level", "99"], "levels 0.."),
             (["--level", "1"], "--ply"),
             (["--slice", "x=1", "--png", os.path.join(self.dir, "no-such-dir", "x.png")], "no-such-dir"),
+            (["--vdb", os.path.join(self.dir, "no-such-dir", "x.vdb")], "no-such-dir"),
         ]
         for args, message in cases:
             r = self.inspect(*args)

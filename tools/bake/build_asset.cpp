@@ -3,7 +3,6 @@
 #include <assimp/version.h>
 #include <nlohmann/json.hpp>
 #include <openssl/evp.h>
-#include <openvdb/version.h>
 #include <oneapi/tbb/global_control.h>
 #include <oneapi/tbb/task_group.h>
 #include <oneapi/tbb/version.h>
@@ -61,7 +60,6 @@ std::map<std::string, std::string> dependency_versions() {
           {"assimp", std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) + "." +
                          std::to_string(aiGetVersionRevision())},
           {"cgal", CGAL_VERSION_STR},
-          {"openvdb", OPENVDB_LIBRARY_VERSION_STRING},
           {"tbb", std::to_string(TBB_VERSION_MAJOR) + "." + std::to_string(TBB_VERSION_MINOR)},
           {"hdf5", hdf5_library_version()}};
 }

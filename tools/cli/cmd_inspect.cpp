@@ -9,6 +9,7 @@
 #include "commands.h"
 #include "inspect_exports.h"
 #include "json_report.h"
+#include "vdb_export.h"
 #include "voxfmt/io.h"
 
 namespace voxfmt::cli {
@@ -23,6 +24,7 @@ struct Options {
   std::string field = "layers";
   int zoom = 0;
   std::string ply;
+  std::string vdb;
   int level = -1;
   bool inward_normals = false;
 };
@@ -166,6 +168,11 @@ nlohmann::json write_exports(const Options& o, const Asset& asset) {
     exports.push_back({{"file", o.ply}, {"kind", "point_shell"}, {"level", p.level}, {"levels", p.levels},
                        {"points", p.points}, {"normals", o.inward_normals ? "inward" : "outward"}});
   }
+  if (!o.vdb.empty()) {
+    const VdbInfo v = write_voxelmap_vdb(asset, o.vdb);
+    exports.push_back({{"file", o.vdb}, {"kind", "vdb"}, {"grids", {"distance", "layers"}},
+                       {"distance_voxels", v.distance_voxels}, {"layer_voxels", v.layer_voxels}});
+  }
   return exports;
 }
 
@@ -175,6 +182,9 @@ void print_export(const nlohmann::json& e) {
               << e["axis"].get<std::string>() << " = " << e["index"] << ", " << e["columns"] << " x " << e["rows"]
               << " voxels at " << e["zoom"] << " px, " << e["width"] << " x " << e["height"] << " px"
               << (e["surface_in_slice"].get<bool>() ? "" : " (the surface does not cross this slice)") << "\n";
+  else if (e["kind"] == "vdb")
+    std::cout << e["file"].get<std::string>() << ": OpenVDB grids \"distance\" (" << e["distance_voxels"]
+              << " band voxels) and \"layers\" (" << e["layer_voxels"] << " voxels)\n";
   else
     std::cout << e["file"].get<std::string>() << ": point shell levels 0.." << e["level"] << " of 0.."
               << e["levels"].get<uint32_t>() - 1 << ", " << e["points"] << " points with "
@@ -186,7 +196,8 @@ void print_export(const nlohmann::json& e) {
 void add_inspect_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
-      "inspect", "Print a summary of an asset (grid, point shell, mass, provenance); draw a slice; export the point shell");
+      "inspect", "Print a summary of an asset (grid, point shell, mass, provenance); draw a slice; export the point shell "
+      "(PLY) or the voxelmap (OpenVDB)");
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print the summary as JSON on stdout");
   auto* slice = cmd->add_option("--slice", options->slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
@@ -214,6 +225,9 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--level", options->level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
       ->check(CLI::NonNegativeNumber)->needs(ply);
   cmd->add_flag("--inward-normals", options->inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
+  cmd->add_option("--vdb", options->vdb,
+                  "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
+                  "\"layers\" (int32), for Houdini, Blender or vdb_view");
   cmd->callback([options, &exit_code] {
     std::vector<Issue> warnings;
     Result<Asset> asset = read_asset(options->file, &warnings);
