@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <random>
@@ -582,20 +583,54 @@ TEST(LibraryRegressions, MissedClosestTrianglesAreFoundExactly) {
   }
 }
 
+// A cylinder (radius 1, height 3) of `segments` long side slivers and fan caps, its axis along (1, 1, 1): thin
+// triangles oblique to every axis, as CAD exports have.
+std::string write_tilted_cylinder(const std::string& path, int segments) {
+  const double pi = 3.14159265358979323846, s3 = 1 / std::sqrt(3.0), s2 = 1 / std::sqrt(2.0), s6 = 1 / std::sqrt(6.0);
+  const Vec3 u{s2, -s2, 0}, v{s6, s6, -2 * s6}, w{s3, s3, s3};  // orthonormal, w the axis
+  auto place = [&](double x, double y, double z) {
+    return Vec3{x * u[0] + y * v[0] + z * w[0], x * u[1] + y * v[1] + z * w[1], x * u[2] + y * v[2] + z * w[2]};
+  };
+  std::vector<Vec3> vertices;
+  for (int s = 0; s < segments; ++s) {
+    const double a = 2 * pi * s / segments;
+    vertices.push_back(place(std::cos(a), std::sin(a), 0));
+    vertices.push_back(place(std::cos(a), std::sin(a), 3));
+  }
+  vertices.push_back(place(0, 0, 0));
+  vertices.push_back(place(0, 0, 3));
+  const int bottom = 2 * segments, top = bottom + 1;
+  std::ofstream off(path);
+  off << "OFF\n" << vertices.size() << " " << 4 * segments << " 0\n";
+  off.precision(17);
+  for (const Vec3& p : vertices) off << p[0] << " " << p[1] << " " << p[2] << "\n";
+  for (int s = 0; s < segments; ++s) {
+    const int b0 = 2 * s, t0 = b0 + 1, b1 = 2 * ((s + 1) % segments), t1 = b1 + 1;
+    off << "3 " << b0 << " " << b1 << " " << t1 << "\n3 " << b0 << " " << t1 << " " << t0 << "\n";
+    off << "3 " << bottom << " " << b1 << " " << b0 << "\n3 " << top << " " << t0 << " " << t1 << "\n";
+  }
+  return path;
+}
+
 TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
   // Every voxel, not a sample: a distance is stored exactly where the exact distance is within the band (up to
   // float rounding at its edge), and every voxel more than half a voxel from the surface has a layer on the
   // exact side: the sign carried along rows outside the band and the band's culling leave nothing out.
-  // Thin parts (femur, homer) and sharp features (fandisk) at a coarse resolution.
-  for (const char* name : {"bunny00.off", "femur.off", "homer.off", "fandisk.off"}) {
+  // Thin parts (femur, homer), sharp features (fandisk) and long oblique slivers (the cylinder) at a coarse
+  // resolution.
+  const std::string cylinder =
+      write_tilted_cylinder((std::filesystem::temp_directory_path() / "voxfmt-tilted-cylinder.off").string(), 300);
+  for (const std::string& path : {kMeshes + "/bunny00.off", kMeshes + "/femur.off", kMeshes + "/homer.off",
+                                  kMeshes + "/fandisk.off", cylinder}) {
+    const std::string name = std::filesystem::path(path).filename().string();
     BuildOptions options;
     options.voxelmap.resolution = 40;
     options.point_shell.points = 200;
     BuildReport report;
-    const Asset asset = build_asset(kMeshes + "/" + name, options, report);
+    const Asset asset = build_asset(path, options, report);
     ASSERT_TRUE(report.repair.closed) << name;
     RepairReport again;
-    const ExactSurface surface(repair_mesh(import_mesh(kMeshes + "/" + name), again, false));
+    const ExactSurface surface(repair_mesh(import_mesh(path), again, false));
     const Voxelmap& vm = asset.voxelmap;
     const double h = vm.voxel_size, edge = 1e-5;  // voxels
     size_t wrong_band = 0, wrong_side = 0, wrong_distance = 0;

@@ -221,6 +221,10 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
   const double r = half_width, r2 = r * r;
   struct IndexTriangle {
     Vec3 a, b, c, normal;
+    // Unit in-plane normals of the edges, pointing away from the triangle, and their planes' offsets: a point
+    // within r of the triangle is less than r beyond each edge's plane (and its own plane).
+    Vec3 edge_normal[3];
+    double edge_offset[3];
     int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
   };
   const size_t triangle_count = mesh.triangles.size();
@@ -235,6 +239,14 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
     t.b = to_index(mesh.triangles[f][1]);
     t.c = to_index(mesh.triangles[f][2]);
     t.normal = normalized(cross(t.b - t.a, t.c - t.a));
+    const Vec3* corner[3] = {&t.a, &t.b, &t.c};
+    for (int e = 0; e < 3; ++e) {
+      const Vec3 &from = *corner[e], &to = *corner[(e + 1) % 3], &opposite = *corner[(e + 2) % 3];
+      Vec3 m = normalized(cross(to - from, t.normal));  // zero for a degenerate triangle: no constraint
+      if (dot(m, opposite - from) > 0) m = m * -1.0;
+      t.edge_normal[e] = m;
+      t.edge_offset[e] = dot(m, from);
+    }
     for (int axis = 0; axis < 3; ++axis) {
       const double lo = std::min({t.a[axis], t.b[axis], t.c[axis]}), hi = std::max({t.a[axis], t.b[axis], t.c[axis]});
       t.lo[axis] = std::max<int64_t>(0, int64_t(std::ceil(lo - r)));
@@ -274,17 +286,25 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
       const Vec3& n = t.normal;
       for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
         for (int64_t j = t.lo[1]; j <= t.hi[1]; ++j) {
-          // Only voxels within r of the triangle's plane: n.x * i + offset in (-r, r).
+          // Only voxels less than r beyond the triangle's plane (both sides) and its three edge planes: each a
+          // constraint alpha * i + beta < r on the row. Long thin triangles (CAD fans) would otherwise scan
+          // their whole bounding box.
           int64_t i0 = t.lo[0], i1 = t.hi[0];
-          const double offset = n[1] * (double(j) - t.a[1]) + n[2] * (double(k) - t.a[2]) - n[0] * t.a[0];
-          if (std::abs(n[0]) > 1e-9) {
-            double x0 = (-r - offset) / n[0], x1 = (r - offset) / n[0];
-            if (x0 > x1) std::swap(x0, x1);
-            i0 = std::max(i0, int64_t(std::ceil(x0 - 1e-9)));
-            i1 = std::min(i1, int64_t(std::floor(x1 + 1e-9)));
-          } else if (std::abs(offset) >= r + 1e-9) {
-            continue;
-          }
+          auto below_r = [&](const Vec3& outward, double offset) {
+            const double alpha = outward[0], beta = outward[1] * double(j) + outward[2] * double(k) - offset;
+            if (alpha > 1e-12) {
+              i1 = std::min(i1, int64_t(std::floor((r - beta) / alpha + 1e-9)));
+            } else if (alpha < -1e-12) {
+              i0 = std::max(i0, int64_t(std::ceil((r - beta) / alpha - 1e-9)));
+            } else if (beta >= r + 1e-9) {
+              i1 = i0 - 1;
+            }
+          };
+          const double plane = dot(n, t.a);
+          below_r(n, plane);
+          below_r(n * -1.0, -plane);
+          for (int e = 0; e < 3; ++e) below_r(t.edge_normal[e], t.edge_offset[e]);
+          if (i0 > i1) continue;
           uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
           for (int64_t i = i0; i <= i1; ++i) {
             const Vec3 p{double(i), double(j), double(k)};
