@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The README's main job: install dependencies, build, batch-convert CGAL's whole sample mesh library (default
 # bake settings) into out/library/ with a manifest and a summary, bake CGAL's Stanford bunny at the seed's
-# settings, validate and inspect it (summary and a slice picture), then drop it in Bullet with every collision
+# settings, validate and inspect it (summary, a slice picture, the point shell as PLY, the voxelmap as OpenVDB), then drop it in Bullet with every collision
 # method (bunny_drop). Pass another mesh as $1 to use that instead of the bunny. Safe to run again: the library
 # step skips the assets that are up to date. Environment: BUILD_DIR (build), OUT_DIR (out), LIBRARY_DIR.
 set -euo pipefail
@@ -31,6 +31,7 @@ echo "== voxfmt inspect"
 $BIN/voxfmt inspect "$OUT/$name.vox.h5"
 dims_z=$($BIN/voxfmt inspect "$OUT/$name.vox.h5" --json | python3 -c 'import json,sys; print(json.load(sys.stdin)["voxelmap"]["dims"][2])')
 $BIN/voxfmt inspect "$OUT/$name.vox.h5" --slice "z=$((dims_z / 2))" --png "$OUT/$name-slice-z.png"
+$BIN/voxfmt inspect "$OUT/$name.vox.h5" --ply "$OUT/$name-pointshell.ply" --vdb "$OUT/$name.vdb"
 
 echo "== bunny_drop (the seed's Figure 2; the first run computes and caches the HACD decomposition: minutes)"
 $BIN/bunny_drop --asset "$OUT/$name.vox.h5" --mesh "$MESH" -o "$OUT/bunny_drop"
