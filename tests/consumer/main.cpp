@@ -1,6 +1,10 @@
-// Writes a tiny asset with the installed library and reads it back.
+// Writes a tiny asset with the installed library, reads it back, loads it into the runtime (and a Bullet shape).
 #include <voxfmt/io.h>
 #include <voxfmt/version.h>
+#include <vps/collision_object.h>
+#ifdef CONSUMER_WITH_BULLET
+#include <vps/bullet/vps_shape.h>
+#endif
 
 #include <cmath>
 #include <cstdio>
@@ -30,5 +34,20 @@ int main(int argc, char** argv) {
     return 1;
   }
   std::printf("consumer: read %zu voxels, voxfmt %s\n", back.value().voxelmap.voxel_count(), VOXFMT_VERSION_STRING);
-  return back.value().voxelmap.distances[7] == 0.25f ? 0 : 1;
+  if (back.value().voxelmap.distances[7] != 0.25f) return 1;
+  auto object = vps::CollisionObject::from_asset(back.value());
+  if (!object) {
+    std::fprintf(stderr, "runtime: %s\n", object.error().message.c_str());
+    return 1;
+  }
+  std::printf("consumer: runtime object with %s voxelmap and %s point shell\n",
+              object.value()->has_voxelmap() ? "a" : "no", object.value()->has_point_shell() ? "a" : "no");
+#ifdef CONSUMER_WITH_BULLET
+  vps::bullet::VpsVoxelmapShape shape(object.value());
+  btVector3 lo, hi;
+  shape.getAabb(btTransform::getIdentity(), lo, hi);
+  std::printf("consumer: Bullet shape, AABB x %.3f..%.3f\n", double(lo.x()), double(hi.x()));
+  if (!(lo.x() <= hi.x())) return 1;
+#endif
+  return 0;
 }
