@@ -365,20 +365,6 @@ bool little_endian_host() {
   return first == 1;
 }
 
-// Whether the part of chunk (c0, c1, c2) inside the grid holds only `value` (bitwise: NaN fills compare equal).
-template <class T>
-bool all_equal_to(const T* data, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk, hsize_t c0,
-                  hsize_t c1, hsize_t c2, const T& value) {
-  for (hsize_t a = 0; a < chunk[0] && c0 * chunk[0] + a < dims[0]; ++a)
-    for (hsize_t b = 0; b < chunk[1] && c1 * chunk[1] + b < dims[1]; ++b) {
-      const T* row = data + ((c0 * chunk[0] + a) * dims[1] + (c1 * chunk[1] + b)) * dims[2] + c2 * chunk[2];
-      const hsize_t n = std::min<hsize_t>(chunk[2], dims[2] - c2 * chunk[2]);
-      for (hsize_t e = 0; e < n; ++e)
-        if (std::memcmp(&row[e], &value, sizeof(T)) != 0) return false;
-    }
-  return true;
-}
-
 // Compresses every chunk of a 3-D grid exactly as HDF5's shuffle + deflate pipeline would, on all cores, and
 // writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose every value
 // is bitwise `*fill` are skipped.
@@ -405,15 +391,17 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
     std::vector<unsigned char> shuffled(elements * sizeof(T));
     for (size_t c = next++; c < chunk_count && !failed; c = next++) {
       const hsize_t c0 = c / (grid[1] * grid[2]), c1 = c / grid[2] % grid[1], c2 = c % grid[2];
-      if (fill && all_equal_to(data, dims, chunk, c0, c1, c2, *fill)) continue;  // compressed[c] stays empty
-      // Edge chunks are stored full-size; the part outside the dataset is padding (zeros here).
-      std::fill(block.begin(), block.end(), T{});
+      // Edge chunks are stored full-size; the part outside the dataset is padding (the fill value, else zeros).
+      std::fill(block.begin(), block.end(), fill ? *fill : T{});
       for (hsize_t a = 0; a < chunk[0] && c0 * chunk[0] + a < dims[0]; ++a)
         for (hsize_t b = 0; b < chunk[1] && c1 * chunk[1] + b < dims[1]; ++b) {
           const hsize_t row = ((c0 * chunk[0] + a) * dims[1] + (c1 * chunk[1] + b)) * dims[2] + c2 * chunk[2];
           const hsize_t n = std::min<hsize_t>(chunk[2], dims[2] - c2 * chunk[2]);
           std::memcpy(&block[(a * chunk[1] + b) * chunk[2]], data + row, n * sizeof(T));
         }
+      // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
+      if (fill && std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
+        continue;
       const unsigned char* bytes = reinterpret_cast<const unsigned char*>(block.data());
       for (size_t e = 0; e < elements; ++e)
         for (size_t k = 0; k < sizeof(T); ++k) shuffled[k * elements + e] = bytes[e * sizeof(T) + k];

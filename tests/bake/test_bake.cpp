@@ -194,24 +194,33 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
   }
 }
 
+// Writes a triangle mesh as OFF, coordinates at full double precision.
+std::string write_off(const std::string& path, const TriangleMesh& mesh) {
+  std::ofstream off(path);
+  off << "OFF\n" << mesh.vertices.size() << " " << mesh.triangles.size() << " 0\n";
+  off.precision(17);
+  for (const Vec3& p : mesh.vertices) off << p[0] << " " << p[1] << " " << p[2] << "\n";
+  for (const auto& t : mesh.triangles) off << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
+  return path;
+}
+
 // A torus (R = 0.3, r = 0.1, finely tessellated) written to OFF: distances have a closed form.
 std::string write_torus(const std::string& path, double R, double r, int segments, int rings) {
-  std::ofstream off(path);
-  off << "OFF\n" << segments * rings << " " << 2 * segments * rings << " 0\n";
-  off.precision(17);
+  TriangleMesh torus;
   const double pi = 3.14159265358979323846;
   for (int s = 0; s < segments; ++s)
     for (int q = 0; q < rings; ++q) {
       const double u = 2 * pi * s / segments, v = 2 * pi * q / rings;
-      off << (R + r * std::cos(v)) * std::cos(u) << " " << (R + r * std::cos(v)) * std::sin(u) << " " << r * std::sin(v) << "\n";
+      torus.vertices.push_back({(R + r * std::cos(v)) * std::cos(u), (R + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
     }
   for (int s = 0; s < segments; ++s)
     for (int q = 0; q < rings; ++q) {
-      const int a = s * rings + q, b = ((s + 1) % segments) * rings + q, c = ((s + 1) % segments) * rings + (q + 1) % rings,
-                d = s * rings + (q + 1) % rings;
-      off << "3 " << a << " " << b << " " << c << "\n3 " << a << " " << c << " " << d << "\n";
+      const uint32_t a = uint32_t(s * rings + q), b = uint32_t(((s + 1) % segments) * rings + q),
+                     c = uint32_t(((s + 1) % segments) * rings + (q + 1) % rings), d = uint32_t(s * rings + (q + 1) % rings);
+      torus.triangles.push_back({a, b, c});
+      torus.triangles.push_back({a, c, d});
     }
-  return path;
+  return write_off(path, torus);
 }
 
 TEST(Bake, TorusDistancesMatchClosedForm) {
@@ -591,25 +600,20 @@ std::string write_tilted_cylinder(const std::string& path, int segments) {
   auto place = [&](double x, double y, double z) {
     return Vec3{x * u[0] + y * v[0] + z * w[0], x * u[1] + y * v[1] + z * w[1], x * u[2] + y * v[2] + z * w[2]};
   };
-  std::vector<Vec3> vertices;
+  TriangleMesh cylinder;
   for (int s = 0; s < segments; ++s) {
     const double a = 2 * pi * s / segments;
-    vertices.push_back(place(std::cos(a), std::sin(a), 0));
-    vertices.push_back(place(std::cos(a), std::sin(a), 3));
+    cylinder.vertices.push_back(place(std::cos(a), std::sin(a), 0));
+    cylinder.vertices.push_back(place(std::cos(a), std::sin(a), 3));
   }
-  vertices.push_back(place(0, 0, 0));
-  vertices.push_back(place(0, 0, 3));
-  const int bottom = 2 * segments, top = bottom + 1;
-  std::ofstream off(path);
-  off << "OFF\n" << vertices.size() << " " << 4 * segments << " 0\n";
-  off.precision(17);
-  for (const Vec3& p : vertices) off << p[0] << " " << p[1] << " " << p[2] << "\n";
+  cylinder.vertices.push_back(place(0, 0, 0));
+  cylinder.vertices.push_back(place(0, 0, 3));
+  const uint32_t bottom = uint32_t(2 * segments), top = bottom + 1;
   for (int s = 0; s < segments; ++s) {
-    const int b0 = 2 * s, t0 = b0 + 1, b1 = 2 * ((s + 1) % segments), t1 = b1 + 1;
-    off << "3 " << b0 << " " << b1 << " " << t1 << "\n3 " << b0 << " " << t1 << " " << t0 << "\n";
-    off << "3 " << bottom << " " << b1 << " " << b0 << "\n3 " << top << " " << t0 << " " << t1 << "\n";
+    const uint32_t b0 = uint32_t(2 * s), t0 = b0 + 1, b1 = uint32_t(2 * ((s + 1) % segments)), t1 = b1 + 1;
+    cylinder.triangles.insert(cylinder.triangles.end(), {{b0, b1, t1}, {b0, t1, t0}, {bottom, b1, b0}, {top, t0, t1}});
   }
-  return path;
+  return write_off(path, cylinder);
 }
 
 TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {

@@ -11,12 +11,16 @@
 namespace voxfmt::cli {
 namespace {
 
-TEST(VdbExport, GridsHoldTheVoxelmap) {
+Asset bake_bunny(uint32_t resolution, uint32_t points) {
   bake::BuildOptions options;
-  options.voxelmap.resolution = 40;
-  options.point_shell.points = 300;
+  options.voxelmap.resolution = resolution;
+  options.point_shell.points = points;
   bake::BuildReport report;
-  const Asset asset = bake::build_asset(std::string(VOXFMT_SAMPLE_MESHES) + "/bunny00.off", options, report);
+  return bake::build_asset(std::string(VOXFMT_SAMPLE_MESHES) + "/bunny00.off", options, report);
+}
+
+TEST(VdbExport, GridsHoldTheVoxelmap) {
+  const Asset asset = bake_bunny(40, 300);
   const Voxelmap& vm = asset.voxelmap;
   const std::string dir = (std::filesystem::temp_directory_path() / "voxfmt-test-vdb").string();
   std::filesystem::create_directories(dir);
@@ -62,11 +66,7 @@ TEST(VdbExport, GridsHoldTheVoxelmap) {
 }
 
 TEST(VdbExport, UnwritablePathIsAnErrorNamingIt) {
-  bake::BuildOptions options;
-  options.voxelmap.resolution = 16;
-  options.point_shell.points = 50;
-  bake::BuildReport report;
-  const Asset asset = bake::build_asset(std::string(VOXFMT_SAMPLE_MESHES) + "/bunny00.off", options, report);
+  const Asset asset = bake_bunny(16, 50);
   try {
     write_voxelmap_vdb(asset, "/nonexistent-dir/x.vdb");
     FAIL() << "no error";

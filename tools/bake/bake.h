@@ -75,10 +75,11 @@ struct VoxelmapOptions {
   uint32_t margin = 4;                  ///< outer voxels around the bounding box on each side
   double distance_band = 3.0;           ///< voxels; exact distances stored within ±band
   /// Inside = generalized winding number >= 1/2 (for open, non-manifold or self-intersecting surfaces).
-  /// Off: the sign of a closed surface (pseudonormals near it, OpenVDB's sign propagation elsewhere).
+  /// Off: the sign of a closed surface (pseudonormals near it, carried along grid rows elsewhere).
   bool winding_number_sign = false;
 };
-/// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh with OpenVDB.
+/// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh: exact distances in the band,
+/// chamfer layers beyond it.
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapOptions& options);
 
 // ---------------------------------------------------------------- 4. point shell

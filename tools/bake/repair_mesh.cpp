@@ -32,6 +32,7 @@ void warn(RepairReport& report, const char* code, const std::string& message) {
 // the soup or its is_polygon_soup_a_polygon_mesh (std::set based: ~0.2 s each for the bunny's 75k faces).
 bool is_oriented_manifold_soup(const std::vector<std::array<size_t, 3>>& triangles, size_t vertex_count) {
   const size_t corners = 3 * triangles.size();
+  if (vertex_count > (size_t(1) << 32) || corners > (size_t(1) << 32)) return false;  // keys and corners are 32-bit
   struct DirectedEdge {
     uint64_t key;     // from << 32 | to
     uint32_t corner;  // 3 * face + the corner the edge starts at
@@ -40,7 +41,7 @@ bool is_oriented_manifold_soup(const std::vector<std::array<size_t, 3>>& triangl
   for (size_t f = 0; f < triangles.size(); ++f)
     for (size_t c = 0; c < 3; ++c) {
       const size_t from = triangles[f][c], to = triangles[f][(c + 1) % 3];
-      if (from == to || from >= vertex_count || to >= vertex_count || vertex_count > (size_t(1) << 32)) return false;
+      if (from == to || from >= vertex_count || to >= vertex_count) return false;
       edges[3 * f + c] = {uint64_t(from) << 32 | uint64_t(to), uint32_t(3 * f + c)};
     }
   std::sort(edges.begin(), edges.end(), [](const DirectedEdge& a, const DirectedEdge& b) { return a.key < b.key; });

@@ -402,8 +402,8 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
 }
 
 // Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
-// differ by at most one. Computed distances can exceed that by ~1e-6 voxel (the closest triangle is found among
-// OpenVDB's local candidates), enough to straddle two ties and step two layers. Such a pair has one value
+// differ by at most one. Computed distances can exceed that by ~1e-6 voxel (tie snapping moves values by up to
+// 1e-6; the nearest triangle is chosen by a float key), enough to straddle two ties and step two layers. Such a pair has one value
 // within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are real
 // errors and are left for the validator to report. Returns the number of values moved.
 size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<uint32_t, 3>& dims) {

@@ -2,7 +2,7 @@
 //
 // Each mesh is baked by a child process, `voxfmt build MESH -o OUT --json` of this very executable, rather
 // than by a task in this process:
-//  - a broken mesh can crash (CGAL/OpenVDB assertions, stack overflow), exhaust memory or hang; in a child that
+//  - a broken mesh can crash (CGAL assertions, stack overflow), exhaust memory or hang; in a child that
 //    costs one recorded failure (CRASHED, OUT_OF_MEMORY, TIMEOUT) instead of the whole batch, and a timeout is
 //    a plain SIGKILL;
 //  - libvoxfmt's HDF5 calls are not thread-safe and TBB's thread limit is process-wide, so in-process meshes

@@ -135,7 +135,7 @@ int run(const Options& o) {
     return fail(e.code(), e.what());
   } catch (const std::bad_alloc&) {
     return fail("OUT_OF_MEMORY", o.mesh + ": out of memory (try a coarser --resolution or --voxel-size)");
-  } catch (const std::exception& e) {  // library failures (OpenVDB, CGAL) still get a clean message
+  } catch (const std::exception& e) {  // library failures (CGAL, TBB) still get a clean message
     return fail("INTERNAL", o.mesh + ": " + e.what());
   }
 }
