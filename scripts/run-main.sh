@@ -35,3 +35,4 @@ $BIN/voxfmt inspect "$OUT/$name.vox.h5" --ply "$OUT/$name-pointshell.ply" --vdb 
 
 echo "== bunny_drop (the seed's Figure 2; the first run computes and caches the HACD decomposition: minutes)"
 $BIN/bunny_drop --asset "$OUT/$name.vox.h5" --mesh "$MESH" -o "$OUT/bunny_drop"
+/usr/bin/python3 scripts/plot_bunny_drop.py "$OUT/bunny_drop/bunny_drop.csv" "$OUT/bunny_drop/bunny_drop.png"

@@ -39,6 +39,19 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::SphereNotEnclosing, "SPHERE_NOT_ENCLOSING", Severity::Error},
     {IssueCode::InertiaNotPositiveDefinite, "INERTIA_NOT_POSITIVE_DEFINITE", Severity::Error},
     {IssueCode::CenterOfMassOutsideBounds, "CENTER_OF_MASS_OUTSIDE_BOUNDS", Severity::Error},
+    {IssueCode::InputNotFound, "INPUT_NOT_FOUND", Severity::Error},
+    {IssueCode::UnsupportedFormat, "UNSUPPORTED_FORMAT", Severity::Error},
+    {IssueCode::ImportFailed, "IMPORT_FAILED", Severity::Error},
+    {IssueCode::EmptyScene, "EMPTY_SCENE", Severity::Error},
+    {IssueCode::NonFiniteCoordinates, "NON_FINITE_COORDINATES", Severity::Error},
+    {IssueCode::ZeroVolume, "ZERO_VOLUME", Severity::Error},
+    {IssueCode::GridTooLarge, "GRID_TOO_LARGE", Severity::Error},
+    {IssueCode::InvalidAsset, "INVALID_ASSET", Severity::Error},
+    {IssueCode::OutOfMemory, "OUT_OF_MEMORY", Severity::Error},
+    {IssueCode::BadOption, "BAD_OPTION", Severity::Error},
+    {IssueCode::Timeout, "TIMEOUT", Severity::Error},
+    {IssueCode::Crashed, "CRASHED", Severity::Error},
+    {IssueCode::Internal, "INTERNAL", Severity::Error},
 };
 const CodeInfo& info(IssueCode code) {
   for (const CodeInfo& c : kCodes)
@@ -48,6 +61,11 @@ const CodeInfo& info(IssueCode code) {
 }  // namespace
 
 const char* code_name(IssueCode code) { return info(code).name; }
+std::optional<IssueCode> code_from_name(const std::string& name) {
+  for (const CodeInfo& c : kCodes)
+    if (name == c.name) return c.code;
+  return std::nullopt;
+}
 Severity severity_of(IssueCode code) { return info(code).severity; }
 const char* severity_name(Severity severity) {
   switch (severity) {

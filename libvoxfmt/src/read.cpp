@@ -217,13 +217,13 @@ Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings) 
       issues.insert(issues.end(), more.begin(), more.end());
     }
     for (const Issue& issue : issues)
-      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message};
+      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
     if (warnings)
       for (const Issue& issue : issues)
         if (issue.severity == Severity::Warning) warnings->push_back(issue);
     return std::move(*asset);
   } catch (const std::bad_alloc&) {
-    return Error{IssueCode::ReadFailed, path + ": not enough memory to read the asset"};
+    return Error{IssueCode::OutOfMemory, path + ": not enough memory to read the asset", path};
   }
 }
 
@@ -232,10 +232,10 @@ Result<Provenance> read_provenance(const std::string& path) {
   try {
     std::optional<Provenance> provenance = detail::load_provenance(path, issues);
     for (const Issue& issue : issues)
-      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message};
+      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
     return std::move(*provenance);
   } catch (const std::bad_alloc&) {
-    return Error{IssueCode::ReadFailed, path + ": not enough memory to read the provenance"};
+    return Error{IssueCode::OutOfMemory, path + ": not enough memory to read the provenance", path};
   }
 }
 

@@ -1,15 +1,12 @@
-// Writing an asset: validate, write a temporary file beside the target, flush it, rename over it.
-#include <fcntl.h>
+// Writing an asset: validate (structure first, semantic rules beside the write), then write atomically.
 #include <nlohmann/json.hpp>
-#include <unistd.h>
 
-#include <atomic>
-#include <cerrno>
-#include <cstdio>
-#include <cstring>
+#include <future>
 #include <limits>
+#include <optional>
 
 #include "h5.h"
+#include "voxfmt/atomic_file.h"
 #include "voxfmt/io.h"
 #include "voxfmt/validate.h"
 
@@ -88,21 +85,15 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
          (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
 }
 
-// fsync by path (HDF5 has closed its descriptor). A rename is only durable once the data it exposes is on
-// disk, and the rename itself once its directory is: without both, a power cut could leave an empty or torn
-// file under the final name.
-bool sync_path(const std::string& path, bool directory) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | (directory ? O_DIRECTORY : 0));
-  if (fd < 0) return false;
-  const int error = ::fsync(fd) == 0 ? 0 : errno;
-  ::close(fd);
-  errno = error;
-  return error == 0 || error == EINVAL;  // EINVAL: this file system cannot sync that kind of object
-}
-
-std::string parent_directory(const std::string& path) {
-  const size_t slash = path.find_last_of('/');
-  return slash == std::string::npos ? "." : slash == 0 ? "/" : path.substr(0, slash);
+// The first error-severity finding as an INVALID_ASSET error naming the rule it breaks.
+std::optional<Error> first_error(const std::string& path, const std::vector<Issue>& issues) {
+  for (const Issue& issue : issues)
+    if (issue.severity == Severity::Error)
+      return Error{IssueCode::InvalidAsset,
+                   path + ": refusing to write an asset that breaks spec rule " + code_name(issue.code) + " at " +
+                       issue.path + ": " + issue.message,
+                   path, issue.path};
+  return std::nullopt;
 }
 
 }  // namespace
@@ -114,49 +105,48 @@ std::string hdf5_library_version() {
 }
 
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
-  for (const Issue& issue : validate_asset(asset))
-    if (issue.severity == Severity::Error)
-      return Error{IssueCode::WriteFailed, path + ": refusing to write an invalid asset: " + issue.path + ": " + issue.message};
+  // Structure first (the writer indexes by it), then the semantic rules beside the write.
+  if (auto error = first_error(path, validate_asset(asset, ValidationLevel::Quick))) return *error;
+  std::future<std::optional<Error>> semantic;
+  if (options.validation == ValidationLevel::Full)
+    semantic = std::async(std::launch::async,
+                          [&] { return first_error(path, validate_asset(asset, ValidationLevel::Full)); });
+  // Whatever happens to the write, the check ends before `asset` may go away (the future's destructor waits).
+  std::optional<Error> semantic_error;
+  auto wait_for_check = [&] {
+    if (semantic.valid()) semantic_error = semantic.get();
+  };
 
   h5::silence_hdf5_errors();
-  static std::atomic<unsigned> counter{0};
-  const std::string temp = path + ".partial-" + std::to_string(getpid()) + "-" + std::to_string(counter++);
-  hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  if (file < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")"};
-  h5::Writer writer(file);
-  bool ok = false;
-  std::string reason;
-  try {
-    ok = write_contents(writer, asset, options);
-    reason = writer.failure();
-  } catch (const std::exception& e) {  // allocation or thread failures: still close and remove the temporary
-    reason = std::string("write failed: ") + e.what();
-  }
-  if (H5Fclose(file) < 0 && ok) {
-    ok = false;
-    reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
-  }
-  if (ok && !sync_path(temp, false)) {
-    ok = false;
-    reason = std::string("cannot flush the temporary file to disk: ") + std::strerror(errno);
-  }
-  if (ok && options.before_commit) {
-    const Status check = options.before_commit();
-    if (!check) {
-      std::remove(temp.c_str());
-      return check;
+  AtomicWrite steps;
+  steps.write = [&](const std::string& temp) -> Status {
+    hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    if (file < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
+    h5::Writer writer(file);
+    bool ok = false;
+    std::string reason;
+    try {
+      ok = write_contents(writer, asset, options);
+      reason = writer.failure();
+    } catch (const std::exception& e) {  // allocation or thread failures: still close the temporary
+      reason = std::string("write failed: ") + e.what();
     }
-  }
-  if (ok && std::rename(temp.c_str(), path.c_str()) != 0) {
-    ok = false;
-    reason = std::string("cannot rename temporary file into place: ") + std::strerror(errno);
-  }
-  if (ok) sync_path(parent_directory(path), true);  // best effort: the file is complete either way
-  if (!ok) {
-    std::remove(temp.c_str());
-    return Error{IssueCode::WriteFailed, path + ": " + reason};
-  }
-  return Status::success();
+    if (H5Fclose(file) < 0 && ok) {
+      ok = false;
+      reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
+    }
+    if (!ok) return Error{IssueCode::WriteFailed, path + ": " + reason, path};
+    return Status::success();
+  };
+  steps.before_commit = [&]() -> Status {
+    wait_for_check();
+    if (semantic_error) return *semantic_error;
+    return options.before_commit ? options.before_commit() : Status::success();
+  };
+  Status written = write_file_atomically(path, steps);
+  wait_for_check();
+  if (semantic_error) return *semantic_error;  // outranks the write failure it may have caused
+  return written;
 }
 
 }  // namespace voxfmt

@@ -8,7 +8,7 @@
 #include <functional>
 #include <random>
 
-#include "bake.h"
+#include "stages.h"
 #include "exact_surface.h"
 #include "winding_number.h"
 #include "voxfmt/validate.h"
@@ -140,7 +140,7 @@ double diagonal_of(const Asset& a) {
 }
 
 TEST(Bake, BunnyDistancesMatchExactSurface) {
-  BuildOptions options;
+  Settings options;
   options.voxelmap.resolution = 128;
   options.point_shell.points = 35000;
   BuildReport report;
@@ -226,7 +226,7 @@ std::string write_torus(const std::string& path, double R, double r, int segment
 TEST(Bake, TorusDistancesMatchClosedForm) {
   const double R = 0.3, r = 0.1;
   const std::string file = write_torus(::testing::TempDir() + "/torus.off", R, r, 720, 240);
-  BuildOptions options;
+  Settings options;
   options.voxelmap.resolution = 160;
   options.point_shell.points = 5000;
   BuildReport report;
@@ -257,7 +257,7 @@ TEST(Bake, BoxFacesOnVoxelBoundariesKeepLayersConsistent) {
                          "3 0 2 1\n3 0 3 2\n3 4 5 6\n3 4 6 7\n3 0 1 5\n3 0 5 4\n3 1 2 6\n3 1 6 5\n3 2 3 7\n3 2 7 6\n"
                          "3 3 0 4\n3 3 4 7\n";
   for (uint32_t resolution : {25u, 50u, 100u}) {
-    BuildOptions options;
+    Settings options;
     options.voxelmap.resolution = resolution;
     options.point_shell.points = 500;
     BuildReport report;
@@ -330,7 +330,7 @@ TEST(Repair, ReportsAnEdgeSharedByThreeFaces) {
 }
 
 TEST(Bake, SameInputSameDatasets) {
-  BuildOptions options;
+  Settings options;
   options.voxelmap.resolution = 48;
   options.point_shell.points = 3000;
   BuildReport r1, r2;
@@ -352,7 +352,7 @@ TEST(Bake, PointsAreEvenlySpread) {
   // Poisson-disk: no two points closer than the sampling radius; far more even than uniform random.
   RepairReport report;
   const TriangleMesh mesh = repair_mesh(import_mesh(kMeshes + "/bunny00.off"), report, false);
-  PointShellOptions options;
+  PointShellSettings options;
   options.points = 4000;
   const PointShell ps = sample_point_shell(mesh, options);
   ASSERT_EQ(ps.size(), 4000u);
@@ -396,7 +396,7 @@ TEST(Bake, WindingNumberAgreesWithExactInsideTest) {
 
 TEST(Bake, OpenCubeIsFilledByWindingNumber) {
   // CGAL's open_cube.off lacks a face: flood fills leak, the winding number gives the solid cube.
-  BuildOptions options;
+  Settings options;
   options.voxelmap.resolution = 40;
   options.voxelmap.margin = 4;
   options.point_shell.points = 500;
@@ -425,7 +425,7 @@ namespace {
 class FullValidation : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    BuildOptions options;
+    Settings options;
     options.voxelmap.resolution = 48;
     options.point_shell.points = 2000;
     BuildReport report;
@@ -555,7 +555,7 @@ namespace {
 // Regressions from baking CGAL's whole sample library at default settings (voxfmt batch): each of these gave an
 // asset that `validate --level full` rejects.
 Asset bake_default(const std::string& name, BuildReport& report, uint32_t points = 1000) {
-  BuildOptions options;  // resolution 128, margin 4, band 3: the defaults
+  Settings options;  // resolution 128, margin 4, band 3: the defaults
   options.point_shell.points = points;
   return build_asset(kMeshes + "/" + name, options, report);
 }
@@ -627,7 +627,7 @@ TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
   for (const std::string& path : {kMeshes + "/bunny00.off", kMeshes + "/femur.off", kMeshes + "/homer.off",
                                   kMeshes + "/fandisk.off", cylinder}) {
     const std::string name = std::filesystem::path(path).filename().string();
-    BuildOptions options;
+    Settings options;
     options.voxelmap.resolution = 40;
     options.point_shell.points = 200;
     BuildReport report;
@@ -687,7 +687,7 @@ TEST(LibraryRegressions, OpenSheetsEncloseNoVolume) {
       bake_default(name, report);
       ADD_FAILURE() << name << " baked";
     } catch (const BakeError& e) {
-      EXPECT_EQ(e.code(), "ZERO_VOLUME") << name;
+      EXPECT_EQ(e.code(), IssueCode::ZeroVolume) << name;
     }
   }
   // A blade thinner than a voxel at the default resolution: the message says what to change.
@@ -696,7 +696,7 @@ TEST(LibraryRegressions, OpenSheetsEncloseNoVolume) {
     bake_default("blade.off", report);
     ADD_FAILURE() << "blade.off baked at resolution 128";
   } catch (const BakeError& e) {
-    EXPECT_EQ(e.code(), "ZERO_VOLUME");
+    EXPECT_EQ(e.code(), IssueCode::ZeroVolume);
     EXPECT_NE(std::string(e.what()).find("--resolution"), std::string::npos) << e.what();
   }
 }

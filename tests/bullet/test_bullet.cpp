@@ -6,15 +6,16 @@
 #include <iostream>
 
 #include "baked_bunny.h"
-#include "vps/bullet/vps_shape.h"
-#include "vps/bullet/world.h"
+#include "voxfmt/bullet/shape.h"
+#include "voxfmt/bullet/world.h"
 
-namespace vps::bullet {
+namespace voxfmt::bullet {
 namespace {
 
 constexpr btScalar kDt = btScalar(1e-3);  // 1 kHz, the haptic rate
 
 using Bunny = voxfmt::test::BakedBunny;
+using namespace voxfmt::runtime;  // the queries the tests compare Bullet against
 
 /// Lowest mesh vertex along +Y for a body whose shape is `shape`.
 double lowest_vertex_y(const Bunny& bunny, const VpsShape& shape, const btTransform& t) {
@@ -68,7 +69,7 @@ TEST(Bullet, BunnySettlesOnPlaneAtExactRestHeight) {
 double deepest_penetration(const VpsShape& a, const btTransform& ta, const VpsShape& b, const btTransform& tb) {
   ContactSet contacts;
   QueryOptions options;
-  options.direction = QueryDirection::kBoth;
+  options.direction = QueryDirection::Both;
   query_contacts(a.object(), a.asset_pose(ta), b.object(), b.asset_pose(tb), options, contacts);
   double deepest = 0;
   for (const Contact& c : contacts.contacts) deepest = std::max(deepest, c.depth);
@@ -204,4 +205,4 @@ TEST(Bullet, ShapeInertiaComesFromTheAsset) {
 }
 
 }  // namespace
-}  // namespace vps::bullet
+}  // namespace voxfmt::bullet

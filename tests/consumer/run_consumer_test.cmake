@@ -1,4 +1,5 @@
-# Installs the build tree into a scratch prefix, builds tests/consumer against it, runs it.
+# Installs the build tree into a scratch prefix, builds tests/consumer (a C++-only project) against it, runs it,
+# and checks that no installed CMake file names a path of this build machine's build tree.
 file(REMOVE_RECURSE ${WORK_DIR})
 set(prefix ${WORK_DIR}/prefix)
 function(run)
@@ -11,7 +12,19 @@ run(${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${prefix})
 run(${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${WORK_DIR}/build -G ${GENERATOR} -DCMAKE_PREFIX_PATH=${prefix}
     -DCMAKE_BUILD_TYPE=Release)
 run(${CMAKE_COMMAND} --build ${WORK_DIR}/build)
-run(${WORK_DIR}/build/consumer ${WORK_DIR}/consumer.vox.h5)
+run(${WORK_DIR}/build/consumer ${WORK_DIR})
 if(NOT EXISTS ${prefix}/bin/voxfmt)
   message(FATAL_ERROR "the voxfmt CLI was not installed")
 endif()
+file(GLOB_RECURSE package_files ${prefix}/lib/cmake/voxfmt/*.cmake)
+foreach(f ${package_files})
+  file(READ ${f} text)
+  string(FIND "${text}" "${BUILD_DIR}" at)
+  if(NOT at EQUAL -1)
+    message(FATAL_ERROR "${f} names the build tree ${BUILD_DIR}")
+  endif()
+  string(FIND "${text}" "libBulletDynamics" bullet_at)
+  if(NOT bullet_at EQUAL -1)
+    message(FATAL_ERROR "${f} carries a Bullet library path found at build time")
+  endif()
+endforeach()

@@ -10,11 +10,11 @@
 
 #include "baked_bunny.h"
 #include "exact_surface.h"
-#include "vps/collision_object.h"
-#include "vps/forces.h"
-#include "vps/query.h"
+#include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/forces.h"
+#include "voxfmt/runtime/query.h"
 
-namespace vps {
+namespace voxfmt::runtime {
 namespace {
 
 using voxfmt::Vec3;
@@ -209,7 +209,7 @@ double translation_for_gap(const Bunny& bunny, const Eigen::Matrix3d& rotation, 
 TEST(Query, ShallowContactsAgreeWithExactMeshes) {
   const Bunny& bunny = Bunny::get();
   QueryOptions options;
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   const Pose pb;
   struct Case { double angle; Eigen::Vector3d axis, direction; double depth_voxels; };
   const Case cases[] = {{0, Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitX(), 2},
@@ -229,7 +229,7 @@ TEST(Query, DeepContactsFollowTheLayers) {
   // voxel plus 12% of the depth.
   const Bunny& bunny = Bunny::get();
   QueryOptions options;
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   const Pose pb;
   const Pose poses[] = {make_pose(0, Eigen::Vector3d::UnitY(), Eigen::Vector3d(0.55, 0.0, 0.0)),
                         make_pose(90, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.05, 0.05, 0.0))};
@@ -239,7 +239,7 @@ TEST(Query, DeepContactsFollowTheLayers) {
 TEST(Query, ScaledPosesScaleDepths) {
   const Bunny& bunny = Bunny::get();
   QueryOptions options;
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   Pose pa, pb;
   pa.translation = translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), -3 * bunny.h) *
                    Eigen::Vector3d::UnitX();
@@ -254,12 +254,12 @@ TEST(Query, OneMillimetreGapHasNoContactButProximityPoints) {
   Pose pa, pb;
   pa.translation = translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), gap) * Eigen::Vector3d::UnitX();
   QueryOptions options;
-  options.direction = QueryDirection::kBoth;
+  options.direction = QueryDirection::Both;
   ContactSet set;
   query_contacts(*bunny.object, pa, *bunny.object, pb, options, set);
   EXPECT_TRUE(set.contacts.empty()) << set.contacts.size() << " contacts at a 1 mm gap";
 
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   options.proximity = 0.01;  // three voxels
   const size_t near = check_against_exact(bunny, pa, pb, options, options.proximity, 1.0, 0.0);
   EXPECT_GT(near, 0u);
@@ -275,7 +275,7 @@ TEST(Query, PointBudgetStopsAtATreeLevel) {
   const PointTree& tree = bunny.object->point_tree();
   const Pose pa = make_pose(0, Eigen::Vector3d::UnitY(), Eigen::Vector3d(0.55, 0.0, 0.0)), pb;
   QueryOptions options;
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   options.point_budget = 828;  // the seed's coarse shell: levels 0..4 of this tree
   ContactSet coarse, fine;
   query_contacts(*bunny.object, pa, *bunny.object, pb, options, coarse);
@@ -294,9 +294,9 @@ TEST(Query, BothDirectionsMirror) {
   const Pose pa = make_pose(30, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.5, 0.1, 0.0)), pb;
   QueryOptions options;
   ContactSet ab, ba;
-  options.direction = QueryDirection::kAPointsInB;
+  options.direction = QueryDirection::APointsInB;
   query_contacts(*bunny.object, pa, *bunny.object, pb, options, ab);
-  options.direction = QueryDirection::kBPointsInA;
+  options.direction = QueryDirection::BPointsInA;
   query_contacts(*bunny.object, pb, *bunny.object, pa, options, ba);
   // Same geometry seen from the other side: same points, normals reversed.
   ASSERT_EQ(ab.contacts.size(), ba.contacts.size());
@@ -313,7 +313,7 @@ TEST(Forces, WrenchSumsPenaltyForces) {
   set.contacts.push_back({Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.002, 0, false, true});
   set.contacts.push_back({Eigen::Vector3d(-1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.001, 1, false, true});
   set.contacts.push_back({Eigen::Vector3d(0, 5, 0), Eigen::Vector3d(0, 0, 1), -0.003, 2, false, true});  // proximity only
-  const Wrench w = vps_wrench(set, Eigen::Vector3d::Zero(), 1000.0);
+  const Wrench w = penalty_wrench(set, Eigen::Vector3d::Zero(), 1000.0);
   EXPECT_NEAR((w.force - Eigen::Vector3d(0, 0, 3.0)).norm(), 0.0, 1e-12);
   // (1,0,0) x (0,0,2) + (-1,0,0) x (0,0,1) = (0,-2,0) + (0,1,0)
   EXPECT_NEAR((w.torque - Eigen::Vector3d(0, -1.0, 0)).norm(), 0.0, 1e-12);
@@ -327,4 +327,4 @@ TEST(Load, MissingFileIsAnError) {
 }
 
 }  // namespace
-}  // namespace vps
+}  // namespace voxfmt::runtime

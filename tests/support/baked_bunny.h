@@ -6,14 +6,14 @@
 #include <stdexcept>
 #include <string>
 
-#include "bake.h"
-#include "vps/collision_object.h"
+#include "stages.h"
+#include "voxfmt/runtime/collision_object.h"
 
 namespace voxfmt::test {
 
 struct BakedBunny {
   Asset asset;
-  std::shared_ptr<const vps::CollisionObject> object;
+  std::shared_ptr<const voxfmt::runtime::CollisionObject> object;
   bake::TriangleMesh mesh;  ///< the repaired mesh the asset was baked from
   double h = 0;             ///< voxel size, metres
 
@@ -21,14 +21,14 @@ struct BakedBunny {
     static const BakedBunny bunny = [] {
       const std::string path = std::string(VOXFMT_SAMPLE_MESHES) + "/bunny00.off";
       BakedBunny b;
-      bake::BuildOptions options;
+      bake::Settings options;
       options.voxelmap.resolution = 306;
       options.point_shell.points = 35000;
       bake::BuildReport report;
       b.asset = bake::build_asset(path, options, report);
       bake::RepairReport repair;
       b.mesh = bake::repair_mesh(bake::import_mesh(path), repair, false);
-      auto loaded = vps::CollisionObject::from_asset(b.asset);
+      auto loaded = voxfmt::runtime::CollisionObject::from_asset(b.asset);
       if (!loaded) throw std::runtime_error(loaded.error().message);
       b.object = loaded.value();
       b.h = b.asset.voxelmap.voxel_size;

@@ -11,7 +11,7 @@
 #include <cmath>
 #include <memory>
 
-#include "bake.h"
+#include "stages.h"
 
 namespace voxfmt::test {
 

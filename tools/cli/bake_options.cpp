@@ -4,8 +4,7 @@
 
 namespace voxfmt::cli {
 
-void add_bake_options(CLI::App& cmd, BakeSettings& s) {
-  bake::BuildOptions& b = s.build;
+void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   auto* resolution = cmd.add_option("--resolution", b.voxelmap.resolution, "Voxels along the longest bounding-box axis")
                          ->capture_default_str()->check(CLI::Range(1u, 4096u));
   auto* voxel_size = cmd.add_option("--voxel-size", b.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
@@ -30,11 +29,8 @@ void add_bake_options(CLI::App& cmd, BakeSettings& s) {
   cmd.add_flag("!--no-self-intersection-check", b.check_self_intersections,
                "Skip the self-intersection check (faster on huge meshes)");
   cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")->capture_default_str();
-  cmd.add_option("--deflate", s.deflate, "gzip level 0-9 for the voxel grids")->capture_default_str()->check(CLI::Range(0, 9));
+  cmd.add_option("--deflate", b.deflate, "gzip level 0-9 for the voxel grids")->capture_default_str()->check(CLI::Range(0, 9));
   cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")->capture_default_str();
-  cmd.add_flag("!--no-verify", s.verify,
-               "Write the asset even if it breaks a rule of `voxfmt validate --level full` (by default such an "
-               "asset is an INVALID_ASSET error and nothing is written)");
 }
 
 namespace {
@@ -45,8 +41,7 @@ std::string exact(double value) {  // 17 significant digits: parses back to the 
 }
 }  // namespace
 
-std::vector<std::string> bake_option_args(const BakeSettings& s) {
-  const bake::BuildOptions& b = s.build;
+std::vector<std::string> bake_option_args(const bake::Settings& b) {
   std::vector<std::string> args;
   if (b.voxelmap.voxel_size > 0)
     args.insert(args.end(), {"--voxel-size", exact(b.voxelmap.voxel_size)});
@@ -59,14 +54,13 @@ std::vector<std::string> bake_option_args(const BakeSettings& s) {
   args.insert(args.end(), {"--branching", exact(b.point_shell.branching), "--margin", std::to_string(b.voxelmap.margin),
                            "--band", exact(b.voxelmap.distance_band), "--unit-scale", exact(b.import.unit_scale),
                            "--up-axis=" + b.up_axis /* "-X" alone would look like an option */, "--seed", std::to_string(b.point_shell.seed), "--deflate",
-                           std::to_string(s.deflate), "--threads", std::to_string(b.threads)});
+                           std::to_string(b.deflate), "--threads", std::to_string(b.threads)});
   if (!b.check_self_intersections) args.push_back("--no-self-intersection-check");
-  if (!s.verify) args.push_back("--no-verify");
   return args;
 }
 
-nlohmann::json build_parameters(const BakeSettings& s) {
-  return nlohmann::json::parse(bake::build_parameters_json(s.build));
+nlohmann::json build_parameters(const bake::Settings& s) {
+  return nlohmann::json::parse(bake::build_parameters_json(s));
 }
 
 }  // namespace voxfmt::cli

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <map>
 
-#include "bake.h"
+#include "voxfmt/bake/bake.h"
 
 namespace voxfmt::cli {
 

@@ -2,15 +2,23 @@
 
 #include <fcntl.h>
 #include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <optional>
+#include <set>
 #include <stdexcept>
 
+#include "voxfmt/atomic_file.h"
+#include "voxfmt/issues.h"
+
 namespace voxfmt::cli {
+
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -26,14 +34,6 @@ void write_all(int fd, const std::string& data, const std::string& path) {
     if (n < 0) fail(path, "cannot write");
     done += size_t(n);
   }
-}
-
-void sync_directory_of(const std::string& path) {
-  const std::string dir = std::filesystem::path(path).parent_path().string();
-  const int fd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) return;
-  ::fsync(fd);
-  ::close(fd);
 }
 
 }  // namespace
@@ -65,18 +65,12 @@ Manifest::Manifest(const std::string& path) : path_(path) {
     }
   }
 
-  // Compaction: temporary + fsync + rename, so the old manifest stays until the new one is complete. Stale
-  // temporaries of killed runs are harmless and removed by the caller's clean-up of *.partial-* files.
-  const std::string temp = path + ".partial-" + std::to_string(::getpid()) + "-manifest";
-  const int out = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (out < 0) fail(temp, "cannot create");
+  // Compaction, atomically: the old manifest stays until the new one is complete. Temporaries of killed runs
+  // are removed by the batch's clean-up of *.partial-* files.
   std::string text;
   for (const auto& [output, record] : last_) text += json_line(record) + "\n";
-  write_all(out, text, temp);
-  if (::fsync(out) != 0) fail(temp, "cannot flush");
-  ::close(out);
-  if (std::rename(temp.c_str(), path.c_str()) != 0) fail(path, "cannot replace");
-  sync_directory_of(path);
+  const Status compacted = write_file_atomically(path, text);
+  if (!compacted) throw std::runtime_error(compacted.error().message);
 
   fd_ = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
   if (fd_ < 0) fail(path, "cannot open for appending");
@@ -85,6 +79,62 @@ Manifest::Manifest(const std::string& path) : path_(path) {
 Manifest::~Manifest() {
   if (fd_ >= 0) ::close(fd_);
   if (lock_fd_ >= 0) ::close(lock_fd_);  // releases the flock
+}
+
+std::string text_field(const nlohmann::json& record, const char* key) {
+  const auto it = record.find(key);
+  return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
+}
+int64_t integer_field(const nlohmann::json& record, const char* key) {
+  const auto it = record.find(key);
+  return it != record.end() && it->is_number_integer() ? it->get<int64_t>() : -1;
+}
+
+bool same_parameters(const nlohmann::json& stored, const nlohmann::json& wanted) {
+  if (stored.is_string()) {  // provenance keeps the JSON text
+    const nlohmann::json parsed = nlohmann::json::parse(stored.get<std::string>(), nullptr, false);
+    return !parsed.is_discarded() && parsed == wanted;
+  }
+  return stored == wanted;
+}
+
+bool transient_failure(const std::string& code) {
+  const std::optional<IssueCode> known = code_from_name(code);
+  if (!known) return true;  // written by a newer version, or by hand: try again
+  switch (*known) {
+    case IssueCode::Timeout:
+    case IssueCode::Crashed:
+    case IssueCode::OutOfMemory:
+    case IssueCode::Internal:
+    case IssueCode::WriteFailed:
+    case IssueCode::InputNotFound:
+      return true;
+    default:
+      return false;
+  }
+}
+
+FileStamp stamp(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return {};
+  return {true, uint64_t(st.st_size), int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec};
+}
+
+size_t remove_stale_partials(const std::vector<std::string>& outputs) {
+  std::map<fs::path, std::set<std::string>> by_dir;
+  for (const std::string& output : outputs) by_dir[fs::path(output).parent_path()].insert(fs::path(output).filename().string());
+  size_t removed = 0;
+  for (const auto& [dir, names] : by_dir) {
+    std::error_code ec;
+    for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
+      const std::string name = it->path().filename().string();
+      const size_t mark = name.rfind(kPartialMarker);
+      if (mark == std::string::npos || !names.count(name.substr(0, mark))) continue;
+      std::error_code remove_error;
+      removed += fs::remove(it->path(), remove_error);
+    }
+  }
+  return removed;
 }
 
 const nlohmann::json* Manifest::last(const std::string& output) const {

@@ -4,8 +4,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cstdint>
 #include <map>
 #include <string>
+#include <vector>
 
 namespace voxfmt::cli {
 
@@ -35,5 +37,27 @@ class Manifest {
 
 /// One JSON Lines line (no newline): compact, invalid UTF-8 replaced.
 std::string json_line(const nlohmann::json& value);
+
+// Fields of a manifest record, read defensively: a record edited by hand or written by another tool must not
+// stop the batch, it just does not count.
+std::string text_field(const nlohmann::json& record, const char* key);
+int64_t integer_field(const nlohmann::json& record, const char* key);
+/// True when recorded build parameters (an object, or provenance's JSON text) equal `wanted`.
+bool same_parameters(const nlohmann::json& stored, const nlohmann::json& wanted);
+/// Failures that depend on the machine or the moment, not on the mesh (TIMEOUT, CRASHED, OUT_OF_MEMORY,
+/// INTERNAL, WRITE_FAILED, INPUT_NOT_FOUND, or a code this version does not know): always retried.
+bool transient_failure(const std::string& code);
+
+/// Size and modification time of an output, as the manifest records them to tell it unchanged.
+struct FileStamp {
+  bool exists = false;
+  uint64_t size = 0;
+  int64_t mtime_ns = 0;
+};
+FileStamp stamp(const std::string& path);
+
+/// Removes the temporaries (`NAME.partial-*`) beside each of `outputs` left by bakes killed mid-write. Only
+/// these outputs': shards sharing a folder never touch each other's files. Returns how many were removed.
+size_t remove_stale_partials(const std::vector<std::string>& outputs);
 
 }  // namespace voxfmt::cli

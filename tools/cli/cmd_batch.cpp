@@ -12,32 +12,31 @@
 //    up to date and cleans the `*.partial-*` files of killed bakes.
 // The cost, one process start per mesh (~30 ms), is small beside a bake. `build` and `batch` share the option
 // registration (bake_options.h), and a child gets the same settings spelled out in full.
+//
+// This file schedules the children and keeps the counts; batch_inputs finds the meshes and names the assets,
+// batch_manifest keeps the records (and decides nothing), batch_progress draws.
 #include <signal.h>
-#include <sys/ioctl.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
-#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
-#include <ctime>
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
-#include <set>
 #include <sstream>
 #include <thread>
 
-#include "bake.h"
 #include "bake_options.h"
 #include "batch_inputs.h"
 #include "batch_manifest.h"
+#include "batch_progress.h"
 #include "child_process.h"
 #include "commands.h"
 #include "json_report.h"
+#include "voxfmt/bake/bake.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 
@@ -59,108 +58,21 @@ struct Options {
   std::string manifest;
   bool json = false;
   bool quiet = false;
-  BakeSettings bake;
+  bake::Settings bake;
 };
 
 volatile std::sig_atomic_t g_interrupted = 0;
 void on_signal(int signal_number) { g_interrupted = signal_number; }
-
-std::string clock_text(double seconds) {
-  const long s = long(std::lround(std::max(0.0, seconds)));
-  char text[32];
-  if (s >= 3600)
-    std::snprintf(text, sizeof text, "%ld:%02ld:%02ld", s / 3600, s / 60 % 60, s % 60);
-  else
-    std::snprintf(text, sizeof text, "%ld:%02ld", s / 60, s % 60);
-  return text;
-}
-
-struct FileStamp {
-  bool exists = false;
-  uint64_t size = 0;
-  int64_t mtime_ns = 0;
-};
-FileStamp stamp(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return {};
-  return {true, uint64_t(st.st_size), int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec};
-}
-
-// Removes `NAME.partial-*` beside each of `outputs` (temporaries of bakes killed mid-write). Only this run's
-// outputs: shards sharing a directory never touch each other's files.
-size_t remove_stale_partials(const std::vector<std::string>& outputs) {
-  std::map<fs::path, std::set<std::string>> by_dir;
-  for (const std::string& output : outputs) by_dir[fs::path(output).parent_path()].insert(fs::path(output).filename().string());
-  size_t removed = 0;
-  for (const auto& [dir, names] : by_dir) {
-    std::error_code ec;
-    for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
-      const std::string name = it->path().filename().string();
-      const size_t mark = name.rfind(".partial-");
-      if (mark == std::string::npos || !names.count(name.substr(0, mark))) continue;
-      std::error_code remove_error;
-      removed += fs::remove(it->path(), remove_error);
-    }
-  }
-  return removed;
-}
-
-// Fields of a manifest record, read defensively: a record edited by hand or written by another tool must not
-// stop the batch, it just does not count.
-std::string text_field(const nlohmann::json& record, const char* key) {
-  const auto it = record.find(key);
-  return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
-}
-int64_t integer_field(const nlohmann::json& record, const char* key) {
-  const auto it = record.find(key);
-  return it != record.end() && it->is_number_integer() ? it->get<int64_t>() : -1;
-}
-
-bool same_parameters(const nlohmann::json& stored, const nlohmann::json& wanted) {
-  if (stored.is_string()) {  // provenance keeps the JSON text
-    const nlohmann::json parsed = nlohmann::json::parse(stored.get<std::string>(), nullptr, false);
-    return !parsed.is_discarded() && parsed == wanted;
-  }
-  return stored == wanted;
-}
 
 std::string signal_name(int signal_number) {
   const char* name = ::strsignal(signal_number);
   return name ? name : "unknown signal";
 }
 
-// Per-mesh time model for the ETA: seconds = a + b * input bytes, least squares over the finished meshes.
-class EtaModel {
- public:
-  void add(double bytes, double seconds) {
-    n_ += 1;
-    sx_ += bytes;
-    sy_ += seconds;
-    sxx_ += bytes * bytes;
-    sxy_ += bytes * seconds;
-  }
-  bool ready() const { return n_ >= 1; }
-  double predict(double bytes) const {
-    const double mx = sx_ / n_, my = sy_ / n_, var = sxx_ / n_ - mx * mx;
-    double b = var > 1e-9 * (mx * mx + 1) ? (sxy_ / n_ - mx * my) / var : 0;
-    if (b < 0) b = 0;
-    return std::max(0.0, my + b * (bytes - mx));
-  }
-
- private:
-  double n_ = 0, sx_ = 0, sy_ = 0, sxx_ = 0, sxy_ = 0;
-};
-
 struct Counts {
   size_t built = 0, up_to_date = 0, failed = 0;
   size_t failed_before = 0;  ///< of `failed`: unchanged since a run that failed deterministically, not retried
 };
-
-// Failures that depend on the machine or the moment, not on the mesh: always retried.
-bool transient_failure(const std::string& code) {
-  return code == "TIMEOUT" || code == "CRASHED" || code == "OUT_OF_MEMORY" || code == "INTERNAL" || code == "WRITE_FAILED" ||
-         code == "INPUT_NOT_FOUND";
-}
 
 class Runner {
  public:
@@ -172,13 +84,12 @@ class Runner {
   bool up_to_date(const BatchItem& item, const std::string& sha, nlohmann::json& record) const;
   const nlohmann::json* failed_before(const BatchItem& item, const std::string& sha) const;
   nlohmann::json finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command);
-  void report_line(const nlohmann::json& record, size_t done, size_t total);
-  void draw_progress(bool final);
+  BatchProgress::Snapshot snapshot() const;
 
   const Options& o_;
   std::unique_ptr<Manifest> manifest_;
   nlohmann::json parameters_;
-  bool tty_ = false;
+  std::unique_ptr<BatchProgress> progress_;
   unsigned jobs_ = 1, threads_ = 1;
   std::chrono::steady_clock::time_point start_;
   // Work of this run.
@@ -196,7 +107,6 @@ class Runner {
   std::map<size_t, Running> running_;
   size_t finished_ = 0;
   Counts counts_;
-  EtaModel eta_;
   std::vector<nlohmann::json> failures_;
 };
 
@@ -279,12 +189,12 @@ nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& c
       if (!line.empty()) last_error_line = line;
   }
   if (child.timed_out) {
-    code = "TIMEOUT";
+    code = code_name(IssueCode::Timeout);
     std::ostringstream text;
     text << item.input << ": not finished after " << o_.timeout << " s (--timeout); the bake was killed";
     message = text.str();
   } else if (child.signal) {
-    code = "CRASHED";
+    code = code_name(IssueCode::Crashed);
     message = item.input + ": voxfmt build was killed by signal " + std::to_string(child.signal) + " (" +
               signal_name(child.signal) + ")" +
               (child.signal == SIGKILL ? " — by the kernel's out-of-memory killer or by another process" : "") +
@@ -293,7 +203,7 @@ nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& c
     code = text_field(summary, "code");
     message = text_field(summary, "message");
   } else {
-    code = "INTERNAL";
+    code = code_name(IssueCode::Internal);
     message = item.input + ": voxfmt build exited with code " + std::to_string(child.exit_code) + " without a summary" +
               (last_error_line.empty() ? "" : ": " + last_error_line);
   }
@@ -305,64 +215,25 @@ nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& c
   return record;
 }
 
-void Runner::report_line(const nlohmann::json& record, size_t done, size_t total) {
-  const bool failed = record["status"] == "failed";
-  if (o_.quiet || o_.json) return;
-  if (tty_) {
-    if (!failed) return;  // the progress bar shows the rest
-    std::cerr << "\r\033[K";
-  }
-  std::ostringstream line;
-  line << "[" << done << "/" << total << "] ";
-  if (failed)
-    line << "FAILED " << record["error"]["code"].get<std::string>() << ": " << record["error"]["message"].get<std::string>();
-  else
-    line << "ok     " << record["input"].get<std::string>() << " (" << std::fixed << std::setprecision(2)
-         << record.value("wall_s", 0.0) << " s)";
-  std::cerr << line.str() << "\n";
-}
-
-void Runner::draw_progress(bool final) {
-  if (!tty_ || o_.quiet || o_.json) return;
-  const auto now = std::chrono::steady_clock::now();
-  const double elapsed = std::chrono::duration<double>(now - start_).count();
-  const size_t total = todo_.size();
-  std::ostringstream eta;
-  if (final) {
-    std::cerr << "\r\033[K" << std::flush;
-    return;
-  }
-  if (eta_.ready()) {
-    double work = 0;
-    for (size_t i = next_; i < todo_.size(); ++i) work += eta_.predict(double(todo_[i].item.input_bytes));
-    double longest_running = 0;
-    for (const auto& [id, r] : running_) {
-      const double left = std::max(0.0, eta_.predict(double(todo_[r.index].item.input_bytes)) -
-                                            std::chrono::duration<double>(now - r.start).count());
-      work += left;
-      longest_running = std::max(longest_running, left);
-    }
-    const size_t lanes = std::max<size_t>(1, std::min<size_t>(jobs_, total - finished_));
-    eta << "ETA " << clock_text(std::max(work / double(lanes), longest_running));
-  } else {
-    eta << "ETA --:--";
-  }
-  winsize ws{};
-  const int columns = ::ioctl(STDERR_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 20 ? ws.ws_col : 80;
-  constexpr int kBar = 24;
-  const int filled = total ? int(double(kBar) * double(finished_) / double(total)) : kBar;
-  std::ostringstream line;
-  line << "[" << std::string(size_t(filled), '#') << std::string(size_t(kBar - filled), '.') << "] " << finished_ << "/"
-       << total << "  " << counts_.failed << " failed  " << clock_text(elapsed) << " elapsed  " << eta.str();
-  for (const auto& [id, r] : running_) line << "  " << fs::path(todo_[r.index].item.input).filename().string();
-  std::string text = line.str();
-  if (text.size() > size_t(columns - 1)) text.resize(size_t(columns - 1));
-  std::cerr << "\r\033[K" << text << std::flush;
+BatchProgress::Snapshot Runner::snapshot() const {
+  BatchProgress::Snapshot now;
+  const auto clock = std::chrono::steady_clock::now();
+  now.total = todo_.size();
+  now.finished = finished_;
+  now.failed = counts_.failed;
+  now.lanes = jobs_;
+  for (size_t i = next_; i < todo_.size(); ++i) now.queued_bytes.push_back(double(todo_[i].item.input_bytes));
+  for (const auto& [id, r] : running_)
+    now.running.push_back({fs::path(todo_[r.index].item.input).filename().string(),
+                           double(todo_[r.index].item.input_bytes),
+                           std::chrono::duration<double>(clock - r.start).count()});
+  now.elapsed_s = std::chrono::duration<double>(clock - start_).count();
+  return now;
 }
 
 int Runner::run() {
   start_ = std::chrono::steady_clock::now();
-  tty_ = ::isatty(STDERR_FILENO);
+  progress_ = std::make_unique<BatchProgress>(::isatty(STDERR_FILENO) && !o_.json, o_.quiet || o_.json);
   const Shard shard = parse_shard(o_.shard);
   std::error_code ec;
   fs::create_directories(o_.output_dir, ec);
@@ -392,11 +263,8 @@ int Runner::run() {
 
   // Plan: what is up to date is recorded (if the manifest does not say so already) and skipped.
   for (const BatchItem& item : mine) {
-    std::string sha;
-    try {
-      sha = bake::sha256_file(item.input);
-    } catch (const bake::BakeError&) {  // unreadable: the bake reports it properly
-    }
+    const Result<std::string> hashed = bake::sha256_file(item.input);
+    const std::string sha = hashed ? hashed.value() : std::string();  // unreadable: the bake reports it properly
     nlohmann::json record;
     if (up_to_date(item, sha, record)) {
       ++counts_.up_to_date;
@@ -417,10 +285,10 @@ int Runner::run() {
 
   const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
   jobs_ = o_.jobs ? o_.jobs : cores;
-  BakeSettings settings = o_.bake;
-  if (settings.build.threads == 0)
-    settings.build.threads = std::max(1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
-  threads_ = settings.build.threads;
+  bake::Settings settings = o_.bake;
+  if (settings.threads == 0)
+    settings.threads = std::max(1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
+  threads_ = settings.threads;
   const std::vector<std::string> option_args = bake_option_args(settings);
   const std::string exe = self_executable();
   ChildLimits limits;
@@ -454,7 +322,7 @@ int Runner::run() {
       running_[next_] = {next_, std::chrono::steady_clock::now(), command};
       ++next_;
     }
-    draw_progress(false);
+    progress_->draw(snapshot());
     for (const ChildResult& child : pool.poll(250)) {
       // A bake killed by the signal that stops the batch (Slurm's scancel signals every process) is not the
       // mesh's fault: not recorded, its temporary removed below, baked again by the next run.
@@ -466,7 +334,7 @@ int Runner::run() {
       if (!record.contains("source_sha256")) record["source_sha256"] = todo_[r.index].sha;
       manifest_->append(record);
       ++finished_;
-      eta_.add(double(item.input_bytes), child.seconds);
+      progress_->finished(double(item.input_bytes), child.seconds);
       if (record["status"] == "failed") {
         ++counts_.failed;
         failures_.push_back({{"input", item.input}, {"output", item.output}, {"code", record["error"]["code"]},
@@ -474,7 +342,7 @@ int Runner::run() {
       } else {
         ++counts_.built;
       }
-      report_line(record, finished_, todo_.size());
+      progress_->report(record, finished_, todo_.size());
     }
   }
   const bool interrupted = g_interrupted != 0;
@@ -484,7 +352,7 @@ int Runner::run() {
     for (const auto& [id, r] : running_) unfinished.push_back(todo_[r.index].item.output);
     remove_stale_partials(unfinished);
   }
-  draw_progress(true);
+  progress_->clear();
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (o_.json) {

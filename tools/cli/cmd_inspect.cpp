@@ -7,9 +7,8 @@
 #include <sstream>
 
 #include "commands.h"
-#include "inspect_exports.h"
 #include "json_report.h"
-#include "vdb_export.h"
+#include "voxfmt/exports/exports.h"
 #include "voxfmt/io.h"
 
 namespace voxfmt::cli {
@@ -149,29 +148,32 @@ void print_text(const std::string& file, const Asset& a, const Summary& s, const
   for (const Issue& w : warnings) o << "warning: " << code_name(w.code) << " " << w.path << ": " << w.message << "\n";
 }
 
-// Writes the files asked for; returns a JSON description of each. Throws ExportRangeError (usage) and
-// std::runtime_error (I/O).
-nlohmann::json write_exports(const Options& o, const Asset& asset) {
+// Writes the files asked for; returns a JSON description of each, or the first error.
+Result<nlohmann::json> write_exports(const Options& o, const Asset& asset) {
   nlohmann::json exports = nlohmann::json::array();
   if (!o.png.empty()) {
-    SliceSpec spec = parse_slice(o.slice);
-    spec.distances = o.field == "distances";
-    spec.zoom = o.zoom;
-    const SliceInfo s = write_slice_png(asset, spec, o.png);
-    const char* axis = spec.axis == 0 ? "x" : spec.axis == 1 ? "y" : "z";
-    exports.push_back({{"file", o.png}, {"kind", "slice"}, {"axis", axis}, {"index", spec.index}, {"field", o.field},
-                       {"width", s.width}, {"height", s.height}, {"zoom", s.zoom}, {"columns", s.columns},
-                       {"rows", s.rows}, {"surface_in_slice", s.has_surface}});
+    Result<exports::SliceSpec> spec = exports::parse_slice(o.slice);
+    if (!spec) return spec.error();
+    spec->distances = o.field == "distances";
+    spec->zoom = o.zoom;
+    const Result<exports::SliceInfo> s = exports::write_slice_png(asset, spec.value(), o.png);
+    if (!s) return s.error();
+    const char* axis = spec->axis == 0 ? "x" : spec->axis == 1 ? "y" : "z";
+    exports.push_back({{"file", o.png}, {"kind", "slice"}, {"axis", axis}, {"index", spec->index}, {"field", o.field},
+                       {"width", s->width}, {"height", s->height}, {"zoom", s->zoom}, {"columns", s->columns},
+                       {"rows", s->rows}, {"surface_in_slice", s->has_surface}});
   }
   if (!o.ply.empty()) {
-    const PlyInfo p = write_point_shell_ply(asset, o.level, o.inward_normals, o.ply);
-    exports.push_back({{"file", o.ply}, {"kind", "point_shell"}, {"level", p.level}, {"levels", p.levels},
-                       {"points", p.points}, {"normals", o.inward_normals ? "inward" : "outward"}});
+    const Result<exports::PlyInfo> p = exports::write_point_shell_ply(asset, o.level, o.inward_normals, o.ply);
+    if (!p) return p.error();
+    exports.push_back({{"file", o.ply}, {"kind", "point_shell"}, {"level", p->level}, {"levels", p->levels},
+                       {"points", p->points}, {"normals", o.inward_normals ? "inward" : "outward"}});
   }
   if (!o.vdb.empty()) {
-    const VdbInfo v = write_voxelmap_vdb(asset, o.vdb);
+    const Result<exports::VdbInfo> v = exports::write_voxelmap_vdb(asset, o.vdb);
+    if (!v) return v.error();
     exports.push_back({{"file", o.vdb}, {"kind", "vdb"}, {"grids", {"distance", "layers"}},
-                       {"distance_voxels", v.distance_voxels}, {"layer_voxels", v.layer_voxels}});
+                       {"distance_voxels", v->distance_voxels}, {"layer_voxels", v->layer_voxels}});
   }
   return exports;
 }
@@ -203,12 +205,8 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
   auto* slice = cmd->add_option("--slice", options->slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
                     ->check(CLI::Validator(
                         [](std::string& text) {
-                          try {
-                            parse_slice(text);
-                            return std::string();
-                          } catch (const std::invalid_argument& e) {
-                            return std::string(e.what());
-                          }
+                          const Result<exports::SliceSpec> spec = exports::parse_slice(text);
+                          return spec ? std::string() : spec.error().message;
                         },
                         "AXIS=INDEX"));
   auto* png = cmd->add_option("--png", options->png,
@@ -232,18 +230,15 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
     std::vector<Issue> warnings;
     Result<Asset> asset = read_asset(options->file, &warnings);
     if (!asset) {
-      std::cerr << "voxfmt inspect: error: " << asset.error().message << "\n";
-      exit_code = asset.error().code == IssueCode::FileNotFound ? kExitUsageOrIo : kExitInvalid;
+      exit_code = report_error("inspect", asset.error());
       return;
     }
-    nlohmann::json exports;
-    try {
-      exports = write_exports(*options, asset.value());
-    } catch (const std::exception& e) {  // a slice or level outside the asset, or a file that cannot be written
-      std::cerr << "voxfmt inspect: error: " << e.what() << "\n";
-      exit_code = kExitUsageOrIo;
+    Result<nlohmann::json> written = write_exports(*options, asset.value());
+    if (!written) {  // a slice or level outside the asset, or a file that cannot be written
+      exit_code = report_error("inspect", written.error());
       return;
     }
+    const nlohmann::json& exports = written.value();
     exit_code = kExitOk;
     if (!exports.empty() && !options->json) {
       for (const nlohmann::json& e : exports) print_export(e);

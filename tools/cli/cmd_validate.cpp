@@ -1,4 +1,5 @@
 // `voxfmt validate FILE... [--json]`: check assets against the spec. Exit 0 valid, 1 invalid, 2 unreadable.
+#include <algorithm>
 #include <iostream>
 
 #include "commands.h"
@@ -27,15 +28,18 @@ void add_validate_command(CLI::App& app, int& exit_code) {
       ->capture_default_str()->check(CLI::PositiveNumber);
   cmd->callback([options, &exit_code] {
     nlohmann::json report = {{"files", nlohmann::json::array()}};
-    bool any_invalid = false, any_unreadable = false;
+    int worst = kExitOk;  // the highest exit status of any file's first error
     for (const std::string& file : options->files) {
       std::vector<Issue> issues =
           validate_file(file, options->level == "full" ? ValidationLevel::Full : ValidationLevel::Quick);
       const size_t found = issues.size();
       if (issues.size() > options->max_issues) issues.resize(options->max_issues);
       const bool valid = !has_errors(issues);
-      any_invalid |= !valid;
-      for (const Issue& issue : issues) any_unreadable |= issue.code == IssueCode::FileNotFound;
+      for (const Issue& issue : issues)
+        if (issue.severity == Severity::Error) {
+          worst = std::max(worst, exit_status(issue.code));
+          break;
+        }
       if (options->json) {
         report["files"].push_back({{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
         continue;
@@ -55,7 +59,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
                   << issue.message << "\n";
     }
     if (options->json) std::cout << to_text(report) << "\n";
-    exit_code = any_unreadable ? kExitUsageOrIo : any_invalid ? kExitInvalid : kExitOk;
+    exit_code = worst;
   });
 }
 

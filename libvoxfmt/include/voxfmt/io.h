@@ -9,21 +9,26 @@
 #include "voxfmt/asset.h"
 #include "voxfmt/issues.h"
 #include "voxfmt/result.h"
+#include "voxfmt/validate.h"
 
 namespace voxfmt {
 
 struct WriteOptions {
   int deflate_level = 4;      ///< 0..9 for the voxel grids; 0 = no compression
   unsigned chunk_edge = 32;   ///< grid chunk edge in voxels (clamped to the grid)
-  /// Runs once the temporary file is complete and flushed, just before it replaces the target: an error aborts
-  /// the write (the temporary is removed, the target left as it was) and is returned. Lets a caller check the
-  /// asset while it is being written.
+  /// What must hold before the file replaces the target. Full (the default): every rule of
+  /// `validate --level full`, checked on a thread of its own while the file is written and compressed; Quick:
+  /// structure, ranges and the tree only.
+  ValidationLevel validation = ValidationLevel::Full;
+  /// Runs once the temporary file is complete, flushed and validated, just before it replaces the target: an
+  /// error aborts the write (the temporary is removed, the target left as it was) and is returned.
   std::function<Status()> before_commit;
 };
 
-/// Writes `asset` to `path` atomically: a temporary file `PATH.partial-<pid>-<n>` beside it is written, flushed
-/// to disk and renamed over `path` (then the directory is flushed), so neither a failed write nor a crash ever
-/// leaves a partial file under `path`. Structural validation runs first; an invalid asset is refused.
+/// Writes `asset` to `path` atomically (write_file_atomically: a temporary `PATH.partial-<pid>-<n>` beside it,
+/// flushed, renamed over `path`), so neither a failed write nor a crash ever leaves a partial file under
+/// `path`. An asset that breaks a rule of `options.validation` is refused with INVALID_ASSET naming the rule
+/// (the earlier file at `path`, if any, stays); a file that cannot be written is WRITE_FAILED.
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
 
 /// Reads and structurally validates an asset. Any error-severity finding fails the read (its message names

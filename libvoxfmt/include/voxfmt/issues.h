@@ -1,6 +1,8 @@
-// Validation findings. Codes and severities are the stable contract of spec/issue-codes.md.
+// Codes of findings and errors. Codes and severities are the stable contract of spec/issue-codes.md: validation
+// findings, and the errors of every library call (reading, writing, baking, exporting, batch runs).
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -36,12 +38,28 @@ enum class IssueCode {
   SphereNotEnclosing,
   InertiaNotPositiveDefinite,
   CenterOfMassOutsideBounds,
+  // Errors of the bake, the exports and batch runs (never validation findings).
+  InputNotFound,
+  UnsupportedFormat,
+  ImportFailed,
+  EmptyScene,
+  NonFiniteCoordinates,
+  ZeroVolume,
+  GridTooLarge,
+  InvalidAsset,
+  OutOfMemory,
+  BadOption,
+  Timeout,
+  Crashed,
+  Internal,
 };
 
 enum class Severity { Error, Warning, Info };
 
 /// UPPER_SNAKE name of a code, as written in spec/issue-codes.md.
 const char* code_name(IssueCode code);
+/// The code of an UPPER_SNAKE name (as found in manifests and JSON reports), if it is one.
+std::optional<IssueCode> code_from_name(const std::string& name);
 const char* severity_name(Severity severity);
 /// The severity a code always has.
 Severity severity_of(IssueCode code);

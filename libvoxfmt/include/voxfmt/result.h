@@ -1,4 +1,6 @@
-// Errors of libvoxfmt: every fallible call returns a Result; nothing throws across the API.
+// The one error model of every voxfmt library: fallible calls return Result<T> or Status carrying an Error
+// (a stable code of spec/issue-codes.md, a message, and where it happened). Nothing throws across the API,
+// except the Bullet shapes' constructors (documented there).
 #pragma once
 
 #include <string>
@@ -9,11 +11,19 @@
 
 namespace voxfmt {
 
-/// What went wrong: a stable code (spec/issue-codes.md) and a message naming the file, the HDF5 object and
-/// the reason.
+/// What went wrong. `message` is a complete sentence for a person (it names the file and the reason);
+/// `code` is for programs (stable, spec/issue-codes.md); `file` and `object` locate it for tools.
 struct Error {
-  IssueCode code = IssueCode::ReadFailed;
+  IssueCode code = IssueCode::Internal;
   std::string message;
+  std::string file;    ///< the file concerned (asset, mesh, export), if any
+  std::string object;  ///< the HDF5 object in `file` ("/voxelmap/layers"), if any
+
+  Error() = default;
+  Error(IssueCode c, std::string m, std::string f = {}, std::string o = {})
+      : code(c), message(std::move(m)), file(std::move(f)), object(std::move(o)) {}
+  /// "CODE: message", for logs.
+  std::string describe() const { return std::string(code_name(code)) + ": " + message; }
 };
 
 template <class T>
@@ -26,6 +36,8 @@ class [[nodiscard]] Result {
   T& value() & { return std::get<0>(state_); }
   const T& value() const& { return std::get<0>(state_); }
   T&& value() && { return std::get<0>(std::move(state_)); }
+  T* operator->() { return &value(); }
+  const T* operator->() const { return &value(); }
   const Error& error() const { return std::get<1>(state_); }
 
  private:
@@ -33,7 +45,8 @@ class [[nodiscard]] Result {
 };
 
 /// Result of a call that produces nothing but may fail.
-struct Status {
+class [[nodiscard]] Status {
+ public:
   static Status success() { return Status{}; }
   Status() = default;
   Status(Error e) : error_(std::move(e)), failed_(true) {}  // NOLINT(google-explicit-constructor)

@@ -6,7 +6,7 @@
 
 #include <Eigen/Core>
 
-namespace vps::bullet {
+namespace voxfmt::bullet {
 
 inline btVector3 to_bt_vector(const Eigen::Vector3d& v) {
   return btVector3(btScalar(v.x()), btScalar(v.y()), btScalar(v.z()));
@@ -23,4 +23,4 @@ inline Eigen::Matrix3d to_eigen(const btMatrix3x3& m) {
   return r;
 }
 
-}  // namespace vps::bullet
+}  // namespace voxfmt::bullet

@@ -1,8 +1,8 @@
-#include "vps/bullet/world.h"
+#include "voxfmt/bullet/world.h"
 
 #include <chrono>
 
-namespace vps::bullet {
+namespace voxfmt::bullet {
 
 void TimedDispatcher::dispatchAllCollisionPairs(btOverlappingPairCache* pairs, const btDispatcherInfo& info,
                                                 btDispatcher* dispatcher) {
@@ -45,4 +45,4 @@ btRigidBody* World::add_body(std::shared_ptr<btCollisionShape> shape, btScalar m
   return bodies_.back().get();
 }
 
-}  // namespace vps::bullet
+}  // namespace voxfmt::bullet

@@ -1,4 +1,4 @@
-#include "vps/collision_object.h"
+#include "voxfmt/runtime/collision_object.h"
 
 #include <Eigen/Eigenvalues>
 
@@ -8,7 +8,7 @@
 #include "voxfmt/io.h"
 #include "voxfmt/validate.h"
 
-namespace vps {
+namespace voxfmt::runtime {
 namespace {
 
 Eigen::Vector3f to_float(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]).cast<float>(); }
@@ -92,4 +92,4 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_ass
   return std::shared_ptr<const CollisionObject>(std::move(object));
 }
 
-}  // namespace vps
+}  // namespace voxfmt::runtime

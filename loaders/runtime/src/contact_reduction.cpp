@@ -1,10 +1,10 @@
-#include "vps/contact_reduction.h"
+#include "voxfmt/runtime/contact_reduction.h"
 
 #include <Eigen/Geometry>
 
 #include <algorithm>
 
-namespace vps {
+namespace voxfmt::runtime {
 
 std::vector<size_t> reduce_contacts(const std::vector<Contact>& contacts, size_t max_points) {
   std::vector<size_t> chosen;
@@ -55,4 +55,4 @@ std::vector<size_t> reduce_contacts(const std::vector<Contact>& contacts, size_t
   return chosen;
 }
 
-}  // namespace vps
+}  // namespace voxfmt::runtime

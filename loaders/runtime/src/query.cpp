@@ -1,10 +1,10 @@
-#include "vps/query.h"
+#include "voxfmt/runtime/query.h"
 
 #include <Eigen/Geometry>
 
 #include <cmath>
 
-namespace vps {
+namespace voxfmt::runtime {
 namespace {
 
 struct VoxelmapTarget {
@@ -43,7 +43,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
                           Contact contact;
                           contact.point = shell_pose.apply(tree.points[node].cast<double>());
                           Eigen::Vector3d normal = Eigen::Vector3d::Zero();
-                          if (options.normal_source == NormalSource::kDistanceGradient) {
+                          if (options.normal_source == NormalSource::DistanceGradient) {
                             Eigen::Vector3f gradient;
                             map.sample(Mf * tree.points[node] + mf, &gradient);
                             if (gradient.squaredNorm() > 0.0f)
@@ -66,21 +66,21 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
                                  const Pose& pose_b, QueryDirection requested) {
   const bool a_in_b = a.has_point_shell() && b.has_voxelmap();
   const bool b_in_a = b.has_point_shell() && a.has_voxelmap();
-  if (requested != QueryDirection::kAuto) return requested;
-  if (!a_in_b) return QueryDirection::kBPointsInA;
-  if (!b_in_a) return QueryDirection::kAPointsInB;
+  if (requested != QueryDirection::Auto) return requested;
+  if (!a_in_b) return QueryDirection::BPointsInA;
+  if (!b_in_a) return QueryDirection::APointsInB;
   // The smaller object's points sample the contact region of the larger one densely; for similar sizes,
   // one direction keeps the cost down and A's points decide.
   const double ra = a.bounding_radius() * pose_a.scale, rb = b.bounding_radius() * pose_b.scale;
-  return rb < 0.9 * ra ? QueryDirection::kBPointsInA : QueryDirection::kAPointsInB;
+  return rb < 0.9 * ra ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
 }
 
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
                     const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
   const QueryDirection direction = resolve_direction(a, pose_a, b, pose_b, options.direction);
-  if (direction == QueryDirection::kAPointsInB || direction == QueryDirection::kBoth)
+  if (direction == QueryDirection::APointsInB || direction == QueryDirection::Both)
     shell_in_field(a, pose_a, b, pose_b, false, options, out, scratch);
-  if (direction == QueryDirection::kBPointsInA || direction == QueryDirection::kBoth)
+  if (direction == QueryDirection::BPointsInA || direction == QueryDirection::Both)
     shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch);
 }
 
@@ -114,4 +114,4 @@ void query_contacts(const CollisionObject& a, const Pose& pose_a, const Collisio
   query_contacts(a, pose_a, b, pose_b, options, out, scratch);
 }
 
-}  // namespace vps
+}  // namespace voxfmt::runtime

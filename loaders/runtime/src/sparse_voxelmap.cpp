@@ -1,10 +1,10 @@
-#include "vps/sparse_voxelmap.h"
+#include "voxfmt/runtime/sparse_voxelmap.h"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
-namespace vps {
+namespace voxfmt::runtime {
 namespace {
 
 constexpr int kEdge = SparseVoxelmap::kBrickEdge;
@@ -66,7 +66,7 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
             }
         Brick& brick = map.bricks_[b];
         if (hi <= far_layer && !any_distance) {
-          brick.kind = BrickKind::kFarOutside;
+          brick.kind = BrickKind::FarOutside;
           brick.layer_base = int16_t(hi);
           continue;
         }
@@ -74,7 +74,7 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
         const int range = hi - lo;
         brick.layer_data = uint32_t(map.layer_pool_.size());
         if (range <= 15) {
-          brick.kind = BrickKind::kNibbles;
+          brick.kind = BrickKind::Nibbles;
           map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels / 2, 0);
           uint8_t* out = map.layer_pool_.data() + brick.layer_data;
           for (int local = 0; local < kBrickVoxels; ++local) {
@@ -83,7 +83,7 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
           }
         } else {
           // The spec's 6-neighbour rule bounds the range by 21; a file breaking it is clamped, not rejected.
-          brick.kind = BrickKind::kBytes;
+          brick.kind = BrickKind::Bytes;
           map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels, 0);
           uint8_t* out = map.layer_pool_.data() + brick.layer_data;
           for (int local = 0; local < kBrickVoxels; ++local) {
@@ -112,7 +112,7 @@ size_t SparseVoxelmap::memory_bytes() const {
 
 size_t SparseVoxelmap::layer_brick_count() const {
   return size_t(std::count_if(bricks_.begin(), bricks_.end(),
-                              [](const Brick& brick) { return brick.kind != BrickKind::kFarOutside; }));
+                              [](const Brick& brick) { return brick.kind != BrickKind::FarOutside; }));
 }
 
 const SparseVoxelmap::Brick& SparseVoxelmap::brick_of(int i, int j, int k, int& local) const {
@@ -122,11 +122,11 @@ const SparseVoxelmap::Brick& SparseVoxelmap::brick_of(int i, int j, int k, int& 
 
 int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
   switch (brick.kind) {
-    case BrickKind::kNibbles:
+    case BrickKind::Nibbles:
       return brick.layer_base + ((layer_pool_[brick.layer_data + local / 2] >> ((local & 1) * 4)) & 0xf);
-    case BrickKind::kBytes:
+    case BrickKind::Bytes:
       return brick.layer_base + layer_pool_[brick.layer_data + local];
-    case BrickKind::kFarOutside:
+    case BrickKind::FarOutside:
       break;
   }
   return brick.layer_base;
@@ -234,4 +234,4 @@ float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {
   return box > 0.0f ? std::max(box, at_voxel - kHalfDiagonal) : at_voxel - kHalfDiagonal;
 }
 
-}  // namespace vps
+}  // namespace voxfmt::runtime

@@ -1,0 +1,31 @@
+// The one way every voxfmt library writes a file: into a temporary beside the target, flushed to disk, renamed
+// over the target, then the folder flushed. A failed or killed write never leaves a partial file under the
+// target's name, and an earlier file there stays untouched until the new one is complete.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <string_view>
+
+#include "voxfmt/result.h"
+
+namespace voxfmt {
+
+/// Marker of temporaries: `PATH.partial-<pid>-<n>`. Tools that clean up after killed runs look for it.
+inline constexpr std::string_view kPartialMarker = ".partial-";
+
+struct AtomicWrite {
+  /// Produces the file's content at the temporary path it is given (any library may write there).
+  std::function<Status(const std::string& temporary_path)> write;
+  /// Runs after the temporary is complete and on disk, just before the rename: an error aborts the write
+  /// (the temporary is removed, the target left as it was) and is returned.
+  std::function<Status()> before_commit;
+};
+
+/// Writes `path` atomically. Errors are WRITE_FAILED (naming `path` and the reason) unless `write` or
+/// `before_commit` return their own.
+Status write_file_atomically(const std::string& path, const AtomicWrite& steps);
+/// The same for bytes already in memory.
+Status write_file_atomically(const std::string& path, std::string_view bytes);
+
+}  // namespace voxfmt

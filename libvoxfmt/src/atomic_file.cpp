@@ -1,0 +1,75 @@
+#include "voxfmt/atomic_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+
+namespace voxfmt {
+
+namespace {
+
+// fsync by path (the writer has closed its descriptor). A rename is only durable once the data it exposes is
+// on disk, and the rename itself once its folder is: without both, a power cut could leave an empty or torn
+// file under the final name.
+bool sync_path(const std::string& path, bool directory) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | (directory ? O_DIRECTORY : 0));
+  if (fd < 0) return false;
+  const int error = ::fsync(fd) == 0 ? 0 : errno;
+  ::close(fd);
+  errno = error;
+  return error == 0 || error == EINVAL;  // EINVAL: this file system cannot sync that kind of object
+}
+
+std::string parent_directory(const std::string& path) {
+  const size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? "." : slash == 0 ? "/" : path.substr(0, slash);
+}
+
+Error write_failed(const std::string& path, const std::string& reason) {
+  return Error{IssueCode::WriteFailed, path + ": " + reason, path};
+}
+
+}  // namespace
+
+Status write_file_atomically(const std::string& path, const AtomicWrite& steps) {
+  static std::atomic<unsigned> counter{0};
+  const std::string temp =
+      path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  auto fail = [&](Status status) {
+    std::remove(temp.c_str());
+    return status;
+  };
+  Status written = steps.write ? steps.write(temp) : Status(write_failed(path, "nothing to write"));
+  if (!written) return fail(written);
+  if (!sync_path(temp, false))
+    return fail(write_failed(path, std::string("cannot flush the temporary file to disk: ") + std::strerror(errno)));
+  if (steps.before_commit) {
+    Status check = steps.before_commit();
+    if (!check) return fail(check);
+  }
+  if (std::rename(temp.c_str(), path.c_str()) != 0)
+    return fail(write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno)));
+  sync_path(parent_directory(path), true);  // best effort: the file is complete either way
+  return Status::success();
+}
+
+Status write_file_atomically(const std::string& path, std::string_view bytes) {
+  AtomicWrite steps;
+  steps.write = [&](const std::string& temp) -> Status {
+    std::FILE* file = std::fopen(temp.c_str(), "wb");
+    if (!file) return write_failed(path, std::string("cannot create: ") + std::strerror(errno));
+    const bool wrote = std::fwrite(bytes.data(), 1, bytes.size(), file) == bytes.size();
+    const int write_errno = errno;
+    const bool closed = std::fclose(file) == 0;
+    if (!wrote || !closed)
+      return write_failed(path, std::string("cannot write: ") + std::strerror(wrote ? errno : write_errno));
+    return Status::success();
+  };
+  return write_file_atomically(path, steps);
+}
+
+}  // namespace voxfmt

@@ -1,0 +1,60 @@
+// Registration of the VPS collision algorithm in a Bullet dispatcher.
+//
+//   btDefaultCollisionConstructionInfo info;
+//   voxfmt::bullet::prepare_construction_info(info);           // pool slots large enough for the algorithm
+//   btDefaultCollisionConfiguration config(info);
+//   btCollisionDispatcher dispatcher(&config);
+//   auto vps = voxfmt::bullet::register_vps_collision(dispatcher);  // keep alive as long as the dispatcher
+//
+// Pairs handled (both orders, simulation and closest-point tables): VPS-VPS, VPS-static plane, VPS-box,
+// VPS-sphere. Other pairs with a VPS shape fall back to Bullet's concave handling and produce no contacts.
+#pragma once
+
+#include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
+#include <BulletCollision/CollisionDispatch/btDefaultCollisionConfiguration.h>
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "voxfmt/runtime/query.h"
+
+namespace voxfmt::bullet {
+
+struct CollisionSettings {
+  /// Which object's points go against which voxelmap in a VPS-VPS pair (Auto: the smaller object's points).
+  runtime::QueryDirection direction = runtime::QueryDirection::Auto;
+  /// Contact normals: the partner's distance gradient (default; the true separating direction) or the
+  /// points' own normals (classical VPS).
+  runtime::NormalSource normal_source = runtime::NormalSource::DistanceGradient;
+  /// Points closer than this (metres) become speculative contacts with positive distance, so the solver
+  /// slows an approaching body before it penetrates. 0 = penetrating points only.
+  double proximity = 0.0;
+  /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
+  size_t manifold_points = 4;
+};
+
+/// Narrow-phase counters, summed over all VPS pairs since the last reset (single-threaded dispatch).
+struct CollisionCounters {
+  uint64_t pair_tests = 0;
+  uint64_t raw_contacts = 0;    ///< contacts found by the queries before reduction
+  uint64_t points_tested = 0;   ///< point-shell points whose distance was looked up
+};
+
+class VpsCollisionRegistration {
+ public:
+  virtual ~VpsCollisionRegistration() = default;
+  virtual CollisionSettings& settings() = 0;
+  virtual CollisionCounters& counters() = 0;
+};
+
+/// Registers the VPS algorithm for every supported pair in `dispatcher`. The returned object owns the create
+/// functions and settings: keep it alive while the dispatcher is in use.
+std::unique_ptr<VpsCollisionRegistration> register_vps_collision(btCollisionDispatcher& dispatcher,
+                                                                 const CollisionSettings& settings = {});
+
+/// Makes the dispatcher's algorithm pool slots large enough for the VPS algorithm (Bullet silently overruns
+/// a slot that is too small). Call before constructing btDefaultCollisionConfiguration.
+void prepare_construction_info(btDefaultCollisionConstructionInfo& info);
+
+}  // namespace voxfmt::bullet

@@ -1,0 +1,88 @@
+#include "voxfmt/bullet/shape.h"
+
+#include <LinearMath/btAabbUtil2.h>
+
+#include <stdexcept>
+
+#include "bt_eigen.h"
+
+namespace voxfmt::bullet {
+
+VpsShape::VpsShape(std::shared_ptr<const runtime::CollisionObject> object, Role role)
+    : object_(std::move(object)), role_(role) {
+  if (!object_) throw std::invalid_argument("VpsShape: no collision object");
+  if (uses_points() && !object_->has_point_shell())
+    throw std::invalid_argument("VpsShape: the role needs a point shell, the object has none");
+  if (uses_voxelmap() && !object_->has_voxelmap())
+    throw std::invalid_argument("VpsShape: the role needs a voxelmap, the object has none");
+  m_shapeType = kShapeType;
+  // x_shape = Q^T (x_asset - com), Q = principal axes.
+  const Eigen::Matrix3d qt = object_->principal_axes().transpose();
+  asset_to_shape_ = btTransform(to_bt_matrix(qt), to_bt_vector(-(qt * object_->center_of_mass())));
+  // Bounds in the shape frame: the points if any (they lie on the surface), else the asset's box corners.
+  local_min_ = btVector3(BT_LARGE_FLOAT, BT_LARGE_FLOAT, BT_LARGE_FLOAT);
+  local_max_ = -local_min_;
+  if (object_->has_point_shell()) {
+    for (const Eigen::Vector3f& p : object_->point_tree().points) {
+      const btVector3 q = asset_to_shape_(to_bt_vector(p.cast<double>()));
+      local_min_.setMin(q);
+      local_max_.setMax(q);
+    }
+    // Points sample the surface: the surface may bulge out between them by a fraction of their spacing.
+    const btScalar pad = btScalar(0.5 * object_->point_spacing());
+    local_min_ -= btVector3(pad, pad, pad);
+    local_max_ += btVector3(pad, pad, pad);
+  } else {
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3d corner((c & 1) ? object_->bounds_max().x() : object_->bounds_min().x(),
+                                   (c & 2) ? object_->bounds_max().y() : object_->bounds_min().y(),
+                                   (c & 4) ? object_->bounds_max().z() : object_->bounds_min().z());
+      const btVector3 q = asset_to_shape_(to_bt_vector(corner));
+      local_min_.setMin(q);
+      local_max_.setMax(q);
+    }
+  }
+  setMargin(0);
+}
+
+runtime::Pose VpsShape::asset_pose(const btTransform& world_from_shape) const {
+  // world = R_ws * s * (Q^T (x - com)) + t_ws
+  runtime::Pose pose;
+  const Eigen::Matrix3d r_ws = to_eigen(world_from_shape.getBasis());
+  pose.rotation = r_ws * object_->principal_axes().transpose();
+  pose.scale = scale_;
+  pose.translation = to_eigen(world_from_shape.getOrigin()) - pose.rotation * (scale_ * object_->center_of_mass());
+  return pose;
+}
+
+void VpsShape::getAabb(const btTransform& t, btVector3& aabb_min, btVector3& aabb_max) const {
+  const btScalar s = btScalar(scale_);
+  btTransformAabb(local_min_ * s, local_max_ * s, getMargin(), t, aabb_min, aabb_max);
+}
+
+void VpsShape::setLocalScaling(const btVector3& scaling) {
+  // Uniform scaling only: distances and normals of the asset stay valid under it.
+  scale_ = double(scaling.x());
+  local_scaling_ = btVector3(scaling.x(), scaling.x(), scaling.x());
+}
+
+void VpsShape::calculateLocalInertia(btScalar mass, btVector3& inertia) const {
+  const double volume = object_->volume();
+  const Eigen::Vector3d moments = object_->principal_moments() * (volume > 0 ? double(mass) / volume : 0.0) *
+                                  scale_ * scale_;
+  inertia = to_bt_vector(moments);
+}
+
+const char* VpsShape::getName() const {
+  switch (role_) {
+    case Role::Voxelmap:
+      return "VpsVoxelmap";
+    case Role::PointShell:
+      return "VpsPointShell";
+    case Role::Mixed:
+      break;
+  }
+  return "VpsMixed";
+}
+
+}  // namespace voxfmt::bullet

@@ -1,0 +1,93 @@
+// Template parts of query.h: the breadth-first sphere-tree traversal shared by every kind of partner.
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+
+namespace voxfmt::runtime {
+namespace detail {
+
+/// Breadth-first traversal of `tree` mapped into a target frame by u = M * x + m (lengths scale by
+/// `radius_scale`). The target supplies `lower_bound(u)` (never above the true signed distance) and
+/// `distance(u, exact)`, both in target units. Calls emit(node, distance, exact) for every tested point
+/// closer than `proximity` (target units).
+template <class Target, class Emit>
+void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
+                   float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
+                   std::vector<uint32_t>& queue, Emit&& emit) {
+  queue.clear();
+  if (tree.size() == 0) return;
+  queue.push_back(0);
+  size_t head = 0;
+  size_t level_end = 1;  // queue position where the current level ends
+  uint32_t level = 0;
+  size_t tested = 0;
+  while (head < queue.size()) {
+    if (head == level_end) {
+      const size_t next_level_size = queue.size() - head;
+      if (level + 1 > options.max_level || tested + next_level_size > options.point_budget) break;
+      ++level;
+      level_end = queue.size();
+    }
+    const uint32_t node = queue[head++];
+    ++stats.nodes_visited;
+    const Eigen::Vector3f centre = M * tree.sphere_centers[node] + m;
+    // The sphere holds the node's point and all its descendants; the distance is 1-Lipschitz, so if even
+    // the lower bound at the centre exceeds the radius nothing below can be within reach.
+    if (target.lower_bound(centre) > tree.sphere_radii[node] * radius_scale + proximity) continue;
+    ++tested;
+    bool exact = false;
+    const float d = target.distance(M * tree.points[node] + m, exact);
+    if (d < proximity) emit(node, d, exact);
+    const uint32_t begin = tree.child_begin[node], count = tree.child_count[node];
+    for (uint32_t c = 0; c < count; ++c) queue.push_back(begin + c);
+  }
+  stats.points_tested += tested;
+  stats.deepest_level = std::max(stats.deepest_level, level);
+}
+
+/// A signed-distance function in world coordinates seen as a traversal target.
+template <class SignedDistance>
+struct FunctionTarget {
+  SignedDistance& function;
+  float lower_bound(const Eigen::Vector3f& u) const {
+    Eigen::Vector3f normal;
+    return function(u, normal);
+  }
+  float distance(const Eigen::Vector3f& u, bool& exact) const {
+    Eigen::Vector3f normal;
+    exact = true;
+    return function(u, normal);
+  }
+};
+
+}  // namespace detail
+
+template <class SignedDistance>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
+                            const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
+  if (!shell_object.has_point_shell()) return;
+  const PointTree& tree = shell_object.point_tree();
+  const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
+  const Eigen::Vector3f m = pose.translation.cast<float>();
+  detail::FunctionTarget<std::remove_reference_t<SignedDistance>> target{distance};
+  const Eigen::Matrix3d rotation = pose.rotation;
+  detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats,
+                        scratch.queue, [&](uint32_t node, float d, bool exact) {
+                          Contact contact;
+                          contact.point = pose.apply(tree.points[node].cast<double>());
+                          Eigen::Vector3f outward;
+                          distance(contact.point.cast<float>(), outward);
+                          if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
+                            contact.normal = (rotation * tree.normals[node].cast<double>()).normalized();
+                          else
+                            contact.normal = outward.cast<double>().normalized();
+                          contact.depth = -double(d);
+                          contact.point_index = node;
+                          contact.exact = exact;
+                          out.contacts.push_back(contact);
+                        });
+}
+
+}  // namespace voxfmt::runtime

@@ -1,0 +1,104 @@
+// Bricked, quantised voxelmap for runtime queries: the dense grids of an asset (spec §3) in a few MB.
+//
+// The grid is cut into 8x8x8 bricks. Within a brick, 6-neighbour layers differ by at most 1, so every layer is
+// the brick's minimum plus a 4-bit offset (range <= 21 would need 5 bits in theory; bricks that need more are
+// kept with 8-bit offsets). Bricks whose voxels are all farther outside than `outer_layers_kept` become one
+// value (a lower bound, good for pruning but not for proximity). Stored distances live in separate bricks as
+// 16-bit fixed point; only bricks that touch the band have them.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "voxfmt/asset.h"
+
+namespace voxfmt::runtime {
+
+/// What the field says at a point, in voxel units of the map (multiply by voxel_size for metres).
+struct FieldSample {
+  float distance = 0.0f;  ///< signed distance estimate, negative inside
+  bool exact = false;     ///< true: trilinear interpolation of stored distances; false: from layers or bounds
+};
+
+class SparseVoxelmap {
+ public:
+  struct Options {
+    /// Outer layers kept voxel by voxel; farther outside a brick keeps only a lower bound of the distance.
+    /// Proximity queries are exact up to about this many voxels outside the surface.
+    int outer_layers_kept = 8;
+  };
+
+  SparseVoxelmap() = default;
+  /// Compresses `dense` (validated asset grids). `bounds_min/max` is the object's bounding box (asset frame);
+  /// points outside the grid get their distance bound from it.
+  static SparseVoxelmap from_dense(const voxfmt::Voxelmap& dense, const voxfmt::Vec3& bounds_min,
+                                   const voxfmt::Vec3& bounds_max, const Options& options);
+
+  /// Grid coordinates (voxel centres at integers) of a point given in the asset frame.
+  Eigen::Vector3f to_grid(const Eigen::Vector3d& asset_point) const {
+    return ((asset_point - origin_) / voxel_size_).cast<float>();
+  }
+  /// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels, each
+  /// contributing its stored distance or, where none is stored, minus its layer (spec §3: layer l means a
+  /// distance within half a voxel of -l). Outside the grid: the distance to the object's bounding box.
+  /// If `gradient` is given it receives the direction of increasing distance (grid axes = asset axes, not
+  /// normalised; zero where the field is flat).
+  FieldSample sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient = nullptr) const;
+  /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
+  float distance_lower_bound(const Eigen::Vector3f& u) const;
+
+  /// Layer of voxel (i, j, k) (clamped bricks report their bound), for tests and inspection.
+  int layer_at(int i, int j, int k) const;
+  /// Stored distance of voxel (i, j, k) in voxel units, or NaN where the asset stores none.
+  float stored_distance_at(int i, int j, int k) const;
+
+  double voxel_size() const { return voxel_size_; }
+  const Eigen::Vector3d& origin() const { return origin_; }
+  const std::array<int, 3>& dims() const { return dims_; }
+  bool empty() const { return bricks_.empty(); }
+  /// Heap bytes held (what the map costs in RAM).
+  size_t memory_bytes() const;
+  size_t brick_count() const { return bricks_.size(); }
+  size_t layer_brick_count() const;
+  size_t distance_brick_count() const { return distance_pool_.size() / kBrickVoxels; }
+
+  static constexpr int kBrickEdge = 8;
+  static constexpr int kBrickVoxels = kBrickEdge * kBrickEdge * kBrickEdge;
+
+ private:
+  enum class BrickKind : uint8_t { FarOutside, Nibbles, Bytes };
+  struct Brick {
+    int16_t layer_base = 0;  ///< minimum layer in the brick; for FarOutside the layer closest to the surface
+    BrickKind kind = BrickKind::FarOutside;
+    uint32_t layer_data = 0;               ///< byte offset into layer_pool_
+    uint32_t distance_data = kNoDistance;  ///< brick index into distance_pool_, or kNoDistance
+  };
+  static constexpr uint32_t kNoDistance = 0xffffffffu;
+  static constexpr int16_t kNotStored = INT16_MIN;
+
+  // Voxel fetches; (i, j, k) must lie inside the grid.
+  const Brick& brick_of(int i, int j, int k, int& local) const;
+  int layer_in(const Brick& brick, int local) const;
+  bool distance_in(const Brick& brick, int local, float& distance) const;
+  float estimate_at(int i, int j, int k, bool& exact) const;
+  float bounds_distance(const Eigen::Vector3f& u) const;
+  /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
+  bool covers(const Eigen::Vector3f& u) const;
+
+  Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
+  double voxel_size_ = 1.0;
+  std::array<int, 3> dims_{};
+  std::array<int, 3> brick_dims_{};
+  float distance_scale_ = 1.0f;  ///< quantisation steps per voxel
+  Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
+  Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
+  std::vector<Brick> bricks_;
+  std::vector<uint8_t> layer_pool_;
+  std::vector<int16_t> distance_pool_;
+};
+
+}  // namespace voxfmt::runtime

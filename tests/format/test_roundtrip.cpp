@@ -1,0 +1,194 @@
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+
+#include "analytic_sphere.h"
+#include "test_support.h"
+#include "voxfmt/io.h"
+#include "voxfmt/validate.h"
+
+namespace voxfmt {
+namespace {
+
+TEST(RoundTrip, EveryFieldSurvivesWriteAndRead) {
+  const Asset a = test::make_full_asset();
+  ASSERT_TRUE(validate_asset(a).empty());
+  const std::string file = test::scratch_dir("roundtrip") + "/full.vox.h5";
+  const Status written = write_asset(file, a, test::structural());
+  ASSERT_TRUE(written) << written.error().message;
+
+  std::vector<Issue> warnings;
+  Result<Asset> read = read_asset(file, &warnings);
+  ASSERT_TRUE(read) << read.error().message;
+  EXPECT_TRUE(warnings.empty());
+  const Asset& b = read.value();
+
+  EXPECT_EQ(b.version, kFormatVersion);
+  EXPECT_EQ(b.up_axis, a.up_axis);
+  EXPECT_EQ(b.bounds_min, a.bounds_min);
+  EXPECT_EQ(b.bounds_max, a.bounds_max);
+
+  EXPECT_EQ(b.voxelmap.origin, a.voxelmap.origin);
+  EXPECT_EQ(b.voxelmap.voxel_size, a.voxelmap.voxel_size);
+  EXPECT_EQ(b.voxelmap.dims, a.voxelmap.dims);
+  EXPECT_EQ(b.voxelmap.distance_band, a.voxelmap.distance_band);
+  EXPECT_EQ(b.voxelmap.margin, a.voxelmap.margin);
+  EXPECT_EQ(b.voxelmap.layers, a.voxelmap.layers);
+  ASSERT_EQ(b.voxelmap.distances.size(), a.voxelmap.distances.size());
+  // Bitwise: NaN marks "not stored" and must stay exactly where it was.
+  EXPECT_EQ(0, std::memcmp(b.voxelmap.distances.data(), a.voxelmap.distances.data(), a.voxelmap.distances.size() * sizeof(float)));
+
+  EXPECT_EQ(b.point_shell.points, a.point_shell.points);
+  EXPECT_EQ(b.point_shell.normals, a.point_shell.normals);
+  EXPECT_EQ(b.point_shell.sphere_centers, a.point_shell.sphere_centers);
+  EXPECT_EQ(b.point_shell.sphere_radii, a.point_shell.sphere_radii);
+  EXPECT_EQ(b.point_shell.child_begin, a.point_shell.child_begin);
+  EXPECT_EQ(b.point_shell.child_count, a.point_shell.child_count);
+  EXPECT_EQ(b.point_shell.level_offsets, a.point_shell.level_offsets);
+  EXPECT_EQ(b.point_shell.point_spacing, a.point_shell.point_spacing);
+  EXPECT_EQ(b.point_shell.branching, a.point_shell.branching);
+
+  EXPECT_EQ(b.mass.volume, a.mass.volume);
+  EXPECT_EQ(b.mass.center_of_mass, a.mass.center_of_mass);
+  EXPECT_EQ(b.mass.inertia, a.mass.inertia);
+
+  EXPECT_EQ(b.provenance.generator, a.provenance.generator);
+  EXPECT_EQ(b.provenance.generator_version, a.provenance.generator_version);
+  EXPECT_EQ(b.provenance.source_file, a.provenance.source_file);
+  EXPECT_EQ(b.provenance.source_sha256, a.provenance.source_sha256);
+  EXPECT_EQ(b.provenance.build_parameters_json, a.provenance.build_parameters_json);
+  EXPECT_EQ(b.provenance.dependency_versions, a.provenance.dependency_versions);
+  EXPECT_EQ(b.provenance.build_warnings, a.provenance.build_warnings);
+  EXPECT_EQ(b.provenance.created_utc, a.provenance.created_utc);
+}
+
+TEST(RoundTrip, OptionalFieldsMayBeAbsent) {
+  Asset a = test::make_full_asset();
+  a.voxelmap.margin.reset();
+  a.point_shell.point_spacing.reset();
+  a.point_shell.branching.reset();
+  a.provenance.created_utc.clear();
+  const std::string file = test::scratch_dir("optional") + "/minimal.vox.h5";
+  ASSERT_TRUE(write_asset(file, a, test::structural()));
+  Result<Asset> read = read_asset(file);
+  ASSERT_TRUE(read) << read.error().message;
+  EXPECT_FALSE(read.value().voxelmap.margin);
+  EXPECT_FALSE(read.value().point_shell.point_spacing);
+  EXPECT_FALSE(read.value().point_shell.branching);
+  EXPECT_TRUE(read.value().provenance.created_utc.empty());
+}
+
+TEST(RoundTrip, WriteReplacesAnExistingFileAndLeavesNoTemporary) {
+  const std::string dir = test::scratch_dir("replace");
+  const std::string file = dir + "/a.vox.h5";
+  Asset a = test::make_full_asset();
+  ASSERT_TRUE(write_asset(file, a, test::structural()));
+  a.mass.volume = 0.25;
+  ASSERT_TRUE(write_asset(file, a, test::structural()));
+  EXPECT_EQ(read_asset(file).value().mass.volume, 0.25);
+  size_t entries = 0;
+  for (auto it = std::filesystem::directory_iterator(dir); it != std::filesystem::directory_iterator(); ++it) ++entries;
+  EXPECT_EQ(entries, 1u);
+}
+
+TEST(ReadProvenance, ReadsOnlyTheProvenanceAndRefusesWhatReadAssetRefuses) {
+  const std::string dir = test::scratch_dir("provenance");
+  const Asset a = test::make_full_asset();
+  ASSERT_TRUE(write_asset(dir + "/a.vox.h5", a, test::structural()));
+  Result<Provenance> p = read_provenance(dir + "/a.vox.h5");
+  ASSERT_TRUE(p) << p.error().message;
+  EXPECT_EQ(p.value().generator, a.provenance.generator);
+  EXPECT_EQ(p.value().source_sha256, a.provenance.source_sha256);
+  EXPECT_EQ(p.value().build_parameters_json, a.provenance.build_parameters_json);
+  EXPECT_EQ(p.value().build_warnings, a.provenance.build_warnings);
+
+  Result<Provenance> missing = read_provenance(dir + "/none.vox.h5");
+  ASSERT_FALSE(missing);
+  EXPECT_EQ(missing.error().code, IssueCode::FileNotFound);
+  { std::ofstream(dir + "/text.vox.h5") << "not hdf5"; }
+  Result<Provenance> text = read_provenance(dir + "/text.vox.h5");
+  ASSERT_FALSE(text);
+  EXPECT_EQ(text.error().code, IssueCode::NotHdf5);
+}
+
+TEST(Write, RefusesAnInvalidAssetAndWritesNothing) {
+  const std::string dir = test::scratch_dir("refuse");
+  Asset a = test::make_full_asset();
+  a.point_shell.child_begin[1] = 99;  // outside the tree
+  const Status status = write_asset(dir + "/bad.vox.h5", a, test::structural());
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().code, IssueCode::InvalidAsset);
+  EXPECT_EQ(status.error().object, "/pointshell/child_begin");
+  EXPECT_NE(status.error().message.find("/pointshell/child_begin"), std::string::npos) << status.error().message;
+  EXPECT_TRUE(std::filesystem::is_empty(dir));
+}
+
+TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
+  const std::string dir = test::scratch_dir("before-commit");
+  const std::string path = dir + "/a.vox.h5";
+  ASSERT_TRUE(write_asset(path, test::make_full_asset(), test::structural()));
+  const auto old_size = std::filesystem::file_size(path);
+
+  Asset changed = test::make_full_asset();
+  changed.voxelmap.distances.assign(changed.voxelmap.distances.size(), std::numeric_limits<float>::quiet_NaN());
+  WriteOptions options;
+  options.validation = ValidationLevel::Quick;  // all-NaN distances break the full rules; this is about the hook
+  bool temporary_was_complete = false;
+  options.before_commit = [&]() -> Status {
+    // The temporary is flushed and closed by now: it reads back as a whole asset.
+    for (const auto& entry : std::filesystem::directory_iterator(dir))
+      if (entry.path().string().find(".partial-") != std::string::npos)
+        temporary_was_complete = bool(read_asset(entry.path().string()));
+    return Error{IssueCode::WriteFailed, "checked and refused"};
+  };
+  const Status status = write_asset(path, changed, options);
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().message, "checked and refused");
+  EXPECT_TRUE(temporary_was_complete);
+  EXPECT_EQ(std::filesystem::file_size(path), old_size);
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()), 1);
+
+  options.before_commit = [] { return Status::success(); };
+  ASSERT_TRUE(write_asset(path, changed, options));
+  const Result<Asset> back = read_asset(path);
+  ASSERT_TRUE(back);
+  EXPECT_EQ(back.value().voxelmap.stored_count(), 0u);  // all-NaN distances: no chunk written, all read as NaN
+}
+
+TEST(Write, FullRulesAreCheckedBeforeTheFileIsReplaced) {
+  // Structurally fine, semantically wrong: a stored distance whose layer says the voxel is deep inside. The
+  // default write checks every rule of `validate --level full` and keeps the earlier file.
+  const std::string dir = test::scratch_dir("full-rules");
+  const std::string path = dir + "/a.vox.h5";
+  const Asset sphere = test::make_sphere_asset();  // exact: passes every rule
+  ASSERT_TRUE(write_asset(path, sphere));
+  const auto old_size = std::filesystem::file_size(path);
+  Asset wrong = sphere;
+  size_t stored = 0;
+  while (!Voxelmap::is_stored(wrong.voxelmap.distances[stored])) ++stored;
+  wrong.voxelmap.layers[stored] = 9;
+  ASSERT_FALSE(has_errors(validate_asset(wrong, ValidationLevel::Quick)));
+  const Status status = write_asset(path, wrong);
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().code, IssueCode::InvalidAsset);
+  EXPECT_NE(status.error().message.find("spec rule LAYER_"), std::string::npos) << status.error().message;
+  EXPECT_EQ(std::filesystem::file_size(path), old_size);
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()), 1);
+
+  WriteOptions quick;
+  quick.validation = ValidationLevel::Quick;  // a caller may ask for the structural rules only
+  EXPECT_TRUE(write_asset(path, wrong, quick));
+}
+
+TEST(Write, ReportsAnUnwritableDirectory) {
+  const Status status = write_asset("/nonexistent-dir/x.vox.h5", test::make_full_asset(), test::structural());
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().code, IssueCode::WriteFailed);
+  EXPECT_NE(status.error().message.find("/nonexistent-dir/x.vox.h5"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace voxfmt

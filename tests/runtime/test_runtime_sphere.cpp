@@ -1,0 +1,105 @@
+// The runtime on an exact sphere made in code (no bake): contacts, depths, proximity and forces against the
+// closed form.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include "analytic_sphere.h"
+#include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/forces.h"
+#include "voxfmt/runtime/query.h"
+
+namespace voxfmt::runtime {
+namespace {
+
+constexpr double kRadius = 0.1, kVoxel = 0.01;
+
+std::shared_ptr<const CollisionObject> sphere() {
+  static const auto object = [] {
+    auto loaded = CollisionObject::from_asset(test::make_sphere_asset({{0, 0, 0}, kRadius, kVoxel, 2000, 4}));
+    if (!loaded) throw std::runtime_error(loaded.error().describe());
+    return loaded.value();
+  }();
+  return object;
+}
+
+Pose at(double x) {
+  Pose pose;
+  pose.translation = {x, 0, 0};
+  return pose;
+}
+
+TEST(SphereQuery, DepthsOfOverlappingSpheresMatchTheClosedForm) {
+  const double gap = 2 * kRadius - 0.012;  // centres 0.188 apart: 12 mm overlap
+  ContactSet contacts;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  query_contacts(*sphere(), at(0), *sphere(), at(gap), options, contacts);
+  ASSERT_FALSE(contacts.contacts.empty());
+  // Every point of A more than a twentieth of a voxel inside B is found (nothing pruned wrongly), each with its
+  // exact depth r - |p - c_B|; points closer to B's surface than that may fall either side.
+  size_t clearly_inside = 0;
+  for (const Eigen::Vector3f& p : sphere()->point_tree().points)
+    clearly_inside += (p.cast<double>() - Eigen::Vector3d(gap, 0, 0)).norm() < kRadius - 0.05 * kVoxel;
+  EXPECT_GE(contacts.contacts.size(), clearly_inside);
+  double deepest = 0;
+  for (const Contact& c : contacts.contacts) {
+    const double exact = kRadius - (c.point - Eigen::Vector3d(gap, 0, 0)).norm();
+    EXPECT_NEAR(c.depth, exact, 0.05 * kVoxel) << c.point.transpose();
+    EXPECT_TRUE(c.exact);
+    deepest = std::max(deepest, c.depth);
+  }
+  EXPECT_NEAR(deepest, 0.012, 0.1 * kVoxel);
+}
+
+TEST(SphereQuery, SeparatedSpheresHaveNoContactButProximityPoints) {
+  ContactSet contacts;
+  QueryOptions options;
+  query_contacts(*sphere(), at(0), *sphere(), at(2 * kRadius + 0.005), options, contacts);
+  EXPECT_TRUE(contacts.contacts.empty());
+  options.proximity = 0.01;
+  query_contacts(*sphere(), at(0), *sphere(), at(2 * kRadius + 0.005), options, contacts);
+  ASSERT_FALSE(contacts.contacts.empty());
+  double closest = -1;
+  for (const Contact& c : contacts.contacts) {
+    EXPECT_LT(c.depth, 0.0);
+    EXPECT_GT(c.depth, -0.01 - 1e-6);
+    closest = std::max(closest, c.depth);
+  }
+  EXPECT_NEAR(closest, -0.005, 0.1 * kVoxel);
+}
+
+TEST(SphereQuery, PenaltyWrenchPushesASeparatingForceThroughTheCentre) {
+  ContactSet contacts;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  options.normal_source = NormalSource::PointShell;  // classical VPS: radial normals, every force through A's centre
+  query_contacts(*sphere(), at(0), *sphere(), at(0.19), options, contacts);
+  const Wrench w = penalty_wrench(contacts, Eigen::Vector3d::Zero(), 1000.0);
+  // A is pushed towards -x; by symmetry the force has no side component and no torque about A's centre.
+  EXPECT_LT(w.force.x(), 0.0);
+  EXPECT_LT(std::abs(w.force.y()), 0.05 * std::abs(w.force.x()));
+  EXPECT_LT(std::abs(w.force.z()), 0.05 * std::abs(w.force.x()));
+  EXPECT_LT(w.torque.norm(), 1e-5 * std::abs(w.force.x()) * kRadius);
+}
+
+TEST(SphereQuery, PointBudgetStopsAtWholeLevels) {
+  ContactSet contacts;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  options.point_budget = 100;
+  query_contacts(*sphere(), at(0), *sphere(), at(0.1), options, contacts);
+  EXPECT_LE(contacts.stats.points_tested, 100u);
+  EXPECT_GT(contacts.stats.points_tested, 0u);
+}
+
+TEST(SphereLoad, InvalidAssetIsAnErrorWithACode) {
+  Asset broken = test::make_sphere_asset();
+  broken.point_shell.child_begin[0] = 999999;
+  const auto loaded = CollisionObject::from_asset(broken);
+  ASSERT_FALSE(loaded);
+  EXPECT_EQ(loaded.error().code, IssueCode::ChildRangeInvalid);
+}
+
+}  // namespace
+}  // namespace voxfmt::runtime

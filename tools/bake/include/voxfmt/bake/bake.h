@@ -1,0 +1,135 @@
+// voxfmt::bake — a mesh file becomes a voxfmt asset: import (assimp), repair (CGAL), exact band distances and
+// layers, point shell and sphere tree, mass properties, provenance. The library behind `voxfmt build`, for
+// any caller: every fallible call returns a Result, and writing always validates first (see bake_to_file).
+//
+//   voxfmt::bake::Settings settings;
+//   settings.voxelmap.resolution = 128;
+//   auto summary = voxfmt::bake::bake_to_file("bunny.off", "bunny.vox.h5", settings);
+//   if (!summary) std::cerr << summary.error().describe() << "\n";
+//
+// Licence: this target links CGAL's GPL-3 mesh-processing packages, so a binary that contains it is GPL-3
+// (see the README); libvoxfmt and the runtime are not affected.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "voxfmt/asset.h"
+#include "voxfmt/result.h"
+
+namespace voxfmt::bake {
+
+/// A triangle soup in metres, as the import reads it (all meshes of a scene merged, node transforms applied).
+struct TriangleMesh {
+  std::vector<Vec3> vertices;
+  std::vector<std::array<uint32_t, 3>> triangles;
+};
+
+struct ImportSettings {
+  double unit_scale = 1.0;  ///< multiply coordinates by this to get metres (e.g. 0.001 for millimetres)
+};
+
+struct VoxelmapSettings {
+  uint32_t resolution = 128;    ///< voxels along the longest bounding-box axis (used if voxel_size is 0)
+  double voxel_size = 0.0;      ///< metres; overrides resolution when > 0
+  uint32_t margin = 4;          ///< outer voxels around the bounding box on each side
+  double distance_band = 3.0;   ///< voxels; exact distances stored within ±band
+  /// Inside = generalized winding number >= 1/2 (open, non-manifold or self-intersecting surfaces); off: the
+  /// sign of a closed surface. The whole bake chooses it from the repair report; set it only when calling the
+  /// voxelmap stage alone.
+  bool winding_number_sign = false;
+};
+
+struct PointShellSettings {
+  uint32_t points = 10000;     ///< target number of points (used if point_spacing is 0)
+  double point_spacing = 0.0;  ///< metres; overrides points when > 0
+  double branching = 6.5;      ///< mean children per tree node (6.5 gives ~800 points two levels above 35k)
+  uint64_t seed = 24301;       ///< sampling is deterministic for a given seed
+};
+
+/// Everything a bake can be told. The defaults are `voxfmt build`'s.
+struct Settings {
+  ImportSettings import;
+  VoxelmapSettings voxelmap;
+  PointShellSettings point_shell;
+  bool check_self_intersections = true;  ///< false skips CGAL's test on huge meshes (a warning says so)
+  std::string up_axis = "+Y";            ///< recorded in the asset (informative)
+  unsigned threads = 0;                  ///< worker threads; 0 = all cores
+  int deflate = 4;                       ///< gzip level 0..9 of the voxel grids in the file
+};
+
+struct StageTiming {
+  std::string stage;  ///< "import", "repair", "voxelmap", "point shell", "sphere tree", "assemble", "write"
+  double seconds = 0;
+};
+
+/// What a bake did, in one struct: what `voxfmt build --json` prints, what a batch manifest records, what the
+/// Python `bake()` returns (to_json() is the one serialisation).
+struct Summary {
+  std::string input;
+  std::string output;  ///< empty for a bake kept in memory
+  std::string source_sha256;
+  uint64_t input_vertices = 0, input_triangles = 0;
+  bool closed = false;  ///< the repaired surface has no border edges
+  std::vector<StageTiming> timings;
+  double total_s = 0;
+  uint64_t peak_memory_bytes = 0;  ///< of the whole process so far
+  uint64_t file_size_bytes = 0;    ///< 0 for a bake kept in memory
+  std::array<uint32_t, 3> dims{};
+  double voxel_size = 0;
+  uint64_t stored_distances = 0;
+  uint64_t points = 0;
+  std::vector<uint32_t> points_per_level;
+  double volume = 0;
+  std::vector<BuildWarning> warnings;
+};
+
+/// The bake's stages as they start, with the share of the whole bake done so far (0..1, by the typical cost
+/// of each stage), for progress bars.
+using ProgressCallback = std::function<void(std::string_view stage, double fraction)>;
+
+struct Baked {
+  Asset asset;
+  Summary summary;
+};
+
+/// Bakes `mesh_path` (any format assimp reads; all meshes of a scene merged with their node transforms) into
+/// an asset in memory. Errors: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
+/// NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE, BAD_OPTION, OUT_OF_MEMORY, INTERNAL.
+Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress = {});
+
+/// Bakes `mesh_path` and writes the asset to `output_path`: every rule of `voxfmt validate --level full` is
+/// checked in memory (beside the write) and the file replaces `output_path` atomically only when it passes.
+/// Errors: those of bake_mesh, INVALID_ASSET (a bake bug: nothing is written), WRITE_FAILED.
+Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
+                             const ProgressCallback& progress = {});
+
+/// Reads a mesh as the bake's first stage does (no repair), e.g. for a render mesh or another collision method.
+/// Errors: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE, NON_FINITE_COORDINATES.
+Result<TriangleMesh> read_mesh(const std::string& mesh_path, const ImportSettings& settings = {});
+
+/// The summary as a JSON object (`"status": "ok"`), and a failure as `{"status": "error", "input", "code",
+/// "message"}`: the one place either is serialised.
+std::string to_json(const Summary& summary);
+std::string error_json(const std::string& input, const Error& error);
+
+/// The options that change the data, as the JSON object an asset's provenance records (`build_parameters`);
+/// not `threads` or `deflate`. Up-to-date checks compare it.
+std::string build_parameters_json(const Settings& settings);
+/// Versions of the libraries the bake uses (provenance `dependency_versions`).
+std::map<std::string, std::string> dependency_versions();
+/// Lowercase hex SHA-256 of a file's bytes; INPUT_NOT_FOUND when it cannot be read.
+Result<std::string> sha256_file(const std::string& path);
+/// The current time as ISO 8601 UTC, e.g. "2026-11-22T04:00:14Z" (provenance, manifests).
+std::string utc_now();
+/// True when `path`'s extension (case-insensitive, e.g. ".obj", ".mesh.xml") is a mesh format assimp reads.
+/// Formats without surfaces (animation, camera) and suffixes too generic to mean a mesh in a folder scan
+/// (".xml", ".raw") are left out; the bake still accepts them.
+bool is_mesh_file_name(const std::string& path);
+
+}  // namespace voxfmt::bake

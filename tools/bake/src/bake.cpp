@@ -1,0 +1,338 @@
+// The whole bake: import -> repair -> voxelmap -> point shell -> tree -> mass -> asset with provenance; the
+// public entry points (bake_mesh, bake_to_file) and the one serialisation of a bake's summary.
+#include <CGAL/version.h>
+#include <assimp/version.h>
+#include <nlohmann/json.hpp>
+#include <openssl/evp.h>
+#include <oneapi/tbb/global_control.h>
+#include <oneapi/tbb/task_group.h>
+#include <oneapi/tbb/version.h>
+
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <chrono>
+#include <exception>
+#include <cmath>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "stages.h"
+#include "vec3_math.h"
+#include "voxfmt/io.h"
+#include "voxfmt/version.h"
+
+namespace voxfmt::bake {
+
+namespace {
+
+// Share of a typical bake done when a stage starts (CGAL's bunny at resolution 306: repair 11 %, voxelmap and
+// point shell 60 %, assemble 2 %, verify + write 26 %), so a progress bar moves at an even pace.
+double stage_start_fraction(std::string_view stage) {
+  if (stage == "import") return 0.0;
+  if (stage == "repair") return 0.01;
+  if (stage == "voxelmap + point shell") return 0.12;
+  if (stage == "assemble") return 0.72;
+  if (stage == "verify + write") return 0.74;
+  return 1.0;
+}
+
+uint64_t peak_memory_bytes() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return uint64_t(usage.ru_maxrss) * 1024;  // Linux reports KiB
+}
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Runs `work`, turning the stages' exceptions into the one error model at the library's edge.
+template <class T, class Work>
+Result<T> guarded(const std::string& mesh_path, Work&& work) {
+  try {
+    return work();
+  } catch (const BakeError& e) {
+    return Error{e.code(), e.what(), mesh_path};
+  } catch (const std::bad_alloc&) {
+    return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory (try a coarser resolution or voxel size)", mesh_path};
+  } catch (const std::exception& e) {  // library failures (CGAL preconditions, TBB) still get a clean error
+    return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
+  }
+}
+
+Summary summarize(const std::string& mesh_path, const Asset& asset, const BuildReport& report) {
+  Summary s;
+  s.input = mesh_path;
+  s.source_sha256 = asset.provenance.source_sha256;
+  s.input_vertices = report.input_vertices;
+  s.input_triangles = report.input_triangles;
+  s.closed = report.repair.closed;
+  s.timings = report.timings;
+  const Voxelmap& vm = asset.voxelmap;
+  s.dims = vm.dims;
+  s.voxel_size = vm.voxel_size;
+  s.stored_distances = vm.stored_count();
+  s.points = asset.point_shell.size();
+  s.points_per_level = asset.point_shell.points_per_level();
+  s.volume = asset.mass.volume;
+  s.warnings = report.repair.warnings;
+  return s;
+}
+
+}  // namespace
+
+Bounds bounding_box(const TriangleMesh& mesh) {
+  Bounds b{mesh.vertices.front(), mesh.vertices.front()};
+  for (const Vec3& v : mesh.vertices)
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = std::min(b.lo[a], v[a]);
+      b.hi[a] = std::max(b.hi[a], v[a]);
+    }
+  return b;
+}
+
+Result<std::string> sha256_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Error{IssueCode::InputNotFound, path + ": cannot open for hashing", path};
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
+  std::vector<char> buffer(1 << 16);
+  while (in) {
+    in.read(buffer.data(), std::streamsize(buffer.size()));
+    if (in.gcount() > 0) EVP_DigestUpdate(ctx.get(), buffer.data(), size_t(in.gcount()));
+  }
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  EVP_DigestFinal_ex(ctx.get(), digest, &length);
+  static const char* hex = "0123456789abcdef";
+  std::string out;
+  for (unsigned i = 0; i < length; ++i) {
+    out += hex[digest[i] >> 4];
+    out += hex[digest[i] & 15];
+  }
+  return out;
+}
+
+std::map<std::string, std::string> dependency_versions() {
+  return {{"voxfmt", VOXFMT_VERSION_STRING},
+          {"assimp", std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) + "." +
+                         std::to_string(aiGetVersionRevision())},
+          {"cgal", CGAL_VERSION_STR},
+          {"tbb", std::to_string(TBB_VERSION_MAJOR) + "." + std::to_string(TBB_VERSION_MINOR)},
+          {"hdf5", hdf5_library_version()}};
+}
+
+std::string build_parameters_json(const Settings& o) {
+  // Every option that changes the data; not threads or deflate (same data, other speed or file size).
+  nlohmann::json j = {{"unit_scale", o.import.unit_scale},
+                      {"resolution", o.voxelmap.resolution},
+                      {"voxel_size", o.voxelmap.voxel_size},
+                      {"margin", o.voxelmap.margin},
+                      {"distance_band", o.voxelmap.distance_band},
+                      {"points", o.point_shell.points},
+                      {"point_spacing", o.point_shell.point_spacing},
+                      {"branching", o.point_shell.branching},
+                      {"seed", o.point_shell.seed},
+                      {"check_self_intersections", o.check_self_intersections},
+                      {"up_axis", o.up_axis}};
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
+std::string utc_now() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof buffer, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buffer;
+}
+
+Asset build_asset(const std::string& mesh_path, const Settings& options, BuildReport& report,
+                  const ProgressCallback& progress) {
+  std::unique_ptr<tbb::global_control> thread_limit;
+  if (options.threads > 0)
+    thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.threads);
+  auto clock = std::chrono::steady_clock::now();
+  auto stage = [&](const std::string& name) {
+    const auto now = std::chrono::steady_clock::now();
+    if (!report.timings.empty())
+      report.timings.back().seconds = std::chrono::duration<double>(now - clock).count();
+    clock = now;
+    if (name.empty()) return;
+    report.timings.push_back({name, 0});
+    if (progress) progress(name, stage_start_fraction(name));
+  };
+
+  stage("import");
+  const TriangleMesh raw = import_mesh(mesh_path, options.import);
+  report.input_vertices = raw.vertices.size();
+  report.input_triangles = raw.triangles.size();
+
+  stage("repair");
+  const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
+  const auto [lo, hi] = bounding_box(mesh);
+  const double diagonal = length(hi - lo);
+  // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
+  // winding number is >= 1/2, and the mass properties are integrated over that inside, on the voxelmap.
+  const RepairReport& r = report.repair;
+  const bool winding_inside = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
+  MassProperties mass;
+  auto check_volume = [&](const char* what) {
+    if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
+      throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume (" + what + ")");
+  };
+  if (!winding_inside) {
+    mass = compute_mass_properties(mesh);
+    check_volume("flat or inside-out mesh");
+  }
+
+  // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run
+  // beside the voxelmap's parallel work. Stage times are each task's own wall time.
+  stage("voxelmap + point shell");
+  VoxelmapSettings voxelmap_options = options.voxelmap;
+  voxelmap_options.winding_number_sign = winding_inside;
+  Voxelmap voxelmap;
+  PointShell shell;
+  double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
+  auto timed = [](double& seconds, auto&& work) {
+    const auto t0 = std::chrono::steady_clock::now();
+    work();
+    seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  tbb::task_group tasks;
+  std::exception_ptr shell_error;
+  tasks.run([&] {
+    try {
+      timed(shell_seconds, [&] { shell = sample_point_shell(mesh, options.point_shell); });
+      timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
+    } catch (...) {
+      shell_error = std::current_exception();
+    }
+  });
+  try {
+    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options); });
+  } catch (...) {
+    tasks.wait();
+    throw;
+  }
+  tasks.wait();
+  if (shell_error) std::rethrow_exception(shell_error);
+
+  stage("assemble");
+  if (winding_inside) {
+    // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
+    // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
+    if (*std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1)
+      throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume at this resolution: no voxel is more "
+                                                 "than half a voxel inside (winding number >= 1/2); an open sheet, or "
+                                                 "thinner than a voxel (a finer --resolution or --voxel-size may help)");
+    mass = voxelmap_mass_properties(voxelmap);
+    check_volume("an open sheet");
+    // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can
+    // put the centre a fraction of a voxel past a flat side.
+    for (int a = 0; a < 3; ++a) mass.center_of_mass[a] = std::clamp(mass.center_of_mass[a], lo[a], hi[a]);
+  }
+  report.timings.insert(report.timings.end() - 2, {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds},
+                                                   {"sphere tree", tree_seconds}});
+  Asset asset;
+  asset.up_axis = options.up_axis;
+  asset.bounds_min = lo;
+  asset.bounds_max = hi;
+  asset.voxelmap = std::move(voxelmap);
+  asset.point_shell = std::move(shell);
+  asset.mass = mass;
+  Provenance& p = asset.provenance;
+  p.generator = "voxfmt build";
+  p.generator_version = VOXFMT_VERSION_STRING;
+  p.source_file = std::filesystem::path(mesh_path).filename().string();
+  Result<std::string> sha = sha256_file(mesh_path);
+  if (!sha) throw BakeError(sha.error().code, sha.error().message);
+  p.source_sha256 = sha.value();
+  p.build_parameters_json = build_parameters_json(options);
+  p.dependency_versions = dependency_versions();
+  p.build_warnings = report.repair.warnings;
+  p.created_utc = utc_now();
+  stage("");
+  return asset;
+}
+
+Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress) {
+  return guarded<Baked>(mesh_path, [&] {
+    const auto start = std::chrono::steady_clock::now();
+    BuildReport report;
+    Baked baked;
+    baked.asset = build_asset(mesh_path, settings, report, progress);
+    baked.summary = summarize(mesh_path, baked.asset, report);
+    baked.summary.total_s = seconds_since(start);
+    baked.summary.peak_memory_bytes = peak_memory_bytes();
+    return baked;
+  });
+}
+
+Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
+                             const ProgressCallback& progress) {
+  const auto start = std::chrono::steady_clock::now();
+  Result<Baked> baked = bake_mesh(mesh_path, settings, progress);
+  if (!baked) return baked.error();
+  if (progress) progress("verify + write", stage_start_fraction("verify + write"));
+  const auto write_start = std::chrono::steady_clock::now();
+  WriteOptions write_options;  // validation: Full, beside the write
+  write_options.deflate_level = settings.deflate;
+  const Status written = write_asset(output_path, baked->asset, write_options);
+  if (!written) {
+    Error error = written.error();
+    if (error.code == IssueCode::InvalidAsset)  // the bake made something the spec forbids: say whose fault
+      error.message = mesh_path + ": the baked asset is invalid, nothing was written (a bake bug: please report it): " +
+                      error.message;
+    return error;
+  }
+  Summary summary = std::move(baked->summary);
+  summary.timings.push_back({"write", seconds_since(write_start)});
+  summary.output = output_path;
+  std::error_code ec;
+  summary.file_size_bytes = std::filesystem::file_size(output_path, ec);
+  summary.total_s = seconds_since(start);
+  summary.peak_memory_bytes = peak_memory_bytes();
+  if (progress) progress("done", 1.0);
+  return summary;
+}
+
+Result<TriangleMesh> read_mesh(const std::string& mesh_path, const ImportSettings& settings) {
+  return guarded<TriangleMesh>(mesh_path, [&] { return import_mesh(mesh_path, settings); });
+}
+
+std::string to_json(const Summary& s) {
+  nlohmann::json timings = nlohmann::json::object();
+  for (const StageTiming& t : s.timings) timings[t.stage] = t.seconds;
+  nlohmann::json warnings = nlohmann::json::array();
+  for (const BuildWarning& w : s.warnings) warnings.push_back({{"code", w.code}, {"message", w.message}});
+  const nlohmann::json j = {
+      {"status", "ok"},
+      {"input", s.input},
+      {"output", s.output},
+      {"source_sha256", s.source_sha256},
+      {"input_vertices", s.input_vertices},
+      {"input_triangles", s.input_triangles},
+      {"closed", s.closed},
+      {"timings_s", timings},
+      {"total_s", s.total_s},
+      {"peak_memory_bytes", s.peak_memory_bytes},
+      {"file_size_bytes", s.file_size_bytes},
+      {"voxelmap", {{"dims", s.dims}, {"voxel_size", s.voxel_size}, {"stored_distances", s.stored_distances}}},
+      {"pointshell",
+       {{"points", s.points}, {"levels", s.points_per_level.size()}, {"points_per_level", s.points_per_level}}},
+      {"volume", s.volume},
+      {"warnings", warnings}};
+  return j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
+std::string error_json(const std::string& input, const Error& error) {
+  const nlohmann::json j = {
+      {"status", "error"}, {"input", input}, {"code", code_name(error.code)}, {"message", error.message}};
+  return j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
+}  // namespace voxfmt::bake

@@ -1,0 +1,105 @@
+// Stage 1: any mesh format assimp reads -> one triangle soup in the file's frame (times unit_scale).
+#include <assimp/DefaultLogger.hpp>
+#include <assimp/Importer.hpp>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "stages.h"
+
+namespace voxfmt::bake {
+
+namespace {
+
+void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& parent, TriangleMesh& out,
+                 double scale, const std::string& path) {
+  const aiMatrix4x4 transform = parent * node.mTransformation;
+  for (unsigned m = 0; m < node.mNumMeshes; ++m) {
+    const aiMesh& mesh = *scene.mMeshes[node.mMeshes[m]];
+    const uint32_t base = uint32_t(out.vertices.size());
+    for (unsigned v = 0; v < mesh.mNumVertices; ++v) {
+      const aiVector3D p = transform * mesh.mVertices[v];
+      const Vec3 q = {double(p.x) * scale, double(p.y) * scale, double(p.z) * scale};
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
+        throw BakeError(IssueCode::NonFiniteCoordinates, path + ": vertex " + std::to_string(v) + " of mesh '" +
+                                                      mesh.mName.C_Str() + "' has a non-finite coordinate");
+      out.vertices.push_back(q);
+    }
+    for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
+      const aiFace& face = mesh.mFaces[f];
+      if (face.mNumIndices != 3) continue;  // points and lines carry no surface
+      out.triangles.push_back({base + face.mIndices[0], base + face.mIndices[1], base + face.mIndices[2]});
+    }
+  }
+  for (unsigned c = 0; c < node.mNumChildren; ++c) append_node(scene, *node.mChildren[c], transform, out, scale, path);
+}
+
+std::string lowercase(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return text;
+}
+
+}  // namespace
+
+bool is_mesh_file_name(const std::string& path) {
+  static const std::vector<std::string> extensions = [] {
+    std::string list;  // "*.3d;*.3ds;...;*.mesh.xml;..."
+    Assimp::Importer().GetExtensionList(list);
+    const std::vector<std::string> excluded = {".bvh", ".md5anim", ".md5camera", ".xml", ".raw"};
+    std::vector<std::string> out;
+    size_t start = 0;
+    while (start < list.size()) {
+      size_t end = list.find(';', start);
+      if (end == std::string::npos) end = list.size();
+      std::string pattern = lowercase(list.substr(start, end - start));
+      if (pattern.rfind("*", 0) == 0) pattern.erase(0, 1);
+      if (!pattern.empty() && std::find(excluded.begin(), excluded.end(), pattern) == excluded.end()) out.push_back(pattern);
+      start = end + 1;
+    }
+    return out;
+  }();
+  const std::string name = lowercase(std::filesystem::path(path).filename().string());
+  for (const std::string& extension : extensions)
+    if (name.size() > extension.size() && name.compare(name.size() - extension.size(), extension.size(), extension) == 0)
+      return true;
+  return false;
+}
+
+TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw BakeError(IssueCode::InputNotFound, path + ": no such file");
+  if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
+    throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
+
+  Assimp::Importer importer;
+  const std::string extension = std::filesystem::path(path).extension().string();
+  if (extension.empty() || !importer.IsExtensionSupported(extension))
+    throw BakeError(IssueCode::UnsupportedFormat,
+                    path + ": file type '" + extension + "' is not a mesh format assimp reads (see `assimp listext`)");
+  // Split polygons into triangles; points and lines are skipped by append_node, which also applies the node
+  // transforms.
+  const aiScene* scene = importer.ReadFile(path, aiProcess_Triangulate);
+  if (!scene || !scene->mRootNode) {
+    const std::string reason = importer.GetErrorString();
+    // Some importers refuse a file with nothing in it instead of returning an empty scene.
+    const std::string lower = lowercase(reason);
+    const bool empty = lower.find("no valid faces") != std::string::npos || lower.find("no meshes") != std::string::npos;
+    throw BakeError(empty ? IssueCode::EmptyScene : IssueCode::ImportFailed,
+                    path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
+  }
+
+  TriangleMesh mesh;
+  append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
+  if (mesh.triangles.empty())
+    throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
+  return mesh;
+}
+
+}  // namespace voxfmt::bake

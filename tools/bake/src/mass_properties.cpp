@@ -1,0 +1,115 @@
+// Stage 5: volume, centre of mass and inertia of a closed surface (divergence theorem over tetrahedra), or of
+// the voxelmap's inside.
+#include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "stages.h"
+
+namespace voxfmt::bake {
+
+namespace {
+
+struct Moments {
+  double volume = 0;
+  Vec3 first{};               // integral of x dV
+  double second[3][3] = {};   // integral of x x^T dV
+};
+
+// Moments about `ref` -> mass properties (centre of mass in the asset frame, inertia about it).
+MassProperties from_moments(const Moments& s, const Vec3& ref) {
+  MassProperties m;
+  m.volume = s.volume;
+  if (!(std::abs(s.volume) > 0)) return m;
+  Vec3 c{};
+  for (int a = 0; a < 3; ++a) c[a] = s.first[a] / s.volume;
+  double central[3][3];
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) central[a][b] = s.second[a][b] - s.volume * c[a] * c[b];
+  const double trace = central[0][0] + central[1][1] + central[2][2];
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) m.inertia[a * 3 + b] = (a == b ? trace : 0.0) - central[a][b];
+  for (int a = 0; a < 3; ++a)
+    for (int b = a + 1; b < 3; ++b) m.inertia[a * 3 + b] = m.inertia[b * 3 + a];  // exactly symmetric
+  for (int a = 0; a < 3; ++a) m.center_of_mass[a] = c[a] + ref[a];
+  return m;
+}
+
+}  // namespace
+
+MassProperties compute_mass_properties(const TriangleMesh& mesh) {
+  // Work relative to a point near the mesh to keep the sums well-conditioned far from the origin.
+  Vec3 ref{};
+  for (const Vec3& v : mesh.vertices)
+    for (int a = 0; a < 3; ++a) ref[a] += v[a] / double(mesh.vertices.size());
+  Moments sum;
+  for (const auto& t : mesh.triangles) {
+    Vec3 p[3];
+    for (int i = 0; i < 3; ++i)
+      for (int a = 0; a < 3; ++a) p[i][a] = mesh.vertices[t[i]][a] - ref[a];
+    // Signed tetrahedron (ref, p0, p1, p2): det = 6 V.
+    const double det = p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) - p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0]) +
+                       p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0]);
+    sum.volume += det / 6;
+    Vec3 s{};
+    for (int i = 0; i < 3; ++i)
+      for (int a = 0; a < 3; ++a) s[a] += p[i][a];
+    for (int a = 0; a < 3; ++a) sum.first[a] += det / 24 * s[a];
+    // Integral of x x^T over a tetrahedron with one vertex at the origin: det/120 (sum v v^T + s s^T).
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) {
+        double vv = 0;
+        for (int i = 0; i < 3; ++i) vv += p[i][a] * p[i][b];
+        sum.second[a][b] += det / 120 * (vv + s[a] * s[b]);
+      }
+  }
+  return from_moments(sum, ref);
+}
+
+MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
+  const uint32_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
+  const double h = vm.voxel_size;
+  // Moments in voxel units about the grid's centre (well-conditioned), scaled to metres at the end.
+  const Vec3 centre = {(W - 1) / 2.0, (H - 1) / 2.0, (D - 1) / 2.0};
+  Moments sum = tbb::parallel_reduce(
+      tbb::blocked_range<uint32_t>(0, D), Moments{},
+      [&](const tbb::blocked_range<uint32_t>& r, Moments m) {
+        for (uint32_t k = r.begin(); k < r.end(); ++k)
+          for (uint32_t j = 0; j < H; ++j)
+            for (uint32_t i = 0; i < W; ++i) {
+              const size_t v = vm.linear_index(i, j, k);
+              const float d = vm.distances[v];
+              // Inside fraction of the voxel: a plane at distance d from its centre cuts off 1/2 - d/h of it
+              // (exact for axis-aligned planes); whole voxels away from the surface.
+              const double w = Voxelmap::is_stored(d) ? std::clamp(0.5 - double(d) / h, 0.0, 1.0) : (vm.layers[v] > 0 ? 1.0 : 0.0);
+              if (w == 0) continue;
+              const double x[3] = {i - centre[0], j - centre[1], k - centre[2]};
+              m.volume += w;
+              for (int a = 0; a < 3; ++a) {
+                m.first[a] += w * x[a];
+                for (int b = 0; b < 3; ++b) m.second[a][b] += w * x[a] * x[b];
+                m.second[a][a] += w / 12.0;  // the voxel's own extent: the integral of x^2 over a unit cube
+              }
+            }
+        return m;
+      },
+      [](Moments a, const Moments& b) {
+        a.volume += b.volume;
+        for (int i = 0; i < 3; ++i) {
+          a.first[i] += b.first[i];
+          for (int j = 0; j < 3; ++j) a.second[i][j] += b.second[i][j];
+        }
+        return a;
+      });
+  const double h3 = h * h * h;
+  sum.volume *= h3;
+  for (int a = 0; a < 3; ++a) {
+    sum.first[a] *= h3 * h;
+    for (int b = 0; b < 3; ++b) sum.second[a][b] *= h3 * h * h;
+  }
+  return from_moments(sum, {vm.origin[0] + h * centre[0], vm.origin[1] + h * centre[1], vm.origin[2] + h * centre[2]});
+}
+
+}  // namespace voxfmt::bake

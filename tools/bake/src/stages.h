@@ -1,0 +1,99 @@
+// Internal to voxfmt::bake: the stages of the bake, one function each, so the bake and its tests can call
+// them alone. A stage reports failure by throwing BakeError; bake_mesh/bake_to_file turn it into an Error at
+// the library's edge (nothing throws across the public API).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "voxfmt/asset.h"
+#include "voxfmt/bake/bake.h"
+#include "voxfmt/issues.h"
+
+namespace voxfmt::bake {
+
+/// Why a stage failed: a stable code and a message naming the input.
+class BakeError : public std::runtime_error {
+ public:
+  BakeError(IssueCode code, const std::string& message) : std::runtime_error(message), code_(code) {}
+  IssueCode code() const { return code_; }
+
+ private:
+  IssueCode code_;
+};
+
+struct Bounds {
+  Vec3 lo, hi;
+};
+/// Axis-aligned bounding box of the mesh's vertices (the mesh must have at least one vertex).
+Bounds bounding_box(const TriangleMesh& mesh);
+
+// ---------------------------------------------------------------- 1. import
+
+/// Reads every mesh of the scene (any format assimp reads), applies node transforms, merges them into one
+/// triangle soup. Throws BakeError: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
+/// NON_FINITE_COORDINATES.
+TriangleMesh import_mesh(const std::string& path, const ImportSettings& settings = {});
+
+// ---------------------------------------------------------------- 2. check and repair
+
+struct RepairReport {
+  bool closed = false;            ///< no border edges after repair
+  bool consistently_oriented = false;
+  size_t merged_vertices = 0;     ///< duplicate vertices merged
+  size_t removed_faces = 0;       ///< degenerate or duplicate faces dropped
+  size_t border_edges = 0;
+  size_t non_manifold_vertices = 0;
+  size_t components = 0;
+  size_t self_intersecting_pairs = 0;
+  std::vector<BuildWarning> warnings;
+};
+/// Merges duplicate vertices, drops degenerate faces, orients consistently (outward when closed), and
+/// reports defects as warnings. Throws BakeError EMPTY_SCENE when nothing is left.
+TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections = true);
+
+// ---------------------------------------------------------------- 3. voxelmap
+
+/// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh: exact distances in the band,
+/// chamfer layers beyond it.
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings);
+
+// ---------------------------------------------------------------- 4. point shell
+
+/// Samples evenly spread surface points (Poisson-disk by dart throwing over area-weighted candidates) with
+/// inward face normals. Returns points and normals only (tree fields empty).
+PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& settings);
+/// Clusters the points bottom-up into a breadth-first point-sphere tree (reorders the points).
+void build_sphere_tree(PointShell& shell, double branching);
+
+// ---------------------------------------------------------------- 5. mass properties
+
+/// Volume, centre of mass and inertia (unit density) of a closed, outward-oriented mesh.
+MassProperties compute_mass_properties(const TriangleMesh& mesh);
+/// The same for the voxelmap's inside, for surfaces whose inside is the winding number's (open, non-manifold,
+/// self-intersecting: a surface integral would depend on the origin or count overlaps twice). A voxel counts
+/// with the fraction clamp(1/2 - d/h, 0, 1) where its distance d is stored, wholly where its layer is > 0.
+MassProperties voxelmap_mass_properties(const Voxelmap& voxelmap);
+
+}  // namespace voxfmt::bake
+
+namespace voxfmt::bake {
+
+// ---------------------------------------------------------------- the whole bake
+
+struct BuildReport {
+  std::vector<StageTiming> timings;
+  RepairReport repair;
+  size_t input_vertices = 0, input_triangles = 0;
+};
+
+/// Runs every stage and returns the asset (not yet written). `progress` gets each stage as it starts.
+Asset build_asset(const std::string& mesh_path, const Settings& settings, BuildReport& report,
+                  const ProgressCallback& progress = {});
+
+}  // namespace voxfmt::bake

@@ -1,0 +1,513 @@
+// Stage 3: layered distance-field voxelmap. Exact signed distances in a narrow band (every triangle rasterised
+// into the voxels near it); a two-pass 26-neighbour chamfer transform seeded with them gives the layers
+// everywhere else.
+#include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <unordered_map>
+
+#include "stages.h"
+#include "vec3_math.h"
+#include "winding_number.h"
+
+namespace voxfmt::bake {
+
+namespace {
+
+struct GridGeometry {
+  Vec3 origin{};
+  double voxel_size = 0;
+  std::array<uint32_t, 3> dims{};
+};
+
+GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options) {
+  const auto [lo, hi] = bounding_box(mesh);
+  const double longest = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  GridGeometry g;
+  if (options.voxel_size > 0) {
+    g.voxel_size = options.voxel_size;
+  } else {
+    if (options.resolution == 0) throw BakeError(IssueCode::BadOption, "resolution must be >= 1");
+    g.voxel_size = longest / options.resolution;
+  }
+  if (!(g.voxel_size > 0) || !std::isfinite(g.voxel_size))
+    throw BakeError(IssueCode::ZeroVolume, "the mesh has no extent (all vertices coincide)");
+  // Voxels tile the bounding box exactly from its min corner, plus `margin` voxels on every side.
+  uint64_t total = 1;
+  for (int a = 0; a < 3; ++a) {
+    const double cells = std::max(1.0, std::ceil((hi[a] - lo[a]) / g.voxel_size - 1e-9)) + 2.0 * options.margin;
+    if (!(cells <= 65535))
+    {
+      char count[32];
+      std::snprintf(count, sizeof count, "%.3g", cells);
+      throw BakeError(IssueCode::GridTooLarge, std::string("the grid would have ") + count +
+                                            " voxels along an axis (at most 65535): voxel size too small");
+    }
+    const uint64_t n = uint64_t(cells);
+    g.dims[a] = uint32_t(n);
+    g.origin[a] = lo[a] + (0.5 - options.margin) * g.voxel_size;
+    total *= n;
+  }
+  if (total > 0x7fffffffull)
+    throw BakeError(IssueCode::GridTooLarge, "the grid would have " + std::to_string(total) + " voxels (at most 2^31-1)");
+  return g;
+}
+
+// Two raster passes over a 3x3x3 mask with weights 1, sqrt2, sqrt3 give the exact shortest-path distance in
+// the 26-neighbour graph (every path can be reordered into forward moves then backward moves), so values of
+// 6-neighbours never differ by more than 1. Voxels marked `fixed` keep their exact distance.
+// A row (j, k) reads rows (j-1, k) and (j-1..j+1, k-1) only, so rows with equal j + 2k run in parallel.
+void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
+                       const std::array<uint32_t, 3>& dims) {
+  const int64_t W = dims[0], H = dims[1], D = dims[2];
+  struct Step { int di, dj, dk; double w; int64_t offset; };
+  std::vector<Step> forward;
+  for (int dk = -1; dk <= 1; ++dk)
+    for (int dj = -1; dj <= 1; ++dj)
+      for (int di = -1; di <= 1; ++di) {
+        if (dk > 0 || (dk == 0 && dj > 0) || (dk == 0 && dj == 0 && di >= 0)) continue;
+        forward.push_back({di, dj, dk, std::sqrt(double(di * di + dj * dj + dk * dk)), (dk * H + dj) * W + di});
+      }
+  double* values = f.data();
+  // Per row: the 12 neighbours in previous rows are independent of each other (a vectorisable min over the
+  // row), then one sequential scan applies the in-row neighbour (i -/+ 1, weight 1).
+  auto row = [&](int64_t j, int64_t k, int sign, std::vector<double>& candidate) {
+    const int64_t base = (k * H + j) * W;
+    candidate.assign(size_t(W), std::numeric_limits<double>::infinity());
+    for (const Step& s : forward) {
+      if (s.dj == 0 && s.dk == 0) continue;  // the in-row step
+      const int64_t nj = j + sign * s.dj, nk = k + sign * s.dk;
+      if (nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
+      const double* neighbour_row = values + (nk * H + nj) * W;
+      const int64_t di = sign * s.di;
+      const int64_t lo = std::max<int64_t>(0, -di), hi = std::min<int64_t>(W, W - di);
+      double* c = candidate.data();
+      const double w = s.w;
+      for (int64_t i = lo; i < hi; ++i) c[i] = std::min(c[i], neighbour_row[i + di] + w);
+    }
+    double* v = values + base;
+    const uint8_t* fl = flags.data() + base;
+    if (sign > 0) {
+      for (int64_t i = 0; i < W; ++i) {
+        double best = std::min(candidate[size_t(i)], i > 0 ? v[i - 1] + 1.0 : candidate[size_t(i)]);
+        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
+      }
+    } else {
+      for (int64_t i = W - 1; i >= 0; --i) {
+        double best = std::min(candidate[size_t(i)], i + 1 < W ? v[i + 1] + 1.0 : candidate[size_t(i)]);
+        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
+      }
+    }
+  };
+  const int64_t waves = H + 2 * D;
+  for (int sign : {+1, -1})
+    for (int64_t w = 0; w < waves; ++w) {
+      const int64_t t = sign > 0 ? w : waves - 1 - w;  // t = j + 2k
+      const int64_t k_lo = std::max<int64_t>(0, (t - (H - 1) + 1) / 2), k_hi = std::min<int64_t>(D - 1, t / 2);
+      if (k_lo > k_hi) continue;
+      tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) {
+        thread_local std::vector<double> candidate;
+        row(t - 2 * k, k, sign, candidate);
+      });
+    }
+}
+
+
+// ---- exact near-surface distances. Every triangle is rasterised into the voxels within `half_width` of it
+// (closest-point distance in double precision) and each voxel keeps its nearest triangle, so the band is exact
+// by construction, also between thin walls and in folds, where a local closest-triangle search (OpenVDB's
+// meshToVolume, used before) picks wrong ones. The sign comes from the angle-weighted pseudonormal of the
+// closest feature (face, edge or vertex; Baerentzen & Aanaes 2005), exact for closed, oriented surfaces.
+
+struct Pseudonormals {
+  std::vector<Vec3> face, vertex;
+  std::vector<std::array<Vec3, 3>> edge;  // edge e of a face runs from corner e to corner (e+1)%3
+};
+
+Pseudonormals pseudonormals(const TriangleMesh& mesh) {
+  Pseudonormals pn;
+  pn.face.resize(mesh.triangles.size());
+  pn.vertex.assign(mesh.vertices.size(), Vec3{0, 0, 0});
+  pn.edge.resize(mesh.triangles.size());
+  auto vtx = [&](uint32_t i) { return Vec3{mesh.vertices[i][0], mesh.vertices[i][1], mesh.vertices[i][2]}; };
+  std::unordered_map<uint64_t, Vec3> edge_sum;
+  auto key = [](uint32_t a, uint32_t b) { return a < b ? (uint64_t(a) << 32 | b) : (uint64_t(b) << 32 | a); };
+  for (size_t f = 0; f < mesh.triangles.size(); ++f) {
+    const auto& t = mesh.triangles[f];
+    const Vec3 p[3] = {vtx(t[0]), vtx(t[1]), vtx(t[2])};
+    pn.face[f] = normalized(cross(p[1] - p[0], p[2] - p[0]));
+    for (int c = 0; c < 3; ++c) {
+      const Vec3 a = normalized(p[(c + 1) % 3] - p[c]), b = normalized(p[(c + 2) % 3] - p[c]);
+      const double angle = std::acos(std::clamp(dot(a, b), -1.0, 1.0));
+      pn.vertex[t[c]] = pn.vertex[t[c]] + pn.face[f] * angle;
+      Vec3& e = edge_sum[key(t[c], t[(c + 1) % 3])];
+      e = e + pn.face[f];
+    }
+  }
+  for (size_t f = 0; f < mesh.triangles.size(); ++f)
+    for (int c = 0; c < 3; ++c) pn.edge[f][c] = edge_sum[key(mesh.triangles[f][c], mesh.triangles[f][(c + 1) % 3])];
+  return pn;
+}
+
+// The feature of triangle abc that holds a closest point: a corner, an edge (named by its first corner, as in
+// Pseudonormals::edge) or the face.
+enum class Feature : uint8_t { kCornerA, kCornerB, kCornerC, kEdgeAB, kEdgeBC, kEdgeCA, kFace };
+
+// Closest point on triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5) and its feature.
+inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Feature& feature) {
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) { feature = Feature::kCornerA; return a; }
+  const Vec3 bp = p - b;
+  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) { feature = Feature::kCornerB; return b; }
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) { feature = Feature::kEdgeAB; return a + ab * (d1 / (d1 - d3)); }
+  const Vec3 cp = p - c;
+  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) { feature = Feature::kCornerC; return c; }
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) { feature = Feature::kEdgeCA; return a + ac * (d2 / (d2 - d6)); }
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+    feature = Feature::kEdgeBC;
+    return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  }
+  const double denom = 1 / (va + vb + vc);
+  feature = Feature::kFace;
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+Vec3 feature_pseudonormal(const Pseudonormals& pn, const TriangleMesh& mesh, size_t f, Feature feature) {
+  switch (feature) {
+    case Feature::kCornerA: return pn.vertex[mesh.triangles[f][0]];
+    case Feature::kCornerB: return pn.vertex[mesh.triangles[f][1]];
+    case Feature::kCornerC: return pn.vertex[mesh.triangles[f][2]];
+    case Feature::kEdgeAB: return pn.edge[f][0];
+    case Feature::kEdgeBC: return pn.edge[f][1];
+    case Feature::kEdgeCA: return pn.edge[f][2];
+    case Feature::kFace: break;
+  }
+  return pn.face[f];
+}
+
+// Layers round distances (in voxels) at half-integers, so ties matter. A distance within 1e-6 (relative, and
+// so more than a float's half ulp) of a tie is put on it (a face half a voxel from the voxel centres, with float input coordinates, gives 0.49999995
+// here and 1.49999995 at the next voxel; exact ties round alike), and the float kept for the voxel stays on
+// the double's side of every tie (1.49999995 would otherwise round to the float 1.5 and jump a layer).
+float tie_safe_float(double distance) {
+  const double tie = std::floor(distance) + 0.5;
+  if (std::abs(distance - tie) < 1e-6 * std::max(1.0, std::abs(tie))) distance = tie;
+  float f = float(distance);
+  const double layer = std::floor(distance + 0.5);
+  while (std::floor(double(f) + 0.5) > layer) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+  while (std::floor(double(f) + 0.5) < layer) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+// Signed distances (voxels, index space) of every voxel within `half_width` of the surface; every other voxel
+// gets +-half_width with its inside/outside sign. That sign is carried along each x row from the last band
+// voxel: a row starts outside (its first voxel centre is at most half a voxel inside the bounding box, so were
+// it inside, a face would be within half a voxel: a band voxel), and a step between a band voxel and one
+// outside the band stays more than half_width - 1 from the surface, so it cannot cross it.
+std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeometry& g, float half_width) {
+  const int64_t dims[3] = {g.dims[0], g.dims[1], g.dims[2]};
+  const int64_t W = dims[0], H = dims[1], D = dims[2];
+  const double r = half_width, r2 = r * r;
+  struct IndexTriangle {
+    Vec3 a, b, c, normal;
+    // Unit in-plane normals of the edges, pointing away from the triangle, and their planes' offsets: a point
+    // within r of the triangle is less than r beyond each edge's plane (and its own plane).
+    Vec3 edge_normal[3];
+    double edge_offset[3];
+    int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
+  };
+  const size_t triangle_count = mesh.triangles.size();
+  std::vector<IndexTriangle> triangles(triangle_count);
+  tbb::parallel_for(size_t(0), triangle_count, [&](size_t f) {
+    auto to_index = [&](uint32_t v) {
+      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+                  (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
+    };
+    IndexTriangle& t = triangles[f];
+    t.a = to_index(mesh.triangles[f][0]);
+    t.b = to_index(mesh.triangles[f][1]);
+    t.c = to_index(mesh.triangles[f][2]);
+    t.normal = normalized(cross(t.b - t.a, t.c - t.a));
+    const Vec3* corner[3] = {&t.a, &t.b, &t.c};
+    for (int e = 0; e < 3; ++e) {
+      const Vec3 &from = *corner[e], &to = *corner[(e + 1) % 3], &opposite = *corner[(e + 2) % 3];
+      Vec3 m = normalized(cross(to - from, t.normal));  // zero for a degenerate triangle: no constraint
+      if (dot(m, opposite - from) > 0) m = m * -1.0;
+      t.edge_normal[e] = m;
+      t.edge_offset[e] = dot(m, from);
+    }
+    for (int axis = 0; axis < 3; ++axis) {
+      const double lo = std::min({t.a[axis], t.b[axis], t.c[axis]}), hi = std::max({t.a[axis], t.b[axis], t.c[axis]});
+      t.lo[axis] = std::max<int64_t>(0, int64_t(std::ceil(lo - r)));
+      t.hi[axis] = std::min<int64_t>(dims[axis] - 1, int64_t(std::floor(hi + r)));
+    }
+  });
+
+  // Slabs of z layers, each listing the triangles that reach it (a counting sort: deterministic, and every
+  // slab is written by one task only).
+  constexpr int64_t kSlab = 4;
+  const int64_t slabs = (D + kSlab - 1) / kSlab;
+  std::vector<size_t> first(size_t(slabs) + 1, 0);
+  auto reached = [&](const IndexTriangle& t, auto&& visit) {
+    if (t.lo[0] > t.hi[0] || t.lo[1] > t.hi[1] || t.lo[2] > t.hi[2]) return;
+    for (int64_t s = t.lo[2] / kSlab; s <= t.hi[2] / kSlab; ++s) visit(size_t(s));
+  };
+  for (const IndexTriangle& t : triangles) reached(t, [&](size_t s) { ++first[s + 1]; });
+  for (size_t s = 0; s < size_t(slabs); ++s) first[s + 1] += first[s];
+  std::vector<uint32_t> members(first.back());
+  {
+    std::vector<size_t> next(first.begin(), first.end() - 1);
+    for (size_t f = 0; f < triangle_count; ++f) reached(triangles[f], [&](size_t s) { members[next[s]++] = uint32_t(f); });
+  }
+
+  const Pseudonormals pn = pseudonormals(mesh);
+  std::vector<float> signed_voxels(size_t(W * H * D));
+  constexpr uint64_t kNone = ~uint64_t(0);
+  tbb::parallel_for(int64_t(0), slabs, [&](int64_t s) {
+    const int64_t k0 = s * kSlab, k1 = std::min(D, k0 + kSlab);
+    // Per voxel: (squared distance as float bits, triangle) packed so that the smallest key is the nearest
+    // triangle, ties to the lower index; the order triangles arrive in does not matter.
+    thread_local std::vector<uint64_t> nearest;
+    nearest.assign(size_t((k1 - k0) * H * W), kNone);
+    for (size_t m = first[size_t(s)]; m < first[size_t(s) + 1]; ++m) {
+      const uint32_t f = members[m];
+      const IndexTriangle& t = triangles[f];
+      const Vec3& n = t.normal;
+      for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
+        for (int64_t j = t.lo[1]; j <= t.hi[1]; ++j) {
+          // Only voxels less than r beyond the triangle's plane (both sides) and its three edge planes: each a
+          // constraint alpha * i + beta < r on the row. Long thin triangles (CAD fans) would otherwise scan
+          // their whole bounding box.
+          int64_t i0 = t.lo[0], i1 = t.hi[0];
+          auto below_r = [&](const Vec3& outward, double offset) {
+            const double alpha = outward[0], beta = outward[1] * double(j) + outward[2] * double(k) - offset;
+            if (alpha > 1e-12) {
+              i1 = std::min(i1, int64_t(std::floor((r - beta) / alpha + 1e-9)));
+            } else if (alpha < -1e-12) {
+              i0 = std::max(i0, int64_t(std::ceil((r - beta) / alpha - 1e-9)));
+            } else if (beta >= r + 1e-9) {
+              i1 = i0 - 1;
+            }
+          };
+          const double plane = dot(n, t.a);
+          below_r(n, plane);
+          below_r(n * -1.0, -plane);
+          for (int e = 0; e < 3; ++e) below_r(t.edge_normal[e], t.edge_offset[e]);
+          if (i0 > i1) continue;
+          uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
+          for (int64_t i = i0; i <= i1; ++i) {
+            const Vec3 p{double(i), double(j), double(k)};
+            Feature feature;
+            const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
+            if (!(d2 < r2)) continue;
+            uint32_t bits;
+            const float d2f = float(d2);
+            std::memcpy(&bits, &d2f, sizeof bits);
+            row[i] = std::min(row[i], uint64_t(bits) << 32 | f);
+          }
+        }
+    }
+    for (int64_t k = k0; k < k1; ++k)
+      for (int64_t j = 0; j < H; ++j) {
+        const uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
+        float* out = signed_voxels.data() + (k * H + j) * W;
+        float side_of_row = 1;  // outside until a band voxel says otherwise
+        for (int64_t i = 0; i < W; ++i) {
+          if (row[i] == kNone) {
+            out[i] = side_of_row * half_width;
+            continue;
+          }
+          const size_t f = size_t(row[i] & 0xffffffffu);
+          const IndexTriangle& t = triangles[f];
+          const Vec3 p{double(i), double(j), double(k)};
+          Feature feature;
+          const Vec3 d = p - closest_on_triangle(p, t.a, t.b, t.c, feature);
+          const double sign = dot(d, feature_pseudonormal(pn, mesh, f, feature)) < 0 ? -1 : 1;
+          out[i] = tie_safe_float(sign * length(d));
+          side_of_row = float(sign);
+        }
+      }
+  });
+  return signed_voxels;
+}
+
+// Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
+// smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough that
+// every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
+void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
+                            std::vector<float>& signed_voxels) {
+  const WindingNumber winding(mesh);
+  const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
+  // Outside the surface's bounding box a plane separates the point from the whole surface, which then covers at
+  // most a hemisphere of directions: |winding number| <= 1/2, never inside. Approximation error (far field,
+  // interpolation) must not make it so.
+  const auto [lo, hi] = bounding_box(mesh);
+  auto inside_bounds = [&](int64_t i, int64_t j, int64_t k) {
+    const double p[3] = {g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
+                         g.origin[2] + g.voxel_size * double(k)};
+    for (int a = 0; a < 3; ++a)
+      if (p[a] < lo[a] || p[a] > hi[a]) return false;
+    return true;
+  };
+  const int64_t kStride = std::clamp<int64_t>(int64_t(std::floor(2.0 * half_width / std::sqrt(3.0))), 1, 4);
+  auto lattice = [&](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
+  const int64_t cw = lattice(W), ch = lattice(H), cd = lattice(D);
+  auto at = [&](int64_t a, int64_t n) { return std::min(a * kStride, n - 1); };
+  std::vector<float> coarse(size_t(cw * ch * cd));
+  tbb::parallel_for(int64_t(0), cd, [&](int64_t c) {
+    for (int64_t b = 0; b < ch; ++b)
+      for (int64_t a = 0; a < cw; ++a) {
+        const Vec3 p = {g.origin[0] + g.voxel_size * double(at(a, W)), g.origin[1] + g.voxel_size * double(at(b, H)),
+                        g.origin[2] + g.voxel_size * double(at(c, D))};
+        coarse[size_t((c * ch + b) * cw + a)] = float(winding(p));
+      }
+  });
+  auto weight = [&](int64_t i, int64_t n, int64_t& a) {
+    a = std::min(i / kStride, lattice(n) - 2 < 0 ? 0 : lattice(n) - 2);
+    const int64_t x0 = at(a, n), x1 = at(a + 1, n);
+    return x1 > x0 ? double(i - x0) / double(x1 - x0) : 0.0;
+  };
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    for (int64_t j = 0; j < H; ++j)
+      for (int64_t i = 0; i < W; ++i) {
+        float& value = signed_voxels[size_t((k * H + j) * W + i)];
+        double w;
+        if (std::abs(value) < half_width) {
+          w = winding(Vec3{g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
+                           g.origin[2] + g.voxel_size * double(k)});
+        } else {
+          int64_t a, b, c;
+          const double u = weight(i, W, a), v = weight(j, H, b), t = weight(k, D, c);
+          auto C = [&](int64_t da, int64_t db, int64_t dc) {
+            const int64_t aa = std::min(a + da, cw - 1), bb = std::min(b + db, ch - 1), cc = std::min(c + dc, cd - 1);
+            return double(coarse[size_t((cc * ch + bb) * cw + aa)]);
+          };
+          w = (1 - t) * ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
+              t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
+        }
+        value = w >= 0.5 && inside_bounds(i, j, k) ? -std::abs(value) : std::abs(value);
+      }
+  });
+}
+
+// Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
+// differ by at most one. Computed distances can exceed that by ~1e-6 voxel (tie snapping moves values by up to
+// 1e-6; the nearest triangle is chosen by a float key), enough to straddle two ties and step two layers. Such a pair has one value
+// within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are real
+// errors and are left for the validator to report. Returns the number of values moved.
+size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<uint32_t, 3>& dims) {
+  constexpr double kSlack = 1e-4;
+  const int64_t W = dims[0], H = dims[1], D = dims[2];
+  auto layer = [&](size_t v) { return std::floor(-double(d[v]) + 0.5); };  // penetration, positive inside
+  size_t moved = 0;
+  for (int pass = 0; pass < 4; ++pass) {
+    size_t moved_now = 0;
+    for (int64_t k = 0; k < D; ++k)
+      for (int64_t j = 0; j < H; ++j)
+        for (int64_t i = 0; i < W; ++i) {
+          const size_t v = size_t((k * H + j) * W + i);
+          if (!(std::abs(d[v]) <= band)) continue;
+          const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v, k + 1 < D ? v + size_t(W * H) : v};
+          for (size_t n : next) {
+            if (n == v || !(std::abs(d[n]) <= band) || std::abs(layer(v) - layer(n)) < 2) continue;
+            const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
+            const double gap_lo = layer(lo) + 0.5 - (-double(d[lo]));  // below the tie that would raise it
+            const double gap_hi = -double(d[hi]) - (layer(hi) - 0.5);  // above the tie that would lower it
+            if (std::min(gap_lo, gap_hi) > kSlack) continue;
+            if (gap_lo <= gap_hi)
+              d[lo] = -float(layer(lo) + 0.5);  // exactly on the tie: rounds up
+            else
+              d[hi] = -std::nextafter(float(layer(hi) - 0.5), -std::numeric_limits<float>::infinity());
+            ++moved_now;
+          }
+        }
+    moved += moved_now;
+    if (moved_now == 0) break;
+  }
+  return moved;
+}
+
+}  // namespace
+
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options) {
+  if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
+  const GridGeometry g = plan_grid(mesh, options);
+
+  // Exact distances just past the band (voxels at exactly `band` must be exact too).
+  const float half_width = float(options.distance_band) + 0.5f;
+  std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width);
+
+  Voxelmap vm;
+  vm.origin = g.origin;
+  vm.voxel_size = g.voxel_size;
+  vm.dims = g.dims;
+  vm.distance_band = options.distance_band;
+  vm.margin = options.margin;
+  const size_t count = vm.voxel_count();
+
+  if (options.winding_number_sign) sign_by_winding_number(mesh, g, half_width, signed_voxels);
+  repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
+
+  // Distances are stored in the band. Layers are rounded from the distances in voxel units, where a voxel
+  // centre exactly half a voxel off a face (common: the grid is aligned to the bounding box) is an exact tie,
+  // so neighbours round alike; the chamfer is seeded with the same values, so band and chamfer layers of
+  // 6-neighbours differ by <= 1. Converting to metres in float would turn such ties into +-1 ulp noise and
+  // round 2.5 up but 1.5 down (a step of 2), so each stored value is then nudged by ulps until the spec's
+  // floor(-d/h + 1/2), evaluated on the stored float as a reader does, gives the layer chosen here.
+  const float band = float(options.distance_band);
+  std::vector<uint8_t> flags(count);  // kFixed: exact distance in the band; kInside: negative signed distance
+  constexpr uint8_t kFixed = 1, kInside = 2;
+  vm.distances.resize(count);
+  vm.layers.resize(count);
+  std::vector<double> magnitude(count);
+  const double h = g.voxel_size;
+  auto layer_of = [](double depth) { return std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0); };
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t v = r.begin(); v < r.end(); ++v) {
+      const float d = signed_voxels[v];
+      const bool in_band = std::abs(d) <= band;
+      flags[v] = uint8_t((in_band ? kFixed : 0) | (d < 0 ? kInside : 0));
+      if (!in_band) {
+        vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
+        magnitude[v] = std::numeric_limits<double>::infinity();
+        continue;
+      }
+      magnitude[v] = std::abs(double(d));
+      const double layer = layer_of(-double(d));
+      float stored = float(double(d) * h);
+      for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
+        const double read = layer_of(-double(stored) / h);
+        if (read == layer) break;
+        // A larger distance gives a smaller layer.
+        stored = std::nextafter(stored, read > layer ? std::numeric_limits<float>::infinity()
+                                                     : -std::numeric_limits<float>::infinity());
+      }
+      vm.distances[v] = stored;
+      vm.layers[v] = int16_t(layer);
+    }
+  });
+  std::vector<float>().swap(signed_voxels);
+  chamfer_transform(magnitude, flags, kFixed, g.dims);
+
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t v = r.begin(); v < r.end(); ++v) {
+      if (flags[v] & kFixed) continue;
+      // Penetration in voxels is positive inside.
+      vm.layers[v] = int16_t(layer_of((flags[v] & kInside) ? magnitude[v] : -magnitude[v]));
+    }
+  });
+  return vm;
+}
+
+}  // namespace voxfmt::bake

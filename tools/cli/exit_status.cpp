@@ -1,0 +1,25 @@
+// How every subcommand turns an error code into its exit status: one table.
+#include <iostream>
+
+#include "commands.h"
+
+namespace voxfmt::cli {
+
+namespace {
+// Exit 2: the command could not do its work for reasons outside the data (a bad argument, a missing file,
+// a file that cannot be written). Every other code means the input itself is bad: exit 1.
+constexpr IssueCode kUsageOrIo[] = {IssueCode::BadOption, IssueCode::FileNotFound, IssueCode::WriteFailed};
+}  // namespace
+
+int exit_status(IssueCode code) {
+  for (IssueCode usage : kUsageOrIo)
+    if (code == usage) return kExitUsageOrIo;
+  return kExitInvalid;
+}
+
+int report_error(const char* command, const Error& error) {
+  std::cerr << "voxfmt " << command << ": error: " << error.describe() << "\n";
+  return exit_status(error.code);
+}
+
+}  // namespace voxfmt::cli
