@@ -6,9 +6,9 @@
 #include <BulletCollision/CollisionShapes/btShapeHull.h>
 #include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
 #include <BulletCollision/Gimpact/btGImpactShape.h>
-#include <CLI/CLI.hpp>
 #include <HACD/hacdHACD.h>
 #include <btBulletDynamicsCommon.h>
+#include <CLI/CLI.hpp>
 
 #include <algorithm>
 #include <chrono>
@@ -250,8 +250,8 @@ RunResult run(const std::string& scene, const std::string& method, const MethodS
     for (int m = 0; m < world.dispatcher().getNumManifolds(); ++m)
       contacts += world.dispatcher().getManifoldByIndexInternal(m)->getNumContacts();
     const int pairs = world.dynamics().getBroadphase()->getOverlappingPairCache()->getNumOverlappingPairs();
-    result.steps.push_back({step, world.dispatcher().last_narrow_phase_us(), pairs, contacts,
-                            double(body->getLinearVelocity().length())});
+    result.steps.push_back(
+        {step, world.dispatcher().last_narrow_phase_us(), pairs, contacts, double(body->getLinearVelocity().length())});
     if (std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() > options.wall_budget) {
       result.stopped_early = true;
       break;
@@ -300,9 +300,11 @@ std::string json_escape(const std::string& s) {
 
 int main(int argc, char** argv) {
   Options options;
-  CLI::App app{"bunny_drop — the seed's Figure 2: drop the CGAL bunny onto a table and onto a bunny with VPS, "
-               "GImpact, an HACD decomposition and a convex hull; writes CSV, JSON and a PNG"};
-  app.add_option("--asset", options.asset, "baked bunny asset (voxfmt build bunny00.off --resolution 306 --points 35000)")
+  CLI::App app{
+      "bunny_drop — the seed's Figure 2: drop the CGAL bunny onto a table and onto a bunny with VPS, "
+      "GImpact, an HACD decomposition and a convex hull; writes CSV, JSON and a PNG"};
+  app.add_option("--asset", options.asset,
+                 "baked bunny asset (voxfmt build bunny00.off --resolution 306 --points 35000)")
       ->capture_default_str();
   app.add_option("--mesh", options.mesh, "the bunny mesh, for GImpact, HACD and the hull")->capture_default_str();
   app.add_option("-o,--out", options.out_dir, "output folder for bunny_drop.csv, .json, .png")->capture_default_str();
@@ -311,7 +313,8 @@ int main(int argc, char** argv) {
   app.add_option("--wall-budget", options.wall_budget, "wall-clock seconds after which a run stops early")
       ->capture_default_str();
   app.add_option("--methods", options.methods, "subset of vps-fine vps-coarse gimpact hacd hull")
-      ->delimiter(',')->capture_default_str();
+      ->delimiter(',')
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (options.hacd_cache.empty()) options.hacd_cache = options.out_dir + "/bunny00.hacd.txt";
 
@@ -327,9 +330,9 @@ int main(int argc, char** argv) {
     bunny.object = loaded.value();
     const double load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
     const double runtime_mb = double(bunny.object->memory_bytes()) / 1e6;
-    std::cout << "loaded " << options.asset << " in " << std::setprecision(3) << load_seconds << " s: "
-              << runtime_mb << " MB in runtime structures (voxelmap "
-              << double(bunny.object->voxelmap().memory_bytes()) / 1e6 << " MB)\n";
+    std::cout << "loaded " << options.asset << " in " << std::setprecision(3) << load_seconds << " s: " << runtime_mb
+              << " MB in runtime structures (voxelmap " << double(bunny.object->voxelmap().memory_bytes()) / 1e6
+              << " MB)\n";
     const voxfmt::Result<voxfmt::bake::TriangleMesh> read = voxfmt::bake::read_mesh(options.mesh);
     if (!read) {
       std::cerr << "bunny_drop: " << read.error().message << "\n";
@@ -338,7 +341,8 @@ int main(int argc, char** argv) {
     const voxfmt::bake::TriangleMesh& mesh = read.value();
     bunny.frame = std::make_shared<VpsMixedShape>(bunny.object);
     for (const voxfmt::Vec3& v : mesh.vertices)
-      bunny.vertices.push_back(bunny.frame->asset_to_shape()(btVector3(btScalar(v[0]), btScalar(v[1]), btScalar(v[2]))));
+      bunny.vertices.push_back(
+          bunny.frame->asset_to_shape()(btVector3(btScalar(v[0]), btScalar(v[1]), btScalar(v[2]))));
     for (const auto& t : mesh.triangles)
       for (uint32_t i : t) bunny.indices.push_back(int(i));
     btTriangleIndexVertexArray triangles(int(bunny.indices.size() / 3), bunny.indices.data(), 3 * sizeof(int),
@@ -361,18 +365,19 @@ int main(int argc, char** argv) {
     csv << "scene,method,step,narrow_phase_us,pairs,contacts,linear_speed\n";
     for (const RunResult& r : results)
       for (const StepRecord& s : r.steps)
-        csv << r.scene << "," << r.method << "," << s.step << "," << s.narrow_us << "," << s.pairs << ","
-            << s.contacts << "," << s.speed << "\n";
+        csv << r.scene << "," << r.method << "," << s.step << "," << s.narrow_us << "," << s.pairs << "," << s.contacts
+            << "," << s.speed << "\n";
     csv.close();
 
     const std::string json_path = options.out_dir + "/bunny_drop.json";
     std::ofstream json(json_path);
-    json << "{\n  \"asset\": \"" << json_escape(options.asset) << "\",\n  \"points\": " << bunny.object->point_tree().size()
-         << ",\n  \"load_s\": " << load_seconds << ",\n  \"runtime_memory_mb\": " << runtime_mb
-         << ",\n  \"time_step_s\": 0.001,\n  \"runs\": [\n";
+    json << "{\n  \"asset\": \"" << json_escape(options.asset)
+         << "\",\n  \"points\": " << bunny.object->point_tree().size() << ",\n  \"load_s\": " << load_seconds
+         << ",\n  \"runtime_memory_mb\": " << runtime_mb << ",\n  \"time_step_s\": 0.001,\n  \"runs\": [\n";
     std::cout << std::left << std::setw(7) << "scene" << std::setw(12) << "method" << std::right << std::setw(8)
               << "steps" << std::setw(14) << "p50 us/pair" << std::setw(12) << "p90 us" << std::setw(12) << "mean us"
-              << std::setw(14) << "final speed" << std::setw(10) << "early" << "\n";
+              << std::setw(14) << "final speed" << std::setw(10) << "early"
+              << "\n";
     std::map<std::string, double> p50;
     for (size_t i = 0; i < results.size(); ++i) {
       const RunResult& r = results[i];
@@ -383,9 +388,9 @@ int main(int argc, char** argv) {
            << ", \"narrow_phase_us_p50\": " << f.p50 << ", \"narrow_phase_us_p90\": " << f.p90
            << ", \"narrow_phase_us_mean\": " << f.mean
            << ", \"final_linear_speed\": " << (r.steps.empty() ? 0.0 : r.steps.back().speed)
-           << ", \"final_center_of_mass_y\": " << r.final_height << ", \"stopped_early\": "
-           << (r.stopped_early ? "true" : "false") << ", \"precompute_s\": " << precompute[r.method] << "}"
-           << (i + 1 < results.size() ? "," : "") << "\n";
+           << ", \"final_center_of_mass_y\": " << r.final_height
+           << ", \"stopped_early\": " << (r.stopped_early ? "true" : "false")
+           << ", \"precompute_s\": " << precompute[r.method] << "}" << (i + 1 < results.size() ? "," : "") << "\n";
       std::cout << std::left << std::setw(7) << r.scene << std::setw(12) << r.method << std::right << std::setw(8)
                 << r.steps.size() << std::setw(14) << std::fixed << std::setprecision(1) << f.per_pair_p50
                 << std::setw(12) << f.p90 << std::setw(12) << f.mean << std::setw(14) << std::setprecision(5)
@@ -395,8 +400,8 @@ int main(int argc, char** argv) {
     json << "  ],\n  \"speedups\": {";
     bool first = true;
     for (const std::string scene : {"table", "bunny"})
-      for (const auto& [slow, fast] : {std::pair{"gimpact", "vps-fine"}, std::pair{"hacd", "vps-coarse"},
-                                       std::pair{"hacd", "vps-fine"}}) {
+      for (const auto& [slow, fast] :
+           {std::pair{"gimpact", "vps-fine"}, std::pair{"hacd", "vps-coarse"}, std::pair{"hacd", "vps-fine"}}) {
         const std::string a = scene + "/" + slow, b = scene + "/" + fast;
         if (!p50.count(a) || !p50.count(b) || p50[b] <= 0) continue;
         json << (first ? "" : ",") << "\n    \"" << scene << ": " << slow << " / " << fast << "\": " << p50[a] / p50[b];

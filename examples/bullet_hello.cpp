@@ -26,7 +26,8 @@ int main(int argc, char** argv) {
   // The shape's frame is the asset's principal frame: mass properties come from the asset.
   auto shape = std::make_shared<voxfmt::bullet::VpsMixedShape>(object.value());
   const double drop = 2 * object.value()->bounding_radius();
-  btRigidBody* body = world.add_body(shape, 1.0, btTransform(btQuaternion::getIdentity(), btVector3(0, btScalar(drop), 0)));
+  btRigidBody* body =
+      world.add_body(shape, 1.0, btTransform(btQuaternion::getIdentity(), btVector3(0, btScalar(drop), 0)));
   for (int step = 1; step <= 2000; ++step) {
     world.step(btScalar(1.0 / 1000));
     if (step % 500 == 0)

@@ -36,7 +36,9 @@ voxfmt::Asset make_sphere_asset() {
     for (uint32_t j = 0; j < n; ++j)
       for (uint32_t i = 0; i < n; ++i) {
         const voxfmt::Vec3 p = vm.voxel_center(i, j, k);
-        const double d = std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2])) - r;
+        const double d =
+            std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2])) -
+            r;
         const size_t v = vm.linear_index(i, j, k);
         vm.layers[v] = int16_t(std::floor(-d / h + 0.5));
         vm.distances[v] = std::abs(d) <= band * h + 1e-12 ? float(d) : std::nanf("");
@@ -56,14 +58,17 @@ voxfmt::Asset make_sphere_asset() {
     ps.child_begin.push_back(first);
     ps.child_count.push_back(std::min(branching * i + branching + 1, n_points) - first);
   }
-  for (uint32_t begin = 0, width = 1; begin < n_points; begin += width, width *= branching) ps.level_offsets.push_back(begin);
+  for (uint32_t begin = 0, width = 1; begin < n_points; begin += width, width *= branching)
+    ps.level_offsets.push_back(begin);
   ps.level_offsets.push_back(n_points);
   ps.branching = branching;
   // Each sphere is centred on its node's point and reaches its farthest descendant.
   std::function<double(uint32_t, const voxfmt::Vec3&)> farthest = [&](uint32_t node, const voxfmt::Vec3& from) {
     const voxfmt::Vec3& p = ps.points[node];
-    double d = std::sqrt((p[0] - from[0]) * (p[0] - from[0]) + (p[1] - from[1]) * (p[1] - from[1]) + (p[2] - from[2]) * (p[2] - from[2]));
-    for (uint32_t ch = ps.child_begin[node]; ch < ps.child_begin[node] + ps.child_count[node]; ++ch) d = std::max(d, farthest(ch, from));
+    double d = std::sqrt((p[0] - from[0]) * (p[0] - from[0]) + (p[1] - from[1]) * (p[1] - from[1]) +
+                         (p[2] - from[2]) * (p[2] - from[2]));
+    for (uint32_t ch = ps.child_begin[node]; ch < ps.child_begin[node] + ps.child_count[node]; ++ch)
+      d = std::max(d, farthest(ch, from));
     return d;
   };
   for (uint32_t i = 0; i < n_points; ++i) {

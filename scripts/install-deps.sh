@@ -4,7 +4,7 @@
 set -euo pipefail
 
 PACKAGES=(
-  build-essential cmake ninja-build ccache pkg-config git
+  build-essential cmake ninja-build ccache pkg-config git clang-format-14
   libeigen3-dev
   libassimp-dev
   libopenvdb-dev libtbb-dev libblosc-dev libboost-iostreams-dev

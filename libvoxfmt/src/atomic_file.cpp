@@ -52,7 +52,8 @@ Status write_file_atomically(const std::string& path, const AtomicWrite& steps) 
     if (!check) return fail(check);
   }
   if (std::rename(temp.c_str(), path.c_str()) != 0)
-    return fail(write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno)));
+    return fail(
+        write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno)));
   sync_path(parent_directory(path), true);  // best effort: the file is complete either way
   return Status::success();
 }

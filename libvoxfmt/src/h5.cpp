@@ -4,14 +4,14 @@
 
 #include <algorithm>
 #include <atomic>
-#include <functional>
-#include <system_error>
-#include <thread>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <new>
 #include <sstream>
+#include <system_error>
+#include <thread>
 
 namespace voxfmt::h5 {
 
@@ -39,7 +39,10 @@ std::string shape_to_string(const Shape& shape) {
   s << '[';
   for (size_t i = 0; i < shape.size(); ++i) {
     s << (i ? ", " : "");
-    if (shape[i] < 0) s << 'n'; else s << shape[i];
+    if (shape[i] < 0)
+      s << 'n';
+    else
+      s << shape[i];
   }
   s << ']';
   return s.str();
@@ -50,14 +53,30 @@ std::string describe_type(hid_t type) {
   size_t size = H5Tget_size(type);
   std::ostringstream s;
   switch (cls) {
-    case H5T_INTEGER: s << (H5Tget_sign(type) == H5T_SGN_NONE ? "unsigned " : "signed ") << size * 8 << "-bit integer"; break;
-    case H5T_FLOAT: s << size * 8 << "-bit float"; break;
-    case H5T_STRING: s << "string"; break;
-    case H5T_COMPOUND: s << "compound"; break;
-    case H5T_ARRAY: s << "array type"; break;
-    case H5T_VLEN: s << "variable-length sequence"; break;
-    case H5T_ENUM: s << "enum"; break;
-    default: s << "HDF5 type class " << int(cls); break;
+    case H5T_INTEGER:
+      s << (H5Tget_sign(type) == H5T_SGN_NONE ? "unsigned " : "signed ") << size * 8 << "-bit integer";
+      break;
+    case H5T_FLOAT:
+      s << size * 8 << "-bit float";
+      break;
+    case H5T_STRING:
+      s << "string";
+      break;
+    case H5T_COMPOUND:
+      s << "compound";
+      break;
+    case H5T_ARRAY:
+      s << "array type";
+      break;
+    case H5T_VLEN:
+      s << "variable-length sequence";
+      break;
+    case H5T_ENUM:
+      s << "enum";
+      break;
+    default:
+      s << "HDF5 type class " << int(cls);
+      break;
   }
   return s.str();
 }
@@ -117,7 +136,7 @@ bool Reader::has_attribute(hid_t object, const std::string& name) {
 }
 
 std::optional<Handle> Reader::open_member(hid_t parent, const std::string& parent_path, const std::string& name,
-                                         bool want_group) {
+                                          bool want_group) {
   const std::string path = join_path(parent_path, name);
   const char* kind = want_group ? "group" : "dataset";
   if (!has_member(parent, name)) {
@@ -142,7 +161,7 @@ std::optional<Handle> Reader::group(hid_t parent, const std::string& parent_path
 }
 
 std::optional<Handle> Reader::open_attribute(hid_t object, const std::string& object_path, const std::string& name,
-                                            std::string& path) {
+                                             std::string& path) {
   path = object_path + (object_path == "/" ? "" : "/") + "@" + name;
   if (!has_attribute(object, name)) {
     report(IssueCode::MissingObject, path, "required attribute is missing");
@@ -167,8 +186,7 @@ bool Reader::check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed
   return ok;
 }
 
-bool Reader::check_shape(hid_t space, const Shape& expected, const std::string& path,
-                         std::vector<uint64_t>& actual) {
+bool Reader::check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual) {
   H5S_class_t space_class = H5Sget_simple_extent_type(space);
   actual.clear();
   if (space_class == H5S_SIMPLE) {
@@ -181,9 +199,10 @@ bool Reader::check_shape(hid_t space, const Shape& expected, const std::string& 
     return false;
   }
   bool ok = actual.size() == expected.size();
-  for (size_t i = 0; ok && i < expected.size(); ++i)
-    ok = expected[i] < 0 || uint64_t(expected[i]) == actual[i];
-  if (!ok) report(IssueCode::WrongShape, path, "shape is " + dims_to_string(actual) + ", expected " + shape_to_string(expected));
+  for (size_t i = 0; ok && i < expected.size(); ++i) ok = expected[i] < 0 || uint64_t(expected[i]) == actual[i];
+  if (!ok)
+    report(IssueCode::WrongShape, path,
+           "shape is " + dims_to_string(actual) + ", expected " + shape_to_string(expected));
   return ok;
 }
 
@@ -369,8 +388,8 @@ bool little_endian_host() {
 // writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose every value
 // is bitwise `*fill` are skipped.
 template <class T>
-bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk, const T* data,
-                              int level, const T* fill) {
+bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk,
+                              const T* data, int level, const T* fill) {
   const hsize_t grid[3] = {(dims[0] + chunk[0] - 1) / chunk[0], (dims[1] + chunk[1] - 1) / chunk[1],
                            (dims[2] + chunk[2] - 1) / chunk[2]};
   const size_t chunk_count = size_t(grid[0] * grid[1] * grid[2]);
@@ -400,7 +419,8 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
           std::memcpy(&block[(a * chunk[1] + b) * chunk[2]], data + row, n * sizeof(T));
         }
       // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
-      if (fill && std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
+      if (fill &&
+          std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
         continue;
       const unsigned char* bytes = reinterpret_cast<const unsigned char*>(block.data());
       for (size_t e = 0; e < elements; ++e)
@@ -423,7 +443,8 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
   if (failed) return false;
   for (size_t c = 0; c < chunk_count; ++c) {
     if (compressed[c].empty()) continue;
-    const hsize_t offset[3] = {c / (grid[1] * grid[2]) * chunk[0], c / grid[2] % grid[1] * chunk[1], c % grid[2] * chunk[2]};
+    const hsize_t offset[3] = {c / (grid[1] * grid[2]) * chunk[0], c / grid[2] % grid[1] * chunk[1],
+                               c % grid[2] * chunk[2]};
     if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset, compressed[c].size(), compressed[c].data()) < 0) return false;
   }
   return true;
@@ -450,9 +471,9 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
       H5Pset_deflate(dcpl.get(), unsigned(std::min(deflate_level, 9)));
     }
   }
-  Handle dset(H5Dcreate2(group, name.c_str(), TypeTraits<T>::file_type(), space.get(), H5P_DEFAULT, dcpl.get(),
-                         H5P_DEFAULT),
-              H5Dclose);
+  Handle dset(
+      H5Dcreate2(group, name.c_str(), TypeTraits<T>::file_type(), space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT),
+      H5Dclose);
   if (!dset.valid()) return fail("cannot create dataset " + name);
   if (count == 0) return true;
   if (chunk_edge > 0 && deflate_level > 0 && dims.size() == 3 && little_endian_host()) {
@@ -467,15 +488,14 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   return true;
 }
 
-#define VOXFMT_INSTANTIATE(T)                                                                                   \
-  template std::optional<std::vector<T>> Reader::numeric_attribute<T>(hid_t, const std::string&,              \
-                                                                      const std::string&, const Shape&);      \
-  template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,    \
-                                                            const Shape&, std::vector<uint64_t>*);            \
-  template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&,         \
-                                             const T*);                                                       \
-  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,    \
-                                   unsigned, const T*);
+#define VOXFMT_INSTANTIATE(T)                                                                                        \
+  template std::optional<std::vector<T>> Reader::numeric_attribute<T>(hid_t, const std::string&, const std::string&, \
+                                                                      const Shape&);                                 \
+  template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,           \
+                                                            const Shape&, std::vector<uint64_t>*);                   \
+  template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*);     \
+  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int, unsigned, \
+                                   const T*);
 VOXFMT_INSTANTIATE(int16_t)
 VOXFMT_INSTANTIATE(uint32_t)
 VOXFMT_INSTANTIATE(float)

@@ -105,11 +105,10 @@ class Reader {
   bool has_attribute(hid_t object, const std::string& name);
   bool has_member(hid_t parent, const std::string& name);
 
-  std::optional<std::string> string_attribute(hid_t object, const std::string& object_path,
-                                              const std::string& name);
+  std::optional<std::string> string_attribute(hid_t object, const std::string& object_path, const std::string& name);
   template <class T>
-  std::optional<std::vector<T>> numeric_attribute(hid_t object, const std::string& object_path,
-                                                  const std::string& name, const Shape& shape);
+  std::optional<std::vector<T>> numeric_attribute(hid_t object, const std::string& object_path, const std::string& name,
+                                                  const Shape& shape);
   /// Reads dataset `name` of `group`; `shape_out` receives its extents.
   template <class T>
   std::optional<std::vector<T>> dataset(hid_t group, const std::string& group_path, const std::string& name,
@@ -123,12 +122,12 @@ class Reader {
 
  private:
   /// Opens member `name` of `parent` and checks it is a group (or a dataset).
-  std::optional<Handle> open_member(hid_t parent, const std::string& parent_path, const std::string& name, bool want_group);
+  std::optional<Handle> open_member(hid_t parent, const std::string& parent_path, const std::string& name,
+                                    bool want_group);
   /// Opens attribute `name` of `object`; `path` receives its "/group/@name" path for messages.
   std::optional<Handle> open_attribute(hid_t object, const std::string& object_path, const std::string& name,
                                        std::string& path);
-  bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name,
-                  const std::string& path);
+  bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name, const std::string& path);
   bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
 
   std::string file_;
@@ -145,8 +144,7 @@ class Writer {
   std::optional<Handle> create_group(hid_t parent, const std::string& name);
   bool string_attribute(hid_t object, const std::string& name, const std::string& value);
   template <class T>
-  bool numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape,
-                         const T* data);
+  bool numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape, const T* data);
   /// With `fill` (chunked only): the dataset's fill value; chunks holding nothing else are not written (they
   /// read back as the fill value), which saves their compression and their space.
   template <class T>

@@ -69,9 +69,12 @@ std::optional<IssueCode> code_from_name(const std::string& name) {
 Severity severity_of(IssueCode code) { return info(code).severity; }
 const char* severity_name(Severity severity) {
   switch (severity) {
-    case Severity::Error: return "error";
-    case Severity::Warning: return "warning";
-    case Severity::Info: return "info";
+    case Severity::Error:
+      return "error";
+    case Severity::Warning:
+      return "warning";
+    case Severity::Info:
+      return "info";
   }
   return "error";
 }

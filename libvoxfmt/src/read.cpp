@@ -39,7 +39,8 @@ void report_unknown(h5::Reader& r, hid_t object, const std::string& path, std::s
   if (is_group)
     for (const std::string& name : r.member_names(object))
       if (!known_members.count(name))
-        r.report(IssueCode::UnknownObject, h5::join_path(path, name), "object not defined by this format version; ignored");
+        r.report(IssueCode::UnknownObject, h5::join_path(path, name),
+                 "object not defined by this format version; ignored");
   for (const std::string& name : r.attribute_names(object))
     if (!known_attributes.count(name))
       r.report(IssueCode::UnknownObject, path + (path == "/" ? "" : "/") + "@" + name,
@@ -59,9 +60,9 @@ void read_voxelmap(h5::Reader& r, hid_t g, Voxelmap& vm) {
   vm.dims = {(*dims)[0], (*dims)[1], (*dims)[2]};
   uint64_t count = uint64_t(vm.dims[0]) * vm.dims[1] * vm.dims[2];
   if (count == 0 || count > 0x7fffffffull) {
-    r.report(IssueCode::ValueOutOfRange, p + "/@dims", "dims [" + std::to_string(vm.dims[0]) + ", " +
-                                                             std::to_string(vm.dims[1]) + ", " + std::to_string(vm.dims[2]) +
-                                                             "] must each be >= 1 with at most 2^31-1 voxels in all");
+    r.report(IssueCode::ValueOutOfRange, p + "/@dims",
+             "dims [" + std::to_string(vm.dims[0]) + ", " + std::to_string(vm.dims[1]) + ", " +
+                 std::to_string(vm.dims[2]) + "] must each be >= 1 with at most 2^31-1 voxels in all");
     return;
   }
   const h5::Shape grid = {int64_t(vm.dims[2]), int64_t(vm.dims[1]), int64_t(vm.dims[0])};
@@ -88,7 +89,8 @@ void read_point_shell(h5::Reader& r, hid_t g, PointShell& ps) {
   if (auto v = r.dataset<double>(g, p, "sphere_radii", {n})) ps.sphere_radii = std::move(*v);
   if (auto v = r.dataset<uint32_t>(g, p, "child_begin", {n})) ps.child_begin = std::move(*v);
   if (auto v = r.dataset<uint32_t>(g, p, "child_count", {n})) ps.child_count = std::move(*v);
-  report_unknown(r, g, p, {"points", "normals", "sphere_centers", "sphere_radii", "child_begin", "child_count", "level_offsets"},
+  report_unknown(r, g, p,
+                 {"points", "normals", "sphere_centers", "sphere_radii", "child_begin", "child_count", "level_offsets"},
                  {"point_spacing", "branching"}, true);
 }
 
@@ -114,7 +116,10 @@ void read_provenance(h5::Reader& r, hid_t g, Provenance& prov) {
     bool ok = j.is_object();
     if (ok)
       for (const auto& [name, version] : j.items()) {
-        if (!version.is_string()) { ok = false; break; }
+        if (!version.is_string()) {
+          ok = false;
+          break;
+        }
         prov.dependency_versions[name] = version.get<std::string>();
       }
     if (!ok) r.report(IssueCode::InvalidJson, p + "/@dependency_versions", "is not a JSON object of strings");
@@ -125,7 +130,10 @@ void read_provenance(h5::Reader& r, hid_t g, Provenance& prov) {
     if (ok)
       for (const auto& w : j) {
         if (!w.is_object() || !w.contains("code") || !w.contains("message") || !w["code"].is_string() ||
-            !w["message"].is_string()) { ok = false; break; }
+            !w["message"].is_string()) {
+          ok = false;
+          break;
+        }
         prov.build_warnings.push_back({w["code"].get<std::string>(), w["message"].get<std::string>()});
       }
     if (!ok) r.report(IssueCode::InvalidJson, p + "/@build_warnings", "is not a JSON array of {code, message} objects");
@@ -217,7 +225,8 @@ Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings) 
       issues.insert(issues.end(), more.begin(), more.end());
     }
     for (const Issue& issue : issues)
-      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
+      if (issue.severity == Severity::Error)
+        return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
     if (warnings)
       for (const Issue& issue : issues)
         if (issue.severity == Severity::Warning) warnings->push_back(issue);
@@ -232,7 +241,8 @@ Result<Provenance> read_provenance(const std::string& path) {
   try {
     std::optional<Provenance> provenance = detail::load_provenance(path, issues);
     for (const Issue& issue : issues)
-      if (issue.severity == Severity::Error) return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
+      if (issue.severity == Severity::Error)
+        return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
     return std::move(*provenance);
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::OutOfMemory, path + ": not enough memory to read the provenance", path};

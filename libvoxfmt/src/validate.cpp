@@ -4,8 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <optional>
 #include <new>
+#include <optional>
 #include <sstream>
 
 #include "load.h"
@@ -60,7 +60,8 @@ void check_voxelmap(const Voxelmap& vm, Checker& c) {
   if (!std::isfinite(vm.distance_band))
     c.add(IssueCode::NonFiniteValue, g + "/@distance_band", "distance band is not finite");
   else if (vm.distance_band < 1)
-    c.add(IssueCode::ValueOutOfRange, g + "/@distance_band", "distance band " + fmt(vm.distance_band) + " voxels is < 1");
+    c.add(IssueCode::ValueOutOfRange, g + "/@distance_band",
+          "distance band " + fmt(vm.distance_band) + " voxels is < 1");
   uint64_t count = 1;
   for (uint32_t d : vm.dims) count *= d;
   if (vm.dims[0] == 0 || vm.dims[1] == 0 || vm.dims[2] == 0 || count > 0x7fffffffull) {
@@ -68,12 +69,15 @@ void check_voxelmap(const Voxelmap& vm, Checker& c) {
     return;
   }
   if (vm.layers.size() != count)
-    c.add(IssueCode::WrongShape, g + "/layers", "holds " + std::to_string(vm.layers.size()) + " voxels, dims say " + std::to_string(count));
+    c.add(IssueCode::WrongShape, g + "/layers",
+          "holds " + std::to_string(vm.layers.size()) + " voxels, dims say " + std::to_string(count));
   if (vm.distances.size() != count)
-    c.add(IssueCode::WrongShape, g + "/distances", "holds " + std::to_string(vm.distances.size()) + " voxels, dims say " + std::to_string(count));
+    c.add(IssueCode::WrongShape, g + "/distances",
+          "holds " + std::to_string(vm.distances.size()) + " voxels, dims say " + std::to_string(count));
   for (size_t v = 0; v < vm.distances.size(); ++v)
     if (std::isinf(vm.distances[v])) {
-      c.add(IssueCode::NonFiniteValue, g + "/distances", "voxel " + std::to_string(v) + " holds an infinite distance (use NaN for 'not stored')");
+      c.add(IssueCode::NonFiniteValue, g + "/distances",
+            "voxel " + std::to_string(v) + " holds an infinite distance (use NaN for 'not stored')");
       break;
     }
 }
@@ -106,23 +110,24 @@ void check_tree(const PointShell& ps, Checker& c) {
       }
       if (begin < next_begin || begin + count > next_end) {
         c.add(IssueCode::ChildRangeInvalid, g + "/child_begin",
-              "node " + std::to_string(node) + " (level " + std::to_string(l) + ") has children [" + std::to_string(begin) +
-                  ", " + std::to_string(begin + count) + ") outside the next level [" + std::to_string(next_begin) + ", " +
-                  std::to_string(next_end) + ")");
+              "node " + std::to_string(node) + " (level " + std::to_string(l) + ") has children [" +
+                  std::to_string(begin) + ", " + std::to_string(begin + count) + ") outside the next level [" +
+                  std::to_string(next_begin) + ", " + std::to_string(next_end) + ")");
         return;
       }
       if (begin != expected) {
         c.add(IssueCode::TreeNotBreadthFirst, g + "/child_begin",
-              "node " + std::to_string(node) + " has first child " + std::to_string(begin) + ", breadth-first order needs " +
-                  std::to_string(expected));
+              "node " + std::to_string(node) + " has first child " + std::to_string(begin) +
+                  ", breadth-first order needs " + std::to_string(expected));
         return;
       }
       expected += count;
     }
     if (expected != next_end) {
       c.add(IssueCode::TreeNotBreadthFirst, g + "/child_count",
-            "nodes of level " + std::to_string(l) + " have " + std::to_string(expected - next_begin) + " children, level " +
-                std::to_string(l + 1) + " has " + std::to_string(next_end - next_begin) + " nodes");
+            "nodes of level " + std::to_string(l) + " have " + std::to_string(expected - next_begin) +
+                " children, level " + std::to_string(l + 1) + " has " + std::to_string(next_end - next_begin) +
+                " nodes");
       return;
     }
   }
@@ -137,7 +142,8 @@ void check_point_shell(const PointShell& ps, Checker& c) {
   }
   auto same_size = [&](size_t size, const char* name) {
     if (size == n) return true;
-    c.add(IssueCode::WrongShape, g + "/" + name, "has " + std::to_string(size) + " rows, points has " + std::to_string(n));
+    c.add(IssueCode::WrongShape, g + "/" + name,
+          "has " + std::to_string(size) + " rows, points has " + std::to_string(n));
     return false;
   };
   bool sizes_ok = same_size(ps.normals.size(), "normals") & same_size(ps.sphere_centers.size(), "sphere_centers") &
@@ -191,7 +197,8 @@ void check_provenance(const Provenance& p, Checker& c) {
     c.add(IssueCode::InvalidJson, g + "/@build_parameters", "build_parameters is not a JSON object");
   bool sha_ok = p.source_sha256.empty() || p.source_sha256.size() == 64;
   for (char ch : p.source_sha256) sha_ok = sha_ok && ((ch >= '0' && ch <= '9') || (ch >= 'a' && ch <= 'f'));
-  if (!sha_ok) c.add(IssueCode::BadSha256, g + "/@source_sha256", "'" + p.source_sha256 + "' is not 64 lowercase hex digits");
+  if (!sha_ok)
+    c.add(IssueCode::BadSha256, g + "/@source_sha256", "'" + p.source_sha256 + "' is not 64 lowercase hex digits");
 }
 
 // ---- full level: semantic rules (spec §3-§5)
@@ -226,19 +233,20 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
       }
     } else if (!band_reported && std::abs(layer) < min_outside) {
       c.add(IssueCode::LayerOutsideBandTooSmall, g + "/layers",
-            voxel_name(vm, v) + " has no stored distance but layer " + std::to_string(layer) + " (|layer| must be >= " +
-                std::to_string(min_outside) + " outside the band)");
+            voxel_name(vm, v) + " has no stored distance but layer " + std::to_string(layer) +
+                " (|layer| must be >= " + std::to_string(min_outside) + " outside the band)");
       band_reported = true;
     }
     if (!closed_surface) continue;  // across a closed hole both rules may break (spec §3)
     const size_t i = v % W, j = v / W % vm.dims[1], k = v / WH;
-    const size_t neighbours[3] = {i + 1 < W ? v + 1 : v, j + 1 < vm.dims[1] ? v + W : v, k + 1 < vm.dims[2] ? v + WH : v};
+    const size_t neighbours[3] = {i + 1 < W ? v + 1 : v, j + 1 < vm.dims[1] ? v + W : v,
+                                  k + 1 < vm.dims[2] ? v + WH : v};
     for (size_t n : neighbours) {
       if (n == v) continue;
       if (!step_reported && std::abs(layer - vm.layers[n]) > 1) {
         c.add(IssueCode::LayerStepTooLarge, g + "/layers",
-              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " differ by " + std::to_string(std::abs(layer - vm.layers[n])) +
-                  " layers");
+              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " differ by " +
+                  std::to_string(std::abs(layer - vm.layers[n])) + " layers");
         step_reported = true;
       }
       // Exact distances of 6-neighbours differ by at most h; the rule allows the voxel diagonal, so that a
@@ -246,7 +254,8 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
       if (!jump_reported && Voxelmap::is_stored(d) && Voxelmap::is_stored(vm.distances[n]) &&
           std::abs(double(d) - double(vm.distances[n])) > h * std::sqrt(3.0)) {
         c.add(IssueCode::DistanceJump, g + "/distances",
-              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " are one voxel apart but their distances differ by more than the voxel diagonal: " +
+              voxel_name(vm, v) + " and " + voxel_name(vm, n) +
+                  " are one voxel apart but their distances differ by more than the voxel diagonal: " +
                   fmt(std::abs(double(d) - double(vm.distances[n])) / h) + " voxels");
         jump_reported = true;
       }
@@ -307,9 +316,11 @@ void check_point_shell_semantics(const Asset& a, Checker& c) {
 void check_mass_semantics(const Asset& a, Checker& c) {
   const auto& I = a.mass.inertia;
   const double m1 = I[0], m2 = I[0] * I[4] - I[1] * I[3],
-               m3 = I[0] * (I[4] * I[8] - I[5] * I[7]) - I[1] * (I[3] * I[8] - I[5] * I[6]) + I[2] * (I[3] * I[7] - I[4] * I[6]);
+               m3 = I[0] * (I[4] * I[8] - I[5] * I[7]) - I[1] * (I[3] * I[8] - I[5] * I[6]) +
+                    I[2] * (I[3] * I[7] - I[4] * I[6]);
   if (!(m1 > 0 && m2 > 0 && m3 > 0))
-    c.add(IssueCode::InertiaNotPositiveDefinite, "/mass_properties/@inertia", "the inertia tensor is not positive definite");
+    c.add(IssueCode::InertiaNotPositiveDefinite, "/mass_properties/@inertia",
+          "the inertia tensor is not positive definite");
   for (int axis = 0; axis < 3; ++axis)
     if (!(a.mass.center_of_mass[axis] >= a.bounds_min[axis] && a.mass.center_of_mass[axis] <= a.bounds_max[axis])) {
       c.add(IssueCode::CenterOfMassOutsideBounds, "/mass_properties/@center_of_mass",
@@ -333,7 +344,8 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   static const char* kAxes[] = {"+X", "-X", "+Y", "-Y", "+Z", "-Z"};
   bool axis_ok = false;
   for (const char* a : kAxes) axis_ok = axis_ok || asset.up_axis == a;
-  if (!axis_ok) c.add(IssueCode::BadAttributeValue, "/@up_axis", "up_axis '" + asset.up_axis + "' is not one of +X -X +Y -Y +Z -Z");
+  if (!axis_ok)
+    c.add(IssueCode::BadAttributeValue, "/@up_axis", "up_axis '" + asset.up_axis + "' is not one of +X -X +Y -Y +Z -Z");
   check_voxelmap(asset.voxelmap, c);
   check_point_shell(asset.point_shell, c);
   check_mass(asset.mass, c);

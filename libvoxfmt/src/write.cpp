@@ -25,7 +25,8 @@ const T* flat(const std::vector<std::array<T, K>>& rows) {
 bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
   const hid_t root = w.file();
   const uint32_t version[2] = {kFormatVersion.major, kFormatVersion.minor};
-  bool ok = w.string_attribute(root, "format", "voxfmt") && w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
+  bool ok = w.string_attribute(root, "format", "voxfmt") &&
+            w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
             w.string_attribute(root, "units", "m") && w.string_attribute(root, "frame", "right-handed") &&
             w.string_attribute(root, "up_axis", a.up_axis) &&
             w.numeric_attribute<double>(root, "bounds_min", {3}, a.bounds_min.data()) &&
@@ -43,7 +44,8 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
        (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
        w.dataset<int16_t>(vg->get(), "layers", grid, vm.layers.data(), opt.deflate_level, opt.chunk_edge) &&
-       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge, &kNotStored);
+       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge,
+                        &kNotStored);
   if (!ok) return false;
 
   const PointShell& ps = a.point_shell;
@@ -80,8 +82,10 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
          w.string_attribute(prov->get(), "source_file", p.source_file) &&
          w.string_attribute(prov->get(), "source_sha256", p.source_sha256) &&
          w.string_attribute(prov->get(), "build_parameters", p.build_parameters_json) &&
-         w.string_attribute(prov->get(), "dependency_versions", deps.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
-         w.string_attribute(prov->get(), "build_warnings", warnings.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
+         w.string_attribute(prov->get(), "dependency_versions",
+                            deps.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
+         w.string_attribute(prov->get(), "build_warnings",
+                            warnings.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
          (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
 }
 
@@ -109,8 +113,8 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   if (auto error = first_error(path, validate_asset(asset, ValidationLevel::Quick))) return *error;
   std::future<std::optional<Error>> semantic;
   if (options.validation == ValidationLevel::Full)
-    semantic = std::async(std::launch::async,
-                          [&] { return first_error(path, validate_asset(asset, ValidationLevel::Full)); });
+    semantic =
+        std::async(std::launch::async, [&] { return first_error(path, validate_asset(asset, ValidationLevel::Full)); });
   // Whatever happens to the write, the check ends before `asset` may go away (the future's destructor waits).
   std::optional<Error> semantic_error;
   auto wait_for_check = [&] {
@@ -121,7 +125,8 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   AtomicWrite steps;
   steps.write = [&](const std::string& temp) -> Status {
     hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-    if (file < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
+    if (file < 0)
+      return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
     h5::Writer writer(file);
     bool ok = false;
     std::string reason;

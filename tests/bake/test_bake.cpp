@@ -8,10 +8,10 @@
 #include <functional>
 #include <random>
 
-#include "stages.h"
 #include "exact_surface.h"
-#include "winding_number.h"
+#include "stages.h"
 #include "voxfmt/validate.h"
+#include "winding_number.h"
 
 namespace voxfmt::bake {
 namespace {
@@ -94,7 +94,8 @@ void expect_tree_encloses_descendants(const PointShell& ps, double tolerance) {
       const uint32_t d = stack.back();
       stack.pop_back();
       const Vec3 &c = ps.sphere_centers[node], &p = ps.points[d];
-      const double dist = std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2]));
+      const double dist =
+          std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2]));
       violations += dist > ps.sphere_radii[node] + tolerance;
       for (uint32_t ch = ps.child_begin[d]; ch < ps.child_begin[d] + ps.child_count[d]; ++ch) stack.push_back(ch);
     }
@@ -152,8 +153,8 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
   const TriangleMesh mesh = repair_mesh(import_mesh(kMeshes + "/bunny00.off"), again, false);
   const ExactSurface surface(mesh);
   const ErrorStats s = compare_distances(
-      asset.voxelmap, [&](const Vec3& p) { return surface.inside(p) ? -surface.distance(p) : surface.distance(p); }, 12000,
-      1e-9);
+      asset.voxelmap, [&](const Vec3& p) { return surface.inside(p) ? -surface.distance(p) : surface.distance(p); },
+      12000, 1e-9);
   expect_accurate(s, "bunny res 128");
   expect_layers_consistent(asset.voxelmap);
   // Spec §3: every voxel within (band - 1/2) voxels of the surface has its distance stored.
@@ -211,12 +212,14 @@ std::string write_torus(const std::string& path, double R, double r, int segment
   for (int s = 0; s < segments; ++s)
     for (int q = 0; q < rings; ++q) {
       const double u = 2 * pi * s / segments, v = 2 * pi * q / rings;
-      torus.vertices.push_back({(R + r * std::cos(v)) * std::cos(u), (R + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
+      torus.vertices.push_back(
+          {(R + r * std::cos(v)) * std::cos(u), (R + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
     }
   for (int s = 0; s < segments; ++s)
     for (int q = 0; q < rings; ++q) {
       const uint32_t a = uint32_t(s * rings + q), b = uint32_t(((s + 1) % segments) * rings + q),
-                     c = uint32_t(((s + 1) % segments) * rings + (q + 1) % rings), d = uint32_t(s * rings + (q + 1) % rings);
+                     c = uint32_t(((s + 1) % segments) * rings + (q + 1) % rings),
+                     d = uint32_t(s * rings + (q + 1) % rings);
       torus.triangles.push_back({a, b, c});
       torus.triangles.push_back({a, c, d});
     }
@@ -234,14 +237,14 @@ TEST(Bake, TorusDistancesMatchClosedForm) {
   EXPECT_TRUE(report.repair.closed);
   // The tessellation is within 1e-4 of the ideal torus (sagitta), i.e. < 0.03 voxel here.
   const ErrorStats s = compare_distances(
-      asset.voxelmap,
-      [&](const Vec3& p) { return std::hypot(std::hypot(p[0], p[1]) - R, p[2]) - r; }, 20000,
+      asset.voxelmap, [&](const Vec3& p) { return std::hypot(std::hypot(p[0], p[1]) - R, p[2]) - r; }, 20000,
       2e-5 /* > sagitta of the 720 x 240 tessellation, ~9e-6 m */);
   expect_accurate(s, "torus res 160");
   expect_layers_consistent(asset.voxelmap);
   // Deep layers approximate the true depth: the tube centre is r deep.
   const Voxelmap& vm = asset.voxelmap;
-  const double i = (R - vm.origin[0]) / vm.voxel_size, j = (0 - vm.origin[1]) / vm.voxel_size, k = (0 - vm.origin[2]) / vm.voxel_size;
+  const double i = (R - vm.origin[0]) / vm.voxel_size, j = (0 - vm.origin[1]) / vm.voxel_size,
+               k = (0 - vm.origin[2]) / vm.voxel_size;
   const size_t centre = vm.linear_index(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k)));
   EXPECT_NEAR(vm.layers[centre] * vm.voxel_size, r, 1.5 * vm.voxel_size);
   // Analytic volume 2 pi^2 R r^2, within the tessellation's shrinkage.
@@ -362,7 +365,8 @@ TEST(Bake, PointsAreEvenlySpread) {
     for (size_t b = 0; b < ps.size(); ++b)
       if (a != b) {
         const Vec3 &p = ps.points[a], &q = ps.points[b];
-        best = std::min(best, (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) + (p[2] - q[2]) * (p[2] - q[2]));
+        best = std::min(best,
+                        (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) + (p[2] - q[2]) * (p[2] - q[2]));
       }
     nearest_min = std::min(nearest_min, std::sqrt(best));
     nearest_mean += std::sqrt(best) / double(ps.size());
@@ -578,16 +582,17 @@ TEST(LibraryRegressions, HalfVoxelTiesDoNotStepTwoLayers) {
 }
 
 TEST(LibraryRegressions, MissedClosestTrianglesAreFoundExactly) {
-  // Thin parts: the earlier band search (OpenVDB meshToVolume's local closest-triangle candidates) missed the closest one, giving distances a voxel
-  // too large with the wrong sign inside the femur and homer.
+  // Thin parts: the earlier band search (OpenVDB meshToVolume's local closest-triangle candidates) missed the closest
+  // one, giving distances a voxel too large with the wrong sign inside the femur and homer.
   for (const char* name : {"femur.off", "homer.off"}) {
     BuildReport report;
     const Asset asset = bake_default(name, report);
     ASSERT_TRUE(report.repair.closed) << name;
     EXPECT_EQ(full_errors(asset), std::vector<std::string>()) << name;
     const ExactSurface surface(import_mesh(kMeshes + "/" + name));
-    expect_accurate(compare_distances(asset.voxelmap, [&](const Vec3& p) { return surface.signed_distance(p); }, 10000,
-                                      1e-3 * asset.voxelmap.voxel_size),
+    expect_accurate(compare_distances(
+                        asset.voxelmap, [&](const Vec3& p) { return surface.signed_distance(p); }, 10000,
+                        1e-3 * asset.voxelmap.voxel_size),
                     name);
   }
 }
@@ -624,8 +629,8 @@ TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
   // resolution.
   const std::string cylinder =
       write_tilted_cylinder((std::filesystem::temp_directory_path() / "voxfmt-tilted-cylinder.off").string(), 300);
-  for (const std::string& path : {kMeshes + "/bunny00.off", kMeshes + "/femur.off", kMeshes + "/homer.off",
-                                  kMeshes + "/fandisk.off", cylinder}) {
+  for (const std::string& path :
+       {kMeshes + "/bunny00.off", kMeshes + "/femur.off", kMeshes + "/homer.off", kMeshes + "/fandisk.off", cylinder}) {
     const std::string name = std::filesystem::path(path).filename().string();
     Settings options;
     options.voxelmap.resolution = 40;
@@ -644,7 +649,8 @@ TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
           const size_t v = vm.linear_index(i, j, k);
           const double exact = surface.signed_distance(vm.voxel_center(i, j, k)) / h;
           const bool stored = Voxelmap::is_stored(vm.distances[v]);
-          if (std::abs(std::abs(exact) - vm.distance_band) > edge) wrong_band += stored != (std::abs(exact) <= vm.distance_band);
+          if (std::abs(std::abs(exact) - vm.distance_band) > edge)
+            wrong_band += stored != (std::abs(exact) <= vm.distance_band);
           if (stored) wrong_distance += std::abs(vm.distances[v] / h - exact) > 1e-4;
           if (exact < -0.5 - edge) wrong_side += vm.layers[v] < 1;
           if (exact > 0.5 + edge) wrong_side += vm.layers[v] > -1;

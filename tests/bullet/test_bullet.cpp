@@ -95,13 +95,14 @@ TEST(Bullet, BunnyDroppedOnBunnyComesToRestWithoutSinking) {
     world.step(kDt);
     ASSERT_TRUE(finite(upper->getWorldTransform()) && finite(lower->getWorldTransform())) << "step " << step;
     if (step % 10 == 0) {
-      const double d = deepest_penetration(*upper_shape, upper->getWorldTransform(), *lower_shape,
-                                           lower->getWorldTransform());
+      const double d =
+          deepest_penetration(*upper_shape, upper->getWorldTransform(), *lower_shape, lower->getWorldTransform());
       deepest = std::max(deepest, d);
       touched |= d > 0;
     }
   }
-  const double speed = std::max(double(upper->getLinearVelocity().length()), double(lower->getLinearVelocity().length()));
+  const double speed =
+      std::max(double(upper->getLinearVelocity().length()), double(lower->getLinearVelocity().length()));
   std::cout << "[ figures  ] after 5 s: speed " << speed << " m/s, upper centre of mass y "
             << upper->getCenterOfMassPosition().y() << ", deepest bunny-bunny penetration " << deepest / bunny.h
             << " voxel\n";
@@ -126,8 +127,9 @@ TEST(Bullet, BulletsOwnPairsStillWork) {
   btRigidBody* box = world.add_body(box_shape, 1.0, t);  // box on box
   t.setOrigin(btVector3(-5, 0.5f, 0));
   btRigidBody* ball = world.add_body(std::make_shared<btSphereShape>(0.1f), 1.0, t);  // sphere on plane
-  auto bunny_shape = std::make_shared<VpsMixedShape>(bunny.object);  // a VPS body in the same world
-  world.add_body(bunny_shape, 1.0, place_asset(*bunny_shape, btVector3(0, btScalar(-bunny.object->bounds_min().y()), 0)));
+  auto bunny_shape = std::make_shared<VpsMixedShape>(bunny.object);                   // a VPS body in the same world
+  world.add_body(bunny_shape, 1.0,
+                 place_asset(*bunny_shape, btVector3(0, btScalar(-bunny.object->bounds_min().y()), 0)));
   for (int step = 0; step < 1500; ++step) world.step(kDt);
   EXPECT_NEAR(box->getCenterOfMassPosition().y(), 0.3f, 0.01f);
   EXPECT_NEAR(ball->getCenterOfMassPosition().y(), 0.1f, 0.01f);
@@ -166,13 +168,14 @@ TEST(Bullet, BoxesAndSpheresBounceOffAStaticBunny) {
     std::array<Eigen::Vector3d, 8> corners;
     const btTransform& tb = box->getWorldTransform();
     for (int k = 0; k < 8; ++k)
-      corners[size_t(k)] = to_eigen_vector(tb(btVector3((k & 1) ? 0.04f : -0.04f, (k & 2) ? 0.04f : -0.04f,
-                                                        (k & 4) ? 0.04f : -0.04f)));
+      corners[size_t(k)] =
+          to_eigen_vector(tb(btVector3((k & 1) ? 0.04f : -0.04f, (k & 2) ? 0.04f : -0.04f, (k & 4) ? 0.04f : -0.04f)));
     query_points_in_voxelmap(*bunny.object, pose, corners.data(), corners.size(), 0.0, QueryOptions{}, contacts);
     for (const Contact& c : contacts.contacts) box_depth = std::max(box_depth, c.depth);
   }
-  std::cout << "[ figures  ] deepest penetration into the bunny: ball " << ball_depth / bunny.h << " voxel, box corners "
-            << box_depth / bunny.h << " voxel; " << world.vps()->counters().raw_contacts << " raw contacts\n";
+  std::cout << "[ figures  ] deepest penetration into the bunny: ball " << ball_depth / bunny.h
+            << " voxel, box corners " << box_depth / bunny.h << " voxel; " << world.vps()->counters().raw_contacts
+            << " raw contacts\n";
   EXPECT_GT(world.vps()->counters().raw_contacts, 0u);
   EXPECT_LE(ball_depth, 2 * bunny.h);
   EXPECT_LE(box_depth, 2 * bunny.h);

@@ -17,8 +17,10 @@ int main(int argc, char** argv) {
   {  // a 0.1 x 0.06 x 0.04 m box (distinct principal moments: its principal frame is the asset's axes)
     std::ofstream off(dir + "/cube.off");
     off << "OFF\n8 12 0\n";
-    for (int v = 0; v < 8; ++v) off << 0.1 * (v & 1) << " " << 0.06 * ((v >> 1) & 1) << " " << 0.04 * ((v >> 2) & 1) << "\n";
-    off << "3 0 2 1\n3 1 2 3\n3 4 5 6\n3 5 7 6\n3 0 1 4\n3 1 5 4\n3 2 6 3\n3 3 6 7\n3 0 4 2\n3 2 4 6\n3 1 3 5\n3 3 7 5\n";
+    for (int v = 0; v < 8; ++v)
+      off << 0.1 * (v & 1) << " " << 0.06 * ((v >> 1) & 1) << " " << 0.04 * ((v >> 2) & 1) << "\n";
+    off << "3 0 2 1\n3 1 2 3\n3 4 5 6\n3 5 7 6\n3 0 1 4\n3 1 5 4\n3 2 6 3\n3 3 6 7\n3 0 4 2\n3 2 4 6\n3 1 3 5\n3 3 7 "
+           "5\n";
   }
   voxfmt::bake::Settings settings;
   settings.voxelmap.resolution = 24;

@@ -39,7 +39,8 @@ TEST(RoundTrip, EveryFieldSurvivesWriteAndRead) {
   EXPECT_EQ(b.voxelmap.layers, a.voxelmap.layers);
   ASSERT_EQ(b.voxelmap.distances.size(), a.voxelmap.distances.size());
   // Bitwise: NaN marks "not stored" and must stay exactly where it was.
-  EXPECT_EQ(0, std::memcmp(b.voxelmap.distances.data(), a.voxelmap.distances.data(), a.voxelmap.distances.size() * sizeof(float)));
+  EXPECT_EQ(0, std::memcmp(b.voxelmap.distances.data(), a.voxelmap.distances.data(),
+                           a.voxelmap.distances.size() * sizeof(float)));
 
   EXPECT_EQ(b.point_shell.points, a.point_shell.points);
   EXPECT_EQ(b.point_shell.normals, a.point_shell.normals);

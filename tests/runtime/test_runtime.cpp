@@ -211,7 +211,11 @@ TEST(Query, ShallowContactsAgreeWithExactMeshes) {
   QueryOptions options;
   options.direction = QueryDirection::APointsInB;
   const Pose pb;
-  struct Case { double angle; Eigen::Vector3d axis, direction; double depth_voxels; };
+  struct Case {
+    double angle;
+    Eigen::Vector3d axis, direction;
+    double depth_voxels;
+  };
   const Case cases[] = {{0, Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitX(), 2},
                         {35, Eigen::Vector3d(1, 2, 0.5), Eigen::Vector3d(0.2, 1, 0.1), 4},
                         {120, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0, -1, 0.3), 6}};
@@ -241,8 +245,8 @@ TEST(Query, ScaledPosesScaleDepths) {
   QueryOptions options;
   options.direction = QueryDirection::APointsInB;
   Pose pa, pb;
-  pa.translation = translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), -3 * bunny.h) *
-                   Eigen::Vector3d::UnitX();
+  pa.translation =
+      translation_for_gap(bunny, pa.rotation, Eigen::Vector3d::UnitX(), -3 * bunny.h) * Eigen::Vector3d::UnitX();
   pa.scale = pb.scale = 0.15;  // a 15 cm bunny
   pa.translation *= 0.15;
   EXPECT_GT(check_against_exact(bunny, pa, pb, options, 0.0, 1.0, 0.0), 3u);
@@ -286,7 +290,8 @@ TEST(Query, PointBudgetStopsAtATreeLevel) {
   EXPECT_EQ(fine.stats.deepest_level, tree.level_count() - 1);
   EXPECT_GT(coarse.contacts.size(), 0u);
   EXPECT_LT(coarse.contacts.size(), fine.contacts.size());
-  for (const Contact& c : coarse.contacts) EXPECT_LT(c.point_index, tree.points_up_to_level(coarse.stats.deepest_level));
+  for (const Contact& c : coarse.contacts)
+    EXPECT_LT(c.point_index, tree.points_up_to_level(coarse.stats.deepest_level));
 }
 
 TEST(Query, BothDirectionsMirror) {
@@ -312,7 +317,8 @@ TEST(Forces, WrenchSumsPenaltyForces) {
   ContactSet set;
   set.contacts.push_back({Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.002, 0, false, true});
   set.contacts.push_back({Eigen::Vector3d(-1, 0, 0), Eigen::Vector3d(0, 0, 1), 0.001, 1, false, true});
-  set.contacts.push_back({Eigen::Vector3d(0, 5, 0), Eigen::Vector3d(0, 0, 1), -0.003, 2, false, true});  // proximity only
+  set.contacts.push_back(
+      {Eigen::Vector3d(0, 5, 0), Eigen::Vector3d(0, 0, 1), -0.003, 2, false, true});  // proximity only
   const Wrench w = penalty_wrench(set, Eigen::Vector3d::Zero(), 1000.0);
   EXPECT_NEAR((w.force - Eigen::Vector3d(0, 0, 3.0)).norm(), 0.0, 1e-12);
   // (1,0,0) x (0,0,2) + (-1,0,0) x (0,0,1) = (0,-2,0) + (0,1,0)

@@ -58,7 +58,8 @@ inline Asset make_sphere_asset(const SphereSpec& s = {}) {
     ps.child_begin.push_back(uint32_t(first));
     ps.child_count.push_back(uint32_t(std::min<uint64_t>(uint64_t(b) * i + b + 1, count) - first));
   }
-  for (uint64_t begin = 0, width = 1; begin < count; begin += width, width *= b) ps.level_offsets.push_back(uint32_t(begin));
+  for (uint64_t begin = 0, width = 1; begin < count; begin += width, width *= b)
+    ps.level_offsets.push_back(uint32_t(begin));
   ps.level_offsets.push_back(count);
   ps.branching = b;
   ps.point_spacing = std::sqrt(4 * kPi * r * r / count);

@@ -6,31 +6,42 @@ namespace voxfmt::cli {
 
 void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   auto* resolution = cmd.add_option("--resolution", b.voxelmap.resolution, "Voxels along the longest bounding-box axis")
-                         ->capture_default_str()->check(CLI::Range(1u, 4096u));
-  auto* voxel_size = cmd.add_option("--voxel-size", b.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
-                         ->check(CLI::PositiveNumber);
+                         ->capture_default_str()
+                         ->check(CLI::Range(1u, 4096u));
+  auto* voxel_size =
+      cmd.add_option("--voxel-size", b.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
+          ->check(CLI::PositiveNumber);
   resolution->excludes(voxel_size);
   auto* points = cmd.add_option("--points", b.point_shell.points, "Target number of surface points")
-                     ->capture_default_str()->check(CLI::Range(1u, 50'000'000u));
+                     ->capture_default_str()
+                     ->check(CLI::Range(1u, 50'000'000u));
   auto* spacing = cmd.add_option("--point-spacing", b.point_shell.point_spacing,
                                  "Minimum distance between points in metres (instead of --points)")
                       ->check(CLI::PositiveNumber);
   points->excludes(spacing);
   cmd.add_option("--branching", b.point_shell.branching, "Mean children per point-sphere tree node")
-      ->capture_default_str()->check(CLI::Range(2.0, 64.0));
+      ->capture_default_str()
+      ->check(CLI::Range(2.0, 64.0));
   cmd.add_option("--margin", b.voxelmap.margin, "Outer voxels around the bounding box on each side")
-      ->capture_default_str()->check(CLI::Range(0u, 1024u));
+      ->capture_default_str()
+      ->check(CLI::Range(0u, 1024u));
   cmd.add_option("--band", b.voxelmap.distance_band, "Half-width in voxels of the band of exact distances")
-      ->capture_default_str()->check(CLI::Range(1.0, 64.0));
+      ->capture_default_str()
+      ->check(CLI::Range(1.0, 64.0));
   cmd.add_option("--unit-scale", b.import.unit_scale, "Multiply coordinates by this to get metres (0.001 for mm)")
-      ->capture_default_str()->check(CLI::PositiveNumber);
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd.add_option("--up-axis", b.up_axis, "Up direction recorded in the asset")
-      ->capture_default_str()->check(CLI::IsMember({"+X", "-X", "+Y", "-Y", "+Z", "-Z"}));
+      ->capture_default_str()
+      ->check(CLI::IsMember({"+X", "-X", "+Y", "-Y", "+Z", "-Z"}));
   cmd.add_flag("!--no-self-intersection-check", b.check_self_intersections,
                "Skip the self-intersection check (faster on huge meshes)");
   cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")->capture_default_str();
-  cmd.add_option("--deflate", b.deflate, "gzip level 0-9 for the voxel grids")->capture_default_str()->check(CLI::Range(0, 9));
-  cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")->capture_default_str();
+  cmd.add_option("--deflate", b.deflate, "gzip level 0-9 for the voxel grids")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 9));
+  cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")
+      ->capture_default_str();
 }
 
 namespace {
@@ -53,8 +64,9 @@ std::vector<std::string> bake_option_args(const bake::Settings& b) {
     args.insert(args.end(), {"--points", std::to_string(b.point_shell.points)});
   args.insert(args.end(), {"--branching", exact(b.point_shell.branching), "--margin", std::to_string(b.voxelmap.margin),
                            "--band", exact(b.voxelmap.distance_band), "--unit-scale", exact(b.import.unit_scale),
-                           "--up-axis=" + b.up_axis /* "-X" alone would look like an option */, "--seed", std::to_string(b.point_shell.seed), "--deflate",
-                           std::to_string(b.deflate), "--threads", std::to_string(b.threads)});
+                           "--up-axis=" + b.up_axis /* "-X" alone would look like an option */, "--seed",
+                           std::to_string(b.point_shell.seed), "--deflate", std::to_string(b.deflate), "--threads",
+                           std::to_string(b.threads)});
   if (!b.check_self_intersections) args.push_back("--no-self-intersection-check");
   return args;
 }

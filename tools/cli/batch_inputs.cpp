@@ -132,7 +132,8 @@ Shard parse_shard(const std::string& text) {
   Shard shard;
   if (slash == std::string::npos || !number(text.substr(0, slash), shard.index) ||
       !number(text.substr(slash + 1), shard.count) || shard.count == 0 || shard.index >= shard.count)
-    throw UsageError("--shard '" + text + "': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)");
+    throw UsageError("--shard '" + text +
+                     "': expected I/N with 0 <= I < N, e.g. 0/4 (Slurm: $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)");
   return shard;
 }
 

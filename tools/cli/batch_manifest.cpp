@@ -50,7 +50,8 @@ Manifest::Manifest(const std::string& path) : path_(path) {
     const bool busy = errno == EWOULDBLOCK;
     ::close(lock_fd_);
     lock_fd_ = -1;
-    if (busy) throw std::runtime_error(path + ": another voxfmt batch is writing this manifest (" + lock + " is locked)");
+    if (busy)
+      throw std::runtime_error(path + ": another voxfmt batch is writing this manifest (" + lock + " is locked)");
     fail(lock, "cannot lock");
   }
 
@@ -122,7 +123,8 @@ FileStamp stamp(const std::string& path) {
 
 size_t remove_stale_partials(const std::vector<std::string>& outputs) {
   std::map<fs::path, std::set<std::string>> by_dir;
-  for (const std::string& output : outputs) by_dir[fs::path(output).parent_path()].insert(fs::path(output).filename().string());
+  for (const std::string& output : outputs)
+    by_dir[fs::path(output).parent_path()].insert(fs::path(output).filename().string());
   size_t removed = 0;
   for (const auto& [dir, names] : by_dir) {
     std::error_code ec;

@@ -27,7 +27,7 @@ std::string clock_text(double seconds);
 class BatchProgress {
  public:
   struct Running {
-    std::string name;   ///< file name of the mesh
+    std::string name;  ///< file name of the mesh
     double input_bytes;
     double elapsed_s;
   };

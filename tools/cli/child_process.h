@@ -11,17 +11,17 @@
 namespace voxfmt::cli {
 
 struct ChildLimits {
-  double timeout_seconds = 0;     ///< 0 = none; on expiry the child gets SIGKILL
-  size_t max_memory_bytes = 0;    ///< 0 = none; RLIMIT_AS of the child (allocation fails beyond it)
+  double timeout_seconds = 0;   ///< 0 = none; on expiry the child gets SIGKILL
+  size_t max_memory_bytes = 0;  ///< 0 = none; RLIMIT_AS of the child (allocation fails beyond it)
 };
 
 struct ChildResult {
-  size_t id = 0;             ///< the caller's id given to start()
-  int exit_code = -1;        ///< when it exited normally
-  int signal = 0;            ///< when a signal ended it
+  size_t id = 0;       ///< the caller's id given to start()
+  int exit_code = -1;  ///< when it exited normally
+  int signal = 0;      ///< when a signal ended it
   bool timed_out = false;
-  std::string out, err;      ///< stdout, and the last 64 KiB of stderr
-  double seconds = 0;        ///< wall time
+  std::string out, err;  ///< stdout, and the last 64 KiB of stderr
+  double seconds = 0;    ///< wall time
 };
 
 /// Runs children with their stdout and stderr captured. Each child is in a process group of its own (a

@@ -83,7 +83,8 @@ class Runner {
   nlohmann::json base_record(const BatchItem& item) const;
   bool up_to_date(const BatchItem& item, const std::string& sha, nlohmann::json& record) const;
   const nlohmann::json* failed_before(const BatchItem& item, const std::string& sha) const;
-  nlohmann::json finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command);
+  nlohmann::json finish_record(const BatchItem& item, const ChildResult& child,
+                               const std::vector<std::string>& command);
   BatchProgress::Snapshot snapshot() const;
 
   const Options& o_;
@@ -111,8 +112,12 @@ class Runner {
 };
 
 nlohmann::json Runner::base_record(const BatchItem& item) const {
-  return {{"input", item.input},          {"output", item.output},      {"status", "ok"},
-          {"error", nullptr},             {"input_bytes", item.input_bytes}, {"build_parameters", parameters_},
+  return {{"input", item.input},
+          {"output", item.output},
+          {"status", "ok"},
+          {"error", nullptr},
+          {"input_bytes", item.input_bytes},
+          {"build_parameters", parameters_},
           {"tool_version", VOXFMT_VERSION_STRING}};
 }
 
@@ -126,7 +131,8 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
     const std::string status = text_field(*last, "status");
     if ((status == "ok" || status == "up_to_date") && text_field(*last, "source_sha256") == sha &&
         text_field(*last, "tool_version") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
-        same_parameters((*last)["build_parameters"], parameters_) && integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
+        same_parameters((*last)["build_parameters"], parameters_) &&
+        integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
         integer_field(*last, "output_mtime_ns") == file.mtime_ns) {
       record = nullptr;  // the manifest already says so
       return true;
@@ -167,15 +173,17 @@ const nlohmann::json* Runner::failed_before(const BatchItem& item, const std::st
   return last;
 }
 
-nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& child, const std::vector<std::string>& command) {
+nlohmann::json Runner::finish_record(const BatchItem& item, const ChildResult& child,
+                                     const std::vector<std::string>& command) {
   nlohmann::json record = base_record(item);
   record["wall_s"] = child.seconds;
   record["finished_utc"] = bake::utc_now();
   const nlohmann::json summary = nlohmann::json::parse(child.out, nullptr, false);
   const bool has_summary = summary.is_object() && summary.contains("status");
   if (child.exit_code == 0 && has_summary && summary["status"] == "ok") {
-    for (const char* key : {"source_sha256", "timings_s", "total_s", "peak_memory_bytes", "file_size_bytes", "input_vertices",
-                            "input_triangles", "closed", "voxelmap", "pointshell", "volume", "warnings"})
+    for (const char* key :
+         {"source_sha256", "timings_s", "total_s", "peak_memory_bytes", "file_size_bytes", "input_vertices",
+          "input_triangles", "closed", "voxelmap", "pointshell", "volume", "warnings"})
       if (summary.contains(key)) record[key] = summary[key];
     record["output_mtime_ns"] = stamp(item.output).mtime_ns;
     return record;
@@ -237,19 +245,22 @@ int Runner::run() {
   const Shard shard = parse_shard(o_.shard);
   std::error_code ec;
   fs::create_directories(o_.output_dir, ec);
-  if (ec || !fs::is_directory(o_.output_dir)) throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""));
+  if (ec || !fs::is_directory(o_.output_dir))
+    throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""));
 
   std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir);
-  if (all.empty()) throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
+  if (all.empty())
+    throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
   std::vector<BatchItem> mine;
   for (BatchItem& item : all)
     if (shard.contains(item.key)) mine.push_back(std::move(item));
 
-  const std::string manifest_path =
-      !o_.manifest.empty() ? o_.manifest
-      : shard.count == 1
-          ? (fs::path(o_.output_dir) / "manifest.jsonl").string()
-          : (fs::path(o_.output_dir) / ("manifest.shard-" + std::to_string(shard.index) + "-of-" + std::to_string(shard.count) + ".jsonl")).string();
+  const std::string manifest_path = !o_.manifest.empty() ? o_.manifest
+                                    : shard.count == 1
+                                        ? (fs::path(o_.output_dir) / "manifest.jsonl").string()
+                                        : (fs::path(o_.output_dir) / ("manifest.shard-" + std::to_string(shard.index) +
+                                                                      "-of-" + std::to_string(shard.count) + ".jsonl"))
+                                              .string();
   try {
     manifest_ = std::make_unique<Manifest>(manifest_path);
   } catch (const std::runtime_error& e) {
@@ -274,20 +285,25 @@ int Runner::run() {
     if (const nlohmann::json* failure = failed_before(item, sha)) {
       ++counts_.failed;
       ++counts_.failed_before;
-      failures_.push_back({{"input", item.input}, {"output", item.output}, {"code", (*failure)["error"]["code"]},
-                           {"message", (*failure)["error"]["message"]}, {"retried", false}});
+      failures_.push_back({{"input", item.input},
+                           {"output", item.output},
+                           {"code", (*failure)["error"]["code"]},
+                           {"message", (*failure)["error"]["message"]},
+                           {"retried", false}});
       continue;
     }
     todo_.push_back({item, sha});
   }
   // Largest first: the long bakes start early and the small ones fill the gaps (shorter makespan).
-  std::stable_sort(todo_.begin(), todo_.end(), [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
+  std::stable_sort(todo_.begin(), todo_.end(),
+                   [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
 
   const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
   jobs_ = o_.jobs ? o_.jobs : cores;
   bake::Settings settings = o_.bake;
   if (settings.threads == 0)
-    settings.threads = std::max(1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
+    settings.threads = std::max(
+        1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
   threads_ = settings.threads;
   const std::vector<std::string> option_args = bake_option_args(settings);
   const std::string exe = self_executable();
@@ -300,8 +316,7 @@ int Runner::run() {
     if (shard.count > 1) std::cerr << " in shard " << shard.index << "/" << shard.count << " (of " << all.size() << ")";
     std::cerr << ": " << counts_.up_to_date << " up to date, ";
     if (counts_.failed_before) std::cerr << counts_.failed_before << " failed before (unchanged), ";
-    std::cerr << todo_.size() << " to bake with -j " << jobs_ << " ("
-              << threads_ << " thread(s) each)";
+    std::cerr << todo_.size() << " to bake with -j " << jobs_ << " (" << threads_ << " thread(s) each)";
     if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
     std::cerr << "\n";
   }
@@ -337,8 +352,11 @@ int Runner::run() {
       progress_->finished(double(item.input_bytes), child.seconds);
       if (record["status"] == "failed") {
         ++counts_.failed;
-        failures_.push_back({{"input", item.input}, {"output", item.output}, {"code", record["error"]["code"]},
-                             {"message", record["error"]["message"]}, {"retried", true}});
+        failures_.push_back({{"input", item.input},
+                             {"output", item.output},
+                             {"code", record["error"]["code"]},
+                             {"message", record["error"]["message"]},
+                             {"retried", true}});
       } else {
         ++counts_.built;
       }
@@ -375,9 +393,11 @@ int Runner::run() {
   } else {
     std::cout << "voxfmt batch: " << mine.size() << " mesh(es) in " << o_.output_dir;
     if (shard.count > 1) std::cout << " (shard " << shard.index << "/" << shard.count << ")";
-    std::cout << ": " << counts_.built << " built, " << counts_.up_to_date << " up to date, " << counts_.failed << " failed";
+    std::cout << ": " << counts_.built << " built, " << counts_.up_to_date << " up to date, " << counts_.failed
+              << " failed";
     if (counts_.failed_before)
-      std::cout << " (" << counts_.failed_before << " unchanged since they failed before: not retried; --retry-failed retries them)";
+      std::cout << " (" << counts_.failed_before
+                << " unchanged since they failed before: not retried; --retry-failed retries them)";
     if (interrupted) std::cout << ", " << todo_.size() - finished_ << " not finished (interrupted)";
     std::cout << " in " << std::fixed << std::setprecision(1) << seconds << " s\n";
     if (!failures_.empty()) {
@@ -403,7 +423,9 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       ->required();
   cmd->add_option("-o,--output", o->output_dir, "Output directory; OUTDIR/<path below the input root>.vox.h5 per mesh")
       ->required();
-  cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")->capture_default_str()->check(CLI::Range(0u, 1024u));
+  cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")
+      ->capture_default_str()
+      ->check(CLI::Range(0u, 1024u));
   cmd->add_option("--shard", o->shard, "Bake only shard I of N (I/N, 0-based): mesh k belongs to hash(name) mod N")
       ->capture_default_str();
   cmd->add_flag("--force", o->force, "Rebuild assets that are up to date (and retry every failure)");
@@ -411,11 +433,14 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                 "Retry meshes whose earlier failure would recur (same source, options and tool version); TIMEOUT, "
                 "CRASHED, OUT_OF_MEMORY, INTERNAL and WRITE_FAILED are always retried");
   cmd->add_option("--timeout", o->timeout, "Seconds one mesh may take before it is killed (TIMEOUT); 0 = no limit")
-      ->capture_default_str()->check(CLI::Range(0.0, 1e7));
-  cmd->add_option("--max-memory", o->max_memory_mib, "MiB of address space one bake may use (OUT_OF_MEMORY beyond); 0 = no limit")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1e7));
+  cmd->add_option("--max-memory", o->max_memory_mib,
+                  "MiB of address space one bake may use (OUT_OF_MEMORY beyond); 0 = no limit")
       ->capture_default_str();
-  cmd->add_option("--manifest", o->manifest,
-                  "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
+  cmd->add_option(
+      "--manifest", o->manifest,
+      "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
   add_bake_options(*cmd, o->bake);
   cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");

@@ -18,7 +18,7 @@ namespace {
 struct Options {
   std::string file;
   bool json = false;
-  std::string slice;   // AXIS=INDEX
+  std::string slice;  // AXIS=INDEX
   std::string png;
   std::string field = "layers";
   int zoom = 0;
@@ -96,9 +96,12 @@ nlohmann::json to_json(const std::string& file, const Asset& a, const Summary& s
 std::string human_bytes(uint64_t bytes) {
   std::ostringstream s;
   s << std::fixed << std::setprecision(1);
-  if (bytes >= (1ull << 20)) s << double(bytes) / (1 << 20) << " MiB";
-  else if (bytes >= 1024) s << double(bytes) / 1024 << " KiB";
-  else s << bytes << " B";
+  if (bytes >= (1ull << 20))
+    s << double(bytes) / (1 << 20) << " MiB";
+  else if (bytes >= 1024)
+    s << double(bytes) / 1024 << " KiB";
+  else
+    s << bytes << " B";
   return s.str();
 }
 
@@ -114,7 +117,8 @@ void print_text(const std::string& file, const Asset& a, const Summary& s, const
   std::ostream& o = std::cout;
   auto row = [&](const std::string& key) -> std::ostream& { return o << "  " << std::left << std::setw(20) << key; };
   o << file << "\n";
-  row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up " << a.up_axis << "\n";
+  row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up " << a.up_axis
+                << "\n";
   row("file size") << human_bytes(s.file_size) << "\n";
   row("memory (loaded)") << human_bytes(s.memory_bytes) << "\n";
   row("bounds") << v3(a.bounds_min) << " .. " << v3(a.bounds_max) << "\n";
@@ -135,8 +139,8 @@ void print_text(const std::string& file, const Asset& a, const Summary& s, const
   row("volume") << a.mass.volume << " m^3\n";
   row("centre of mass") << v3(a.mass.center_of_mass) << "\n";
   row("inertia") << "[" << a.mass.inertia[0] << " " << a.mass.inertia[1] << " " << a.mass.inertia[2] << "; "
-                 << a.mass.inertia[3] << " " << a.mass.inertia[4] << " " << a.mass.inertia[5] << "; " << a.mass.inertia[6]
-                 << " " << a.mass.inertia[7] << " " << a.mass.inertia[8] << "] m^5\n";
+                 << a.mass.inertia[3] << " " << a.mass.inertia[4] << " " << a.mass.inertia[5] << "; "
+                 << a.mass.inertia[6] << " " << a.mass.inertia[7] << " " << a.mass.inertia[8] << "] m^5\n";
   const Provenance& p = a.provenance;
   o << "provenance\n";
   row("generator") << p.generator << " " << p.generator_version << "\n";
@@ -159,21 +163,36 @@ Result<nlohmann::json> write_exports(const Options& o, const Asset& asset) {
     const Result<exports::SliceInfo> s = exports::write_slice_png(asset, spec.value(), o.png);
     if (!s) return s.error();
     const char* axis = spec->axis == 0 ? "x" : spec->axis == 1 ? "y" : "z";
-    exports.push_back({{"file", o.png}, {"kind", "slice"}, {"axis", axis}, {"index", spec->index}, {"field", o.field},
-                       {"width", s->width}, {"height", s->height}, {"zoom", s->zoom}, {"columns", s->columns},
-                       {"rows", s->rows}, {"surface_in_slice", s->has_surface}});
+    exports.push_back({{"file", o.png},
+                       {"kind", "slice"},
+                       {"axis", axis},
+                       {"index", spec->index},
+                       {"field", o.field},
+                       {"width", s->width},
+                       {"height", s->height},
+                       {"zoom", s->zoom},
+                       {"columns", s->columns},
+                       {"rows", s->rows},
+                       {"surface_in_slice", s->has_surface}});
   }
   if (!o.ply.empty()) {
     const Result<exports::PlyInfo> p = exports::write_point_shell_ply(asset, o.level, o.inward_normals, o.ply);
     if (!p) return p.error();
-    exports.push_back({{"file", o.ply}, {"kind", "point_shell"}, {"level", p->level}, {"levels", p->levels},
-                       {"points", p->points}, {"normals", o.inward_normals ? "inward" : "outward"}});
+    exports.push_back({{"file", o.ply},
+                       {"kind", "point_shell"},
+                       {"level", p->level},
+                       {"levels", p->levels},
+                       {"points", p->points},
+                       {"normals", o.inward_normals ? "inward" : "outward"}});
   }
   if (!o.vdb.empty()) {
     const Result<exports::VdbInfo> v = exports::write_voxelmap_vdb(asset, o.vdb);
     if (!v) return v.error();
-    exports.push_back({{"file", o.vdb}, {"kind", "vdb"}, {"grids", {"distance", "layers"}},
-                       {"distance_voxels", v->distance_voxels}, {"layer_voxels", v->layer_voxels}});
+    exports.push_back({{"file", o.vdb},
+                       {"kind", "vdb"},
+                       {"grids", {"distance", "layers"}},
+                       {"distance_voxels", v->distance_voxels},
+                       {"layer_voxels", v->layer_voxels}});
   }
   return exports;
 }
@@ -198,7 +217,8 @@ void print_export(const nlohmann::json& e) {
 void add_inspect_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
-      "inspect", "Print a summary of an asset (grid, point shell, mass, provenance); draw a slice; export the point shell "
+      "inspect",
+      "Print a summary of an asset (grid, point shell, mass, provenance); draw a slice; export the point shell "
       "(PLY) or the voxelmap (OpenVDB)");
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print the summary as JSON on stdout");
@@ -215,13 +235,18 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
   slice->needs(png);
   png->needs(slice);
   cmd->add_option("--field", options->field, "What the slice colours: layers (every voxel) or distances (the band)")
-      ->capture_default_str()->check(CLI::IsMember({"layers", "distances"}))->needs(slice);
-  cmd->add_option("--zoom", options->zoom, "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
-      ->check(CLI::Range(1, 64))->needs(slice);
+      ->capture_default_str()
+      ->check(CLI::IsMember({"layers", "distances"}))
+      ->needs(slice);
+  cmd->add_option("--zoom", options->zoom,
+                  "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
+      ->check(CLI::Range(1, 64))
+      ->needs(slice);
   auto* ply = cmd->add_option("--ply", options->ply,
                               "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)");
   cmd->add_option("--level", options->level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
-      ->check(CLI::NonNegativeNumber)->needs(ply);
+      ->check(CLI::NonNegativeNumber)
+      ->needs(ply);
   cmd->add_flag("--inward-normals", options->inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
   cmd->add_option("--vdb", options->vdb,
                   "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "

@@ -19,13 +19,17 @@ struct Options {
 
 void add_validate_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<Options>();
-  CLI::App* cmd = app.add_subcommand("validate", "Check assets against the format spec (exit 0 valid, 1 invalid, 2 unreadable)");
+  CLI::App* cmd =
+      app.add_subcommand("validate", "Check assets against the format spec (exit 0 valid, 1 invalid, 2 unreadable)");
   cmd->add_option("files", options->files, "Asset files (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print findings as JSON on stdout");
-  cmd->add_option("--level", options->level, "quick: structure, types, shapes, ranges, tree; full: also the semantic rules")
-      ->capture_default_str()->check(CLI::IsMember({"quick", "full"}));
+  cmd->add_option("--level", options->level,
+                  "quick: structure, types, shapes, ranges, tree; full: also the semantic rules")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"quick", "full"}));
   cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
-      ->capture_default_str()->check(CLI::PositiveNumber);
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   cmd->callback([options, &exit_code] {
     nlohmann::json report = {{"files", nlohmann::json::array()}};
     int worst = kExitOk;  // the highest exit status of any file's first error
@@ -41,7 +45,8 @@ void add_validate_command(CLI::App& app, int& exit_code) {
           break;
         }
       if (options->json) {
-        report["files"].push_back({{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
+        report["files"].push_back(
+            {{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
         continue;
       }
       bool unreadable = false;
@@ -51,8 +56,11 @@ void add_validate_command(CLI::App& app, int& exit_code) {
         warnings += issue.severity == Severity::Warning;
         unreadable |= issue.code == IssueCode::FileNotFound;
       }
-      std::cout << file << ": " << (valid ? "valid" : unreadable ? "UNREADABLE" : "INVALID") << " (" << errors << " error(s), " << warnings
-                << " warning(s))\n";
+      std::cout << file << ": "
+                << (valid        ? "valid"
+                    : unreadable ? "UNREADABLE"
+                                 : "INVALID")
+                << " (" << errors << " error(s), " << warnings << " warning(s))\n";
       if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
       for (const Issue& issue : issues)
         std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "

@@ -10,10 +10,9 @@
 int main(int argc, char** argv) {
   CLI::App app{"voxfmt — bake, inspect and validate Voxmap-PointShell collision assets (.vox.h5)"};
   app.require_subcommand(1);
-  app.set_version_flag("--version",
-                       std::string("voxfmt ") + VOXFMT_VERSION_STRING + " (asset format " +
-                           std::to_string(voxfmt::kFormatVersion.major) + "." +
-                           std::to_string(voxfmt::kFormatVersion.minor) + ")");
+  app.set_version_flag("--version", std::string("voxfmt ") + VOXFMT_VERSION_STRING + " (asset format " +
+                                        std::to_string(voxfmt::kFormatVersion.major) + "." +
+                                        std::to_string(voxfmt::kFormatVersion.minor) + ")");
   int exit_code = voxfmt::cli::kExitOk;
   voxfmt::cli::add_build_command(app, exit_code);
   voxfmt::cli::add_batch_command(app, exit_code);

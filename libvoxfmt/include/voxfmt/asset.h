@@ -39,9 +39,7 @@ struct Voxelmap {
   std::vector<float> distances;    ///< signed distance (negative inside), NaN where not stored
 
   size_t voxel_count() const { return size_t(dims[0]) * dims[1] * dims[2]; }
-  size_t linear_index(uint32_t i, uint32_t j, uint32_t k) const {
-    return (size_t(k) * dims[1] + j) * dims[0] + i;
-  }
+  size_t linear_index(uint32_t i, uint32_t j, uint32_t k) const { return (size_t(k) * dims[1] + j) * dims[0] + i; }
   Vec3 voxel_center(uint32_t i, uint32_t j, uint32_t k) const {
     return {origin[0] + voxel_size * i, origin[1] + voxel_size * j, origin[2] + voxel_size * k};
   }
@@ -78,9 +76,9 @@ struct PointShell {
 
 /// Unit-density mass properties of the closed surface (spec §5).
 struct MassProperties {
-  double volume = 0.0;                ///< m^3
-  Vec3 center_of_mass{};              ///< m
-  std::array<double, 9> inertia{};    ///< row-major 3x3 about the centre of mass, m^5
+  double volume = 0.0;              ///< m^3
+  Vec3 center_of_mass{};            ///< m
+  std::array<double, 9> inertia{};  ///< row-major 3x3 about the centre of mass, m^5
 };
 
 struct BuildWarning {
@@ -95,8 +93,8 @@ struct BuildWarning {
 struct Provenance {
   std::string generator;
   std::string generator_version;
-  std::string source_file;    ///< file name only
-  std::string source_sha256;  ///< 64 lowercase hex digits, or empty
+  std::string source_file;                   ///< file name only
+  std::string source_sha256;                 ///< 64 lowercase hex digits, or empty
   std::string build_parameters_json = "{}";  ///< JSON object
   std::map<std::string, std::string> dependency_versions;
   std::vector<BuildWarning> build_warnings;

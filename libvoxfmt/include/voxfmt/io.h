@@ -14,8 +14,8 @@
 namespace voxfmt {
 
 struct WriteOptions {
-  int deflate_level = 4;      ///< 0..9 for the voxel grids; 0 = no compression
-  unsigned chunk_edge = 32;   ///< grid chunk edge in voxels (clamped to the grid)
+  int deflate_level = 4;     ///< 0..9 for the voxel grids; 0 = no compression
+  unsigned chunk_edge = 32;  ///< grid chunk edge in voxels (clamped to the grid)
   /// What must hold before the file replaces the target. Full (the default): every rule of
   /// `validate --level full`, checked on a thread of its own while the file is written and compressed; Quick:
   /// structure, ranges and the tree only.

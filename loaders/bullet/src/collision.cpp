@@ -100,14 +100,17 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         const bool b_in_a = b.uses_points() && a.uses_voxelmap();
         runtime::QueryDirection direction = shared_->settings.direction;
         if (direction == runtime::QueryDirection::Auto)
-          direction = a_in_b && b_in_a ? runtime::resolve_direction(a.object(), pose_a, b.object(), pose_b, direction)
-                                       : (a_in_b ? runtime::QueryDirection::APointsInB : runtime::QueryDirection::BPointsInA);
-        if (a_in_b && (direction == runtime::QueryDirection::APointsInB || direction == runtime::QueryDirection::Both)) {
+          direction = a_in_b && b_in_a
+                          ? runtime::resolve_direction(a.object(), pose_a, b.object(), pose_b, direction)
+                          : (a_in_b ? runtime::QueryDirection::APointsInB : runtime::QueryDirection::BPointsInA);
+        if (a_in_b &&
+            (direction == runtime::QueryDirection::APointsInB || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::APointsInB;
           options.point_budget = a.point_budget();
           runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
-        if (b_in_a && (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
+        if (b_in_a &&
+            (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::BPointsInA;
           options.point_budget = b.point_budget();
           runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
@@ -138,15 +141,17 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
           const Eigen::Vector3f obf = ob.cast<float>(), hf = half.cast<float>();
           runtime::query_against_function(
               a.object(), pose_a,
-              [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return box_distance(rbf, obf, hf, x, outward); },
+              [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+                return box_distance(rbf, obf, hf, x, outward);
+              },
               options, contacts, scratch);
         }
         if (a.uses_voxelmap()) {  // the box's corners in A's voxelmap
           std::array<Eigen::Vector3d, 8> corners;
           for (int k = 0; k < 8; ++k)
-            corners[size_t(k)] = ob + rb * Eigen::Vector3d((k & 1) ? half.x() : -half.x(),
-                                                           (k & 2) ? half.y() : -half.y(),
-                                                           (k & 4) ? half.z() : -half.z());
+            corners[size_t(k)] =
+                ob + rb * Eigen::Vector3d((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(),
+                                          (k & 4) ? half.z() : -half.z());
           runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
         }
         return;
@@ -168,7 +173,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
               },
               options, contacts, scratch);
         }
-        if (a.uses_voxelmap()) runtime::query_points_in_voxelmap(a.object(), pose_a, &centre, 1, radius, options, contacts);
+        if (a.uses_voxelmap())
+          runtime::query_points_in_voxelmap(a.object(), pose_a, &centre, 1, radius, options, contacts);
         return;
       }
       default:
@@ -177,8 +183,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
   // Signed distance to an oriented box and its outward normal.
-  static float box_distance(const Eigen::Matrix3f& rotation, const Eigen::Vector3f& origin,
-                            const Eigen::Vector3f& half, const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+  static float box_distance(const Eigen::Matrix3f& rotation, const Eigen::Vector3f& origin, const Eigen::Vector3f& half,
+                            const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
     const Eigen::Vector3f local = rotation.transpose() * (x - origin);
     const Eigen::Vector3f q = local.cwiseAbs() - half;
     const Eigen::Vector3f sign = local.unaryExpr([](float v) { return v < 0.0f ? -1.0f : 1.0f; });

@@ -68,8 +68,8 @@ void VpsShape::setLocalScaling(const btVector3& scaling) {
 
 void VpsShape::calculateLocalInertia(btScalar mass, btVector3& inertia) const {
   const double volume = object_->volume();
-  const Eigen::Vector3d moments = object_->principal_moments() * (volume > 0 ? double(mass) / volume : 0.0) *
-                                  scale_ * scale_;
+  const Eigen::Vector3d moments =
+      object_->principal_moments() * (volume > 0 ? double(mass) / volume : 0.0) * scale_ * scale_;
   inertia = to_bt_vector(moments);
 }
 

@@ -32,8 +32,7 @@ std::vector<size_t> reduce_contacts(const std::vector<Contact>& contacts, size_t
   chosen.push_back(far);
   const Eigen::Vector3d p1 = contacts[far].point;
   if (max_points == 2) return chosen;
-  const auto [third, twice_area] =
-      argmax([&](const Contact& c) { return (p1 - p0).cross(c.point - p0).norm(); });
+  const auto [third, twice_area] = argmax([&](const Contact& c) { return (p1 - p0).cross(c.point - p0).norm(); });
   if (twice_area <= 0.0) return chosen;  // collinear
   chosen.push_back(third);
   const Eigen::Vector3d p2 = contacts[third].point;

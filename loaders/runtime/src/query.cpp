@@ -38,8 +38,8 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   const Eigen::Matrix3f Mf = M.cast<float>();
   const Eigen::Vector3f mf = m.cast<float>();
 
-  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats,
-                        scratch.queue, [&](uint32_t node, float d, bool exact) {
+  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch.queue,
+                        [&](uint32_t node, float d, bool exact) {
                           Contact contact;
                           contact.point = shell_pose.apply(tree.points[node].cast<double>());
                           Eigen::Vector3d normal = Eigen::Vector3d::Zero();
@@ -84,8 +84,8 @@ void query_contacts(const CollisionObject& a, const Pose& pose_a, const Collisio
     shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch);
 }
 
-void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points,
-                              size_t count, double radius, const QueryOptions& options, ContactSet& out) {
+void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,
+                              double radius, const QueryOptions& options, ContactSet& out) {
   if (!a.has_voxelmap()) return;
   const SparseVoxelmap& map = a.voxelmap();
   const double metres_per_unit = pose_a.scale * map.voxel_size();

@@ -168,8 +168,7 @@ bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
 }
 
 float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
-  const Eigen::Vector3f outside =
-      (object_min_ - u).cwiseMax(u - object_max_).cwiseMax(Eigen::Vector3f::Zero());
+  const Eigen::Vector3f outside = (object_min_ - u).cwiseMax(u - object_max_).cwiseMax(Eigen::Vector3f::Zero());
   return outside.norm();
 }
 

@@ -2,19 +2,19 @@
 // public entry points (bake_mesh, bake_to_file) and the one serialisation of a bake's summary.
 #include <CGAL/version.h>
 #include <assimp/version.h>
-#include <nlohmann/json.hpp>
-#include <openssl/evp.h>
 #include <oneapi/tbb/global_control.h>
 #include <oneapi/tbb/task_group.h>
 #include <oneapi/tbb/version.h>
+#include <openssl/evp.h>
+#include <nlohmann/json.hpp>
 
 #include <sys/resource.h>
 
 #include <algorithm>
 #include <chrono>
-#include <exception>
 #include <cmath>
 #include <ctime>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -57,7 +57,8 @@ Result<T> guarded(const std::string& mesh_path, Work&& work) {
   } catch (const BakeError& e) {
     return Error{e.code(), e.what(), mesh_path};
   } catch (const std::bad_alloc&) {
-    return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory (try a coarser resolution or voxel size)", mesh_path};
+    return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory (try a coarser resolution or voxel size)",
+                 mesh_path};
   } catch (const std::exception& e) {  // library failures (CGAL preconditions, TBB) still get a clean error
     return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
   }
@@ -158,8 +159,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   auto clock = std::chrono::steady_clock::now();
   auto stage = [&](const std::string& name) {
     const auto now = std::chrono::steady_clock::now();
-    if (!report.timings.empty())
-      report.timings.back().seconds = std::chrono::duration<double>(now - clock).count();
+    if (!report.timings.empty()) report.timings.back().seconds = std::chrono::duration<double>(now - clock).count();
     clock = now;
     if (name.empty()) return;
     report.timings.push_back({name, 0});
@@ -226,17 +226,20 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
     // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
     // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
     if (*std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1)
-      throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume at this resolution: no voxel is more "
-                                                 "than half a voxel inside (winding number >= 1/2); an open sheet, or "
-                                                 "thinner than a voxel (a finer --resolution or --voxel-size may help)");
+      throw BakeError(IssueCode::ZeroVolume,
+                      mesh_path +
+                          ": the surface encloses no volume at this resolution: no voxel is more "
+                          "than half a voxel inside (winding number >= 1/2); an open sheet, or "
+                          "thinner than a voxel (a finer --resolution or --voxel-size may help)");
     mass = voxelmap_mass_properties(voxelmap);
     check_volume("an open sheet");
     // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can
     // put the centre a fraction of a voxel past a flat side.
     for (int a = 0; a < 3; ++a) mass.center_of_mass[a] = std::clamp(mass.center_of_mass[a], lo[a], hi[a]);
   }
-  report.timings.insert(report.timings.end() - 2, {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds},
-                                                   {"sphere tree", tree_seconds}});
+  report.timings.insert(
+      report.timings.end() - 2,
+      {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds}, {"sphere tree", tree_seconds}});
   Asset asset;
   asset.up_axis = options.up_axis;
   asset.bounds_min = lo;

@@ -1,8 +1,8 @@
 // Stage 1: any mesh format assimp reads -> one triangle soup in the file's frame (times unit_scale).
-#include <assimp/DefaultLogger.hpp>
-#include <assimp/Importer.hpp>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <assimp/DefaultLogger.hpp>
+#include <assimp/Importer.hpp>
 
 #include <algorithm>
 #include <cctype>
@@ -17,8 +17,8 @@ namespace voxfmt::bake {
 
 namespace {
 
-void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& parent, TriangleMesh& out,
-                 double scale, const std::string& path) {
+void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& parent, TriangleMesh& out, double scale,
+                 const std::string& path) {
   const aiMatrix4x4 transform = parent * node.mTransformation;
   for (unsigned m = 0; m < node.mNumMeshes; ++m) {
     const aiMesh& mesh = *scene.mMeshes[node.mMeshes[m]];
@@ -28,7 +28,7 @@ void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& pa
       const Vec3 q = {double(p.x) * scale, double(p.y) * scale, double(p.z) * scale};
       if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
         throw BakeError(IssueCode::NonFiniteCoordinates, path + ": vertex " + std::to_string(v) + " of mesh '" +
-                                                      mesh.mName.C_Str() + "' has a non-finite coordinate");
+                                                             mesh.mName.C_Str() + "' has a non-finite coordinate");
       out.vertices.push_back(q);
     }
     for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
@@ -59,22 +59,23 @@ bool is_mesh_file_name(const std::string& path) {
       if (end == std::string::npos) end = list.size();
       std::string pattern = lowercase(list.substr(start, end - start));
       if (pattern.rfind("*", 0) == 0) pattern.erase(0, 1);
-      if (!pattern.empty() && std::find(excluded.begin(), excluded.end(), pattern) == excluded.end()) out.push_back(pattern);
+      if (!pattern.empty() && std::find(excluded.begin(), excluded.end(), pattern) == excluded.end())
+        out.push_back(pattern);
       start = end + 1;
     }
     return out;
   }();
   const std::string name = lowercase(std::filesystem::path(path).filename().string());
   for (const std::string& extension : extensions)
-    if (name.size() > extension.size() && name.compare(name.size() - extension.size(), extension.size(), extension) == 0)
+    if (name.size() > extension.size() &&
+        name.compare(name.size() - extension.size(), extension.size(), extension) == 0)
       return true;
   return false;
 }
 
 TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec))
-    throw BakeError(IssueCode::InputNotFound, path + ": no such file");
+  if (!std::filesystem::is_regular_file(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
 
@@ -90,15 +91,15 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
     const std::string reason = importer.GetErrorString();
     // Some importers refuse a file with nothing in it instead of returning an empty scene.
     const std::string lower = lowercase(reason);
-    const bool empty = lower.find("no valid faces") != std::string::npos || lower.find("no meshes") != std::string::npos;
+    const bool empty =
+        lower.find("no valid faces") != std::string::npos || lower.find("no meshes") != std::string::npos;
     throw BakeError(empty ? IssueCode::EmptyScene : IssueCode::ImportFailed,
                     path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
   }
 
   TriangleMesh mesh;
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
-  if (mesh.triangles.empty())
-    throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
+  if (mesh.triangles.empty()) throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
   return mesh;
 }
 

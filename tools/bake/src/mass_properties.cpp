@@ -14,8 +14,8 @@ namespace {
 
 struct Moments {
   double volume = 0;
-  Vec3 first{};               // integral of x dV
-  double second[3][3] = {};   // integral of x x^T dV
+  Vec3 first{};              // integral of x dV
+  double second[3][3] = {};  // integral of x x^T dV
 };
 
 // Moments about `ref` -> mass properties (centre of mass in the asset frame, inertia about it).
@@ -50,7 +50,8 @@ MassProperties compute_mass_properties(const TriangleMesh& mesh) {
     for (int i = 0; i < 3; ++i)
       for (int a = 0; a < 3; ++a) p[i][a] = mesh.vertices[t[i]][a] - ref[a];
     // Signed tetrahedron (ref, p0, p1, p2): det = 6 V.
-    const double det = p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) - p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0]) +
+    const double det = p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) -
+                       p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0]) +
                        p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0]);
     sum.volume += det / 6;
     Vec3 s{};
@@ -83,7 +84,8 @@ MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
               const float d = vm.distances[v];
               // Inside fraction of the voxel: a plane at distance d from its centre cuts off 1/2 - d/h of it
               // (exact for axis-aligned planes); whole voxels away from the surface.
-              const double w = Voxelmap::is_stored(d) ? std::clamp(0.5 - double(d) / h, 0.0, 1.0) : (vm.layers[v] > 0 ? 1.0 : 0.0);
+              const double w =
+                  Voxelmap::is_stored(d) ? std::clamp(0.5 - double(d) / h, 0.0, 1.0) : (vm.layers[v] > 0 ? 1.0 : 0.0);
               if (w == 0) continue;
               const double x[3] = {i - centre[0], j - centre[1], k - centre[2]};
               m.volume += w;

@@ -46,7 +46,10 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
     const size_t t = std::min(size_t(std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin()),
                               cumulative.size() - 1);
     double u = unit(rng), v = unit(rng);
-    if (u + v > 1) { u = 1 - u; v = 1 - v; }
+    if (u + v > 1) {
+      u = 1 - u;
+      v = 1 - v;
+    }
     const auto& tri = mesh.triangles[t];
     const Vec3 &a = mesh.vertices[tri[0]], &b = mesh.vertices[tri[1]], &cc = mesh.vertices[tri[2]];
     for (int k = 0; k < 3; ++k) c.point[k] = a[k] + u * (b[k] - a[k]) + v * (cc[k] - a[k]);
@@ -57,8 +60,7 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
 
 /// Dart throwing over the candidates (already in random order): keeps a candidate when no kept point lies
 /// within `radius`. A hash grid of cell `radius` makes each test look at 27 cells.
-std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit,
-                               size_t expected) {
+std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit, size_t expected) {
   std::unordered_map<uint64_t, std::vector<uint32_t>> cells;
   cells.reserve(2 * std::min(limit, expected));
   auto key = [](int64_t x, int64_t y, int64_t z) {
@@ -78,7 +80,10 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
           auto it = cells.find(key(x + dx, y + dy, z + dz));
           if (it == cells.end()) continue;
           for (uint32_t other : it->second)
-            if (distance2(candidates[kept[other]].point, p) < r2) { free = false; break; }
+            if (distance2(candidates[kept[other]].point, p) < r2) {
+              free = false;
+              break;
+            }
         }
     if (!free) continue;
     cells[key(x, y, z)].push_back(uint32_t(kept.size()));
@@ -97,9 +102,11 @@ PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings
   if (options.point_spacing > 0) wanted = std::ceil(area / (0.75 * options.point_spacing * options.point_spacing));
   if (!(wanted >= 1)) throw BakeError(IssueCode::BadOption, "the point shell needs at least one point");
   if (!(wanted <= 50e6))
-    throw BakeError(IssueCode::BadOption, "the point shell would need more than 50 million points (point spacing too small)");
+    throw BakeError(IssueCode::BadOption,
+                    "the point shell would need more than 50 million points (point spacing too small)");
   const size_t target = size_t(wanted);
-  const std::vector<Candidate> candidates = surface_candidates(mesh, std::max<size_t>(8 * target, 64), options.seed, area);
+  const std::vector<Candidate> candidates =
+      surface_candidates(mesh, std::max<size_t>(8 * target, 64), options.seed, area);
 
   std::vector<size_t> kept;
   if (options.point_spacing > 0) {
@@ -131,9 +138,9 @@ using SphereTraits = CGAL::Min_sphere_of_spheres_d_traits_3<CGAL::Simple_cartesi
 using MinSphere = CGAL::Min_sphere_of_spheres_d<SphereTraits>;
 
 struct Node {
-  uint32_t point;                 ///< index into the sampled points
-  std::vector<uint32_t> children; ///< node indices (into the nodes array)
-  Vec3 mass_sum{};                ///< sum of the points of the subtree
+  uint32_t point;                  ///< index into the sampled points
+  std::vector<uint32_t> children;  ///< node indices (into the nodes array)
+  Vec3 mass_sum{};                 ///< sum of the points of the subtree
   double mass_count = 0;
 };
 
@@ -184,7 +191,8 @@ void build_sphere_tree(PointShell& shell, double branching) {
   while (level.size() > 1) {
     for (uint32_t id : level) centre_of[id] = shell.points[nodes[id].point];
     // At most size/2 groups, so every cluster has >= 2 members and its parent has a child to hand orphans to.
-    const size_t groups = std::clamp<size_t>(size_t(std::llround(double(level.size()) / branching)), 1, level.size() / 2);
+    const size_t groups =
+        std::clamp<size_t>(size_t(std::llround(double(level.size()) / branching)), 1, level.size() / 2);
     std::vector<std::pair<size_t, size_t>> clusters;
     median_split(level, 0, level.size(), groups, centre_of, clusters);
     std::vector<uint32_t> parents;
@@ -261,8 +269,9 @@ void build_sphere_tree(PointShell& shell, double branching) {
     std::vector<MinSphere::Sphere> spheres;
     spheres.emplace_back(SphereTraits::Point(out.points[i][0], out.points[i][1], out.points[i][2]), 0.0);
     for (uint32_t c = out.child_begin[i]; c < out.child_begin[i] + out.child_count[i]; ++c)
-      spheres.emplace_back(SphereTraits::Point(out.sphere_centers[c][0], out.sphere_centers[c][1], out.sphere_centers[c][2]),
-                           out.sphere_radii[c]);
+      spheres.emplace_back(
+          SphereTraits::Point(out.sphere_centers[c][0], out.sphere_centers[c][1], out.sphere_centers[c][2]),
+          out.sphere_radii[c]);
     MinSphere ms(spheres.begin(), spheres.end());
     auto centre = ms.center_cartesian_begin();
     out.sphere_centers[i] = {centre[0], centre[1], centre[2]};

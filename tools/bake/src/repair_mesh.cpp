@@ -67,8 +67,10 @@ bool is_oriented_manifold_soup(const std::vector<std::array<size_t, 3>>& triangl
   for (uint32_t corner = 0; corner < corners; ++corner) {
     uint32_t& first = fan[triangles[corner / 3][corner % 3]];
     const uint32_t r = root(corner);
-    if (first == ~0u) first = r;
-    else if (first != r) return false;
+    if (first == ~0u)
+      first = r;
+    else if (first != r)
+      return false;
   }
   return true;
 }
@@ -138,7 +140,8 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
     warn(report, "MULTIPLE_COMPONENTS", std::to_string(report.components) + " connected components");
 
   if (!check_self_intersections)
-    warn(report, "SELF_INTERSECTION_CHECK_SKIPPED", "self-intersections were not checked; the sign assumes there are none");
+    warn(report, "SELF_INTERSECTION_CHECK_SKIPPED",
+         "self-intersections were not checked; the sign assumes there are none");
   if (check_self_intersections) {
     std::vector<std::pair<SurfaceMesh::Face_index, SurfaceMesh::Face_index>> pairs;
     PMP::self_intersections<CGAL::Parallel_if_available_tag>(sm.faces(), sm, std::back_inserter(pairs));

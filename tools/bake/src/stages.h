@@ -43,10 +43,10 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& settings
 // ---------------------------------------------------------------- 2. check and repair
 
 struct RepairReport {
-  bool closed = false;            ///< no border edges after repair
+  bool closed = false;  ///< no border edges after repair
   bool consistently_oriented = false;
-  size_t merged_vertices = 0;     ///< duplicate vertices merged
-  size_t removed_faces = 0;       ///< degenerate or duplicate faces dropped
+  size_t merged_vertices = 0;  ///< duplicate vertices merged
+  size_t removed_faces = 0;    ///< degenerate or duplicate faces dropped
   size_t border_edges = 0;
   size_t non_manifold_vertices = 0;
   size_t components = 0;

@@ -41,12 +41,11 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
   uint64_t total = 1;
   for (int a = 0; a < 3; ++a) {
     const double cells = std::max(1.0, std::ceil((hi[a] - lo[a]) / g.voxel_size - 1e-9)) + 2.0 * options.margin;
-    if (!(cells <= 65535))
-    {
+    if (!(cells <= 65535)) {
       char count[32];
       std::snprintf(count, sizeof count, "%.3g", cells);
       throw BakeError(IssueCode::GridTooLarge, std::string("the grid would have ") + count +
-                                            " voxels along an axis (at most 65535): voxel size too small");
+                                                   " voxels along an axis (at most 65535): voxel size too small");
     }
     const uint64_t n = uint64_t(cells);
     g.dims[a] = uint32_t(n);
@@ -54,7 +53,8 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
     total *= n;
   }
   if (total > 0x7fffffffull)
-    throw BakeError(IssueCode::GridTooLarge, "the grid would have " + std::to_string(total) + " voxels (at most 2^31-1)");
+    throw BakeError(IssueCode::GridTooLarge,
+                    "the grid would have " + std::to_string(total) + " voxels (at most 2^31-1)");
   return g;
 }
 
@@ -65,7 +65,11 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
 void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
                        const std::array<uint32_t, 3>& dims) {
   const int64_t W = dims[0], H = dims[1], D = dims[2];
-  struct Step { int di, dj, dk; double w; int64_t offset; };
+  struct Step {
+    int di, dj, dk;
+    double w;
+    int64_t offset;
+  };
   std::vector<Step> forward;
   for (int dk = -1; dk <= 1; ++dk)
     for (int dj = -1; dj <= 1; ++dj)
@@ -117,7 +121,6 @@ void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags
     }
 }
 
-
 // ---- exact near-surface distances. Every triangle is rasterised into the voxels within `half_width` of it
 // (closest-point distance in double precision) and each voxel keeps its nearest triangle, so the band is exact
 // by construction, also between thin walls and in folds, where a local closest-triangle search (OpenVDB's
@@ -162,17 +165,32 @@ enum class Feature : uint8_t { kCornerA, kCornerB, kCornerC, kEdgeAB, kEdgeBC, k
 inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Feature& feature) {
   const Vec3 ab = b - a, ac = c - a, ap = p - a;
   const double d1 = dot(ab, ap), d2 = dot(ac, ap);
-  if (d1 <= 0 && d2 <= 0) { feature = Feature::kCornerA; return a; }
+  if (d1 <= 0 && d2 <= 0) {
+    feature = Feature::kCornerA;
+    return a;
+  }
   const Vec3 bp = p - b;
   const double d3 = dot(ab, bp), d4 = dot(ac, bp);
-  if (d3 >= 0 && d4 <= d3) { feature = Feature::kCornerB; return b; }
+  if (d3 >= 0 && d4 <= d3) {
+    feature = Feature::kCornerB;
+    return b;
+  }
   const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) { feature = Feature::kEdgeAB; return a + ab * (d1 / (d1 - d3)); }
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+    feature = Feature::kEdgeAB;
+    return a + ab * (d1 / (d1 - d3));
+  }
   const Vec3 cp = p - c;
   const double d5 = dot(ab, cp), d6 = dot(ac, cp);
-  if (d6 >= 0 && d5 <= d6) { feature = Feature::kCornerC; return c; }
+  if (d6 >= 0 && d5 <= d6) {
+    feature = Feature::kCornerC;
+    return c;
+  }
   const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) { feature = Feature::kEdgeCA; return a + ac * (d2 / (d2 - d6)); }
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+    feature = Feature::kEdgeCA;
+    return a + ac * (d2 / (d2 - d6));
+  }
   const double va = d3 * d6 - d5 * d4;
   if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
     feature = Feature::kEdgeBC;
@@ -185,21 +203,29 @@ inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, con
 
 Vec3 feature_pseudonormal(const Pseudonormals& pn, const TriangleMesh& mesh, size_t f, Feature feature) {
   switch (feature) {
-    case Feature::kCornerA: return pn.vertex[mesh.triangles[f][0]];
-    case Feature::kCornerB: return pn.vertex[mesh.triangles[f][1]];
-    case Feature::kCornerC: return pn.vertex[mesh.triangles[f][2]];
-    case Feature::kEdgeAB: return pn.edge[f][0];
-    case Feature::kEdgeBC: return pn.edge[f][1];
-    case Feature::kEdgeCA: return pn.edge[f][2];
-    case Feature::kFace: break;
+    case Feature::kCornerA:
+      return pn.vertex[mesh.triangles[f][0]];
+    case Feature::kCornerB:
+      return pn.vertex[mesh.triangles[f][1]];
+    case Feature::kCornerC:
+      return pn.vertex[mesh.triangles[f][2]];
+    case Feature::kEdgeAB:
+      return pn.edge[f][0];
+    case Feature::kEdgeBC:
+      return pn.edge[f][1];
+    case Feature::kEdgeCA:
+      return pn.edge[f][2];
+    case Feature::kFace:
+      break;
   }
   return pn.face[f];
 }
 
 // Layers round distances (in voxels) at half-integers, so ties matter. A distance within 1e-6 (relative, and
-// so more than a float's half ulp) of a tie is put on it (a face half a voxel from the voxel centres, with float input coordinates, gives 0.49999995
-// here and 1.49999995 at the next voxel; exact ties round alike), and the float kept for the voxel stays on
-// the double's side of every tie (1.49999995 would otherwise round to the float 1.5 and jump a layer).
+// so more than a float's half ulp) of a tie is put on it (a face half a voxel from the voxel centres, with float input
+// coordinates, gives 0.49999995 here and 1.49999995 at the next voxel; exact ties round alike), and the float kept for
+// the voxel stays on the double's side of every tie (1.49999995 would otherwise round to the float 1.5 and jump a
+// layer).
 float tie_safe_float(double distance) {
   const double tie = std::floor(distance) + 0.5;
   if (std::abs(distance - tie) < 1e-6 * std::max(1.0, std::abs(tie))) distance = tie;
@@ -231,7 +257,8 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
   std::vector<IndexTriangle> triangles(triangle_count);
   tbb::parallel_for(size_t(0), triangle_count, [&](size_t f) {
     auto to_index = [&](uint32_t v) {
-      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size,
+                  (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
                   (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
     };
     IndexTriangle& t = triangles[f];
@@ -268,7 +295,8 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
   std::vector<uint32_t> members(first.back());
   {
     std::vector<size_t> next(first.begin(), first.end() - 1);
-    for (size_t f = 0; f < triangle_count; ++f) reached(triangles[f], [&](size_t s) { members[next[s]++] = uint32_t(f); });
+    for (size_t f = 0; f < triangle_count; ++f)
+      reached(triangles[f], [&](size_t s) { members[next[s]++] = uint32_t(f); });
   }
 
   const Pseudonormals pn = pseudonormals(mesh);
@@ -393,7 +421,8 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
             const int64_t aa = std::min(a + da, cw - 1), bb = std::min(b + db, ch - 1), cc = std::min(c + dc, cd - 1);
             return double(coarse[size_t((cc * ch + bb) * cw + aa)]);
           };
-          w = (1 - t) * ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
+          w = (1 - t) *
+                  ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
               t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
         }
         value = w >= 0.5 && inside_bounds(i, j, k) ? -std::abs(value) : std::abs(value);
@@ -403,9 +432,9 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
 
 // Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
 // differ by at most one. Computed distances can exceed that by ~1e-6 voxel (tie snapping moves values by up to
-// 1e-6; the nearest triangle is chosen by a float key), enough to straddle two ties and step two layers. Such a pair has one value
-// within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are real
-// errors and are left for the validator to report. Returns the number of values moved.
+// 1e-6; the nearest triangle is chosen by a float key), enough to straddle two ties and step two layers. Such a pair
+// has one value within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are
+// real errors and are left for the validator to report. Returns the number of values moved.
 size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<uint32_t, 3>& dims) {
   constexpr double kSlack = 1e-4;
   const int64_t W = dims[0], H = dims[1], D = dims[2];
@@ -418,7 +447,8 @@ size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<ui
         for (int64_t i = 0; i < W; ++i) {
           const size_t v = size_t((k * H + j) * W + i);
           if (!(std::abs(d[v]) <= band)) continue;
-          const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v, k + 1 < D ? v + size_t(W * H) : v};
+          const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v,
+                                  k + 1 < D ? v + size_t(W * H) : v};
           for (size_t n : next) {
             if (n == v || !(std::abs(d[n]) <= band) || std::abs(layer(v) - layer(n)) < 2) continue;
             const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
@@ -490,8 +520,8 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
         const double read = layer_of(-double(stored) / h);
         if (read == layer) break;
         // A larger distance gives a smaller layer.
-        stored = std::nextafter(stored, read > layer ? std::numeric_limits<float>::infinity()
-                                                     : -std::numeric_limits<float>::infinity());
+        stored = std::nextafter(
+            stored, read > layer ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity());
       }
       vm.distances[v] = stored;
       vm.layers[v] = int16_t(layer);

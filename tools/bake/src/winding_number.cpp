@@ -17,8 +17,8 @@ constexpr size_t kLeafSize = 8;
 
 struct WindingNumber::Impl {
   struct Node {
-    Vec3 centre{};       // area-weighted centroid
-    Vec3 dipole{};       // sum of area vectors (area * unit normal)
+    Vec3 centre{};  // area-weighted centroid
+    Vec3 dipole{};  // sum of area vectors (area * unit normal)
     double radius = 0;
     uint32_t begin = 0, end = 0;  // triangle range (in `order`)
     int32_t left = -1, right = -1;
@@ -42,15 +42,18 @@ struct WindingNumber::Impl {
       const Vec3 c{mesh.vertices[t[2]][0], mesh.vertices[t[2]][1], mesh.vertices[t[2]][2]};
       const Vec3 area_vector = cross(b - a, c - a);
       const double area = 0.5 * length(area_vector);
-      n.dipole = {n.dipole[0] + 0.5 * area_vector[0], n.dipole[1] + 0.5 * area_vector[1], n.dipole[2] + 0.5 * area_vector[2]};
+      n.dipole = {n.dipole[0] + 0.5 * area_vector[0], n.dipole[1] + 0.5 * area_vector[1],
+                  n.dipole[2] + 0.5 * area_vector[2]};
       const Vec3& g = centroid[order[i]];
       n.centre = {n.centre[0] + area * g[0], n.centre[1] + area * g[1], n.centre[2] + area * g[2]};
       area_sum += area;
       lo = {std::min(lo[0], g[0]), std::min(lo[1], g[1]), std::min(lo[2], g[2])};
       hi = {std::max(hi[0], g[0]), std::max(hi[1], g[1]), std::max(hi[2], g[2])};
     }
-    if (area_sum > 0) n.centre = {n.centre[0] / area_sum, n.centre[1] / area_sum, n.centre[2] / area_sum};
-    else n.centre = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+    if (area_sum > 0)
+      n.centre = {n.centre[0] / area_sum, n.centre[1] / area_sum, n.centre[2] / area_sum};
+    else
+      n.centre = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
     for (uint32_t i = begin; i < end; ++i)
       for (int k = 0; k < 3; ++k) {
         const Vec3& v = mesh.vertices[mesh.triangles[order[i]][k]];
@@ -86,7 +89,8 @@ struct WindingNumber::Impl {
     if (distance > kBeta * n.radius) return dot(n.dipole, r) / (distance * distance * distance) / (4 * kPi);
     if (n.left < 0) {
       double omega = 0;
-      for (uint32_t i = n.begin; i < n.end; ++i) omega += solid_angle(q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2]);
+      for (uint32_t i = n.begin; i < n.end; ++i)
+        omega += solid_angle(q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2]);
       return omega / (4 * kPi);
     }
     return evaluate(n.left, q) + evaluate(n.right, q);

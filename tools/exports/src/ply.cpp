@@ -13,14 +13,15 @@ Result<PlyInfo> write_point_shell_ply(const Asset& asset, int level, bool inward
   info.levels = uint32_t(ps.level_count());
   if (level < 0) level = int(info.levels) - 1;
   if (level >= int(info.levels))
-    return Error{IssueCode::BadOption,
-                 "--level " + std::to_string(level) + ": the point-sphere tree has levels 0.." + std::to_string(info.levels - 1)};
+    return Error{IssueCode::BadOption, "--level " + std::to_string(level) + ": the point-sphere tree has levels 0.." +
+                                           std::to_string(info.levels - 1)};
   info.level = uint32_t(level);
   info.points = ps.level_offsets[size_t(level) + 1];
   std::string data = "ply\nformat binary_little_endian 1.0\n";
   data += "comment voxfmt point shell: tree levels 0.." + std::to_string(level) + " of 0.." +
           std::to_string(info.levels - 1) + ", " + std::to_string(info.points) + " of " + std::to_string(ps.size()) +
-          " points, metres, normals " + (inward ? "inward (as stored)" : "outward (the asset stores inward normals)") + "\n";
+          " points, metres, normals " + (inward ? "inward (as stored)" : "outward (the asset stores inward normals)") +
+          "\n";
   data += "element vertex " + std::to_string(info.points) + "\n";
   for (const char* p : {"x", "y", "z", "nx", "ny", "nz"}) data += std::string("property float ") + p + "\n";
   data += "end_header\n";

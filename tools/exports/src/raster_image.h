@@ -25,7 +25,9 @@ class RasterImage {
   /// Draws text with the built-in font (upper case, digits, - . , = + ( ) : / ? and space; lower case is drawn
   /// as upper case, anything else as '?'), each font pixel `scale` x `scale`. Returns the width drawn.
   int text(int x, int y, const std::string& text, int scale, Rgb colour);
-  static int text_width(const std::string& text, int scale) { return int(text.size()) * 6 * scale - (text.empty() ? 0 : scale); }
+  static int text_width(const std::string& text, int scale) {
+    return int(text.size()) * 6 * scale - (text.empty() ? 0 : scale);
+  }
   static int text_height(int scale) { return 7 * scale; }
 
   /// Writes 8-bit RGB PNG atomically; WRITE_FAILED naming the path on failure.

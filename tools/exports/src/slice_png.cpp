@@ -68,17 +68,17 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
   const Voxelmap& vm = asset.voxelmap;
   const uint32_t n = vm.dims[size_t(spec.axis)];
   if (spec.index < 0 || spec.index >= int64_t(n))
-    return Error{IssueCode::BadOption, "--slice " + std::string(kAxisNames[spec.axis]) + "=" + std::to_string(spec.index) +
-                           ": the index must be in 0.." + std::to_string(n - 1) + " (the grid is " +
-                           std::to_string(vm.dims[0]) + " x " + std::to_string(vm.dims[1]) + " x " +
-                           std::to_string(vm.dims[2]) + " voxels)"};
+    return Error{IssueCode::BadOption, "--slice " + std::string(kAxisNames[spec.axis]) + "=" +
+                                           std::to_string(spec.index) + ": the index must be in 0.." +
+                                           std::to_string(n - 1) + " (the grid is " + std::to_string(vm.dims[0]) +
+                                           " x " + std::to_string(vm.dims[1]) + " x " + std::to_string(vm.dims[2]) +
+                                           " voxels)"};
   // Columns and rows of the slice: z -> (x, y), y -> (x, z), x -> (y, z); rows go up.
   const int col_axis = spec.axis == 0 ? 1 : 0, row_axis = spec.axis == 2 ? 1 : 2;
   SliceInfo info;
   info.columns = vm.dims[size_t(col_axis)];
   info.rows = vm.dims[size_t(row_axis)];
-  const int zoom = spec.zoom > 0 ? spec.zoom
-                                 : std::clamp(900 / int(std::max(info.columns, info.rows)), 1, 16);
+  const int zoom = spec.zoom > 0 ? spec.zoom : std::clamp(900 / int(std::max(info.columns, info.rows)), 1, 16);
   info.zoom = zoom;
   auto voxel = [&](int64_t col, int64_t row) {
     uint32_t ijk[3];
@@ -131,7 +131,8 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
       const double fu = std::clamp(u - double(c0), 0.0, 1.0), fw = std::clamp(w - double(r0), 0.0, 1.0);
       const float d00 = vm.distances[voxel(c0, r0)], d10 = vm.distances[voxel(c1, r0)];
       const float d01 = vm.distances[voxel(c0, r1)], d11 = vm.distances[voxel(c1, r1)];
-      if (!Voxelmap::is_stored(d00) || !Voxelmap::is_stored(d10) || !Voxelmap::is_stored(d01) || !Voxelmap::is_stored(d11))
+      if (!Voxelmap::is_stored(d00) || !Voxelmap::is_stored(d10) || !Voxelmap::is_stored(d01) ||
+          !Voxelmap::is_stored(d11))
         continue;
       field[size_t(py) * size_t(map_w) + size_t(px)] =
           (1 - fw) * ((1 - fu) * d00 + fu * d10) + fw * ((1 - fu) * d01 + fu * d11);
@@ -163,9 +164,11 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
   // Legend: a colour bar from +max (top, inside) to -max (bottom, outside) with ticks, then the swatches.
   const int legend_x = map_x + map_w + 2 * margin, bar_w = 20;
   const int swatch_h = spec.distances ? 72 : 48;
-  const int bar_top = map_y + RasterImage::text_height(2) * 2 + 14, bar_h = std::max(60, content_h - (bar_top - map_y) - swatch_h);
+  const int bar_top = map_y + RasterImage::text_height(2) * 2 + 14,
+            bar_h = std::max(60, content_h - (bar_top - map_y) - swatch_h);
   image.text(legend_x, map_y, spec.distances ? "DISTANCE (M)" : "LAYER", 2, kInk);
-  image.text(legend_x, map_y + RasterImage::text_height(2) + 6, spec.distances ? "(INSIDE < 0)" : "(INSIDE > 0)", 2, kInk);
+  image.text(legend_x, map_y + RasterImage::text_height(2) + 6, spec.distances ? "(INSIDE < 0)" : "(INSIDE > 0)", 2,
+             kInk);
   for (int y = 0; y < bar_h; ++y) {
     const double t = 1.0 - 2.0 * (y + 0.5) / bar_h;
     image.fill_rect(legend_x, bar_top + y, bar_w, 1, diverging(t));

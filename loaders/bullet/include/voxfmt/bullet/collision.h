@@ -37,8 +37,8 @@ struct CollisionSettings {
 /// Narrow-phase counters, summed over all VPS pairs since the last reset (single-threaded dispatch).
 struct CollisionCounters {
   uint64_t pair_tests = 0;
-  uint64_t raw_contacts = 0;    ///< contacts found by the queries before reduction
-  uint64_t points_tested = 0;   ///< point-shell points whose distance was looked up
+  uint64_t raw_contacts = 0;   ///< contacts found by the queries before reduction
+  uint64_t points_tested = 0;  ///< point-shell points whose distance was looked up
 };
 
 class VpsCollisionRegistration {

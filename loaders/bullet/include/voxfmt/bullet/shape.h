@@ -68,15 +68,18 @@ class VpsShape : public btConcaveShape {
 
 class VpsVoxelmapShape : public VpsShape {
  public:
-  explicit VpsVoxelmapShape(std::shared_ptr<const runtime::CollisionObject> object) : VpsShape(std::move(object), Role::Voxelmap) {}
+  explicit VpsVoxelmapShape(std::shared_ptr<const runtime::CollisionObject> object)
+      : VpsShape(std::move(object), Role::Voxelmap) {}
 };
 class VpsPointShellShape : public VpsShape {
  public:
-  explicit VpsPointShellShape(std::shared_ptr<const runtime::CollisionObject> object) : VpsShape(std::move(object), Role::PointShell) {}
+  explicit VpsPointShellShape(std::shared_ptr<const runtime::CollisionObject> object)
+      : VpsShape(std::move(object), Role::PointShell) {}
 };
 class VpsMixedShape : public VpsShape {
  public:
-  explicit VpsMixedShape(std::shared_ptr<const runtime::CollisionObject> object) : VpsShape(std::move(object), Role::Mixed) {}
+  explicit VpsMixedShape(std::shared_ptr<const runtime::CollisionObject> object)
+      : VpsShape(std::move(object), Role::Mixed) {}
 };
 
 }  // namespace voxfmt::bullet

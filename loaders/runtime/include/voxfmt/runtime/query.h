@@ -94,8 +94,8 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
 /// Single world points of a partner B (box corners, a sphere's centre with its `radius`) against A's
 /// voxelmap: reported like B's points (point_of_b, normal = where A must move), the contact point being the
 /// partner's surface point deepest in A. Normals always follow A's distance gradient.
-void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points,
-                              size_t count, double radius, const QueryOptions& options, ContactSet& out);
+void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,
+                              double radius, const QueryOptions& options, ContactSet& out);
 
 /// One sphere-tree traversal of `shell_object`'s points against a signed distance function given in world
 /// coordinates — for analytic partners (planes, boxes, spheres). `distance(world_point)` returns the signed

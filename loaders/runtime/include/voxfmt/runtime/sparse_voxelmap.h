@@ -93,7 +93,7 @@ class SparseVoxelmap {
   double voxel_size_ = 1.0;
   std::array<int, 3> dims_{};
   std::array<int, 3> brick_dims_{};
-  float distance_scale_ = 1.0f;  ///< quantisation steps per voxel
+  float distance_scale_ = 1.0f;                           ///< quantisation steps per voxel
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
   std::vector<Brick> bricks_;

@@ -35,10 +35,10 @@ struct ImportSettings {
 };
 
 struct VoxelmapSettings {
-  uint32_t resolution = 128;    ///< voxels along the longest bounding-box axis (used if voxel_size is 0)
-  double voxel_size = 0.0;      ///< metres; overrides resolution when > 0
-  uint32_t margin = 4;          ///< outer voxels around the bounding box on each side
-  double distance_band = 3.0;   ///< voxels; exact distances stored within ±band
+  uint32_t resolution = 128;   ///< voxels along the longest bounding-box axis (used if voxel_size is 0)
+  double voxel_size = 0.0;     ///< metres; overrides resolution when > 0
+  uint32_t margin = 4;         ///< outer voxels around the bounding box on each side
+  double distance_band = 3.0;  ///< voxels; exact distances stored within ±band
   /// Inside = generalized winding number >= 1/2 (open, non-manifold or self-intersecting surfaces); off: the
   /// sign of a closed surface. The whole bake chooses it from the repair report; set it only when calling the
   /// voxelmap stage alone.

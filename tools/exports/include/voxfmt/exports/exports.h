@@ -15,7 +15,7 @@ namespace voxfmt::exports {
 // ---- slice picture
 
 struct SliceSpec {
-  int axis = 2;            ///< 0 = x, 1 = y, 2 = z: the slice is the plane of voxels with this index
+  int axis = 2;  ///< 0 = x, 1 = y, 2 = z: the slice is the plane of voxels with this index
   int64_t index = 0;
   bool distances = false;  ///< colour by stored distance (grey where none) instead of by layer
   int zoom = 0;            ///< pixels per voxel; 0 = automatic (the map ~900 px on its long side, 1..16)
