@@ -301,7 +301,7 @@ def fixture_values():
                            "numpy": np.__version__}
     return {
         "/format": "voxfmt",
-        "/format_version": np.array([1, 0], dtype=np.uint32),
+        "/format_version": np.array([1, 1], dtype=np.uint32),
         "/units": "m",
         "/frame": "right-handed",
         "/up_axis": "+Y",

@@ -191,7 +191,7 @@ class SpecFileChecks(object):
     def test_root_attributes(self):
         with self.open() as f:
             self.assertEqual(self.text_attr(f, "/format"), "voxfmt")
-            self.assertEqual(self.num_attr(f, "/format_version").tolist(), [1, 0])
+            self.assertEqual(self.num_attr(f, "/format_version").tolist(), [1, 1])
             self.assertEqual(self.text_attr(f, "/units"), "m")
             self.assertEqual(self.text_attr(f, "/frame"), "right-handed")
             self.assertEqual(self.text_attr(f, "/up_axis"), "+Y")
@@ -289,6 +289,10 @@ class SpecFileChecks(object):
         ns = ~stored
         self.assertTrue(np.all(layers[ns & inside] >= 1), "inner voxel with layer < 1")
         self.assertTrue(np.all(layers[ns & ~inside] <= -1), "outer voxel with layer > -1")
+        # 1.1: |delta| - 1/2 <= |layer| <= |delta| + 1/2 + sqrt(3), delta the exact depth in voxels
+        depth = np.abs(sf.signed_distance_grid()[ns]) / h
+        self.assertTrue(np.all(np.abs(layers[ns]) >= depth - 0.5 - 1e-9), "a layer nearer the surface than exact")
+        self.assertTrue(np.all(np.abs(layers[ns]) <= depth + 0.5 + math.sqrt(3) + 1e-9), "a layer too deep")
         # 6-neighbours differ by at most 1
         for axis in range(3):
             self.assertLessEqual(int(np.max(np.abs(np.diff(layers, axis=axis)))), 1,
@@ -558,7 +562,7 @@ class TestPythonToCpp(unittest.TestCase):
         tol = rel * np.maximum(np.abs(want), 1.0)
         self.assertTrue(np.all(np.abs(got - want) <= tol), "%s: %r != %r" % (what, got.tolist(), want.tolist()))
 
-    def check_inspect(self, path, format_version=(1, 0)):
+    def check_inspect(self, path, format_version=(1, 1)):
         js = self.inspect(path)
         self.assertTrue(ss.same_file_name(js["file"], path), js["file"])
         self.assertEqual(js["file_size_bytes"], os.path.getsize(path))
@@ -623,7 +627,7 @@ class TestPythonToCpp(unittest.TestCase):
 
     # -- variants readers must accept -----------------------------------------------------------------------
 
-    def _accept(self, name, format_version=(1, 0), **kw):
+    def _accept(self, name, format_version=(1, 1), **kw):
         path = self.write(name, format_version=format_version, **kw)
         entry = self.assert_valid(path)
         self.check_inspect(path, format_version=format_version)
@@ -661,6 +665,11 @@ class TestPythonToCpp(unittest.TestCase):
 
     def test_optional_objects_absent(self):
         self._accept("no_optional", optional=False)
+
+    def test_older_minor_version(self):
+        """1.0 files stay valid and readable (spec CHANGELOG 1.1)."""
+        entry = self._accept("minor0", format_version=(1, 0))
+        self.assertFalse([i for i in entry["issues"] if i["severity"] == "error"])
 
     def test_newer_minor_version(self):
         entry = self._accept("minor7", format_version=(1, 7))

@@ -26,7 +26,7 @@ struct FormatVersion {
 };
 
 /// The format version this library writes and fully understands.
-inline constexpr FormatVersion kFormatVersion{1, 0};
+inline constexpr FormatVersion kFormatVersion{1, 1};
 
 /// Layered distance-field voxelmap (spec §3). Grids are x-fastest: index = (k * H + j) * W + i.
 struct Voxelmap {

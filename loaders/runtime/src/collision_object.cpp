@@ -63,8 +63,9 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_ass
   object->bounds_min_ = to_double(asset.bounds_min);
   object->bounds_max_ = to_double(asset.bounds_max);
   if (options.load_voxelmap)
-    object->voxelmap_ =
-        SparseVoxelmap::from_dense(asset.voxelmap, asset.bounds_min, asset.bounds_max, options.voxelmap);
+    object->voxelmap_ = SparseVoxelmap::from_dense(
+        asset.voxelmap, asset.bounds_min, asset.bounds_max, options.voxelmap,
+        asset.version.minor >= 1 ? SparseVoxelmap::LayerAccuracy::WithinSqrt3 : SparseVoxelmap::LayerAccuracy::Chamfer);
   if (options.load_point_shell) object->tree_ = make_tree(asset.point_shell);
 
   object->volume_ = asset.mass.volume;

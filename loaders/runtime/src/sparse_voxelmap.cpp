@@ -10,17 +10,21 @@ namespace {
 constexpr int kEdge = SparseVoxelmap::kBrickEdge;
 // Half the voxel diagonal: how far a point can be from its nearest voxel centre (the distance is 1-Lipschitz).
 constexpr float kHalfDiagonal = 0.8661f;
-// Layers beyond the band come from a 26-neighbour chamfer transform, which overestimates Euclidean distance
-// by at most ~11% (direction (3,2,1)); lower bounds scale layer distances by this factor.
+// Format 1.0 layers beyond the band come from a 26-neighbour chamfer transform, which overestimates Euclidean
+// distance by at most ~11% (direction (3,2,1)); lower bounds scale layer distances by this factor.
 constexpr float kChamferSafety = 0.9f;
+// Format 1.1 layers are at most 1/2 + sqrt(3) voxels deeper than the exact depth (spec §3).
+constexpr float kLayerExcess = 0.5f + 1.7320508f;
 
 int div_up(int a, int b) { return (a + b - 1) / b; }
 
 }  // namespace
 
 SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const voxfmt::Vec3& bounds_min,
-                                          const voxfmt::Vec3& bounds_max, const Options& options) {
+                                          const voxfmt::Vec3& bounds_max, const Options& options,
+                                          LayerAccuracy accuracy) {
   SparseVoxelmap map;
+  map.layer_accuracy_ = accuracy;
   map.origin_ = Eigen::Vector3d(dense.origin[0], dense.origin[1], dense.origin[2]);
   map.voxel_size_ = dense.voxel_size;
   for (int a = 0; a < 3; ++a) {
@@ -226,8 +230,12 @@ float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {
     at_voxel = distance;
   } else {
     const int layer = layer_in(brick, local);
-    // Layer l < 0: at least |l| - 1/2 voxels outside (less the chamfer's overestimate); l >= 0: inside.
-    at_voxel = layer < 0 ? (float(-layer) - 0.5f) * kChamferSafety : -(float(layer) + 0.5f) / kChamferSafety;
+    // Layer l < 0: outside, |l| less the layers' excess over the exact distance; l >= 0: inside, at most l + 1/2
+    // deep (less deep than the layer says, for chamfer layers).
+    if (layer_accuracy_ == LayerAccuracy::Chamfer)
+      at_voxel = layer < 0 ? (float(-layer) - 0.5f) * kChamferSafety : -(float(layer) + 0.5f) / kChamferSafety;
+    else
+      at_voxel = layer < 0 ? std::max(0.0f, float(-layer) - kLayerExcess) : -(float(layer) + 0.5f);
   }
   // Outside the object's box the point is outside the object, at least `box` away; inside it the box says nothing.
   return box > 0.0f ? std::max(box, at_voxel - kHalfDiagonal) : at_voxel - kHalfDiagonal;

@@ -1,6 +1,6 @@
 // Stage 3: layered distance-field voxelmap. Exact signed distances in a narrow band (every triangle rasterised
-// into the voxels near it); a two-pass 26-neighbour chamfer transform seeded with them gives the layers
-// everywhere else.
+// into the voxels near it); an exact Euclidean feature transform to the band's nearest surface points gives the
+// layers everywhere else.
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/parallel_for.h>
 
@@ -58,67 +58,156 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
   return g;
 }
 
-// Two raster passes over a 3x3x3 mask with weights 1, sqrt2, sqrt3 give the exact shortest-path distance in
-// the 26-neighbour graph (every path can be reordered into forward moves then backward moves), so values of
-// 6-neighbours never differ by more than 1. Voxels marked `fixed` keep their exact distance.
-// A row (j, k) reads rows (j-1, k) and (j-1..j+1, k-1) only, so rows with equal j + 2k run in parallel.
-void chamfer_transform(std::vector<double>& f, const std::vector<uint8_t>& flags, uint8_t fixed_bit,
-                       const std::array<uint32_t, 3>& dims) {
+// ---- layers beyond the band: an exact Euclidean feature transform. Every voxel finds the nearest *seed*
+// voxel (one within sqrt(3)/2 voxel of the surface, whose nearest surface point the band computed exactly), by
+// the separable lower-envelope algorithm of Felzenszwalb & Huttenlocher (2012) carried out on seed ids; its
+// depth is the distance to that seed's surface point. That is a real surface point, so the depth is never too
+// small. The surface point s nearest a voxel p lies in some voxel, whose centre is a seed within sqrt(3)/2 of s,
+// so the nearest seed is at most |p - s| + sqrt(3)/2 away and its surface point at most sqrt(3)/2 beyond it:
+// at most sqrt(3) voxels too deep (spec §3), and measured a small fraction of a voxel (the 26-neighbour chamfer
+// used before overestimated by up to 15 % of the depth).
+
+struct Seed {
+  int32_t i, j, k;  // the seed voxel
+  Vec3f closest;    // its nearest surface point, relative to the voxel, in voxels
+};
+constexpr uint32_t kNoSeed = ~uint32_t(0);
+
+// One line of the transform: `line[q]` holds the seed chosen for position q by the previous axes (or kNoSeed)
+// and `height(seed)` its squared distance across those axes; afterwards each position holds the seed that
+// minimises (p - q)^2 + height. Integer arithmetic: positions and heights are exact.
+struct EnvelopeScratch {
+  std::vector<int64_t> position;  // parabolas of the lower envelope: their apex positions,
+  std::vector<double> apex;       // their heights at the apex,
+  std::vector<double> from;       // and where each starts to be the lowest
+  std::vector<uint32_t> seed;     // the line's seeds before the pass
+};
+
+template <class Height>
+void envelope_line(uint32_t* line, int64_t stride, int64_t n, const Height& height, EnvelopeScratch& e) {
+  e.seed.resize(size_t(n));
+  e.position.resize(size_t(n));
+  e.apex.resize(size_t(n));
+  e.from.resize(size_t(n) + 1);
+  int64_t count = 0;
+  for (int64_t q = 0; q < n; ++q) {
+    const uint32_t seed = e.seed[size_t(q)] = line[q * stride];
+    if (seed == kNoSeed) continue;
+    const double fq = height(seed);  // each seed's height is looked up once (a random access)
+    double s = 0;
+    while (count > 0) {
+      const int64_t r = e.position[size_t(count - 1)];
+      s = ((fq + double(q) * double(q)) - (e.apex[size_t(count - 1)] + double(r) * double(r))) / (2.0 * double(q - r));
+      if (s > e.from[size_t(count - 1)]) break;
+      --count;
+    }
+    e.position[size_t(count)] = q;
+    e.apex[size_t(count)] = fq;
+    e.from[size_t(count)] = count == 0 ? -std::numeric_limits<double>::infinity() : s;
+    ++count;
+  }
+  if (count == 0) return;
+  e.from[size_t(count)] = std::numeric_limits<double>::infinity();
+  int64_t k = 0;
+  for (int64_t p = 0; p < n; ++p) {
+    while (e.from[size_t(k + 1)] < double(p)) ++k;
+    line[p * stride] = e.seed[size_t(e.position[size_t(k)])];
+  }
+}
+
+// Depth (unsigned distance to the surface, voxels) of every voxel from its nearest seed, or the exact one
+// where the band has it (|exact| < half_width), then made 1-Lipschitz along the axes (two city-block sweeps per axis:
+// min with a 6-neighbour's value + 1, which keeps every value a distance to some surface point) so that 6-neighbouring
+// layers never differ by more than one.
+std::vector<float> feature_transform_depths(const std::vector<Seed>& seeds, const std::vector<float>& exact,
+                                            float half_width, const std::array<uint32_t, 3>& dims) {
   const int64_t W = dims[0], H = dims[1], D = dims[2];
-  struct Step {
-    int di, dj, dk;
-    double w;
-    int64_t offset;
-  };
-  std::vector<Step> forward;
-  for (int dk = -1; dk <= 1; ++dk)
-    for (int dj = -1; dj <= 1; ++dj)
-      for (int di = -1; di <= 1; ++di) {
-        if (dk > 0 || (dk == 0 && dj > 0) || (dk == 0 && dj == 0 && di >= 0)) continue;
-        forward.push_back({di, dj, dk, std::sqrt(double(di * di + dj * dj + dk * dk)), (dk * H + dj) * W + di});
+  std::vector<uint32_t> nearest(size_t(W * H * D), kNoSeed);
+  for (size_t s = 0; s < seeds.size(); ++s)
+    nearest[size_t((int64_t(seeds[s].k) * H + seeds[s].j) * W + seeds[s].i)] = uint32_t(s);
+  // x: the first axis has no earlier axes (height 0).
+  tbb::parallel_for(int64_t(0), D * H, [&](int64_t row) {
+    thread_local EnvelopeScratch scratch;
+    envelope_line(
+        nearest.data() + row * W, 1, W, [](uint32_t) { return 0.0; }, scratch);
+  });
+  // y and z lines are strided in memory: they are processed 16 neighbouring lines (one cache line of each
+  // plane) at a time, gathered into a contiguous buffer.
+  constexpr int64_t kBlock = 16;
+  auto strided_lines = [&](int64_t planes, int64_t plane_stride, int64_t stride, int64_t n, auto&& height_for) {
+    tbb::parallel_for(int64_t(0), planes, [&](int64_t plane) {
+      thread_local EnvelopeScratch scratch;
+      thread_local std::vector<uint32_t> block;
+      block.resize(size_t(kBlock * n));
+      for (int64_t i0 = 0; i0 < W; i0 += kBlock) {
+        const int64_t lines = std::min(kBlock, W - i0);
+        uint32_t* base = nearest.data() + plane * plane_stride + i0;
+        for (int64_t q = 0; q < n; ++q)
+          for (int64_t l = 0; l < lines; ++l) block[size_t(l * n + q)] = base[q * stride + l];
+        for (int64_t l = 0; l < lines; ++l)
+          envelope_line(block.data() + l * n, 1, n, height_for(plane, i0 + l), scratch);
+        for (int64_t q = 0; q < n; ++q)
+          for (int64_t l = 0; l < lines; ++l) base[q * stride + l] = block[size_t(l * n + q)];
       }
-  double* values = f.data();
-  // Per row: the 12 neighbours in previous rows are independent of each other (a vectorisable min over the
-  // row), then one sequential scan applies the in-row neighbour (i -/+ 1, weight 1).
-  auto row = [&](int64_t j, int64_t k, int sign, std::vector<double>& candidate) {
-    const int64_t base = (k * H + j) * W;
-    candidate.assign(size_t(W), std::numeric_limits<double>::infinity());
-    for (const Step& s : forward) {
-      if (s.dj == 0 && s.dk == 0) continue;  // the in-row step
-      const int64_t nj = j + sign * s.dj, nk = k + sign * s.dk;
-      if (nj < 0 || nj >= H || nk < 0 || nk >= D) continue;
-      const double* neighbour_row = values + (nk * H + nj) * W;
-      const int64_t di = sign * s.di;
-      const int64_t lo = std::max<int64_t>(0, -di), hi = std::min<int64_t>(W, W - di);
-      double* c = candidate.data();
-      const double w = s.w;
-      for (int64_t i = lo; i < hi; ++i) c[i] = std::min(c[i], neighbour_row[i + di] + w);
-    }
-    double* v = values + base;
-    const uint8_t* fl = flags.data() + base;
-    if (sign > 0) {
+    });
+  };
+  // y: height = squared x distance of the seed chosen in that row.
+  strided_lines(D, H * W, W, H, [&](int64_t, int64_t i) {
+    return [&seeds, i](uint32_t s) {
+      const double dx = double(seeds[s].i - i);
+      return dx * dx;
+    };
+  });
+  // z: height = squared distance in the (x, y) plane of the seed chosen in that column.
+  strided_lines(H, W, W * H, D, [&](int64_t j, int64_t i) {
+    return [&seeds, i, j](uint32_t s) {
+      const double dx = double(seeds[s].i - i), dy = double(seeds[s].j - j);
+      return dx * dx + dy * dy;
+    };
+  });
+
+  std::vector<float> depth(nearest.size());
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    for (int64_t j = 0; j < H; ++j)
       for (int64_t i = 0; i < W; ++i) {
-        double best = std::min(candidate[size_t(i)], i > 0 ? v[i - 1] + 1.0 : candidate[size_t(i)]);
-        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
+        const size_t at = size_t((k * H + j) * W + i);
+        const uint32_t s = nearest[at];
+        if (std::abs(exact[at]) < half_width) {
+          depth[at] = std::abs(exact[at]);
+          continue;
+        }
+        if (s == kNoSeed) {
+          depth[at] = std::numeric_limits<float>::infinity();
+          continue;
+        }
+        const Seed& seed = seeds[s];
+        const double dx = double(seed.i - i) + seed.closest[0], dy = double(seed.j - j) + seed.closest[1],
+                     dz = double(seed.k - k) + seed.closest[2];
+        depth[at] = float(std::sqrt(dx * dx + dy * dy + dz * dz));
       }
-    } else {
-      for (int64_t i = W - 1; i >= 0; --i) {
-        double best = std::min(candidate[size_t(i)], i + 1 < W ? v[i + 1] + 1.0 : candidate[size_t(i)]);
-        if (!(fl[i] & fixed_bit)) v[i] = std::min(v[i], best);
-      }
-    }
+  });
+  std::vector<uint32_t>().swap(nearest);
+
+  // Rows are swept element by element; y and z steps compare whole rows at once (contiguous, vectorised).
+  auto step = [](float* to, const float* from, int64_t n) {
+    for (int64_t i = 0; i < n; ++i) to[i] = std::min(to[i], from[i] + 1.0f);
   };
-  const int64_t waves = H + 2 * D;
-  for (int sign : {+1, -1})
-    for (int64_t w = 0; w < waves; ++w) {
-      const int64_t t = sign > 0 ? w : waves - 1 - w;  // t = j + 2k
-      const int64_t k_lo = std::max<int64_t>(0, (t - (H - 1) + 1) / 2), k_hi = std::min<int64_t>(D - 1, t / 2);
-      if (k_lo > k_hi) continue;
-      tbb::parallel_for(k_lo, k_hi + 1, [&](int64_t k) {
-        thread_local std::vector<double> candidate;
-        row(t - 2 * k, k, sign, candidate);
-      });
-    }
+  tbb::parallel_for(int64_t(0), D * H, [&](int64_t row) {
+    float* line = depth.data() + row * W;
+    for (int64_t i = 1; i < W; ++i) line[i] = std::min(line[i], line[i - 1] + 1.0f);
+    for (int64_t i = W - 2; i >= 0; --i) line[i] = std::min(line[i], line[i + 1] + 1.0f);
+  });
+  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
+    float* plane = depth.data() + k * H * W;
+    for (int64_t j = 1; j < H; ++j) step(plane + j * W, plane + (j - 1) * W, W);
+    for (int64_t j = H - 2; j >= 0; --j) step(plane + j * W, plane + (j + 1) * W, W);
+  });
+  tbb::parallel_for(int64_t(0), H, [&](int64_t j) {
+    float* column = depth.data() + j * W;
+    for (int64_t k = 1; k < D; ++k) step(column + k * H * W, column + (k - 1) * H * W, W);
+    for (int64_t k = D - 2; k >= 0; --k) step(column + k * H * W, column + (k + 1) * H * W, W);
+  });
+  return depth;
 }
 
 // ---- exact near-surface distances. Every triangle is rasterised into the voxels within `half_width` of it
@@ -241,7 +330,9 @@ float tie_safe_float(double distance) {
 // voxel: a row starts outside (its first voxel centre is at most half a voxel inside the bounding box, so were
 // it inside, a face would be within half a voxel: a band voxel), and a step between a band voxel and one
 // outside the band stays more than half_width - 1 from the surface, so it cannot cross it.
-std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeometry& g, float half_width) {
+// `seeds` receives every voxel within sqrt(3)/2 voxel of the surface with its nearest surface point.
+std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
+                                        std::vector<Seed>& seeds) {
   const int64_t dims[3] = {g.dims[0], g.dims[1], g.dims[2]};
   const int64_t W = dims[0], H = dims[1], D = dims[2];
   const double r = half_width, r2 = r * r;
@@ -301,6 +392,7 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
 
   const Pseudonormals pn = pseudonormals(mesh);
   std::vector<float> signed_voxels(size_t(W * H * D));
+  std::vector<std::vector<Seed>> slab_seeds(static_cast<size_t>(slabs));
   constexpr uint64_t kNone = ~uint64_t(0);
   tbb::parallel_for(int64_t(0), slabs, [&](int64_t s) {
     const int64_t k0 = s * kSlab, k1 = std::min(D, k0 + kSlab);
@@ -364,9 +456,14 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
           const double sign = dot(d, feature_pseudonormal(pn, mesh, f, feature)) < 0 ? -1 : 1;
           out[i] = tie_safe_float(sign * length(d));
           side_of_row = float(sign);
+          if (dot(d, d) <= 0.75 + 1e-9)
+            slab_seeds[size_t(s)].push_back(
+                {int32_t(i), int32_t(j), int32_t(k), Vec3f{float(-d[0]), float(-d[1]), float(-d[2])}});
         }
       }
   });
+  seeds.clear();
+  for (const auto& slab : slab_seeds) seeds.insert(seeds.end(), slab.begin(), slab.end());
   return signed_voxels;
 }
 
@@ -476,7 +573,8 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
 
   // Exact distances just past the band (voxels at exactly `band` must be exact too).
   const float half_width = float(options.distance_band) + 0.5f;
-  std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width);
+  std::vector<Seed> seeds;
+  std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width, seeds);
 
   Voxelmap vm;
   vm.origin = g.origin;
@@ -491,29 +589,25 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
 
   // Distances are stored in the band. Layers are rounded from the distances in voxel units, where a voxel
   // centre exactly half a voxel off a face (common: the grid is aligned to the bounding box) is an exact tie,
-  // so neighbours round alike; the chamfer is seeded with the same values, so band and chamfer layers of
-  // 6-neighbours differ by <= 1. Converting to metres in float would turn such ties into +-1 ulp noise and
+  // so neighbours round alike. Converting to metres in float would turn such ties into +-1 ulp noise and
   // round 2.5 up but 1.5 down (a step of 2), so each stored value is then nudged by ulps until the spec's
   // floor(-d/h + 1/2), evaluated on the stored float as a reader does, gives the layer chosen here.
   const float band = float(options.distance_band);
-  std::vector<uint8_t> flags(count);  // kFixed: exact distance in the band; kInside: negative signed distance
-  constexpr uint8_t kFixed = 1, kInside = 2;
   vm.distances.resize(count);
   vm.layers.resize(count);
-  std::vector<double> magnitude(count);
   const double h = g.voxel_size;
   auto layer_of = [](double depth) { return std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0); };
+  const std::vector<float> depth = feature_transform_depths(seeds, signed_voxels, half_width, g.dims);
+  std::vector<Seed>().swap(seeds);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
       const float d = signed_voxels[v];
-      const bool in_band = std::abs(d) <= band;
-      flags[v] = uint8_t((in_band ? kFixed : 0) | (d < 0 ? kInside : 0));
-      if (!in_band) {
+      if (!(std::abs(d) <= band)) {
+        // Penetration in voxels is positive inside.
         vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
-        magnitude[v] = std::numeric_limits<double>::infinity();
+        vm.layers[v] = int16_t(layer_of(d < 0 ? double(depth[v]) : -double(depth[v])));
         continue;
       }
-      magnitude[v] = std::abs(double(d));
       const double layer = layer_of(-double(d));
       float stored = float(double(d) * h);
       for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
@@ -525,16 +619,6 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
       }
       vm.distances[v] = stored;
       vm.layers[v] = int16_t(layer);
-    }
-  });
-  std::vector<float>().swap(signed_voxels);
-  chamfer_transform(magnitude, flags, kFixed, g.dims);
-
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t v = r.begin(); v < r.end(); ++v) {
-      if (flags[v] & kFixed) continue;
-      // Penetration in voxels is positive inside.
-      vm.layers[v] = int16_t(layer_of((flags[v] & kInside) ? magnitude[v] : -magnitude[v]));
     }
   });
   return vm;

@@ -32,11 +32,21 @@ class SparseVoxelmap {
     int outer_layers_kept = 8;
   };
 
+  /// What the layers beyond the distance band promise about the exact depth (spec §3), which decides the
+  /// bounds used for pruning.
+  enum class LayerAccuracy {
+    /// Format 1.0 (a 26-neighbour chamfer): at most ~11 % deeper than the exact depth, never shallower.
+    Chamfer,
+    /// Format 1.1: never shallower than the exact depth - 1/2 voxel, at most 1/2 + sqrt(3) voxels deeper.
+    WithinSqrt3,
+  };
+
   SparseVoxelmap() = default;
   /// Compresses `dense` (validated asset grids). `bounds_min/max` is the object's bounding box (asset frame);
   /// points outside the grid get their distance bound from it.
   static SparseVoxelmap from_dense(const voxfmt::Voxelmap& dense, const voxfmt::Vec3& bounds_min,
-                                   const voxfmt::Vec3& bounds_max, const Options& options);
+                                   const voxfmt::Vec3& bounds_max, const Options& options,
+                                   LayerAccuracy accuracy = LayerAccuracy::WithinSqrt3);
 
   /// Grid coordinates (voxel centres at integers) of a point given in the asset frame.
   Eigen::Vector3f to_grid(const Eigen::Vector3d& asset_point) const {
@@ -93,7 +103,8 @@ class SparseVoxelmap {
   double voxel_size_ = 1.0;
   std::array<int, 3> dims_{};
   std::array<int, 3> brick_dims_{};
-  float distance_scale_ = 1.0f;                           ///< quantisation steps per voxel
+  float distance_scale_ = 1.0f;  ///< quantisation steps per voxel
+  LayerAccuracy layer_accuracy_ = LayerAccuracy::WithinSqrt3;
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
   std::vector<Brick> bricks_;
