@@ -467,9 +467,13 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
   return signed_voxels;
 }
 
-// Inside = winding number >= 1/2. Exact per voxel near the surface, where it changes fast; farther away it is
-// smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough that
-// every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
+// Inside = winding number >= 1/2. Evaluated per voxel near the surface, where it changes fast; farther away it
+// is smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough
+// that every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
+// In the band, where a wrong sign is a wrong contact, a value near 1/2 is evaluated again until its side is
+// certain (WindingNumber::inside: stricter far fields with an error bound, then the exact sum). Farther away
+// an open surface can leave wide regions near 1/2 (across a hole), where the inside is a matter of closure and
+// exact sums would cost seconds.
 void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
                             std::vector<float>& signed_voxels) {
   const WindingNumber winding(mesh);
@@ -522,7 +526,11 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
                   ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
               t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
         }
-        value = w >= 0.5 && inside_bounds(i, j, k) ? -std::abs(value) : std::abs(value);
+        const Vec3 p{g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
+                     g.origin[2] + g.voxel_size * double(k)};
+        const bool in_band = std::abs(value) < half_width;
+        value =
+            inside_bounds(i, j, k) && (in_band ? winding.inside(p, w) : w >= 0.5) ? -std::abs(value) : std::abs(value);
       }
   });
 }

@@ -15,8 +15,16 @@ class WindingNumber {
   ~WindingNumber();
   WindingNumber(const WindingNumber&) = delete;
   WindingNumber& operator=(const WindingNumber&) = delete;
-  /// ~1 inside an outward-oriented closed surface, ~0 outside; fractional near holes.
-  double operator()(const Vec3& point) const;
+  /// ~1 inside an outward-oriented closed surface, ~0 outside; fractional near holes. Fast: clusters farther
+  /// than 2 radii count as dipoles, which can be off by a few hundredths where many distant parts add up.
+  double operator()(const Vec3& point) const { return evaluate(point, 2.0); }
+  /// The winding number with the dipole approximation only for clusters farther than `beta` radii (its error
+  /// falls roughly as 1/beta^2); beta = infinity sums every triangle's exact solid angle.
+  double evaluate(const Vec3& point, double beta) const;
+  /// Inside (winding number >= 1/2). `approximate` is operator()'s value at `point`; when it is within 0.1 of
+  /// 1/2 the value is evaluated again with a bound on the far field's error, with stricter far fields and at
+  /// last exactly, until its side of 1/2 is certain.
+  bool inside(const Vec3& point, double approximate) const;
 
  private:
   struct Impl;
