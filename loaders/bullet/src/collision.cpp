@@ -5,17 +5,30 @@
 #include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
 #include <BulletCollision/CollisionDispatch/btManifoldResult.h>
 #include <BulletCollision/CollisionShapes/btBoxShape.h>
+#include <BulletCollision/CollisionShapes/btCapsuleShape.h>
+#include <BulletCollision/CollisionShapes/btConcaveShape.h>
+#include <BulletCollision/CollisionShapes/btConvexPolyhedron.h>
+#include <BulletCollision/CollisionShapes/btCylinderShape.h>
+#include <BulletCollision/CollisionShapes/btHeightfieldTerrainShape.h>
+#include <BulletCollision/CollisionShapes/btMultiSphereShape.h>
+#include <BulletCollision/CollisionShapes/btPolyhedralConvexShape.h>
 #include <BulletCollision/CollisionShapes/btSphereShape.h>
 #include <BulletCollision/CollisionShapes/btStaticPlaneShape.h>
+#include <BulletCollision/CollisionShapes/btTriangleCallback.h>
 #include <BulletCollision/NarrowPhaseCollision/btPersistentManifold.h>
 
 #include <Eigen/Geometry>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
 #include <new>
+#include <string>
 
 #include "bt_eigen.h"
+#include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/runtime/contact_reduction.h"
 
@@ -25,7 +38,211 @@ namespace {
 struct Shared {
   CollisionSettings settings;
   CollisionCounters counters;
+  std::atomic<uint64_t> reported_types{0};  // one bit per Bullet shape type already reported as unsupported
+
+  // A pair the algorithm cannot handle produces no contacts: say so once per shape type, never silently.
+  void report_unsupported(const btCollisionShape* shape) {
+    ++counters.unsupported_pairs;
+    const int type = shape->getShapeType();
+    const uint64_t bit = uint64_t(1) << (unsigned(type) % 64);
+    if (reported_types.fetch_or(bit) & bit) return;
+    const std::string message = std::string("voxfmt: a VPS shape against ") + shape->getName() +
+                                " (Bullet shape type " + std::to_string(type) +
+                                ") is not supported: such pairs produce no contacts";
+    if (settings.on_unsupported_pair)
+      settings.on_unsupported_pair(message);
+    else
+      std::fprintf(stderr, "%s\n", message.c_str());
+  }
 };
+
+// A's points against any convex partner, and the partner's extreme points in A's voxelmap (a small or sharp
+// partner can poke between A's points).
+void collide_convex(const VpsShape& a, const runtime::Pose& pose_a, const btConvexShape& b, const btTransform& tb,
+                    const runtime::QueryOptions& options, runtime::ContactSet& contacts,
+                    runtime::QueryScratch& scratch) {
+  const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
+  const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
+  auto world = [&](const btVector3& local) { return Eigen::Vector3d(ob + rb * to_eigen(local)); };
+  const int type = b.getShapeType();
+  if (a.uses_points()) {
+    auto run = [&](auto&& distance) {
+      runtime::query_against_function(a.object(), pose_a, distance, options, contacts, scratch);
+    };
+    if (type == BOX_SHAPE_PROXYTYPE) {
+      const Eigen::Matrix3f rbf = rb.cast<float>();
+      const Eigen::Vector3f obf = ob.cast<float>();
+      const Eigen::Vector3f half = to_eigen(static_cast<const btBoxShape&>(b).getHalfExtentsWithMargin()).cast<float>();
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return box_distance(rbf, obf, half, x, outward); });
+    } else if (type == SPHERE_SHAPE_PROXYTYPE) {
+      const Eigen::Vector3f centre = ob.cast<float>();
+      const float radius = float(static_cast<const btSphereShape&>(b).getRadius());
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+        return sphere_distance(centre, radius, x, outward);
+      });
+    } else if (type == CAPSULE_SHAPE_PROXYTYPE) {
+      const auto& capsule = static_cast<const btCapsuleShape&>(b);
+      btVector3 tip(0, 0, 0);
+      tip[capsule.getUpAxis()] = capsule.getHalfHeight();
+      const Eigen::Vector3f top = world(tip).cast<float>(), bottom = world(-tip).cast<float>();
+      const float radius = float(capsule.getRadius());
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+        return capsule_distance(bottom, top, radius, x, outward);
+      });
+    } else if (type == CYLINDER_SHAPE_PROXYTYPE) {
+      const auto& cylinder = static_cast<const btCylinderShape&>(b);
+      const int up = cylinder.getUpAxis();
+      const Eigen::Vector3f centre = ob.cast<float>(), axis = rb.col(up).cast<float>();
+      const float radius = float(cylinder.getRadius()), half = float(cylinder.getHalfExtentsWithMargin()[up]);
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+        return cylinder_distance(centre, axis, radius, half, x, outward);
+      });
+    } else if (b.isPolyhedral() && static_cast<const btPolyhedralConvexShape&>(b).getConvexPolyhedron()) {
+      // Hulls with polyhedral features (initializePolyhedralFeatures): exact inside, GJK outside (EPA's
+      // tolerance would make resting contacts jitter).
+      thread_local std::vector<Eigen::Vector4f> planes;
+      planes.clear();
+      const btConvexPolyhedron& polyhedron = *static_cast<const btPolyhedralConvexShape&>(b).getConvexPolyhedron();
+      for (int f = 0; f < polyhedron.m_faces.size(); ++f) {
+        const btScalar* plane = polyhedron.m_faces[f].m_plane;
+        const Eigen::Vector3d n = rb * Eigen::Vector3d(plane[0], plane[1], plane[2]);
+        planes.emplace_back(float(n.x()), float(n.y()), float(n.z()), float(double(plane[3]) - n.dot(ob)));
+      }
+      const float margin = float(b.getMargin());
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+        float d;
+        if (polyhedron_inside_distance(planes, margin, x, d, outward)) return d;
+        return convex_distance(b, tb, x, outward);
+      });
+    } else {
+      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, tb, x, outward); });
+    }
+  }
+  if (!a.uses_voxelmap()) return;
+  thread_local std::vector<Eigen::Vector3d> points;
+  points.clear();
+  auto in_voxelmap = [&](double radius) {
+    if (!points.empty())
+      runtime::query_points_in_voxelmap(a.object(), pose_a, points.data(), points.size(), radius, options, contacts);
+    points.clear();
+  };
+  if (type == BOX_SHAPE_PROXYTYPE) {
+    const btVector3 half = static_cast<const btBoxShape&>(b).getHalfExtentsWithMargin();
+    for (int k = 0; k < 8; ++k)
+      points.push_back(world(
+          btVector3((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(), (k & 4) ? half.z() : -half.z())));
+    in_voxelmap(0.0);
+  } else if (type == SPHERE_SHAPE_PROXYTYPE) {
+    points.push_back(ob);
+    in_voxelmap(double(static_cast<const btSphereShape&>(b).getRadius()));
+  } else if (type == CAPSULE_SHAPE_PROXYTYPE || type == MULTI_SPHERE_SHAPE_PROXYTYPE) {
+    // Spheres along the axis (or the multi-sphere's own), no farther apart than a voxel of A, each with its radius.
+    const double voxel = a.object().voxelmap().voxel_size() * a.scale();
+    if (type == CAPSULE_SHAPE_PROXYTYPE) {
+      const auto& capsule = static_cast<const btCapsuleShape&>(b);
+      btVector3 tip(0, 0, 0);
+      tip[capsule.getUpAxis()] = capsule.getHalfHeight();
+      const int steps = std::clamp(int(std::ceil(2 * double(capsule.getHalfHeight()) / voxel)), 1, 64);
+      for (int k = 0; k <= steps; ++k) points.push_back(world(tip * btScalar(2.0 * k / steps - 1.0)));
+      in_voxelmap(double(capsule.getRadius()));
+    } else {
+      const auto& spheres = static_cast<const btMultiSphereShape&>(b);
+      for (int k = 0; k < spheres.getSphereCount(); ++k) {
+        points.push_back(world(spheres.getSpherePosition(k)));
+        in_voxelmap(double(spheres.getSphereRadius(k)));
+      }
+    }
+  } else if (b.isPolyhedral()) {
+    // Hull vertices; the margin rounds the hull outward.
+    const auto& hull = static_cast<const btPolyhedralConvexShape&>(b);
+    for (int k = 0; k < hull.getNumVertices(); ++k) {
+      btVector3 v;
+      hull.getVertex(k, v);
+      points.push_back(world(v));
+    }
+    in_voxelmap(double(b.getMargin()));
+  } else {
+    // Curved convex shapes (cone, cylinder, ...): support points in 26 directions, margin included.
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          if (dx == 0 && dy == 0 && dz == 0) continue;
+          points.push_back(world(b.localGetSupportingVertex(btVector3(btScalar(dx), btScalar(dy), btScalar(dz)))));
+        }
+    in_voxelmap(0.0);
+  }
+}
+
+// Collects the triangles of a static mesh or terrain inside a box (shape frame), in world coordinates.
+class TriangleCollector : public btTriangleCallback {
+ public:
+  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, bool upward, int up_axis)
+      : set_(set), world_from_shape_(world_from_shape), upward_(upward), up_axis_(up_axis) {}
+  void processTriangle(btVector3* triangle, int, int) override {
+    btVector3 a = triangle[0], b = triangle[1], c = triangle[2];
+    // A terrain's inside is below it: orient its triangles to face up, whatever order the grid gives them in.
+    if (upward_ && (b - a).cross(c - a)[up_axis_] < 0) std::swap(b, c);
+    auto world = [&](const btVector3& v) {
+      const btVector3 w = world_from_shape_ * v;
+      return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z()));
+    };
+    set_.add(world(a), world(b), world(c));
+  }
+
+ private:
+  TriangleSet& set_;
+  const btTransform& world_from_shape_;
+  bool upward_;
+  int up_axis_;
+};
+
+// A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
+// signed by the triangles' sides; and those triangles' corners in A's voxelmap.
+void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
+                     const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
+                     runtime::QueryScratch& scratch) {
+  btVector3 lo, hi;
+  a.getAabb(ta, lo, hi);
+  const btScalar grow = btScalar(options.proximity) + a.getMargin();
+  lo -= btVector3(grow, grow, grow);
+  hi += btVector3(grow, grow, grow);
+  // The box in B's frame: the bounds of its eight corners.
+  const btTransform shape_from_world = tb.inverse();
+  btVector3 local_lo(SIMD_INFINITY, SIMD_INFINITY, SIMD_INFINITY), local_hi = -local_lo;
+  for (int k = 0; k < 8; ++k) {
+    const btVector3 corner =
+        shape_from_world * btVector3((k & 1) ? hi.x() : lo.x(), (k & 2) ? hi.y() : lo.y(), (k & 4) ? hi.z() : lo.z());
+    local_lo.setMin(corner);
+    local_hi.setMax(corner);
+  }
+  thread_local TriangleSet triangles;
+  triangles.clear();
+  const bool terrain = b.getShapeType() == TERRAIN_SHAPE_PROXYTYPE;
+  TriangleCollector collect(triangles, tb, terrain,
+                            terrain ? static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis() : 1);
+  b.processAllTriangles(&collect, local_lo, local_hi);
+  if (triangles.empty()) return;
+  triangles.build();
+  if (a.uses_points())
+    runtime::query_against_function(
+        a.object(), pose_a,
+        [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); }, options,
+        contacts, scratch);
+  if (a.uses_voxelmap()) {
+    thread_local std::vector<Eigen::Vector3d> corners;
+    corners.clear();
+    // Only corners that may be within reach of A (a cheap lower bound of A's distance rules out the rest).
+    const runtime::SparseVoxelmap& map = a.object().voxelmap();
+    const double reach = options.proximity / (pose_a.scale * map.voxel_size());
+    for (size_t t = 0; t < triangles.size(); ++t)
+      for (int k = 0; k < 3; ++k) {
+        const Eigen::Vector3d p = triangles.corner(t, k).cast<double>();
+        const Eigen::Vector3d asset = pose_a.rotation.transpose() * (p - pose_a.translation) / pose_a.scale;
+        if (double(map.distance_lower_bound(map.to_grid(asset))) < reach) corners.push_back(p);
+      }
+    runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+  }
+}
 
 /// Contacts of a VPS shape (A) with any supported partner (B), reduced and fed to a persistent manifold
 /// created as (A, B): normals are "on B" and points on B's surface, whatever order Bullet calls us in.
@@ -56,12 +273,16 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const CollisionSettings& settings = shared_->settings;
     runtime::QueryOptions options;
     options.normal_source = settings.normal_source;
-    options.proximity = std::max(settings.proximity, double(result->m_closestPointDistanceThreshold));
+    options.proximity =
+        std::max({settings.proximity, double(result->m_closestPointDistanceThreshold), a_shape->proximity()});
+    if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
+      options.proximity =
+          std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
 
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
-    collide(*a_shape, pose_a, b_wrap, options, contacts, scratch);
+    collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch);
 
     result->setPersistentManifold(manifold_);
     CollisionCounters& counters = shared_->counters;
@@ -87,11 +308,13 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
  private:
-  void collide(const VpsShape& a, const runtime::Pose& pose_a, const btCollisionObjectWrapper* b_wrap,
-               runtime::QueryOptions options, runtime::ContactSet& contacts, runtime::QueryScratch& scratch) const {
+  void collide(const VpsShape& a, const btTransform& ta, const runtime::Pose& pose_a,
+               const btCollisionObjectWrapper* b_wrap, runtime::QueryOptions options, runtime::ContactSet& contacts,
+               runtime::QueryScratch& scratch) const {
     const btCollisionShape* b_shape = b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
     options.point_budget = a.point_budget();
+    options.max_level = a.max_level();
     switch (b_shape->getShapeType()) {
       case VpsShape::kShapeType: {
         const auto& b = static_cast<const VpsShape&>(*b_shape);
@@ -107,12 +330,14 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
             (direction == runtime::QueryDirection::APointsInB || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::APointsInB;
           options.point_budget = a.point_budget();
+          options.max_level = a.max_level();
           runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
         if (b_in_a &&
             (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::BPointsInA;
           options.point_budget = b.point_budget();
+          options.max_level = b.max_level();
           runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
         return;
@@ -124,82 +349,23 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         const float c = float(plane.getPlaneConstant()) + n.dot(to_eigen(tb.getOrigin()).cast<float>());
         runtime::query_against_function(
             a.object(), pose_a,
-            [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-              outward = n;
-              return n.dot(x) - c;
-            },
+            [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return plane_distance(n, c, x, outward); },
             options, contacts, scratch);
         return;
       }
-      case BOX_SHAPE_PROXYTYPE: {
-        const auto& box = static_cast<const btBoxShape&>(*b_shape);
-        const Eigen::Vector3d half = to_eigen(box.getHalfExtentsWithMargin());
-        const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
-        const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
-        if (a.uses_points()) {
-          const Eigen::Matrix3f rbf = rb.cast<float>();
-          const Eigen::Vector3f obf = ob.cast<float>(), hf = half.cast<float>();
-          runtime::query_against_function(
-              a.object(), pose_a,
-              [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-                return box_distance(rbf, obf, hf, x, outward);
-              },
-              options, contacts, scratch);
-        }
-        if (a.uses_voxelmap()) {  // the box's corners in A's voxelmap
-          std::array<Eigen::Vector3d, 8> corners;
-          for (int k = 0; k < 8; ++k)
-            corners[size_t(k)] =
-                ob + rb * Eigen::Vector3d((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(),
-                                          (k & 4) ? half.z() : -half.z());
-          runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
-        }
+      case TRIANGLE_MESH_SHAPE_PROXYTYPE:
+      case SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE:
+      case TERRAIN_SHAPE_PROXYTYPE:
+        collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
         return;
-      }
-      case SPHERE_SHAPE_PROXYTYPE: {
-        const auto& sphere = static_cast<const btSphereShape&>(*b_shape);
-        const Eigen::Vector3d centre = to_eigen(tb.getOrigin());
-        const double radius = double(sphere.getRadius());
-        if (a.uses_points()) {
-          const Eigen::Vector3f cf = centre.cast<float>();
-          const float rf = float(radius);
-          runtime::query_against_function(
-              a.object(), pose_a,
-              [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-                const Eigen::Vector3f v = x - cf;
-                const float len = v.norm();
-                outward = len > 0.0f ? Eigen::Vector3f(v / len) : Eigen::Vector3f::UnitZ();
-                return len - rf;
-              },
-              options, contacts, scratch);
-        }
-        if (a.uses_voxelmap())
-          runtime::query_points_in_voxelmap(a.object(), pose_a, &centre, 1, radius, options, contacts);
-        return;
-      }
       default:
+        if (b_shape->isConvex()) {
+          collide_convex(a, pose_a, static_cast<const btConvexShape&>(*b_shape), tb, options, contacts, scratch);
+          return;
+        }
+        shared_->report_unsupported(b_shape);
         return;
     }
-  }
-
-  // Signed distance to an oriented box and its outward normal.
-  static float box_distance(const Eigen::Matrix3f& rotation, const Eigen::Vector3f& origin, const Eigen::Vector3f& half,
-                            const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-    const Eigen::Vector3f local = rotation.transpose() * (x - origin);
-    const Eigen::Vector3f q = local.cwiseAbs() - half;
-    const Eigen::Vector3f sign = local.unaryExpr([](float v) { return v < 0.0f ? -1.0f : 1.0f; });
-    if ((q.array() > 0.0f).any()) {
-      const Eigen::Vector3f out = q.cwiseMax(0.0f).cwiseProduct(sign);
-      const float d = out.norm();
-      outward = rotation * (out / d);
-      return d;
-    }
-    int axis = 0;
-    q.maxCoeff(&axis);
-    Eigen::Vector3f n = Eigen::Vector3f::Zero();
-    n[axis] = sign[axis];
-    outward = rotation * n;
-    return q[axis];
   }
 
   btPersistentManifold* manifold_;
@@ -231,8 +397,11 @@ class Registration : public VpsCollisionRegistration {
       : direct_(shared_, false), swapped_(shared_, true) {
     shared_.settings = settings;
     const int vps = VpsShape::kShapeType;
-    for (int other : {int(VpsShape::kShapeType), int(STATIC_PLANE_PROXYTYPE), int(BOX_SHAPE_PROXYTYPE),
-                      int(SPHERE_SHAPE_PROXYTYPE)}) {
+    // Every partner type: convex shapes, planes, static meshes and terrains are handled; the rest report
+    // themselves once. Compounds stay with Bullet's compound algorithm, which meets us child by child.
+    for (int other = 0; other < MAX_BROADPHASE_COLLISION_TYPES; ++other) {
+      if (other == COMPOUND_SHAPE_PROXYTYPE || other == EMPTY_SHAPE_PROXYTYPE || other == INVALID_SHAPE_PROXYTYPE)
+        continue;
       // Simulation (contact) and closest-point (contactTest, compounds) tables, both orders.
       dispatcher.registerCollisionCreateFunc(vps, other, &direct_);
       dispatcher.registerClosestPointsCreateFunc(vps, other, &direct_);

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <cmath>
+#include <functional>
 
 namespace voxfmt::runtime {
 namespace {
@@ -69,10 +70,19 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
   if (requested != QueryDirection::Auto) return requested;
   if (!a_in_b) return QueryDirection::BPointsInA;
   if (!b_in_a) return QueryDirection::APointsInB;
-  // The smaller object's points sample the contact region of the larger one densely; for similar sizes,
-  // one direction keeps the cost down and A's points decide.
+  // The smaller object's points sample the contact region of the larger one densely. For similar sizes one
+  // direction keeps the cost down; which one must not depend on the order the pair comes in (a physics engine
+  // hands it either way): fewer points, then the lower position, then the object's address decide.
   const double ra = a.bounding_radius() * pose_a.scale, rb = b.bounding_radius() * pose_b.scale;
-  return rb < 0.9 * ra ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
+  if (rb < 0.9 * ra) return QueryDirection::BPointsInA;
+  if (ra < 0.9 * rb) return QueryDirection::APointsInB;
+  const size_t na = a.point_tree().size(), nb = b.point_tree().size();
+  if (na != nb) return nb < na ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
+  for (int axis = 0; axis < 3; ++axis)
+    if (pose_a.translation[axis] != pose_b.translation[axis])
+      return pose_b.translation[axis] < pose_a.translation[axis] ? QueryDirection::BPointsInA
+                                                                 : QueryDirection::APointsInB;
+  return std::less<const CollisionObject*>()(&b, &a) ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
 }
 
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
@@ -96,6 +106,9 @@ void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, cons
     ++out.stats.points_tested;
     const double distance = double(s.distance) * metres_per_unit - radius;
     if (distance >= options.proximity || gradient.squaredNorm() == 0.0f) continue;
+    // A lower bound cannot confirm a contact (a large sphere's centre far outside A); A's own points against
+    // the partner find those.
+    if (s.bound && s.distance > 0.0f) continue;
     const Eigen::Vector3d outward = pose_a.rotation * gradient.cast<double>().normalized();
     Contact contact;
     contact.point = points[i] - radius * outward;

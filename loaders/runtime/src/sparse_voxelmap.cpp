@@ -144,12 +144,13 @@ bool SparseVoxelmap::distance_in(const Brick& brick, int local, float& distance)
   return true;
 }
 
-float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact) const {
+float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact, bool& bound) const {
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
   float distance = 0.0f;
   if (distance_in(brick, local, distance)) return distance;
   exact = false;
+  bound |= brick.kind == BrickKind::FarOutside;
   return -float(layer_in(brick, local));
 }
 
@@ -181,6 +182,7 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
   if (!covers(u)) {
     // Outside the grid the object is at least as far as its bounding box (margin voxels are all outside).
     result.distance = bounds_distance(u);
+    result.bound = true;
     if (gradient) {
       const Eigen::Vector3f centre = 0.5f * (object_min_ + object_max_);
       *gradient = u - centre;
@@ -201,7 +203,7 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
     const int i = std::min(base[0] + (corner & 1), dims_[0] - 1);
     const int j = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1);
     const int k = std::min(base[2] + ((corner >> 2) & 1), dims_[2] - 1);
-    v[corner] = estimate_at(i, j, k, exact);
+    v[corner] = estimate_at(i, j, k, exact, result.bound);
   }
   const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
   const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);

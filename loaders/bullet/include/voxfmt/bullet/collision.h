@@ -6,15 +6,20 @@
 //   btCollisionDispatcher dispatcher(&config);
 //   auto vps = voxfmt::bullet::register_vps_collision(dispatcher);  // keep alive as long as the dispatcher
 //
-// Pairs handled (both orders, simulation and closest-point tables): VPS-VPS, VPS-static plane, VPS-box,
-// VPS-sphere. Other pairs with a VPS shape fall back to Bullet's concave handling and produce no contacts.
+// Pairs handled (both orders, simulation and closest-point tables): VPS-VPS; VPS against any convex shape
+// (box, sphere, capsule, cylinder, cone, convex hull, multi-sphere, ...), a static plane, a static triangle
+// mesh (btBvhTriangleMeshShape, scaled or not) or a terrain (btHeightfieldTerrainShape); compounds through
+// Bullet's compound algorithm, child by child, with VPS or convex children. Any other pair with a VPS shape
+// produces no contacts and is reported once per shape type (CollisionSettings::on_unsupported_pair).
 #pragma once
 
 #include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
 #include <BulletCollision/CollisionDispatch/btDefaultCollisionConfiguration.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "voxfmt/runtime/query.h"
@@ -32,13 +37,17 @@ struct CollisionSettings {
   double proximity = 0.0;
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
+  /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs
+  /// produce no contacts). Default (empty): the message goes to stderr.
+  std::function<void(const std::string& message)> on_unsupported_pair;
 };
 
 /// Narrow-phase counters, summed over all VPS pairs since the last reset (single-threaded dispatch).
 struct CollisionCounters {
   uint64_t pair_tests = 0;
-  uint64_t raw_contacts = 0;   ///< contacts found by the queries before reduction
-  uint64_t points_tested = 0;  ///< point-shell points whose distance was looked up
+  uint64_t raw_contacts = 0;       ///< contacts found by the queries before reduction
+  uint64_t points_tested = 0;      ///< point-shell points whose distance was looked up
+  uint64_t unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
 };
 
 class VpsCollisionRegistration {

@@ -40,6 +40,14 @@ class VpsShape : public btConcaveShape {
   /// (e.g. ~800 for the seed's coarse shell). Default: all.
   void set_point_budget(size_t budget) { point_budget_ = budget; }
   size_t point_budget() const { return point_budget_; }
+  /// Deepest point-sphere tree level tested when this shape carries the points (0 = the root only; a fixed
+  /// coarse level instead of a budget). Default: all levels.
+  void set_max_level(uint32_t level) { max_level_ = level; }
+  uint32_t max_level() const { return max_level_; }
+  /// Points of this shape closer than this (metres) to a partner become speculative contacts; the pair uses the
+  /// largest of both shapes', the collision settings' and Bullet's contact threshold. Default 0.
+  void set_proximity(double metres) { proximity_ = metres; }
+  double proximity() const { return proximity_; }
 
   /// Asset frame -> shape frame (unscaled).
   const btTransform& asset_to_shape() const { return asset_to_shape_; }
@@ -62,6 +70,8 @@ class VpsShape : public btConcaveShape {
   double scale_ = 1.0;
   btVector3 local_scaling_{1, 1, 1};
   size_t point_budget_ = std::numeric_limits<size_t>::max();
+  uint32_t max_level_ = std::numeric_limits<uint32_t>::max();
+  double proximity_ = 0.0;
   btTransform asset_to_shape_;
   btVector3 local_min_, local_max_;  // unscaled bounds in the shape frame
 };

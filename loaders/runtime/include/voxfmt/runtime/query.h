@@ -28,7 +28,8 @@ enum class QueryDirection {
   APointsInB,  ///< A's points against B's voxelmap
   BPointsInA,  ///< B's points against A's voxelmap
   Both,        ///< both, contacts of both in one set
-  Auto,        ///< the smaller object's points in the larger one's voxelmap (A's if within 10% in size)
+  Auto,        ///< the smaller object's points in the larger one's voxelmap; within 10% in size, the one with
+               ///< fewer points, then the lower position: the same choice whichever object is A
 };
 
 /// Where a contact's normal comes from.
@@ -93,7 +94,9 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
 
 /// Single world points of a partner B (box corners, a sphere's centre with its `radius`) against A's
 /// voxelmap: reported like B's points (point_of_b, normal = where A must move), the contact point being the
-/// partner's surface point deepest in A. Normals always follow A's distance gradient.
+/// partner's surface point deepest in A. Normals always follow A's distance gradient. A point far outside A
+/// (where A's voxelmap keeps only a lower bound of the distance) reports nothing, whatever its radius: test
+/// large partners with A's points (query_against_function).
 void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,
                               double radius, const QueryOptions& options, ContactSet& out);
 

@@ -22,6 +22,7 @@ namespace voxfmt::runtime {
 struct FieldSample {
   float distance = 0.0f;  ///< signed distance estimate, negative inside
   bool exact = false;     ///< true: trilinear interpolation of stored distances; false: from layers or bounds
+  bool bound = false;     ///< only a lower bound: outside the grid, or far outside where bricks keep no layers
 };
 
 class SparseVoxelmap {
@@ -94,7 +95,7 @@ class SparseVoxelmap {
   const Brick& brick_of(int i, int j, int k, int& local) const;
   int layer_in(const Brick& brick, int local) const;
   bool distance_in(const Brick& brick, int local, float& distance) const;
-  float estimate_at(int i, int j, int k, bool& exact) const;
+  float estimate_at(int i, int j, int k, bool& exact, bool& bound) const;
   float bounds_distance(const Eigen::Vector3f& u) const;
   /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
   bool covers(const Eigen::Vector3f& u) const;

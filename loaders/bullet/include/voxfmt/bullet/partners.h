@@ -1,0 +1,68 @@
+// Signed distances from a world point to the shapes a VPS body meets in Bullet, each with the partner's outward
+// unit normal at its nearest surface point: what a point shell is tested against. Negative inside the partner.
+// The collision algorithm uses these; they are public for users who query partners themselves (haptics,
+// planning) and for tests.
+#pragma once
+
+#include <BulletCollision/CollisionShapes/btConvexShape.h>
+#include <LinearMath/btTransform.h>
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace voxfmt::bullet {
+
+/// Half-space below the plane n.x = c (n unit).
+float plane_distance(const Eigen::Vector3f& normal, float constant, const Eigen::Vector3f& x, Eigen::Vector3f& outward);
+/// Oriented box: `rotation` (box axes as columns), `centre`, `half` extents.
+float box_distance(const Eigen::Matrix3f& rotation, const Eigen::Vector3f& centre, const Eigen::Vector3f& half,
+                   const Eigen::Vector3f& x, Eigen::Vector3f& outward);
+float sphere_distance(const Eigen::Vector3f& centre, float radius, const Eigen::Vector3f& x, Eigen::Vector3f& outward);
+/// Capsule: all points within `radius` of the segment a-b.
+float capsule_distance(const Eigen::Vector3f& a, const Eigen::Vector3f& b, float radius, const Eigen::Vector3f& x,
+                       Eigen::Vector3f& outward);
+/// Cylinder: `centre`, unit `axis`, `radius`, `half_height` along the axis.
+float cylinder_distance(const Eigen::Vector3f& centre, const Eigen::Vector3f& axis, float radius, float half_height,
+                        const Eigen::Vector3f& x, Eigen::Vector3f& outward);
+/// Convex polyhedron given by outward face planes n.x + d <= 0 (world frame), rounded outward by `margin`:
+/// exact inside (the nearest face plane); outside it returns false and leaves the distance to the caller.
+bool polyhedron_inside_distance(const std::vector<Eigen::Vector4f>& planes, float margin, const Eigen::Vector3f& x,
+                                float& distance, Eigen::Vector3f& outward);
+/// Any btConvexShape, collision margin included, by Bullet's GJK (outside) and EPA (inside). Returns +infinity
+/// where GJK gives up (a point on the surface, within GJK's tolerance).
+float convex_distance(const btConvexShape& shape, const btTransform& world_from_shape, const Eigen::Vector3f& x,
+                      Eigen::Vector3f& outward);
+
+/// A set of triangles (a static mesh or terrain near a VPS body), world frame, each oriented counter-clockwise
+/// seen from outside. The distance is to the nearest triangle; its sign is the side of the nearest triangle
+/// whose plane is most nearly perpendicular to the direction to the point (at an edge or vertex several
+/// triangles are equally near; the one facing the point decides), so a closed or one-sided surface (a floor,
+/// a terrain) has negative distances below it. A uniform grid over the set finds the nearest triangle by
+/// searching rings of cells outward; points farther than `kMaxRings` cells from every triangle get a lower
+/// bound (the larger of the ring distance and the distance to the set's bounding box), enough to prune.
+class TriangleSet {
+ public:
+  static constexpr int kMaxRings = 8;
+
+  void clear();
+  void add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c);
+  /// Builds the search grid; call after the last add() and before distance().
+  void build();
+  size_t size() const { return corners_.size() / 3; }
+  bool empty() const { return corners_.empty(); }
+  /// The vertices of triangle i.
+  const Eigen::Vector3f& corner(size_t i, int k) const { return corners_[3 * i + size_t(k)]; }
+  float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
+
+ private:
+  std::vector<Eigen::Vector3f> corners_;
+  std::vector<Eigen::Vector3f> normals_;
+  // Grid: cell (i, j, k) lists triangles first_[c] .. first_[c + 1] of `members_`.
+  Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();
+  float cell_ = 1.0f;
+  Eigen::Vector3i dims_ = Eigen::Vector3i::Ones();
+  std::vector<uint32_t> first_, members_;
+};
+
+}  // namespace voxfmt::bullet

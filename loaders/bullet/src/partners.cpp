@@ -1,0 +1,246 @@
+#include "voxfmt/bullet/partners.h"
+
+#include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace voxfmt::bullet {
+
+float plane_distance(const Eigen::Vector3f& normal, float constant, const Eigen::Vector3f& x,
+                     Eigen::Vector3f& outward) {
+  outward = normal;
+  return normal.dot(x) - constant;
+}
+
+float box_distance(const Eigen::Matrix3f& rotation, const Eigen::Vector3f& centre, const Eigen::Vector3f& half,
+                   const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+  const Eigen::Vector3f local = rotation.transpose() * (x - centre);
+  const Eigen::Vector3f q = local.cwiseAbs() - half;
+  const Eigen::Vector3f sign = local.unaryExpr([](float v) { return v < 0.0f ? -1.0f : 1.0f; });
+  if ((q.array() > 0.0f).any()) {
+    const Eigen::Vector3f out = q.cwiseMax(0.0f).cwiseProduct(sign);
+    const float d = out.norm();
+    outward = rotation * (out / d);
+    return d;
+  }
+  int axis = 0;
+  q.maxCoeff(&axis);
+  Eigen::Vector3f n = Eigen::Vector3f::Zero();
+  n[axis] = sign[axis];
+  outward = rotation * n;
+  return q[axis];
+}
+
+float sphere_distance(const Eigen::Vector3f& centre, float radius, const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+  const Eigen::Vector3f v = x - centre;
+  const float length = v.norm();
+  outward = length > 0.0f ? Eigen::Vector3f(v / length) : Eigen::Vector3f::UnitZ();
+  return length - radius;
+}
+
+float capsule_distance(const Eigen::Vector3f& a, const Eigen::Vector3f& b, float radius, const Eigen::Vector3f& x,
+                       Eigen::Vector3f& outward) {
+  const Eigen::Vector3f axis = b - a;
+  const float length2 = axis.squaredNorm();
+  const float t = length2 > 0.0f ? std::clamp((x - a).dot(axis) / length2, 0.0f, 1.0f) : 0.0f;
+  return sphere_distance(a + t * axis, radius, x, outward);
+}
+
+float cylinder_distance(const Eigen::Vector3f& centre, const Eigen::Vector3f& axis, float radius, float half_height,
+                        const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+  const Eigen::Vector3f v = x - centre;
+  const float along = v.dot(axis);
+  const Eigen::Vector3f across = v - along * axis;
+  const float r = across.norm();
+  const Eigen::Vector3f radial = r > 0.0f ? Eigen::Vector3f(across / r) : Eigen::Vector3f(axis.unitOrthogonal());
+  const Eigen::Vector3f axial = along < 0.0f ? Eigen::Vector3f(-axis) : axis;
+  const float dr = r - radius, da = std::abs(along) - half_height;
+  if (dr <= 0.0f && da <= 0.0f) {  // inside: the nearer of the side and the cap
+    outward = dr > da ? radial : axial;
+    return std::max(dr, da);
+  }
+  const Eigen::Vector3f out = std::max(dr, 0.0f) * radial + std::max(da, 0.0f) * axial;
+  const float d = out.norm();
+  outward = out / d;
+  return d;
+}
+
+bool polyhedron_inside_distance(const std::vector<Eigen::Vector4f>& planes, float margin, const Eigen::Vector3f& x,
+                                float& distance, Eigen::Vector3f& outward) {
+  float best = -std::numeric_limits<float>::infinity();
+  for (const Eigen::Vector4f& p : planes) {
+    const float value = p.head<3>().dot(x) + p[3];
+    if (value > best) {
+      best = value;
+      outward = p.head<3>();
+    }
+  }
+  if (!(best <= 0.0f)) return false;
+  distance = best - margin;
+  return true;
+}
+
+float convex_distance(const btConvexShape& shape, const btTransform& world_from_shape, const Eigen::Vector3f& x,
+                      Eigen::Vector3f& outward) {
+  btGjkEpaSolver2::sResults results;
+  const btVector3 point(x.x(), x.y(), x.z());
+  const btScalar d = btGjkEpaSolver2::SignedDistance(point, 0, &shape, world_from_shape, results);
+  if (!(d < SIMD_INFINITY)) return std::numeric_limits<float>::infinity();
+  // witnesses[0] is the nearest point of the shape's surface (margin included), inside or out.
+  const btVector3 to_point = point - results.witnesses[0];
+  const btScalar length = to_point.length();
+  btVector3 n = length > SIMD_EPSILON ? to_point / length : results.normal;
+  if (d < 0) n = -n;  // inside: the surface is ahead of the point
+  outward = Eigen::Vector3f(float(n.x()), float(n.y()), float(n.z()));
+  return float(d);
+}
+
+void TriangleSet::add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
+  corners_.push_back(a);
+  corners_.push_back(b);
+  corners_.push_back(c);
+  const Eigen::Vector3f n = (b - a).cross(c - a);
+  const float length = n.norm();
+  normals_.push_back(length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero());
+}
+
+namespace {
+
+// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5).
+Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
+                                    const Eigen::Vector3f& c) {
+  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
+  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0 && d2 <= 0) return a;
+  const Eigen::Vector3f bp = p - b;
+  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0 && d4 <= d3) return b;
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
+  const Eigen::Vector3f cp = p - c;
+  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0 && d5 <= d6) return c;
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  const float denom = 1.0f / (va + vb + vc);
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+}  // namespace
+
+void TriangleSet::clear() {
+  corners_.clear();
+  normals_.clear();
+  first_.clear();
+  members_.clear();
+}
+
+void TriangleSet::build() {
+  first_.clear();
+  members_.clear();
+  if (empty()) return;
+  lo_ = hi_ = corners_[0];
+  float edges = 0;
+  for (size_t t = 0; t < size(); ++t)
+    for (int k = 0; k < 3; ++k) {
+      lo_ = lo_.cwiseMin(corner(t, k));
+      hi_ = hi_.cwiseMax(corner(t, k));
+      edges += (corner(t, (k + 1) % 3) - corner(t, k)).norm();
+    }
+  // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
+  const Eigen::Vector3f extent = hi_ - lo_;
+  cell_ = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-6f});
+  for (int a = 0; a < 3; ++a) dims_[a] = std::clamp(int(std::ceil(extent[a] / cell_)), 1, 64);
+  auto cell_of = [&](const Eigen::Vector3f& p) {
+    Eigen::Vector3i c;
+    for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((p[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
+    return c;
+  };
+  auto index = [&](int i, int j, int k) { return size_t((k * dims_[1] + j) * dims_[0] + i); };
+  const size_t cells = size_t(dims_.prod());
+  first_.assign(cells + 1, 0);
+  // Each triangle goes into the cells its bounding box covers (counting sort: count, then place).
+  for (int pass = 0; pass < 2; ++pass) {
+    std::vector<uint32_t> next;
+    if (pass == 1) {
+      for (size_t c = 0; c < cells; ++c) first_[c + 1] += first_[c];
+      members_.resize(first_[cells]);
+      next.assign(first_.begin(), first_.end() - 1);
+    }
+    for (size_t t = 0; t < size(); ++t) {
+      const Eigen::Vector3i c0 = cell_of(corner(t, 0).cwiseMin(corner(t, 1)).cwiseMin(corner(t, 2)));
+      const Eigen::Vector3i c1 = cell_of(corner(t, 0).cwiseMax(corner(t, 1)).cwiseMax(corner(t, 2)));
+      for (int k = c0.z(); k <= c1.z(); ++k)
+        for (int j = c0.y(); j <= c1.y(); ++j)
+          for (int i = c0.x(); i <= c1.x(); ++i) {
+            if (pass == 0)
+              ++first_[index(i, j, k) + 1];
+            else
+              members_[next[index(i, j, k)]++] = uint32_t(t);
+          }
+    }
+  }
+}
+
+float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
+  float best2 = std::numeric_limits<float>::infinity();
+  float best_alignment = -1.0f, side = 1.0f;
+  auto consider = [&](size_t t) {
+    const Eigen::Vector3f q = closest_on_triangle(x, corners_[3 * t], corners_[3 * t + 1], corners_[3 * t + 2]);
+    const Eigen::Vector3f v = x - q;
+    const float d2 = v.squaredNorm();
+    // Ties (a shared edge or vertex, to float precision) go to the triangle whose plane faces the point.
+    const float tie = 1e-6f * std::max(best2 < std::numeric_limits<float>::infinity() ? best2 : d2, 1e-12f);
+    if (d2 > best2 + tie) return;
+    const float length = std::sqrt(d2);
+    const float along = length > 0.0f ? normals_[t].dot(v) / length : 1.0f;
+    if (d2 < best2 - tie || std::abs(along) > best_alignment) {
+      best_alignment = std::abs(along);
+      side = along < 0.0f ? -1.0f : 1.0f;
+      best2 = std::min(best2, d2);
+      outward = length > 0.0f ? Eigen::Vector3f(side * v / length) : normals_[t];
+    }
+  };
+  if (empty()) return std::numeric_limits<float>::infinity();
+  if (first_.empty()) {  // not built: every triangle
+    for (size_t t = 0; t < size(); ++t) consider(t);
+    return side * std::sqrt(best2);
+  }
+  // Rings of cells around the cell nearest x (x's projection onto the grid's box lies in it; projecting onto a
+  // convex set brings no point of the set nearer, so after ring r every unvisited triangle is >= r cells away).
+  Eigen::Vector3i c;
+  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
+  const float box = (x - x.cwiseMax(lo_).cwiseMin(hi_)).norm();
+  for (int r = 0; r <= kMaxRings; ++r) {
+    for (int k = c.z() - r; k <= c.z() + r; ++k) {
+      if (k < 0 || k >= dims_.z()) continue;
+      for (int j = c.y() - r; j <= c.y() + r; ++j) {
+        if (j < 0 || j >= dims_.y()) continue;
+        const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
+        for (int i = c.x() - r; i <= c.x() + r; i += (face || r == 0) ? 1 : 2 * r) {
+          if (i < 0 || i >= dims_.x()) continue;
+          const size_t cell = size_t((k * dims_.y() + j) * dims_.x() + i);
+          for (uint32_t m = first_[cell]; m < first_[cell + 1]; ++m) consider(members_[m]);
+        }
+      }
+    }
+    // Every unvisited triangle is at least this far (and none is nearer than the set's box: above a floor the
+    // triangle straight below settles the search at once).
+    const float reach = std::max(float(r) * cell_, box);
+    if (best2 <= reach * reach * (1 + 1e-6f)) return side * std::sqrt(best2);
+    if (r > dims_.maxCoeff()) return side * std::sqrt(best2);  // every cell visited: exact
+  }
+  // Not settled within kMaxRings: every triangle is farther than the rings reach and than the box. Such a
+  // point counts as outside (a point that deep behind a floor has tunnelled through it).
+  const float bound = std::max(box, float(kMaxRings) * cell_);
+  outward = box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(lo_).cwiseMin(hi_)) / box) : Eigen::Vector3f::UnitY();
+  return bound;
+}
+
+}  // namespace voxfmt::bullet
