@@ -2,6 +2,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <set>
 
@@ -54,6 +55,12 @@ void read_voxelmap(h5::Reader& r, hid_t g, Voxelmap& vm) {
   if (auto v = r.numeric_attribute<double>(g, p, "distance_band", {})) vm.distance_band = (*v)[0];
   if (r.has_attribute(g, "margin"))
     if (auto v = r.numeric_attribute<uint32_t>(g, p, "margin", {})) vm.margin = (*v)[0];
+  if (r.has_attribute(g, "shell_thickness"))
+    if (auto v = r.numeric_attribute<double>(g, p, "shell_thickness", {})) {
+      vm.shell_thickness = (*v)[0];
+      if (!(*vm.shell_thickness > 0) || !std::isfinite(*vm.shell_thickness))
+        r.report(IssueCode::ValueOutOfRange, p + "/@shell_thickness", "must be finite and > 0");
+    }
   check_vocabulary(r, r.string_attribute(g, p, "index_order"), p + "/@index_order", {"zyx"});
   auto dims = r.numeric_attribute<uint32_t>(g, p, "dims", {3});
   if (!dims) return;
@@ -69,7 +76,7 @@ void read_voxelmap(h5::Reader& r, hid_t g, Voxelmap& vm) {
   if (auto v = r.dataset<int16_t>(g, p, "layers", grid)) vm.layers = std::move(*v);
   if (auto v = r.dataset<float>(g, p, "distances", grid)) vm.distances = std::move(*v);
   report_unknown(r, g, p, {"layers", "distances"},
-                 {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin"}, true);
+                 {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness"}, true);
 }
 
 void read_point_shell(h5::Reader& r, hid_t g, PointShell& ps) {

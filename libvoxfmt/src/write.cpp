@@ -43,6 +43,7 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.string_attribute(vg->get(), "index_order", "zyx") &&
        w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
        (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
+       (!vm.shell_thickness || w.numeric_attribute<double>(vg->get(), "shell_thickness", {}, &*vm.shell_thickness)) &&
        w.dataset<int16_t>(vg->get(), "layers", grid, vm.layers.data(), opt.deflate_level, opt.chunk_edge) &&
        w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge,
                         &kNotStored);

@@ -11,6 +11,7 @@
 
 #include "exact_surface.h"
 #include "stages.h"
+#include "vec3_math.h"
 #include "voxfmt/validate.h"
 #include "winding_number.h"
 
@@ -778,25 +779,65 @@ TEST(LibraryRegressions, OpenSurfacesGetTheMassOfTheirWindingInside) {
   }
 }
 
-TEST(LibraryRegressions, OpenSheetsEncloseNoVolume) {
-  for (const char* name : {"plane.off", "patch-13.off", "triangular_hole.off"}) {
+// Spec §3 shell mode: the signed distance is the unsigned distance to the surface minus half the thickness.
+void expect_shell_distances(const Asset& asset, const TriangleMesh& mesh, const std::string& name) {
+  const Voxelmap& vm = asset.voxelmap;
+  ASSERT_TRUE(vm.shell_thickness.has_value()) << name;
+  const ExactSurface surface(mesh);
+  std::mt19937_64 rng(21);
+  double worst = 0;
+  size_t checked = 0, inside = 0;
+  for (int n = 0; n < 200000 && checked < 3000; ++n) {
+    const size_t v = rng() % vm.voxel_count();
+    if (!Voxelmap::is_stored(vm.distances[v])) continue;
+    const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
+                   k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
+    const double expected = surface.distance(vm.voxel_center(i, j, k)) - *vm.shell_thickness / 2;
+    worst = std::max(worst, std::abs(double(vm.distances[v]) - expected) / vm.voxel_size);
+    inside += vm.distances[v] < 0;
+    ++checked;
+  }
+  std::printf("%s: shell %.4g m, %zu band voxels checked (%zu inside), max error %.2e voxel\n", name.c_str(),
+              *vm.shell_thickness, checked, inside, worst);
+  EXPECT_GT(checked, 500u) << name;
+  EXPECT_GT(inside, 0u) << name;
+  EXPECT_LT(worst, 1e-4) << name;
+  EXPECT_TRUE(full_errors(asset).empty()) << name;
+}
+
+TEST(Bake, OpenSheetsAndThinPartsBakeAsShells) {
+  // They enclose nothing at resolution 128 (they used to fail with ZERO_VOLUME): a 2-voxel shell, with a warning.
+  for (const char* name : {"plane.off", "patch-13.off", "triangular_hole.off", "blade.off"}) {
     BuildReport report;
-    try {
-      bake_default(name, report);
-      ADD_FAILURE() << name << " baked";
-    } catch (const BakeError& e) {
-      EXPECT_EQ(e.code(), IssueCode::ZeroVolume) << name;
-    }
+    const Asset asset = bake_default(name, report);
+    bool warned = false;
+    for (const BuildWarning& w : asset.provenance.build_warnings) warned |= w.code == "SHELL_MODE";
+    EXPECT_TRUE(warned) << name;
+    EXPECT_NEAR(*asset.voxelmap.shell_thickness, 2 * asset.voxelmap.voxel_size, 1e-12) << name;
+    RepairReport again;
+    expect_shell_distances(asset, repair_mesh(import_mesh(kMeshes + "/" + name), again, false), name);
+    EXPECT_EQ(asset.point_shell.size(), 1000u) << name;  // 500 per sheet
   }
-  // A blade thinner than a voxel at the default resolution: the message says what to change.
+}
+
+TEST(Bake, ShellThicknessOnAClosedMeshGivesAreaTimesThickness) {
+  Settings options;
+  options.voxelmap.resolution = 64;
+  options.voxelmap.shell_thickness = 0.1;  // ~3 voxels of the cube
+  options.point_shell.points = 2000;
   BuildReport report;
-  try {
-    bake_default("blade.off", report);
-    ADD_FAILURE() << "blade.off baked at resolution 128";
-  } catch (const BakeError& e) {
-    EXPECT_EQ(e.code(), IssueCode::ZeroVolume);
-    EXPECT_NE(std::string(e.what()).find("--resolution"), std::string::npos) << e.what();
-  }
+  const Asset asset = build_asset(kMeshes + "/cube.off", options, report);
+  RepairReport again;
+  const TriangleMesh mesh = repair_mesh(import_mesh(kMeshes + "/cube.off"), again, false);
+  double area = 0;
+  for (const auto& t : mesh.triangles)
+    area += 0.5 * length(cross(mesh.vertices[t[1]] - mesh.vertices[t[0]], mesh.vertices[t[2]] - mesh.vertices[t[0]]));
+  EXPECT_NEAR(asset.mass.volume, area * 0.1, 1e-12 * area);
+  // The shell reaches half the thickness past the surface's box.
+  const auto [lo, hi] = bounding_box(mesh);
+  EXPECT_NEAR(asset.bounds_min[0], lo[0] - 0.05, 1e-12);
+  EXPECT_NEAR(asset.bounds_max[2], hi[2] + 0.05, 1e-12);
+  expect_shell_distances(asset, mesh, "cube.off shell 0.1");
 }
 
 }  // namespace

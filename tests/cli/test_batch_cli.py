@@ -22,7 +22,9 @@ def cube_off(size, offset=0.0):
     return "\n".join(lines) + "\n"
 
 
-FLAT_OFF = "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"
+# Only a degenerate (collinear) triangle: nothing is left after repair, the bake fails with EMPTY_SCENE. (A flat
+# sheet bakes: as a shell.)
+FLAT_OFF = "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
@@ -83,7 +85,7 @@ class Batch(unittest.TestCase):
         self.assertEqual(len(self.manifest()), 4)
         failed = records[os.path.join(self.out, "broken/flat.off.vox.h5")]
         self.assertEqual(failed["status"], "failed")
-        self.assertEqual(failed["error"]["code"], "ZERO_VOLUME")
+        self.assertEqual(failed["error"]["code"], "EMPTY_SCENE")
         self.assertIn("flat.off", failed["error"]["message"])
         self.assertIn("build", failed["command"])
         ok = records[os.path.join(self.out, "b/cube.off.vox.h5")]
@@ -92,7 +94,7 @@ class Batch(unittest.TestCase):
         for key in ("input", "timings_s", "file_size_bytes", "input_bytes", "warnings", "source_sha256", "build_parameters"):
             self.assertIn(key, ok)
         self.assertEqual(ok["file_size_bytes"], os.path.getsize(ok["output"]))
-        self.assertEqual(summary["failures"][0]["code"], "ZERO_VOLUME")
+        self.assertEqual(summary["failures"][0]["code"], "EMPTY_SCENE")
         self.assertFalse([f for f in os.listdir(os.path.join(self.out, "broken"))] if os.path.isdir(os.path.join(self.out, "broken")) else [])
 
     def test_rerun_skips_force_rebuilds_and_option_change_rebuilds(self):

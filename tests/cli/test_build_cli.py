@@ -53,10 +53,18 @@ class BuildBadInput(unittest.TestCase):
         text = "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\nnan 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n"
         self.expect_error(self.write("nan.off", text), "NON_FINITE_COORDINATES")
 
-    def test_zero_volume(self):
+    def test_degenerate_mesh(self):
+        r = self.expect_error(self.write("line.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"), "EMPTY_SCENE")
+        self.assertIn("line.off", r.stderr)
+
+    def test_flat_sheet_bakes_as_a_shell(self):
         text = "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"
-        r = self.expect_error(self.write("flat.off", text), "ZERO_VOLUME")
-        self.assertIn("flat.off", r.stderr)
+        r = self.build(self.write("flat.off", text), "--resolution", "32", "--points", "500")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        summary = json.loads(r.stdout)
+        self.assertIn("SHELL_MODE", [w["code"] for w in summary["warnings"]])
+        # A 1 m square, 2 voxels (1/16 m) thick: volume = area x thickness.
+        self.assertAlmostEqual(summary["volume"], 1.0 / 16, delta=1e-9)
 
     def test_bad_option_is_a_usage_error(self):
         tet = self.write("tet.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")

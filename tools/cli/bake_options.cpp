@@ -28,6 +28,10 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   cmd.add_option("--band", b.voxelmap.distance_band, "Half-width in voxels of the band of exact distances")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 64.0));
+  cmd.add_option("--shell-thickness", b.voxelmap.shell_thickness,
+                 "Bake the surface as a solid shell this thick (metres): thin walls, sheets, open scans. Default: "
+                 "the surface's inside, or a 2-voxel shell (with a warning) when it encloses nothing")
+      ->check(CLI::PositiveNumber);
   cmd.add_option("--unit-scale", b.import.unit_scale, "Multiply coordinates by this to get metres (0.001 for mm)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
@@ -68,6 +72,7 @@ std::vector<std::string> bake_option_args(const bake::Settings& b) {
                            std::to_string(b.point_shell.seed), "--deflate", std::to_string(b.deflate), "--threads",
                            std::to_string(b.threads)});
   if (!b.check_self_intersections) args.push_back("--no-self-intersection-check");
+  if (b.voxelmap.shell_thickness > 0) args.insert(args.end(), {"--shell-thickness", exact(b.voxelmap.shell_thickness)});
   return args;
 }
 

@@ -35,8 +35,11 @@ struct Voxelmap {
   std::array<uint32_t, 3> dims{};  ///< W, H, D (voxels along x, y, z)
   double distance_band = 2.0;      ///< half-width of the stored-distance band, in voxels
   std::optional<uint32_t> margin;  ///< outer voxels around the bounding box (optional in the file)
-  std::vector<int16_t> layers;     ///< coarse penetration depth in voxels; > 0 inside, 0 surface, < 0 outside
-  std::vector<float> distances;    ///< signed distance (negative inside), NaN where not stored
+  /// Shell mode (format 1.1): the object is the solid shell of this thickness (metres) around the surface, its
+  /// signed distance the unsigned distance to the surface minus half of it. Absent: the surface's inside.
+  std::optional<double> shell_thickness;
+  std::vector<int16_t> layers;   ///< coarse penetration depth in voxels; > 0 inside, 0 surface, < 0 outside
+  std::vector<float> distances;  ///< signed distance (negative inside), NaN where not stored
 
   size_t voxel_count() const { return size_t(dims[0]) * dims[1] * dims[2]; }
   size_t linear_index(uint32_t i, uint32_t j, uint32_t k) const { return (size_t(k) * dims[1] + j) * dims[0] + i; }

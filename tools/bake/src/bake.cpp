@@ -139,6 +139,8 @@ std::string build_parameters_json(const Settings& o) {
                       {"seed", o.point_shell.seed},
                       {"check_self_intersections", o.check_self_intersections},
                       {"up_axis", o.up_axis}};
+  // Only when set, so that manifests written before shell mode existed stay up to date.
+  if (o.voxelmap.shell_thickness > 0) j["shell_thickness"] = o.voxelmap.shell_thickness;
   return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
@@ -172,7 +174,13 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   report.input_triangles = raw.triangles.size();
 
   stage("repair");
-  const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
+  const TriangleMesh mesh = [&] {
+    try {
+      return repair_mesh(raw, report.repair, options.check_self_intersections);
+    } catch (const BakeError& e) {  // name the input, as every other stage's message does
+      throw BakeError(e.code(), mesh_path + ": " + e.what());
+    }
+  }();
   const auto [lo, hi] = bounding_box(mesh);
   const double diagonal = length(hi - lo);
   // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
@@ -180,20 +188,32 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   const RepairReport& r = report.repair;
   const bool winding_inside = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
   MassProperties mass;
+  auto encloses_volume = [&] { return mass.volume > 1e-9 * diagonal * diagonal * diagonal; };
   auto check_volume = [&](const char* what) {
-    if (!(mass.volume > 1e-9 * diagonal * diagonal * diagonal))
+    if (!encloses_volume())
       throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume (" + what + ")");
   };
-  if (!winding_inside) {
+  // Shell mode, asked for or chosen below when the surface encloses nothing: a solid shell around the surface.
+  double shell_thickness = options.voxelmap.shell_thickness;
+  bool closed_but_flat = false;
+  if (!winding_inside && shell_thickness == 0) {
     mass = compute_mass_properties(mesh);
-    check_volume("flat or inside-out mesh");
+    closed_but_flat = !encloses_volume();  // a closed, double-sided sheet: baked as a shell below
   }
+  auto sample_shell = [&](double thickness) {  // a shell's points lie on its two sheets: half as many each
+    PointShellSettings settings = options.point_shell;
+    if (thickness > 0 && settings.point_spacing == 0) settings.points = std::max<uint32_t>(1, settings.points / 2);
+    PointShell sampled = sample_point_shell(mesh, settings);
+    if (thickness > 0) offset_to_shell_sheets(sampled, thickness / 2);
+    return sampled;
+  };
 
   // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run
   // beside the voxelmap's parallel work. Stage times are each task's own wall time.
   stage("voxelmap + point shell");
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = winding_inside;
+  if (closed_but_flat) voxelmap_options.shell_thickness = shell_thickness = 0;  // decided after the grid exists
   Voxelmap voxelmap;
   PointShell shell;
   double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
@@ -206,7 +226,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   std::exception_ptr shell_error;
   tasks.run([&] {
     try {
-      timed(shell_seconds, [&] { shell = sample_point_shell(mesh, options.point_shell); });
+      timed(shell_seconds, [&] { shell = sample_shell(shell_thickness); });
       timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
     } catch (...) {
       shell_error = std::current_exception();
@@ -222,15 +242,29 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   if (shell_error) std::rethrow_exception(shell_error);
 
   stage("assemble");
-  if (winding_inside) {
-    // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
-    // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
-    if (*std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1)
-      throw BakeError(IssueCode::ZeroVolume,
-                      mesh_path +
-                          ": the surface encloses no volume at this resolution: no voxel is more "
-                          "than half a voxel inside (winding number >= 1/2); an open sheet, or "
-                          "thinner than a voxel (a finer --resolution or --voxel-size may help)");
+  // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
+  // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent. Such a
+  // surface is baked again as a shell two voxels thick, and the asset says so.
+  const bool encloses_nothing =
+      shell_thickness == 0 &&
+      (closed_but_flat || (winding_inside && *std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1));
+  if (encloses_nothing) {
+    shell_thickness = 2 * voxelmap.voxel_size;
+    char text[160];
+    std::snprintf(text, sizeof text,
+                  "the surface encloses no volume at this resolution (an open or flat sheet, or thinner than a voxel):"
+                  " baked as a shell %.6g m (2 voxels) thick",
+                  shell_thickness);
+    report.repair.warnings.push_back({"SHELL_MODE", text});
+    voxelmap_options.shell_thickness = shell_thickness;
+    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options); });
+    timed(shell_seconds, [&] { shell = sample_shell(shell_thickness); });
+    timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
+  }
+  if (shell_thickness > 0) {
+    mass = shell_mass_properties(mesh, shell_thickness);
+    check_volume("a surface of zero area");
+  } else if (winding_inside) {
     mass = voxelmap_mass_properties(voxelmap);
     check_volume("an open sheet");
     // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can
@@ -244,6 +278,10 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   asset.up_axis = options.up_axis;
   asset.bounds_min = lo;
   asset.bounds_max = hi;
+  for (int a = 0; a < 3 && shell_thickness > 0; ++a) {  // a shell's surface is its sheets, around the mesh
+    asset.bounds_min[a] -= shell_thickness / 2;
+    asset.bounds_max[a] += shell_thickness / 2;
+  }
   asset.voxelmap = std::move(voxelmap);
   asset.point_shell = std::move(shell);
   asset.mass = mass;

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "stages.h"
+#include "vec3_math.h"
 
 namespace voxfmt::bake {
 
@@ -112,6 +113,48 @@ MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
     for (int b = 0; b < 3; ++b) sum.second[a][b] *= h3 * h * h;
   }
   return from_moments(sum, {vm.origin[0] + h * centre[0], vm.origin[1] + h * centre[1], vm.origin[2] + h * centre[2]});
+}
+
+MassProperties shell_mass_properties(const TriangleMesh& mesh, double thickness) {
+  // A thin shell of uniform thickness T: each triangle of area A is a slab of volume A*T, its moments those of
+  // the triangle times T (exact for T -> 0; the rims and the curvature terms, O(T^2), are left out). Triangle
+  // moments about a reference point near the mesh (its first vertex) keep the sums well conditioned:
+  // integral of x dA = A (a + b + c)/3, of x x^T dA = A/12 (a a^T + b b^T + c c^T + s s^T), s = a + b + c.
+  Moments total;
+  const Vec3 ref = mesh.vertices.empty() ? Vec3{0, 0, 0} : mesh.vertices[0];
+  for (const auto& t : mesh.triangles) {
+    const Vec3 v[3] = {mesh.vertices[t[0]] - ref, mesh.vertices[t[1]] - ref, mesh.vertices[t[2]] - ref};
+    const double area = 0.5 * length(cross(v[1] - v[0], v[2] - v[0]));
+    const Vec3 s = v[0] + v[1] + v[2];
+    total.volume += area * thickness;
+    for (int a = 0; a < 3; ++a) {
+      total.first[a] += area * thickness * s[a] / 3;
+      for (int b = 0; b < 3; ++b)
+        total.second[a][b] +=
+            area * thickness / 12 * (v[0][a] * v[0][b] + v[1][a] * v[1][b] + v[2][a] * v[2][b] + s[a] * s[b]);
+    }
+  }
+  return from_moments(total, ref);
+}
+
+void offset_to_shell_sheets(PointShell& shell, double half_thickness) {
+  // Each surface point becomes two, on the shell's two sheets, each with its inward normal pointing back
+  // toward the surface.
+  const size_t n = shell.points.size();
+  std::vector<Vec3> points;
+  std::vector<Vec3f> normals;
+  points.reserve(2 * n);
+  normals.reserve(2 * n);
+  for (size_t i = 0; i < n; ++i) {
+    const Vec3f& inward = shell.normals[i];
+    const Vec3 m{double(inward[0]), double(inward[1]), double(inward[2])};
+    points.push_back(shell.points[i] - m * half_thickness);  // the sheet on the outward side
+    normals.push_back(inward);
+    points.push_back(shell.points[i] + m * half_thickness);  // the sheet on the inward side
+    normals.push_back(Vec3f{-inward[0], -inward[1], -inward[2]});
+  }
+  shell.points = std::move(points);
+  shell.normals = std::move(normals);
 }
 
 }  // namespace voxfmt::bake

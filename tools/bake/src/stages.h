@@ -79,6 +79,11 @@ MassProperties compute_mass_properties(const TriangleMesh& mesh);
 /// self-intersecting: a surface integral would depend on the origin or count overlaps twice). A voxel counts
 /// with the fraction clamp(1/2 - d/h, 0, 1) where its distance d is stored, wholly where its layer is > 0.
 MassProperties voxelmap_mass_properties(const Voxelmap& voxelmap);
+/// Shell mode: a shell of uniform `thickness` around the surface (volume = area x thickness).
+MassProperties shell_mass_properties(const TriangleMesh& mesh, double thickness);
+/// Shell mode: every point of a sampled surface (tree not built yet) becomes two, half the thickness to either
+/// side along its normal, on the shell's two sheets.
+void offset_to_shell_sheets(PointShell& shell, double half_thickness);
 
 }  // namespace voxfmt::bake
 

@@ -471,7 +471,7 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
 // is smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough
 // that every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
 // In the band, where a wrong sign is a wrong contact, a value near 1/2 is evaluated again until its side is
-// certain (WindingNumber::inside: stricter far fields with an error bound, then the exact sum). Farther away
+// certain (WindingNumber::inside: a stricter far field, then the exact sum). Farther away
 // an open surface can leave wide regions near 1/2 (across a hole), where the inside is a matter of closure and
 // exact sums would cost seconds.
 void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
@@ -577,10 +577,23 @@ size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<ui
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options) {
   if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
-  const GridGeometry g = plan_grid(mesh, options);
+  GridGeometry g = plan_grid(mesh, options);
 
+  // Shell mode: the object is every point within half the thickness of the surface; the grid's margin grows
+  // by that much so that the shell's outer sheets keep the margin's outer voxels around them.
+  const bool shell = options.shell_thickness > 0;
+  if (shell && !std::isfinite(options.shell_thickness))
+    throw BakeError(IssueCode::BadOption, "shell thickness must be a finite number > 0");
+  const double half_shell = shell ? 0.5 * options.shell_thickness / g.voxel_size : 0.0;  // voxels
+  if (half_shell > 1e4) throw BakeError(IssueCode::BadOption, "shell thickness is more than 20,000 voxels");
+  VoxelmapSettings grid_options = options;
+  if (shell) {
+    grid_options.margin += uint32_t(std::ceil(half_shell));
+    grid_options.voxel_size = g.voxel_size;  // the same voxels, more of them
+    g = plan_grid(mesh, grid_options);
+  }
   // Exact distances just past the band (voxels at exactly `band` must be exact too).
-  const float half_width = float(options.distance_band) + 0.5f;
+  const float half_width = float(options.distance_band + half_shell) + 0.5f;
   std::vector<Seed> seeds;
   std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width, seeds);
 
@@ -589,11 +602,15 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   vm.voxel_size = g.voxel_size;
   vm.dims = g.dims;
   vm.distance_band = options.distance_band;
-  vm.margin = options.margin;
+  vm.margin = grid_options.margin;
   const size_t count = vm.voxel_count();
 
-  if (options.winding_number_sign) sign_by_winding_number(mesh, g, half_width, signed_voxels);
-  repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
+  if (shell) {
+    vm.shell_thickness = options.shell_thickness;
+    for (float& d : signed_voxels) d = std::abs(d);  // the feature transform takes the unsigned distances
+  } else if (options.winding_number_sign) {
+    sign_by_winding_number(mesh, g, half_width, signed_voxels);
+  }
 
   // Distances are stored in the band. Layers are rounded from the distances in voxel units, where a voxel
   // centre exactly half a voxel off a face (common: the grid is aligned to the bounding box) is an exact tie,
@@ -605,8 +622,17 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   vm.layers.resize(count);
   const double h = g.voxel_size;
   auto layer_of = [](double depth) { return std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0); };
-  const std::vector<float> depth = feature_transform_depths(seeds, signed_voxels, half_width, g.dims);
+  std::vector<float> depth = feature_transform_depths(seeds, signed_voxels, half_width, g.dims);
   std::vector<Seed>().swap(seeds);
+  if (shell) {  // the shell's signed distance, everywhere: exact wherever the band's distances are
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t v = r.begin(); v < r.end(); ++v) {
+        signed_voxels[v] = tie_safe_float(double(depth[v]) - half_shell);
+        depth[v] = std::abs(signed_voxels[v]);
+      }
+    });
+  }
+  repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t v = r.begin(); v < r.end(); ++v) {
       const float d = signed_voxels[v];

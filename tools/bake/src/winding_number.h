@@ -21,9 +21,8 @@ class WindingNumber {
   /// The winding number with the dipole approximation only for clusters farther than `beta` radii (its error
   /// falls roughly as 1/beta^2); beta = infinity sums every triangle's exact solid angle.
   double evaluate(const Vec3& point, double beta) const;
-  /// Inside (winding number >= 1/2). `approximate` is operator()'s value at `point`; when it is within 0.1 of
-  /// 1/2 the value is evaluated again with a bound on the far field's error, with stricter far fields and at
-  /// last exactly, until its side of 1/2 is certain.
+  /// Inside (winding number >= 1/2). `approximate` is operator()'s value at `point`; within 0.1 of 1/2 the
+  /// value is evaluated again with a stricter far field (beta 8), and within 0.003 of 1/2 exactly.
   bool inside(const Vec3& point, double approximate) const;
 
  private:

@@ -43,6 +43,10 @@ struct VoxelmapSettings {
   /// sign of a closed surface. The whole bake chooses it from the repair report; set it only when calling the
   /// voxelmap stage alone.
   bool winding_number_sign = false;
+  /// Shell mode: > 0 bakes the surface as a solid shell of this thickness (metres; signed distance = unsigned
+  /// distance - thickness/2), for thin walls, sheets and open scans. 0: the surface's inside; a surface that
+  /// encloses nothing at the resolution is then baked as a shell of two voxels, with a SHELL_MODE warning.
+  double shell_thickness = 0.0;
 };
 
 struct PointShellSettings {
