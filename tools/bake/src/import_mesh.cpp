@@ -1,4 +1,7 @@
-// Stage 1: any mesh format assimp reads -> one triangle soup in the file's frame (times unit_scale).
+// Stage 1: any mesh format assimp reads -> one triangle soup in the file's frame (times unit_scale), in double
+// precision for triangle meshes in OFF, OBJ and PLY.
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/IO/polygon_soup_io.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <assimp/DefaultLogger.hpp>
@@ -45,6 +48,41 @@ std::string lowercase(std::string text) {
   return text;
 }
 
+// assimp (Debian's build) stores coordinates as 32-bit floats: a mesh 2 km from its origin would lose 0.1 mm.
+// CGAL's readers of the text formats OFF, OBJ and PLY keep doubles, so triangle meshes in those formats are
+// read with them. Anything else — polygons (assimp triangulates concave ones correctly), a file CGAL's reader
+// refuses or that holds no face, other formats — goes to assimp, which names the problem.
+bool read_triangles_in_double(const std::string& path, double scale, TriangleMesh& out) {
+  const std::string extension = std::filesystem::path(path).extension().string();
+  if (extension != ".off" && extension != ".obj" && extension != ".ply") return false;
+  using Point = CGAL::Exact_predicates_inexact_constructions_kernel::Point_3;
+  std::vector<Point> points;
+  std::vector<std::vector<std::size_t>> polygons;
+  try {
+    if (!CGAL::IO::read_polygon_soup(path, points, polygons, CGAL::parameters::verbose(false))) return false;
+  } catch (...) {
+    return false;
+  }
+  if (polygons.empty() || points.size() > UINT32_MAX) return false;
+  for (const auto& polygon : polygons) {
+    if (polygon.size() != 3) return false;
+    for (std::size_t v : polygon)
+      if (v >= points.size()) return false;
+  }
+  out.vertices.reserve(points.size());
+  for (std::size_t v = 0; v < points.size(); ++v) {
+    const Vec3 q = {points[v].x() * scale, points[v].y() * scale, points[v].z() * scale};
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2]))
+      throw BakeError(IssueCode::NonFiniteCoordinates,
+                      path + ": vertex " + std::to_string(v) + " has a non-finite coordinate");
+    out.vertices.push_back(q);
+  }
+  out.triangles.reserve(polygons.size());
+  for (const auto& polygon : polygons)
+    out.triangles.push_back({uint32_t(polygon[0]), uint32_t(polygon[1]), uint32_t(polygon[2])});
+  return true;
+}
+
 }  // namespace
 
 bool is_mesh_file_name(const std::string& path) {
@@ -79,6 +117,9 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
 
+  TriangleMesh mesh;
+  if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
+
   Assimp::Importer importer;
   const std::string extension = std::filesystem::path(path).extension().string();
   if (extension.empty() || !importer.IsExtensionSupported(extension))
@@ -97,7 +138,6 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
                     path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
   }
 
-  TriangleMesh mesh;
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
   if (mesh.triangles.empty()) throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
   return mesh;
