@@ -298,7 +298,7 @@ TEST(Bake, AMeshFarFromItsOriginBakesLikeTheSameMeshAtTheOrigin) {
   EXPECT_LT(worst, 1e-3);
   EXPECT_EQ(wrong_sign, 0u);
   EXPECT_LE(layer_differs, 10u);  // exact ties can round either way
-  EXPECT_LT(worst_angle, 0.1);  // measured 0.024 degrees
+  EXPECT_LT(worst_angle, 0.1);    // measured 0.024 degrees
 }
 
 TEST(Bake, TorusDistancesMatchClosedForm) {
