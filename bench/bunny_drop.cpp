@@ -6,7 +6,6 @@
 #include <BulletCollision/CollisionShapes/btShapeHull.h>
 #include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
 #include <BulletCollision/Gimpact/btGImpactShape.h>
-#include <HACD/hacdHACD.h>
 #include <btBulletDynamicsCommon.h>
 #include <CLI/CLI.hpp>
 
@@ -20,6 +19,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "common/hacd_cache.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
@@ -48,92 +48,6 @@ struct BunnyGeometry {
   std::vector<btVector3> vertices;       // shape frame
   std::vector<int> indices;
 };
-
-// ------------------------------------------------------------------------------------- HACD with a disk cache
-
-using Hulls = std::vector<std::vector<btVector3>>;
-
-bool read_hulls(const std::string& path, Hulls& hulls) {
-  std::ifstream in(path);
-  if (!in) return false;
-  size_t count = 0;
-  if (!(in >> count) || count == 0 || count > 1000) return false;
-  hulls.assign(count, {});
-  for (auto& hull : hulls) {
-    size_t n = 0;
-    if (!(in >> n) || n == 0 || n > 100000) return false;
-    hull.resize(n);
-    for (auto& p : hull) {
-      double x, y, z;
-      if (!(in >> x >> y >> z)) return false;
-      p = btVector3(btScalar(x), btScalar(y), btScalar(z));
-    }
-  }
-  return true;
-}
-
-void write_hulls(const std::string& path, const Hulls& hulls) {
-  const std::string tmp = path + ".partial";
-  {
-    std::ofstream out(tmp);
-    out << std::setprecision(9) << hulls.size() << "\n";
-    for (const auto& hull : hulls) {
-      out << hull.size() << "\n";
-      for (const auto& p : hull) out << p.x() << " " << p.y() << " " << p.z() << "\n";
-    }
-  }
-  fs::rename(tmp, path);
-}
-
-bool hacd_progress(const char* message, double progress, double, size_t) {
-  std::cerr << "\r  HACD: " << std::fixed << std::setprecision(0) << progress << "% " << message << std::flush;
-  return true;
-}
-
-Hulls hacd_decomposition(const BunnyGeometry& bunny, const std::string& cache, double& seconds) {
-  Hulls hulls;
-  seconds = 0;
-  if (!cache.empty() && read_hulls(cache, hulls)) {
-    std::cerr << "HACD: " << hulls.size() << " hulls from " << cache << "\n";
-    return hulls;
-  }
-  std::cerr << "HACD: decomposing " << bunny.indices.size() / 3 << " triangles (cached afterwards in " << cache
-            << "; this takes minutes)\n";
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<HACD::Vec3<HACD::Real>> points;
-  for (const btVector3& v : bunny.vertices) points.emplace_back(v.x(), v.y(), v.z());
-  std::vector<HACD::Vec3<long>> triangles;
-  for (size_t t = 0; t < bunny.indices.size(); t += 3)
-    triangles.emplace_back(bunny.indices[t], bunny.indices[t + 1], bunny.indices[t + 2]);
-  HACD::HACD hacd;
-  hacd.SetPoints(points.data());
-  hacd.SetNPoints(points.size());
-  hacd.SetTriangles(triangles.data());
-  hacd.SetNTriangles(triangles.size());
-  hacd.SetCompacityWeight(0.1);
-  hacd.SetVolumeWeight(0.0);
-  hacd.SetNClusters(8);
-  hacd.SetNVerticesPerCH(100);
-  hacd.SetConcavity(100);
-  hacd.SetAddExtraDistPoints(false);
-  hacd.SetAddNeighboursDistPoints(false);
-  hacd.SetAddFacesPoints(false);
-  hacd.SetCallBack(hacd_progress);
-  hacd.Compute();
-  std::cerr << "\n";
-  for (size_t c = 0; c < hacd.GetNClusters(); ++c) {
-    std::vector<HACD::Vec3<HACD::Real>> hull_points(hacd.GetNPointsCH(c));
-    std::vector<HACD::Vec3<long>> hull_triangles(hacd.GetNTrianglesCH(c));
-    hacd.GetCH(c, hull_points.data(), hull_triangles.data());
-    std::vector<btVector3> hull;
-    for (const auto& p : hull_points) hull.emplace_back(btScalar(p.X()), btScalar(p.Y()), btScalar(p.Z()));
-    hulls.push_back(std::move(hull));
-  }
-  seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::cerr << "HACD: " << hulls.size() << " hulls in " << seconds << " s\n";
-  if (!cache.empty()) write_hulls(cache, hulls);
-  return hulls;
-}
 
 // ------------------------------------------------------------------------------------------------ the runs
 
@@ -184,7 +98,8 @@ MethodShapes make_shapes(const std::string& method, const BunnyGeometry& bunny, 
     shape->updateBound();
     shapes.dynamic_shape = shapes.static_shape = shape;
   } else if (method == "hacd") {
-    const Hulls hulls = hacd_decomposition(bunny, options.hacd_cache, precompute_seconds);
+    const voxfmt_bench::Hulls hulls =
+        voxfmt_bench::hacd_decomposition(bunny.vertices, bunny.indices, options.hacd_cache, precompute_seconds);
     auto compound = std::make_shared<btCompoundShape>();
     static std::vector<std::shared_ptr<btCollisionShape>> children;  // owned for the program's lifetime
     for (const auto& hull : hulls) {

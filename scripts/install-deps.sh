@@ -10,7 +10,7 @@ PACKAGES=(
   libopenvdb-dev libtbb-dev libblosc-dev libboost-iostreams-dev
   libhdf5-dev hdf5-tools
   libcgal-dev libcgal-demo libgmp-dev libmpfr-dev
-  libbullet-dev libbullet-extras-dev
+  libbullet-dev libbullet-extras-dev libfcl-dev
   libcli11-dev nlohmann-json3-dev
   libssl-dev libpng-dev
   libgtest-dev libgmock-dev libbenchmark-dev

@@ -293,6 +293,55 @@ TEST(Query, PointBudgetStopsAtATreeLevel) {
     EXPECT_LT(c.point_index, tree.points_up_to_level(coarse.stats.deepest_level));
 }
 
+TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {
+  // Sphere semantics (the default) must detect contact wherever the full tree does, with a depth between the
+  // full tree's and that plus twice the level's largest sphere radius. (The seed's point-only coarse shell,
+  // CutLevel::Points, is printed for comparison: it misses shallow contacts between its points.)
+  const Bunny& bunny = Bunny::get();
+  const PointTree& tree = bunny.object->point_tree();
+  uint32_t level = 0;
+  while (level + 1 < tree.level_count() && tree.points_up_to_level(level + 1) <= 1000) ++level;
+  float largest_radius = 0;
+  for (size_t i = tree.level_offsets[level]; i < tree.level_offsets[level + 1]; ++i)
+    largest_radius = std::max(largest_radius, tree.sphere_radii[i]);
+  std::mt19937 random(7);
+  std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
+  size_t fine_touching = 0, spheres_detected = 0, points_detected = 0;
+  double worst_excess = 0;
+  for (int trial = 0; trial < 60; ++trial) {
+    const Eigen::Vector3d axis(unit(random), unit(random), unit(random));
+    const Pose pa = make_pose(angle(random), axis, Eigen::Vector3d(offset(random), 0.05 * unit(random), 0.0));
+    const Pose pb;
+    QueryOptions options;
+    options.direction = QueryDirection::APointsInB;
+    ContactSet fine, spheres, points;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, fine);
+    options.max_level = level;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, spheres);
+    options.cut_level = CutLevel::Points;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, points);
+    auto deepest = [](const ContactSet& set) {
+      double d = -1e30;
+      for (const Contact& c : set.contacts) d = std::max(d, c.depth);
+      return d;
+    };
+    if (fine.contacts.empty()) continue;
+    ++fine_touching;
+    if (!spheres.contacts.empty()) ++spheres_detected;
+    if (!points.contacts.empty()) ++points_detected;
+    const double fine_depth = deepest(fine), sphere_depth = deepest(spheres);
+    EXPECT_GE(sphere_depth, fine_depth - 1e-6 * bunny.h) << "trial " << trial;
+    worst_excess = std::max(worst_excess, sphere_depth - fine_depth);
+  }
+  ASSERT_GT(fine_touching, 10u);
+  EXPECT_EQ(spheres_detected, fine_touching);
+  EXPECT_LE(worst_excess, 2.0 * largest_radius);
+  std::cout << "level " << level << " (" << tree.points_up_to_level(level) << " points): spheres detect "
+            << spheres_detected << "/" << fine_touching << ", points " << points_detected << "/" << fine_touching
+            << "; deepest sphere contact exceeds the full tree's by at most " << worst_excess / bunny.h
+            << " voxels (bound " << 2 * largest_radius / bunny.h << ")\n";
+}
+
 TEST(Query, BothDirectionsMirror) {
   const Bunny& bunny = Bunny::get();
   const Pose pa = make_pose(30, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.5, 0.1, 0.0)), pb;

@@ -289,6 +289,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     ++counters.pair_tests;
     counters.raw_contacts += contacts.contacts.size();
     counters.points_tested += contacts.stats.points_tested;
+    counters.nodes_visited += contacts.stats.nodes_visited;
     for (size_t index : runtime::reduce_contacts(contacts.contacts, settings.manifold_points)) {
       const runtime::Contact& c = contacts.contacts[index];
       // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.

@@ -39,7 +39,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   const Eigen::Matrix3f Mf = M.cast<float>();
   const Eigen::Vector3f mf = m.cast<float>();
 
-  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch.queue,
+  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch,
                         [&](uint32_t node, float d, bool exact) {
                           Contact contact;
                           contact.point = shell_pose.apply(tree.points[node].cast<double>());

@@ -47,6 +47,7 @@ struct CollisionCounters {
   uint64_t pair_tests = 0;
   uint64_t raw_contacts = 0;       ///< contacts found by the queries before reduction
   uint64_t points_tested = 0;      ///< point-shell points whose distance was looked up
+  uint64_t nodes_visited = 0;      ///< sphere-tree nodes whose bound was looked up (pruning)
   uint64_t unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
 };
 

@@ -38,6 +38,19 @@ enum class NormalSource {
   DistanceGradient,  ///< gradient of the other object's distance field (the true separating direction)
 };
 
+/// What the points of the last level of a cut query (one stopped by `max_level` or `point_budget` above the
+/// leaves) report.
+enum class CutLevel {
+  /// Each point stands for its sphere (the point and everything below it): contact when the sphere reaches
+  /// the partner, depth = radius - distance(sphere centre). Conservative: wherever the full tree has a contact,
+  /// a cut level has one, and its depth d_cut satisfies d_fine <= d_cut <= d_fine + 2 * (largest radius of the
+  /// level). The default: a coarse level that misses contacts is no use to a physics engine.
+  Spheres,
+  /// Each point only stands for itself (the seed's coarse shell): cheaper and shallower, but a contact between
+  /// the level's points is missed.
+  Points,
+};
+
 struct QueryOptions {
   QueryDirection direction = QueryDirection::Auto;
   NormalSource normal_source = NormalSource::PointShell;
@@ -49,6 +62,8 @@ struct QueryOptions {
   size_t point_budget = std::numeric_limits<size_t>::max();
   /// Deepest tree level tested (0 = root only).
   uint32_t max_level = std::numeric_limits<uint32_t>::max();
+  /// What the last level of a cut query reports (see CutLevel).
+  CutLevel cut_level = CutLevel::Spheres;
 };
 
 /// One colliding (or near) point, world frame.
@@ -79,6 +94,16 @@ struct ContactSet {
 /// Reusable traversal buffers; keep one per thread to avoid allocations in the loop.
 struct QueryScratch {
   std::vector<uint32_t> queue;
+  /// Hits of the level being traversed, held back until it is known whether the level is the last one.
+  struct Hit {
+    uint32_t node;
+    float distance;
+    bool exact;
+  };
+  std::vector<Hit> level_hits;
+  /// Benchmarks: when set, every point whose distance is looked up is appended here, in the target's
+  /// coordinates (a voxelmap's grid), so the cost of the lookups alone can be measured.
+  std::vector<Eigen::Vector3f>* tested_points = nullptr;
 };
 
 /// Appends to `out` (call out.clear() first for a fresh set). Objects without the needed structure (no point

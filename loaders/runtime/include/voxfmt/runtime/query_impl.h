@@ -15,19 +15,44 @@ namespace detail {
 template <class Target, class Emit>
 void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
                    float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
-                   std::vector<uint32_t>& queue, Emit&& emit) {
+                   QueryScratch& scratch, Emit&& emit) {
+  std::vector<uint32_t>& queue = scratch.queue;
+  std::vector<QueryScratch::Hit>& hits = scratch.level_hits;
   queue.clear();
+  hits.clear();
   if (tree.size() == 0) return;
+  const bool spheres = options.cut_level == CutLevel::Spheres;
+  // With sphere semantics a level's hits wait for the level's end: if the traversal stops there, a point whose
+  // children were pushed (never tested) reports its sphere instead.
+  auto flush = [&](bool last_level) {
+    for (const QueryScratch::Hit& hit : hits) {
+      if (last_level && tree.child_count[hit.node] > 0) continue;  // reported as a sphere below
+      emit(hit.node, hit.distance, hit.exact);
+    }
+    hits.clear();
+  };
+  auto emit_spheres = [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      const uint32_t node = queue[i];
+      if (tree.child_count[node] == 0) continue;
+      bool exact = false;
+      const float radius = tree.sphere_radii[node] * radius_scale;
+      const float d = target.distance(M * tree.sphere_centers[node] + m, exact) - radius;
+      if (d < proximity) emit(node, d, false);
+    }
+  };
   queue.push_back(0);
   size_t head = 0;
-  size_t level_end = 1;  // queue position where the current level ends
+  size_t level_begin = 0, level_end = 1;  // queue positions of the current level
   uint32_t level = 0;
   size_t tested = 0;
   while (head < queue.size()) {
     if (head == level_end) {
       const size_t next_level_size = queue.size() - head;
       if (level + 1 > options.max_level || tested + next_level_size > options.point_budget) break;
+      if (spheres) flush(false);
       ++level;
+      level_begin = level_end;
       level_end = queue.size();
     }
     const uint32_t node = queue[head++];
@@ -38,10 +63,34 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     if (target.lower_bound(centre) > tree.sphere_radii[node] * radius_scale + proximity) continue;
     ++tested;
     bool exact = false;
-    const float d = target.distance(M * tree.points[node] + m, exact);
-    if (d < proximity) emit(node, d, exact);
+    const Eigen::Vector3f u = M * tree.points[node] + m;
+    if (scratch.tested_points) scratch.tested_points->push_back(u);
+    const float d = target.distance(u, exact);
+    if (d < proximity) {
+      if (spheres)
+        hits.push_back({node, d, exact});
+      else
+        emit(node, d, exact);
+    }
     const uint32_t begin = tree.child_begin[node], count = tree.child_count[node];
     for (uint32_t c = 0; c < count; ++c) queue.push_back(begin + c);
+  }
+  if (spheres) {
+    const bool cut = queue.size() > level_end;  // children of this level were queued but not tested
+    flush(cut);
+    // The last level's nodes that survived pruning are those whose children were queued (in order).
+    if (cut) {
+      size_t child = level_end;
+      for (size_t i = level_begin; i < level_end; ++i) {
+        const uint32_t node = queue[i];
+        const uint32_t count = tree.child_count[node];
+        if (count == 0) continue;
+        if (child < queue.size() && queue[child] == tree.child_begin[node]) {
+          emit_spheres(i, i + 1);
+          child += count;
+        }
+      }
+    }
   }
   stats.points_tested += tested;
   stats.deepest_level = std::max(stats.deepest_level, level);
@@ -73,8 +122,8 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   const Eigen::Vector3f m = pose.translation.cast<float>();
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>> target{distance};
   const Eigen::Matrix3d rotation = pose.rotation;
-  detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats,
-                        scratch.queue, [&](uint32_t node, float d, bool exact) {
+  detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats, scratch,
+                        [&](uint32_t node, float d, bool exact) {
                           Contact contact;
                           contact.point = pose.apply(tree.points[node].cast<double>());
                           Eigen::Vector3f outward;

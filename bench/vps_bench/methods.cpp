@@ -1,0 +1,338 @@
+#include "methods.h"
+
+#include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
+#include <BulletCollision/CollisionShapes/btShapeHull.h>
+#include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
+#include <BulletCollision/Gimpact/btGImpactShape.h>
+#include <btBulletDynamicsCommon.h>
+#include <fcl/narrowphase/collision.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <sstream>
+#include <stdexcept>
+
+#include "../common/hacd_cache.h"
+#include "voxfmt/bullet/collision.h"
+#include "voxfmt/bullet/shape.h"
+
+namespace vps_bench {
+namespace {
+
+using voxfmt::bullet::VpsMixedShape;
+
+btTransform to_bt(const Eigen::Isometry3d& pose) {
+  const Eigen::Matrix3d& r = pose.linear();
+  const Eigen::Vector3d& t = pose.translation();
+  return btTransform(
+      btMatrix3x3(btScalar(r(0, 0)), btScalar(r(0, 1)), btScalar(r(0, 2)), btScalar(r(1, 0)), btScalar(r(1, 1)),
+                  btScalar(r(1, 2)), btScalar(r(2, 0)), btScalar(r(2, 1)), btScalar(r(2, 2))),
+      btVector3(btScalar(t.x()), btScalar(t.y()), btScalar(t.z())));
+}
+
+/// Bullet's triangle arrays for a mesh (the arrays must outlive the shapes that use them).
+struct BulletMesh {
+  std::vector<btVector3> vertices;
+  std::vector<int> indices;
+  std::unique_ptr<btTriangleIndexVertexArray> array;
+
+  explicit BulletMesh(const Mesh& mesh) {
+    for (const auto& v : mesh.vertices) vertices.emplace_back(btScalar(v.x()), btScalar(v.y()), btScalar(v.z()));
+    for (const auto& t : mesh.triangles) indices.insert(indices.end(), t.begin(), t.end());
+    array = std::make_unique<btTriangleIndexVertexArray>(int(indices.size() / 3), indices.data(), 3 * sizeof(int),
+                                                         int(vertices.size()), &vertices[0][0], sizeof(btVector3));
+  }
+};
+
+/// Counts the contact points the manifold accepts and keeps the deepest (Bullet: distance < 0 penetrates).
+class CountingResult : public btManifoldResult {
+ public:
+  using btManifoldResult::btManifoldResult;
+  size_t contacts = 0;
+  double deepest = -1e30;
+  void addContactPoint(const btVector3& normal, const btVector3& point, btScalar distance) override {
+    if (m_manifoldPtr && distance > m_manifoldPtr->getContactBreakingThreshold()) return;
+    ++contacts;
+    deepest = std::max(deepest, -double(distance));
+    btManifoldResult::addContactPoint(normal, point, distance);
+  }
+};
+
+/// Any pair of Bullet shapes through the dispatcher's algorithm for them (VPS and GImpact registered), as a
+/// Bullet world's narrow phase calls it.
+class BulletMethod : public Method {
+ public:
+  BulletMethod(std::shared_ptr<btCollisionShape> a, std::shared_ptr<btCollisionShape> b, std::string note)
+      : a_shape_(std::move(a)), b_shape_(std::move(b)), note_(std::move(note)) {
+    btDefaultCollisionConstructionInfo info;
+    voxfmt::bullet::prepare_construction_info(info);
+    config_ = std::make_unique<btDefaultCollisionConfiguration>(info);
+    dispatcher_ = std::make_unique<btCollisionDispatcher>(config_.get());
+    vps_ = voxfmt::bullet::register_vps_collision(*dispatcher_);
+    btGImpactCollisionAlgorithm::registerAlgorithm(dispatcher_.get());
+    a_.setCollisionShape(a_shape_.get());
+    b_.setCollisionShape(b_shape_.get());
+    btCollisionObjectWrapper wa(nullptr, a_shape_.get(), &a_, a_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, b_shape_.get(), &b_, b_.getWorldTransform(), -1, -1);
+    algorithm_ = dispatcher_->findAlgorithm(&wa, &wb, nullptr, BT_CONTACT_POINT_ALGORITHMS);
+    if (!algorithm_) throw std::runtime_error("Bullet has no algorithm for this pair");
+  }
+  ~BulletMethod() override {
+    algorithm_->~btCollisionAlgorithm();
+    dispatcher_->freeCollisionAlgorithm(algorithm_);
+  }
+
+  void query(const PosePair& pose) override {
+    a_.setWorldTransform(to_bt(pose.a));
+    b_.setWorldTransform(to_bt(pose.b));
+    btCollisionObjectWrapper wa(nullptr, a_shape_.get(), &a_, a_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, b_shape_.get(), &b_, b_.getWorldTransform(), -1, -1);
+    result_.emplace(&wa, &wb);
+    algorithm_->processCollision(&wa, &wb, dispatch_info_, &*result_);
+  }
+
+  QueryOutcome outcome() override {
+    QueryOutcome out;
+    out.contacts = result_->contacts;
+    out.deepest = result_->deepest;
+    voxfmt::bullet::CollisionCounters& counters = vps_->counters();
+    if (counters.pair_tests > 0) {  // a VPS pair: the raw contacts before reduction to Bullet's 4
+      out.contacts = counters.raw_contacts;
+      out.nodes_visited = counters.nodes_visited;
+      out.points_tested = counters.points_tested;
+    }
+    counters = {};
+    // Persistent manifolds would carry this pose's points into the next query.
+    for (int m = 0; m < dispatcher_->getNumManifolds(); ++m)
+      dispatcher_->getManifoldByIndexInternal(m)->clearManifold();
+    return out;
+  }
+
+  std::string note() const override { return note_; }
+
+ private:
+  std::shared_ptr<btCollisionShape> a_shape_, b_shape_;
+  std::string note_;
+  std::unique_ptr<btDefaultCollisionConfiguration> config_;
+  std::unique_ptr<btCollisionDispatcher> dispatcher_;
+  std::unique_ptr<voxfmt::bullet::VpsCollisionRegistration> vps_;
+  btCollisionObject a_, b_;
+  btCollisionAlgorithm* algorithm_ = nullptr;
+  btDispatcherInfo dispatch_info_;
+  std::optional<CountingResult> result_;
+};
+
+/// Shapes that live as long as the program (GImpact and BVH shapes keep pointers to the triangle arrays,
+/// compounds to their children).
+std::vector<std::shared_ptr<void>> keep_alive;
+
+template <class T>
+std::shared_ptr<T> keep(std::shared_ptr<T> p) {
+  keep_alive.push_back(p);
+  return p;
+}
+
+std::shared_ptr<btCollisionShape> hull_of(const std::vector<btVector3>& points, double margin) {
+  auto shape = std::make_shared<btConvexHullShape>();
+  for (const btVector3& p : points) shape->addPoint(p, false);
+  shape->recalcLocalAabb();
+  shape->setMargin(btScalar(margin));
+  return shape;
+}
+
+/// The static partner of a scenario as a Bullet shape, for every Bullet-based method.
+std::shared_ptr<btCollisionShape> static_partner(const Body& body, double margin) {
+  switch (body.kind) {
+    case Body::Kind::Plane: {
+      auto plane = std::make_shared<btStaticPlaneShape>(btVector3(0, 1, 0), btScalar(0));
+      plane->setMargin(btScalar(margin));
+      return plane;
+    }
+    case Body::Kind::Box: {
+      const Eigen::Vector3d& h = body.half_extents;
+      auto box = std::make_shared<btBoxShape>(btVector3(btScalar(h.x()), btScalar(h.y()), btScalar(h.z())));
+      box->setMargin(btScalar(margin));  // inside the extents for boxes
+      return box;
+    }
+    case Body::Kind::StaticMesh: {
+      auto mesh = keep(std::make_shared<BulletMesh>(body.mesh));
+      auto shape = std::make_shared<btBvhTriangleMeshShape>(mesh->array.get(), true);
+      shape->setMargin(btScalar(margin));
+      return shape;
+    }
+    case Body::Kind::BakedMesh:
+      break;
+  }
+  return nullptr;
+}
+
+std::string vps_note(const VpsMixedShape& shape) {
+  const auto& tree = shape.object().point_tree();
+  std::ostringstream note;
+  if (shape.max_level() < tree.level_count())
+    note << "levels 0-" << shape.max_level() << " (" << tree.points_up_to_level(shape.max_level()) << " of "
+         << tree.size() << " points)";
+  else
+    note << tree.size() << " points";
+  if (shape.proximity() > 0) note << ", proximity " << shape.proximity() * 1000 << " mm";
+  return note.str();
+}
+
+std::unique_ptr<Method> vps_method(const std::string& name, const Scenario& s, const MethodSettings& settings) {
+  auto make = [&](const Body& body) {
+    auto shape = std::make_shared<VpsMixedShape>(body.vps);
+    if (name == "vps-coarse") {
+      const auto& tree = body.vps->point_tree();
+      uint32_t level = 0;
+      for (size_t l = 0; l < tree.level_count(); ++l)
+        if (double(tree.points_up_to_level(l)) <= double(settings.coarse_points) * 1.25) level = uint32_t(l);
+      shape->set_max_level(level);
+    }
+    if (name == "vps-fine-prox") shape->set_proximity(settings.margin);
+    return shape;
+  };
+  auto a = make(*s.a);
+  std::shared_ptr<btCollisionShape> b = s.b->kind == Body::Kind::BakedMesh
+                                            ? std::shared_ptr<btCollisionShape>(make(*s.b))
+                                            : static_partner(*s.b, settings.margin);
+  return std::make_unique<BulletMethod>(a, b, vps_note(*a));
+}
+
+std::shared_ptr<btCollisionShape> gimpact_of(const Body& body, double margin) {
+  auto mesh = keep(std::make_shared<BulletMesh>(body.mesh));
+  auto shape = std::make_shared<btGImpactMeshShape>(mesh->array.get());
+  shape->setMargin(btScalar(margin));
+  shape->updateBound();
+  return shape;
+}
+
+std::shared_ptr<btCollisionShape> hacd_of(const Body& body, const MethodSettings& settings, size_t& hull_count) {
+  BulletMesh mesh(body.mesh);
+  double seconds = 0;
+  const std::string cache = (std::filesystem::path(settings.cache_dir) / (body.name + ".hacd.txt")).string();
+  const voxfmt_bench::Hulls hulls = voxfmt_bench::hacd_decomposition(mesh.vertices, mesh.indices, cache, seconds);
+  auto compound = std::make_shared<btCompoundShape>();
+  for (const auto& hull : hulls) {
+    auto child = keep(hull_of(hull, settings.margin));
+    compound->addChildShape(btTransform::getIdentity(), child.get());
+  }
+  hull_count = hulls.size();
+  return compound;
+}
+
+std::shared_ptr<btCollisionShape> reduced_hull_of(const Body& body, double margin, size_t& vertex_count) {
+  BulletMesh mesh(body.mesh);
+  btConvexHullShape full;
+  for (const btVector3& v : mesh.vertices) full.addPoint(v, false);
+  full.recalcLocalAabb();
+  full.setMargin(0);  // sample the mesh's own hull, not one inflated by Bullet's default 4 cm margin
+  btShapeHull reducer(&full);
+  reducer.buildHull(0);
+  std::vector<btVector3> points(reducer.getVertexPointer(), reducer.getVertexPointer() + reducer.numVertices());
+  vertex_count = points.size();
+  return hull_of(points, margin);
+}
+
+// ------------------------------------------------------------------------------------------------ FCL
+
+class FclMethod : public Method {
+ public:
+  FclMethod(std::shared_ptr<fcl::CollisionGeometryd> a, std::shared_ptr<fcl::CollisionGeometryd> b,
+            const Eigen::Vector3d& b_offset, std::string note)
+      : a_(std::move(a)), b_(std::move(b)), note_(std::move(note)) {
+    b_offset_.translation() = b_offset;
+    request_.num_max_contacts = 1000000;
+    request_.enable_contact = true;
+    // GJK: libccd (FCL's default). FCL's own solver (GST_INDEP) was slower here and its triangle-box depths
+    // were wrong (0-10 % of penetrating poses reported as penetrating).
+  }
+  void query(const PosePair& pose) override {
+    a_.setTransform(pose.a);
+    b_.setTransform(pose.b * b_offset_);
+    result_.clear();
+    fcl::collide(&a_, &b_, request_, result_);
+  }
+  QueryOutcome outcome() override {
+    QueryOutcome out;
+    out.contacts = result_.numContacts();
+    for (size_t i = 0; i < out.contacts; ++i)
+      out.deepest = std::max(out.deepest, result_.getContact(i).penetration_depth);
+    return out;
+  }
+  std::string note() const override { return note_; }
+
+ private:
+  fcl::CollisionObjectd a_, b_;
+  fcl::Transform3d b_offset_ = fcl::Transform3d::Identity();
+  fcl::CollisionRequestd request_;
+  fcl::CollisionResultd result_;
+  std::string note_;
+};
+
+std::shared_ptr<fcl::CollisionGeometryd> fcl_geometry(const Body& body) {
+  switch (body.kind) {
+    case Body::Kind::Plane:  // a 20 x 1 x 20 m box under y = 0 (see make_method)
+      return std::make_shared<fcl::Boxd>(20.0, 1.0, 20.0);
+    case Body::Kind::Box:
+      return std::make_shared<fcl::Boxd>(2 * body.half_extents);
+    case Body::Kind::BakedMesh:
+    case Body::Kind::StaticMesh: {
+      auto model = std::make_shared<fcl::BVHModel<fcl::OBBRSSd>>();
+      std::vector<fcl::Triangle> triangles;
+      for (const auto& t : body.mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
+      model->beginModel();
+      model->addSubModel(body.mesh.vertices, triangles);
+      model->endModel();
+      return model;
+    }
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+const std::vector<std::string>& method_names() {
+  static const std::vector<std::string> names = {"vps-fine", "vps-coarse", "vps-fine-prox", "gimpact", "hacd",
+                                                 "hull",     "fcl"};
+  return names;
+}
+
+std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, const MethodSettings& settings,
+                                    std::string& why) {
+  why.clear();
+  const bool b_dynamic = s.b->kind == Body::Kind::BakedMesh;
+  if (name == "vps-fine" || name == "vps-coarse" || name == "vps-fine-prox") return vps_method(name, s, settings);
+  if (name == "gimpact") {
+    auto a = gimpact_of(*s.a, settings.margin);
+    auto b = b_dynamic ? (s.b == s.a ? a : gimpact_of(*s.b, settings.margin)) : static_partner(*s.b, settings.margin);
+    return std::make_unique<BulletMethod>(a, b, std::to_string(s.a->mesh.triangles.size()) + " triangles");
+  }
+  if (name == "hacd") {
+    size_t hulls = 0;
+    auto a = hacd_of(*s.a, settings, hulls);
+    auto b = b_dynamic ? (s.b == s.a ? a : hacd_of(*s.b, settings, hulls)) : static_partner(*s.b, settings.margin);
+    return std::make_unique<BulletMethod>(a, b, std::to_string(hulls) + " cached hulls");
+  }
+  if (name == "hull") {
+    size_t vertices = 0;
+    auto a = reduced_hull_of(*s.a, settings.margin, vertices);
+    auto b = b_dynamic ? (s.b == s.a ? a : reduced_hull_of(*s.b, settings.margin, vertices))
+                       : static_partner(*s.b, settings.margin);
+    return std::make_unique<BulletMethod>(a, b, std::to_string(vertices) + "-vertex hull (btShapeHull), convex");
+  }
+  if (name == "fcl") {
+    auto a = fcl_geometry(*s.a);
+    auto b = s.b == s.a ? a : fcl_geometry(*s.b);
+    // FCL's halfspace has an unbounded bounding volume, so every triangle of the mesh is tested against it
+    // (42 ms a query for the bunny): a large box is FCL's fast plane.
+    const bool plane = s.b->kind == Body::Kind::Plane;
+    return std::make_unique<FclMethod>(
+        a, b, plane ? Eigen::Vector3d(0, -0.5, 0) : Eigen::Vector3d::Zero(),
+        std::string("OBBRSS, all contacts with depth") + (plane ? "; plane as a 20 m box" : ""));
+  }
+  std::string known;
+  for (const auto& n : method_names()) known += " " + n;
+  throw std::runtime_error("unknown method '" + name + "' (known:" + known + ")");
+}
+
+}  // namespace vps_bench

@@ -1,0 +1,68 @@
+// vps-bench scenarios: the bodies of each scene (one geometry shared by every method) and its pose set.
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <array>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "voxfmt/runtime/collision_object.h"
+
+namespace vps_bench {
+
+/// A triangle mesh in the body's shape frame (VPS shapes: the asset's principal frame).
+struct Mesh {
+  std::vector<Eigen::Vector3d> vertices;
+  std::vector<std::array<int, 3>> triangles;
+};
+
+/// One body of a scenario. Dynamic bodies are meshes with a baked asset; static partners are a plane, a box
+/// or a triangle-mesh floor.
+struct Body {
+  enum class Kind { BakedMesh, Plane, Box, StaticMesh };
+  Kind kind = Kind::BakedMesh;
+  std::string name;
+  Mesh mesh;                                                    ///< BakedMesh and StaticMesh
+  std::shared_ptr<const voxfmt::runtime::CollisionObject> vps;  ///< BakedMesh
+  std::string mesh_path;   ///< BakedMesh: the mesh file the asset was baked from (HACD cache key)
+  std::string asset_path;  ///< BakedMesh
+  Eigen::Vector3d half_extents = Eigen::Vector3d::Zero();  ///< Box; Plane: the normal is +y through the origin
+};
+
+/// Both bodies' shape frames in the world, for one query.
+struct PosePair {
+  Eigen::Isometry3d a = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d b = Eigen::Isometry3d::Identity();
+  /// The exact deepest penetration of A's surface into B (metres), where known by construction.
+  std::optional<double> exact_depth;
+};
+
+struct Scenario {
+  std::string name;
+  std::string description;
+  std::shared_ptr<Body> a, b;
+  std::vector<PosePair> poses;
+};
+
+struct ScenarioSettings {
+  std::string cache_dir;   ///< baked assets, generated meshes, decompositions
+  std::string bunny_mesh;  ///< CGAL's bunny00.off
+  size_t poses = 200;      ///< per scenario
+  uint64_t seed = 20261123;
+  bool verbose = true;
+};
+
+/// Names in the order the program runs them.
+const std::vector<std::string>& scenario_names();
+
+/// Builds one scenario (baking or loading the assets it needs from the cache). Throws std::runtime_error with
+/// a message naming the problem.
+Scenario make_scenario(const std::string& name, const ScenarioSettings& settings);
+
+/// The bunny asset used for the memory figure (resolution 306, 35k points).
+std::shared_ptr<Body> bunny_body(const ScenarioSettings& settings);
+
+}  // namespace vps_bench
