@@ -206,10 +206,14 @@ std::shared_ptr<btCollisionShape> gimpact_of(const Body& body, double margin) {
   return shape;
 }
 
+std::string hacd_cache(const Body& body, const MethodSettings& settings) {
+  return (std::filesystem::path(settings.cache_dir) / (body.name + ".hacd.txt")).string();
+}
+
 std::shared_ptr<btCollisionShape> hacd_of(const Body& body, const MethodSettings& settings, size_t& hull_count) {
   BulletMesh mesh(body.mesh);
   double seconds = 0;
-  const std::string cache = (std::filesystem::path(settings.cache_dir) / (body.name + ".hacd.txt")).string();
+  const std::string cache = hacd_cache(body, settings);
   const voxfmt_bench::Hulls hulls = voxfmt_bench::hacd_decomposition(mesh.vertices, mesh.indices, cache, seconds);
   auto compound = std::make_shared<btCompoundShape>();
   for (const auto& hull : hulls) {
@@ -308,6 +312,12 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
     return std::make_unique<BulletMethod>(a, b, std::to_string(s.a->mesh.triangles.size()) + " triangles");
   }
   if (name == "hacd") {
+    for (const Body* body : {s.a.get(), s.b.get()})
+      if (body->kind == Body::Kind::BakedMesh && !settings.compute_decompositions &&
+          !std::filesystem::exists(hacd_cache(*body, settings))) {
+        why = "no cached decomposition of " + body->name + " (a run without --quick computes it: minutes)";
+        return nullptr;
+      }
     size_t hulls = 0;
     auto a = hacd_of(*s.a, settings, hulls);
     auto b = b_dynamic ? (s.b == s.a ? a : hacd_of(*s.b, settings, hulls)) : static_partner(*s.b, settings.margin);

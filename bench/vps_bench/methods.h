@@ -23,6 +23,8 @@ struct MethodSettings {
   /// vps-coarse: the deepest tree level with at most about this many points.
   size_t coarse_points = 800;
   std::string cache_dir;  ///< HACD decompositions
+  /// false: hacd runs only where a cached decomposition exists (computing one takes minutes per mesh).
+  bool compute_decompositions = true;
 };
 
 class Method {

@@ -226,20 +226,31 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   if (a.uses_points())
     runtime::query_against_function(
         a.object(), pose_a,
-        [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); }, options,
-        contacts, scratch);
+        [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); },
+        [&](const Eigen::Vector3f& x) { return triangles.lower_bound(x); }, options, contacts, scratch);
   if (a.uses_voxelmap()) {
     thread_local std::vector<Eigen::Vector3d> corners;
     corners.clear();
-    // Only corners that may be within reach of A (a cheap lower bound of A's distance rules out the rest).
+    // Only corners that may be within reach of A (a cheap lower bound of A's distance rules out the rest),
+    // whole triangles first: one lookup at the centroid with the triangle's radius settles most of them.
     const runtime::SparseVoxelmap& map = a.object().voxelmap();
-    const double reach = options.proximity / (pose_a.scale * map.voxel_size());
-    for (size_t t = 0; t < triangles.size(); ++t)
-      for (int k = 0; k < 3; ++k) {
-        const Eigen::Vector3d p = triangles.corner(t, k).cast<double>();
-        const Eigen::Vector3d asset = pose_a.rotation.transpose() * (p - pose_a.translation) / pose_a.scale;
-        if (double(map.distance_lower_bound(map.to_grid(asset))) < reach) corners.push_back(p);
-      }
+    const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
+    const double reach = options.proximity * to_voxels;
+    auto lower_bound = [&](const Eigen::Vector3d& p) {
+      const Eigen::Vector3d asset = pose_a.rotation.transpose() * (p - pose_a.translation) / pose_a.scale;
+      return double(map.distance_lower_bound(map.to_grid(asset)));
+    };
+    for (size_t t = 0; t < triangles.size(); ++t) {
+      const Eigen::Vector3d c0 = triangles.corner(t, 0).cast<double>(), c1 = triangles.corner(t, 1).cast<double>(),
+                            c2 = triangles.corner(t, 2).cast<double>();
+      const Eigen::Vector3d centroid = (c0 + c1 + c2) / 3.0;
+      const double radius = std::sqrt(std::max({(c0 - centroid).squaredNorm(), (c1 - centroid).squaredNorm(),
+                                                (c2 - centroid).squaredNorm()})) *
+                            to_voxels;
+      if (lower_bound(centroid) > radius + reach) continue;
+      for (const Eigen::Vector3d* p : {&c0, &c1, &c2})
+        if (lower_bound(*p) < reach) corners.push_back(*p);
+    }
     runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
   }
 }

@@ -135,6 +135,7 @@ Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vecto
 }  // namespace
 
 void TriangleSet::clear() {
+  common_normal_.setZero();
   corners_.clear();
   normals_.clear();
   first_.clear();
@@ -152,6 +153,15 @@ void TriangleSet::build() {
       lo_ = lo_.cwiseMin(corner(t, k));
       hi_ = hi_.cwiseMax(corner(t, k));
       edges += (corner(t, (k + 1) % 3) - corner(t, k)).norm();
+    }
+  // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const Eigen::Vector3f& n : normals_) mean += n;
+  common_normal_ = mean.normalized();
+  for (const Eigen::Vector3f& n : normals_)
+    if (!(n.dot(common_normal_) > 0.0f)) {
+      common_normal_.setZero();
+      break;
     }
   // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
   const Eigen::Vector3f extent = hi_ - lo_;
@@ -186,6 +196,17 @@ void TriangleSet::build() {
           }
     }
   }
+}
+
+float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
+  if (!first_.empty() && common_normal_.squaredNorm() > 0.0f) {
+    const Eigen::Vector3f off_box = x - x.cwiseMax(lo_).cwiseMin(hi_);
+    // Beyond the box on the side every triangle faces: above a surface that is a graph over that direction,
+    // so outside, and no triangle is nearer than the box.
+    if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
+  }
+  Eigen::Vector3f outward;
+  return distance(x, outward);
 }
 
 float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {

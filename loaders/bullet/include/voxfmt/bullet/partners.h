@@ -54,6 +54,10 @@ class TriangleSet {
   /// The vertices of triangle i.
   const Eigen::Vector3f& corner(size_t i, int k) const { return corners_[3 * i + size_t(k)]; }
   float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
+  /// A value the signed distance at x is not below, cheap far from the triangles: for a set whose normals all
+  /// lean one way (a floor, a terrain patch), a point beyond the set's box on that side is outside by at least
+  /// its distance to the box. Elsewhere the exact distance.
+  float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
   std::vector<Eigen::Vector3f> corners_;
@@ -62,6 +66,7 @@ class TriangleSet {
   Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();
   float cell_ = 1.0f;
   Eigen::Vector3i dims_ = Eigen::Vector3i::Ones();
+  Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
   std::vector<uint32_t> first_, members_;
 };
 

@@ -132,6 +132,12 @@ void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, cons
 template <class SignedDistance>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
                             const QueryOptions& options, ContactSet& out, QueryScratch& scratch);
+/// The same with a cheaper `lower_bound(world_point)` (never above the signed distance) used to prune
+/// sphere-tree clusters, for partners whose exact distance is expensive far away (triangle meshes).
+template <class SignedDistance, class LowerBound>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
+                            LowerBound&& lower_bound, const QueryOptions& options, ContactSet& out,
+                            QueryScratch& scratch);
 
 }  // namespace voxfmt::runtime
 

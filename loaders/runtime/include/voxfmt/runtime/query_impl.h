@@ -96,14 +96,13 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   stats.deepest_level = std::max(stats.deepest_level, level);
 }
 
-/// A signed-distance function in world coordinates seen as a traversal target.
-template <class SignedDistance>
+/// A signed-distance function in world coordinates seen as a traversal target, with a cheaper lower bound
+/// for pruning (or the function itself).
+template <class SignedDistance, class LowerBound>
 struct FunctionTarget {
   SignedDistance& function;
-  float lower_bound(const Eigen::Vector3f& u) const {
-    Eigen::Vector3f normal;
-    return function(u, normal);
-  }
+  LowerBound& bound;
+  float lower_bound(const Eigen::Vector3f& u) const { return bound(u); }
   float distance(const Eigen::Vector3f& u, bool& exact) const {
     Eigen::Vector3f normal;
     exact = true;
@@ -113,14 +112,16 @@ struct FunctionTarget {
 
 }  // namespace detail
 
-template <class SignedDistance>
+template <class SignedDistance, class LowerBound>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
-                            const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
+                            LowerBound&& lower_bound, const QueryOptions& options, ContactSet& out,
+                            QueryScratch& scratch) {
   if (!shell_object.has_point_shell()) return;
   const PointTree& tree = shell_object.point_tree();
   const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
   const Eigen::Vector3f m = pose.translation.cast<float>();
-  detail::FunctionTarget<std::remove_reference_t<SignedDistance>> target{distance};
+  detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
+      distance, lower_bound};
   const Eigen::Matrix3d rotation = pose.rotation;
   detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats, scratch,
                         [&](uint32_t node, float d, bool exact) {
@@ -137,6 +138,16 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
                           contact.exact = exact;
                           out.contacts.push_back(contact);
                         });
+}
+
+template <class SignedDistance>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
+                            const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
+  auto bound = [&](const Eigen::Vector3f& u) {
+    Eigen::Vector3f normal;
+    return distance(u, normal);
+  };
+  query_against_function(shell_object, pose, distance, bound, options, out, scratch);
 }
 
 }  // namespace voxfmt::runtime
