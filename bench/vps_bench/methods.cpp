@@ -211,7 +211,7 @@ std::string hacd_cache(const Body& body, const MethodSettings& settings) {
 }
 
 std::shared_ptr<btCollisionShape> hacd_of(const Body& body, const MethodSettings& settings, size_t& hull_count) {
-  BulletMesh mesh(body.mesh);
+  BulletMesh mesh(body.decomposition_mesh.triangles.empty() ? body.mesh : body.decomposition_mesh);
   double seconds = 0;
   const std::string cache = hacd_cache(body, settings);
   const voxfmt_bench::Hulls hulls = voxfmt_bench::hacd_decomposition(mesh.vertices, mesh.indices, cache, seconds);
@@ -321,7 +321,12 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
     size_t hulls = 0;
     auto a = hacd_of(*s.a, settings, hulls);
     auto b = b_dynamic ? (s.b == s.a ? a : hacd_of(*s.b, settings, hulls)) : static_partner(*s.b, settings.margin);
-    return std::make_unique<BulletMethod>(a, b, std::to_string(hulls) + " cached hulls");
+    return std::make_unique<BulletMethod>(
+        a, b,
+        std::to_string(hulls) + " cached hulls" +
+            (s.a->decomposition_mesh.triangles.empty()
+                 ? std::string()
+                 : " of a " + std::to_string(s.a->decomposition_mesh.triangles.size()) + "-triangle tessellation"));
   }
   if (name == "hull") {
     size_t vertices = 0;

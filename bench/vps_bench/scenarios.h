@@ -25,7 +25,9 @@ struct Body {
   enum class Kind { BakedMesh, Plane, Box, StaticMesh };
   Kind kind = Kind::BakedMesh;
   std::string name;
-  Mesh mesh;                                                    ///< BakedMesh and StaticMesh
+  Mesh mesh;  ///< BakedMesh and StaticMesh
+  /// What HACD decomposes when not `mesh` (a coarser tessellation of the same surface, same frame).
+  Mesh decomposition_mesh;
   std::shared_ptr<const voxfmt::runtime::CollisionObject> vps;  ///< BakedMesh
   std::string mesh_path;   ///< BakedMesh: the mesh file the asset was baked from (HACD cache key)
   std::string asset_path;  ///< BakedMesh

@@ -32,6 +32,17 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   tree.child_begin = shell.child_begin;
   tree.child_count = shell.child_count;
   tree.level_offsets = shell.level_offsets;
+  // How far each child's sphere reaches from its parent's centre (computed in double, rounded up).
+  tree.reach_from_parent.assign(n, 0.0f);
+  for (size_t parent = 0; parent < n; ++parent)
+    for (uint32_t c = 0; c < shell.child_count[parent]; ++c) {
+      const size_t child = shell.child_begin[parent] + c;
+      double offset = 0;
+      for (int a = 0; a < 3; ++a)
+        offset += (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]) *
+                  (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]);
+      tree.reach_from_parent[child] = float(std::sqrt(offset) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + 1e-7f;
+    }
   return tree;
 }
 
@@ -40,7 +51,8 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
 size_t PointTree::memory_bytes() const {
   return points.capacity() * sizeof(Eigen::Vector3f) + normals.capacity() * sizeof(Eigen::Vector3f) +
          sphere_centers.capacity() * sizeof(Eigen::Vector3f) + sphere_radii.capacity() * sizeof(float) +
-         (child_begin.capacity() + child_count.capacity() + level_offsets.capacity()) * sizeof(uint32_t);
+         (child_begin.capacity() + child_count.capacity() + level_offsets.capacity()) * sizeof(uint32_t) +
+         reach_from_parent.capacity() * sizeof(float);
 }
 
 voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(const std::string& path,

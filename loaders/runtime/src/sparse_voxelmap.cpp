@@ -199,12 +199,35 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
   }
   bool exact = true;
   float v[8];
-  for (int corner = 0; corner < 8; ++corner) {
-    const int i = std::min(base[0] + (corner & 1), dims_[0] - 1);
-    const int j = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1);
-    const int k = std::min(base[2] + ((corner >> 2) & 1), dims_[2] - 1);
-    v[corner] = estimate_at(i, j, k, exact, result.bound);
+  // Near the surface the 8 corners usually lie in one brick that stores all their distances: one brick fetch
+  // and 8 reads from one 1 KB block.
+  bool fetched = false;
+  if ((base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
+      (base[2] & (kEdge - 1)) < kEdge - 1 && dims_[0] > 1 && dims_[1] > 1 && dims_[2] > 1) {
+    int local = 0;
+    const Brick& brick = brick_of(base[0], base[1], base[2], local);
+    if (brick.distance_data != kNoDistance) {
+      const int16_t* q = &distance_pool_[size_t(brick.distance_data) * kBrickVoxels + size_t(local)];
+      constexpr int kOffset[8] = {
+          0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
+      fetched = true;
+      for (int corner = 0; corner < 8; ++corner) {
+        const int16_t stored = q[kOffset[corner]];
+        if (stored == kNotStored) {
+          fetched = false;
+          break;
+        }
+        v[corner] = float(stored) / distance_scale_;
+      }
+    }
   }
+  if (!fetched)
+    for (int corner = 0; corner < 8; ++corner) {
+      const int i = std::min(base[0] + (corner & 1), dims_[0] - 1);
+      const int j = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1);
+      const int k = std::min(base[2] + ((corner >> 2) & 1), dims_[2] - 1);
+      v[corner] = estimate_at(i, j, k, exact, result.bound);
+    }
   const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
   const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
   const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
@@ -223,7 +246,8 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
 float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {
   const float box = bounds_distance(u);
   if (!covers(u)) return box;
-  const int i = int(std::lround(u.x())), j = int(std::lround(u.y())), k = int(std::lround(u.z()));
+  // Nearest voxel; covers() keeps every coordinate above -1/2, so truncation rounds (std::lround is a call).
+  const int i = int(u.x() + 0.5f), j = int(u.y() + 0.5f), k = int(u.z() + 0.5f);
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
   float distance = 0.0f;

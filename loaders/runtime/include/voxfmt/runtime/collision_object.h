@@ -25,6 +25,9 @@ struct PointTree {
   std::vector<uint32_t> child_begin;
   std::vector<uint32_t> child_count;
   std::vector<uint32_t> level_offsets;
+  /// |child centre - parent centre| + child radius (metres; 0 for the root): a parent's distance bound minus
+  /// this bounds the child's, so children out of reach are dropped without a lookup of their own.
+  std::vector<float> reach_from_parent;
 
   size_t size() const { return points.size(); }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }

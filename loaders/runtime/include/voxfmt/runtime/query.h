@@ -101,6 +101,8 @@ struct QueryScratch {
     bool exact;
   };
   std::vector<Hit> level_hits;
+  /// Nodes of the level being traversed that queued children (what a cut level reports as spheres).
+  std::vector<uint32_t> level_parents;
   /// Benchmarks: when set, every point whose distance is looked up is appended here, in the target's
   /// coordinates (a voxelmap's grid), so the cost of the lookups alone can be measured.
   std::vector<Eigen::Vector3f>* tested_points = nullptr;

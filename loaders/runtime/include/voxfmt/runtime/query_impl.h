@@ -18,41 +18,31 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
                    QueryScratch& scratch, Emit&& emit) {
   std::vector<uint32_t>& queue = scratch.queue;
   std::vector<QueryScratch::Hit>& hits = scratch.level_hits;
+  std::vector<uint32_t>& parents = scratch.level_parents;
   queue.clear();
   hits.clear();
+  parents.clear();
   if (tree.size() == 0) return;
   const bool spheres = options.cut_level == CutLevel::Spheres;
+  const bool has_reach = tree.reach_from_parent.size() == tree.size();
   // With sphere semantics a level's hits wait for the level's end: if the traversal stops there, a point whose
-  // children were pushed (never tested) reports its sphere instead.
-  auto flush = [&](bool last_level) {
-    for (const QueryScratch::Hit& hit : hits) {
-      if (last_level && tree.child_count[hit.node] > 0) continue;  // reported as a sphere below
-      emit(hit.node, hit.distance, hit.exact);
-    }
+  // children were queued (never tested) reports its sphere instead.
+  auto flush = [&]() {
+    for (const QueryScratch::Hit& hit : hits) emit(hit.node, hit.distance, hit.exact);
     hits.clear();
-  };
-  auto emit_spheres = [&](size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) {
-      const uint32_t node = queue[i];
-      if (tree.child_count[node] == 0) continue;
-      bool exact = false;
-      const float radius = tree.sphere_radii[node] * radius_scale;
-      const float d = target.distance(M * tree.sphere_centers[node] + m, exact) - radius;
-      if (d < proximity) emit(node, d, false);
-    }
+    parents.clear();
   };
   queue.push_back(0);
   size_t head = 0;
-  size_t level_begin = 0, level_end = 1;  // queue positions of the current level
+  size_t level_end = 1;  // queue position where the current level ends
   uint32_t level = 0;
   size_t tested = 0;
   while (head < queue.size()) {
     if (head == level_end) {
       const size_t next_level_size = queue.size() - head;
       if (level + 1 > options.max_level || tested + next_level_size > options.point_budget) break;
-      if (spheres) flush(false);
+      if (spheres) flush();
       ++level;
-      level_begin = level_end;
       level_end = queue.size();
     }
     const uint32_t node = queue[head++];
@@ -60,7 +50,8 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     const Eigen::Vector3f centre = M * tree.sphere_centers[node] + m;
     // The sphere holds the node's point and all its descendants; the distance is 1-Lipschitz, so if even
     // the lower bound at the centre exceeds the radius nothing below can be within reach.
-    if (target.lower_bound(centre) > tree.sphere_radii[node] * radius_scale + proximity) continue;
+    const float bound = target.lower_bound(centre);
+    if (bound > tree.sphere_radii[node] * radius_scale + proximity) continue;
     ++tested;
     bool exact = false;
     const Eigen::Vector3f u = M * tree.points[node] + m;
@@ -72,24 +63,30 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
       else
         emit(node, d, exact);
     }
+    // The same bound, carried from this centre to each child's sphere, drops children out of reach before any
+    // lookup of theirs.
     const uint32_t begin = tree.child_begin[node], count = tree.child_count[node];
-    for (uint32_t c = 0; c < count; ++c) queue.push_back(begin + c);
+    const size_t queued = queue.size();
+    for (uint32_t c = begin; c < begin + count; ++c)
+      if (!has_reach || bound - tree.reach_from_parent[c] * radius_scale <= proximity) queue.push_back(c);
+    if (spheres && queue.size() > queued) parents.push_back(node);
   }
   if (spheres) {
     const bool cut = queue.size() > level_end;  // children of this level were queued but not tested
-    flush(cut);
-    // The last level's nodes that survived pruning are those whose children were queued (in order).
     if (cut) {
-      size_t child = level_end;
-      for (size_t i = level_begin; i < level_end; ++i) {
-        const uint32_t node = queue[i];
-        const uint32_t count = tree.child_count[node];
-        if (count == 0) continue;
-        if (child < queue.size() && queue[child] == tree.child_begin[node]) {
-          emit_spheres(i, i + 1);
-          child += count;
-        }
+      // The level's points with untested children report their spheres (which hold those points' hits).
+      for (const QueryScratch::Hit& hit : hits)
+        if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit(hit.node, hit.distance, hit.exact);
+      for (const uint32_t node : parents) {
+        bool exact = false;
+        const float radius = tree.sphere_radii[node] * radius_scale;
+        const float d = target.distance(M * tree.sphere_centers[node] + m, exact) - radius;
+        if (d < proximity) emit(node, d, false);
       }
+      hits.clear();
+      parents.clear();
+    } else {
+      flush();
     }
   }
   stats.points_tested += tested;
