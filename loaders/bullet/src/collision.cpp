@@ -173,20 +173,36 @@ void collide_convex(const VpsShape& a, const runtime::Pose& pose_a, const btConv
   }
 }
 
-// Collects the triangles of a static mesh or terrain inside a box (shape frame), in world coordinates.
+// Collects the triangles of a static mesh or terrain, in world coordinates, that overlap A's own box (A's shape
+// frame, grown by the reach): Bullet hands over everything in the world-aligned box around A, which for a
+// rotated body holds several times more.
 class TriangleCollector : public btTriangleCallback {
  public:
-  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, bool upward, int up_axis)
-      : set_(set), world_from_shape_(world_from_shape), upward_(upward), up_axis_(up_axis) {}
+  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, bool upward, int up_axis,
+                    const btTransform& a_from_world, const btVector3& a_lo, const btVector3& a_hi)
+      : set_(set),
+        world_from_shape_(world_from_shape),
+        upward_(upward),
+        up_axis_(up_axis),
+        a_from_world_(a_from_world),
+        a_lo_(a_lo),
+        a_hi_(a_hi) {}
   void processTriangle(btVector3* triangle, int, int) override {
-    btVector3 a = triangle[0], b = triangle[1], c = triangle[2];
+    btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
+              c = world_from_shape_ * triangle[2];
+    btVector3 lo = a_from_world_ * a, hi = lo;
+    for (const btVector3* p : {&b, &c}) {
+      const btVector3 q = a_from_world_ * *p;
+      lo.setMin(q);
+      hi.setMax(q);
+    }
+    if (lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() || hi.y() < a_lo_.y() ||
+        hi.z() < a_lo_.z())
+      return;
     // A terrain's inside is below it: orient its triangles to face up, whatever order the grid gives them in.
-    if (upward_ && (b - a).cross(c - a)[up_axis_] < 0) std::swap(b, c);
-    auto world = [&](const btVector3& v) {
-      const btVector3 w = world_from_shape_ * v;
-      return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z()));
-    };
-    set_.add(world(a), world(b), world(c));
+    if (upward_ && (triangle[1] - triangle[0]).cross(triangle[2] - triangle[0])[up_axis_] < 0) std::swap(b, c);
+    auto eigen = [](const btVector3& w) { return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z())); };
+    set_.add(eigen(a), eigen(b), eigen(c));
   }
 
  private:
@@ -194,6 +210,8 @@ class TriangleCollector : public btTriangleCallback {
   const btTransform& world_from_shape_;
   bool upward_;
   int up_axis_;
+  btTransform a_from_world_;
+  btVector3 a_lo_, a_hi_;
 };
 
 // A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
@@ -218,8 +236,13 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   thread_local TriangleSet triangles;
   triangles.clear();
   const bool terrain = b.getShapeType() == TERRAIN_SHAPE_PROXYTYPE;
+  btVector3 a_lo, a_hi;  // A's box in its own frame
+  a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
+  a_lo -= btVector3(grow, grow, grow);
+  a_hi += btVector3(grow, grow, grow);
   TriangleCollector collect(triangles, tb, terrain,
-                            terrain ? static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis() : 1);
+                            terrain ? static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis() : 1, ta.inverse(),
+                            a_lo, a_hi);
   b.processAllTriangles(&collect, local_lo, local_hi);
   if (triangles.empty()) return;
   triangles.build();
