@@ -119,12 +119,14 @@ size_t SparseVoxelmap::layer_brick_count() const {
                               [](const Brick& brick) { return brick.kind != BrickKind::FarOutside; }));
 }
 
-const SparseVoxelmap::Brick& SparseVoxelmap::brick_of(int i, int j, int k, int& local) const {
+// The per-voxel helpers run for every sphere-tree node a query visits: always inlined (GCC kept them calls).
+[[gnu::always_inline]] inline const SparseVoxelmap::Brick& SparseVoxelmap::brick_of(int i, int j, int k,
+                                                                                    int& local) const {
   local = ((k & (kEdge - 1)) * kEdge + (j & (kEdge - 1))) * kEdge + (i & (kEdge - 1));
   return bricks_[(size_t(k / kEdge) * brick_dims_[1] + j / kEdge) * brick_dims_[0] + i / kEdge];
 }
 
-int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
+[[gnu::always_inline]] inline int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
   switch (brick.kind) {
     case BrickKind::Nibbles:
       return brick.layer_base + ((layer_pool_[brick.layer_data + local / 2] >> ((local & 1) * 4)) & 0xf);
@@ -136,7 +138,7 @@ int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
   return brick.layer_base;
 }
 
-bool SparseVoxelmap::distance_in(const Brick& brick, int local, float& distance) const {
+[[gnu::always_inline]] inline bool SparseVoxelmap::distance_in(const Brick& brick, int local, float& distance) const {
   if (brick.distance_data == kNoDistance) return false;
   const int16_t q = distance_pool_[size_t(brick.distance_data) * kBrickVoxels + local];
   if (q == kNotStored) return false;
@@ -144,7 +146,7 @@ bool SparseVoxelmap::distance_in(const Brick& brick, int local, float& distance)
   return true;
 }
 
-float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact, bool& bound) const {
+[[gnu::always_inline]] inline float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact, bool& bound) const {
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
   float distance = 0.0f;
@@ -167,12 +169,12 @@ float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
   return distance_in(brick, local, distance) ? distance : std::nanf("");
 }
 
-bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
+[[gnu::always_inline]] inline bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
   return !bricks_.empty() && u.x() > -0.5f && u.y() > -0.5f && u.z() > -0.5f && u.x() < float(dims_[0]) - 0.5f &&
          u.y() < float(dims_[1]) - 0.5f && u.z() < float(dims_[2]) - 0.5f;
 }
 
-float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
+[[gnu::always_inline]] inline float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
   const Eigen::Vector3f outside = (object_min_ - u).cwiseMax(u - object_max_).cwiseMax(Eigen::Vector3f::Zero());
   return outside.norm();
 }
