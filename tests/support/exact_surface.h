@@ -31,6 +31,11 @@ class ExactSurface {
   }
   double distance(const Vec3& p) const { return std::sqrt(tree_->squared_distance(Point(p[0], p[1], p[2]))); }
   bool inside(const Vec3& p) const { return (*inside_)(Point(p[0], p[1], p[2])) == CGAL::ON_BOUNDED_SIDE; }
+  /// The surface point nearest to p.
+  Vec3 closest(const Vec3& p) const {
+    const Point q = tree_->closest_point(Point(p[0], p[1], p[2]));
+    return {q.x(), q.y(), q.z()};
+  }
   /// Signed distance, negative inside (the spec's convention).
   double signed_distance(const Vec3& p) const { return inside(p) ? -distance(p) : distance(p); }
 
