@@ -16,6 +16,7 @@
 #include <BulletCollision/CollisionShapes/btStaticPlaneShape.h>
 #include <BulletCollision/CollisionShapes/btTriangleCallback.h>
 #include <BulletCollision/NarrowPhaseCollision/btPersistentManifold.h>
+#include <BulletDynamics/Dynamics/btRigidBody.h>
 
 #include <Eigen/Geometry>
 
@@ -298,7 +299,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
   void processCollision(const btCollisionObjectWrapper* body0, const btCollisionObjectWrapper* body1,
-                        const btDispatcherInfo&, btManifoldResult* result) override {
+                        const btDispatcherInfo& info, btManifoldResult* result) override {
     if (!manifold_) return;
     const btCollisionObjectWrapper* a_wrap = swapped_ ? body1 : body0;
     const btCollisionObjectWrapper* b_wrap = swapped_ ? body0 : body1;
@@ -312,6 +313,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
       options.proximity =
           std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
+    if (settings.speculative_contacts)
+      options.proximity = std::max(options.proximity, speculative_distance(a_wrap, b_wrap, info.m_timeStep));
 
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
@@ -331,6 +334,28 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       result->addContactPoint(to_bt_vector(c.normal), to_bt_vector(on_b), btScalar(-c.depth));
     }
     if (owns_manifold_) result->refreshContactPoints();
+  }
+
+  /// How far the pair can close in one step: the relative speed of the centres plus each body's spin times its
+  /// bounding radius, times the step (0 outside a dynamics step). Points within it become speculative contacts,
+  /// which Bullet's solver lets close only that gap: nothing passes through a thin wall in one step.
+  static double speculative_distance(const btCollisionObjectWrapper* a, const btCollisionObjectWrapper* b,
+                                     btScalar time_step) {
+    if (!(time_step > 0)) return 0.0;
+    double speed = 0.0;
+    btVector3 relative(0, 0, 0);
+    for (const btCollisionObjectWrapper* wrap : {a, b}) {
+      const btRigidBody* body = btRigidBody::upcast(wrap->getCollisionObject());
+      if (!body) continue;
+      const btVector3 linear = body->getLinearVelocity();
+      relative = wrap == a ? linear : relative - linear;
+      btVector3 centre;
+      btScalar radius = 0;
+      wrap->getCollisionShape()->getBoundingSphere(centre, radius);
+      speed += double(body->getAngularVelocity().length()) * double(radius + centre.length());
+    }
+    speed += double(relative.length());
+    return speed * double(time_step);
   }
 
   btScalar calculateTimeOfImpact(btCollisionObject*, btCollisionObject*, const btDispatcherInfo&,

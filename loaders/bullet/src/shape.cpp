@@ -2,7 +2,9 @@
 
 #include <LinearMath/btAabbUtil2.h>
 
+#include <cmath>
 #include <stdexcept>
+#include <vector>
 
 #include "bt_eigen.h"
 
@@ -71,6 +73,43 @@ void VpsShape::calculateLocalInertia(btScalar mass, btVector3& inertia) const {
   const Eigen::Vector3d moments =
       object_->principal_moments() * (volume > 0 ? double(mass) / volume : 0.0) * scale_ * scale_;
   inertia = to_bt_vector(moments);
+}
+
+void VpsShape::processAllTriangles(btTriangleCallback* callback, const btVector3& aabb_min,
+                                   const btVector3& aabb_max) const {
+  if (!object_->has_point_shell()) return;
+  const runtime::PointTree& tree = object_->point_tree();
+  const double s = scale_;
+  // Asset frame -> shape frame (scaled): x_shape = s * (Q^T (x - com)).
+  const Eigen::Matrix3d qt = object_->principal_axes().transpose();
+  const Eigen::Vector3d com = object_->center_of_mass();
+  const double inradius = s * object_->point_spacing();
+  const double circumradius = 2.0 * inradius;
+  const Eigen::Vector3d lo = to_eigen(aabb_min), hi = to_eigen(aabb_max);
+  auto to_shape = [&](const Eigen::Vector3f& p) { return Eigen::Vector3d(s * (qt * (p.cast<double>() - com))); };
+  auto box_distance2 = [&](const Eigen::Vector3d& p) { return (p - p.cwiseMax(lo).cwiseMin(hi)).squaredNorm(); };
+  thread_local std::vector<uint32_t> stack;
+  stack.assign(1, 0);
+  btVector3 triangle[3];
+  while (!stack.empty()) {
+    const uint32_t node = stack.back();
+    stack.pop_back();
+    // A node's sphere holds its point and its subtree's; splats reach one circumradius beyond their points.
+    const double reach = s * double(tree.sphere_radii[node]) + circumradius;
+    if (box_distance2(to_shape(tree.sphere_centers[node])) > reach * reach) continue;
+    const Eigen::Vector3d p = to_shape(tree.points[node]);
+    if (box_distance2(p) <= circumradius * circumradius) {
+      // Outward normal (the stored one points inward) and a tangent frame around it.
+      const Eigen::Vector3d n = -(qt * tree.normals[node].cast<double>()).normalized();
+      const Eigen::Vector3d t1 = n.unitOrthogonal(), t2 = n.cross(t1);
+      for (int k = 0; k < 3; ++k) {  // counter-clockwise seen from outside
+        const double angle = 2.0 * M_PI * k / 3.0;
+        triangle[k] = to_bt_vector(p + circumradius * (std::cos(angle) * t1 + std::sin(angle) * t2));
+      }
+      callback->processTriangle(triangle, 0, int(node));
+    }
+    for (uint32_t c = 0; c < tree.child_count[node]; ++c) stack.push_back(tree.child_begin[node] + c);
+  }
 }
 
 const char* VpsShape::getName() const {

@@ -35,6 +35,12 @@ struct CollisionSettings {
   /// Points closer than this (metres) become speculative contacts with positive distance, so the solver
   /// slows an approaching body before it penetrates. 0 = penetrating points only.
   double proximity = 0.0;
+  /// Speculative contacts against tunnelling: during a dynamics step, points as close as the pair can come in
+  /// that step (relative speed plus spin times radius, times the step) become contacts with a positive
+  /// distance, which Bullet's solver lets close only that gap. A body at 10 m/s at 1 kHz stays in front of a
+  /// 2-voxel wall. Off: only `proximity` applies, and a fast body can pass through a wall thinner than its
+  /// motion in one step.
+  bool speculative_contacts = true;
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
   /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs

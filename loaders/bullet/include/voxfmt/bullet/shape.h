@@ -61,8 +61,13 @@ class VpsShape : public btConcaveShape {
   /// Principal moments of the asset's mass properties for `mass` (uniform density), scaled.
   void calculateLocalInertia(btScalar mass, btVector3& inertia) const override;
   const char* getName() const override;
-  // btConcaveShape: VPS shapes have no triangles; pairs without a VPS algorithm produce no contacts.
-  void processAllTriangles(btTriangleCallback*, const btVector3&, const btVector3&) const override {}
+  /// btConcaveShape: a VPS shape has no triangles, but Bullet's ray tests and convex sweeps (the sweeps of its
+  /// continuous collision detection) ask for them. It hands out one small triangle per point-shell point in the
+  /// box (shape frame), in the point's tangent plane and facing out, large enough (inradius = the point
+  /// spacing) that together they cover the surface: rays and CCD sweeps stop at the surface within about a
+  /// point spacing. Contacts never come from these: they come from the VPS algorithm.
+  void processAllTriangles(btTriangleCallback* callback, const btVector3& aabb_min,
+                           const btVector3& aabb_max) const override;
 
  private:
   std::shared_ptr<const runtime::CollisionObject> object_;
