@@ -1,4 +1,4 @@
-#include "raster_image.h"
+#include "voxfmt/exports/raster_image.h"
 
 #include "voxfmt/atomic_file.h"
 

@@ -8,7 +8,7 @@
 #include <limits>
 #include <vector>
 
-#include "raster_image.h"
+#include "voxfmt/exports/raster_image.h"
 
 namespace voxfmt::exports {
 

@@ -1,4 +1,5 @@
-// A small RGB raster with a built-in 5x7 bitmap font, written as PNG (libpng). For inspect's pictures.
+// A small RGB raster with a built-in 5x7 bitmap font, written as PNG (libpng): inspect's slice pictures and the
+// examples' scene pictures.
 #pragma once
 
 #include <cstdint>
