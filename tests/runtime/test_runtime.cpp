@@ -390,6 +390,35 @@ TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {
             << " voxels (bound " << 2 * largest_radius / bunny.h << ")\n";
 }
 
+TEST(Query, ATimeBudgetEndsAtAWholeLevelAndKeepsEveryContact) {
+  // A budget too small for anything past the root level (1 ns) stops early but still reports contact where the
+  // full tree does, no shallower (the last completed level's spheres); a generous one changes nothing.
+  const Bunny& bunny = Bunny::get();
+  const Pose pa = make_pose(20, Eigen::Vector3d(0.3, 1, 0.2), Eigen::Vector3d(0.7, 0.05, 0.0)), pb;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  ContactSet full, tight, generous;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, full);
+  ASSERT_FALSE(full.contacts.empty());
+  options.time_budget_us = 1e-3;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, tight);
+  options.time_budget_us = 1e6;
+  query_contacts(*bunny.object, pa, *bunny.object, pb, options, generous);
+  auto deepest = [](const ContactSet& set) {
+    double d = -1e30;
+    for (const Contact& c : set.contacts) d = std::max(d, c.depth);
+    return d;
+  };
+  EXPECT_TRUE(tight.stats.time_budget_hit);
+  EXPECT_LT(tight.stats.deepest_level, full.stats.deepest_level);
+  EXPECT_LT(tight.stats.nodes_visited, full.stats.nodes_visited);
+  EXPECT_FALSE(tight.contacts.empty());
+  EXPECT_GE(deepest(tight), deepest(full) - 1e-9);
+  EXPECT_FALSE(generous.stats.time_budget_hit);
+  EXPECT_EQ(generous.contacts.size(), full.contacts.size());
+  EXPECT_EQ(generous.stats.deepest_level, full.stats.deepest_level);
+}
+
 TEST(Query, BothDirectionsMirror) {
   const Bunny& bunny = Bunny::get();
   const Pose pa = make_pose(30, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.5, 0.1, 0.0)), pb;

@@ -64,6 +64,12 @@ struct QueryOptions {
   uint32_t max_level = std::numeric_limits<uint32_t>::max();
   /// What the last level of a cut query reports (see CutLevel).
   CutLevel cut_level = CutLevel::Spheres;
+  /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops: the clock is read at
+  /// level ends and every 32 nodes. With CutLevel::Spheres a level the budget interrupts is dropped and the last
+  /// completed level is the cut (so contacts are those of whole levels: no contact found by the full tree is
+  /// lost, and the force does not depend on where in a level time ran out); with CutLevel::Points the points
+  /// tested so far count. The root level always completes.
+  double time_budget_us = 0.0;
 };
 
 /// One colliding (or near) point, world frame.
@@ -77,9 +83,10 @@ struct Contact {
 };
 
 struct QueryStats {
-  size_t nodes_visited = 0;  ///< sphere-tree nodes popped from the queue
-  size_t points_tested = 0;  ///< points whose distance was looked up
-  uint32_t deepest_level = 0;
+  size_t nodes_visited = 0;      ///< sphere-tree nodes popped from the queue
+  size_t points_tested = 0;      ///< points whose distance was looked up
+  uint32_t deepest_level = 0;    ///< deepest tree level completed (and reported)
+  bool time_budget_hit = false;  ///< a traversal stopped at QueryOptions::time_budget_us
 };
 
 struct ContactSet {
@@ -103,6 +110,9 @@ struct QueryScratch {
   std::vector<Hit> level_hits;
   /// Nodes of the level being traversed that queued children (what a cut level reports as spheres).
   std::vector<uint32_t> level_parents;
+  /// The same for the last completed level, held while the next one runs (a time budget may end it).
+  std::vector<Hit> done_hits;
+  std::vector<uint32_t> done_parents;
   /// Benchmarks: when set, every point whose distance is looked up is appended here, in the target's
   /// coordinates (a voxelmap's grid), so the cost of the lookups alone can be measured.
   std::vector<Eigen::Vector3f>* tested_points = nullptr;

@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <chrono>
 
 namespace voxfmt::runtime {
 namespace detail {
@@ -16,34 +17,70 @@ template <class Target, class Emit>
 void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
                    float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
                    QueryScratch& scratch, Emit&& emit) {
+  using Hit = QueryScratch::Hit;
   std::vector<uint32_t>& queue = scratch.queue;
-  std::vector<QueryScratch::Hit>& hits = scratch.level_hits;
+  // Sphere semantics hold a level's hits back until it is known whether the level ends the traversal: the
+  // current level's (partial) and the last completed level's. A point whose children were queued but never
+  // tested reports its sphere instead of itself.
+  std::vector<Hit>& hits = scratch.level_hits;
   std::vector<uint32_t>& parents = scratch.level_parents;
+  std::vector<Hit>& done_hits = scratch.done_hits;
+  std::vector<uint32_t>& done_parents = scratch.done_parents;
   queue.clear();
   hits.clear();
   parents.clear();
+  done_hits.clear();
+  done_parents.clear();
   if (tree.size() == 0) return;
   const bool spheres = options.cut_level == CutLevel::Spheres;
   const bool has_reach = tree.reach_from_parent.size() == tree.size();
-  // With sphere semantics a level's hits wait for the level's end: if the traversal stops there, a point whose
-  // children were queued (never tested) reports its sphere instead.
-  auto flush = [&]() {
-    for (const QueryScratch::Hit& hit : hits) emit(hit.node, hit.distance, hit.exact);
-    hits.clear();
-    parents.clear();
+  const bool timed = options.time_budget_us > 0.0;
+  const auto deadline =
+      timed ? std::chrono::steady_clock::now() + std::chrono::nanoseconds(int64_t(options.time_budget_us * 1e3))
+            : std::chrono::steady_clock::time_point::max();
+  auto emit_points = [&](const std::vector<Hit>& level_hits) {
+    for (const Hit& hit : level_hits) emit(hit.node, hit.distance, hit.exact);
+  };
+  // Ends the traversal at a completed level: its points with untested children report their spheres.
+  auto emit_cut = [&](const std::vector<Hit>& level_hits, const std::vector<uint32_t>& level_parents) {
+    for (const Hit& hit : level_hits)
+      if (!std::binary_search(level_parents.begin(), level_parents.end(), hit.node))
+        emit(hit.node, hit.distance, hit.exact);
+    for (const uint32_t node : level_parents) {
+      bool exact = false;
+      const float radius = tree.sphere_radii[node] * radius_scale;
+      const float d = target.distance(M * tree.sphere_centers[node] + m, exact) - radius;
+      if (d < proximity) emit(node, d, false);
+    }
   };
   queue.push_back(0);
   size_t head = 0;
   size_t level_end = 1;  // queue position where the current level ends
   uint32_t level = 0;
   size_t tested = 0;
+  bool out_of_time = false;
   while (head < queue.size()) {
-    if (head == level_end) {
+    if (head == level_end) {  // `level` is complete
       const size_t next_level_size = queue.size() - head;
       if (level + 1 > options.max_level || tested + next_level_size > options.point_budget) break;
-      if (spheres) flush();
+      if (timed && std::chrono::steady_clock::now() >= deadline) {
+        out_of_time = true;
+        break;
+      }
+      if (spheres) {
+        emit_points(done_hits);  // the level before is refined by this complete one
+        done_hits.swap(hits);
+        done_parents.swap(parents);
+        hits.clear();
+        parents.clear();
+      }
       ++level;
       level_end = queue.size();
+    }
+    // The clock is read every 32 nodes (a few ns each) and at level ends; the root level always completes.
+    if (timed && level > 0 && (stats.nodes_visited & 31u) == 0 && std::chrono::steady_clock::now() >= deadline) {
+      out_of_time = true;
+      break;
     }
     const uint32_t node = queue[head++];
     ++stats.nodes_visited;
@@ -71,26 +108,21 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
       if (!has_reach || bound - tree.reach_from_parent[c] * radius_scale <= proximity) queue.push_back(c);
     if (spheres && queue.size() > queued) parents.push_back(node);
   }
-  if (spheres) {
-    const bool cut = queue.size() > level_end;  // children of this level were queued but not tested
-    if (cut) {
-      // The level's points with untested children report their spheres (which hold those points' hits).
-      for (const QueryScratch::Hit& hit : hits)
-        if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit(hit.node, hit.distance, hit.exact);
-      for (const uint32_t node : parents) {
-        bool exact = false;
-        const float radius = tree.sphere_radii[node] * radius_scale;
-        const float d = target.distance(M * tree.sphere_centers[node] + m, exact) - radius;
-        if (d < proximity) emit(node, d, false);
-      }
-      hits.clear();
-      parents.clear();
-    } else {
-      flush();
-    }
+  uint32_t completed = level;
+  if (out_of_time && head != level_end) {
+    // Stopped inside `level`: its partial hits are dropped, the level before is the cut (sphere semantics).
+    completed = level - 1;
+    if (spheres) emit_cut(done_hits, done_parents);
+  } else if (spheres) {
+    emit_points(done_hits);
+    if (queue.size() > level_end)  // children of this level were queued but not tested
+      emit_cut(hits, parents);
+    else
+      emit_points(hits);
   }
+  if (out_of_time) stats.time_budget_hit = true;
   stats.points_tested += tested;
-  stats.deepest_level = std::max(stats.deepest_level, level);
+  stats.deepest_level = std::max(stats.deepest_level, completed);
 }
 
 /// A signed-distance function in world coordinates seen as a traversal target, with a cheaper lower bound
