@@ -3,7 +3,6 @@
 // Bullet's GImpact, an HACD convex decomposition (8 hulls of <= 100 vertices) and a 42-vertex hull
 // (btShapeHull). Writes a per-step CSV and a summary JSON; scripts/plot_bunny_drop.py draws them (log-scale
 // narrow-phase time and speed panels).
-#include <BulletCollision/CollisionShapes/btShapeHull.h>
 #include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
 #include <BulletCollision/Gimpact/btGImpactShape.h>
 #include <btBulletDynamicsCommon.h>
@@ -20,6 +19,7 @@
 #include <sstream>
 
 #include "common/hacd_cache.h"
+#include "common/reduced_hull.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
@@ -109,13 +109,7 @@ MethodShapes make_shapes(const std::string& method, const BunnyGeometry& bunny, 
     shapes.dynamic_shape = shapes.static_shape = compound;
   } else if (method == "hull") {
     const auto start = std::chrono::steady_clock::now();
-    btConvexHullShape full;
-    for (const btVector3& v : bunny.vertices) full.addPoint(v, false);
-    full.recalcLocalAabb();
-    full.setMargin(0);  // sample the mesh's own hull, not one inflated by Bullet's default 4 cm margin
-    btShapeHull reducer(&full);
-    reducer.buildHull(0);
-    std::vector<btVector3> points(reducer.getVertexPointer(), reducer.getVertexPointer() + reducer.numVertices());
+    const std::vector<btVector3> points = voxfmt_bench::reduced_hull_points(bunny.vertices);
     shapes.dynamic_shape = shapes.static_shape = hull_shape(points);
     precompute_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::cerr << "hull: " << points.size() << " vertices\n";

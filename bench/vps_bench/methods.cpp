@@ -1,7 +1,6 @@
 #include "methods.h"
 
 #include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
-#include <BulletCollision/CollisionShapes/btShapeHull.h>
 #include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
 #include <BulletCollision/Gimpact/btGImpactShape.h>
 #include <btBulletDynamicsCommon.h>
@@ -13,6 +12,7 @@
 #include <stdexcept>
 
 #include "../common/hacd_cache.h"
+#include "../common/reduced_hull.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 
@@ -225,14 +225,7 @@ std::shared_ptr<btCollisionShape> hacd_of(const Body& body, const MethodSettings
 }
 
 std::shared_ptr<btCollisionShape> reduced_hull_of(const Body& body, double margin, size_t& vertex_count) {
-  BulletMesh mesh(body.mesh);
-  btConvexHullShape full;
-  for (const btVector3& v : mesh.vertices) full.addPoint(v, false);
-  full.recalcLocalAabb();
-  full.setMargin(0);  // sample the mesh's own hull, not one inflated by Bullet's default 4 cm margin
-  btShapeHull reducer(&full);
-  reducer.buildHull(0);
-  std::vector<btVector3> points(reducer.getVertexPointer(), reducer.getVertexPointer() + reducer.numVertices());
+  const std::vector<btVector3> points = voxfmt_bench::reduced_hull_points(BulletMesh(body.mesh).vertices);
   vertex_count = points.size();
   return hull_of(points, margin);
 }
@@ -280,15 +273,8 @@ std::shared_ptr<fcl::CollisionGeometryd> fcl_geometry(const Body& body) {
     case Body::Kind::Box:
       return std::make_shared<fcl::Boxd>(2 * body.half_extents);
     case Body::Kind::BakedMesh:
-    case Body::Kind::StaticMesh: {
-      auto model = std::make_shared<fcl::BVHModel<fcl::OBBRSSd>>();
-      std::vector<fcl::Triangle> triangles;
-      for (const auto& t : body.mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
-      model->beginModel();
-      model->addSubModel(body.mesh.vertices, triangles);
-      model->endModel();
-      return model;
-    }
+    case Body::Kind::StaticMesh:
+      return fcl_mesh(body.mesh);
   }
   return nullptr;
 }

@@ -57,6 +57,11 @@ Eigen::Isometry3d make_pose(const Eigen::Quaterniond& q, const Eigen::Vector3d& 
 
 // ------------------------------------------------------------------------------------------- baked bodies
 
+/// Asset frame -> the VPS shapes' frame (principal axes at the centre of mass), as VpsShape::asset_to_shape.
+Eigen::Vector3d to_shape_frame(const voxfmt::runtime::CollisionObject& object, const Eigen::Vector3d& asset_point) {
+  return object.principal_axes().transpose() * (asset_point - object.center_of_mass());
+}
+
 struct BakeRequest {
   std::string name;       // file stem in the cache
   std::string mesh_path;  // input mesh
@@ -94,10 +99,8 @@ std::shared_ptr<Body> baked_body(const BakeRequest& request, const ScenarioSetti
   const auto mesh = voxfmt::bake::read_mesh(request.mesh_path, import);
   if (!mesh) throw std::runtime_error("reading " + request.mesh_path + ": " + mesh.error().describe());
   // The shape frame of the VPS shapes (principal frame at the centre of mass), for every method.
-  const Eigen::Matrix3d qt = body->vps->principal_axes().transpose();
-  const Eigen::Vector3d com = body->vps->center_of_mass();
   for (const voxfmt::Vec3& v : mesh.value().vertices)
-    body->mesh.vertices.push_back(qt * (Eigen::Vector3d(v[0], v[1], v[2]) - com));
+    body->mesh.vertices.push_back(to_shape_frame(*body->vps, Eigen::Vector3d(v[0], v[1], v[2])));
   for (const auto& t : mesh.value().triangles) body->mesh.triangles.push_back({int(t[0]), int(t[1]), int(t[2])});
   return body;
 }
@@ -145,15 +148,13 @@ std::shared_ptr<Body> torus_body(const ScenarioSettings& settings) {
   // HACD needs over 30 minutes on the 71,600-triangle torus; its result (8 hulls of <= 100 vertices) hardly
   // depends on the tessellation, so it decomposes the same torus at 120 x 40 (its vertices on the surface).
   const int major = 120, minor = 40;
-  const Eigen::Matrix3d qt = cached->vps->principal_axes().transpose();
-  const Eigen::Vector3d com = cached->vps->center_of_mass();
   Mesh& coarse = cached->decomposition_mesh;
   for (int i = 0; i < major; ++i)
     for (int j = 0; j < minor; ++j) {
       const double u = 2 * kPi * i / major, v = 2 * kPi * j / minor;
       const Eigen::Vector3d p((kTorusMajor + kTorusMinor * std::cos(v)) * std::cos(u), kTorusMinor * std::sin(v),
                               (kTorusMajor + kTorusMinor * std::cos(v)) * std::sin(u));
-      coarse.vertices.push_back(qt * (p - com));
+      coarse.vertices.push_back(to_shape_frame(*cached->vps, p));
     }
   auto index = [&](int i, int j) { return ((i + major) % major) * minor + (j + minor) % minor; };
   for (int i = 0; i < major; ++i)
@@ -238,16 +239,6 @@ PosePair pose_on_plane(const Body& bunny, Random& random, double top, double xz_
 
 using FclMesh = fcl::BVHModel<fcl::OBBRSSd>;
 
-std::shared_ptr<FclMesh> fcl_mesh(const Mesh& mesh) {
-  auto model = std::make_shared<FclMesh>();
-  std::vector<fcl::Triangle> triangles;
-  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
-  model->beginModel();
-  model->addSubModel(mesh.vertices, triangles);
-  model->endModel();
-  return model;
-}
-
 /// A approaches B (fixed at the origin) along -direction from far away until the meshes touch (conservative
 /// advancement on exact mesh distances), then moves `depth` further (negative: stops short).
 PosePair pose_touching(const Body& a, const Body& b, const std::shared_ptr<FclMesh>& fa,
@@ -277,6 +268,16 @@ PosePair pose_touching(const Body& a, const Body& b, const std::shared_ptr<FclMe
 
 }  // namespace
 
+std::shared_ptr<fcl::BVHModel<fcl::OBBRSSd>> fcl_mesh(const Mesh& mesh) {
+  auto model = std::make_shared<fcl::BVHModel<fcl::OBBRSSd>>();
+  std::vector<fcl::Triangle> triangles;
+  for (const auto& t : mesh.triangles) triangles.emplace_back(t[0], t[1], t[2]);
+  model->beginModel();
+  model->addSubModel(mesh.vertices, triangles);
+  model->endModel();
+  return model;
+}
+
 const std::vector<std::string>& scenario_names() {
   static const std::vector<std::string> names = {"bunny-plane",  "bunny-box",   "bunny-static-mesh", "bunny-bunny",
                                                  "tori-stacked", "tori-linked", "tori-gap"};
@@ -299,7 +300,7 @@ Scenario make_scenario(const std::string& name, const ScenarioSettings& settings
     s.a = bunny_body(settings);
     s.b = box ? box_body(0.15) : plane_body();
     // Box: a 0.3 m cube whose top face is at y = 0; the bunny stays over its middle.
-    if (box) s.poses.reserve(settings.poses);
+    s.poses.reserve(settings.poses);
     for (size_t i = 0; i < settings.poses; ++i) {
       PosePair pose = pose_on_plane(*s.a, random, 0.0, box ? 0.03 : 0.1, random.uniform(-0.0005, 0.0015));
       if (box) pose.b.translation() = Eigen::Vector3d(0, -0.15, 0);

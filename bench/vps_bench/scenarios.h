@@ -1,6 +1,8 @@
 // vps-bench scenarios: the bodies of each scene (one geometry shared by every method) and its pose set.
 #pragma once
 
+#include <fcl/geometry/bvh/BVH_model.h>
+#include <fcl/math/bv/OBBRSS.h>
 #include <Eigen/Geometry>
 
 #include <array>
@@ -18,6 +20,12 @@ struct Mesh {
   std::vector<Eigen::Vector3d> vertices;
   std::vector<std::array<int, 3>> triangles;
 };
+
+/// FCL's bounding-volume hierarchy of a mesh (FCL computes the scenarios' exact mesh distances and is a peer).
+std::shared_ptr<fcl::BVHModel<fcl::OBBRSSd>> fcl_mesh(const Mesh& mesh);
+
+/// FCL's bounding-volume hierarchy of a mesh (FCL computes the scenarios' exact mesh distances and is a peer).
+std::shared_ptr<fcl::BVHModel<fcl::OBBRSSd>> fcl_mesh(const Mesh& mesh);
 
 /// One body of a scenario. Dynamic bodies are meshes with a baked asset; static partners are a plane, a box
 /// or a triangle-mesh floor.

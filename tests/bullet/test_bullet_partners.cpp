@@ -72,6 +72,14 @@ Rest settle_on(std::shared_ptr<btCollisionShape> partner, const btTransform& par
   return rest;
 }
 
+/// A convex partner's signed distance at `placement`, as settle_on measures penetration.
+PartnerDistance convex_partner(const btConvexShape& shape, const btTransform& placement) {
+  return [&shape, placement](const Eigen::Vector3f& x) {
+    Eigen::Vector3f n;
+    return convex_distance(shape, placement, x, n);
+  };
+}
+
 void expect_resting(const Rest& rest, const std::string& partner) {
   const double h = Bunny::get().h;
   std::cout << "[ figures  ] " << partner << ": drift " << rest.speed << " m/s (solver velocity " << rest.solver_speed
@@ -123,12 +131,7 @@ TEST(Partners, CapsuleRails) {
 TEST(Partners, CylinderStandingUp) {
   auto cylinder = std::make_shared<btCylinderShape>(btVector3(1, 0.1f, 1));
   const btTransform t = at(btVector3(0, -0.1f, 0));
-  expect_resting(settle_on(cylinder, t, 0.0,
-                           [&](const Eigen::Vector3f& x) {
-                             Eigen::Vector3f n;
-                             return convex_distance(*cylinder, t, x, n);
-                           }),
-                 "cylinder");
+  expect_resting(settle_on(cylinder, t, 0.0, convex_partner(*cylinder, t)), "cylinder");
 }
 
 TEST(Partners, ConeUpsideDown) {
@@ -136,12 +139,7 @@ TEST(Partners, ConeUpsideDown) {
   auto cone = std::make_shared<btConeShape>(1.0f, 0.2f);
   cone->setMargin(0.001f);  // Bullet's 4 cm default rounds the cone outward; match the others' margin
   const btTransform t = at(btVector3(0, -0.1f, 0), btQuaternion(btVector3(1, 0, 0), SIMD_PI));
-  expect_resting(settle_on(cone, t, 0.0,
-                           [&](const Eigen::Vector3f& x) {
-                             Eigen::Vector3f n;
-                             return convex_distance(*cone, t, x, n);
-                           }),
-                 "cone");
+  expect_resting(settle_on(cone, t, 0.0, convex_partner(*cone, t)), "cone");
 }
 
 TEST(Partners, ConvexHull) {
@@ -159,12 +157,7 @@ TEST(Partners, ConvexHull) {
   hull->setMargin(0.001f);
   hull->initializePolyhedralFeatures();  // exact distances inside the hull
   const btTransform t = at(btVector3(0, -0.001f, 0));
-  expect_resting(settle_on(hull, t, 0.0,
-                           [&](const Eigen::Vector3f& x) {
-                             Eigen::Vector3f n;
-                             return convex_distance(*hull, t, x, n);
-                           }),
-                 "convex hull");
+  expect_resting(settle_on(hull, t, 0.0, convex_partner(*hull, t)), "convex hull");
 }
 
 TEST(Partners, CompoundOfBoxes) {

@@ -39,6 +39,13 @@ struct Bunny {
 
 Vec3 to_vec3(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 
+/// The deepest penetration in a contact set, metres (-1e30 when empty).
+double deepest(const ContactSet& set) {
+  double d = -1e30;
+  for (const Contact& c : set.contacts) d = std::max(d, c.depth);
+  return d;
+}
+
 Pose make_pose(double angle_deg, const Eigen::Vector3d& axis, const Eigen::Vector3d& translation) {
   Pose pose;
   pose.rotation = Eigen::AngleAxisd(angle_deg * M_PI / 180.0, axis.normalized()).toRotationMatrix();
@@ -368,11 +375,6 @@ TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {
     query_contacts(*bunny.object, pa, *bunny.object, pb, options, spheres);
     options.cut_level = CutLevel::Points;
     query_contacts(*bunny.object, pa, *bunny.object, pb, options, points);
-    auto deepest = [](const ContactSet& set) {
-      double d = -1e30;
-      for (const Contact& c : set.contacts) d = std::max(d, c.depth);
-      return d;
-    };
     if (fine.contacts.empty()) continue;
     ++fine_touching;
     if (!spheres.contacts.empty()) ++spheres_detected;
@@ -404,11 +406,6 @@ TEST(Query, ATimeBudgetEndsAtAWholeLevelAndKeepsEveryContact) {
   query_contacts(*bunny.object, pa, *bunny.object, pb, options, tight);
   options.time_budget_us = 1e6;
   query_contacts(*bunny.object, pa, *bunny.object, pb, options, generous);
-  auto deepest = [](const ContactSet& set) {
-    double d = -1e30;
-    for (const Contact& c : set.contacts) d = std::max(d, c.depth);
-    return d;
-  };
   EXPECT_TRUE(tight.stats.time_budget_hit);
   EXPECT_LT(tight.stats.deepest_level, full.stats.deepest_level);
   EXPECT_LT(tight.stats.nodes_visited, full.stats.nodes_visited);

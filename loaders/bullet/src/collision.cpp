@@ -349,10 +349,12 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       if (!body) continue;
       const btVector3 linear = body->getLinearVelocity();
       relative = wrap == a ? linear : relative - linear;
+      const double spin = double(body->getAngularVelocity().length());
+      if (spin == 0.0) continue;  // static and resting bodies: no bounding sphere needed
       btVector3 centre;
       btScalar radius = 0;
       wrap->getCollisionShape()->getBoundingSphere(centre, radius);
-      speed += double(body->getAngularVelocity().length()) * double(radius + centre.length());
+      speed += spin * double(radius + centre.length());
     }
     speed += double(relative.length());
     return speed * double(time_step);
