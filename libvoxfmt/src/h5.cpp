@@ -1,10 +1,15 @@
 #include "h5.h"
 
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <functional>
@@ -92,6 +97,98 @@ std::string last_hdf5_reason() {
 std::string join_path(const std::string& group_path, const std::string& name) {
   if (group_path.empty() || group_path == "/") return "/" + name;
   return group_path + "/" + name;
+}
+
+// ---------------------------------------------------------------- isolated variable-length strings
+
+namespace {
+
+bool write_all(int fd, const void* data, size_t size) {
+  const char* p = static_cast<const char*>(data);
+  while (size > 0) {
+    ssize_t n = ::write(fd, p, size);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    p += n;
+    size -= size_t(n);
+  }
+  return true;
+}
+
+// Reads until EOF or `limit` bytes, waiting at most until `deadline`; false on timeout.
+bool read_until_eof(int fd, std::string& out, size_t limit, std::chrono::steady_clock::time_point deadline) {
+  char buffer[65536];
+  for (;;) {
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return false;
+    pollfd pfd{fd, POLLIN, 0};
+    int ready = ::poll(&pfd, 1, int(std::min<long long>(left.count(), 1000)));
+    if (ready < 0 && errno == EINTR) continue;
+    if (ready <= 0) continue;
+    ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return true;
+    if (out.size() < limit) out.append(buffer, size_t(std::min<size_t>(size_t(n), limit - out.size())));
+  }
+}
+
+}  // namespace
+
+bool read_variable_string_isolated(hid_t attr, hid_t file_type, std::string& value, std::string& failure) {
+  Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
+  H5Tset_size(memtype.get(), H5T_VARIABLE);
+  H5Tset_cset(memtype.get(), H5Tget_cset(file_type));
+  int fds[2];
+  if (::pipe(fds) != 0) {
+    failure = std::string("cannot create a pipe to read a variable-length string: ") + std::strerror(errno);
+    return false;
+  }
+  std::fflush(nullptr);
+  const pid_t child = ::fork();
+  if (child < 0) {
+    ::close(fds[0]);
+    ::close(fds[1]);
+    failure = std::string("cannot start a process to read a variable-length string: ") + std::strerror(errno);
+    return false;
+  }
+  if (child == 0) {
+    // The child: read, send "status byte + bytes", leave without running the parent's exit handlers.
+    ::close(fds[0]);
+    char* buffer = nullptr;
+    const char status = H5Aread(attr, memtype.get(), &buffer) < 0 ? 1 : 0;
+    bool ok = write_all(fds[1], &status, 1);
+    if (status == 0 && buffer) ok = ok && write_all(fds[1], buffer, std::min(std::strlen(buffer), kMaxStringBytes + 1));
+    _exit(ok ? 0 : 3);
+  }
+  ::close(fds[1]);
+  std::string reply;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  const bool finished = read_until_eof(fds[0], reply, kMaxStringBytes + 2, deadline);
+  ::close(fds[0]);
+  if (!finished) ::kill(child, SIGKILL);
+  int status = 0;
+  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  }
+  if (!finished) {
+    failure = "variable-length string is damaged: HDF5's reader did not finish within 5 s";
+    return false;
+  }
+  if (WIFSIGNALED(status)) {
+    failure = "variable-length string is damaged: HDF5's reader died of signal " + std::to_string(WTERMSIG(status)) +
+              " (" + strsignal(WTERMSIG(status)) + ") reading it";
+    return false;
+  }
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || reply.empty()) {
+    failure = "cannot read variable-length string (the reading process failed)";
+    return false;
+  }
+  if (reply[0] != 0) {
+    failure = "cannot read variable-length string (HDF5 refused it: the file is damaged)";
+    return false;
+  }
+  value = reply.substr(1);
+  return true;
 }
 
 // ---------------------------------------------------------------- Reader
@@ -222,21 +319,27 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
   if (!check_shape(space.get(), {}, path, actual)) return std::nullopt;
 
   if (H5Tis_variable_str(type.get()) > 0) {
-    Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
-    H5Tset_size(memtype.get(), H5T_VARIABLE);
-    H5Tset_cset(memtype.get(), H5Tget_cset(type.get()));
-    char* buffer = nullptr;
-    if (H5Aread(attr.get(), memtype.get(), &buffer) < 0) {
-      report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
+    // Files written before 2026-11 hold variable-length strings, whose bytes live in HDF5's global heap. HDF5's
+    // heap reader trusts the file: a few damaged bytes make it read out of bounds or loop forever. So the read
+    // runs in a child process, and a child that dies or hangs becomes a finding instead of our crash.
+    std::string value, failure;
+    if (!read_variable_string_isolated(attr.get(), type.get(), value, failure)) {
+      report(IssueCode::ReadFailed, path, failure);
       return std::nullopt;
     }
-    std::string value = buffer ? buffer : "";
-    if (buffer) H5free_memory(buffer);
+    if (value.size() > kMaxStringBytes) {
+      report(IssueCode::ValueOutOfRange, path,
+             "string of " + std::to_string(value.size()) + " bytes, more than the format's limit of " +
+                 std::to_string(kMaxStringBytes));
+      return std::nullopt;
+    }
     return value;
   }
   size_t size = H5Tget_size(type.get());
-  if (size == 0 || size > (64u << 20)) {
-    report(IssueCode::WrongDtype, path, "fixed-length string of implausible size " + std::to_string(size));
+  if (size == 0 || size > kMaxStringBytes + 1) {
+    report(IssueCode::ValueOutOfRange, path,
+           "fixed-length string of " + std::to_string(size) + " bytes, outside the format's limit of 1.." +
+               std::to_string(kMaxStringBytes + 1) + " (with its terminating null)");
     return std::nullopt;
   }
   Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
@@ -277,6 +380,53 @@ std::optional<std::vector<T>> Reader::numeric_attribute(hid_t object, const std:
   return values;
 }
 
+bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const std::string& path) {
+  // Before any data is decoded (spec §1): only the filters the spec names run (HDF5's decoders are where damaged
+  // files do harm), and a chunk grid is small enough that walking it cannot take hours.
+  Handle plist(H5Dget_create_plist(dset), H5Pclose);
+  if (!plist.valid()) {
+    report(IssueCode::ReadFailed, path, "cannot read the dataset's storage properties (" + last_hdf5_reason() + ")");
+    return false;
+  }
+  const int filters = H5Pget_nfilters(plist.get());
+  for (int i = 0; i < filters; ++i) {
+    unsigned flags = 0;
+    size_t values = 0;
+    char name[64] = {0};
+    const H5Z_filter_t id =
+        H5Pget_filter2(plist.get(), unsigned(i), &flags, &values, nullptr, sizeof name, name, nullptr);
+    if (id != H5Z_FILTER_DEFLATE && id != H5Z_FILTER_SHUFFLE && id != H5Z_FILTER_FLETCHER32) {
+      report(IssueCode::ReadFailed, path,
+             "uses HDF5 filter " + std::to_string(int(id)) + (name[0] ? std::string(" (") + name + ")" : "") +
+                 "; the format allows only deflate, shuffle and fletcher32");
+      return false;
+    }
+  }
+  if (H5Pget_layout(plist.get()) == H5D_CHUNKED && !dims.empty()) {
+    std::vector<hsize_t> chunk(dims.size());
+    if (H5Pget_chunk(plist.get(), int(chunk.size()), chunk.data()) != int(dims.size())) {
+      report(IssueCode::ReadFailed, path, "chunk shape does not match the dataset's rank");
+      return false;
+    }
+    uint64_t chunks = 1;
+    for (size_t a = 0; a < dims.size(); ++a) {
+      if (chunk[a] == 0) {
+        report(IssueCode::ReadFailed, path, "chunk shape has a zero extent");
+        return false;
+      }
+      chunks *= (dims[a] + chunk[a] - 1) / chunk[a];
+      if (chunks > kMaxChunks) break;
+    }
+    if (chunks > kMaxChunks) {
+      report(IssueCode::ValueOutOfRange, path,
+             "dataset is split into more than " + std::to_string(kMaxChunks) +
+                 " chunks (the format's limit); its chunks are too small for its size");
+      return false;
+    }
+  }
+  return true;
+}
+
 template <class T>
 std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& group_path, const std::string& name,
                                               const Shape& shape, std::vector<uint64_t>* shape_out) {
@@ -296,6 +446,7 @@ std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& gr
     report(IssueCode::ValueOutOfRange, path, "dataset has " + std::to_string(count) + " elements, more than 2^31");
     return std::nullopt;
   }
+  if (!check_storage(dset.get(), actual, path)) return std::nullopt;
   std::vector<T> values;
   try {
     values.resize(size_t(count));
@@ -351,14 +502,20 @@ std::optional<Handle> Writer::create_group(hid_t parent, const std::string& name
 }
 
 bool Writer::string_attribute(hid_t object, const std::string& name, const std::string& value) {
+  // Fixed-length (spec §1): stored inside the attribute itself, so a reader never needs HDF5's global heap.
+  if (value.size() > kMaxStringBytes) {
+    failure_ = "attribute " + name + " holds " + std::to_string(value.size()) + " bytes, more than the format's " +
+               std::to_string(kMaxStringBytes);
+    return false;
+  }
   Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
-  H5Tset_size(type.get(), H5T_VARIABLE);
+  H5Tset_size(type.get(), value.size() + 1);
+  H5Tset_strpad(type.get(), H5T_STR_NULLTERM);
   H5Tset_cset(type.get(), H5T_CSET_UTF8);
   Handle space(H5Screate(H5S_SCALAR), H5Sclose);
   Handle attr(H5Acreate2(object, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
   if (!attr.valid()) return fail("cannot create attribute " + name);
-  const char* data = value.c_str();
-  if (H5Awrite(attr.get(), type.get(), &data) < 0) return fail("cannot write attribute " + name);
+  if (H5Awrite(attr.get(), type.get(), value.c_str()) < 0) return fail("cannot write attribute " + name);
   return true;
 }
 

@@ -4,6 +4,7 @@
 
 #include <hdf5.h>
 
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -48,6 +49,17 @@ class Handle {
 void silence_hdf5_errors();
 /// The innermost reason on HDF5's current error stack, e.g. "truncated file: eof = 1024, ...".
 std::string last_hdf5_reason();
+
+/// Longest string attribute a file may hold, in bytes (spec §1): bounds what a hostile file can make us allocate,
+/// and stays below HDF5's 64 KiB limit of a fixed-length attribute in an object header.
+inline constexpr size_t kMaxStringBytes = 60000;
+
+/// Most chunks a dataset may be split into (spec §1): 2^31 voxels in 16^3 chunks is 2^19; this leaves room.
+inline constexpr uint64_t kMaxChunks = uint64_t(1) << 22;
+
+/// Reads a scalar variable-length string attribute in a child process (see string_attribute for why). False, with
+/// the reason in `failure`, when the read failed, crashed or hung.
+bool read_variable_string_isolated(hid_t attr, hid_t file_type, std::string& value, std::string& failure);
 
 /// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
 std::string join_path(const std::string& group_path, const std::string& name);
@@ -129,6 +141,8 @@ class Reader {
                                        std::string& path);
   bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name, const std::string& path);
   bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
+  /// Filters and chunk grid of a dataset, checked before its data is decoded.
+  bool check_storage(hid_t dset, const std::vector<uint64_t>& dims, const std::string& path);
 
   std::string file_;
   std::vector<Issue>& issues_;

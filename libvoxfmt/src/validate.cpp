@@ -44,6 +44,11 @@ class Checker {
   std::vector<Issue>& issues_;
 };
 
+// Bounds of what a valid file may claim (spec §3): beyond them the numbers mean nothing physical and overflow
+// the checks that use them.
+constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;
+constexpr double kMaxDistanceBand = 32767;
+
 std::string fmt(double v) {
   std::ostringstream s;
   s << v;
@@ -55,13 +60,16 @@ void check_voxelmap(const Voxelmap& vm, Checker& c) {
   c.finite(vm.origin, g + "/@origin");
   if (!std::isfinite(vm.voxel_size))
     c.add(IssueCode::NonFiniteValue, g + "/@voxel_size", "voxel size is not finite");
-  else if (vm.voxel_size <= 0)
-    c.add(IssueCode::ValueOutOfRange, g + "/@voxel_size", "voxel size " + fmt(vm.voxel_size) + " is not > 0");
+  else if (!(vm.voxel_size >= kMinVoxelSize && vm.voxel_size <= kMaxVoxelSize))
+    c.add(IssueCode::ValueOutOfRange, g + "/@voxel_size",
+          "voxel size " + fmt(vm.voxel_size) + " m is outside the format's range [" + fmt(kMinVoxelSize) + ", " +
+              fmt(kMaxVoxelSize) + "] m");
   if (!std::isfinite(vm.distance_band))
     c.add(IssueCode::NonFiniteValue, g + "/@distance_band", "distance band is not finite");
-  else if (vm.distance_band < 1)
+  else if (!(vm.distance_band >= 1 && vm.distance_band <= kMaxDistanceBand))
     c.add(IssueCode::ValueOutOfRange, g + "/@distance_band",
-          "distance band " + fmt(vm.distance_band) + " voxels is < 1");
+          "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) +
+              "] (layers are 16-bit)");
   uint64_t count = 1;
   for (uint32_t d : vm.dims) count *= d;
   if (vm.dims[0] == 0 || vm.dims[1] == 0 || vm.dims[2] == 0 || count > 0x7fffffffull) {

@@ -384,7 +384,7 @@ def _numeric_dtype(code, byteorder):
     return np.dtype(byteorder + DTYPE_CODES[code])
 
 
-def write_fixture_h5py(path, *, values=None, dtypes=None, omit=(), string_mode="vlen", byteorder="<",
+def write_fixture_h5py(path, *, values=None, dtypes=None, omit=(), string_mode="fixed_nullterm", byteorder="<",
                        format_version=None, grid_layout="chunked", grid_chunks=(8, 8, 8), shuffle=True,
                        compression="gzip", fletcher32=False, optional=True, extra_objects=False, post=None):
     """Write the sphere fixture to `path` with h5py alone, following the spec's dtypes exactly.
@@ -393,7 +393,8 @@ def write_fixture_h5py(path, *, values=None, dtypes=None, omit=(), string_mode="
       values        {path: value} replacing fixture values (any shape; e.g. to corrupt data);
       dtypes        {path: numpy dtype string or "str"} overriding the stored dtype of one object;
       omit          paths not to write (a group path omits the group and everything in it);
-      string_mode   "vlen" (spec writer rule), "fixed_nullterm", "fixed_nullpad" (padded with extra NULs)
+      string_mode   "fixed_nullterm" (spec writer rule), "vlen" (files written before 2026-11), "fixed_nullpad"
+                    (padded with extra NULs)
                     or "fixed_nullpad_exact" (null-padded type of exactly the string length, no NUL);
       byteorder     "<" (spec writer rule) or ">" for big-endian numeric data and attributes;
       format_version shortcut for values["/format_version"];

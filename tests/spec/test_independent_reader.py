@@ -138,8 +138,8 @@ class SpecFileChecks(object):
             self.assertEqual(f["/voxelmap/layers"].shape, (sf.DIM, sf.DIM, sf.DIM))
             self.assertEqual(f["/voxelmap/distances"].shape, (sf.DIM, sf.DIM, sf.DIM))
 
-    def test_strings_are_variable_length_utf8_scalars(self):
-        """§1: writers MUST write variable-length, UTF-8 scalar strings."""
+    def test_strings_are_fixed_length_utf8_scalars(self):
+        """§1: writers MUST write fixed-length, null-terminated, UTF-8 scalar strings."""
         with self.open() as f:
             for path, kind, code, _shape, _required in sf.SPEC_OBJECTS:
                 if code != "str":
@@ -150,7 +150,8 @@ class SpecFileChecks(object):
                 aid = f[parent].attrs.get_id(name)
                 tid = aid.get_type()
                 self.assertEqual(tid.get_class(), h5py.h5t.STRING, "%s must be an HDF5 string" % path)
-                self.assertTrue(tid.is_variable_str(), "%s must be a variable-length string" % path)
+                self.assertFalse(tid.is_variable_str(), "%s must be a fixed-length string" % path)
+                self.assertEqual(tid.get_strpad(), h5py.h5t.STR_NULLTERM, "%s must be null-terminated" % path)
                 self.assertEqual(tid.get_cset(), h5py.h5t.CSET_UTF8, "%s must be UTF-8" % path)
                 self.assertEqual(aid.get_space().get_simple_extent_type(), h5py.h5s.SCALAR,
                                  "%s must be scalar" % path)
@@ -473,7 +474,8 @@ class SpecFileChecks(object):
                 continue
             if code == "str":
                 self.assertEqual(objects[path]["type"], "H5T_STRING", path)
-                self.assertIn("STRSIZE H5T_VARIABLE;", objects[path]["type_lines"], path)
+                self.assertNotIn("STRSIZE H5T_VARIABLE;", objects[path]["type_lines"], path)
+                self.assertIn("STRPAD H5T_STR_NULLTERM;", objects[path]["type_lines"], path)
                 self.assertIn("CSET H5T_CSET_UTF8;", objects[path]["type_lines"], path)
             else:
                 self.assertEqual(objects[path]["type"], sf.H5DUMP_TYPES[code], path)
@@ -635,6 +637,9 @@ class TestPythonToCpp(unittest.TestCase):
 
     def test_fixed_length_strings_null_terminated(self):
         self._accept("fixed_nullterm", string_mode="fixed_nullterm")
+
+    def test_variable_length_strings_of_older_files(self):
+        self._accept("vlen", string_mode="vlen")
 
     def test_fixed_length_strings_null_padded(self):
         self._accept("fixed_nullpad", string_mode="fixed_nullpad")

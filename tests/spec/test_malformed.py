@@ -367,5 +367,79 @@ class TestMalformedMore(MalformedBase):
             self.assertEqual(proc.returncode, 2, "usage error must exit 2\n" + describe(proc))
 
 
+@ss.requires_bin
+class TestHostile(MalformedBase):
+    """Damage that used to crash or mislead a reader (issue 15): the global heap of older files, sizes beyond
+    what the format allows, filters it does not name."""
+
+    def legacy_vlen_file(self, name):
+        """A file as written before 2026-11: variable-length strings, whose bytes live in HDF5's global heap."""
+        path = self.bad(name, string_mode="vlen")
+        with open(path, "rb") as fh:
+            data = fh.read()
+        heap = data.find(b"GCOL")
+        self.assertGreaterEqual(heap, 0, "the vlen fixture has no global heap collection")
+        return path, bytearray(data), heap
+
+    def test_damaged_global_heap_is_refused_without_a_crash(self):
+        """Flipped bytes in the heap collection's header and first objects (HDF5 1.10 reads out of bounds on
+        most of them: sizes, indices) are READ_FAILED or a finding, never a signal."""
+        _, data, heap = self.legacy_vlen_file("vlen_base")
+        hangs = {8, 9}  # the collection size: HDF5 loops; covered once below (it costs the reader's timeout)
+        refused = 0
+        for offset in [o for o in range(0, 64) if o not in hangs]:
+            damaged = bytearray(data)
+            damaged[heap + offset] ^= 0xFF
+            path = self.raw_file("heap_%d.vox.h5" % offset, bytes(damaged))
+            proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"])
+            self.assert_not_crashed(proc)
+            self.assertIn(proc.returncode, (0, 1), "offset %d\n%s" % (offset, describe(proc)))
+            refused += proc.returncode == 1
+        self.assertGreater(refused, 20, "too few damaged files refused: the test no longer damages the heap")
+
+    def test_damaged_global_heap_read_failed_in_validate_and_inspect(self):
+        _, data, heap = self.legacy_vlen_file("vlen_size")
+        data[heap + 26] ^= 0xFF  # the size of heap object 1: HDF5 1.10 reads far out of bounds (SIGSEGV)
+        path = self.raw_file("heap_object_size.vox.h5", bytes(data))
+        self.assert_rejected(path, "READ_FAILED", message_re="variable-length string")
+
+    def test_looping_global_heap_times_out(self):
+        _, data, heap = self.legacy_vlen_file("vlen_loop")
+        data[heap + 8] ^= 0xFF  # the collection's size: HDF5 1.10 never returns
+        path = self.raw_file("heap_loop.vox.h5", bytes(data))
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"], timeout=60)
+        self.assert_not_crashed(proc)
+        self.assertEqual(proc.returncode, 1, describe(proc))
+
+    def test_provenance_strings_longer_than_the_limit(self):
+        """A 5 MB variable-length string (older files), and a fixed-length one just above the spec's 60,000 bytes
+        (HDF5 cannot store a fixed-length attribute of 64 KiB in an object header)."""
+        for mode, size in (("vlen", 5 << 20), ("fixed_nullterm", 62000)):
+            path = self.bad("huge_string_" + mode, string_mode=mode,
+                            values={"/provenance/build_parameters": "{\"x\": \"%s\"}" % ("a" * size)})
+            self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="build_parameters")
+
+    def test_voxel_size_1e300_small(self):
+        path = self.bad("h_tiny", values={"/voxelmap/voxel_size": np.float64(1e-300)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="voxel_size")
+
+    def test_distance_band_1e30(self):
+        path = self.bad("band_huge", values={"/voxelmap/distance_band": np.float64(1e30)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="distance_band")
+
+    def test_filter_the_format_does_not_name(self):
+        path = self.bad("lzf", compression="lzf", shuffle=False)
+        self.assert_rejected(path, "READ_FAILED", path_contains="/voxelmap/", message_re="filter")
+
+    def test_one_voxel_chunks_over_a_huge_grid(self):
+        """2^30 voxels in 1-voxel chunks, none written: refused before HDF5 walks 2^30 chunks."""
+        def huge(f):
+            del f["/voxelmap/layers"]
+            f["/voxelmap"].create_dataset("layers", shape=(1024, 1024, 1024), dtype="<i2", chunks=(1, 1, 1))
+            f["/voxelmap"].attrs.create("dims", np.array([1024, 1024, 1024], dtype="<u4"))
+        path = self.bad("tiny_chunks", post=huge)
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="layers", message_re="chunks")
+
+
 if __name__ == "__main__":
     unittest.main()
