@@ -1,15 +1,10 @@
 #include "h5.h"
 
-#include <poll.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
-#include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <functional>
@@ -97,98 +92,6 @@ std::string last_hdf5_reason() {
 std::string join_path(const std::string& group_path, const std::string& name) {
   if (group_path.empty() || group_path == "/") return "/" + name;
   return group_path + "/" + name;
-}
-
-// ---------------------------------------------------------------- isolated variable-length strings
-
-namespace {
-
-bool write_all(int fd, const void* data, size_t size) {
-  const char* p = static_cast<const char*>(data);
-  while (size > 0) {
-    ssize_t n = ::write(fd, p, size);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return false;
-    p += n;
-    size -= size_t(n);
-  }
-  return true;
-}
-
-// Reads until EOF or `limit` bytes, waiting at most until `deadline`; false on timeout.
-bool read_until_eof(int fd, std::string& out, size_t limit, std::chrono::steady_clock::time_point deadline) {
-  char buffer[65536];
-  for (;;) {
-    const auto left =
-        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
-    if (left.count() <= 0) return false;
-    pollfd pfd{fd, POLLIN, 0};
-    int ready = ::poll(&pfd, 1, int(std::min<long long>(left.count(), 1000)));
-    if (ready < 0 && errno == EINTR) continue;
-    if (ready <= 0) continue;
-    ssize_t n = ::read(fd, buffer, sizeof buffer);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return true;
-    if (out.size() < limit) out.append(buffer, size_t(std::min<size_t>(size_t(n), limit - out.size())));
-  }
-}
-
-}  // namespace
-
-bool read_variable_string_isolated(hid_t attr, hid_t file_type, std::string& value, std::string& failure) {
-  Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
-  H5Tset_size(memtype.get(), H5T_VARIABLE);
-  H5Tset_cset(memtype.get(), H5Tget_cset(file_type));
-  int fds[2];
-  if (::pipe(fds) != 0) {
-    failure = std::string("cannot create a pipe to read a variable-length string: ") + std::strerror(errno);
-    return false;
-  }
-  std::fflush(nullptr);
-  const pid_t child = ::fork();
-  if (child < 0) {
-    ::close(fds[0]);
-    ::close(fds[1]);
-    failure = std::string("cannot start a process to read a variable-length string: ") + std::strerror(errno);
-    return false;
-  }
-  if (child == 0) {
-    // The child: read, send "status byte + bytes", leave without running the parent's exit handlers.
-    ::close(fds[0]);
-    char* buffer = nullptr;
-    const char status = H5Aread(attr, memtype.get(), &buffer) < 0 ? 1 : 0;
-    bool ok = write_all(fds[1], &status, 1);
-    if (status == 0 && buffer) ok = ok && write_all(fds[1], buffer, std::min(std::strlen(buffer), kMaxStringBytes + 1));
-    _exit(ok ? 0 : 3);
-  }
-  ::close(fds[1]);
-  std::string reply;
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-  const bool finished = read_until_eof(fds[0], reply, kMaxStringBytes + 2, deadline);
-  ::close(fds[0]);
-  if (!finished) ::kill(child, SIGKILL);
-  int status = 0;
-  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
-  }
-  if (!finished) {
-    failure = "variable-length string is damaged: HDF5's reader did not finish within 5 s";
-    return false;
-  }
-  if (WIFSIGNALED(status)) {
-    failure = "variable-length string is damaged: HDF5's reader died of signal " + std::to_string(WTERMSIG(status)) +
-              " (" + strsignal(WTERMSIG(status)) + ") reading it";
-    return false;
-  }
-  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || reply.empty()) {
-    failure = "cannot read variable-length string (the reading process failed)";
-    return false;
-  }
-  if (reply[0] != 0) {
-    failure = "cannot read variable-length string (HDF5 refused it: the file is damaged)";
-    return false;
-  }
-  value = reply.substr(1);
-  return true;
 }
 
 // ---------------------------------------------------------------- Reader
@@ -319,14 +222,18 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
   if (!check_shape(space.get(), {}, path, actual)) return std::nullopt;
 
   if (H5Tis_variable_str(type.get()) > 0) {
-    // Files written before 2026-11 hold variable-length strings, whose bytes live in HDF5's global heap. HDF5's
-    // heap reader trusts the file: a few damaged bytes make it read out of bounds or loop forever. So the read
-    // runs in a child process, and a child that dies or hangs becomes a finding instead of our crash.
-    std::string value, failure;
-    if (!read_variable_string_isolated(attr.get(), type.get(), value, failure)) {
-      report(IssueCode::ReadFailed, path, failure);
+    // Files written before 2026-11 hold variable-length strings, whose bytes live in HDF5's global heap (whose
+    // reader trusts the file: isolated_read.cpp).
+    Handle memtype(H5Tcopy(H5T_C_S1), H5Tclose);
+    H5Tset_size(memtype.get(), H5T_VARIABLE);
+    H5Tset_cset(memtype.get(), H5Tget_cset(type.get()));
+    char* buffer = nullptr;
+    if (H5Aread(attr.get(), memtype.get(), &buffer) < 0) {
+      report(IssueCode::ReadFailed, path, "cannot read attribute (" + last_hdf5_reason() + ")");
       return std::nullopt;
     }
+    std::string value = buffer ? buffer : "";
+    if (buffer) H5free_memory(buffer);
     if (value.size() > kMaxStringBytes) {
       report(IssueCode::ValueOutOfRange, path,
              "string of " + std::to_string(value.size()) + " bytes, more than the format's limit of " +

@@ -57,10 +57,6 @@ inline constexpr size_t kMaxStringBytes = 60000;
 /// Most chunks a dataset may be split into (spec §1): 2^31 voxels in 16^3 chunks is 2^19; this leaves room.
 inline constexpr uint64_t kMaxChunks = uint64_t(1) << 22;
 
-/// Reads a scalar variable-length string attribute in a child process (see string_attribute for why). False, with
-/// the reason in `failure`, when the read failed, crashed or hung.
-bool read_variable_string_isolated(hid_t attr, hid_t file_type, std::string& value, std::string& failure);
-
 /// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
 std::string join_path(const std::string& group_path, const std::string& name);
 

@@ -185,7 +185,7 @@ bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
 
 }  // namespace
 
-std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues) {
+std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
   if (!r.open()) return std::nullopt;
@@ -209,7 +209,7 @@ std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& iss
   return asset;
 }
 
-std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues) {
+std::optional<Provenance> load_provenance_in_process(const std::string& path, std::vector<Issue>& issues) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
   if (!r.open()) return std::nullopt;

@@ -401,7 +401,19 @@ class TestHostile(MalformedBase):
         _, data, heap = self.legacy_vlen_file("vlen_size")
         data[heap + 26] ^= 0xFF  # the size of heap object 1: HDF5 1.10 reads far out of bounds (SIGSEGV)
         path = self.raw_file("heap_object_size.vox.h5", bytes(data))
-        self.assert_rejected(path, "READ_FAILED", message_re="variable-length string")
+        self.assert_rejected(path, "READ_FAILED", message_re="damaged")
+
+    def test_damaged_attribute_message_is_refused_without_a_crash(self):
+        """A current file (fixed-length strings): the datatype size in the attribute message of /@format made
+        huge; HDF5 1.10 reads out of bounds decoding it (SIGSEGV), so only the isolated read stands between."""
+        path = self.bad("attr_message")
+        with open(path, "rb") as fh:
+            data = bytearray(fh.read())
+        name = data.find(b"format\0")
+        self.assertGreater(name, 8)
+        data[name - 3] ^= 0xFF  # high byte of the message's datatype size (version-1 attribute message)
+        path = self.raw_file("attr_message_damaged.vox.h5", bytes(data))
+        self.assert_rejected(path, ("READ_FAILED", "NOT_HDF5"))
 
     def test_looping_global_heap_times_out(self):
         _, data, heap = self.legacy_vlen_file("vlen_loop")

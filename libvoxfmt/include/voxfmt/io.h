@@ -31,6 +31,15 @@ struct WriteOptions {
 /// (the earlier file at `path`, if any, stays); a file that cannot be written is WRITE_FAILED.
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
 
+/// Reading a file parses it in a child process by default (POSIX): HDF5 1.10 crashes or hangs on some damaged
+/// files, and the child's death becomes a READ_FAILED error instead of the caller's. Costs a fork and a copy of
+/// the data through a pipe. Turn it off for trusted files, debuggers and fuzzers (in-process crashes are what a
+/// fuzzer looks for), or when another thread of the process may be inside HDF5 at the time of a read (a forked
+/// child cannot take HDF5's lock from it): set_read_isolation(false), or VOXFMT_READ_ISOLATION=0 in the
+/// environment. Not thread-safe; set it before reading.
+void set_read_isolation(bool enabled);
+bool read_isolation();
+
 /// Reads and structurally validates an asset. Any error-severity finding fails the read (its message names
 /// the file, the object and the reason); warnings (e.g. a newer minor version) go to `warnings` if given.
 Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr);

@@ -1,0 +1,381 @@
+// Reading untrusted files in a child process. HDF5 1.10 trusts the bytes of a file: damaged object headers,
+// attribute messages or global-heap collections make it read out of bounds (SIGSEGV) or loop forever, deep
+// inside its decoders, where no check of ours can intervene. So the parse runs in a forked child that sends
+// back what it read (findings and data) through a pipe; a child that dies or hangs becomes a READ_FAILED
+// finding instead of taking the caller down.
+#include <cerrno>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <new>
+#include <type_traits>
+
+#include "load.h"
+
+#if !defined(_WIN32)
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+#endif
+
+namespace voxfmt {
+
+namespace {
+bool isolation_from_environment() {
+  const char* value = std::getenv("VOXFMT_READ_ISOLATION");
+  return !(value && std::strcmp(value, "0") == 0);
+}
+bool g_isolation = isolation_from_environment();
+}  // namespace
+
+void set_read_isolation(bool enabled) { g_isolation = enabled; }
+bool read_isolation() { return g_isolation; }
+
+namespace detail {
+namespace {
+
+// ------------------------------------------------------------------ a minimal wire format (child -> parent)
+// Streamed through the pipe: arrays go straight from the child's vectors into the parent's, with no copy of
+// the whole asset on either side (a 300^3 grid is ~150 MB).
+
+#if !defined(_WIN32)
+class WireWriter {
+ public:
+  explicit WireWriter(int fd) : fd_(fd) {}
+  ~WireWriter() = default;
+  bool ok() const { return ok_; }
+  template <class T>
+  void pod(const T& value) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    put(&value, sizeof(T));
+  }
+  void text(const std::string& s) {
+    pod(uint64_t(s.size()));
+    put(s.data(), s.size());
+  }
+  template <class T>
+  void array(const std::vector<T>& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    pod(uint64_t(v.size()));
+    put(v.data(), v.size() * sizeof(T));
+  }
+  template <class T>
+  void maybe(const std::optional<T>& v) {
+    pod(uint8_t(v.has_value()));
+    if (v) pod(*v);
+  }
+  bool flush() {
+    if (ok_ && !buffer_.empty()) ok_ = write_all(buffer_.data(), buffer_.size());
+    buffer_.clear();
+    return ok_;
+  }
+
+ private:
+  void put(const void* data, size_t size) {
+    if (size >= kDirect) {
+      flush();
+      if (ok_) ok_ = write_all(static_cast<const char*>(data), size);
+      return;
+    }
+    buffer_.append(static_cast<const char*>(data), size);
+    if (buffer_.size() >= kDirect) flush();
+  }
+  bool write_all(const char* p, size_t size) {
+    while (size > 0) {
+      ssize_t n = ::write(fd_, p, size);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) return false;
+      p += n;
+      size -= size_t(n);
+    }
+    return true;
+  }
+  static constexpr size_t kDirect = 1 << 16;
+  int fd_;
+  std::string buffer_;
+  bool ok_ = true;
+};
+
+// Bounds-checked and deadline-bound: the bytes come from our own child, but a child that a hostile file
+// corrupted before it finished could send anything, or nothing.
+class WireReader {
+ public:
+  WireReader(int fd, std::chrono::steady_clock::time_point deadline) : fd_(fd), deadline_(deadline) {}
+  bool ok() const { return ok_; }
+  bool timed_out() const { return timed_out_; }
+  template <class T>
+  void pod(T& value) {
+    get(&value, sizeof(T));
+  }
+  void text(std::string& s) {
+    uint64_t n = 0;
+    pod(n);
+    if (!ok_ || n > kMaxElements) {
+      ok_ = false;
+      return;
+    }
+    s.resize(size_t(n));
+    get(s.data(), size_t(n));
+  }
+  template <class T>
+  void array(std::vector<T>& v) {
+    uint64_t n = 0;
+    pod(n);
+    if (!ok_ || n > kMaxElements) {
+      ok_ = false;
+      return;
+    }
+    v.resize(size_t(n));
+    get(v.data(), size_t(n) * sizeof(T));
+  }
+  template <class T>
+  void maybe(std::optional<T>& v) {
+    uint8_t present = 0;
+    pod(present);
+    if (present) {
+      T value{};
+      pod(value);
+      v = value;
+    } else {
+      v.reset();
+    }
+  }
+
+ private:
+  // The format allows 2^31 elements per dataset (h5.cpp); anything more is not an asset.
+  static constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+  void get(void* data, size_t size) {
+    char* p = static_cast<char*>(data);
+    while (ok_ && size > 0) {
+      const auto left =
+          std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - std::chrono::steady_clock::now()).count();
+      if (left <= 0) {
+        ok_ = false;
+        timed_out_ = true;
+        return;
+      }
+      pollfd pfd{fd_, POLLIN, 0};
+      if (::poll(&pfd, 1, int(std::min<long long>(left, 1000))) <= 0) continue;
+      const ssize_t n = ::read(fd_, p, size);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        ok_ = false;  // the child closed the pipe early (it died, or sent less than it announced)
+        return;
+      }
+      p += n;
+      size -= size_t(n);
+    }
+  }
+  int fd_;
+  std::chrono::steady_clock::time_point deadline_;
+  bool ok_ = true;
+  bool timed_out_ = false;
+};
+
+// One visitor for both directions keeps the two in step: every field is named once.
+template <class Wire, class P>
+void visit_provenance(Wire& w, P& p) {
+  w.text(p.generator);
+  w.text(p.generator_version);
+  w.text(p.source_file);
+  w.text(p.source_sha256);
+  w.text(p.build_parameters_json);
+  w.text(p.created_utc);
+}
+
+void put_provenance(WireWriter& w, const Provenance& p) {
+  visit_provenance(w, p);
+  w.pod(uint64_t(p.dependency_versions.size()));
+  for (const auto& [name, version] : p.dependency_versions) {
+    w.text(name);
+    w.text(version);
+  }
+  w.pod(uint64_t(p.build_warnings.size()));
+  for (const BuildWarning& warning : p.build_warnings) {
+    w.text(warning.code);
+    w.text(warning.message);
+  }
+}
+
+void get_provenance(WireReader& r, Provenance& p) {
+  visit_provenance(r, p);
+  uint64_t n = 0;
+  r.pod(n);
+  for (uint64_t i = 0; r.ok() && i < n; ++i) {
+    std::string name, version;
+    r.text(name);
+    r.text(version);
+    p.dependency_versions[name] = version;
+  }
+  r.pod(n);
+  for (uint64_t i = 0; r.ok() && i < n; ++i) {
+    BuildWarning warning;
+    r.text(warning.code);
+    r.text(warning.message);
+    p.build_warnings.push_back(std::move(warning));
+  }
+}
+
+template <class Wire, class A>
+void visit_asset_data(Wire& w, A& a) {
+  w.pod(a.version);
+  w.text(a.up_axis);
+  w.pod(a.bounds_min);
+  w.pod(a.bounds_max);
+  auto& vm = a.voxelmap;
+  w.pod(vm.origin);
+  w.pod(vm.voxel_size);
+  w.pod(vm.dims);
+  w.pod(vm.distance_band);
+  w.maybe(vm.margin);
+  w.maybe(vm.shell_thickness);
+  w.array(vm.layers);
+  w.array(vm.distances);
+  auto& ps = a.point_shell;
+  w.array(ps.points);
+  w.array(ps.normals);
+  w.array(ps.sphere_centers);
+  w.array(ps.sphere_radii);
+  w.array(ps.child_begin);
+  w.array(ps.child_count);
+  w.array(ps.level_offsets);
+  w.maybe(ps.point_spacing);
+  w.maybe(ps.branching);
+  w.pod(a.mass);
+}
+
+void put_issues(WireWriter& w, const std::vector<Issue>& issues) {
+  w.pod(uint64_t(issues.size()));
+  for (const Issue& issue : issues) {
+    w.pod(issue.code);
+    w.pod(issue.severity);
+    w.text(issue.path);
+    w.text(issue.message);
+  }
+}
+
+bool get_issues(WireReader& r, std::vector<Issue>& issues) {
+  uint64_t n = 0;
+  r.pod(n);
+  for (uint64_t i = 0; r.ok() && i < n; ++i) {
+    Issue issue{};
+    r.pod(issue.code);
+    r.pod(issue.severity);
+    r.text(issue.path);
+    r.text(issue.message);
+    issues.push_back(std::move(issue));
+  }
+  return r.ok();
+}
+
+// ------------------------------------------------------------------ the child process
+
+// Reads `path` with `read` in a child process that streams the result back; `receive` decodes it. Returns the
+// value (with the child's findings appended to `issues`), or nothing with a READ_FAILED finding when the child
+// died, hung or sent something malformed.
+template <class Value, class ReadInProcess, class Put, class Get>
+std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& issues, ReadInProcess&& read, Put&& put,
+                                   Get&& get) {
+  if (!read_isolation()) return read(path, issues);
+  auto refuse = [&](const std::string& why) {
+    issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/", why});
+    return std::nullopt;
+  };
+  // Generous for a real read (seconds per 100 MB), short enough that a looping parse ends.
+  std::error_code ec;
+  const auto file_size = std::filesystem::file_size(path, ec);
+  const double limit_s = 5.0 + (ec ? 0.0 : double(file_size) / 20e6);
+  int fds[2];
+  if (::pipe(fds) != 0)
+    return refuse(std::string("cannot create a pipe for the isolated read: ") + std::strerror(errno));
+  std::fflush(nullptr);
+  const pid_t child = ::fork();
+  if (child < 0) {
+    ::close(fds[0]);
+    ::close(fds[1]);
+    return refuse(std::string("cannot start the isolated read: ") + std::strerror(errno));
+  }
+  if (child == 0) {
+    ::close(fds[0]);
+    bool ok = false;
+    try {
+      std::vector<Issue> found;
+      std::optional<Value> value = read(path, found);
+      WireWriter w(fds[1]);
+      put_issues(w, found);
+      w.pod(uint8_t(value.has_value()));
+      if (value) put(w, *value);
+      ok = w.flush();
+    } catch (...) {
+    }
+    _exit(ok ? 0 : 3);  // none of the parent's exit handlers
+  }
+  ::close(fds[1]);
+  WireReader r(fds[0],
+               std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                      std::chrono::duration<double>(limit_s)));
+  std::vector<Issue> found;
+  std::optional<Value> value;
+  bool out_of_memory = false;
+  try {
+    uint8_t present = 0;
+    if (get_issues(r, found)) r.pod(present);
+    if (r.ok() && present) {
+      value.emplace();
+      get(r, *value);
+    }
+  } catch (const std::bad_alloc&) {
+    out_of_memory = true;
+  }
+  ::close(fds[0]);
+  if (!r.ok() || out_of_memory) ::kill(child, SIGKILL);
+  int status = 0;
+  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  }
+  if (out_of_memory) return refuse("not enough memory to read the asset");
+  if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) {
+    issues.insert(issues.end(), found.begin(), found.end());
+    return value;
+  }
+  if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL)
+    return refuse("the file is damaged: HDF5 died of signal " + std::to_string(WTERMSIG(status)) + " (" +
+                  strsignal(WTERMSIG(status)) + ") reading it (read in isolation: nothing else was affected)");
+  if (r.timed_out())
+    return refuse("the file is damaged: HDF5 did not finish reading it within " + std::to_string(int(limit_s)) +
+                  " s (read in isolation, stopped)");
+  return refuse("the isolated read failed (out of memory, or it sent back malformed data)");
+}
+#endif  // !_WIN32
+
+}  // namespace
+
+std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues) {
+#if defined(_WIN32)
+  return load_asset_in_process(path, issues);
+#else
+  return read_isolated<Asset>(
+      path, issues, load_asset_in_process,
+      [](WireWriter& w, const Asset& a) {
+        visit_asset_data(w, a);
+        put_provenance(w, a.provenance);
+      },
+      [](WireReader& r, Asset& a) {
+        visit_asset_data(r, a);
+        get_provenance(r, a.provenance);
+      });
+#endif
+}
+
+std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues) {
+#if defined(_WIN32)
+  return load_provenance_in_process(path, issues);
+#else
+  return read_isolated<Provenance>(path, issues, load_provenance_in_process, put_provenance, get_provenance);
+#endif
+}
+
+}  // namespace detail
+}  // namespace voxfmt
