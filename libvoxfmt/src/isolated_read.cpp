@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
 #include <new>
 #include <type_traits>
 
@@ -280,6 +281,10 @@ template <class Value, class ReadInProcess, class Put, class Get>
 std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& issues, ReadInProcess&& read, Put&& put,
                                    Get&& get) {
   if (!read_isolation()) return read(path, issues);
+  // One isolated read at a time in this process: a child forked while another of our threads is inside HDF5
+  // would wait forever for HDF5's lock, which that thread holds in the parent only.
+  static std::mutex one_at_a_time;
+  std::lock_guard<std::mutex> lock(one_at_a_time);
   auto refuse = [&](const std::string& why) {
     issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/", why});
     return std::nullopt;

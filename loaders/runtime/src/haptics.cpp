@@ -1,0 +1,217 @@
+#include "voxfmt/runtime/haptics.h"
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+namespace voxfmt::runtime {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+
+Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& w) {
+  const double angle = w.norm();
+  if (angle < 1e-12) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+}
+
+Eigen::Vector3d saturate(const Eigen::Vector3d& v, double limit) {
+  const double n = v.norm();
+  return n > limit && n > 0 ? Eigen::Vector3d(v * (limit / n)) : v;
+}
+
+}  // namespace
+
+Eigen::Vector3d rotation_vector(const Eigen::Matrix3d& rotation) {
+  const Eigen::AngleAxisd aa(rotation);
+  double angle = aa.angle();
+  Eigen::Vector3d axis = aa.axis();
+  if (angle > M_PI) {
+    angle = 2 * M_PI - angle;
+    axis = -axis;
+  }
+  return axis * angle;
+}
+
+HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
+                               const HapticParameters& parameters)
+    : tool_(std::move(tool)), parameters_(parameters), tool_pose_(start), level_cap_(parameters.query.max_level) {
+  if (!tool_ || !tool_->has_point_shell()) throw std::invalid_argument("HapticRenderer: the tool needs a point shell");
+  if (!(parameters_.tool_mass > 0)) throw std::invalid_argument("HapticRenderer: tool_mass must be > 0");
+  const double volume = tool_->volume() > 0 ? tool_->volume() : 1.0;
+  const double s = start.scale;
+  // Unit-density inertia scales with length^5; the mass is fixed, so the density is mass / (s^3 volume).
+  inertia_body_ = tool_->inertia_unit_density() * (s * s * parameters_.tool_mass / volume);
+  if (!(inertia_body_.determinant() > 0)) {
+    // A shell-mode or degenerate asset: a solid sphere of the bounding radius keeps the simulation well-posed.
+    const double r = std::max(tool_->bounding_radius() * s, 1e-3);
+    inertia_body_ = Eigen::Matrix3d::Identity() * (0.4 * parameters_.tool_mass * r * r);
+  }
+  contacts_.reserve(1024);
+  scratch_set_.contacts.reserve(1024);
+}
+
+size_t HapticRenderer::add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose) {
+  if (!object || !object->has_voxelmap()) throw std::invalid_argument("HapticRenderer: an object needs a voxelmap");
+  objects_.push_back({std::move(object), pose});
+  return objects_.size() - 1;
+}
+
+void HapticRenderer::set_object_pose(size_t index, const Pose& pose) { objects_.at(index).pose = pose; }
+
+double HapticRenderer::kinetic_energy(const Eigen::Matrix3d& rotation) const {
+  const Eigen::Matrix3d inertia_world = rotation * inertia_body_ * rotation.transpose();
+  return 0.5 * parameters_.tool_mass * velocity_.squaredNorm() +
+         0.5 * angular_velocity_.dot(inertia_world * angular_velocity_);
+}
+
+void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
+  // The tool's points in every object's voxelmap; the budget is shared by the queries left.
+  const auto start = Clock::now();
+  contacts_.clear();
+  QueryOptions options = parameters_.query;
+  options.direction = QueryDirection::APointsInB;
+  options.normal_source = NormalSource::PointShell;
+  options.max_level = std::min(options.max_level, level_cap_);
+  options.time_budget_us = 0.0;
+  cycle_.levels_completed = objects_.empty() ? 0 : std::numeric_limits<uint32_t>::max();
+  for (size_t i = 0; i < objects_.size(); ++i) {
+    if (budget_us > 0) {
+      const double spent = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
+      options.time_budget_us = std::max(1e-3, (budget_us - spent) / double(objects_.size() - i));
+    }
+    scratch_set_.clear();
+    query_contacts(*tool_, tool_pose, *objects_[i].object, objects_[i].pose, options, scratch_set_, scratch_);
+    const QueryStats& stats = scratch_set_.stats;
+    cycle_.levels_completed = std::min(cycle_.levels_completed, stats.deepest_level);
+    cycle_.points_tested += stats.points_tested;
+    cycle_.nodes_visited += stats.nodes_visited;
+    cycle_.time_budget_hit |= stats.time_budget_hit;
+    for (const Contact& c : scratch_set_.contacts)
+      if (c.depth > 0) contacts_.push_back(c);
+  }
+}
+
+Wrench HapticRenderer::contact_wrench_at(const Pose& tool_pose) {
+  cycle_ = HapticCycle{};
+  gather_contacts(tool_pose, 0.0);
+  const Eigen::Vector3d com = tool_pose.apply(tool_->center_of_mass());
+  Wrench w;
+  for (const Contact& c : contacts_) {
+    const Eigen::Vector3d f = parameters_.contact_stiffness * c.depth * c.normal;
+    w.force += f;
+    w.torque += (c.point - com).cross(f);
+  }
+  return w;
+}
+
+const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
+  const HapticParameters& p = parameters_;
+  cycle_ = HapticCycle{};
+  const Eigen::Vector3d com_asset = tool_->center_of_mass();
+  const Eigen::Vector3d com = tool_pose_.apply(com_asset);
+
+  const auto start = Clock::now();
+  gather_contacts(tool_pose_, p.time_budget_us);
+  cycle_.query_us = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
+  if (p.time_budget_us > 0) {
+    if (cycle_.time_budget_hit) {
+      level_cap_ = cycle_.levels_completed;
+      relaxed_cycles_ = 0;
+    } else if (cycle_.query_us < 0.5 * p.time_budget_us && level_cap_ != p.query.max_level) {
+      if (++relaxed_cycles_ >= 1000) {
+        const bool deepest = size_t(level_cap_) + 2 >= tool_->point_tree().level_count();
+        level_cap_ = deepest ? p.query.max_level : level_cap_ + 1;
+        relaxed_cycles_ = 0;
+      }
+    } else {
+      relaxed_cycles_ = 0;
+    }
+  }
+
+  // --- contact wrench (about the centre of mass) and its stiffness and damping, for the implicit step.
+  Matrix6d contact_stiffness = Matrix6d::Zero();
+  Vector6d contact_wrench = Vector6d::Zero();
+  double contact_energy = 0.0;
+  for (const Contact& c : contacts_) {
+    Vector6d j;  // generalized direction of the point's normal: [n, r x n]
+    j.head<3>() = c.normal;
+    j.tail<3>() = (c.point - com).cross(c.normal);
+    contact_wrench += (p.contact_stiffness * c.depth) * j;
+    contact_stiffness += j * j.transpose();
+    contact_energy += 0.5 * p.contact_stiffness * c.depth * c.depth;
+    cycle_.max_penetration = std::max(cycle_.max_penetration, c.depth);
+  }
+  cycle_.contacts = contacts_.size();
+  cycle_.contact_wrench.force = contact_wrench.head<3>();
+  cycle_.contact_wrench.torque = contact_wrench.tail<3>();
+
+  // --- coupling: spring from the tool to the device's pose of the tool, damping on relative velocity.
+  const Eigen::Vector3d device_com = device_pose.apply(com_asset);
+  Eigen::Vector3d device_velocity = Eigen::Vector3d::Zero(), device_angular_velocity = Eigen::Vector3d::Zero();
+  if (have_last_device_ && dt > 0) {
+    device_velocity = (device_com - last_device_pose_.apply(com_asset)) / dt;
+    device_angular_velocity = rotation_vector(device_pose.rotation * last_device_pose_.rotation.transpose()) / dt;
+  }
+  last_device_pose_ = device_pose;
+  have_last_device_ = true;
+  const Eigen::Vector3d coupling_stretch = device_com - com;
+  const Eigen::Vector3d coupling_twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
+  energy_ = kinetic_energy(tool_pose_.rotation) + contact_energy +
+            0.5 * p.coupling_stiffness * coupling_stretch.squaredNorm() +
+            0.5 * p.coupling_angular_stiffness * coupling_twist.squaredNorm();
+  const Eigen::Vector3d coupling_force = saturate(
+      p.coupling_stiffness * coupling_stretch + p.coupling_damping * (device_velocity - velocity_), p.max_force);
+  const Eigen::Vector3d coupling_torque =
+      saturate(p.coupling_angular_stiffness * coupling_twist +
+                   p.coupling_angular_damping * (device_angular_velocity - angular_velocity_),
+               p.max_torque);
+  cycle_.device_wrench.force = -coupling_force;
+  cycle_.device_wrench.torque = -coupling_torque;
+
+  // --- implicit Euler: (M + dt D + dt^2 K) v' = M v + dt (F(x, v) + D v), with K and D the linearised
+  // stiffness and damping of the coupling and the contacts. Unconditionally stable for these linear springs.
+  const Eigen::Matrix3d rot = tool_pose_.rotation;
+  Matrix6d mass = Matrix6d::Zero();
+  mass.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() * p.tool_mass;
+  mass.bottomRightCorner<3, 3>() = rot * inertia_body_ * rot.transpose();
+  Matrix6d damping = p.contact_damping * contact_stiffness;
+  Matrix6d stiffness = p.contact_stiffness * contact_stiffness;
+  const bool force_saturated = coupling_force.norm() >= p.max_force * (1 - 1e-9);
+  const bool torque_saturated = coupling_torque.norm() >= p.max_torque * (1 - 1e-9);
+  if (!force_saturated) {  // a saturated spring no longer stiffens with the stretch
+    damping.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_damping;
+    stiffness.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_stiffness;
+  }
+  if (!torque_saturated) {
+    damping.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_damping;
+    stiffness.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_stiffness;
+  }
+  Vector6d velocity;
+  velocity << velocity_, angular_velocity_;
+  Vector6d force = contact_wrench;
+  force.head<3>() += coupling_force;
+  force.tail<3>() += coupling_torque;
+  // The contact damping is not in `force`, only in the implicit matrix: add its explicit part back so the
+  // linearisation is consistent (F_damp(v') = -D_contact v').
+  const Vector6d rhs = mass * velocity + dt * (force + (damping - p.contact_damping * contact_stiffness) * velocity);
+  const Matrix6d system = mass + dt * damping + dt * dt * stiffness;
+  const Vector6d next = system.ldlt().solve(rhs);
+  velocity_ = next.head<3>();
+  angular_velocity_ = next.tail<3>();
+
+  // --- advance the pose about the centre of mass.
+  const Eigen::Vector3d next_com = com + dt * velocity_;
+  tool_pose_.rotation = exp_rotation(dt * angular_velocity_) * rot;
+  tool_pose_.translation = next_com - tool_pose_.rotation * (tool_pose_.scale * com_asset);
+  return cycle_;
+}
+
+}  // namespace voxfmt::runtime
