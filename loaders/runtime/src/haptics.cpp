@@ -55,7 +55,14 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
     inertia_body_ = Eigen::Matrix3d::Identity() * (0.4 * parameters_.tool_mass * r * r);
   }
   contacts_.reserve(1024);
+  weights_.reserve(1024);
   scratch_set_.contacts.reserve(1024);
+  // Breadth-first order puts children after parents: one backward pass sums the subtrees.
+  const PointTree& tree = tool_->point_tree();
+  subtree_size_.assign(tree.size(), 1);
+  for (size_t n = tree.size(); n-- > 0;)
+    for (uint32_t c = tree.child_begin[n]; c < tree.child_begin[n] + tree.child_count[n]; ++c)
+      subtree_size_[n] += subtree_size_[c];
 }
 
 size_t HapticRenderer::add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose) {
@@ -76,9 +83,13 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
   // The tool's points in every object's voxelmap; the budget is shared by the queries left.
   const auto start = Clock::now();
   contacts_.clear();
+  weights_.clear();
+  const PointTree& tree = tool_->point_tree();
+  const uint32_t leaf_level = uint32_t(tree.level_count() - 1);
   QueryOptions options = parameters_.query;
   options.direction = QueryDirection::APointsInB;
   options.normal_source = NormalSource::PointShell;
+  options.cut_level = CutLevel::Points;
   options.max_level = std::min(options.max_level, level_cap_);
   options.time_budget_us = 0.0;
   cycle_.levels_completed = objects_.empty() ? 0 : std::numeric_limits<uint32_t>::max();
@@ -94,8 +105,16 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
     cycle_.points_tested += stats.points_tested;
     cycle_.nodes_visited += stats.nodes_visited;
     cycle_.time_budget_hit |= stats.time_budget_hit;
-    for (const Contact& c : scratch_set_.contacts)
-      if (c.depth > 0) contacts_.push_back(c);
+    // A point of the last level tested whose children were not reached stands for its whole subtree.
+    const uint32_t cut = stats.deepest_level;
+    const uint32_t cut_begin = tree.level_offsets[std::min(cut, leaf_level)];
+    const uint32_t cut_end = tree.level_offsets[std::min(cut, leaf_level) + 1];
+    for (const Contact& c : scratch_set_.contacts) {
+      if (c.depth <= 0) continue;
+      const bool stands_for_subtree = cut < leaf_level && c.point_index >= cut_begin && c.point_index < cut_end;
+      contacts_.push_back(c);
+      weights_.push_back(stands_for_subtree ? double(subtree_size_[c.point_index]) : 1.0);
+    }
   }
 }
 
@@ -104,8 +123,9 @@ Wrench HapticRenderer::contact_wrench_at(const Pose& tool_pose) {
   gather_contacts(tool_pose, 0.0);
   const Eigen::Vector3d com = tool_pose.apply(tool_->center_of_mass());
   Wrench w;
-  for (const Contact& c : contacts_) {
-    const Eigen::Vector3d f = parameters_.contact_stiffness * c.depth * c.normal;
+  for (size_t i = 0; i < contacts_.size(); ++i) {
+    const Contact& c = contacts_[i];
+    const Eigen::Vector3d f = parameters_.contact_stiffness * weights_[i] * c.depth * c.normal;
     w.force += f;
     w.torque += (c.point - com).cross(f);
   }
@@ -122,13 +142,18 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   gather_contacts(tool_pose_, p.time_budget_us);
   cycle_.query_us = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
   if (p.time_budget_us > 0) {
+    // Out of time: one level shallower (or the level completed, if deeper), so a single late cycle (the
+    // kernel, another process) costs one level for a while, not the whole tree. Back one level deeper after
+    // 100 cycles in less than half the budget.
+    const PointTree& tree = tool_->point_tree();
+    const uint32_t leaf_level = uint32_t(tree.level_count() - 1);
+    const uint32_t effective = std::min(level_cap_, leaf_level);
     if (cycle_.time_budget_hit) {
-      level_cap_ = cycle_.levels_completed;
+      level_cap_ = std::max(cycle_.levels_completed, effective > 0 ? effective - 1 : 0);
       relaxed_cycles_ = 0;
-    } else if (cycle_.query_us < 0.5 * p.time_budget_us && level_cap_ != p.query.max_level) {
-      if (++relaxed_cycles_ >= 1000) {
-        const bool deepest = size_t(level_cap_) + 2 >= tool_->point_tree().level_count();
-        level_cap_ = deepest ? p.query.max_level : level_cap_ + 1;
+    } else if (cycle_.query_us < 0.5 * p.time_budget_us && effective < leaf_level) {
+      if (++relaxed_cycles_ >= 100) {
+        level_cap_ = effective + 1 >= leaf_level ? p.query.max_level : effective + 1;
         relaxed_cycles_ = 0;
       }
     } else {
@@ -140,13 +165,15 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   Matrix6d contact_stiffness = Matrix6d::Zero();
   Vector6d contact_wrench = Vector6d::Zero();
   double contact_energy = 0.0;
-  for (const Contact& c : contacts_) {
+  for (size_t i = 0; i < contacts_.size(); ++i) {
+    const Contact& c = contacts_[i];
+    const double weight = weights_[i];
     Vector6d j;  // generalized direction of the point's normal: [n, r x n]
     j.head<3>() = c.normal;
     j.tail<3>() = (c.point - com).cross(c.normal);
-    contact_wrench += (p.contact_stiffness * c.depth) * j;
-    contact_stiffness += j * j.transpose();
-    contact_energy += 0.5 * p.contact_stiffness * c.depth * c.depth;
+    contact_wrench += (p.contact_stiffness * weight * c.depth) * j;
+    contact_stiffness += weight * j * j.transpose();
+    contact_energy += 0.5 * p.contact_stiffness * weight * c.depth * c.depth;
     cycle_.max_penetration = std::max(cycle_.max_penetration, c.depth);
   }
   cycle_.contacts = contacts_.size();

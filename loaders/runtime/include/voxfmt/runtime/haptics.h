@@ -30,7 +30,7 @@ namespace voxfmt::runtime {
 /// implicit (backward Euler, linearised contact stiffness): it is stable for any stiffness and time step, and
 /// dissipates rather than creates energy.
 struct HapticParameters {
-  double contact_stiffness = 100.0;         ///< N/m per penetrating point (the seed's per-point penalty)
+  double contact_stiffness = 500.0;         ///< N/m per penetrating point (the seed's per-point penalty)
   double contact_damping = 0.05;            ///< N s/m per penetrating point, on its normal velocity
   double coupling_stiffness = 1000.0;       ///< N/m, tool to device
   double coupling_damping = 5.0;            ///< N s/m, on the tool's velocity relative to the device's
@@ -88,10 +88,13 @@ class HapticRenderer {
   double energy() const { return energy_; }
   /// Contacts of the last cycle (all objects, world frame, normals pushing the tool out).
   const std::vector<Contact>& contacts() const { return contacts_; }
-  /// The tree level the renderer stops at. With a time budget, a cycle that runs out of time sets it to the
-  /// deepest level completed in time, and it moves one level deeper only after 1000 cycles that used less than
-  /// half the budget: the cut, and with it the force, changes rarely instead of flickering between levels
-  /// (a cut level's sphere depths exceed the leaves' by up to the level's sphere diameter).
+  /// The tree level the renderer stops at. Every point of the tool is a surface point (the tree's levels are
+  /// disjoint subsets of the shell), so a traversal cut at level L reports the points of levels 0..L that
+  /// penetrate; each penetrating point of level L whose children were not reached counts with the weight of its
+  /// subtree (the points it stands for), so the force keeps its size when the cut moves. With a time budget, a
+  /// cycle that runs out of time moves the cap one level up (or to the level it completed, if deeper); it moves
+  /// one level down after 100 cycles that used less than half the budget. So the cut changes rarely instead of
+  /// flickering between levels, and a single late cycle costs one level for a tenth of a second at 1 kHz.
   uint32_t level_cap() const { return level_cap_; }
   const HapticParameters& parameters() const { return parameters_; }
 
@@ -117,6 +120,8 @@ class HapticRenderer {
   ContactSet scratch_set_;
   QueryScratch scratch_;
   std::vector<Contact> contacts_;
+  std::vector<double> weights_;         ///< per contact: the points it stands for (its subtree at a cut)
+  std::vector<uint32_t> subtree_size_;  ///< per tree node: itself and all its descendants
   HapticCycle cycle_;
 };
 
