@@ -143,7 +143,7 @@ def test_bake_summary_and_progress(sphere_mesh: Path, tmp_path: Path) -> None:
         pass
 
     def stop(stage: str, fraction: float) -> None:
-        if stage == "voxelmap":
+        if stage == "repair":
             raise Stop(stage)
 
     with pytest.raises(Stop):
