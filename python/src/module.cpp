@@ -224,9 +224,15 @@ Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
   const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
-  Contacts out;
+  // The traversal fills a per-thread set that keeps its capacity; the result gets one allocation of the exact
+  // size (a fresh vector grown contact by contact cost more than the copy).
   thread_local runtime::QueryScratch scratch;
-  runtime::query_contacts(*a.object, pa, *b.object, pb, options, out.set, scratch);
+  thread_local ContactSet work;
+  work.clear();
+  runtime::query_contacts(*a.object, pa, *b.object, pb, options, work, scratch);
+  Contacts out;
+  out.set.contacts.assign(work.contacts.begin(), work.contacts.end());
+  out.set.stats = work.stats;
   out.reference = pa.apply(a.object->center_of_mass());
   return out;
 }
