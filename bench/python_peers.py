@@ -461,8 +461,22 @@ def batch_scaling(bunny: voxfmt.Body, poses_a: np.ndarray, poses_b: np.ndarray, 
 # ------------------------------------------------------------------------------------------------ main
 
 
+def peer_version(module: str) -> str | None:
+    if importlib.util.find_spec(module) is None:
+        return None
+    from importlib import metadata
+
+    distribution = {"fcl": "python-fcl"}.get(module, module)
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
 def markdown(report: dict[str, Any]) -> str:
-    lines = [f"# voxfmt from Python and its peers ({report['machine']})", "", f"Command: `{report['command']}`", ""]
+    lines = [f"# voxfmt from Python and its peers ({report['machine']})", "", f"Command: `{report['command']}`",
+             "", f"Load average at the start: {report['load_average_at_start']} (the machine is shared; "
+             "times are wall-clock per call).", ""]
     if report.get("overhead"):
         lines += ["## contacts() overhead above the C++ call", "",
                   "| scenario | query | poses | Python µs | C++ µs | overhead µs (median) | overhead µs (p90) |",
@@ -532,6 +546,9 @@ def main() -> int:
         "command": " ".join([Path(sys.argv[0]).as_posix()] + sys.argv[1:]),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
         "voxfmt": voxfmt.__version__,
+        "voxfmt_module": os.path.relpath(voxfmt.__file__),
+        "load_average_at_start": list(os.getloadavg()),
+        "peer_versions": {name: peer_version(name) for name in ("coal", "fcl", "mujoco", "trimesh")},
         "scenarios": {s.name: s.description for s in scenarios},
     }
     if "overhead" in parts:
