@@ -255,9 +255,11 @@ std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrenc
 // ---------------------------------------------------------------------------------------------------------------
 // contacts_batch: K pose pairs on worker threads, the GIL released, outputs allocated once.
 
-nb::dict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
-                        std::optional<int64_t> threads, bool with_contacts, double stiffness,
-                        std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity) {
+using BatchDict = nb::typed<nb::dict, nb::str, nb::any>;
+
+BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
+                         std::optional<int64_t> threads, bool with_contacts, double stiffness,
+                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity) {
   const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
   if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
@@ -314,7 +316,7 @@ nb::dict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::ha
   for (const std::exception_ptr& e : errors)
     if (e) std::rethrow_exception(e);
 
-  nb::dict out;
+  BatchDict out;
   out["count"] = count.array;
   out["max_depth"] = max_depth.array;
   out["force"] = force.array;

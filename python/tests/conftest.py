@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 import voxfmt
@@ -76,7 +77,7 @@ def translation(x: float = 0.0, y: float = 0.0, z: float = 0.0) -> np.ndarray:
     return pose
 
 
-def rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+def rotation(axis: npt.ArrayLike, angle: float) -> np.ndarray:
     """4x4 rotation about a unit axis (Rodrigues)."""
     k = np.asarray(axis, float) / np.linalg.norm(axis)
     kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])

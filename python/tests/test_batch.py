@@ -30,6 +30,7 @@ def test_batch_equals_single_calls(sphere: voxfmt.Body, threads: int) -> None:
                                   stiffness=stiffness)
     assert len(batch) == 40 and batch.count.dtype == np.int64 and batch.force.shape == (40, 3)
     assert batch.offsets is not None and batch.points is not None and batch.depths is not None
+    assert batch.point_index is not None
     assert batch.offsets[0] == 0 and batch.offsets[-1] == len(batch.points)
     assert 5 < np.count_nonzero(batch.count) < 40  # the poses include both cases
     for k in range(40):
