@@ -9,8 +9,9 @@ Parts (``--parts``, default all):
             voxfmt._voxfmt._time_query: one scratch, no Python in between)
   batch     contacts_batch on bunny-on-bunny poses, 1 thread vs 2 (and more with --threads)
   peers     per pair, on the same relative poses: voxfmt fine and coarse, Coal and python-fcl (mesh-mesh BVH
-            collide, all contacts with penetration depth), MuJoCo (mj_collision on a two-body model); contacts
-            found and depth error where the depth is known by construction (the tori)
+            collide, all contacts with penetration depth), MuJoCo (mj_collision on a two-body model: mesh geoms,
+            which it collides through their convex hulls, and for the tori its analytic torus SDF plugin);
+            contacts found and depth error where the depth is known by construction (the tori)
 
 Scenarios (mesh frames, metres; the same constructions as bench/vps_bench/scenarios.cpp):
   bunny-bunny   CGAL's bunny00.off scaled to 0.15 m, two of them: B approaches A from a random direction in a
