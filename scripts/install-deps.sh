@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Installs every Debian package the project needs. Safe to run twice: it runs
-# `apt-get update` only when something is missing and installs only what is missing.
+# Installs every Debian package the project needs, then the Python package's build and test tools into .venv/
+# (a virtual environment in the checkout, ignored by git; CMake builds the Python package with it). Safe to run
+# twice: it runs `apt-get update` only when something is missing and installs only what is missing.
 set -euo pipefail
+cd "$(dirname "$0")/.."
 
 PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config git clang-format-14
@@ -15,6 +17,7 @@ PACKAGES=(
   libssl-dev libpng-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-h5py python3-numpy python3-matplotlib
+  python3-dev python3-venv
 )
 
 missing=()
@@ -26,12 +29,22 @@ done
 
 if [ ${#missing[@]} -eq 0 ]; then
   echo "install-deps: all ${#PACKAGES[@]} packages already installed"
-  exit 0
+else
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+  echo "install-deps: installing ${#missing[@]} missing package(s): ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
 
-SUDO=""
-if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-echo "install-deps: installing ${#missing[@]} missing package(s): ${missing[*]}"
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+# The Python tools (python/requirements-dev.txt), from PyPI into .venv/ with Debian's interpreter. pip's
+# `--dry-run` would still reach the index, so the check is an import.
+VENV=.venv
+if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py" >/dev/null 2>&1; then
+  echo "install-deps: creating $VENV with python/requirements-dev.txt"
+  /usr/bin/python3 -m venv "$VENV"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r python/requirements-dev.txt
+else
+  echo "install-deps: $VENV has the Python tools"
+fi

@@ -49,6 +49,7 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::InvalidAsset, "INVALID_ASSET", Severity::Error},
     {IssueCode::OutOfMemory, "OUT_OF_MEMORY", Severity::Error},
     {IssueCode::BadOption, "BAD_OPTION", Severity::Error},
+    {IssueCode::BadPose, "BAD_POSE", Severity::Error},
     {IssueCode::Timeout, "TIMEOUT", Severity::Error},
     {IssueCode::Crashed, "CRASHED", Severity::Error},
     {IssueCode::Internal, "INTERNAL", Severity::Error},

@@ -1,7 +1,5 @@
 // `voxfmt inspect FILE [--json]`: a readable summary of one asset.
-#include <algorithm>
 #include <cstdio>
-#include <filesystem>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -10,6 +8,7 @@
 #include "json_report.h"
 #include "voxfmt/exports/exports.h"
 #include "voxfmt/io.h"
+#include "voxfmt/report.h"
 
 namespace voxfmt::cli {
 
@@ -27,71 +26,6 @@ struct Options {
   int level = -1;
   bool inward_normals = false;
 };
-
-struct Summary {
-  uint64_t file_size = 0;
-  uint64_t memory_bytes = 0;
-  size_t stored_distances = 0;
-  int layer_min = 0, layer_max = 0;
-  std::vector<uint32_t> points_per_level;
-};
-
-Summary summarize(const std::string& file, const Asset& a) {
-  Summary s;
-  std::error_code ec;
-  s.file_size = std::filesystem::file_size(file, ec);
-  const Voxelmap& vm = a.voxelmap;
-  s.stored_distances = vm.stored_count();
-  if (!vm.layers.empty()) {
-    auto [lo, hi] = std::minmax_element(vm.layers.begin(), vm.layers.end());
-    s.layer_min = *lo;
-    s.layer_max = *hi;
-  }
-  const PointShell& ps = a.point_shell;
-  s.points_per_level = ps.points_per_level();
-  const size_t n = ps.size();
-  s.memory_bytes = vm.layers.size() * sizeof(int16_t) + vm.distances.size() * sizeof(float) +
-                   n * (2 * sizeof(Vec3) + sizeof(Vec3f) + sizeof(double) + 2 * sizeof(uint32_t)) +
-                   ps.level_offsets.size() * sizeof(uint32_t);
-  return s;
-}
-
-nlohmann::json vec(const Vec3& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
-
-nlohmann::json to_json(const std::string& file, const Asset& a, const Summary& s, const std::vector<Issue>& warnings) {
-  const Voxelmap& vm = a.voxelmap;
-  const MassProperties& m = a.mass;
-  nlohmann::json inertia = nlohmann::json::array();
-  for (int r = 0; r < 3; ++r) inertia.push_back({m.inertia[r * 3], m.inertia[r * 3 + 1], m.inertia[r * 3 + 2]});
-  nlohmann::json warning_list = nlohmann::json::array();
-  for (const Issue& w : warnings) warning_list.push_back(std::string(code_name(w.code)) + ": " + w.message);
-  return {{"file", file},
-          {"file_size_bytes", s.file_size},
-          {"format_version", {a.version.major, a.version.minor}},
-          {"units", "m"},
-          {"frame", "right-handed"},
-          {"up_axis", a.up_axis},
-          {"bounds_min", vec(a.bounds_min)},
-          {"bounds_max", vec(a.bounds_max)},
-          {"voxelmap",
-           {{"dims", {vm.dims[0], vm.dims[1], vm.dims[2]}},
-            {"voxel_size", vm.voxel_size},
-            {"origin", vec(vm.origin)},
-            {"distance_band", vm.distance_band},
-            {"stored_distances", s.stored_distances},
-            {"layer_min", s.layer_min},
-            {"layer_max", s.layer_max},
-            {"memory_bytes", vm.layers.size() * sizeof(int16_t) + vm.distances.size() * sizeof(float)}}},
-          {"pointshell",
-           {{"points", a.point_shell.size()},
-            {"levels", a.point_shell.level_count()},
-            {"points_per_level", s.points_per_level},
-            {"tree_depth", a.point_shell.level_count() ? a.point_shell.level_count() - 1 : 0}}},
-          {"memory_bytes", s.memory_bytes},
-          {"mass_properties", {{"volume", m.volume}, {"center_of_mass", vec(m.center_of_mass)}, {"inertia", inertia}}},
-          {"provenance", provenance_json(a.provenance)},
-          {"warnings", warning_list}};
-}
 
 std::string human_bytes(uint64_t bytes) {
   std::ostringstream s;
@@ -111,7 +45,7 @@ std::string v3(const Vec3& v) {
   return s.str();
 }
 
-void print_text(const std::string& file, const Asset& a, const Summary& s, const std::vector<Issue>& warnings) {
+void print_text(const std::string& file, const Asset& a, const AssetSummary& s, const std::vector<Issue>& warnings) {
   const Voxelmap& vm = a.voxelmap;
   const PointShell& ps = a.point_shell;
   std::ostream& o = std::cout;
@@ -269,8 +203,8 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
       for (const nlohmann::json& e : exports) print_export(e);
       return;
     }
-    const Summary summary = summarize(options->file, asset.value());
-    nlohmann::json out = to_json(options->file, asset.value(), summary, warnings);
+    const AssetSummary summary = summarize_asset(options->file, asset.value());
+    nlohmann::json out = nlohmann::json::parse(inspect_json(options->file, asset.value(), summary, warnings));
     if (!exports.empty()) out["exports"] = exports;
     if (options->json)
       std::cout << to_text(out) << "\n";

@@ -5,7 +5,6 @@
 
 #include <vector>
 
-#include "voxfmt/asset.h"
 #include "voxfmt/issues.h"
 
 namespace voxfmt::cli {
@@ -15,6 +14,5 @@ std::string to_text(const nlohmann::json& value);
 
 nlohmann::json issue_json(const Issue& issue);
 nlohmann::json issues_json(const std::vector<Issue>& issues);
-nlohmann::json provenance_json(const Provenance& provenance);
 
 }  // namespace voxfmt::cli

@@ -49,6 +49,7 @@ enum class IssueCode {
   InvalidAsset,
   OutOfMemory,
   BadOption,
+  BadPose,
   Timeout,
   Crashed,
   Internal,

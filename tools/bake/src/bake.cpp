@@ -17,6 +17,7 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
 
 #include "stages.h"
@@ -300,7 +301,38 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   return asset;
 }
 
+Status check_settings(const Settings& s) {
+  auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "bad option: " + what}; };
+  auto finite_non_negative = [](double v) { return std::isfinite(v) && v >= 0; };
+  if (!finite_non_negative(s.voxelmap.voxel_size)) return bad("voxel_size must be a finite number > 0 (or 0: none)");
+  if (s.voxelmap.voxel_size == 0 && (s.voxelmap.resolution < 1 || s.voxelmap.resolution > 4096))
+    return bad("resolution " + std::to_string(s.voxelmap.resolution) + " is outside 1..4096");
+  if (!finite_non_negative(s.point_shell.point_spacing))
+    return bad("point_spacing must be a finite number > 0 (or 0: none)");
+  if (s.point_shell.point_spacing == 0 && (s.point_shell.points < 1 || s.point_shell.points > 50'000'000))
+    return bad("points " + std::to_string(s.point_shell.points) + " is outside 1..50000000");
+  if (!(s.point_shell.branching >= 2 && s.point_shell.branching <= 64)) return bad("branching must be within 2..64");
+  if (s.voxelmap.margin > 1024) return bad("margin " + std::to_string(s.voxelmap.margin) + " is outside 0..1024");
+  if (!(s.voxelmap.distance_band >= 1 && s.voxelmap.distance_band <= 64))
+    return bad("band must be within 1..64 voxels");
+  if (!finite_non_negative(s.voxelmap.shell_thickness))
+    return bad("shell_thickness must be a finite number > 0 (or 0: none)");
+  if (!(std::isfinite(s.import.unit_scale) && s.import.unit_scale > 0))
+    return bad("unit_scale must be a finite number > 0");
+  static const char* const kAxes[] = {"+X", "-X", "+Y", "-Y", "+Z", "-Z"};
+  if (std::find(std::begin(kAxes), std::end(kAxes), s.up_axis) == std::end(kAxes))
+    return bad("up_axis '" + s.up_axis + "' is none of +X, -X, +Y, -Y, +Z, -Z");
+  if (s.deflate < 0 || s.deflate > 9) return bad("deflate " + std::to_string(s.deflate) + " is outside 0..9");
+  return Status::success();
+}
+
 Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress) {
+  if (const Status checked = check_settings(settings); !checked) {
+    Error error = checked.error();
+    error.message = mesh_path + ": " + error.message;
+    error.file = mesh_path;
+    return error;
+  }
   return guarded<Baked>(mesh_path, [&] {
     const auto start = std::chrono::steady_clock::now();
     BuildReport report;

@@ -102,6 +102,12 @@ struct Baked {
   Summary summary;
 };
 
+/// Checks every setting against the range `voxfmt build` accepts (resolution 1..4096, points 1..50,000,000,
+/// branching 2..64, margin 0..1024, band 1..64 voxels, deflate 0..9, up axis one of +X..-Z, sizes finite and
+/// positive where given): BAD_OPTION naming the setting otherwise. bake_mesh checks first, so every caller (the
+/// CLI, the Python package) is refused the same way.
+Status check_settings(const Settings& settings);
+
 /// Bakes `mesh_path` (any format assimp reads; all meshes of a scene merged with their node transforms) into
 /// an asset in memory. Errors: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
 /// NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE, BAD_OPTION, OUT_OF_MEMORY, INTERNAL.

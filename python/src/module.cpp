@@ -1,0 +1,708 @@
+// voxfmt._voxfmt: the compiled half of the Python package (nanobind). It binds libvoxfmt (read, validate,
+// inspect), the bake library and the runtime (load, contacts, wrench, batched contacts). The pure-Python half
+// (python/voxfmt/__init__.py) adds the keyword handling of bake() and the typed report classes.
+//
+// Errors: every failure of a library call becomes a voxfmt.Error subclass carrying the library's code
+// (spec/issue-codes.md), raised through CodedError and the translator registered below.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/string_view.h>
+#include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
+
+#include <Eigen/Core>
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#include "voxfmt/bake/bake.h"
+#include "voxfmt/io.h"
+#include "voxfmt/report.h"
+#include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/forces.h"
+#include "voxfmt/runtime/query.h"
+#include "voxfmt/validate.h"
+#include "voxfmt/version.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace voxfmt::python {
+
+namespace {
+
+using runtime::CollisionObject;
+using runtime::ContactSet;
+using runtime::Pose;
+using runtime::QueryOptions;
+
+/// A library error on its way to Python (see the translator in NB_MODULE).
+struct CodedError : std::exception {
+  Error error;
+  explicit CodedError(Error e) : error(std::move(e)) {}
+  const char* what() const noexcept override { return error.message.c_str(); }
+};
+
+[[noreturn]] void fail(IssueCode code, std::string message) { throw CodedError(Error{code, std::move(message)}); }
+
+// ---------------------------------------------------------------------------------------------------------------
+// Arrays in and out.
+
+using InArray = nb::ndarray<const double, nb::device::cpu>;
+
+/// `value` as a float64 array on the CPU (any strides). Anything else NumPy can read as one (lists, float32,
+/// ints) is converted; what it cannot is BAD_OPTION naming `what`.
+InArray as_float64(nb::handle value, const char* what) {
+  InArray array;
+  if (nb::try_cast(value, array, false)) return array;
+  nb::object converted;
+  try {
+    converted = nb::module_::import_("numpy").attr("asarray")(value, "dtype"_a = "float64");
+  } catch (const nb::python_error&) {
+    fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
+  }
+  if (!nb::try_cast(converted, array, false))
+    fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
+  return array;
+}
+
+std::string shape_text(const InArray& a) {
+  std::string s = "(";
+  for (size_t d = 0; d < a.ndim(); ++d) s += (d ? ", " : "") + std::to_string(a.shape(d));
+  return s + (a.ndim() == 1 ? ",)" : ")");
+}
+
+/// A new C-contiguous NumPy array that owns its memory (allocated once, filled in C++).
+template <class T>
+struct OutArray {
+  T* data = nullptr;
+  nb::ndarray<nb::numpy, T> array;
+  OutArray(std::initializer_list<size_t> shape) {
+    size_t n = 1;
+    for (size_t s : shape) n *= s;
+    data = new T[std::max<size_t>(n, 1)]();
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+    array = nb::ndarray<nb::numpy, T>(data, shape, owner);
+  }
+};
+
+template <class T>
+nb::ndarray<nb::numpy, T> vector_array(const Eigen::Matrix<T, 3, 1>& v) {
+  OutArray<T> out({3});
+  for (int i = 0; i < 3; ++i) out.data[i] = v[i];
+  return out.array;
+}
+
+/// A str or os.PathLike as a file name; anything else is BAD_OPTION naming `what`.
+std::string path_arg(nb::handle value, const char* what) {
+  try {
+    nb::module_ os = nb::module_::import_("os");
+    return nb::cast<std::string>(os.attr("fsdecode")(os.attr("fspath")(value)));
+  } catch (const nb::python_error&) {
+    fail(IssueCode::BadOption, std::string(what) + ": expected a path (str or os.PathLike)");
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Poses: 4x4 body-to-world matrices that must be rigid.
+
+constexpr double kRigidTolerance = 1e-6;
+
+/// Fills `pose` from the 4x4 matrix at `m` (element strides `row`, `col`); an error message if it is not rigid.
+std::optional<std::string> read_pose(const double* m, int64_t row, int64_t col, Pose& pose) {
+  Eigen::Matrix4d t;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) t(r, c) = m[r * row + c * col];
+  if (!t.allFinite()) return std::string("has a non-finite entry");
+  if (t(3, 0) != 0.0 || t(3, 1) != 0.0 || t(3, 2) != 0.0 || t(3, 3) != 1.0)
+    return std::string("last row is not 0 0 0 1");
+  const Eigen::Matrix3d rotation = t.topLeftCorner<3, 3>();
+  const double off = (rotation.transpose() * rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  if (off > kRigidTolerance)
+    return "rotation part is not orthonormal (|R^T R - I| = " + std::to_string(off) +
+           "; scale and shear are not supported)";
+  if (rotation.determinant() < 0) return std::string("rotation part has determinant -1 (a reflection)");
+  pose.rotation = rotation;
+  pose.translation = t.topRightCorner<3, 1>();
+  pose.scale = 1.0;
+  return std::nullopt;
+}
+
+Pose parse_pose(nb::handle value, const char* what) {
+  const InArray a = as_float64(value, what);
+  if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4)
+    fail(IssueCode::BadOption, std::string(what) + ": expected a 4x4 matrix, got shape " + shape_text(a));
+  Pose pose;
+  if (auto problem = read_pose(a.data(), a.stride(0), a.stride(1), pose))
+    fail(IssueCode::BadPose, std::string(what) + " is not a rigid transform: " + *problem);
+  return pose;
+}
+
+/// K poses from a (K, 4, 4) array, or one (4, 4) pose repeated `count` times (count = 0: K decides).
+std::vector<Pose> parse_poses(nb::handle value, const char* what, size_t count) {
+  const InArray a = as_float64(value, what);
+  std::vector<Pose> poses;
+  if (a.ndim() == 2 && a.shape(0) == 4 && a.shape(1) == 4) {
+    poses.assign(std::max<size_t>(count, 1), parse_pose(value, what));
+    return poses;
+  }
+  if (a.ndim() != 3 || a.shape(1) != 4 || a.shape(2) != 4)
+    fail(IssueCode::BadOption, std::string(what) + ": expected (K, 4, 4) matrices, got shape " + shape_text(a));
+  if (count && a.shape(0) != count)
+    fail(IssueCode::BadOption, std::string(what) + ": " + std::to_string(a.shape(0)) +
+                                   " poses where the other side has " + std::to_string(count));
+  poses.resize(a.shape(0));
+  for (size_t k = 0; k < poses.size(); ++k)
+    if (auto problem = read_pose(a.data() + k * a.stride(0), a.stride(1), a.stride(2), poses[k]))
+      fail(IssueCode::BadPose, std::string(what) + "[" + std::to_string(k) + "] is not a rigid transform: " + *problem);
+  return poses;
+}
+
+QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us,
+                           double proximity) {
+  QueryOptions options;
+  if (point_budget) {
+    if (*point_budget < 1) fail(IssueCode::BadOption, "point_budget must be >= 1 (or None: the whole tree)");
+    options.point_budget = size_t(*point_budget);
+  }
+  if (time_budget_us) {
+    if (!(std::isfinite(*time_budget_us) && *time_budget_us > 0))
+      fail(IssueCode::BadOption, "time_budget_us must be a finite number > 0 (or None: no budget)");
+    options.time_budget_us = *time_budget_us;
+  }
+  if (!(std::isfinite(proximity) && proximity >= 0))
+    fail(IssueCode::BadOption, "proximity must be a finite number >= 0 (metres)");
+  options.proximity = proximity;
+  return options;
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Body and Contacts.
+
+struct Body {
+  std::shared_ptr<const CollisionObject> object;
+  double density = 1.0;
+  std::string path;
+};
+
+/// A read-only NumPy view of `count` rows of `Cols` values of T at `data`, kept alive by `owner`.
+template <class T>
+nb::ndarray<nb::numpy, const T> view(const T* data, std::initializer_list<size_t> shape,
+                                     std::initializer_list<int64_t> strides, nb::handle owner) {
+  static const T empty{};
+  return nb::ndarray<nb::numpy, const T>(data ? data : &empty, shape, owner, strides);
+}
+
+struct Contacts {
+  ContactSet set;
+  Eigen::Vector3d reference = Eigen::Vector3d::Zero();  ///< A's centre of mass, world frame
+};
+
+static_assert(sizeof(runtime::Contact) % sizeof(double) == 0 && sizeof(runtime::Contact) % sizeof(uint32_t) == 0,
+              "strided views into the contacts need whole-element strides");
+constexpr int64_t kContactDoubles = sizeof(runtime::Contact) / sizeof(double);
+
+const runtime::Contact* first(const Contacts& c) { return c.set.contacts.empty() ? nullptr : c.set.contacts.data(); }
+
+Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, std::optional<int64_t> point_budget,
+               std::optional<double> time_budget_us, double proximity) {
+  const Pose pa = parse_pose(pose_a, "pose_a");
+  const Pose pb = parse_pose(pose_b, "pose_b");
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
+  // The traversal fills a per-thread set that keeps its capacity; the result gets one allocation of the exact
+  // size (a fresh vector grown contact by contact cost more than the copy).
+  thread_local runtime::QueryScratch scratch;
+  thread_local ContactSet work;
+  work.clear();
+  runtime::query_contacts(*a.object, pa, *b.object, pb, options, work, scratch);
+  Contacts out;
+  out.set.contacts.assign(work.contacts.begin(), work.contacts.end());
+  out.set.stats = work.stats;
+  out.reference = pa.apply(a.object->center_of_mass());
+  return out;
+}
+
+std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrench(const Contacts& contacts,
+                                                                                  double stiffness,
+                                                                                  std::optional<nb::handle> reference) {
+  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
+  Eigen::Vector3d ref = contacts.reference;
+  if (reference && !reference->is_none()) {
+    const InArray r = as_float64(*reference, "reference");
+    if (r.ndim() != 1 || r.shape(0) != 3)
+      fail(IssueCode::BadOption, "reference: expected a point (3,), got shape " + shape_text(r));
+    for (int i = 0; i < 3; ++i) ref[i] = r.data()[i * r.stride(0)];
+  }
+  const runtime::Wrench w = runtime::penalty_wrench(contacts.set, ref, stiffness);
+  return {vector_array<double>(w.force), vector_array<double>(w.torque)};
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// contacts_batch: K pose pairs on worker threads, the GIL released, outputs allocated once.
+
+using BatchDict = nb::typed<nb::dict, nb::str, nb::any>;
+
+BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
+                         std::optional<int64_t> threads, bool with_contacts, double stiffness,
+                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity) {
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
+  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
+  if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
+  // Either side may be one (4, 4) pose for all K.
+  const InArray first_a = as_float64(poses_a, "poses_a");
+  const size_t k_a = first_a.ndim() == 3 ? first_a.shape(0) : 0;
+  std::vector<Pose> pa = parse_poses(poses_a, "poses_a", 0);
+  std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k_a);
+  if (k_a == 0 && pb.size() != pa.size()) {
+    const Pose only = pa.front();
+    pa.assign(pb.size(), only);
+  }
+  const size_t k = pb.size();
+
+  OutArray<int64_t> count({k});
+  OutArray<double> max_depth({k});
+  OutArray<double> force({k, 3});
+  OutArray<double> torque({k, 3});
+  const size_t hardware = std::max(1u, std::thread::hardware_concurrency());
+  const size_t workers = std::max<size_t>(1, std::min<size_t>(threads ? size_t(*threads) : hardware, k));
+  std::vector<std::vector<runtime::Contact>> found(with_contacts ? workers : 0);
+  std::vector<std::exception_ptr> errors(workers);
+
+  auto work = [&](size_t w) {
+    try {
+      ContactSet set;
+      runtime::QueryScratch scratch;
+      const size_t begin = k * w / workers, end = k * (w + 1) / workers;
+      for (size_t i = begin; i < end; ++i) {
+        set.clear();
+        runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, scratch);
+        double deepest = 0.0;
+        for (const runtime::Contact& c : set.contacts) deepest = std::max(deepest, c.depth);
+        const runtime::Wrench wr = runtime::penalty_wrench(set, pa[i].apply(a.object->center_of_mass()), stiffness);
+        count.data[i] = int64_t(set.contacts.size());
+        max_depth.data[i] = deepest;
+        for (int j = 0; j < 3; ++j) {
+          force.data[3 * i + j] = wr.force[j];
+          torque.data[3 * i + j] = wr.torque[j];
+        }
+        if (with_contacts) found[w].insert(found[w].end(), set.contacts.begin(), set.contacts.end());
+      }
+    } catch (...) {
+      errors[w] = std::current_exception();
+    }
+  };
+  {
+    nb::gil_scoped_release release;
+    std::vector<std::thread> pool;
+    for (size_t w = 1; w < workers; ++w) pool.emplace_back(work, w);
+    work(0);
+    for (std::thread& t : pool) t.join();
+  }
+  for (const std::exception_ptr& e : errors)
+    if (e) std::rethrow_exception(e);
+
+  BatchDict out;
+  out["count"] = count.array;
+  out["max_depth"] = max_depth.array;
+  out["force"] = force.array;
+  out["torque"] = torque.array;
+  if (with_contacts) {
+    size_t total = 0;
+    for (const auto& f : found) total += f.size();
+    OutArray<int64_t> offsets({k + 1});
+    OutArray<double> points({total, 3}), normals({total, 3}), depths({total});
+    OutArray<uint32_t> index({total});
+    OutArray<bool> of_b({total});
+    size_t at = 0;
+    for (size_t i = 0; i < k; ++i) offsets.data[i + 1] = offsets.data[i] + count.data[i];
+    for (const auto& f : found)
+      for (const runtime::Contact& c : f) {
+        for (int j = 0; j < 3; ++j) {
+          points.data[3 * at + j] = c.point[j];
+          normals.data[3 * at + j] = c.normal[j];
+        }
+        depths.data[at] = c.depth;
+        index.data[at] = c.point_index;
+        of_b.data[at] = c.point_of_b;
+        ++at;
+      }
+    out["offsets"] = offsets.array;
+    out["points"] = points.array;
+    out["normals"] = normals.array;
+    out["depths"] = depths.array;
+    out["point_index"] = index.array;
+    out["point_of_b"] = of_b.array;
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Bake, validate, inspect.
+
+/// The bake's progress callable: called with the GIL between stages; an exception it raises stops the bake at
+/// the next stage and is raised again from bake().
+struct ProgressBridge {
+  nb::object callable;
+  std::optional<nb::python_error> raised;
+  struct Stop : std::runtime_error {
+    Stop() : std::runtime_error("stopped by the progress callable") {}
+  };
+  void operator()(std::string_view stage, double fraction) {
+    if (raised) throw Stop();
+    nb::gil_scoped_acquire gil;
+    try {
+      callable(std::string(stage), fraction);
+    } catch (nb::python_error& e) {
+      raised.emplace(std::move(e));
+      throw Stop();
+    }
+  }
+};
+
+std::string bake(const std::string& mesh, const std::string& output, uint32_t resolution, double voxel_size,
+                 uint32_t points, double point_spacing, double branching, uint32_t margin, double band,
+                 double shell_thickness, double unit_scale, const std::string& up_axis, bool self_intersection_check,
+                 uint64_t seed, int deflate, uint32_t threads, nb::object progress) {
+  bake::Settings s;
+  s.voxelmap.resolution = resolution;
+  s.voxelmap.voxel_size = voxel_size;
+  s.point_shell.points = points;
+  s.point_shell.point_spacing = point_spacing;
+  s.point_shell.branching = branching;
+  s.voxelmap.margin = margin;
+  s.voxelmap.distance_band = band;
+  s.voxelmap.shell_thickness = shell_thickness;
+  s.import.unit_scale = unit_scale;
+  s.up_axis = up_axis;
+  s.check_self_intersections = self_intersection_check;
+  s.point_shell.seed = seed;
+  s.deflate = deflate;
+  s.threads = threads;
+  ProgressBridge bridge{progress, std::nullopt};
+  bake::ProgressCallback callback;
+  if (!progress.is_none()) callback = [&bridge](std::string_view stage, double f) { bridge(stage, f); };
+  std::optional<Result<bake::Summary>> summary;
+  std::exception_ptr escaped;
+  {
+    nb::gil_scoped_release release;
+    try {
+      summary.emplace(bake::bake_to_file(mesh, output, s, callback));
+    } catch (...) {  // the progress callable's stop after the bake's own error handling (the final stages)
+      escaped = std::current_exception();
+    }
+  }
+  if (bridge.raised) {
+    nb::python_error error = std::move(*bridge.raised);
+    bridge.raised.reset();
+    throw error;
+  }
+  if (escaped) std::rethrow_exception(escaped);
+  if (!summary->ok()) throw CodedError(summary->error());
+  return bake::to_json(summary->value());
+}
+
+std::vector<std::tuple<std::string, std::string, std::string, std::string>> validate(const std::string& path,
+                                                                                     bool full) {
+  std::vector<Issue> issues;
+  {
+    nb::gil_scoped_release release;
+    issues = validate_file(path, full ? ValidationLevel::Full : ValidationLevel::Quick);
+  }
+  std::vector<std::tuple<std::string, std::string, std::string, std::string>> out;
+  for (const Issue& i : issues) out.emplace_back(code_name(i.code), severity_name(i.severity), i.message, i.path);
+  return out;
+}
+
+std::string inspect(const std::string& path) {
+  std::vector<Issue> warnings;
+  std::optional<Result<Asset>> asset;
+  {
+    nb::gil_scoped_release release;
+    asset.emplace(read_asset(path, &warnings));
+  }
+  if (!asset->ok()) throw CodedError(asset->error());
+  return inspect_json(path, asset->value(), summarize_asset(path, asset->value()), warnings);
+}
+
+Body load(nb::handle path_object, double density) {
+  const std::string path = path_arg(path_object, "path");
+  if (!(std::isfinite(density) && density > 0)) fail(IssueCode::BadOption, "density must be a finite number > 0");
+  std::optional<Result<std::shared_ptr<const CollisionObject>>> object;
+  {
+    nb::gil_scoped_release release;
+    object.emplace(CollisionObject::load(path));
+  }
+  if (!object->ok()) throw CodedError(object->error());
+  if (!object->value()->has_voxelmap() || !object->value()->has_point_shell())
+    fail(IssueCode::MissingObject, path + ": the asset has no voxelmap or no point shell");
+  return Body{object->value(), density, path};
+}
+
+nb::ndarray<nb::numpy, double> signed_distance(const Body& body, nb::handle points) {
+  const InArray p = as_float64(points, "points");
+  if (p.ndim() != 2 || p.shape(1) != 3)
+    fail(IssueCode::BadOption, "points: expected an (M, 3) array, got shape " + shape_text(p));
+  const size_t m = p.shape(0);
+  OutArray<double> out({m});
+  const runtime::SparseVoxelmap& map = body.object->voxelmap();
+  {
+    nb::gil_scoped_release release;
+    for (size_t i = 0; i < m; ++i) {
+      const double* row = p.data() + i * p.stride(0);
+      const Eigen::Vector3d q(row[0], row[p.stride(1)], row[2 * p.stride(1)]);
+      out.data[i] = double(map.sample(map.to_grid(q)).distance) * map.voxel_size();
+    }
+  }
+  return out.array;
+}
+
+/// Mean seconds of one C++ query_contacts call (same options, one scratch), for the overhead benchmark of
+/// bench/python_peers.py and the README: what contacts() costs on top of it is the binding's.
+double time_query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, int64_t iterations,
+                  std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity) {
+  if (iterations < 1) fail(IssueCode::BadOption, "iterations must be >= 1");
+  const Pose pa = parse_pose(pose_a, "pose_a");
+  const Pose pb = parse_pose(pose_b, "pose_b");
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
+  nb::gil_scoped_release release;
+  ContactSet set;
+  runtime::QueryScratch scratch;
+  const auto start = std::chrono::steady_clock::now();
+  for (int64_t i = 0; i < iterations; ++i) {
+    set.clear();
+    runtime::query_contacts(*a.object, pa, *b.object, pb, options, set, scratch);
+  }
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() / double(iterations);
+}
+
+}  // namespace
+
+}  // namespace voxfmt::python
+
+NB_MODULE(_voxfmt, m) {
+  using namespace voxfmt::python;
+  namespace runtime = voxfmt::runtime;
+  m.doc() = "Compiled core of the voxfmt package; use the names re-exported by `voxfmt`.";
+
+  nb::register_exception_translator([](const std::exception_ptr& p, void*) {
+    try {
+      std::rethrow_exception(p);
+    } catch (const CodedError& e) {
+      const voxfmt::Error& error = e.error;
+      nb::object exc = nb::module_::import_("voxfmt._errors")
+                           .attr("make_error")(voxfmt::code_name(error.code), error.message, error.file, error.object);
+      PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
+    }
+  });
+
+  nb::class_<Body>(m, "Body",
+                   "A loaded asset: the runtime's collision object (bricked voxelmap, point-sphere tree, mass).\n\n"
+                   "Array attributes are read-only NumPy views of the runtime's own memory (no copy), valid as long\n"
+                   "as any of them or the Body is alive. Coordinates are metres in the asset frame.")
+      .def_prop_ro(
+          "points",
+          [](nb::handle self) {
+            const auto& t = nb::cast<const Body&>(self).object->point_tree();
+            return view<float>(t.points.empty() ? nullptr : t.points.front().data(), {t.size(), 3}, {3, 1}, self);
+          },
+          "(N, 3) float32 point shell, breadth-first tree order: level l is points[levels[l]:levels[l+1]].")
+      .def_prop_ro(
+          "normals",
+          [](nb::handle self) {
+            const auto& t = nb::cast<const Body&>(self).object->point_tree();
+            return view<float>(t.normals.empty() ? nullptr : t.normals.front().data(), {t.size(), 3}, {3, 1}, self);
+          },
+          "(N, 3) float32 unit normals, pointing INTO the body.")
+      .def_prop_ro(
+          "levels",
+          [](nb::handle self) {
+            const auto& t = nb::cast<const Body&>(self).object->point_tree();
+            return view<uint32_t>(t.level_offsets.data(), {t.level_offsets.size()}, {1}, self);
+          },
+          "(L+1,) uint32 offsets of the tree levels in points.")
+      .def_prop_ro(
+          "sphere_radii",
+          [](nb::handle self) {
+            const auto& t = nb::cast<const Body&>(self).object->point_tree();
+            return view<float>(t.sphere_radii.data(), {t.sphere_radii.size()}, {1}, self);
+          },
+          "(N,) float32 radius of each node's bounding sphere (the node and its descendants), metres.")
+      .def_prop_ro(
+          "voxel_size", [](const Body& b) { return b.object->voxelmap().voxel_size(); }, "Voxel edge, metres.")
+      .def_prop_ro(
+          "dims",
+          [](const Body& b) {
+            const auto& d = b.object->voxelmap().dims();
+            return std::make_tuple(d[0], d[1], d[2]);
+          },
+          "Voxels along x, y, z.")
+      .def_prop_ro(
+          "density", [](const Body& b) { return b.density; }, "Density given to load(), kg/m^3.")
+      .def_prop_ro(
+          "volume", [](const Body& b) { return b.object->volume(); }, "Enclosed volume, m^3.")
+      .def_prop_ro(
+          "mass", [](const Body& b) { return b.object->volume() * b.density; }, "volume * density, kg.")
+      .def_prop_ro(
+          "center_of_mass", [](const Body& b) { return vector_array<double>(b.object->center_of_mass()); },
+          "(3,) centre of mass in the asset frame, metres (a copy).", nb::rv_policy::automatic)
+      .def_prop_ro(
+          "inertia",
+          [](const Body& b) {
+            OutArray<double> out({3, 3});
+            const Eigen::Matrix3d i = b.object->inertia_unit_density() * b.density;
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) out.data[3 * r + c] = i(r, c);
+            return out.array;
+          },
+          "(3, 3) inertia tensor about the centre of mass, asset axes, kg m^2 (a copy).", nb::rv_policy::automatic)
+      .def_prop_ro(
+          "bounds",
+          [](const Body& b) {
+            return std::make_tuple(vector_array<double>(b.object->bounds_min()),
+                                   vector_array<double>(b.object->bounds_max()));
+          },
+          "(min (3,), max (3,)) bounding box in the asset frame, metres.", nb::rv_policy::automatic)
+      .def_prop_ro(
+          "path", [](const Body& b) { return b.path; }, "The file it was loaded from.")
+      .def_prop_ro(
+          "memory_bytes", [](const Body& b) { return b.object->memory_bytes(); },
+          "Heap bytes of the runtime structures.")
+      .def("signed_distance", &signed_distance, "points"_a,
+           nb::sig("def signed_distance(self, points: numpy.typing.ArrayLike) -> numpy.typing.NDArray[numpy.float64]"),
+           "Signed distance (metres) of each asset-frame point (M, 3) to the surface: NEGATIVE INSIDE, positive\n"
+           "outside (trimesh.proximity.signed_distance uses the opposite sign). Exact within the stored band\n"
+           "(a few voxels of the surface), a layer estimate deeper inside, and outside the grid the distance to\n"
+           "the bounding box (a lower bound).")
+      .def("__repr__", [](const Body& b) {
+        const auto& d = b.object->voxelmap().dims();
+        return "<voxfmt.Body '" + b.path + "': " + std::to_string(b.object->point_tree().size()) + " points, " +
+               std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) + " voxels>";
+      });
+
+  nb::class_<voxfmt::runtime::QueryStats>(m, "QueryStats", "What a query traversed.")
+      .def_ro("nodes_visited", &voxfmt::runtime::QueryStats::nodes_visited, "Sphere-tree nodes popped.")
+      .def_ro("points_tested", &voxfmt::runtime::QueryStats::points_tested, "Points whose distance was looked up.")
+      .def_ro("deepest_level", &voxfmt::runtime::QueryStats::deepest_level, "Deepest tree level completed.")
+      .def_prop_ro(
+          "levels_completed",
+          [](const voxfmt::runtime::QueryStats& s) { return s.nodes_visited ? s.deepest_level + 1 : 0u; },
+          "Tree levels completed (0 when the bodies are too far apart for any test).")
+      .def_ro("time_budget_hit", &voxfmt::runtime::QueryStats::time_budget_hit,
+              "A traversal stopped at time_budget_us.")
+      .def("__repr__", [](const voxfmt::runtime::QueryStats& s) {
+        return "QueryStats(nodes_visited=" + std::to_string(s.nodes_visited) +
+               ", points_tested=" + std::to_string(s.points_tested) +
+               ", deepest_level=" + std::to_string(s.deepest_level) +
+               ", time_budget_hit=" + (s.time_budget_hit ? "True" : "False") + ")";
+      });
+
+  nb::class_<Contacts>(m, "Contacts",
+                       "Contacts of one query, world frame. Array attributes are read-only views of the result\n"
+                       "(no copy). normals point where A must move to separate; depths are positive when\n"
+                       "penetrating (negative: proximity points).")
+      .def("__len__", [](const Contacts& c) { return c.set.contacts.size(); })
+      .def_prop_ro(
+          "points",
+          [](nb::handle self) {
+            const Contacts& c = nb::cast<const Contacts&>(self);
+            const runtime::Contact* f = first(c);
+            return view<double>(f ? f->point.data() : nullptr, {c.set.contacts.size(), 3}, {kContactDoubles, 1}, self);
+          },
+          "(M, 3) contact points (the shell point, on the surface of the body that carries it), metres.")
+      .def_prop_ro(
+          "normals",
+          [](nb::handle self) {
+            const Contacts& c = nb::cast<const Contacts&>(self);
+            const runtime::Contact* f = first(c);
+            return view<double>(f ? f->normal.data() : nullptr, {c.set.contacts.size(), 3}, {kContactDoubles, 1}, self);
+          },
+          "(M, 3) unit normals: the direction in which A must move to separate from B.")
+      .def_prop_ro(
+          "depths",
+          [](nb::handle self) {
+            const Contacts& c = nb::cast<const Contacts&>(self);
+            const runtime::Contact* f = first(c);
+            return view<double>(f ? &f->depth : nullptr, {c.set.contacts.size()}, {kContactDoubles}, self);
+          },
+          "(M,) penetration depths, metres (negative for proximity points).")
+      .def_prop_ro(
+          "point_index",
+          [](nb::handle self) {
+            const Contacts& c = nb::cast<const Contacts&>(self);
+            const runtime::Contact* f = first(c);
+            return view<uint32_t>(f ? &f->point_index : nullptr, {c.set.contacts.size()},
+                                  {int64_t(sizeof(runtime::Contact) / sizeof(uint32_t))}, self);
+          },
+          "(M,) index of the point in its body's points.")
+      .def_prop_ro(
+          "point_of_b",
+          [](nb::handle self) {
+            const Contacts& c = nb::cast<const Contacts&>(self);
+            const runtime::Contact* f = first(c);
+            return view<bool>(f ? &f->point_of_b : nullptr, {c.set.contacts.size()},
+                              {int64_t(sizeof(runtime::Contact))}, self);
+          },
+          "(M,) True where the point is B's (tested in A's voxelmap).")
+      .def_prop_ro(
+          "max_depth",
+          [](const Contacts& c) {
+            double deepest = 0.0;
+            for (const runtime::Contact& x : c.set.contacts) deepest = std::max(deepest, x.depth);
+            return deepest;
+          },
+          "Largest depth, metres (0.0 without contacts).")
+      .def_prop_ro(
+          "reference", [](const Contacts& c) { return vector_array<double>(c.reference); },
+          "(3,) A's centre of mass in the world: wrench()'s default torque reference.", nb::rv_policy::automatic)
+      .def_prop_ro(
+          "stats", [](const Contacts& c) { return c.set.stats; }, "QueryStats of the traversal.")
+      .def("__repr__", [](const Contacts& c) {
+        double deepest = 0.0;
+        for (const runtime::Contact& x : c.set.contacts) deepest = std::max(deepest, x.depth);
+        return "<voxfmt.Contacts: " + std::to_string(c.set.contacts.size()) + " contacts, max depth " +
+               std::to_string(deepest) + " m>";
+      });
+
+  m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0,
+        nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0) -> Body"),
+        "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, ...) when it\n"
+        "cannot be read or breaks a quick-level rule of the format.");
+  m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a = nb::none(),
+        "time_budget_us"_a = nb::none(), "proximity"_a = 0.0,
+        nb::sig("def contacts(a: Body, pose_a: numpy.typing.ArrayLike, b: Body, pose_b: numpy.typing.ArrayLike, *, "
+                "point_budget: int | None = None, time_budget_us: float | None = None, proximity: float = 0.0) "
+                "-> Contacts"),
+        "Contacts between a and b placed by 4x4 rigid body-to-world poses (voxfmt.PoseError, code BAD_POSE,\n"
+        "when not rigid). point_budget stops before the tree level that would exceed it; time_budget_us bounds\n"
+        "each traversal; proximity also reports points outside but closer than it (negative depth).");
+  m.def("wrench", &wrench, "contacts"_a, "stiffness"_a, nb::kw_only(), "reference"_a = nb::none(),
+        nb::sig("def wrench(contacts: Contacts, stiffness: float, *, reference: numpy.typing.ArrayLike | None = "
+                "None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]"),
+        "Penalty force (3,) and torque (3,) on A: F = sum k * depth * n over penetrating contacts, torque about\n"
+        "`reference` (default: A's centre of mass in the world).");
+  m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, "threads"_a.none(),
+        "with_contacts"_a, "stiffness"_a, "point_budget"_a.none(), "time_budget_us"_a.none(), "proximity"_a);
+  m.def("_bake", &bake, "mesh"_a, "output"_a, "resolution"_a, "voxel_size"_a, "points"_a, "point_spacing"_a,
+        "branching"_a, "margin"_a, "band"_a, "shell_thickness"_a, "unit_scale"_a, "up_axis"_a,
+        "self_intersection_check"_a, "seed"_a, "deflate"_a, "threads"_a, "progress"_a.none());
+  m.def("_validate", &validate, "path"_a, "full"_a);
+  m.def("_inspect", &inspect, "path"_a);
+  m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),
+        "time_budget_us"_a.none(), "proximity"_a);
+  m.def("_library_version", [] { return std::string(VOXFMT_VERSION_STRING); });
+}

@@ -1,0 +1,60 @@
+"""contacts_batch agrees with contacts() + wrench() pose by pose, on any number of threads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import voxfmt
+from conftest import RADIUS, rotation, translation
+
+
+def random_poses(count: int, seed: int) -> np.ndarray:
+    """Poses of B around A (at the origin) from touching-and-overlapping to apart, random orientations."""
+    rng = np.random.default_rng(seed)
+    poses = np.empty((count, 4, 4))
+    for k in range(count):
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        distance = 2 * RADIUS * rng.uniform(0.9, 1.05)
+        poses[k] = translation(*(direction * distance)) @ rotation(rng.normal(size=3), rng.uniform(0, np.pi))
+    return poses
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_batch_equals_single_calls(sphere: voxfmt.Body, threads: int) -> None:
+    poses_b = random_poses(40, seed=threads)
+    poses_a = np.repeat(rotation([0.0, 0.0, 1.0], 0.3)[None], 40, axis=0)
+    stiffness = 500.0
+    batch = voxfmt.contacts_batch(sphere, poses_a, sphere, poses_b, threads=threads, with_contacts=True,
+                                  stiffness=stiffness)
+    assert len(batch) == 40 and batch.count.dtype == np.int64 and batch.force.shape == (40, 3)
+    assert batch.offsets is not None and batch.points is not None and batch.depths is not None
+    assert batch.point_index is not None
+    assert batch.offsets[0] == 0 and batch.offsets[-1] == len(batch.points)
+    assert 5 < np.count_nonzero(batch.count) < 40  # the poses include both cases
+    for k in range(40):
+        single = voxfmt.contacts(sphere, poses_a[k], sphere, poses_b[k])
+        force, torque = voxfmt.wrench(single, stiffness)
+        assert batch.count[k] == len(single)
+        assert batch.max_depth[k] == single.max_depth
+        np.testing.assert_allclose(batch.force[k], force, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(batch.torque[k], torque, rtol=1e-12, atol=1e-15)
+        rows = slice(batch.offsets[k], batch.offsets[k + 1])
+        np.testing.assert_array_equal(batch.points[rows], single.points)
+        np.testing.assert_array_equal(batch.depths[rows], single.depths)
+        np.testing.assert_array_equal(batch.point_index[rows], single.point_index)
+
+
+def test_one_pose_broadcasts_and_options_apply(sphere: voxfmt.Body) -> None:
+    poses_b = random_poses(12, seed=7)
+    broadcast = voxfmt.contacts_batch(sphere, np.eye(4), sphere, poses_b, threads=2)
+    repeated = voxfmt.contacts_batch(sphere, np.repeat(np.eye(4)[None], 12, axis=0), sphere, poses_b, threads=2)
+    np.testing.assert_array_equal(broadcast.count, repeated.count)
+    assert broadcast.offsets is None and broadcast.points is None
+    coarse = voxfmt.contacts_batch(sphere, np.eye(4), sphere, poses_b, point_budget=int(sphere.levels[2]))
+    for k in range(12):
+        single = voxfmt.contacts(sphere, np.eye(4), sphere, poses_b[k], point_budget=int(sphere.levels[2]))
+        assert coarse.count[k] == len(single)
+    empty = voxfmt.contacts_batch(sphere, np.eye(4), sphere, np.zeros((0, 4, 4)))
+    assert len(empty) == 0 and empty.force.shape == (0, 3)

@@ -1,0 +1,121 @@
+"""Bad input raises a voxfmt.Error subclass with the library's code, and never crashes the interpreter."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import voxfmt
+from conftest import RADIUS, translation
+
+
+def raises(kind: type[voxfmt.Error], code: str, call: Any, *args: Any, **kwargs: Any) -> voxfmt.Error:
+    with pytest.raises(kind) as info:
+        call(*args, **kwargs)
+    assert info.value.code == code, info.value
+    assert isinstance(info.value, voxfmt.Error) and info.value.message
+    assert str(info.value).startswith(code + ": ")
+    return info.value
+
+
+def test_missing_and_corrupt_assets(tmp_path: Path, sphere_asset: Path) -> None:
+    missing = tmp_path / "missing.vox.h5"
+    error = raises(voxfmt.AssetError, "FILE_NOT_FOUND", voxfmt.load, missing)
+    assert str(missing) in error.message
+    raises(voxfmt.AssetError, "FILE_NOT_FOUND", voxfmt.inspect, missing)
+    garbage = tmp_path / "garbage.vox.h5"
+    garbage.write_bytes(b"not an hdf5 file at all" * 100)
+    raises(voxfmt.AssetError, "NOT_HDF5", voxfmt.load, garbage)
+    # A real asset cut short: HDF5 cannot read it; the code says which way it failed.
+    truncated = tmp_path / "truncated.vox.h5"
+    truncated.write_bytes(sphere_asset.read_bytes()[: sphere_asset.stat().st_size // 2])
+    with pytest.raises(voxfmt.AssetError) as info:
+        voxfmt.load(truncated)
+    assert info.value.code in {"NOT_HDF5", "READ_FAILED", "MISSING_OBJECT"}
+    # validate() reports instead of raising.
+    report = voxfmt.validate(garbage)
+    assert not report.valid and report.issues[0].code == "NOT_HDF5"
+    assert not voxfmt.validate(missing).valid and voxfmt.validate(missing).issues[0].code == "FILE_NOT_FOUND"
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.validate, sphere_asset, level="deep")
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, 42)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, sphere_asset, density=-1.0)
+
+
+def test_bake_errors(tmp_path: Path, sphere_mesh: Path) -> None:
+    out = tmp_path / "out.vox.h5"
+    raises(voxfmt.MeshError, "INPUT_NOT_FOUND", voxfmt.bake, tmp_path / "nothing.obj", out)
+    unknown = tmp_path / "mesh.unknownformat"
+    shutil.copy(sphere_mesh, unknown)
+    raises(voxfmt.MeshError, "UNSUPPORTED_FORMAT", voxfmt.bake, unknown, out)
+    broken = tmp_path / "broken.off"
+    # (Not an OFF that announces more vertices than it has: Debian's assimp aborts on that in an assertion.)
+    broken.write_text("OFF\nfoo bar baz\n")
+    raises(voxfmt.MeshError, "IMPORT_FAILED", voxfmt.bake, broken, out)
+    nan = tmp_path / "nan.off"
+    nan.write_text("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\nnan 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n")
+    raises(voxfmt.MeshError, "NON_FINITE_COORDINATES", voxfmt.bake, nan, out)
+    for options in (
+        {"resolution": 0},
+        {"resolution": 5000},
+        {"points": -3},
+        {"branching": 1.0},
+        {"up_axis": "up"},
+        {"deflate": 12},
+        {"band": math.nan},
+        {"colour": "red"},  # not an option of voxfmt build
+        {"resolution": "high"},
+        {"self_intersection_check": "no"},
+        {"progress": 3},
+    ):
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, **options)
+    assert not out.exists()
+    raises(voxfmt.WriteError, "WRITE_FAILED", voxfmt.bake, sphere_mesh, tmp_path / "no" / "dir" / "x.vox.h5",
+           resolution=16, points=200)
+
+
+def test_bad_arrays_and_poses(sphere: voxfmt.Body) -> None:
+    eye = np.eye(4)
+    for bad_shape in (np.eye(3), np.zeros((4, 4, 1)), np.zeros(16), [[1, 2], [3, 4]]):
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, bad_shape, sphere, eye)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, "pose", sphere, eye)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, [["a"] * 4] * 4, sphere, eye)
+    scaled = np.diag([2.0, 2.0, 2.0, 1.0])
+    reflected = np.diag([1.0, 1.0, -1.0, 1.0])
+    sheared = np.eye(4)
+    sheared[0, 1] = 0.1
+    projective = np.eye(4)
+    projective[3, 0] = 0.5
+    not_finite = translation(math.inf)
+    for bad in (scaled, reflected, sheared, projective, not_finite):
+        error = raises(voxfmt.PoseError, "BAD_POSE", voxfmt.contacts, sphere, eye, sphere, bad)
+        assert "pose_b" in error.message
+    assert isinstance(error, ValueError)
+    # Lists and other dtypes that are rigid are accepted.
+    pose = translation(2 * RADIUS - 0.002)
+    as_list = voxfmt.contacts(sphere, eye.tolist(), sphere, pose.astype(np.float32))
+    assert len(as_list) == len(voxfmt.contacts(sphere, eye, sphere, pose))
+    # Non-contiguous (a transposed view of a transposed copy) is read with its strides.
+    strided = np.asfortranarray(pose)
+    assert len(voxfmt.contacts(sphere, eye, sphere, strided)) == len(as_list)
+    for options in ({"point_budget": 0}, {"time_budget_us": -1.0}, {"proximity": -0.1}, {"proximity": math.nan}):
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, eye, sphere, pose, **options)
+    raises(voxfmt.OptionError, "BAD_OPTION", sphere.signed_distance, np.zeros((5, 2)))
+    raises(voxfmt.OptionError, "BAD_OPTION", sphere.signed_distance, np.zeros(3))
+    c = voxfmt.contacts(sphere, eye, sphere, pose)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.wrench, c, -1.0)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.wrench, c, 1.0, reference=np.zeros(4))
+
+
+def test_batch_rejects_bad_poses_before_running(sphere: voxfmt.Body) -> None:
+    poses = np.repeat(np.eye(4)[None], 6, axis=0)
+    poses[4, 0, 0] = 3.0
+    error = raises(voxfmt.PoseError, "BAD_POSE", voxfmt.contacts_batch, sphere, np.eye(4), sphere, poses)
+    assert "poses_b[4]" in error.message
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.repeat(np.eye(4)[None], 5, axis=0), sphere, poses)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.zeros((6, 3, 4)), sphere, poses)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.eye(4), sphere, np.eye(4), threads=0)

@@ -1,0 +1,256 @@
+"""voxfmt: bake triangle meshes into Voxmap-PointShell collision assets, validate and inspect them, and query
+contacts between them from NumPy.
+
+    import numpy as np, voxfmt
+    voxfmt.bake("bunny.off", "bunny.vox.h5", resolution=128, points=10000)
+    bunny = voxfmt.load("bunny.vox.h5")
+    pose = np.eye(4); pose[1, 3] = 0.05
+    c = voxfmt.contacts(bunny, np.eye(4), bunny, pose)
+    force, torque = voxfmt.wrench(c, stiffness=1e4)
+
+Every failure raises a :class:`voxfmt.Error` subclass whose ``code`` is the C++ library's code.
+"""
+
+from __future__ import annotations
+
+import json
+import operator
+import os
+from dataclasses import dataclass
+from typing import Any, Callable, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
+from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, wrench
+from ._voxfmt import _bake, _contacts_batch, _inspect, _validate
+
+__version__: str = _library_version()
+
+__all__ = [
+    "AssetError",
+    "Batch",
+    "Body",
+    "Contacts",
+    "Error",
+    "InternalError",
+    "Issue",
+    "MeshError",
+    "OptionError",
+    "PoseError",
+    "QueryStats",
+    "ValidationReport",
+    "WriteError",
+    "bake",
+    "contacts",
+    "contacts_batch",
+    "inspect",
+    "load",
+    "validate",
+    "wrench",
+]
+
+Path = str | os.PathLike[str]
+
+# The options of `voxfmt build`, as keywords of bake() (dashes become underscores), with their defaults.
+_BAKE_DEFAULTS: dict[str, Any] = {
+    "voxel_size": 0.0,
+    "point_spacing": 0.0,
+    "branching": 6.5,
+    "margin": 4,
+    "band": 3.0,
+    "shell_thickness": 0.0,
+    "unit_scale": 1.0,
+    "up_axis": "+Y",
+    "self_intersection_check": True,
+    "seed": 24301,
+    "deflate": 4,
+    "threads": 0,
+}
+_UNSIGNED_BITS = {"resolution": 32, "points": 32, "margin": 32, "seed": 64, "threads": 32, "deflate": 31}
+
+
+def _path(value: Path, what: str) -> str:
+    try:
+        return os.fsdecode(os.fspath(value))
+    except TypeError:
+        raise OptionError("BAD_OPTION", f"{what}: expected a path, got {type(value).__name__}") from None
+
+
+def _unsigned(name: str, value: Any) -> int:
+    if isinstance(value, bool):
+        raise OptionError("BAD_OPTION", f"{name}: expected an integer, got a bool")
+    try:
+        number = operator.index(value)
+    except TypeError:
+        raise OptionError("BAD_OPTION", f"{name}: expected an integer, got {value!r}") from None
+    if not 0 <= number < 2 ** _UNSIGNED_BITS[name]:
+        raise OptionError("BAD_OPTION", f"{name} {number} is out of range")
+    return number
+
+
+def _real(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
+    return float(value)
+
+
+def bake(
+    mesh_path: Path,
+    out_path: Path,
+    *,
+    resolution: int = 128,
+    points: int = 10000,
+    progress: Callable[[str, float], object] | None = None,
+    **options: Any,
+) -> dict[str, Any]:
+    """Bakes a mesh (any format assimp reads: OBJ, PLY, STL, OFF, glTF, ...) into an asset at ``out_path``.
+
+    The asset is validated in full in memory and replaces ``out_path`` atomically. Returns the build summary,
+    the same dict as ``voxfmt build --json`` prints. ``options`` are the other ``voxfmt build`` options, dashes
+    as underscores: voxel_size (metres, instead of resolution), point_spacing (metres, instead of points),
+    branching, margin, band, shell_thickness, unit_scale, up_axis, self_intersection_check (bool; the CLI's
+    --no-self-intersection-check is ``False``), seed, deflate, threads (0 = all cores).
+
+    ``progress(stage, fraction)`` is called as each stage starts (fraction of the whole bake, 0..1); an
+    exception it raises stops the bake and is raised again here.
+
+    Raises MeshError (ZERO_VOLUME, IMPORT_FAILED, ...), OptionError (BAD_OPTION), WriteError, InternalError.
+    """
+    unknown = sorted(set(options) - set(_BAKE_DEFAULTS))
+    if unknown:
+        raise OptionError(
+            "BAD_OPTION", f"unknown bake option(s) {', '.join(unknown)}; known: {', '.join(sorted(_BAKE_DEFAULTS))}"
+        )
+    if progress is not None and not callable(progress):
+        raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
+    o = {**_BAKE_DEFAULTS, **options}
+    if not isinstance(o["up_axis"], str):
+        raise OptionError("BAD_OPTION", f"up_axis: expected a string such as '+Y', got {o['up_axis']!r}")
+    if not isinstance(o["self_intersection_check"], bool):
+        raise OptionError("BAD_OPTION", "self_intersection_check: expected a bool")
+    summary = _bake(
+        _path(mesh_path, "mesh_path"),
+        _path(out_path, "out_path"),
+        _unsigned("resolution", resolution),
+        _real("voxel_size", o["voxel_size"]),
+        _unsigned("points", points),
+        _real("point_spacing", o["point_spacing"]),
+        _real("branching", o["branching"]),
+        _unsigned("margin", o["margin"]),
+        _real("band", o["band"]),
+        _real("shell_thickness", o["shell_thickness"]),
+        _real("unit_scale", o["unit_scale"]),
+        o["up_axis"],
+        o["self_intersection_check"],
+        _unsigned("seed", o["seed"]),
+        _unsigned("deflate", o["deflate"]),
+        _unsigned("threads", o["threads"]),
+        progress,
+    )
+    result: dict[str, Any] = json.loads(summary)
+    return result
+
+
+@dataclass(frozen=True)
+class Issue:
+    """One finding of validate(): ``code`` (spec/issue-codes.md), ``severity`` ("error", "warning", "info"),
+    ``message``, and ``location``, the HDF5 object it concerns ("/" for the file itself)."""
+
+    code: str
+    severity: str
+    message: str
+    location: str
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """What validate() found: ``valid`` is True when no finding has error severity."""
+
+    path: str
+    issues: tuple[Issue, ...]
+
+    @property
+    def valid(self) -> bool:
+        return not any(issue.severity == "error" for issue in self.issues)
+
+    @property
+    def errors(self) -> tuple[Issue, ...]:
+        return tuple(issue for issue in self.issues if issue.severity == "error")
+
+    def __bool__(self) -> bool:
+        return self.valid
+
+
+def validate(path: Path, level: Literal["quick", "full"] = "full") -> ValidationReport:
+    """Checks an asset file against the format spec, like ``voxfmt validate --level LEVEL``. Never raises for
+    a bad file: an unreadable one is reported (FILE_NOT_FOUND, NOT_HDF5, ...) in ``issues``."""
+    if level not in ("quick", "full"):
+        raise OptionError("BAD_OPTION", f"level must be 'quick' or 'full', not {level!r}")
+    p = _path(path, "path")
+    found = _validate(p, level == "full")
+    return ValidationReport(p, tuple(Issue(*finding) for finding in found))
+
+
+def inspect(path: Path) -> dict[str, Any]:
+    """The summary of an asset that ``voxfmt inspect --json`` prints (format, bounds, voxelmap, pointshell,
+    mass_properties, provenance, warnings). Raises AssetError when the file cannot be read."""
+    result: dict[str, Any] = json.loads(_inspect(_path(path, "path")))
+    return result
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Per-pose results of contacts_batch() (K poses). ``force``/``torque`` act on A (torque about A's centre
+    of mass in the world), with the stiffness given. With ``with_contacts=True`` the contacts of pose k are
+    rows ``offsets[k]:offsets[k+1]`` of ``points``, ``normals``, ``depths``, ``point_index``, ``point_of_b``."""
+
+    count: npt.NDArray[np.int64]
+    max_depth: npt.NDArray[np.float64]
+    force: npt.NDArray[np.float64]
+    torque: npt.NDArray[np.float64]
+    offsets: npt.NDArray[np.int64] | None = None
+    points: npt.NDArray[np.float64] | None = None
+    normals: npt.NDArray[np.float64] | None = None
+    depths: npt.NDArray[np.float64] | None = None
+    point_index: npt.NDArray[np.uint32] | None = None
+    point_of_b: npt.NDArray[np.bool_] | None = None
+
+    def __len__(self) -> int:
+        return len(self.count)
+
+
+def contacts_batch(
+    a: Body,
+    poses_a: npt.ArrayLike,
+    b: Body,
+    poses_b: npt.ArrayLike,
+    *,
+    threads: int | None = None,
+    with_contacts: bool = False,
+    stiffness: float = 1.0,
+    point_budget: int | None = None,
+    time_budget_us: float | None = None,
+    proximity: float = 0.0,
+) -> Batch:
+    """contacts() for K pose pairs at once: ``poses_a`` and ``poses_b`` are (K, 4, 4) (either may be one
+    (4, 4) pose for all K). The GIL is released; ``threads`` workers (default: every core) split the poses;
+    the outputs are allocated once. Returns per-pose ``count``, ``max_depth``, ``force`` and ``torque``
+    (penalty wrench with ``stiffness``, as wrench() computes it), plus the flattened contacts with
+    ``with_contacts``. Raises PoseError naming the first non-rigid pose before any query runs."""
+    if not isinstance(with_contacts, bool):
+        raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
+    out = _contacts_batch(
+        a,
+        poses_a,
+        b,
+        poses_b,
+        threads,
+        with_contacts,
+        _real("stiffness", stiffness),
+        point_budget,
+        time_budget_us,
+        _real("proximity", proximity),
+    )
+    return Batch(**out)
