@@ -7,6 +7,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 
 namespace voxfmt {
 
@@ -35,7 +36,19 @@ Error write_failed(const std::string& path, const std::string& reason) {
 
 }  // namespace
 
+Status check_output_path(const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (path.empty()) return write_failed(path, "no output path given");
+  if (fs::is_directory(path, ec)) return write_failed(path, "is a folder, not a file");
+  const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+  if (!fs::exists(folder, ec)) return write_failed(path, "folder " + folder.string() + " does not exist");
+  if (!fs::is_directory(folder, ec)) return write_failed(path, folder.string() + " is not a folder");
+  return Status::success();
+}
+
 Status write_file_atomically(const std::string& path, const AtomicWrite& steps) {
+  if (Status usable = check_output_path(path); !usable) return usable;
   static std::atomic<unsigned> counter{0};
   const std::string temp =
       path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);

@@ -1,6 +1,10 @@
 // Writing an asset: validate (structure first, semantic rules beside the write), then write atomically.
+#include <fcntl.h>
+#include <unistd.h>
 #include <nlohmann/json.hpp>
 
+#include <cerrno>
+#include <cstring>
 #include <future>
 #include <limits>
 #include <optional>
@@ -109,6 +113,33 @@ std::string hdf5_library_version() {
   return std::to_string(major) + "." + std::to_string(minor) + "." + std::to_string(release);
 }
 
+namespace {
+// Writes `bytes` to `file` (a new temporary); errors name the target `path` and the system's reason.
+Status write_bytes(const std::string& file, const std::vector<char>& bytes, const std::string& path) {
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+  if (fd < 0) return Error{IssueCode::WriteFailed, path + ": cannot create file: " + std::strerror(errno), path};
+  const char* p = bytes.data();
+  size_t left = bytes.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd, p, left);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const std::string why = n < 0 ? std::strerror(errno) : "nothing written";
+      ::close(fd);
+      return Error{IssueCode::WriteFailed,
+                   path + ": cannot write (" + why + ") after " + std::to_string(bytes.size() - left) + " of " +
+                       std::to_string(bytes.size()) + " bytes",
+                   path};
+    }
+    p += n;
+    left -= size_t(n);
+  }
+  if (::close(fd) != 0)
+    return Error{IssueCode::WriteFailed, path + ": cannot finish file: " + std::strerror(errno), path};
+  return Status::success();
+}
+}  // namespace
+
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
   // Structure first (the writer indexes by it), then the semantic rules beside the write.
   if (auto error = first_error(path, validate_asset(asset, ValidationLevel::Quick))) return *error;
@@ -125,24 +156,41 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   h5::silence_hdf5_errors();
   AtomicWrite steps;
   steps.write = [&](const std::string& temp) -> Status {
-    hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    // HDF5 builds the file in memory (the core driver, no backing store) and we write its bytes ourselves. HDF5
+    // 1.10 does not survive its own disk errors: after a failed write (a full disk, a file-size limit) the file
+    // cannot be closed, and the library crashes closing it again at exit.
+    h5::Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+    if (!fapl.valid() || H5Pset_fapl_core(fapl.get(), 4 << 20, false) < 0)
+      return Error{IssueCode::WriteFailed, path + ": cannot set up HDF5 (" + h5::last_hdf5_reason() + ")", path};
+    hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get());
     if (file < 0)
       return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
     h5::Writer writer(file);
     bool ok = false;
     std::string reason;
+    std::vector<char> image;
     try {
       ok = write_contents(writer, asset, options);
       reason = writer.failure();
-    } catch (const std::exception& e) {  // allocation or thread failures: still close the temporary
+      if (ok && H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) {
+        ok = false;
+        reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
+      }
+      const ssize_t size = ok ? H5Fget_file_image(file, nullptr, 0) : -1;
+      if (ok && size > 0) {
+        image.resize(size_t(size));
+        ok = H5Fget_file_image(file, image.data(), image.size()) == size;
+      } else {
+        ok = false;
+      }
+      if (!ok && reason.empty()) reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
+    } catch (const std::exception& e) {  // allocation or thread failures: still close the file
+      ok = false;
       reason = std::string("write failed: ") + e.what();
     }
-    if (H5Fclose(file) < 0 && ok) {
-      ok = false;
-      reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
-    }
+    H5Fclose(file);  // in memory: nothing to fail on
     if (!ok) return Error{IssueCode::WriteFailed, path + ": " + reason, path};
-    return Status::success();
+    return write_bytes(temp, image, path);
   };
   steps.before_commit = [&]() -> Status {
     wait_for_check();

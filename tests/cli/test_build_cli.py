@@ -88,3 +88,67 @@ class BuildBadInput(unittest.TestCase):
 
 if __name__ == "__main__":
     unittest.main()
+
+
+@unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
+class BuildBadOutput(unittest.TestCase):
+    """Outputs that cannot be written: WRITE_FAILED naming the problem, no partial file, an earlier asset untouched."""
+
+    TET = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n"
+
+    def setUp(self):
+        self.dir = tempfile.TemporaryDirectory()
+        self.mesh = os.path.join(self.dir.name, "tet.obj")
+        with open(self.mesh, "w") as f:
+            f.write(self.TET)
+
+    def tearDown(self):
+        self.dir.cleanup()
+
+    def build(self, out, resolution="24", preexec_fn=None):
+        return subprocess.run([VOXFMT, "build", self.mesh, "-o", out, "--resolution", resolution, "--points", "300",
+                               "--json"], capture_output=True, text=True, timeout=120, preexec_fn=preexec_fn)
+
+    def expect_write_failed(self, r, words):
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)  # an error, not a crash
+        self.assertIn("WRITE_FAILED", r.stderr)
+        self.assertEqual(json.loads(r.stdout)["code"], "WRITE_FAILED")
+        self.assertIn(words, r.stderr)
+
+    def partials(self, folder):
+        return [f for f in os.listdir(folder) if ".partial-" in f]
+
+    def test_folder_that_does_not_exist(self):
+        out = os.path.join(self.dir.name, "missing", "out.vox.h5")
+        self.expect_write_failed(self.build(out), "does not exist")
+        self.assertFalse(os.path.exists(os.path.dirname(out)))
+
+    def test_path_that_is_a_folder(self):
+        out = os.path.join(self.dir.name, "folder.vox.h5")
+        os.mkdir(out)
+        self.expect_write_failed(self.build(out), "is a folder")
+        self.assertTrue(os.path.isdir(out))
+
+    def test_folder_where_nothing_can_be_created(self):
+        # /proc refuses new files to everyone, root included (a chmod'ed folder would not stop root).
+        self.expect_write_failed(self.build("/proc/voxfmt-test.vox.h5"), "cannot create file")
+
+    def test_full_disk_keeps_the_earlier_asset(self):
+        """A 64 KiB file-size limit (ulimit -f) stands for a full disk: the kernel refuses the write (EFBIG) and,
+        by default, sends SIGXFSZ, which voxfmt must not die of (reset here: Python starts children ignoring it)."""
+        import resource
+        import signal
+        out = os.path.join(self.dir.name, "out.vox.h5")
+        self.assertEqual(self.build(out).returncode, 0)
+        with open(out, "rb") as f:
+            before = f.read()
+
+        def limit_file_size():
+            signal.signal(signal.SIGXFSZ, signal.SIG_DFL)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (64 << 10, 64 << 10))
+
+        r = self.build(out, resolution="96", preexec_fn=limit_file_size)
+        self.expect_write_failed(r, "File too large")
+        with open(out, "rb") as f:
+            self.assertEqual(f.read(), before, "the earlier asset changed")
+        self.assertEqual(self.partials(self.dir.name), [])

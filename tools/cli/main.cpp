@@ -1,6 +1,7 @@
 // voxfmt: the one command-line front end of the toolchain.
 #include <CLI/CLI.hpp>
 
+#include <csignal>
 #include <iostream>
 
 #include "commands.h"
@@ -8,6 +9,9 @@
 #include "voxfmt/version.h"
 
 int main(int argc, char** argv) {
+  // A file-size limit (ulimit -f) must make a write fail with EFBIG, reported as WRITE_FAILED with the temporary
+  // removed, not kill the process with SIGXFSZ and leave the temporary behind. (CPython ignores it too.)
+  std::signal(SIGXFSZ, SIG_IGN);
   CLI::App app{"voxfmt — bake, inspect and validate Voxmap-PointShell collision assets (.vox.h5)"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("voxfmt ") + VOXFMT_VERSION_STRING + " (asset format " +

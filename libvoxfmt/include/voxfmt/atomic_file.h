@@ -22,6 +22,10 @@ struct AtomicWrite {
   std::function<Status()> before_commit;
 };
 
+/// Whether a file could be written at `path` (its folder exists and is a folder, the path is not a folder), as
+/// WRITE_FAILED naming the problem. Cheap: long jobs call it before their work, so a typo costs no bake.
+Status check_output_path(const std::string& path);
+
 /// Writes `path` atomically. Errors are WRITE_FAILED (naming `path` and the reason) unless `write` or
 /// `before_commit` return their own.
 Status write_file_atomically(const std::string& path, const AtomicWrite& steps);

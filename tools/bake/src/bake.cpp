@@ -22,6 +22,7 @@
 
 #include "stages.h"
 #include "vec3_math.h"
+#include "voxfmt/atomic_file.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 
@@ -348,6 +349,7 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress) {
   const auto start = std::chrono::steady_clock::now();
+  if (Status usable = check_output_path(output_path); !usable) return usable.error();  // before a long bake
   Result<Baked> baked = bake_mesh(mesh_path, settings, progress);
   if (!baked) return baked.error();
   if (progress) progress("verify + write", stage_start_fraction("verify + write"));
