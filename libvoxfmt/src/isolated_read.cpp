@@ -22,6 +22,10 @@
 #include <unistd.h>
 #endif
 
+// Sanitizer runtimes (when linked) call a death callback on a report; a fuzzer registers one that saves the input
+// as a crash. Weak: absent from ordinary builds.
+extern "C" void __sanitizer_set_death_callback(void (*callback)(void)) __attribute__((weak));
+
 namespace voxfmt {
 
 namespace {
@@ -304,6 +308,10 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
     return refuse(std::string("cannot start the isolated read: ") + std::strerror(errno));
   }
   if (child == 0) {
+    // Die plainly: the caller's crash handlers (a fuzzer's, a sanitizer's, a crash reporter's) would take the
+    // child's crash inside HDF5 for one of the caller's.
+    for (int signal_number : {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT}) ::signal(signal_number, SIG_DFL);
+    if (__sanitizer_set_death_callback) __sanitizer_set_death_callback(nullptr);  // a report here is HDF5's
     ::close(fds[0]);
     bool ok = false;
     try {
