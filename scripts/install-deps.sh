@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PACKAGES=(
-  build-essential cmake ninja-build ccache pkg-config git clang-format-14
+  build-essential cmake ninja-build ccache pkg-config git clang-format-14 clang-14 libclang-rt-14-dev
   libeigen3-dev
   libassimp-dev
   libopenvdb-dev libtbb-dev libblosc-dev libboost-iostreams-dev
