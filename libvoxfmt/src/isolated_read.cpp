@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <mutex>
 #include <new>
 #include <type_traits>
@@ -50,8 +51,6 @@ namespace {
 class WireWriter {
  public:
   explicit WireWriter(int fd) : fd_(fd) {}
-  ~WireWriter() = default;
-  bool ok() const { return ok_; }
   template <class T>
   void pod(const T& value) {
     static_assert(std::is_trivially_copyable_v<T>);
@@ -71,6 +70,19 @@ class WireWriter {
   void maybe(const std::optional<T>& v) {
     pod(uint8_t(v.has_value()));
     if (v) pod(*v);
+  }
+  /// A sequence of structures, each written by `each(item)`.
+  template <class T, class Each>
+  void list(const std::vector<T>& v, Each&& each) {
+    pod(uint64_t(v.size()));
+    for (const T& item : v) each(item);
+  }
+  void text_map(const std::map<std::string, std::string>& m) {
+    pod(uint64_t(m.size()));
+    for (const auto& [key, value] : m) {
+      text(key);
+      text(value);
+    }
   }
   bool flush() {
     if (ok_ && !buffer_.empty()) ok_ = write_all(buffer_.data(), buffer_.size());
@@ -148,6 +160,22 @@ class WireReader {
       v.reset();
     }
   }
+  /// Grows one item at a time: a damaged count ends at the pipe's end, not in one huge allocation.
+  template <class T, class Each>
+  void list(std::vector<T>& v, Each&& each) {
+    uint64_t n = 0;
+    pod(n);
+    for (uint64_t i = 0; ok_ && i < n; ++i) each(v.emplace_back());
+  }
+  void text_map(std::map<std::string, std::string>& m) {
+    uint64_t n = 0;
+    pod(n);
+    for (uint64_t i = 0; ok_ && i < n; ++i) {
+      std::string key;
+      text(key);
+      text(m[key]);
+    }
+  }
 
  private:
   // The format allows 2^31 elements per dataset (h5.cpp); anything more is not an asset.
@@ -180,7 +208,8 @@ class WireReader {
   bool timed_out_ = false;
 };
 
-// One visitor for both directions keeps the two in step: every field is named once.
+// One visitor per structure for both directions (WireWriter with const data, WireReader with data to fill):
+// every field is named once, so the two sides cannot drift apart.
 template <class Wire, class P>
 void visit_provenance(Wire& w, P& p) {
   w.text(p.generator);
@@ -189,43 +218,15 @@ void visit_provenance(Wire& w, P& p) {
   w.text(p.source_sha256);
   w.text(p.build_parameters_json);
   w.text(p.created_utc);
-}
-
-void put_provenance(WireWriter& w, const Provenance& p) {
-  visit_provenance(w, p);
-  w.pod(uint64_t(p.dependency_versions.size()));
-  for (const auto& [name, version] : p.dependency_versions) {
-    w.text(name);
-    w.text(version);
-  }
-  w.pod(uint64_t(p.build_warnings.size()));
-  for (const BuildWarning& warning : p.build_warnings) {
+  w.text_map(p.dependency_versions);
+  w.list(p.build_warnings, [&](auto& warning) {
     w.text(warning.code);
     w.text(warning.message);
-  }
-}
-
-void get_provenance(WireReader& r, Provenance& p) {
-  visit_provenance(r, p);
-  uint64_t n = 0;
-  r.pod(n);
-  for (uint64_t i = 0; r.ok() && i < n; ++i) {
-    std::string name, version;
-    r.text(name);
-    r.text(version);
-    p.dependency_versions[name] = version;
-  }
-  r.pod(n);
-  for (uint64_t i = 0; r.ok() && i < n; ++i) {
-    BuildWarning warning;
-    r.text(warning.code);
-    r.text(warning.message);
-    p.build_warnings.push_back(std::move(warning));
-  }
+  });
 }
 
 template <class Wire, class A>
-void visit_asset_data(Wire& w, A& a) {
+void visit_asset(Wire& w, A& a) {
   w.pod(a.version);
   w.text(a.up_axis);
   w.pod(a.bounds_min);
@@ -250,40 +251,27 @@ void visit_asset_data(Wire& w, A& a) {
   w.maybe(ps.point_spacing);
   w.maybe(ps.branching);
   w.pod(a.mass);
+  visit_provenance(w, a.provenance);
 }
 
-void put_issues(WireWriter& w, const std::vector<Issue>& issues) {
-  w.pod(uint64_t(issues.size()));
-  for (const Issue& issue : issues) {
+template <class Wire, class Issues>
+void visit_issues(Wire& w, Issues& issues) {
+  w.list(issues, [&](auto& issue) {
     w.pod(issue.code);
     w.pod(issue.severity);
     w.text(issue.path);
     w.text(issue.message);
-  }
-}
-
-bool get_issues(WireReader& r, std::vector<Issue>& issues) {
-  uint64_t n = 0;
-  r.pod(n);
-  for (uint64_t i = 0; r.ok() && i < n; ++i) {
-    Issue issue{};
-    r.pod(issue.code);
-    r.pod(issue.severity);
-    r.text(issue.path);
-    r.text(issue.message);
-    issues.push_back(std::move(issue));
-  }
-  return r.ok();
+  });
 }
 
 // ------------------------------------------------------------------ the child process
 
-// Reads `path` with `read` in a child process that streams the result back; `receive` decodes it. Returns the
-// value (with the child's findings appended to `issues`), or nothing with a READ_FAILED finding when the child
-// died, hung or sent something malformed.
-template <class Value, class ReadInProcess, class Put, class Get>
-std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& issues, ReadInProcess&& read, Put&& put,
-                                   Get&& get) {
+// Reads `path` with `read` in a child process that streams the result back, both sides through `visit` (a
+// visitor of Value for either wire). Returns the value (with the child's findings appended to `issues`), or
+// nothing with a READ_FAILED finding when the child died, hung or sent something malformed.
+template <class Value, class ReadInProcess, class Visit>
+std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& issues, ReadInProcess&& read,
+                                   Visit&& visit) {
   if (!read_isolation()) return read(path, issues);
   // One isolated read at a time in this process: a child forked while another of our threads is inside HDF5
   // would wait forever for HDF5's lock, which that thread holds in the parent only.
@@ -318,9 +306,9 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
       std::vector<Issue> found;
       std::optional<Value> value = read(path, found);
       WireWriter w(fds[1]);
-      put_issues(w, found);
+      visit_issues(w, found);
       w.pod(uint8_t(value.has_value()));
-      if (value) put(w, *value);
+      if (value) visit(w, *value);
       ok = w.flush();
     } catch (...) {
     }
@@ -335,10 +323,11 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   bool out_of_memory = false;
   try {
     uint8_t present = 0;
-    if (get_issues(r, found)) r.pod(present);
+    visit_issues(r, found);
+    r.pod(present);
     if (r.ok() && present) {
       value.emplace();
-      get(r, *value);
+      visit(r, *value);
     }
   } catch (const std::bad_alloc&) {
     out_of_memory = true;
@@ -369,16 +358,7 @@ std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& iss
 #if defined(_WIN32)
   return load_asset_in_process(path, issues);
 #else
-  return read_isolated<Asset>(
-      path, issues, load_asset_in_process,
-      [](WireWriter& w, const Asset& a) {
-        visit_asset_data(w, a);
-        put_provenance(w, a.provenance);
-      },
-      [](WireReader& r, Asset& a) {
-        visit_asset_data(r, a);
-        get_provenance(r, a.provenance);
-      });
+  return read_isolated<Asset>(path, issues, load_asset_in_process, [](auto& w, auto& a) { visit_asset(w, a); });
 #endif
 }
 
@@ -386,7 +366,8 @@ std::optional<Provenance> load_provenance(const std::string& path, std::vector<I
 #if defined(_WIN32)
   return load_provenance_in_process(path, issues);
 #else
-  return read_isolated<Provenance>(path, issues, load_provenance_in_process, put_provenance, get_provenance);
+  return read_isolated<Provenance>(path, issues, load_provenance_in_process,
+                                   [](auto& w, auto& p) { visit_provenance(w, p); });
 #endif
 }
 

@@ -216,9 +216,24 @@ struct Contacts {
 
 static_assert(sizeof(runtime::Contact) % sizeof(double) == 0 && sizeof(runtime::Contact) % sizeof(uint32_t) == 0,
               "strided views into the contacts need whole-element strides");
-constexpr int64_t kContactDoubles = sizeof(runtime::Contact) / sizeof(double);
 
-const runtime::Contact* first(const Contacts& c) { return c.set.contacts.empty() ? nullptr : c.set.contacts.data(); }
+/// A read-only view of one field across a Contacts' contacts (strided by the Contact struct, no copy), kept alive
+/// by `self`: `field` gives the field's address in a contact, `columns` is 1 (shape (M,)) or 3 (shape (M, 3)).
+template <class T, class Field>
+nb::ndarray<nb::numpy, const T> contact_field(nb::handle self, Field field, size_t columns) {
+  const Contacts& c = nb::cast<const Contacts&>(self);
+  const T* data = c.set.contacts.empty() ? nullptr : field(c.set.contacts.front());
+  const int64_t stride = int64_t(sizeof(runtime::Contact) / sizeof(T));
+  if (columns == 1) return view<T>(data, {c.set.contacts.size()}, {stride}, self);
+  return view<T>(data, {c.set.contacts.size(), columns}, {stride, 1}, self);
+}
+
+/// The largest depth of a set, metres (0.0 without contacts).
+double deepest_depth(const ContactSet& set) {
+  double deepest = 0.0;
+  for (const runtime::Contact& x : set.contacts) deepest = std::max(deepest, x.depth);
+  return deepest;
+}
 
 Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, std::optional<int64_t> point_budget,
                std::optional<double> time_budget_us, double proximity) {
@@ -296,11 +311,9 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
       for (size_t i = next.fetch_add(kChunk); i < k; i = (i + 1) % kChunk == 0 ? next.fetch_add(kChunk) : i + 1) {
         set.clear();
         runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, scratch);
-        double deepest = 0.0;
-        for (const runtime::Contact& c : set.contacts) deepest = std::max(deepest, c.depth);
         const runtime::Wrench wr = runtime::penalty_wrench(set, pa[i].apply(a.object->center_of_mass()), stiffness);
         count.data[i] = int64_t(set.contacts.size());
-        max_depth.data[i] = deepest;
+        max_depth.data[i] = deepest_depth(set);
         for (int j = 0; j < 3; ++j) {
           force.data[3 * i + j] = wr.force[j];
           torque.data[3 * i + j] = wr.torque[j];
@@ -624,52 +637,40 @@ NB_MODULE(_voxfmt, m) {
       .def_prop_ro(
           "points",
           [](nb::handle self) {
-            const Contacts& c = nb::cast<const Contacts&>(self);
-            const runtime::Contact* f = first(c);
-            return view<double>(f ? f->point.data() : nullptr, {c.set.contacts.size(), 3}, {kContactDoubles, 1}, self);
+            return contact_field<double>(
+                self, [](const runtime::Contact& c) { return c.point.data(); }, 3);
           },
           "(M, 3) contact points (the shell point, on the surface of the body that carries it), metres.")
       .def_prop_ro(
           "normals",
           [](nb::handle self) {
-            const Contacts& c = nb::cast<const Contacts&>(self);
-            const runtime::Contact* f = first(c);
-            return view<double>(f ? f->normal.data() : nullptr, {c.set.contacts.size(), 3}, {kContactDoubles, 1}, self);
+            return contact_field<double>(
+                self, [](const runtime::Contact& c) { return c.normal.data(); }, 3);
           },
           "(M, 3) unit normals: the direction in which A must move to separate from B.")
       .def_prop_ro(
           "depths",
           [](nb::handle self) {
-            const Contacts& c = nb::cast<const Contacts&>(self);
-            const runtime::Contact* f = first(c);
-            return view<double>(f ? &f->depth : nullptr, {c.set.contacts.size()}, {kContactDoubles}, self);
+            return contact_field<double>(
+                self, [](const runtime::Contact& c) { return &c.depth; }, 1);
           },
           "(M,) penetration depths, metres (negative for proximity points).")
       .def_prop_ro(
           "point_index",
           [](nb::handle self) {
-            const Contacts& c = nb::cast<const Contacts&>(self);
-            const runtime::Contact* f = first(c);
-            return view<uint32_t>(f ? &f->point_index : nullptr, {c.set.contacts.size()},
-                                  {int64_t(sizeof(runtime::Contact) / sizeof(uint32_t))}, self);
+            return contact_field<uint32_t>(
+                self, [](const runtime::Contact& c) { return &c.point_index; }, 1);
           },
           "(M,) index of the point in its body's points.")
       .def_prop_ro(
           "point_of_b",
           [](nb::handle self) {
-            const Contacts& c = nb::cast<const Contacts&>(self);
-            const runtime::Contact* f = first(c);
-            return view<bool>(f ? &f->point_of_b : nullptr, {c.set.contacts.size()},
-                              {int64_t(sizeof(runtime::Contact))}, self);
+            return contact_field<bool>(
+                self, [](const runtime::Contact& c) { return &c.point_of_b; }, 1);
           },
           "(M,) True where the point is B's (tested in A's voxelmap).")
       .def_prop_ro(
-          "max_depth",
-          [](const Contacts& c) {
-            double deepest = 0.0;
-            for (const runtime::Contact& x : c.set.contacts) deepest = std::max(deepest, x.depth);
-            return deepest;
-          },
+          "max_depth", [](const Contacts& c) { return deepest_depth(c.set); },
           "Largest depth, metres (0.0 without contacts).")
       .def_prop_ro(
           "reference", [](const Contacts& c) { return vector_array<double>(c.reference); },
@@ -677,10 +678,8 @@ NB_MODULE(_voxfmt, m) {
       .def_prop_ro(
           "stats", [](const Contacts& c) { return c.set.stats; }, "QueryStats of the traversal.")
       .def("__repr__", [](const Contacts& c) {
-        double deepest = 0.0;
-        for (const runtime::Contact& x : c.set.contacts) deepest = std::max(deepest, x.depth);
         return "<voxfmt.Contacts: " + std::to_string(c.set.contacts.size()) + " contacts, max depth " +
-               std::to_string(deepest) + " m>";
+               std::to_string(deepest_depth(c.set)) + " m>";
       });
 
   m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0,

@@ -2,25 +2,18 @@
 // validation, loading into the runtime, one query. HDF5 parses in the isolated child (a crash there is a
 // READ_FAILED finding, not a fuzzer finding); what is fuzzed is this project's code around it: the reader's checks,
 // the child's wire format, the validator, the runtime's conversion and query.
-#include <unistd.h>
-
 #include <cstdint>
-#include <cstdio>
 #include <string>
 
+#include "fuzz_input_file.h"
 #include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
 #include "voxfmt/runtime/query.h"
 #include "voxfmt/validate.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  static const std::string path = "/tmp/voxfmt-fuzz-asset-" + std::to_string(::getpid()) + ".vox.h5";
-  if (FILE* f = std::fopen(path.c_str(), "wb")) {
-    std::fwrite(data, 1, size, f);
-    std::fclose(f);
-  } else {
-    return 0;
-  }
+  const std::string path = voxfmt::fuzz::write_input_file(data, size, "-asset.vox.h5");
+  if (path.empty()) return 0;
   (void)voxfmt::validate_file(path, voxfmt::ValidationLevel::Full);
   voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
   if (!asset) return 0;
