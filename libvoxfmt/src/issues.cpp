@@ -46,6 +46,7 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::NonFiniteCoordinates, "NON_FINITE_COORDINATES", Severity::Error},
     {IssueCode::ZeroVolume, "ZERO_VOLUME", Severity::Error},
     {IssueCode::GridTooLarge, "GRID_TOO_LARGE", Severity::Error},
+    {IssueCode::ScaleOutOfRange, "SCALE_OUT_OF_RANGE", Severity::Error},
     {IssueCode::InvalidAsset, "INVALID_ASSET", Severity::Error},
     {IssueCode::OutOfMemory, "OUT_OF_MEMORY", Severity::Error},
     {IssueCode::BadOption, "BAD_OPTION", Severity::Error},

@@ -44,9 +44,8 @@ class Checker {
   std::vector<Issue>& issues_;
 };
 
-// Bounds of what a valid file may claim (spec §3): beyond them the numbers mean nothing physical and overflow
-// the checks that use them.
-constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;
+// Bounds of what a valid file may claim (spec §3; voxel sizes in asset.h): beyond them the numbers mean nothing
+// physical and overflow the checks that use them.
 constexpr double kMaxDistanceBand = 32767;
 
 std::string fmt(double v) {

@@ -59,6 +59,9 @@ def test_bake_errors(tmp_path: Path, sphere_mesh: Path) -> None:
     nan = tmp_path / "nan.off"
     nan.write_text("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\nnan 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n")
     raises(voxfmt.MeshError, "NON_FINITE_COORDINATES", voxfmt.bake, nan, out)
+    # Voxels of 1e-12 m (a mesh in the wrong unit): refused before the bake, nothing written.
+    raises(voxfmt.MeshError, "SCALE_OUT_OF_RANGE", voxfmt.bake, sphere_mesh, out, unit_scale=1e-10)
+    assert not out.exists()
     for options in (
         {"resolution": 0},
         {"resolution": 5000},

@@ -34,7 +34,7 @@ class AssetError(Error):
 
 class MeshError(Error):
     """A mesh the bake cannot use (INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
-    NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE)."""
+    NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE, SCALE_OUT_OF_RANGE)."""
 
 
 class WriteError(Error):
@@ -62,6 +62,7 @@ _MESH_CODES = frozenset(
         "NON_FINITE_COORDINATES",
         "ZERO_VOLUME",
         "GRID_TOO_LARGE",
+        "SCALE_OUT_OF_RANGE",
     }
 )
 _CLASS_OF_CODE: dict[str, type[Error]] = {

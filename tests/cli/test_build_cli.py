@@ -86,9 +86,6 @@ class BuildBadInput(unittest.TestCase):
         self.assertEqual(v.returncode, 0, v.stdout)
 
 
-if __name__ == "__main__":
-    unittest.main()
-
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
 class BuildBadOutput(unittest.TestCase):
@@ -152,3 +149,69 @@ class BuildBadOutput(unittest.TestCase):
         with open(out, "rb") as f:
             self.assertEqual(f.read(), before, "the earlier asset changed")
         self.assertEqual(self.partials(self.dir.name), [])
+
+
+def cube_obj(edge):
+    """A closed cube of the given edge (metres) with a corner at the origin, as OBJ text."""
+    corners = [(x, y, z) for z in (0, edge) for y in (0, edge) for x in (0, edge)]
+    quads = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (3, 7, 8, 4), (1, 5, 7, 3), (2, 4, 8, 6)]
+    lines = ["v %r %r %r" % c for c in corners]
+    lines += ["f %d %d %d\nf %d %d %d" % (a, b, c, a, c, d) for a, b, c, d in quads]
+    return "\n".join(lines) + "\n"
+
+
+@unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
+class BuildAtAnyScale(unittest.TestCase):
+    """A micrometre part and a kilometre structure bake into valid assets with the right mass properties; a mesh
+    whose voxels would leave the format's range (1e-9..1e6 m) is SCALE_OUT_OF_RANGE before the bake starts."""
+
+    def setUp(self):
+        self.dir = tempfile.TemporaryDirectory()
+        self.out = os.path.join(self.dir.name, "out.vox.h5")
+
+    def tearDown(self):
+        self.dir.cleanup()
+
+    def build(self, edge, *extra):
+        mesh = os.path.join(self.dir.name, "cube.obj")
+        with open(mesh, "w") as f:
+            f.write(cube_obj(edge))
+        grid = [] if "--voxel-size" in extra else ["--resolution", "24"]
+        return subprocess.run([VOXFMT, "build", mesh, "-o", self.out, *grid, "--points", "400", "--json", *extra],
+                              capture_output=True, text=True, timeout=120)
+
+    def test_tiny_and_huge_meshes_bake_into_valid_assets(self):
+        for edge in (1e-6, 3e-8, 1e6, 1e7):
+            with self.subTest(edge=edge):
+                r = self.build(edge)
+                self.assertEqual(r.returncode, 0, r.stderr)
+                summary = json.loads(r.stdout)
+                self.assertAlmostEqual(summary["volume"] / edge**3, 1.0, places=9)
+                v = subprocess.run([VOXFMT, "validate", "--level", "full", "--json", self.out],
+                                   capture_output=True, text=True)
+                self.assertEqual(v.returncode, 0, v.stdout)
+                info = json.loads(subprocess.run([VOXFMT, "inspect", "--json", self.out], capture_output=True,
+                                                 text=True, check=True).stdout)
+                self.assertAlmostEqual(info["voxelmap"]["voxel_size"] / (edge / 24), 1.0, places=9)
+
+    def test_voxels_outside_the_formats_range_are_refused_before_the_bake(self):
+        for edge, words in ((1e-8, "use fewer voxels"), (1e9, "use more voxels")):
+            with self.subTest(edge=edge):
+                r = self.build(edge)
+                self.assertEqual(r.returncode, 1, r.stderr)
+                self.assertIn("SCALE_OUT_OF_RANGE", r.stderr)
+                self.assertIn("cube.obj", r.stderr)
+                self.assertIn(words, r.stderr)
+                self.assertEqual(json.loads(r.stdout)["code"], "SCALE_OUT_OF_RANGE")
+                self.assertEqual(os.listdir(self.dir.name), ["cube.obj"])
+        # A millimetre file read as metres and scaled by 1e-6 by mistake: the unit is the likely cause.
+        r = self.build(1.0, "--unit-scale", "1e-9")
+        self.assertIn("SCALE_OUT_OF_RANGE", r.stderr)
+        self.assertIn("unit scale", r.stderr)
+        r = self.build(1.0, "--voxel-size", "1e-10")
+        self.assertEqual(r.returncode, 2, r.stderr)
+        self.assertIn("BAD_OPTION", r.stderr)
+
+
+if __name__ == "__main__":
+    unittest.main()

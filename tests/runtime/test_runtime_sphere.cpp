@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <optional>
+#include <string>
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -50,6 +52,36 @@ TEST(SphereQuery, DepthsOfOverlappingSpheresMatchTheClosedForm) {
     deepest = std::max(deepest, c.depth);
   }
   EXPECT_NEAR(deepest, 0.012, 0.1 * kVoxel);
+}
+
+// The same overlap at a micrometre, the unit scale and 100 km, with the spheres far from the origin: depths
+// scale exactly, and the traversal prunes as well at every scale (pads for float rounding that were fixed in
+// metres swamped micrometre spheres and so visited every node).
+TEST(SphereQuery, AnyScaleGivesTheSameContactsRelativeToTheVoxel) {
+  std::optional<QueryStats> unit_stats;
+  for (const double scale : {1.0, 1e-6, 1e5}) {
+    SCOPED_TRACE("scale " + std::to_string(scale));
+    const Vec3 centre{3 * kRadius * scale, -2 * kRadius * scale, kRadius * scale};
+    auto loaded =
+        CollisionObject::from_asset(test::make_sphere_asset({centre, kRadius * scale, kVoxel * scale, 2000, 4}));
+    ASSERT_TRUE(loaded) << loaded.error().describe();
+    const CollisionObject& s = *loaded.value();
+    const double gap = (2 * kRadius - 0.004) * scale;  // 4 mm: most of the tree is pruned
+    ContactSet contacts;
+    QueryOptions options;
+    options.direction = QueryDirection::APointsInB;
+    query_contacts(s, at(0), s, at(gap), options, contacts);
+    ASSERT_FALSE(contacts.contacts.empty());
+    double deepest = 0;
+    for (const Contact& c : contacts.contacts) deepest = std::max(deepest, c.depth);
+    EXPECT_NEAR(deepest / scale, 0.004, 0.1 * kVoxel);
+    if (!unit_stats) {
+      unit_stats = contacts.stats;
+      continue;
+    }
+    EXPECT_LE(contacts.stats.nodes_visited, unit_stats->nodes_visited * 11 / 10);
+    EXPECT_LE(contacts.stats.points_tested, unit_stats->points_tested * 11 / 10);
+  }
 }
 
 TEST(SphereQuery, SeparatedSpheresHaveNoContactButProximityPoints) {

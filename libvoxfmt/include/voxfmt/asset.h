@@ -28,6 +28,9 @@ struct FormatVersion {
 /// The format version this library writes and fully understands.
 inline constexpr FormatVersion kFormatVersion{1, 1};
 
+/// The voxel sizes a valid file may have (spec §3): beyond them the numbers mean nothing physical.
+inline constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;
+
 /// Layered distance-field voxelmap (spec §3). Grids are x-fastest: index = (k * H + j) * W + i.
 struct Voxelmap {
   Vec3 origin{};                   ///< centre of voxel (0,0,0), metres

@@ -46,6 +46,7 @@ enum class IssueCode {
   NonFiniteCoordinates,
   ZeroVolume,
   GridTooLarge,
+  ScaleOutOfRange,
   InvalidAsset,
   OutOfMemory,
   BadOption,

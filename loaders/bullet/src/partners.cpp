@@ -165,7 +165,7 @@ void TriangleSet::build() {
     }
   // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
   const Eigen::Vector3f extent = hi_ - lo_;
-  cell_ = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-6f});
+  cell_ = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
   for (int a = 0; a < 3; ++a) dims_[a] = std::clamp(int(std::ceil(extent[a] / cell_)), 1, 64);
   auto cell_of = [&](const Eigen::Vector3f& p) {
     Eigen::Vector3i c;

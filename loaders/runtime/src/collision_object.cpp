@@ -26,9 +26,16 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
     tree.normals.push_back(to_float(shell.normals[i]));
     tree.sphere_centers.push_back(to_float(shell.sphere_centers[i]));
   }
+  // Single precision moves a centre or a point by up to 2^-24 of its largest coordinate (6e-8 relative): grow
+  // radii by that much of the shell's largest coordinate, so a sphere still encloses its subtree at any scale
+  // (a micrometre part or a building; a fixed pad in metres would swamp the one and miss the other).
+  double largest = 0;
+  for (size_t i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a)
+      largest = std::max({largest, std::abs(shell.points[i][a]), std::abs(shell.sphere_centers[i][a])});
+  const float rounding_pad = float(4e-7 * largest);
   tree.sphere_radii.reserve(n);
-  // Single precision rounds centres and points by ~1e-7 relative; grow radii so spheres still enclose.
-  for (double r : shell.sphere_radii) tree.sphere_radii.push_back(float(r) * (1.0f + 1e-6f) + 1e-7f);
+  for (double r : shell.sphere_radii) tree.sphere_radii.push_back(float(r) * (1.0f + 1e-6f) + rounding_pad);
   tree.child_begin = shell.child_begin;
   tree.child_count = shell.child_count;
   tree.level_offsets = shell.level_offsets;
@@ -41,7 +48,8 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
       for (int a = 0; a < 3; ++a)
         offset += (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]) *
                   (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]);
-      tree.reach_from_parent[child] = float(std::sqrt(offset) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + 1e-7f;
+      tree.reach_from_parent[child] =
+          float(std::sqrt(offset) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + rounding_pad;
     }
   return tree;
 }

@@ -56,8 +56,9 @@ template <class T, class Work>
 Result<T> guarded(const std::string& mesh_path, Work&& work) {
   try {
     return work();
-  } catch (const BakeError& e) {
-    return Error{e.code(), e.what(), mesh_path};
+  } catch (const BakeError& e) {  // every message names the input, whichever stage threw
+    const std::string message = e.what();
+    return Error{e.code(), message.rfind(mesh_path, 0) == 0 ? message : mesh_path + ": " + message, mesh_path};
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory (try a coarser resolution or voxel size)",
                  mesh_path};
@@ -176,13 +177,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   report.input_triangles = raw.triangles.size();
 
   stage("repair");
-  const TriangleMesh mesh = [&] {
-    try {
-      return repair_mesh(raw, report.repair, options.check_self_intersections);
-    } catch (const BakeError& e) {  // name the input, as every other stage's message does
-      throw BakeError(e.code(), mesh_path + ": " + e.what());
-    }
-  }();
+  const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
   const auto [lo, hi] = bounding_box(mesh);
   const double diagonal = length(hi - lo);
   // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
@@ -306,6 +301,8 @@ Status check_settings(const Settings& s) {
   auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "bad option: " + what}; };
   auto finite_non_negative = [](double v) { return std::isfinite(v) && v >= 0; };
   if (!finite_non_negative(s.voxelmap.voxel_size)) return bad("voxel_size must be a finite number > 0 (or 0: none)");
+  if (s.voxelmap.voxel_size != 0 && !(s.voxelmap.voxel_size >= kMinVoxelSize && s.voxelmap.voxel_size <= kMaxVoxelSize))
+    return bad("voxel_size is outside the format's range 1e-09..1e+06 m");
   if (s.voxelmap.voxel_size == 0 && (s.voxelmap.resolution < 1 || s.voxelmap.resolution > 4096))
     return bad("resolution " + std::to_string(s.voxelmap.resolution) + " is outside 1..4096");
   if (!finite_non_negative(s.point_shell.point_spacing))

@@ -37,6 +37,18 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
   }
   if (!(g.voxel_size > 0) || !std::isfinite(g.voxel_size))
     throw BakeError(IssueCode::ZeroVolume, "the mesh has no extent (all vertices coincide)");
+  // Checked before the grid is made, so a mesh in the wrong unit fails at once and says so, rather than as an
+  // asset the spec refuses after the whole bake.
+  if (!(g.voxel_size >= kMinVoxelSize && g.voxel_size <= kMaxVoxelSize)) {
+    char text[320];
+    std::snprintf(text, sizeof text,
+                  "the mesh is %.3g m across, so a voxel would be %.3g m, outside the format's range [%g, %g] m: is "
+                  "the mesh in metres (unit scale)? Otherwise %s",
+                  longest, g.voxel_size, kMinVoxelSize, kMaxVoxelSize,
+                  g.voxel_size < kMinVoxelSize ? "use fewer voxels (a lower resolution or a larger voxel size)"
+                                               : "use more voxels (a higher resolution or a smaller voxel size)");
+    throw BakeError(IssueCode::ScaleOutOfRange, text);
+  }
   // Voxels tile the bounding box exactly from its min corner, plus `margin` voxels on every side.
   uint64_t total = 1;
   for (int a = 0; a < 3; ++a) {

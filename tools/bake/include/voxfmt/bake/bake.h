@@ -110,7 +110,7 @@ Status check_settings(const Settings& settings);
 
 /// Bakes `mesh_path` (any format assimp reads; all meshes of a scene merged with their node transforms) into
 /// an asset in memory. Errors: INPUT_NOT_FOUND, UNSUPPORTED_FORMAT, IMPORT_FAILED, EMPTY_SCENE,
-/// NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE, BAD_OPTION, OUT_OF_MEMORY, INTERNAL.
+/// NON_FINITE_COORDINATES, ZERO_VOLUME, GRID_TOO_LARGE, SCALE_OUT_OF_RANGE, BAD_OPTION, OUT_OF_MEMORY, INTERNAL.
 Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress = {});
 
 /// Bakes `mesh_path` and writes the asset to `output_path`: every rule of `voxfmt validate --level full` is
