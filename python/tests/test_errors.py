@@ -53,8 +53,11 @@ def test_bake_errors(tmp_path: Path, sphere_mesh: Path) -> None:
     shutil.copy(sphere_mesh, unknown)
     raises(voxfmt.MeshError, "UNSUPPORTED_FORMAT", voxfmt.bake, unknown, out)
     broken = tmp_path / "broken.off"
-    # (Not an OFF that announces more vertices than it has: Debian's assimp aborts on that in an assertion.)
     broken.write_text("OFF\nfoo bar baz\n")
+    raises(voxfmt.MeshError, "IMPORT_FAILED", voxfmt.bake, broken, out)
+    # Debian's assimp aborts in an assertion on an OFF that announces more vertices than it has: the import runs
+    # in a child process, so the interpreter survives.
+    broken.write_text("OFF\n100 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     raises(voxfmt.MeshError, "IMPORT_FAILED", voxfmt.bake, broken, out)
     nan = tmp_path / "nan.off"
     nan.write_text("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\nnan 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 0 3 2\n")

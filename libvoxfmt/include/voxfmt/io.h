@@ -36,7 +36,8 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
 /// the data through a pipe. Turn it off for trusted files, debuggers and fuzzers (in-process crashes are what a
 /// fuzzer looks for), or when another thread of the process may be inside HDF5 at the time of a read (a forked
 /// child cannot take HDF5's lock from it): set_read_isolation(false), or VOXFMT_READ_ISOLATION=0 in the
-/// environment. Not thread-safe; set it before reading.
+/// environment. Not thread-safe; set it before reading. The bake's mesh import follows the same switch (assimp's
+/// importers crash on some malformed meshes; in the child that is IMPORT_FAILED).
 void set_read_isolation(bool enabled);
 bool read_isolation();
 

@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "stages.h"
+#include "voxfmt/detail/isolated_call.h"
+#include "voxfmt/io.h"
 
 namespace voxfmt::bake {
 
@@ -111,12 +113,10 @@ bool is_mesh_file_name(const std::string& path) {
   return false;
 }
 
-TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
-  if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
-    throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
+namespace {
 
+// The parse itself: CGAL's readers, then assimp.
+TriangleMesh import_in_process(const std::string& path, const ImportSettings& options) {
   TriangleMesh mesh;
   if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
 
@@ -141,6 +141,81 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
   if (mesh.triangles.empty()) throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
   return mesh;
+}
+
+#if !defined(_WIN32)
+// What an isolated import sends back: the mesh, or the error it ended with.
+struct ImportOutcome {
+  bool failed = false;
+  IssueCode code = IssueCode::Internal;
+  std::string message;
+  TriangleMesh mesh;
+};
+
+// assimp's importers trust their input (Debian's build aborts in an assertion on an OFF file that announces more
+// vertices than it holds; its history of CVEs is long), so, as for assets (voxfmt/detail/isolated_call.h), the
+// parse runs in a child process: a crash or a hang there is IMPORT_FAILED, not the end of `voxfmt build`.
+TriangleMesh import_isolated(const std::string& path, const ImportSettings& options) {
+  std::error_code ec;
+  const auto file_size = std::filesystem::file_size(path, ec);
+  const double limit_s = 30.0 + (ec ? 0.0 : double(file_size) / 5e6);  // a parse takes ~1 s per 50 MB
+  ImportOutcome result;
+  const detail::ChildOutcome outcome = detail::run_isolated(
+      limit_s, result,
+      [&] {
+        ImportOutcome r;
+        try {
+          r.mesh = import_in_process(path, options);
+        } catch (const BakeError& e) {
+          r = {true, e.code(), e.what(), {}};
+        } catch (const std::bad_alloc&) {
+          r = {true, IssueCode::OutOfMemory, path + ": out of memory reading the mesh", {}};
+        } catch (const std::exception& e) {
+          r = {true, IssueCode::ImportFailed, path + ": cannot read mesh (" + e.what() + ")", {}};
+        }
+        return r;
+      },
+      [](auto& w, auto& r) {
+        w.pod(r.failed);
+        w.pod(r.code);
+        w.text(r.message);
+        w.array(r.mesh.vertices);
+        w.array(r.mesh.triangles);
+      });
+  switch (outcome.kind) {
+    case detail::ChildOutcome::Finished:
+      if (result.failed) throw BakeError(result.code, result.message);
+      return std::move(result.mesh);
+    case detail::ChildOutcome::CannotStart:
+      throw BakeError(IssueCode::Internal, path + ": cannot import the mesh in isolation: " + outcome.detail);
+    case detail::ChildOutcome::Died:
+      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer died of signal " +
+                                                   std::to_string(outcome.signal) + " (" + strsignal(outcome.signal) +
+                                                   ") on it (a malformed file; read in isolation)");
+    case detail::ChildOutcome::TimedOut:
+      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer did not finish within " +
+                                                   std::to_string(int(limit_s)) + " s (a malformed file; stopped)");
+    case detail::ChildOutcome::OutOfMemory:
+      throw BakeError(IssueCode::OutOfMemory, path + ": out of memory receiving the imported mesh");
+    case detail::ChildOutcome::Malformed:
+      break;
+  }
+  throw BakeError(IssueCode::ImportFailed,
+                  path + ": cannot read mesh: the isolated import failed (out of memory, or malformed data)");
+}
+#endif
+
+}  // namespace
+
+TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
+  if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
+    throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
+#if !defined(_WIN32)
+  if (read_isolation()) return import_isolated(path, options);
+#endif
+  return import_in_process(path, options);
 }
 
 }  // namespace voxfmt::bake

@@ -1,0 +1,259 @@
+// Running a piece of work in a forked child process, for parsers of untrusted files whose libraries can crash
+// or hang on damaged input (HDF5's decoders, assimp's importers). The child streams its result back through a
+// pipe; a child that dies, hangs or sends something malformed is a failure the caller reports, not a crash of
+// the caller. Internal to voxfmt's libraries (POSIX only): not a stable API.
+#pragma once
+
+#if !defined(_WIN32)
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <new>
+#include <optional>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+// Sanitizer runtimes (when linked) call a death callback on a report; a fuzzer registers one that saves the input
+// as a crash. Weak: absent from ordinary builds.
+extern "C" void __sanitizer_set_death_callback(void (*callback)(void)) __attribute__((weak));
+
+namespace voxfmt::detail {
+
+// ------------------------------------------------------------------ a minimal wire format (child -> parent)
+// Streamed through the pipe: arrays go straight from the child's vectors into the parent's, with no copy of
+// the whole asset on either side (a 300^3 grid is ~150 MB).
+
+class WireWriter {
+ public:
+  explicit WireWriter(int fd) : fd_(fd) {}
+  template <class T>
+  void pod(const T& value) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    put(&value, sizeof(T));
+  }
+  void text(const std::string& s) {
+    pod(uint64_t(s.size()));
+    put(s.data(), s.size());
+  }
+  template <class T>
+  void array(const std::vector<T>& v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    pod(uint64_t(v.size()));
+    put(v.data(), v.size() * sizeof(T));
+  }
+  template <class T>
+  void maybe(const std::optional<T>& v) {
+    pod(uint8_t(v.has_value()));
+    if (v) pod(*v);
+  }
+  /// A sequence of structures, each written by `each(item)`.
+  template <class T, class Each>
+  void list(const std::vector<T>& v, Each&& each) {
+    pod(uint64_t(v.size()));
+    for (const T& item : v) each(item);
+  }
+  void text_map(const std::map<std::string, std::string>& m) {
+    pod(uint64_t(m.size()));
+    for (const auto& [key, value] : m) {
+      text(key);
+      text(value);
+    }
+  }
+  bool flush() {
+    if (ok_ && !buffer_.empty()) ok_ = write_all(buffer_.data(), buffer_.size());
+    buffer_.clear();
+    return ok_;
+  }
+
+ private:
+  void put(const void* data, size_t size) {
+    if (size >= kDirect) {
+      flush();
+      if (ok_) ok_ = write_all(static_cast<const char*>(data), size);
+      return;
+    }
+    buffer_.append(static_cast<const char*>(data), size);
+    if (buffer_.size() >= kDirect) flush();
+  }
+  bool write_all(const char* p, size_t size) {
+    while (size > 0) {
+      ssize_t n = ::write(fd_, p, size);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) return false;
+      p += n;
+      size -= size_t(n);
+    }
+    return true;
+  }
+  static constexpr size_t kDirect = 1 << 16;
+  int fd_;
+  std::string buffer_;
+  bool ok_ = true;
+};
+
+// Bounds-checked and deadline-bound: the bytes come from our own child, but a child that a hostile file
+// corrupted before it finished could send anything, or nothing.
+class WireReader {
+ public:
+  WireReader(int fd, std::chrono::steady_clock::time_point deadline) : fd_(fd), deadline_(deadline) {}
+  bool ok() const { return ok_; }
+  bool timed_out() const { return timed_out_; }
+  template <class T>
+  void pod(T& value) {
+    get(&value, sizeof(T));
+  }
+  void text(std::string& s) {
+    uint64_t n = 0;
+    pod(n);
+    if (!ok_ || n > kMaxElements) {
+      ok_ = false;
+      return;
+    }
+    s.resize(size_t(n));
+    get(s.data(), size_t(n));
+  }
+  template <class T>
+  void array(std::vector<T>& v) {
+    uint64_t n = 0;
+    pod(n);
+    if (!ok_ || n > kMaxElements) {
+      ok_ = false;
+      return;
+    }
+    v.resize(size_t(n));
+    get(v.data(), size_t(n) * sizeof(T));
+  }
+  template <class T>
+  void maybe(std::optional<T>& v) {
+    uint8_t present = 0;
+    pod(present);
+    if (present) {
+      T value{};
+      pod(value);
+      v = value;
+    } else {
+      v.reset();
+    }
+  }
+  /// Grows one item at a time: a damaged count ends at the pipe's end, not in one huge allocation.
+  template <class T, class Each>
+  void list(std::vector<T>& v, Each&& each) {
+    uint64_t n = 0;
+    pod(n);
+    for (uint64_t i = 0; ok_ && i < n; ++i) each(v.emplace_back());
+  }
+  void text_map(std::map<std::string, std::string>& m) {
+    uint64_t n = 0;
+    pod(n);
+    for (uint64_t i = 0; ok_ && i < n; ++i) {
+      std::string key;
+      text(key);
+      text(m[key]);
+    }
+  }
+
+ private:
+  // The format allows 2^31 elements per dataset (h5.cpp); anything more is not an asset.
+  static constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+  void get(void* data, size_t size) {
+    char* p = static_cast<char*>(data);
+    while (ok_ && size > 0) {
+      const auto left =
+          std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - std::chrono::steady_clock::now()).count();
+      if (left <= 0) {
+        ok_ = false;
+        timed_out_ = true;
+        return;
+      }
+      pollfd pfd{fd_, POLLIN, 0};
+      if (::poll(&pfd, 1, int(std::min<long long>(left, 1000))) <= 0) continue;
+      const ssize_t n = ::read(fd_, p, size);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        ok_ = false;  // the child closed the pipe early (it died, or sent less than it announced)
+        return;
+      }
+      p += n;
+      size -= size_t(n);
+    }
+  }
+  int fd_;
+  std::chrono::steady_clock::time_point deadline_;
+  bool ok_ = true;
+  bool timed_out_ = false;
+};
+
+// How an isolated call ended.
+struct ChildOutcome {
+  enum Kind { Finished, CannotStart, Died, TimedOut, OutOfMemory, Malformed } kind = Finished;
+  int signal = 0;      ///< Died: the signal
+  std::string detail;  ///< CannotStart: the reason
+  bool ok() const { return kind == Finished; }
+};
+
+/// Runs `produce()` in a forked child and fills `value` with what it returned, both sides through
+/// `visit(wire, value)` (one visitor for WireWriter and WireReader, so they cannot drift apart). The child gets
+/// `time_limit_s` seconds to finish sending; it dies plainly on a crash (the caller's crash handlers — a
+/// fuzzer's, a sanitizer's — would take it for one of the caller's); an exception in it is `Malformed`.
+template <class Value, class Produce, class Visit>
+ChildOutcome run_isolated(double time_limit_s, Value& value, Produce&& produce, Visit&& visit) {
+  ChildOutcome outcome;
+  int fds[2];
+  if (::pipe(fds) != 0)
+    return {ChildOutcome::CannotStart, 0, std::string("cannot create a pipe: ") + std::strerror(errno)};
+  std::fflush(nullptr);
+  const pid_t child = ::fork();
+  if (child < 0) {
+    ::close(fds[0]);
+    ::close(fds[1]);
+    return {ChildOutcome::CannotStart, 0, std::string("cannot start a child process: ") + std::strerror(errno)};
+  }
+  if (child == 0) {
+    for (int signal_number : {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT}) ::signal(signal_number, SIG_DFL);
+    if (__sanitizer_set_death_callback) __sanitizer_set_death_callback(nullptr);  // a report here is the library's
+    ::close(fds[0]);
+    bool ok = false;
+    try {
+      Value produced = produce();
+      WireWriter w(fds[1]);
+      visit(w, produced);
+      ok = w.flush();
+    } catch (...) {
+    }
+    _exit(ok ? 0 : 3);  // none of the parent's exit handlers
+  }
+  ::close(fds[1]);
+  const auto deadline =
+      std::chrono::steady_clock::now() +
+      std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(time_limit_s));
+  WireReader r(fds[0], deadline);
+  bool out_of_memory = false;
+  try {
+    visit(r, value);
+  } catch (const std::bad_alloc&) {
+    out_of_memory = true;
+  }
+  ::close(fds[0]);
+  if (!r.ok() || out_of_memory) ::kill(child, SIGKILL);
+  int status = 0;
+  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  }
+  if (out_of_memory) return {ChildOutcome::OutOfMemory, 0, {}};
+  if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) return outcome;
+  if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
+  if (r.timed_out()) return {ChildOutcome::TimedOut, 0, {}};
+  return {ChildOutcome::Malformed, 0, {}};
+}
+
+}  // namespace voxfmt::detail
+#endif  // !_WIN32
