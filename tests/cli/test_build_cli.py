@@ -136,6 +136,37 @@ class BuildBadOutput(unittest.TestCase):
         # /proc refuses new files to everyone, root included (a chmod'ed folder would not stop root).
         self.expect_write_failed(self.build("/proc/voxfmt-test.vox.h5"), "cannot create file")
 
+    def test_read_only_folder_keeps_the_earlier_asset(self):
+        """A folder without write permission (as root, the build runs as `nobody`, since permissions do not stop
+        root): WRITE_FAILED, the earlier asset untouched, no temporary."""
+        folder = os.path.join(self.dir.name, "assets")
+        os.mkdir(folder)
+        out = os.path.join(folder, "out.vox.h5")
+        self.assertEqual(self.build(out).returncode, 0)
+        with open(out, "rb") as f:
+            before = f.read()
+        os.chmod(self.dir.name, 0o755)
+        os.chmod(self.mesh, 0o644)
+        os.chmod(folder, 0o555)
+
+        def as_nobody():
+            if os.geteuid() == 0:
+                os.setgroups([])
+                os.setgid(65534)
+                os.setuid(65534)
+
+        try:
+            subprocess.run([VOXFMT, "--version"], preexec_fn=as_nobody, capture_output=True, check=True)
+        except (OSError, subprocess.CalledProcessError):
+            self.skipTest("the user nobody cannot run voxfmt from this checkout (a parent folder is private)")
+        try:
+            self.expect_write_failed(self.build(out, preexec_fn=as_nobody), "Permission denied")
+        finally:
+            os.chmod(folder, 0o755)
+        with open(out, "rb") as f:
+            self.assertEqual(f.read(), before, "the earlier asset changed")
+        self.assertEqual(self.partials(folder), [])
+
     def test_full_disk_keeps_the_earlier_asset(self):
         """A 64 KiB file-size limit (ulimit -f) stands for a full disk: the kernel refuses the write (EFBIG) and,
         by default, sends SIGXFSZ, which voxfmt must not die of (reset here: Python starts children ignoring it)."""
