@@ -83,7 +83,9 @@ stop_pids() {  # SECONDS PID...: SIGTERM, then SIGKILL to those still alive afte
     [ ${#alive[@]} -gt 0 ] || return 0
     sleep 0.1
   done
-  info "still running after ${wait_s} s, SIGKILL: ${alive[*]}"
+  info "still running after ${wait_s} s, SIGKILL: $(for pid in "${alive[@]}"; do
+    printf '%s(%s) ' "$pid" "$(cat "/proc/$pid/comm" 2>/dev/null)"
+  done)"
   kill -KILL "${alive[@]}" 2>/dev/null || true
 }
 controller_up() { [ -n "$(our_pids slurmctld)" ] && timeout 5 scontrol ping 2>/dev/null | grep -q UP; }
@@ -147,7 +149,9 @@ done
 step "single-node cluster in $SLURM_DIR"
 left=$(our_pids | tr '\n' ' ')
 if [ -n "$left" ]; then
-  info "a previous run left processes behind ($left): stopping them"
+  info "a previous run left processes behind: $(for pid in $left; do
+    printf '%s(%s) ' "$pid" "$(cat "/proc/$pid/comm" 2>/dev/null)"
+  done)- stopping them"
   stop_everything
 fi
 trap on_exit EXIT
@@ -259,6 +263,11 @@ if [ ! -f "$SOURCE/$BIG" ]; then
   tar -xzf "$ARCHIVE" -C "$WORK/cgal-data" $(printf 'data/meshes/%s ' "${FAST[@]}" "$TILED_FROM")
 fi
 for m in "${FAST[@]}"; do cp "$SOURCE/$m" "$MESHES/"; done
+# The tool is on the shared file system too (and a rebuild of the checkout during the test changes nothing).
+mkdir -p "$SHARED/bin"
+cp "$VOXFMT" "$SHARED/bin/voxfmt"
+info "voxfmt: $VOXFMT ($("$VOXFMT" --version 2>/dev/null || echo "no --version")), copied to $SHARED/bin"
+VOXFMT=$SHARED/bin/voxfmt
 # The slow mesh: 27 copies of the elk in a 3x3x3 grid (one resolution-128 grid over all of them: several seconds
 # of bake, where each CGAL sample takes about one). Its name is chosen so that it hashes (FNV-1a 64, the README's
 # sharding) into the shard of $BIG, so that its task has finished a mesh before the fault.
@@ -358,7 +367,7 @@ deadline=$((SECONDS + ARRAY_TIMEOUT))
 task_field() {  # FIELD: a field of `scontrol show job` for the victim task
   timeout 5 scontrol -o show job "$TASK" 2>/dev/null | tr ' ' '\n' | sed -n "s/^$1=//p" | head -1
 }
-timed_out() {
+fail_with_logs() {
   squeue -j "$JOB" -t all >&2 || true
   for f in "$JOBS"/task-*.log; do printf -- '--- %s\n' "$f" >&2; tail -n 20 "$f" >&2; done
   daemon_logs
@@ -391,8 +400,12 @@ for fault in $FAULTS; do
   n=$((n + 1))
   seen=
   while :; do
-    [ "$SECONDS" -lt "$deadline" ] || timed_out "fault $n ($fault): $SLOW never ran for $FAULT_AFTER_MS ms in $TASK"
+    [ "$SECONDS" -lt "$deadline" ] || fail_with_logs "fault $n ($fault): $SLOW never ran for $FAULT_AFTER_MS ms in $TASK"
     pid=$(slow_bake_pid)
+    case $(task_field JobState) in
+      "" | PENDING | CONFIGURING | RUNNING | COMPLETING) ;;
+      *) fail_with_logs "fault $n ($fault): $TASK ended ($(task_field JobState)) before $SLOW ran for $FAULT_AFTER_MS ms" ;;
+    esac
     if [ -n "$pid" ]; then
       [ -n "$seen" ] || seen=$(now_ms)
       [ $(($(now_ms) - seen)) -lt "$FAULT_AFTER_MS" ] || break
@@ -416,7 +429,7 @@ for fault in $FAULTS; do
       while :; do
         state=$(task_field JobState)
         case $state in RUNNING | COMPLETING) ;; *) break ;; esac
-        [ "$SECONDS" -lt "$deadline" ] || timed_out "fault $n: $TASK did not end after SIGKILL"
+        [ "$SECONDS" -lt "$deadline" ] || fail_with_logs "fault $n: $TASK did not end after SIGKILL"
         sleep 0.2
       done
       info "         $TASK ended $state (exit $(task_field ExitCode)); scontrol requeue $TASK"
@@ -429,7 +442,7 @@ for fault in $FAULTS; do
     *) fail "unknown fault '$fault' in VOXFMT_SLURM_FAULTS (kill, requeue)" ;;
   esac
   while [ "$(task_field Restarts)" = "$restarts" ]; do
-    [ "$SECONDS" -lt "$deadline" ] || timed_out "fault $n: $TASK was not requeued"
+    [ "$SECONDS" -lt "$deadline" ] || fail_with_logs "fault $n: $TASK was not requeued"
     sleep 0.2
   done
   info "         $TASK: $(task_field JobState), Restarts=$(task_field Restarts), eligible $(task_field EligibleTime)"
@@ -437,9 +450,9 @@ done
 
 step "waiting for the array to finish (at most $((deadline - SECONDS)) s more)"
 while :; do
-  active=$(timeout 10 squeue -h -j "$JOB" -o '%i %T' 2>&1) || timed_out "squeue failed: $active"
+  active=$(timeout 10 squeue -h -j "$JOB" -o '%i %T' 2>&1) || fail_with_logs "squeue failed: $active"
   [ -n "$active" ] || break
-  [ "$SECONDS" -lt "$deadline" ] || timed_out "the job array did not finish within $ARRAY_TIMEOUT s"
+  [ "$SECONDS" -lt "$deadline" ] || fail_with_logs "the job array did not finish within $ARRAY_TIMEOUT s"
   sleep 0.5
 done
 array_seconds=$((SECONDS - submitted))
@@ -476,11 +489,11 @@ validate_all() {
 check "every asset passes voxfmt validate --level full" validate_all
 FAULT_COUNT=$n
 check "assets, manifests, task logs, restarts" "$PY" - "$MESHES" "$ASSETS" "$JOBS" "$CHECK" "$SHARDS" "$VICTIM" \
-  "$FAULT_COUNT" "$BIG" "$SLOW" "$JOB" "$SLURM_DIR/log/jobcomp.log" <<'EOF'
+  "$FAULT_COUNT" "$BIG" "$SLOW" "$JOB" "$SLURM_DIR/log/jobcomp.log" "$FAULTS" <<'EOF'
 import glob, json, os, re, sys
 meshdir, assets, jobs, check = sys.argv[1:5]
 shards, victim, faults = (int(a) for a in sys.argv[5:8])
-big, slow, job, jobcomp = sys.argv[8:12]
+big, slow, job, jobcomp, kinds = sys.argv[8:13]
 meshes = sorted(os.listdir(meshdir))
 problems = []
 def problem(text): problems.append(text)
@@ -513,6 +526,8 @@ for i, path in enumerate(want):
     for line in open(path):
         record = json.loads(line)
         last[record['output']] = record
+        if record['status'] == 'failed':  # e.g. a bake stopped by Slurm's signal taken for a crash
+            problem(f'{path}: a failed record: {record["input"]}: {record.get("error")}')
     for output, record in last.items():
         name = os.path.relpath(output, assets)[:-len('.vox.h5')]
         if name in final: problem(f'{name} is in the manifests of shards {where[name]} and {i}')
@@ -529,6 +544,11 @@ for path in glob.glob(jobs + '/task-*.log'):
         if hit: baked[hit.group(1)] = baked.get(hit.group(1), 0) + 1
 twice = {m: c for m, c in baked.items() if c != 1}
 if twice: problem(f'meshes not baked exactly once (task logs): {twice}')
+# voxfmt's summary after Slurm's SIGTERM: interrupted, nothing recorded (a SIGKILLed run prints nothing).
+log = open(f'{jobs}/task-{victim}.log').read()
+interrupted = len(re.findall(r'^voxfmt batch: .* not finished \(interrupted\) in ', log, re.M))
+if interrupted != kinds.split().count('requeue'):
+    problem(f'task {victim}: {interrupted} interrupted summaries, expected one per requeue fault')
 
 # Restarts: the victim's job script ran 1 + faults times, the others once.
 starts = [dict(kv.split('=') for kv in line.split()) for line in open(jobs + '/starts.log')]
