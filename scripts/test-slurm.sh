@@ -124,6 +124,7 @@ on_exit() {
   else
     info "nothing of this test is running"
   fi
+  [ -z "${RESULT:-}" ] || echo "$RESULT"
   exit "$status"
 }
 
@@ -136,8 +137,8 @@ done
 if [ ${#missing[@]} -gt 0 ]; then
   info "installing ${missing[*]}"
   export DEBIAN_FRONTEND=noninteractive
-  apt-get update -qq
-  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  { apt-get update -qq && apt-get install -y -qq --no-install-recommends "${missing[@]}"; } >"$WORK/apt.log" 2>&1 ||
+    { cat "$WORK/apt.log" >&2; fail "apt-get could not install ${missing[*]}"; }
 else
   info "installed: $(dpkg-query -W -f='slurm-wlm ${Version}' slurm-wlm), $(dpkg-query -W -f='munge ${Version}' munge)"
 fi
@@ -466,37 +467,30 @@ grep -E '^voxfmt batch: ' "$JOBS/task-$VICTIM.log" | sed 's/^/     /' || true
 
 # --- 6. checks ----------------------------------------------------------------------------------------------------
 step "checks"
-errors=0
-check() {  # DESCRIPTION COMMAND...: runs the command; a failure is counted and reported
-  local what=$1
-  shift
-  if "$@"; then info "ok: $what"; else
-    info "FAILED: $what"
-    errors=$((errors + 1))
-  fi
-}
-validate_all() {
-  local name ok=0
-  for name in $MESH_NAMES; do
-    [ -f "$ASSETS/$name.vox.h5" ] || continue
-    if ! "$VOXFMT" validate --level full "$ASSETS/$name.vox.h5" >"$CHECK/validate.txt" 2>&1; then
-      cat "$CHECK/validate.txt"
-      ok=1
-    fi
-  done
-  return "$ok"
-}
-check "every asset passes voxfmt validate --level full" validate_all
 FAULT_COUNT=$n
-check "assets, manifests, task logs, restarts" "$PY" - "$MESHES" "$ASSETS" "$JOBS" "$CHECK" "$SHARDS" "$VICTIM" \
-  "$FAULT_COUNT" "$BIG" "$SLOW" "$JOB" "$SLURM_DIR/log/jobcomp.log" "$FAULTS" <<'EOF'
+invalid=0
+for name in $MESH_NAMES; do
+  [ -f "$ASSETS/$name.vox.h5" ] || continue
+  if ! "$VOXFMT" validate --level full "$ASSETS/$name.vox.h5" >"$CHECK/validate.txt" 2>&1; then
+    sed 's/^/     /' "$CHECK/validate.txt"
+    invalid=$((invalid + 1))
+  fi
+done
+# One line per check on stderr (ok: / FAILED:), the counts "PASSED FAILED" on stdout.
+counts=$("$PY" - "$MESHES" "$ASSETS" "$JOBS" "$CHECK" "$SHARDS" "$VICTIM" "$FAULT_COUNT" "$BIG" "$SLOW" "$JOB" \
+  "$SLURM_DIR/log/jobcomp.log" "$FAULTS" "$invalid" <<'EOF'
 import glob, json, os, re, sys
 meshdir, assets, jobs, check = sys.argv[1:5]
 shards, victim, faults = (int(a) for a in sys.argv[5:8])
-big, slow, job, jobcomp, kinds = sys.argv[8:13]
+big, slow, job, jobcomp, kinds, invalid = sys.argv[8:14]
 meshes = sorted(os.listdir(meshdir))
-problems = []
-def problem(text): problems.append(text)
+results = []
+
+def report(what, problems):
+    results.append(not problems)
+    print(f'   {"ok" if not problems else "FAILED"}: {what}', file=sys.stderr)
+    for p in problems:
+        print(f'       {p}', file=sys.stderr)
 
 def shard(name):
     h = 0xcbf29ce484222325
@@ -504,111 +498,117 @@ def shard(name):
         h = ((h ^ byte) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
     return h % shards
 
-# Assets: one per mesh, nothing else, no temporary.
-found = sorted(os.path.relpath(p, assets) for p in glob.glob(assets + '/**/*', recursive=True) if os.path.isfile(p))
-expected = sorted(m + '.vox.h5' for m in meshes)
-got = [f for f in found if f.endswith('.vox.h5')]
-if got != expected: problem(f'assets {got} != one per mesh {expected}')
-partials = [f for f in found if '.partial-' in f]
-if partials: problem(f'temporaries left: {partials}')
-others = [f for f in found if f not in got and f not in partials and not re.fullmatch(r'manifest\.shard-\d+-of-\d+\.jsonl(\.lock)?', f)]
-if others: problem(f'unexpected files in the output folder: {others}')
+def fields(line):
+    return dict(kv.split('=', 1) for kv in line.split() if '=' in kv)
 
-# Manifests: one per shard; the last record of each output is its state; every mesh in exactly one, ok or
-# up_to_date, in the shard its name hashes to.
-manifests = sorted(glob.glob(assets + '/manifest*.jsonl'))
+def name_of(output):
+    return os.path.relpath(output, assets)[:-len('.vox.h5')]
+
+report('every asset passes voxfmt validate --level full', [f'{invalid} invalid'] if invalid != '0' else [])
+
+found = sorted(os.path.relpath(p, assets) for p in glob.glob(assets + '/**/*', recursive=True) if os.path.isfile(p))
+got = [f for f in found if f.endswith('.vox.h5')]
+expected = sorted(m + '.vox.h5' for m in meshes)
+report('one asset per mesh', [] if got == expected else [f'assets {got}, expected {expected}'])
+partials = [f for f in found if '.partial-' in f]
+others = [f for f in found if f not in got and f not in partials
+          and not re.fullmatch(r'manifest\.shard-\d+-of-\d+\.jsonl(\.lock)?', f)]
+report('no *.partial-* temporary, nothing else in the output folder',
+       [f'temporaries: {partials}'] * bool(partials) + [f'other files: {others}'] * bool(others))
+
+# The last record of an output is its state: every mesh in exactly one shard's manifest, in the shard its name
+# hashes to (FNV-1a 64), ok or up_to_date; no failed record at all (a bake stopped by Slurm is not the mesh's fault).
 want = [f'{assets}/manifest.shard-{i}-of-{shards}.jsonl' for i in range(shards)]
-if manifests != want: problem(f'manifests {manifests} != {want}')
+problems = [] if sorted(glob.glob(assets + '/manifest*.jsonl')) == want else [f'manifests: expected {want}']
+failed_records = []
 final, where = {}, {}
 for i, path in enumerate(want):
-    if not os.path.exists(path): continue
     last = {}
-    for line in open(path):
+    for line in open(path) if os.path.exists(path) else []:
         record = json.loads(line)
         last[record['output']] = record
-        if record['status'] == 'failed':  # e.g. a bake stopped by Slurm's signal taken for a crash
-            problem(f'{path}: a failed record: {record["input"]}: {record.get("error")}')
+        if record['status'] == 'failed':
+            failed_records.append(f'{os.path.basename(path)}: {record["input"]}: {record.get("error")}')
     for output, record in last.items():
-        name = os.path.relpath(output, assets)[:-len('.vox.h5')]
-        if name in final: problem(f'{name} is in the manifests of shards {where[name]} and {i}')
+        name = name_of(output)
+        if name in final: problems.append(f'{name} in the manifests of shards {where[name]} and {i}')
         final[name], where[name] = record, i
-        if record['status'] not in ('ok', 'up_to_date'): problem(f'{name}: final status {record["status"]}: {record.get("error")}')
-        if shard(name) != i: problem(f'{name} is in shard {i}, its name hashes to shard {shard(name)}')
-if sorted(final) != sorted(meshes): problem(f'manifests list {sorted(final)}, not the meshes {sorted(meshes)}')
+        if record['status'] not in ('ok', 'up_to_date'): problems.append(f'{name}: final status {record["status"]}')
+        if shard(name) != i: problems.append(f'{name} in shard {i}; its name hashes to shard {shard(name)}')
+if sorted(final) != meshes: problems.append(f'manifests list {sorted(final)}, not {meshes}')
+states = ', '.join(f'{s} {sum(r["status"] == s for r in final.values())}' for s in ('ok', 'up_to_date'))
+report(f'the manifests list every mesh once, in its hash shard ({states})', problems)
+report('no failed record in the manifests', failed_records)
 
-# Task logs (appended across restarts): each mesh baked successfully exactly once in the whole array.
+# The task logs (appended across restarts) have one "ok" line per bake.
 baked = {m: 0 for m in meshes}
 for path in glob.glob(jobs + '/task-*.log'):
     for line in open(path):
         hit = re.match(r'\[\d+/\d+\] ok +' + re.escape(meshdir) + r'/(\S+) \(', line)
         if hit: baked[hit.group(1)] = baked.get(hit.group(1), 0) + 1
-twice = {m: c for m, c in baked.items() if c != 1}
-if twice: problem(f'meshes not baked exactly once (task logs): {twice}')
-# voxfmt's summary after Slurm's SIGTERM: interrupted, nothing recorded (a SIGKILLed run prints nothing).
-log = open(f'{jobs}/task-{victim}.log').read()
-interrupted = len(re.findall(r'^voxfmt batch: .* not finished \(interrupted\) in ', log, re.M))
-if interrupted != kinds.split().count('requeue'):
-    problem(f'task {victim}: {interrupted} interrupted summaries, expected one per requeue fault')
+report('every mesh baked successfully exactly once (task logs)',
+       [f'{m}: {c} times' for m, c in baked.items() if c != 1])
 
-# Restarts: the victim's job script ran 1 + faults times, the others once.
-starts = [dict(kv.split('=') for kv in line.split()) for line in open(jobs + '/starts.log')]
-runs = {i: sorted(int(s['restart']) for s in starts if int(s['task']) == i) for i in range(shards)}
-for i in range(shards):
-    want_runs = list(range(faults + 1)) if i == victim else [0]
-    if runs[i] != want_runs: problem(f'task {i} ran with restart counts {runs[i]}, expected {want_runs}')
-for line in open(check + '/jobs.txt'):
-    fields = dict(kv.split('=', 1) for kv in line.split() if '=' in kv)
-    task = int(fields['ArrayTaskId'])
-    want_restarts = str(faults if task == victim else 0)
-    if fields['JobState'] != 'COMPLETED' or fields['ExitCode'] != '0:0' or fields['Restarts'] != want_restarts:
-        problem(f'task {task}: {fields["JobState"]} exit {fields["ExitCode"]} Restarts={fields["Restarts"]}, '
-                f'expected COMPLETED exit 0:0 Restarts={want_restarts}')
-# Slurm's job completion log: a record when a run ends (and one more when a failed task is requeued).
-ends = [dict(kv.split('=', 1) for kv in line.split() if '=' in kv) for line in open(jobcomp)]
-ends = [e for e in ends if e.get('ArrayJobId') == job and e.get('ArrayTaskId') == str(victim)]
-started = sorted({e['StartTime'] for e in ends})
-print(f'   jobcomp, task {victim}: ' + ', '.join(f'{e["JobState"]} (started {e["StartTime"][11:]})' for e in ends))
-if len(started) != faults + 1 or not ends or ends[-1]['JobState'] != 'COMPLETED':
-    problem(f'jobcomp: task {victim} started {len(started)} times, ended {ends[-1]["JobState"] if ends else "never"}; '
-            f'expected {faults + 1} runs, the last COMPLETED')
-
-# What was finished before a fault was not baked again: same file (inode, mtime), same manifest record.
+# What was finished before a fault stays: same file (inode, mtime), no new ok record.
+problems = []
+done_before = []
 for n in range(1, faults + 1):
-    before = {}
-    for line in open(f'{check}/fault-{n}.assets'):
-        name, inode, mtime = line.split()
-        before[name] = (inode, mtime)
-    records = {}
-    for line in open(f'{check}/fault-{n}.manifest.jsonl'):
-        record = json.loads(line)
-        records[os.path.relpath(record['output'], assets)[:-len('.vox.h5')]] = record
-    mine = [m for m in meshes if shard(m) == victim]
-    done = [m for m in mine if m + '.vox.h5' in before]
-    if n == 1 and big not in done: problem(f'fault 1: {big} was not finished before it')
-    if slow in done: problem(f'fault {n}: {slow} was already baked')
+    before = dict((l.split()[0], tuple(l.split()[1:])) for l in open(f'{check}/fault-{n}.assets'))
+    records = {name_of(r['output']): r for r in map(json.loads, open(f'{check}/fault-{n}.manifest.jsonl'))}
+    done = [m for m in meshes if shard(m) == victim and m + '.vox.h5' in before]
+    done_before.append(f'fault {n}: {", ".join(done) or "none"}')
+    if n == 1 and big not in done: problems.append(f'fault 1: {big} was not finished before it')
+    if slow in done: problems.append(f'fault {n}: {slow} was finished before it')
     for m in done:
         st = os.stat(f'{assets}/{m}.vox.h5')
         if (str(st.st_ino), str(st.st_mtime_ns)) != before[m + '.vox.h5']:
-            problem(f'fault {n}: {m}.vox.h5 was rewritten after the fault')
-        if m in final and final[m]['status'] == 'ok' and final[m].get('finished_utc') != records.get(m, {}).get('finished_utc'):
-            problem(f'fault {n}: {m}: a new ok record after the fault (baked again?)')
-    print(f'   fault {n}: finished before it in shard {victim}: {", ".join(done) or "none"}; unchanged after it')
+            problems.append(f'fault {n}: {m}.vox.h5 was rewritten after it')
+        if final.get(m, {}).get('status') == 'ok' and final[m].get('finished_utc') != records.get(m, {}).get('finished_utc'):
+            problems.append(f'fault {n}: {m} has a new ok record after it')
+report(f'assets finished before a fault were not baked again ({"; ".join(done_before)})', problems)
 
-for p in problems: print('   problem: ' + p)
-print(f'   {len(meshes)} meshes, {len(got)} assets, final states: ' +
-      ', '.join(f'{s} {sum(r["status"] == s for r in final.values())}' for s in ('ok', 'up_to_date')) +
-      f'; successful bakes per mesh (task logs): {sorted(set(baked.values()))}')
-sys.exit(1 if problems else 0)
+# Slurm's SIGTERM: voxfmt stops, records nothing, says "interrupted" (a SIGKILLed run prints no summary).
+log = open(f'{jobs}/task-{victim}.log').read()
+interrupted = len(re.findall(r'^voxfmt batch: .* not finished \(interrupted\) in ', log, re.M))
+want_interrupted = kinds.split().count('requeue')
+report(f'task {victim}: {interrupted} "interrupted" summaries (one per SIGTERM)',
+       [] if interrupted == want_interrupted else [f'expected {want_interrupted}'])
+
+# Restarts: the job script of the victim ran 1 + faults times (starts.log, SLURM_RESTART_COUNT), the others once;
+# every task ended COMPLETED with exit 0 (scontrol); Slurm's job completion log saw the runs.
+starts = [fields(line) for line in open(jobs + '/starts.log')]
+runs = {i: sorted(int(s['restart']) for s in starts if int(s['task']) == i) for i in range(shards)}
+problems = []
+for i in range(shards):
+    want_runs = list(range(faults + 1)) if i == victim else [0]
+    if runs[i] != want_runs: problems.append(f'task {i} ran with restart counts {runs[i]}, expected {want_runs}')
+report(f'task {victim} ran {len(runs[victim])} times (SLURM_RESTART_COUNT {runs[victim]}), the others once', problems)
+problems = []
+for line in open(check + '/jobs.txt'):
+    f = fields(line)
+    want_restarts = str(faults if f['ArrayTaskId'] == str(victim) else 0)
+    if (f['JobState'], f['ExitCode'], f['Restarts']) != ('COMPLETED', '0:0', want_restarts):
+        problems.append(f'task {f["ArrayTaskId"]}: {f["JobState"]} exit {f["ExitCode"]} Restarts={f["Restarts"]}, '
+                        f'expected COMPLETED exit 0:0 Restarts={want_restarts}')
+report(f'scontrol: every task COMPLETED with exit 0, task {victim} with Restarts={faults}', problems)
+ends = [f for f in map(fields, open(jobcomp)) if f.get('ArrayJobId') == job and f.get('ArrayTaskId') == str(victim)]
+started = sorted({f['StartTime'] for f in ends})
+report(f'jobcomp, task {victim}: ' + ', '.join(f'{f["JobState"]} (started {f["StartTime"][11:]})' for f in ends),
+       [] if len(started) == faults + 1 and ends[-1]['JobState'] == 'COMPLETED'
+       else [f'expected {faults + 1} runs, the last COMPLETED'])
+print(sum(results), len(results) - sum(results))
 EOF
-
-[ "$errors" -eq 0 ] || {
+)
+read -r passed failed <<<"$counts"
+if [ "${failed:-1}" != 0 ]; then
   for f in "$JOBS"/task-*.log; do printf -- '--- %s\n' "$f"; cat "$f"; done
-  fail "$errors check(s) failed (task logs above; everything is in $WORK)"
-}
+  RESULT="test-slurm: ${passed:-0} passed, ${failed:-1} failed"
+  fail "${failed:-?} check(s) failed (task logs above; everything is in $WORK)"
+fi
 
 # --- 7. summary ---------------------------------------------------------------------------------------------------
 step "summary"
 info "$(wc -l <<<"$MESH_NAMES") meshes, $SHARDS shards (job array $JOB), one output folder: $ASSETS"
-info "task $TASK (slow mesh $SLOW) interrupted $FAULT_COUNT time(s) mid-bake ($FAULTS) and requeued; ran $((FAULT_COUNT + 1)) times"
+info "task $TASK (slow mesh $SLOW) interrupted $FAULT_COUNT time(s) mid-bake ($FAULTS), ran $((FAULT_COUNT + 1)) times"
 info "array: $array_seconds s from sbatch to the last task; whole test: $((SECONDS - START_SECONDS)) s"
-info "passed"
+RESULT="test-slurm: $passed passed, 0 failed"
