@@ -19,7 +19,6 @@
 #            preemption.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-ROOT=$PWD
 START_SECONDS=$SECONDS
 
 VOXFMT=${1:-${BUILD_DIR:-build}/bin/voxfmt}
@@ -188,7 +187,7 @@ fi
 hardware=$(slurmd -C | head -1)
 CPUS=$(sed -n 's/.*CPUs=\([0-9]*\).*/\1/p' <<<"$hardware")
 MEMORY=$(sed -n 's/.*RealMemory=\([0-9]*\).*/\1/p' <<<"$hardware")
-[ -n "$CPUS" ] && [ -n "$MEMORY" ] || fail "cannot read CPUs and RealMemory from 'slurmd -C': $hardware"
+{ [ -n "$CPUS" ] && [ -n "$MEMORY" ]; } || fail "cannot read CPUs and RealMemory from 'slurmd -C': $hardware"
 info "this machine (slurmd -C): CPUs=$CPUS RealMemory=$MEMORY MiB"
 
 rm -rf "$SLURM_DIR" "$SHARED" "$CHECK"
@@ -261,7 +260,7 @@ if [ ! -f "$SOURCE/$BIG" ]; then
   [ -f "$ARCHIVE" ] || fail "no CGAL sample meshes: neither $SOURCE nor $ARCHIVE (apt-get install libcgal-demo)"
   SOURCE=$WORK/cgal-data/data/meshes
   mkdir -p "$WORK/cgal-data"
-  tar -xzf "$ARCHIVE" -C "$WORK/cgal-data" $(printf 'data/meshes/%s ' "${FAST[@]}" "$TILED_FROM")
+  tar -xzf "$ARCHIVE" -C "$WORK/cgal-data" "${FAST[@]/#/data/meshes/}" "data/meshes/$TILED_FROM"
 fi
 for m in "${FAST[@]}"; do cp "$SOURCE/$m" "$MESHES/"; done
 # The tool is on the shared file system too (and a rebuild of the checkout during the test changes nothing).
