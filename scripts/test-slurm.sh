@@ -87,7 +87,7 @@ stop_pids() {  # SECONDS PID...: SIGTERM, then SIGKILL to those still alive afte
   done)"
   kill -KILL "${alive[@]}" 2>/dev/null || true
 }
-controller_up() { [ -n "$(our_pids slurmctld)" ] && timeout 5 scontrol ping 2>/dev/null | grep -q UP; }
+controller_up() { [ -n "$(our_pids slurmctld)" ] && [[ $(timeout 5 scontrol ping 2>/dev/null) == *UP* ]]; }
 stop_everything() {  # jobs first (their steps would outlive slurmd), then the daemons, then any straggler
   local jobs i
   if controller_up; then
@@ -131,7 +131,7 @@ on_exit() {
 step "packages: slurm-wlm, munge"
 missing=()
 for pkg in slurm-wlm munge; do
-  dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+  [ "$(dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null)" = "install ok installed" ] || missing+=("$pkg")
 done
 if [ ${#missing[@]} -gt 0 ]; then
   info "installing ${missing[*]}"
@@ -184,11 +184,12 @@ else
   done
 fi
 
-hardware=$(slurmd -C | head -1)
+hardware=$(slurmd -C)
 CPUS=$(sed -n 's/.*CPUs=\([0-9]*\).*/\1/p' <<<"$hardware")
 MEMORY=$(sed -n 's/.*RealMemory=\([0-9]*\).*/\1/p' <<<"$hardware")
 { [ -n "$CPUS" ] && [ -n "$MEMORY" ]; } || fail "cannot read CPUs and RealMemory from 'slurmd -C': $hardware"
 info "this machine (slurmd -C): CPUs=$CPUS RealMemory=$MEMORY MiB"
+[ "$MEMORY" -ge 2048 ] || fail "the job script asks 2 GB per task; this machine has $MEMORY MiB"
 
 rm -rf "$SLURM_DIR" "$SHARED" "$CHECK"
 mkdir -p "$SLURM_DIR"/{state,spool,log,run} "$MESHES" "$ASSETS" "$JOBS" "$CHECK"
@@ -305,7 +306,7 @@ with open(f'{folder}/{name}', 'w') as out:
         out.writelines(f'{len(f)} ' + ' '.join(str(v + i * nv) for v in f) + '\n' for f in faces)
 print(name, shard(name))
 EOF
-)
+) || true
 [ -n "$SLOW" ] || fail "could not make the slow mesh"
 [ "$(stat -c %s "$MESHES/$BIG")" -gt "$(stat -c %s "$MESHES/$SLOW")" ] ||
   fail "$BIG must be larger than $SLOW (baked first in their shard)"
