@@ -13,6 +13,8 @@
 #include <system_error>
 #include <thread>
 
+#include "voxfmt/cores.h"
+
 namespace voxfmt::h5 {
 
 void silence_hdf5_errors() { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); }
@@ -495,7 +497,7 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
       compressed[c].resize(size);
     }
   };
-  const unsigned threads = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
+  const unsigned threads = std::min(8u, usable_cores());
   std::vector<std::thread> pool;
   try {
     for (unsigned t = 1; t < threads; ++t) pool.emplace_back(worker);

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "voxfmt/bake/bake.h"
+#include "voxfmt/cores.h"
 #include "voxfmt/io.h"
 #include "voxfmt/report.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -294,7 +295,7 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   OutArray<double> max_depth({k});
   OutArray<double> force({k, 3});
   OutArray<double> torque({k, 3});
-  const size_t hardware = std::max(1u, std::thread::hardware_concurrency());
+  const size_t hardware = voxfmt::usable_cores();
   const size_t workers = std::max<size_t>(1, std::min<size_t>(threads ? size_t(*threads) : hardware, k));
   constexpr size_t kChunk = 16;
   std::atomic<size_t> next{0};

@@ -57,6 +57,13 @@ class Batch(unittest.TestCase):
             self.assertEqual(r.returncode, expect, r.stdout + r.stderr)
         return r, (json.loads(r.stdout) if r.stdout.strip() else None)
 
+    def test_threads_follow_the_cpus_the_task_may_use(self):
+        """Under Slurm (--cpus-per-task), taskset or a cpuset, a bake's default thread count is what the process
+        may run on, not the machine's core count."""
+        r = subprocess.run(["taskset", "-c", "0", VOXFMT, "batch", self.lib, "-o", self.out, "-j", "1", *SMALL],
+                           capture_output=True, text=True, timeout=120)
+        self.assertIn("-j 1 (1 thread(s) each)", r.stdout + r.stderr)
+
     def manifest(self, path=None):
         with open(path or os.path.join(self.out, "manifest.jsonl")) as f:
             return [json.loads(line) for line in f]

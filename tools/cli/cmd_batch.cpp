@@ -37,6 +37,7 @@
 #include "commands.h"
 #include "json_report.h"
 #include "voxfmt/bake/bake.h"
+#include "voxfmt/cores.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 
@@ -298,7 +299,7 @@ int Runner::run() {
   std::stable_sort(todo_.begin(), todo_.end(),
                    [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
 
-  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  const unsigned cores = usable_cores();  // what Slurm or taskset gives this task, not the whole node
   jobs_ = o_.jobs ? o_.jobs : cores;
   bake::Settings settings = o_.bake;
   if (settings.threads == 0)
