@@ -558,7 +558,9 @@ NB_MODULE(_voxfmt, m) {
           "sphere_radii",
           [](nb::handle self) {
             const auto& t = nb::cast<const Body&>(self).object->point_tree();
-            return view<float>(t.sphere_radii.data(), {t.sphere_radii.size()}, {1}, self);
+            // A strided view of the packed tree nodes (no copy).
+            constexpr int64_t stride = sizeof(voxfmt::runtime::PointTree::Node) / sizeof(float);
+            return view<float>(t.nodes.empty() ? nullptr : &t.nodes.front().radius, {t.size()}, {stride}, self);
           },
           "(N,) float32 radius of each node's bounding sphere (the node and its descendants), metres.")
       .def_prop_ro(

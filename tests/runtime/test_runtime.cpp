@@ -359,7 +359,7 @@ TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {
   while (level + 1 < tree.level_count() && tree.points_up_to_level(level + 1) <= 1000) ++level;
   float largest_radius = 0;
   for (size_t i = tree.level_offsets[level]; i < tree.level_offsets[level + 1]; ++i)
-    largest_radius = std::max(largest_radius, tree.sphere_radii[i]);
+    largest_radius = std::max(largest_radius, tree.nodes[i].radius);
   std::mt19937 random(7);
   std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
   size_t fine_touching = 0, spheres_detected = 0, points_detected = 0;

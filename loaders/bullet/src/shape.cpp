@@ -95,8 +95,8 @@ void VpsShape::processAllTriangles(btTriangleCallback* callback, const btVector3
     const uint32_t node = stack.back();
     stack.pop_back();
     // A node's sphere holds its point and its subtree's; splats reach one circumradius beyond their points.
-    const double reach = s * double(tree.sphere_radii[node]) + circumradius;
-    if (box_distance2(to_shape(tree.sphere_centers[node])) > reach * reach) continue;
+    const double reach = s * double(tree.nodes[node].radius) + circumradius;
+    if (box_distance2(to_shape(tree.nodes[node].centre)) > reach * reach) continue;
     const Eigen::Vector3d p = to_shape(tree.points[node]);
     if (box_distance2(p) <= circumradius * circumradius) {
       // Outward normal (the stored one points inward) and a tangent frame around it.
@@ -108,7 +108,7 @@ void VpsShape::processAllTriangles(btTriangleCallback* callback, const btVector3
       }
       callback->processTriangle(triangle, 0, int(node));
     }
-    for (uint32_t c = 0; c < tree.child_count[node]; ++c) stack.push_back(tree.child_begin[node] + c);
+    for (uint32_t c = 0; c < tree.nodes[node].child_count; ++c) stack.push_back(tree.nodes[node].first_child + c);
   }
 }
 

@@ -20,11 +20,10 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   const size_t n = shell.size();
   tree.points.reserve(n);
   tree.normals.reserve(n);
-  tree.sphere_centers.reserve(n);
+  tree.nodes.resize(n);
   for (size_t i = 0; i < n; ++i) {
     tree.points.push_back(to_float(shell.points[i]));
     tree.normals.push_back(to_float(shell.normals[i]));
-    tree.sphere_centers.push_back(to_float(shell.sphere_centers[i]));
   }
   // Single precision moves a centre or a point by up to 2^-24 of its largest coordinate (6e-8 relative): grow
   // radii by that much of the shell's largest coordinate, so a sphere still encloses its subtree at any scale
@@ -34,13 +33,16 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
     for (int a = 0; a < 3; ++a)
       largest = std::max({largest, std::abs(shell.points[i][a]), std::abs(shell.sphere_centers[i][a])});
   const float rounding_pad = float(4e-7 * largest);
-  tree.sphere_radii.reserve(n);
-  for (double r : shell.sphere_radii) tree.sphere_radii.push_back(float(r) * (1.0f + 1e-6f) + rounding_pad);
-  tree.child_begin = shell.child_begin;
-  tree.child_count = shell.child_count;
+  for (size_t i = 0; i < n; ++i) {
+    PointTree::Node& node = tree.nodes[i];
+    node.centre = to_float(shell.sphere_centers[i]);
+    node.radius = float(shell.sphere_radii[i]) * (1.0f + 1e-6f) + rounding_pad;
+    node.first_child = shell.child_begin[i];
+    node.child_count = shell.child_count[i];
+    if (node.child_count == 0) node.first_child = uint32_t(n);  // no children: an empty range past the end
+  }
   tree.level_offsets = shell.level_offsets;
   // How far each child's sphere reaches from its parent's centre (computed in double, rounded up).
-  tree.reach_from_parent.assign(n, 0.0f);
   for (size_t parent = 0; parent < n; ++parent)
     for (uint32_t c = 0; c < shell.child_count[parent]; ++c) {
       const size_t child = shell.child_begin[parent] + c;
@@ -48,7 +50,7 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
       for (int a = 0; a < 3; ++a)
         offset += (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]) *
                   (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]);
-      tree.reach_from_parent[child] =
+      tree.nodes[child].reach_from_parent =
           float(std::sqrt(offset) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + rounding_pad;
     }
   return tree;
@@ -57,10 +59,8 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
 }  // namespace
 
 size_t PointTree::memory_bytes() const {
-  return points.capacity() * sizeof(Eigen::Vector3f) + normals.capacity() * sizeof(Eigen::Vector3f) +
-         sphere_centers.capacity() * sizeof(Eigen::Vector3f) + sphere_radii.capacity() * sizeof(float) +
-         (child_begin.capacity() + child_count.capacity() + level_offsets.capacity()) * sizeof(uint32_t) +
-         reach_from_parent.capacity() * sizeof(float);
+  return nodes.capacity() * sizeof(Node) + (points.capacity() + normals.capacity()) * sizeof(Eigen::Vector3f) +
+         level_offsets.capacity() * sizeof(uint32_t);
 }
 
 voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(const std::string& path,

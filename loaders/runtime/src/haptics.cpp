@@ -61,7 +61,7 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
   const PointTree& tree = tool_->point_tree();
   subtree_size_.assign(tree.size(), 1);
   for (size_t n = tree.size(); n-- > 0;)
-    for (uint32_t c = tree.child_begin[n]; c < tree.child_begin[n] + tree.child_count[n]; ++c)
+    for (uint32_t c = tree.nodes[n].first_child; c < tree.nodes[n].first_child + tree.nodes[n].child_count; ++c)
       subtree_size_[n] += subtree_size_[c];
 }
 

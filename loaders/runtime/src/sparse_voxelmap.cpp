@@ -8,8 +8,8 @@ namespace voxfmt::runtime {
 namespace {
 
 constexpr int kEdge = SparseVoxelmap::kBrickEdge;
-// Half the voxel diagonal: how far a point can be from its nearest voxel centre (the distance is 1-Lipschitz).
-constexpr float kHalfDiagonal = 0.8661f;
+constexpr unsigned kEdgeBits = 3;
+static_assert(kEdge == 1 << kEdgeBits);
 // Format 1.0 layers beyond the band come from a 26-neighbour chamfer transform, which overestimates Euclidean
 // distance by at most ~11% (direction (3,2,1)); lower bounds scale layer distances by this factor.
 constexpr float kChamferSafety = 0.9f;
@@ -33,124 +33,173 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
   }
   map.object_min_ = map.to_grid(Eigen::Vector3d(bounds_min[0], bounds_min[1], bounds_min[2]));
   map.object_max_ = map.to_grid(Eigen::Vector3d(bounds_max[0], bounds_max[1], bounds_max[2]));
-  // 16-bit fixed point with room for the whole band plus rounding slack.
-  const float max_stored = float(std::max(4.0, dense.distance_band + 2.0));
-  map.distance_scale_ = 32000.0f / max_stored;
 
   const int far_layer = -std::max(0, options.outer_layers_kept) - 1;
   const bool have_distances = dense.distances.size() == dense.voxel_count();
+  const double h = dense.voxel_size;
   map.bricks_.resize(size_t(map.brick_dims_[0]) * map.brick_dims_[1] * map.brick_dims_[2]);
-  std::vector<int> brick_layers(kBrickVoxels);
-  std::vector<float> brick_distances(kBrickVoxels);
+  // Calls f(local, i, j, k) for the voxels of brick (bi, bj, bk) that lie in the grid.
+  auto for_voxels = [&](int bi, int bj, int bk, auto&& f) {
+    for (int lk = 0; lk < kEdge; ++lk)
+      for (int lj = 0; lj < kEdge; ++lj)
+        for (int li = 0; li < kEdge; ++li) {
+          const int i = bi * kEdge + li, j = bj * kEdge + lj, k = bk * kEdge + lk;
+          if (i < map.dims_[0] && j < map.dims_[1] && k < map.dims_[2])
+            f((lk * kEdge + lj) * kEdge + li, dense.linear_index(uint32_t(i), uint32_t(j), uint32_t(k)));
+        }
+  };
+  auto stored = [&](size_t index) { return have_distances && voxfmt::Voxelmap::is_stored(dense.distances[index]); };
 
+  // First pass: each brick's kind and layer range, and the largest stored distance (which sets the fixed-point
+  // scale).
+  double largest_value = 4.0;
   size_t b = 0;
   for (int bk = 0; bk < map.brick_dims_[2]; ++bk)
     for (int bj = 0; bj < map.brick_dims_[1]; ++bj)
       for (int bi = 0; bi < map.brick_dims_[0]; ++bi, ++b) {
         int lo = std::numeric_limits<int>::max(), hi = std::numeric_limits<int>::min();
         bool any_distance = false;
-        for (int lk = 0; lk < kEdge; ++lk)
-          for (int lj = 0; lj < kEdge; ++lj)
-            for (int li = 0; li < kEdge; ++li) {
-              const int local = (lk * kEdge + lj) * kEdge + li;
-              const int i = bi * kEdge + li, j = bj * kEdge + lj, k = bk * kEdge + lk;
-              if (i >= map.dims_[0] || j >= map.dims_[1] || k >= map.dims_[2]) {
-                brick_layers[local] = std::numeric_limits<int>::min();  // padding, never read
-                brick_distances[local] = std::nanf("");
-                continue;
-              }
-              const size_t index = dense.linear_index(uint32_t(i), uint32_t(j), uint32_t(k));
-              const int layer = dense.layers[index];
-              brick_layers[local] = layer;
-              lo = std::min(lo, layer);
-              hi = std::max(hi, layer);
-              const float d = have_distances ? dense.distances[index] : std::nanf("");
-              brick_distances[local] = d;
-              any_distance |= voxfmt::Voxelmap::is_stored(d);
-            }
+        for_voxels(bi, bj, bk, [&](int, size_t index) {
+          lo = std::min<int>(lo, dense.layers[index]);
+          hi = std::max<int>(hi, dense.layers[index]);
+          any_distance |= stored(index);
+        });
         Brick& brick = map.bricks_[b];
-        if (hi <= far_layer && !any_distance) {
+        brick.layer_base = int16_t(lo);
+        if (any_distance) {
+          brick.kind = BrickKind::Values;
+          for_voxels(bi, bj, bk, [&](int, size_t index) {
+            if (stored(index)) largest_value = std::max(largest_value, std::abs(double(dense.distances[index]) / h));
+          });
+        } else if (hi <= far_layer) {
           brick.kind = BrickKind::FarOutside;
           brick.layer_base = int16_t(hi);
-          continue;
-        }
-        brick.layer_base = int16_t(lo);
-        const int range = hi - lo;
-        brick.layer_data = uint32_t(map.layer_pool_.size());
-        if (range <= 15) {
-          brick.kind = BrickKind::Nibbles;
-          map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels / 2, 0);
-          uint8_t* out = map.layer_pool_.data() + brick.layer_data;
-          for (int local = 0; local < kBrickVoxels; ++local) {
-            const int offset = brick_layers[local] == std::numeric_limits<int>::min() ? 0 : brick_layers[local] - lo;
-            out[local / 2] = uint8_t(out[local / 2] | (offset << ((local & 1) * 4)));
-          }
         } else {
-          // The spec's 6-neighbour rule bounds the range by 21; a file breaking it is clamped, not rejected.
-          brick.kind = BrickKind::Bytes;
-          map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels, 0);
-          uint8_t* out = map.layer_pool_.data() + brick.layer_data;
-          for (int local = 0; local < kBrickVoxels; ++local) {
-            const int offset = brick_layers[local] == std::numeric_limits<int>::min() ? 0 : brick_layers[local] - lo;
-            out[local] = uint8_t(std::min(offset, 255));
-          }
+          brick.kind = hi - lo <= 15 ? BrickKind::Nibbles : BrickKind::Bytes;
         }
-        if (any_distance) {
-          brick.distance_data = uint32_t(map.distance_pool_.size() / kBrickVoxels);
-          for (int local = 0; local < kBrickVoxels; ++local) {
-            const float d = brick_distances[local];
-            const float q = d / float(map.voxel_size_) * map.distance_scale_;
-            const bool representable = voxfmt::Voxelmap::is_stored(d) && std::fabs(q) <= 32767.0f;
-            map.distance_pool_.push_back(representable ? int16_t(std::lround(q)) : kNotStored);
+      }
+  // 15 bits for a distance: a whole number of steps per voxel when it fits.
+  const double steps = 16000.0 / (largest_value + 1.0);
+  map.value_scale_ = float(steps >= 1.0 ? std::floor(steps) : steps);
+  map.value_step_ = 1.0f / map.value_scale_;
+  map.value_slack_ = 0.5f / map.value_scale_ + 1e-6f * float(largest_value);
+
+  // Second pass: the payloads.
+  b = 0;
+  for (int bk = 0; bk < map.brick_dims_[2]; ++bk)
+    for (int bj = 0; bj < map.brick_dims_[1]; ++bj)
+      for (int bi = 0; bi < map.brick_dims_[0]; ++bi, ++b) {
+        Brick& brick = map.bricks_[b];
+        switch (brick.kind) {
+          case BrickKind::FarOutside:
+            break;
+          case BrickKind::Nibbles: {
+            brick.data = uint32_t(map.layer_pool_.size());
+            map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels / 2, 0);
+            uint8_t* out = map.layer_pool_.data() + brick.data;
+            for_voxels(bi, bj, bk, [&](int local, size_t index) {
+              out[local / 2] =
+                  uint8_t(out[local / 2] | ((dense.layers[index] - brick.layer_base) << ((local & 1) * 4)));
+            });
+            break;
+          }
+          case BrickKind::Bytes: {
+            // The spec's 6-neighbour rule bounds the range by 21; a file breaking it is clamped, not rejected.
+            brick.data = uint32_t(map.layer_pool_.size());
+            map.layer_pool_.resize(map.layer_pool_.size() + kBrickVoxels, 0);
+            uint8_t* out = map.layer_pool_.data() + brick.data;
+            for_voxels(bi, bj, bk, [&](int local, size_t index) {
+              out[local] = uint8_t(std::min(dense.layers[index] - brick.layer_base, 255));
+            });
+            break;
+          }
+          case BrickKind::Values: {
+            brick.data = uint32_t(map.value_pool_.size() / kBrickVoxels);
+            map.value_pool_.resize(map.value_pool_.size() + kBrickVoxels, 0);
+            int16_t* out = map.value_pool_.data() + size_t(brick.data) * kBrickVoxels;
+            const double scale = map.value_scale_;
+            for_voxels(bi, bj, bk, [&](int local, size_t index) {
+              const int layer = dense.layers[index];
+              if (!stored(index)) {  // minus the layer, whole (deeper than 16383 voxels is clamped)
+                out[local] = int16_t(std::clamp(-layer, -16383, 16383) * 2);
+                return;
+              }
+              long q = std::lround(double(dense.distances[index]) / h * scale);
+              // Rounding may carry a distance across a layer boundary (spec §3: layer = floor(-d/h + 1/2)); a step
+              // back keeps the layer the file gives, which layer_at() reports.
+              auto implied = [&](long v) { return long(std::floor(-double(v) / scale + 0.5)); };
+              if (implied(q) != layer && implied(q + 1) == layer) ++q;
+              if (implied(q) != layer && implied(q - 1) == layer) --q;
+              out[local] = int16_t(q * 2 + 1);
+            });
+            break;
           }
         }
       }
   map.layer_pool_.shrink_to_fit();
-  map.distance_pool_.shrink_to_fit();
+  map.value_pool_.shrink_to_fit();
   return map;
 }
 
 size_t SparseVoxelmap::memory_bytes() const {
-  return bricks_.capacity() * sizeof(Brick) + layer_pool_.capacity() + distance_pool_.capacity() * sizeof(int16_t);
+  return bricks_.capacity() * sizeof(Brick) + layer_pool_.capacity() + value_pool_.capacity() * sizeof(int16_t);
 }
 
 size_t SparseVoxelmap::layer_brick_count() const {
-  return size_t(std::count_if(bricks_.begin(), bricks_.end(),
-                              [](const Brick& brick) { return brick.kind != BrickKind::FarOutside; }));
+  return size_t(std::count_if(bricks_.begin(), bricks_.end(), [](const Brick& brick) {
+    return brick.kind == BrickKind::Nibbles || brick.kind == BrickKind::Bytes;
+  }));
 }
 
 // The per-voxel helpers run for every sphere-tree node a query visits: always inlined (GCC kept them calls).
 [[gnu::always_inline]] inline const SparseVoxelmap::Brick& SparseVoxelmap::brick_of(int i, int j, int k,
                                                                                     int& local) const {
+  // Voxel indices are never negative: shifts, not signed divisions (GCC kept idiv for those).
   local = ((k & (kEdge - 1)) * kEdge + (j & (kEdge - 1))) * kEdge + (i & (kEdge - 1));
-  return bricks_[(size_t(k / kEdge) * brick_dims_[1] + j / kEdge) * brick_dims_[0] + i / kEdge];
+  return bricks_[(size_t(unsigned(k) >> kEdgeBits) * unsigned(brick_dims_[1]) + (unsigned(j) >> kEdgeBits)) *
+                     unsigned(brick_dims_[0]) +
+                 (unsigned(i) >> kEdgeBits)];
+}
+
+[[gnu::always_inline]] inline float SparseVoxelmap::value_in(const Brick& brick, int local, bool& exact) const {
+  const int v = value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)];
+  exact = (v & 1) != 0;
+  return float(v >> 1) * (exact ? value_step_ : 1.0f);
 }
 
 [[gnu::always_inline]] inline int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
   switch (brick.kind) {
     case BrickKind::Nibbles:
-      return brick.layer_base + ((layer_pool_[brick.layer_data + local / 2] >> ((local & 1) * 4)) & 0xf);
+      return brick.layer_base + ((layer_pool_[brick.data + local / 2] >> ((local & 1) * 4)) & 0xf);
     case BrickKind::Bytes:
-      return brick.layer_base + layer_pool_[brick.layer_data + local];
+      return brick.layer_base + layer_pool_[brick.data + local];
+    case BrickKind::Values: {  // only layer_at() asks: a stored distance implies its layer (spec §3)
+      const int v = value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)];
+      return (v & 1) ? int(std::floor(-double(v >> 1) / value_scale_ + 0.5)) : -(v >> 1);
+    }
     case BrickKind::FarOutside:
       break;
   }
   return brick.layer_base;
 }
 
-[[gnu::always_inline]] inline bool SparseVoxelmap::distance_in(const Brick& brick, int local, float& distance) const {
-  if (brick.distance_data == kNoDistance) return false;
-  const int16_t q = distance_pool_[size_t(brick.distance_data) * kBrickVoxels + local];
-  if (q == kNotStored) return false;
-  distance = float(q) / distance_scale_;
-  return true;
+[[gnu::always_inline]] inline float SparseVoxelmap::layer_lower_bound(float layer) const {
+  // Layer l < 0: outside, |l| less the layers' excess over the exact distance; l >= 0: inside, at most l + 1/2
+  // deep (less deep than the layer says, for chamfer layers).
+  if (layer_accuracy_ == LayerAccuracy::Chamfer)
+    return layer < 0 ? (-layer - 0.5f) * kChamferSafety : -(layer + 0.5f) / kChamferSafety;
+  return layer < 0 ? std::max(0.0f, -layer - kLayerExcess) : -(layer + 0.5f);
 }
 
 [[gnu::always_inline]] inline float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact, bool& bound) const {
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
-  float distance = 0.0f;
-  if (distance_in(brick, local, distance)) return distance;
+  if (brick.kind == BrickKind::Values) {
+    bool stored = false;
+    const float value = value_in(brick, local, stored);
+    exact &= stored;
+    return value;
+  }
   exact = false;
   bound |= brick.kind == BrickKind::FarOutside;
   return -float(layer_in(brick, local));
@@ -165,8 +214,10 @@ int SparseVoxelmap::layer_at(int i, int j, int k) const {
 float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
-  float distance = 0.0f;
-  return distance_in(brick, local, distance) ? distance : std::nanf("");
+  if (brick.kind != BrickKind::Values) return std::nanf("");
+  bool exact = false;
+  const float value = value_in(brick, local, exact);
+  return exact ? value : std::nanf("");
 }
 
 [[gnu::always_inline]] inline bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
@@ -201,26 +252,25 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
   }
   bool exact = true;
   float v[8];
-  // Near the surface the 8 corners usually lie in one brick that stores all their distances: one brick fetch
-  // and 8 reads from one 1 KB block.
+  // Near the surface the 8 corners usually lie in one Values brick: one header and two cache lines.
   bool fetched = false;
   if ((base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
       (base[2] & (kEdge - 1)) < kEdge - 1 && dims_[0] > 1 && dims_[1] > 1 && dims_[2] > 1) {
     int local = 0;
     const Brick& brick = brick_of(base[0], base[1], base[2], local);
-    if (brick.distance_data != kNoDistance) {
-      const int16_t* q = &distance_pool_[size_t(brick.distance_data) * kBrickVoxels + size_t(local)];
+    if (brick.kind == BrickKind::Values) {
+      const int16_t* q = &value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)];
       constexpr int kOffset[8] = {
           0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
-      fetched = true;
+      const float inverse = value_step_;
+      int flags = 1;
       for (int corner = 0; corner < 8; ++corner) {
-        const int16_t stored = q[kOffset[corner]];
-        if (stored == kNotStored) {
-          fetched = false;
-          break;
-        }
-        v[corner] = float(stored) / distance_scale_;
+        const int value = q[kOffset[corner]];
+        flags &= value;
+        v[corner] = float(value >> 1) * ((value & 1) ? inverse : 1.0f);
       }
+      exact = flags != 0;
+      fetched = true;
     }
   }
   if (!fetched)
@@ -245,28 +295,41 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
   return result;
 }
 
+void SparseVoxelmap::prefetch_header(const Eigen::Vector3f& u) const {
+  if (!covers(u)) return;
+  int local = 0;
+  __builtin_prefetch(&brick_of(int(u.x() + 0.5f), int(u.y() + 0.5f), int(u.z() + 0.5f), local));
+}
+
+void SparseVoxelmap::prefetch_voxel(const Eigen::Vector3f& u) const {
+  if (!covers(u)) return;
+  int local = 0;
+  const Brick& brick = brick_of(int(u.x() + 0.5f), int(u.y() + 0.5f), int(u.z() + 0.5f), local);
+  if (brick.kind == BrickKind::Values)
+    __builtin_prefetch(&value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)]);
+  else if (brick.kind != BrickKind::FarOutside)
+    __builtin_prefetch(&layer_pool_[brick.data + size_t(local) / 2]);
+}
+
 float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {
-  const float box = bounds_distance(u);
-  if (!covers(u)) return box;
+  // Outside the grid the object is at least as far as its bounding box; inside, the nearest voxel says more.
+  if (!covers(u)) return bounds_distance(u);
   // Nearest voxel; covers() keeps every coordinate above -1/2, so truncation rounds (std::lround is a call).
   const int i = int(u.x() + 0.5f), j = int(u.y() + 0.5f), k = int(u.z() + 0.5f);
   int local = 0;
   const Brick& brick = brick_of(i, j, k, local);
-  float distance = 0.0f;
   float at_voxel;
-  if (distance_in(brick, local, distance)) {
-    at_voxel = distance;
+  if (brick.kind == BrickKind::Values) {
+    bool exact = false;
+    const float value = value_in(brick, local, exact);
+    // Fixed point moves a distance by up to half a step either way.
+    at_voxel = exact ? value - value_slack_ : layer_lower_bound(-value);
   } else {
-    const int layer = layer_in(brick, local);
-    // Layer l < 0: outside, |l| less the layers' excess over the exact distance; l >= 0: inside, at most l + 1/2
-    // deep (less deep than the layer says, for chamfer layers).
-    if (layer_accuracy_ == LayerAccuracy::Chamfer)
-      at_voxel = layer < 0 ? (float(-layer) - 0.5f) * kChamferSafety : -(float(layer) + 0.5f) / kChamferSafety;
-    else
-      at_voxel = layer < 0 ? std::max(0.0f, float(-layer) - kLayerExcess) : -(float(layer) + 0.5f);
+    at_voxel = layer_lower_bound(float(layer_in(brick, local)));
   }
-  // Outside the object's box the point is outside the object, at least `box` away; inside it the box says nothing.
-  return box > 0.0f ? std::max(box, at_voxel - kHalfDiagonal) : at_voxel - kHalfDiagonal;
+  // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it
+  // (at most half the voxel diagonal; the actual offset keeps the bound tight).
+  return at_voxel - (u - Eigen::Vector3f(float(i), float(j), float(k))).norm();
 }
 
 }  // namespace voxfmt::runtime

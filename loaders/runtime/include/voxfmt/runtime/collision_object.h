@@ -16,18 +16,27 @@
 namespace voxfmt::runtime {
 
 /// The point-sphere tree of spec §4 in single precision, breadth-first: node n is point n, its children are
-/// [child_begin[n], child_begin[n] + child_count[n]), level l is [level_offsets[l], level_offsets[l + 1]).
+/// [nodes[n].first_child, nodes[n].first_child + nodes[n].child_count), level l is
+/// [level_offsets[l], level_offsets[l + 1]).
 struct PointTree {
-  std::vector<Eigen::Vector3f> points;          ///< asset frame, metres
-  std::vector<Eigen::Vector3f> normals;         ///< inward unit normals
-  std::vector<Eigen::Vector3f> sphere_centers;  ///< asset frame, metres
-  std::vector<float> sphere_radii;              ///< metres
-  std::vector<uint32_t> child_begin;
-  std::vector<uint32_t> child_count;
+  /// What a traversal reads of a node before it knows whether the node's point is needed, packed so that a
+  /// visit touches one cache line (two nodes per line) and a node's children are contiguous.
+  struct alignas(32) Node {
+    Eigen::Vector3f centre;  ///< centre of the sphere around the node's point and its descendants (asset frame)
+    float radius = 0;        ///< metres
+    /// |centre - parent's centre| + radius (metres; 0 for the root): a parent's distance bound minus this bounds
+    /// the node's, so a child out of reach is dropped without a lookup of its own.
+    float reach_from_parent = 0;
+    uint32_t first_child = 0;
+    uint32_t child_count = 0;
+    uint32_t unused = 0;
+  };
+  static_assert(sizeof(Node) == 32, "two nodes per cache line");
+
+  std::vector<Node> nodes;
+  std::vector<Eigen::Vector3f> points;   ///< asset frame, metres
+  std::vector<Eigen::Vector3f> normals;  ///< inward unit normals
   std::vector<uint32_t> level_offsets;
-  /// |child centre - parent centre| + child radius (metres; 0 for the root): a parent's distance bound minus
-  /// this bounds the child's, so children out of reach are dropped without a lookup of their own.
-  std::vector<float> reach_from_parent;
 
   size_t size() const { return points.size(); }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }

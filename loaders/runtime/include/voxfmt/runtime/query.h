@@ -100,7 +100,8 @@ struct ContactSet {
 
 /// Reusable traversal buffers; keep one per thread to avoid allocations in the loop.
 struct QueryScratch {
-  std::vector<uint32_t> queue;
+  std::vector<uint32_t> queue;       ///< the level being traversed
+  std::vector<uint32_t> next_queue;  ///< the children it queues
   /// Hits of the level being traversed, held back until it is known whether the level is the last one.
   struct Hit {
     uint32_t node;

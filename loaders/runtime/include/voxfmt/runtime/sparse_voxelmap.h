@@ -1,10 +1,12 @@
 // Bricked, quantised voxelmap for runtime queries: the dense grids of an asset (spec §3) in a few MB.
 //
-// The grid is cut into 8x8x8 bricks. Within a brick, 6-neighbour layers differ by at most 1, so every layer is
-// the brick's minimum plus a 4-bit offset (range <= 21 would need 5 bits in theory; bricks that need more are
-// kept with 8-bit offsets). Bricks whose voxels are all farther outside than `outer_layers_kept` become one
-// value (a lower bound, good for pruning but not for proximity). Stored distances live in separate bricks as
-// 16-bit fixed point; only bricks that touch the band have them.
+// The grid is cut into 8x8x8 bricks, each described by an 8-byte header. Bricks that touch the band of stored
+// distances keep one 16-bit value per voxel: the stored distance in fixed point, or minus the layer where none
+// is stored, the lowest bit saying which; a lookup there is one header and one cache line. Other bricks
+// keep layers only: within a brick 6-neighbour layers differ by at most 1, so every layer is the brick's
+// minimum plus a 4-bit offset (range <= 21 would need 5 bits in theory; bricks that need more are kept with
+// 8-bit offsets). Bricks whose voxels are all farther outside than `outer_layers_kept` become one value in the
+// header (a lower bound, good for pruning but not for proximity).
 #pragma once
 
 #include <Eigen/Core>
@@ -59,10 +61,15 @@ class SparseVoxelmap {
   /// If `gradient` is given it receives the direction of increasing distance (grid axes = asset axes, not
   /// normalised; zero where the field is flat).
   FieldSample sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient = nullptr) const;
+  /// Batched lookups start loading their voxels early, in two steps so that the loads of many points overlap:
+  /// the header of the brick holding u's nearest voxel, then (once that has arrived) the voxel itself.
+  void prefetch_header(const Eigen::Vector3f& u) const;
+  void prefetch_voxel(const Eigen::Vector3f& u) const;
   /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
   float distance_lower_bound(const Eigen::Vector3f& u) const;
 
-  /// Layer of voxel (i, j, k) (clamped bricks report their bound), for tests and inspection.
+  /// Layer of voxel (i, j, k) (clamped bricks report their bound; where a distance is stored, the layer it
+  /// implies, spec §3), for tests and inspection.
   int layer_at(int i, int j, int k) const;
   /// Stored distance of voxel (i, j, k) in voxel units, or NaN where the asset stores none.
   float stored_distance_at(int i, int j, int k) const;
@@ -74,28 +81,31 @@ class SparseVoxelmap {
   /// Heap bytes held (what the map costs in RAM).
   size_t memory_bytes() const;
   size_t brick_count() const { return bricks_.size(); }
+  /// Bricks that keep layers only, and bricks that keep a value per voxel (those touching the distance band).
   size_t layer_brick_count() const;
-  size_t distance_brick_count() const { return distance_pool_.size() / kBrickVoxels; }
+  size_t distance_brick_count() const { return value_pool_.size() / kBrickVoxels; }
 
   static constexpr int kBrickEdge = 8;
   static constexpr int kBrickVoxels = kBrickEdge * kBrickEdge * kBrickEdge;
 
  private:
-  enum class BrickKind : uint8_t { FarOutside, Nibbles, Bytes };
+  enum class BrickKind : uint8_t { FarOutside, Nibbles, Bytes, Values };
   struct Brick {
-    int16_t layer_base = 0;  ///< minimum layer in the brick; for FarOutside the layer closest to the surface
+    int16_t layer_base = 0;  ///< Nibbles/Bytes: minimum layer; FarOutside: the layer closest to the surface
     BrickKind kind = BrickKind::FarOutside;
-    uint32_t layer_data = 0;               ///< byte offset into layer_pool_
-    uint32_t distance_data = kNoDistance;  ///< brick index into distance_pool_, or kNoDistance
+    uint8_t unused = 0;
+    uint32_t data = 0;  ///< Nibbles/Bytes: byte offset into layer_pool_; Values: brick index into value_pool_
   };
-  static constexpr uint32_t kNoDistance = 0xffffffffu;
-  static constexpr int16_t kNotStored = INT16_MIN;
+  static_assert(sizeof(Brick) == 8, "headers stay small enough to live in cache");
 
   // Voxel fetches; (i, j, k) must lie inside the grid.
   const Brick& brick_of(int i, int j, int k, int& local) const;
   int layer_in(const Brick& brick, int local) const;
-  bool distance_in(const Brick& brick, int local, float& distance) const;
+  /// A Values brick's voxel: the stored distance (exact) or minus the layer, in voxel units.
+  float value_in(const Brick& brick, int local, bool& exact) const;
   float estimate_at(int i, int j, int k, bool& exact, bool& bound) const;
+  /// The lowest signed distance a voxel of this layer can have (voxel units).
+  float layer_lower_bound(float layer) const;
   float bounds_distance(const Eigen::Vector3f& u) const;
   /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
   bool covers(const Eigen::Vector3f& u) const;
@@ -104,13 +114,16 @@ class SparseVoxelmap {
   double voxel_size_ = 1.0;
   std::array<int, 3> dims_{};
   std::array<int, 3> brick_dims_{};
-  float distance_scale_ = 1.0f;  ///< quantisation steps per voxel
+  float value_scale_ = 1.0f;  ///< fixed-point steps per voxel of the Values bricks
+  float value_step_ = 1.0f;   ///< 1 / value_scale_
+  float value_slack_ = 0.0f;  ///< half a step (and float rounding): how far a decoded distance may be from the file's
   LayerAccuracy layer_accuracy_ = LayerAccuracy::WithinSqrt3;
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
   std::vector<Brick> bricks_;
   std::vector<uint8_t> layer_pool_;
-  std::vector<int16_t> distance_pool_;
+  /// (fixed-point distance << 1) | 1 where a distance is stored, (-layer) << 1 elsewhere.
+  std::vector<int16_t> value_pool_;
 };
 
 }  // namespace voxfmt::runtime
