@@ -52,6 +52,12 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
                   (shell.sphere_centers[child][a] - shell.sphere_centers[parent][a]);
       tree.nodes[child].reach_from_parent =
           float(std::sqrt(offset) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + rounding_pad;
+      double from_point = 0;
+      for (int a = 0; a < 3; ++a)
+        from_point += (shell.sphere_centers[child][a] - shell.points[parent][a]) *
+                      (shell.sphere_centers[child][a] - shell.points[parent][a]);
+      tree.nodes[child].reach_from_parent_point =
+          float(std::sqrt(from_point) + shell.sphere_radii[child]) * (1.0f + 1e-6f) + rounding_pad;
     }
   return tree;
 }

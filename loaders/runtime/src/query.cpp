@@ -13,8 +13,6 @@ struct VoxelmapTarget {
   float lower_bound(const Eigen::Vector3f& u) const { return map.distance_lower_bound(u); }
   /// A bound costs one voxel, a sample up to eight: test a point's bound before sampling it.
   static constexpr bool kBoundBeforeDistance = true;
-  void prefetch_header(const Eigen::Vector3f& u) const { map.prefetch_header(u); }
-  void prefetch_voxel(const Eigen::Vector3f& u) const { map.prefetch_voxel(u); }
   float distance(const Eigen::Vector3f& u, bool& exact) const {
     const FieldSample s = map.sample(u);
     exact = s.exact;

@@ -31,6 +31,8 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
     map.dims_[a] = int(dense.dims[a]);
     map.brick_dims_[a] = div_up(map.dims_[a], kEdge);
   }
+  // An empty grid covers nothing.
+  for (int a = 0; a < 3; ++a) map.cover_max_[a] = map.dims_[a] > 0 ? float(map.dims_[a]) - 0.5f : -1.0f;
   map.object_min_ = map.to_grid(Eigen::Vector3d(bounds_min[0], bounds_min[1], bounds_min[2]));
   map.object_max_ = map.to_grid(Eigen::Vector3d(bounds_max[0], bounds_max[1], bounds_max[2]));
 
@@ -82,6 +84,8 @@ SparseVoxelmap SparseVoxelmap::from_dense(const voxfmt::Voxelmap& dense, const v
   const double steps = 16000.0 / (largest_value + 1.0);
   map.value_scale_ = float(steps >= 1.0 ? std::floor(steps) : steps);
   map.value_step_ = 1.0f / map.value_scale_;
+  map.decode_step_[0] = 1.0f;  // layers are whole
+  map.decode_step_[1] = map.value_step_;
   map.value_slack_ = 0.5f / map.value_scale_ + 1e-6f * float(largest_value);
 
   // Second pass: the payloads.
@@ -164,7 +168,7 @@ size_t SparseVoxelmap::layer_brick_count() const {
 [[gnu::always_inline]] inline float SparseVoxelmap::value_in(const Brick& brick, int local, bool& exact) const {
   const int v = value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)];
   exact = (v & 1) != 0;
-  return float(v >> 1) * (exact ? value_step_ : 1.0f);
+  return float(v >> 1) * decode_step_[v & 1];
 }
 
 [[gnu::always_inline]] inline int SparseVoxelmap::layer_in(const Brick& brick, int local) const {
@@ -191,9 +195,8 @@ size_t SparseVoxelmap::layer_brick_count() const {
   return layer < 0 ? std::max(0.0f, -layer - kLayerExcess) : -(layer + 0.5f);
 }
 
-[[gnu::always_inline]] inline float SparseVoxelmap::estimate_at(int i, int j, int k, bool& exact, bool& bound) const {
-  int local = 0;
-  const Brick& brick = brick_of(i, j, k, local);
+[[gnu::always_inline]] inline float SparseVoxelmap::estimate_in(const Brick& brick, int local, bool& exact,
+                                                                bool& bound) const {
   if (brick.kind == BrickKind::Values) {
     bool stored = false;
     const float value = value_in(brick, local, stored);
@@ -221,8 +224,9 @@ float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
 }
 
 [[gnu::always_inline]] inline bool SparseVoxelmap::covers(const Eigen::Vector3f& u) const {
-  return !bricks_.empty() && u.x() > -0.5f && u.y() > -0.5f && u.z() > -0.5f && u.x() < float(dims_[0]) - 0.5f &&
-         u.y() < float(dims_[1]) - 0.5f && u.z() < float(dims_[2]) - 0.5f;
+  // Bitwise, not short-circuit: one branch for the caller instead of six hard-to-predict ones.
+  return (u.x() > -0.5f) & (u.y() > -0.5f) & (u.z() > -0.5f) & (u.x() < cover_max_.x()) & (u.y() < cover_max_.y()) &
+         (u.z() < cover_max_.z());
 }
 
 [[gnu::always_inline]] inline float SparseVoxelmap::bounds_distance(const Eigen::Vector3f& u) const {
@@ -262,24 +266,34 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
       const int16_t* q = &value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)];
       constexpr int kOffset[8] = {
           0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
-      const float inverse = value_step_;
       int flags = 1;
       for (int corner = 0; corner < 8; ++corner) {
         const int value = q[kOffset[corner]];
         flags &= value;
-        v[corner] = float(value >> 1) * ((value & 1) ? inverse : 1.0f);
+        v[corner] = float(value >> 1) * decode_step_[value & 1];
       }
       exact = flags != 0;
       fetched = true;
     }
   }
-  if (!fetched)
+  if (!fetched) {
+    // Corners in several bricks: each axis's two voxel coordinates split once into brick and offset.
+    unsigned brick_part[3][2], local_part[3][2];
+    for (int a = 0; a < 3; ++a)
+      for (int side = 0; side < 2; ++side) {
+        const unsigned c = unsigned(std::min(base[a] + side, dims_[a] - 1));
+        brick_part[a][side] = c >> kEdgeBits;
+        local_part[a][side] = c & (kEdge - 1);
+      }
     for (int corner = 0; corner < 8; ++corner) {
-      const int i = std::min(base[0] + (corner & 1), dims_[0] - 1);
-      const int j = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1);
-      const int k = std::min(base[2] + ((corner >> 2) & 1), dims_[2] - 1);
-      v[corner] = estimate_at(i, j, k, exact, result.bound);
+      const int x = corner & 1, y = (corner >> 1) & 1, z = corner >> 2;
+      const Brick& brick =
+          bricks_[(size_t(brick_part[2][z]) * unsigned(brick_dims_[1]) + brick_part[1][y]) * unsigned(brick_dims_[0]) +
+                  brick_part[0][x]];
+      const int local = int((local_part[2][z] * kEdge + local_part[1][y]) * kEdge + local_part[0][x]);
+      v[corner] = estimate_in(brick, local, exact, result.bound);
     }
+  }
   const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
   const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
   const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
@@ -293,22 +307,6 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
     *gradient = Eigen::Vector3f(gx, gy, gz);
   }
   return result;
-}
-
-void SparseVoxelmap::prefetch_header(const Eigen::Vector3f& u) const {
-  if (!covers(u)) return;
-  int local = 0;
-  __builtin_prefetch(&brick_of(int(u.x() + 0.5f), int(u.y() + 0.5f), int(u.z() + 0.5f), local));
-}
-
-void SparseVoxelmap::prefetch_voxel(const Eigen::Vector3f& u) const {
-  if (!covers(u)) return;
-  int local = 0;
-  const Brick& brick = brick_of(int(u.x() + 0.5f), int(u.y() + 0.5f), int(u.z() + 0.5f), local);
-  if (brick.kind == BrickKind::Values)
-    __builtin_prefetch(&value_pool_[size_t(brick.data) * kBrickVoxels + size_t(local)]);
-  else if (brick.kind != BrickKind::FarOutside)
-    __builtin_prefetch(&layer_pool_[brick.data + size_t(local) / 2]);
 }
 
 float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {

@@ -27,9 +27,10 @@ struct PointTree {
     /// |centre - parent's centre| + radius (metres; 0 for the root): a parent's distance bound minus this bounds
     /// the node's, so a child out of reach is dropped without a lookup of its own.
     float reach_from_parent = 0;
+    /// |centre - parent's point| + radius: the same from the parent's point, whose bound is known too.
+    float reach_from_parent_point = 0;
     uint32_t first_child = 0;
     uint32_t child_count = 0;
-    uint32_t unused = 0;
   };
   static_assert(sizeof(Node) == 32, "two nodes per cache line");
 

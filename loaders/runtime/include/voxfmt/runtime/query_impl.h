@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <limits>
 
 namespace voxfmt::runtime {
 namespace detail {
@@ -12,13 +13,13 @@ namespace detail {
 /// Breadth-first traversal of `tree` mapped into a target frame by u = M * x + m (lengths scale by
 /// `radius_scale`). The target supplies `lower_bound(u)` (never above the true signed distance),
 /// `distance(u, exact)`, both in target units; `kBoundBeforeDistance` says whether a point's bound is worth
-/// testing before its distance, `prefetch_header(u)` and `prefetch_voxel(u)` start loading what a lookup at u
-/// reads (no-ops for analytic targets). Calls emit(node, distance, exact) for every tested point closer than
+/// testing before its distance. Calls emit(node, distance, exact) for every tested point closer than
 /// `proximity` (target units).
 ///
 /// A level is processed in batches of kBatch nodes, each in two passes (sphere bounds, then the points that
-/// survive): the lookups of one pass are independent of each other, and prefetched in two steps before it, so
-/// their cache misses overlap instead of being paid one after another as in a node-at-a-time loop.
+/// survive): the lookups of one pass are independent of each other, so their cache misses overlap instead of
+/// being paid one after another as in a node-at-a-time loop. (Software prefetching was tried: it cost more
+/// instructions than it saved in misses.)
 template <class Target, class Emit>
 void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
                    float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
@@ -34,13 +35,16 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   std::vector<uint32_t>& parents = scratch.level_parents;
   std::vector<Hit>& done_hits = scratch.done_hits;
   std::vector<uint32_t>& done_parents = scratch.done_parents;
-  frontier.clear();
-  next.clear();
   hits.clear();
   parents.clear();
   done_hits.clear();
   done_parents.clear();
   if (tree.size() == 0) return;
+  // A level never holds more nodes than the tree: sized once, the queues are filled without capacity checks
+  // (children are written unconditionally and kept by advancing the size, which leaves no branch to mispredict).
+  if (frontier.size() < tree.size()) frontier.resize(tree.size());
+  if (next.size() < tree.size()) next.resize(tree.size());
+  size_t frontier_size = 0, next_size = 0;
   const PointTree::Node* nodes = tree.nodes.data();
   const Eigen::Vector3f* points = tree.points.data();
   const bool spheres = options.cut_level == CutLevel::Spheres;
@@ -68,29 +72,25 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   float bound[kBatch];
   uint32_t survivor[kBatch];
 
-  frontier.push_back(0);
+  frontier[frontier_size++] = 0;
   uint32_t level = 0;
   size_t tested = 0;
   bool out_of_time = false;
   bool level_done = false;  // the last level entered was completed
   for (;;) {
     level_done = false;
-    for (size_t begin = 0; begin < frontier.size(); begin += kBatch) {
+    for (size_t begin = 0; begin < frontier_size; begin += kBatch) {
       // The clock is read before each batch; the root level always completes.
       if (timed && level > 0 && std::chrono::steady_clock::now() >= deadline) {
         out_of_time = true;
         break;
       }
-      const size_t count = std::min(kBatch, frontier.size() - begin);
+      const size_t count = std::min(kBatch, frontier_size - begin);
       const uint32_t* batch = frontier.data() + begin;
       // Pass 1: every sphere against the target's lower bound. The sphere holds the node's point and all its
       // descendants; the distance is 1-Lipschitz, so if even the lower bound at the centre exceeds the radius
       // nothing below can be within reach.
-      for (size_t i = 0; i < count; ++i) {
-        centre[i] = M * nodes[batch[i]].centre + m;
-        target.prefetch_header(centre[i]);
-      }
-      for (size_t i = 0; i < count; ++i) target.prefetch_voxel(centre[i]);
+      for (size_t i = 0; i < count; ++i) centre[i] = M * nodes[batch[i]].centre + m;
       size_t survivors = 0;
       for (size_t i = 0; i < count; ++i) {
         const float b = target.lower_bound(centre[i]);
@@ -102,19 +102,16 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
 
       // Pass 2: the survivors' own points, then their children that the bound, carried from the parent's
       // centre to each child's sphere, cannot rule out.
-      for (size_t i = 0; i < survivors; ++i) {
-        __builtin_prefetch(&nodes[nodes[survivor[i]].first_child]);  // the children's reach, read below
-        point[i] = M * points[survivor[i]] + m;
-        target.prefetch_header(point[i]);
-      }
-      for (size_t i = 0; i < survivors; ++i) target.prefetch_voxel(point[i]);
+      for (size_t i = 0; i < survivors; ++i) point[i] = M * points[survivor[i]] + m;
       for (size_t i = 0; i < survivors; ++i) {
         const uint32_t node = survivor[i];
         const PointTree::Node& parent = nodes[node];
         if (scratch.tested_points) scratch.tested_points->push_back(point[i]);
         // A leaf's sphere is its point, whose bound pass 1 has just tested; an inner node's point is tested on
         // its own bound first where a distance costs more.
-        if (!Target::kBoundBeforeDistance || parent.child_count == 0 || target.lower_bound(point[i]) < proximity) {
+        float point_bound = -std::numeric_limits<float>::infinity();
+        if (Target::kBoundBeforeDistance && parent.child_count > 0) point_bound = target.lower_bound(point[i]);
+        if (point_bound < proximity) {
           bool exact = false;
           const float d = target.distance(point[i], exact);
           if (d < proximity) {
@@ -124,17 +121,21 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
               emit(node, d, exact);
           }
         }
-        const size_t queued = next.size();
-        for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c)
-          if (bound[i] - nodes[c].reach_from_parent * radius_scale <= proximity) next.push_back(c);
-        if (spheres && next.size() > queued) parents.push_back(node);
+        const size_t queued = next_size;
+        uint32_t* const out = next.data();
+        for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
+          out[next_size] = c;
+          next_size += std::max(bound[i] - nodes[c].reach_from_parent * radius_scale,
+                                point_bound - nodes[c].reach_from_parent_point * radius_scale) <= proximity;
+        }
+        if (spheres && next_size > queued) parents.push_back(node);
       }
       tested += survivors;
     }
     if (out_of_time) break;
     level_done = true;
     // `level` is complete: go on to the next one unless it is empty, too deep or over the point budget.
-    if (next.empty() || level + 1 > options.max_level || tested + next.size() > options.point_budget) break;
+    if (next_size == 0 || level + 1 > options.max_level || tested + next_size > options.point_budget) break;
     if (timed && std::chrono::steady_clock::now() >= deadline) {
       out_of_time = true;
       break;
@@ -147,7 +148,8 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
       parents.clear();
     }
     frontier.swap(next);
-    next.clear();
+    frontier_size = next_size;
+    next_size = 0;
     ++level;
   }
   uint32_t completed = level;
@@ -157,7 +159,7 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     if (spheres) emit_cut(done_hits, done_parents);
   } else if (spheres) {
     emit_points(done_hits);
-    if (!next.empty())  // children of this level were queued but not tested
+    if (next_size > 0)  // children of this level were queued but not tested
       emit_cut(hits, parents);
     else
       emit_points(hits);
@@ -175,8 +177,6 @@ struct FunctionTarget {
   LowerBound& bound;
   float lower_bound(const Eigen::Vector3f& u) const { return bound(u); }
   static constexpr bool kBoundBeforeDistance = false;
-  void prefetch_header(const Eigen::Vector3f&) const {}
-  void prefetch_voxel(const Eigen::Vector3f&) const {}
   float distance(const Eigen::Vector3f& u, bool& exact) const {
     Eigen::Vector3f normal;
     exact = true;

@@ -61,10 +61,6 @@ class SparseVoxelmap {
   /// If `gradient` is given it receives the direction of increasing distance (grid axes = asset axes, not
   /// normalised; zero where the field is flat).
   FieldSample sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient = nullptr) const;
-  /// Batched lookups start loading their voxels early, in two steps so that the loads of many points overlap:
-  /// the header of the brick holding u's nearest voxel, then (once that has arrived) the voxel itself.
-  void prefetch_header(const Eigen::Vector3f& u) const;
-  void prefetch_voxel(const Eigen::Vector3f& u) const;
   /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
   float distance_lower_bound(const Eigen::Vector3f& u) const;
 
@@ -103,7 +99,9 @@ class SparseVoxelmap {
   int layer_in(const Brick& brick, int local) const;
   /// A Values brick's voxel: the stored distance (exact) or minus the layer, in voxel units.
   float value_in(const Brick& brick, int local, bool& exact) const;
-  float estimate_at(int i, int j, int k, bool& exact, bool& bound) const;
+  /// A voxel's value for interpolation: its stored distance, else minus its layer (clearing `exact`; setting
+  /// `bound` where a far brick keeps only a bound).
+  float estimate_in(const Brick& brick, int local, bool& exact, bool& bound) const;
   /// The lowest signed distance a voxel of this layer can have (voxel units).
   float layer_lower_bound(float layer) const;
   float bounds_distance(const Eigen::Vector3f& u) const;
@@ -114,10 +112,12 @@ class SparseVoxelmap {
   double voxel_size_ = 1.0;
   std::array<int, 3> dims_{};
   std::array<int, 3> brick_dims_{};
-  float value_scale_ = 1.0f;  ///< fixed-point steps per voxel of the Values bricks
-  float value_step_ = 1.0f;   ///< 1 / value_scale_
+  float value_scale_ = 1.0f;             ///< fixed-point steps per voxel of the Values bricks
+  float value_step_ = 1.0f;              ///< 1 / value_scale_
+  float decode_step_[2] = {1.0f, 1.0f};  ///< a value's multiplier by its lowest bit: layer 1, distance value_step_
   float value_slack_ = 0.0f;  ///< half a step (and float rounding): how far a decoded distance may be from the file's
   LayerAccuracy layer_accuracy_ = LayerAccuracy::WithinSqrt3;
+  Eigen::Vector3f cover_max_ = -Eigen::Vector3f::Ones();  ///< upper end of the grid's voxels, grid coordinates
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
   std::vector<Brick> bricks_;
