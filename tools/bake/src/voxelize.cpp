@@ -493,7 +493,9 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
   // Outside the surface's bounding box a plane separates the point from the whole surface, which then covers at
   // most a hemisphere of directions: |winding number| <= 1/2, never inside. Approximation error (far field,
   // interpolation) must not make it so.
-  const auto [lo, hi] = bounding_box(mesh);
+  const Bounds box = bounding_box(mesh);  // not a structured binding: C++17 lambdas cannot capture those (clang)
+  const Vec3& lo = box.lo;
+  const Vec3& hi = box.hi;
   auto inside_bounds = [&](int64_t i, int64_t j, int64_t k) {
     const double p[3] = {g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
                          g.origin[2] + g.voxel_size * double(k)};
