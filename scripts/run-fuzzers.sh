@@ -36,7 +36,9 @@ python3 tests/fuzz/make_mesh_seeds.py "$corpus"
 for f in build/cgal-data/data/meshes/*.off build/cgal-data/data/meshes/*.ply; do
   [ -f "$f" ] && [ "$(stat -c %s "$f")" -lt 20000 ] && cp "$f" "$corpus/${f##*.}/" || true
 done
-cp tests/fuzz/regressions/*.{off,obj,ply,stl,gltf} "$corpus/" 2>/dev/null || true
+for f in tests/fuzz/regressions/*.{off,obj,ply,stl,gltf}; do
+  [ -f "$f" ] && cp "$f" "$corpus/${f##*.}/"
+done
 
 {
   for word in HDF TREE HEAP GCOL OHDR SNOD voxfmt format_version voxelmap pointshell mass_properties provenance \

@@ -1,15 +1,22 @@
 #!/usr/bin/env python3
-"""Every input a fuzzer once crashed or hung on (tests/fuzz/regressions/) goes through `voxfmt validate --level full`
-and `voxfmt inspect`: each must end with an exit code (0 valid, 1 invalid, 2 unreadable), never a signal or a hang."""
+"""Every input a fuzzer once crashed or hung on (tests/fuzz/regressions/) must end with an exit code, never a signal or
+a hang: an asset (*.vox.h5) goes through `voxfmt validate --level full` and `voxfmt inspect` (0 valid, 1 invalid,
+2 unreadable), a mesh through `voxfmt build` at the fuzzers' resolution (0 baked, 1 refused with a code)."""
 import os
 import subprocess
 import sys
+import tempfile
 
 voxfmt, folder = sys.argv[1], sys.argv[2]
 inputs = sorted(os.path.join(folder, f) for f in os.listdir(folder))
 failures = []
+work = tempfile.mkdtemp(prefix="voxfmt-fuzz-regressions-")
 for path in inputs:
-    for args in (["validate", "--level", "full", path], ["inspect", path]):
+    if path.endswith(".vox.h5"):
+        commands = (["validate", "--level", "full", path], ["inspect", path])
+    else:
+        commands = (["build", path, "-o", os.path.join(work, os.path.basename(path) + ".vox.h5"), "--resolution", "24", "--points", "300"],)
+    for args in commands:
         try:
             run = subprocess.run([voxfmt, *args], capture_output=True, text=True, timeout=120)
         except subprocess.TimeoutExpired:

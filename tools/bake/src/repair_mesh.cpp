@@ -111,6 +111,12 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
   }
   const size_t points_before = points.size(), faces_before = triangles.size();
   PMP::repair_polygon_soup(points, triangles);
+  // CGAL's soup repair can leave a triangle whose three corners are one merged point (a soup of nothing but
+  // such triangles: found by fuzz_mesh_gltf); the mesh builder drops it, and an empty mesh crashed the
+  // orientation below.
+  triangles.erase(std::remove_if(triangles.begin(), triangles.end(),
+                                 [](const auto& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }),
+                  triangles.end());
   report.merged_vertices = points_before - points.size();
   report.removed_faces = collinear + bad_index + (faces_before - triangles.size());
   if (triangles.empty()) throw BakeError(IssueCode::EmptyScene, "no non-degenerate triangle is left after repair");
@@ -128,6 +134,11 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
 
   SurfaceMesh sm;
   PMP::polygon_soup_to_polygon_mesh(points, triangles, sm);
+  // The orientation below assumes every face made it into the mesh; refuse rather than let CGAL read past the
+  // end of its own per-component arrays.
+  if (sm.number_of_faces() != triangles.size())
+    throw BakeError(IssueCode::Internal, "repair: " + std::to_string(triangles.size() - sm.number_of_faces()) +
+                                             " face(s) could not be joined into a mesh after orientation");
 
   for (auto h : sm.halfedges()) report.border_edges += sm.is_border(h);
   report.closed = report.border_edges == 0;
