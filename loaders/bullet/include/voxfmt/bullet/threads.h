@@ -35,7 +35,8 @@ bool bullet_is_thread_safe();
 
 /// A btITaskScheduler on a pool of std::threads: the calling thread and threads - 1 workers take chunks of
 /// `grain` iterations in turn. Also usable with btSetTaskScheduler for Bullet's Mt classes in a BT_THREADSAFE
-/// build. A parallelFor called from inside a task runs on the calling thread.
+/// build (set another scheduler before destroying it). A parallelFor called from inside a task runs on the
+/// calling thread.
 class ThreadPoolScheduler : public btITaskScheduler {
  public:
   explicit ThreadPoolScheduler(int threads);
