@@ -38,7 +38,8 @@ namespace {
 
 struct Shared {
   CollisionSettings settings;
-  CollisionCounters counters;
+  // On a line of their own: the counters change with every pair test, the settings are read by every one.
+  alignas(64) CollisionCounters counters;
   std::atomic<uint64_t> reported_types{0};  // one bit per Bullet shape type already reported as unsupported
 
   // A pair the algorithm cannot handle produces no contacts: say so once per shape type, never silently.
@@ -322,7 +323,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch);
 
     result->setPersistentManifold(manifold_);
-    CollisionCounters& counters = shared_->counters;
+    CollisionCounters& counters = shared_->counters;  // atomic: pairs may run on several threads at once
     ++counters.pair_tests;
     counters.raw_contacts += contacts.contacts.size();
     counters.points_tested += contacts.stats.points_tested;

@@ -16,6 +16,7 @@
 #include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
 #include <BulletCollision/CollisionDispatch/btDefaultCollisionConfiguration.h>
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -44,19 +45,48 @@ struct CollisionSettings {
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
   /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs
-  /// produce no contacts). Default (empty): the message goes to stderr.
+  /// produce no contacts). Default (empty): the message goes to stderr. With a multi-threaded dispatcher it is
+  /// called on the dispatcher's threads, possibly on two at once for two shape types.
   std::function<void(const std::string& message)> on_unsupported_pair;
 };
 
-/// Narrow-phase counters, summed over all VPS pairs since the last reset (single-threaded dispatch).
-struct CollisionCounters {
-  uint64_t pair_tests = 0;
-  uint64_t raw_contacts = 0;       ///< contacts found by the queries before reduction
-  uint64_t points_tested = 0;      ///< point-shell points whose distance was looked up
-  uint64_t nodes_visited = 0;      ///< sphere-tree nodes whose bound was looked up (pruning)
-  uint64_t unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
+/// A count that several threads may add to at once and that reads, copies and resets like a plain integer.
+/// Relaxed atomic: the sum is exact, no ordering is implied (read it once the threads are done, e.g. between
+/// steps).
+class SharedCount {
+ public:
+  constexpr SharedCount(uint64_t value = 0) noexcept : value_(value) {}
+  SharedCount(const SharedCount& other) noexcept : value_(other.load()) {}
+  SharedCount& operator=(const SharedCount& other) noexcept {
+    value_.store(other.load(), std::memory_order_relaxed);
+    return *this;
+  }
+  uint64_t load() const noexcept { return value_.load(std::memory_order_relaxed); }
+  operator uint64_t() const noexcept { return load(); }
+  SharedCount& operator+=(uint64_t n) noexcept {
+    value_.fetch_add(n, std::memory_order_relaxed);
+    return *this;
+  }
+  SharedCount& operator++() noexcept { return *this += 1; }
+
+ private:
+  std::atomic<uint64_t> value_;
 };
 
+/// Narrow-phase counters, summed over all VPS pairs since the last reset (`counters = {}`), whichever threads
+/// the dispatcher runs the pairs on.
+struct CollisionCounters {
+  SharedCount pair_tests = 0;
+  SharedCount raw_contacts = 0;       ///< contacts found by the queries before reduction
+  SharedCount points_tested = 0;      ///< point-shell points whose distance was looked up
+  SharedCount nodes_visited = 0;      ///< sphere-tree nodes whose bound was looked up (pruning)
+  SharedCount unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
+};
+
+/// Thread safety: the algorithm's only shared mutable state is these atomic counters, and its scratch memory is
+/// per thread, so a multi-threaded dispatcher (btCollisionDispatcherMt, voxfmt/bullet/threads.h) may run any
+/// pairs at once, many bodies sharing one CollisionObject. Change the settings between steps only: every pair
+/// test reads them.
 class VpsCollisionRegistration {
  public:
   virtual ~VpsCollisionRegistration() = default;
