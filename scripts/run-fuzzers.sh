@@ -59,6 +59,9 @@ cp "$work/asset.dict" "$work/manifest.dict"
   done
 } >"$work/mesh.dict"
 
+# A UBSan report in this project's code is a finding (the default would print it and go on); in an isolated child
+# (a library's parser) it ends the child, which the parent reports as a failed read.
+export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1:suppressions=$PWD/tests/sanitizers/ubsan.supp}
 status=0
 for target in $TARGETS; do
   case "$target" in

@@ -24,6 +24,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   settings.voxelmap.resolution = 24;  // small grids keep each input in milliseconds
   settings.point_shell.points = 300;
   settings.threads = 1;
+  settings.import.time_limit_s = 3;  // a hanging importer is stopped (IMPORT_FAILED) well before libFuzzer's timeout
   const voxfmt::Result<voxfmt::bake::Baked> baked = voxfmt::bake::bake_mesh(path, settings);
   if (!baked) return 0;  // refused with a code: what a broken mesh should get
   for (const voxfmt::Issue& issue : voxfmt::validate_asset(baked.value().asset, voxfmt::ValidationLevel::Full))
