@@ -551,13 +551,31 @@ void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, flo
 
 // Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
 // differ by at most one. Computed distances can exceed that by ~1e-6 voxel (tie snapping moves values by up to
-// 1e-6; the nearest triangle is chosen by a float key), enough to straddle two ties and step two layers. Such a pair
-// has one value within `kSlack` of its tie; that value is moved across it (by <= kSlack). Larger inconsistencies are
-// real errors and are left for the validator to report. Returns the number of values moved.
-size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<uint32_t, 3>& dims) {
+// 1e-6; the nearest triangle is chosen by a float key; the feature transform's depths beyond the band are float
+// sums), enough to straddle two ties and step two layers. Such a pair has one value within `kSlack` of its tie;
+// that value is moved across it (by <= kSlack). A voxel's penetration (voxels, positive inside) is -d in the band
+// and its feature-transform depth, signed by d, beyond it, so pairs beyond the band and across its edge are
+// repaired too (fuzz_mesh_off found a box whose depths 3.49999976 and 4.5, just past a band of 3, rounded to
+// layers 3 and 5). Larger inconsistencies are real errors and are left for the validator to report. Returns the
+// number of values moved.
+// `layers` are the layers rounded from d and depth; `refresh(v)` rounds voxel v's again after a move. The scan
+// compares those integers, so the common case (no step of two) costs one pass over 16-bit values.
+template <class Refresh>
+size_t repair_layer_steps(std::vector<float>& d, std::vector<float>& depth, float band,
+                          const std::array<uint32_t, 3>& dims, const std::vector<int16_t>& layers, Refresh&& refresh) {
   constexpr double kSlack = 1e-4;
   const int64_t W = dims[0], H = dims[1], D = dims[2];
-  auto layer = [&](size_t v) { return std::floor(-double(d[v]) + 0.5); };  // penetration, positive inside
+  auto in_band = [&](size_t v) { return std::abs(d[v]) <= band; };
+  auto penetration = [&](size_t v) {
+    return in_band(v) ? -double(d[v]) : d[v] < 0 ? double(depth[v]) : -double(depth[v]);
+  };
+  auto set_penetration = [&](size_t v, float p) {
+    if (in_band(v))
+      d[v] = -p;
+    else
+      depth[v] = std::abs(p);
+  };
+  auto layer = [&](size_t v) { return std::floor(penetration(v) + 0.5); };
   size_t moved = 0;
   for (int pass = 0; pass < 4; ++pass) {
     size_t moved_now = 0;
@@ -565,19 +583,20 @@ size_t repair_layer_steps(std::vector<float>& d, float band, const std::array<ui
       for (int64_t j = 0; j < H; ++j)
         for (int64_t i = 0; i < W; ++i) {
           const size_t v = size_t((k * H + j) * W + i);
-          if (!(std::abs(d[v]) <= band)) continue;
           const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v,
                                   k + 1 < D ? v + size_t(W * H) : v};
           for (size_t n : next) {
-            if (n == v || !(std::abs(d[n]) <= band) || std::abs(layer(v) - layer(n)) < 2) continue;
+            if (n == v || std::abs(int(layers[v]) - int(layers[n])) < 2) continue;
             const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
-            const double gap_lo = layer(lo) + 0.5 - (-double(d[lo]));  // below the tie that would raise it
-            const double gap_hi = -double(d[hi]) - (layer(hi) - 0.5);  // above the tie that would lower it
+            const double gap_lo = layer(lo) + 0.5 - penetration(lo);  // below the tie that would raise it
+            const double gap_hi = penetration(hi) - (layer(hi) - 0.5);  // above the tie that would lower it
             if (std::min(gap_lo, gap_hi) > kSlack) continue;
+            const size_t moved_voxel = gap_lo <= gap_hi ? lo : hi;
             if (gap_lo <= gap_hi)
-              d[lo] = -float(layer(lo) + 0.5);  // exactly on the tie: rounds up
+              set_penetration(lo, float(layer(lo) + 0.5));  // exactly on the tie: rounds up
             else
-              d[hi] = -std::nextafter(float(layer(hi) - 0.5), -std::numeric_limits<float>::infinity());
+              set_penetration(hi, std::nextafter(float(layer(hi) - 0.5), -std::numeric_limits<float>::infinity()));
+            refresh(moved_voxel);
             ++moved_now;
           }
         }
@@ -646,29 +665,31 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
       }
     });
   }
-  repair_layer_steps(signed_voxels, float(options.distance_band), g.dims);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t v = r.begin(); v < r.end(); ++v) {
-      const float d = signed_voxels[v];
-      if (!(std::abs(d) <= band)) {
-        // Penetration in voxels is positive inside.
-        vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
-        vm.layers[v] = int16_t(layer_of(d < 0 ? double(depth[v]) : -double(depth[v])));
-        continue;
-      }
-      const double layer = layer_of(-double(d));
-      float stored = float(double(d) * h);
-      for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
-        const double read = layer_of(-double(stored) / h);
-        if (read == layer) break;
-        // A larger distance gives a smaller layer.
-        stored = std::nextafter(
-            stored, read > layer ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity());
-      }
-      vm.distances[v] = stored;
-      vm.layers[v] = int16_t(layer);
+  // Rounds voxel v's layer and stores its distance (in the band).
+  auto finalize = [&](size_t v) {
+    const float d = signed_voxels[v];
+    if (!(std::abs(d) <= band)) {
+      // Penetration in voxels is positive inside.
+      vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
+      vm.layers[v] = int16_t(layer_of(d < 0 ? double(depth[v]) : -double(depth[v])));
+      return;
     }
+    const double layer = layer_of(-double(d));
+    float stored = float(double(d) * h);
+    for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
+      const double read = layer_of(-double(stored) / h);
+      if (read == layer) break;
+      // A larger distance gives a smaller layer.
+      stored = std::nextafter(
+          stored, read > layer ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity());
+    }
+    vm.distances[v] = stored;
+    vm.layers[v] = int16_t(layer);
+  };
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t v = r.begin(); v < r.end(); ++v) finalize(v);
   });
+  repair_layer_steps(signed_voxels, depth, band, g.dims, vm.layers, finalize);
   return vm;
 }
 
