@@ -78,7 +78,7 @@ for target in $TARGETS; do
   (cd "$work/run/$target" && VOXFMT_READ_ISOLATION=1 "$OLDPWD/$BUILD_DIR/bin/$target" \
     -max_total_time="$SECONDS_PER_TARGET" -dict="$OLDPWD/$work/$dict.dict" -artifact_prefix="$OLDPWD/$findings/" \
     -max_len=$max_len -timeout=30 -rss_limit_mb=4096 -print_final_stats=1 "$OLDPWD/$corpus/$kind" 2>&1 |
-    grep -E "^(stat::|INFO: (seed|Loaded)|#[0-9]+ +(DONE|INITED))|ERROR|SUMMARY|Test unit written" | tail -15) || status=1
+    grep -E "^(stat::|INFO: (seed|Loaded)|#[0-9]+[[:space:]]+(DONE|INITED))|ERROR|SUMMARY|Test unit written" | tail -15) || status=1
   if [ -n "$(ls -A "$findings")" ]; then
     echo "run-fuzzers: findings in $findings"
     status=1
