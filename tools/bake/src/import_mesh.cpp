@@ -158,8 +158,8 @@ struct ImportOutcome {
 TriangleMesh import_isolated(const std::string& path, const ImportSettings& options) {
   std::error_code ec;
   const auto file_size = std::filesystem::file_size(path, ec);
-  const double limit_s = options.time_limit_s > 0 ? options.time_limit_s
-                                                  : 30.0 + (ec ? 0.0 : double(file_size) / 5e6);  // ~1 s per 50 MB
+  const double limit_s =
+      options.time_limit_s > 0 ? options.time_limit_s : 30.0 + (ec ? 0.0 : double(file_size) / 5e6);  // ~1 s per 50 MB
   ImportOutcome result;
   const detail::ChildOutcome outcome = detail::run_isolated(
       limit_s, result,

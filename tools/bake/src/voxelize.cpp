@@ -588,7 +588,7 @@ size_t repair_layer_steps(std::vector<float>& d, std::vector<float>& depth, floa
           for (size_t n : next) {
             if (n == v || std::abs(int(layers[v]) - int(layers[n])) < 2) continue;
             const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
-            const double gap_lo = layer(lo) + 0.5 - penetration(lo);  // below the tie that would raise it
+            const double gap_lo = layer(lo) + 0.5 - penetration(lo);    // below the tie that would raise it
             const double gap_hi = penetration(hi) - (layer(hi) - 0.5);  // above the tie that would lower it
             if (std::min(gap_lo, gap_hi) > kSlack) continue;
             const size_t moved_voxel = gap_lo <= gap_hi ? lo : hi;
