@@ -22,6 +22,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "voxfmt/atomic_file.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
@@ -325,11 +326,8 @@ int main(int argc, char** argv) {
         json << "]}";
       }
       json << "\n  ]\n}\n";
-      std::ofstream out(json_path + ".partial");
-      out << json.str();
-      out.close();
-      if (!out) throw std::runtime_error("cannot write " + json_path);
-      fs::rename(json_path + ".partial", json_path);
+      if (const voxfmt::Status written = voxfmt::write_file_atomically(json_path, json.str()); !written)
+        throw std::runtime_error(written.error().describe());
       std::cout << "wrote " << json_path << "\n";
     }
     return identical ? 0 : 1;

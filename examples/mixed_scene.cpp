@@ -17,6 +17,7 @@
 #include <map>
 #include <sstream>
 
+#include "voxfmt/atomic_file.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
@@ -348,11 +349,8 @@ int main(int argc, char** argv) {
     json << "\n  ]\n}\n";
     std::cout << "simulated " << seconds << " s in " << std::setprecision(1) << wall << " s wall\n";
     if (!json_path.empty()) {
-      std::ofstream out(json_path + ".partial");
-      out << json.str();
-      out.close();
-      if (!out) throw std::runtime_error("cannot write " + json_path);
-      fs::rename(json_path + ".partial", json_path);
+      if (const voxfmt::Status written = voxfmt::write_file_atomically(json_path, json.str()); !written)
+        throw std::runtime_error(written.error().describe());
       std::cout << "wrote " << json_path << "\n";
     }
 
