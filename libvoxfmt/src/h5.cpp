@@ -13,6 +13,8 @@
 #include <system_error>
 #include <thread>
 
+#include <unistd.h>
+
 #include "voxfmt/cores.h"
 
 namespace voxfmt::h5 {
@@ -336,38 +338,97 @@ bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const 
   return true;
 }
 
+namespace {
+// A hostile file can declare huge datasets whose chunks were never written (HDF5 reads them as the fill value):
+// the declared size, not the file's, decides what a read allocates. More than half this machine's memory is
+// refused before anything is allocated.
+uint64_t memory_limit_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return uint64_t(1) << 34;
+  return uint64_t(pages) * uint64_t(page) / 2;
+}
+// Rows read per H5Dread: large enough to be efficient, small enough that a watchdog sees steady progress.
+constexpr uint64_t kElementsPerPiece = uint64_t(1) << 22;
+}  // namespace
+
+template <class T>
+std::optional<OpenDataset> Reader::open_dataset(hid_t group, const std::string& group_path, const std::string& name,
+                                                const Shape& shape) {
+  OpenDataset result;
+  result.path = join_path(group_path, name);
+  const std::string& path = result.path;
+  std::optional<Handle> opened = open_member(group, group_path, name, false);
+  if (!opened) return std::nullopt;
+  result.handle = std::move(*opened);
+  Handle type(H5Dget_type(result.handle.get()), H5Tclose);
+  using Traits = TypeTraits<T>;
+  if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
+  Handle space(H5Dget_space(result.handle.get()), H5Sclose);
+  if (!check_shape(space.get(), shape, path, result.shape)) return std::nullopt;
+  uint64_t count = 1;
+  for (uint64_t d : result.shape) {
+    count *= d;
+    if (count > kMaxElements) break;
+  }
+  if (count > kMaxElements) {
+    report(IssueCode::ValueOutOfRange, path, "dataset has more than 2^31 elements (the format's limit)");
+    return std::nullopt;
+  }
+  if (count * sizeof(T) > memory_limit_bytes()) {
+    report(IssueCode::ReadFailed, path,
+           "dataset declares " + std::to_string(count * sizeof(T) >> 20) +
+               " MB, more than half of this machine's memory");
+    return std::nullopt;
+  }
+  if (!check_storage(result.handle.get(), result.shape, path)) return std::nullopt;
+  return result;
+}
+
+template <class T>
+bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* out) {
+  if (count == 0) return true;
+  if (d.shape.empty()) {  // scalar
+    if (H5Dread(d.handle.get(), TypeTraits<T>::memory_type(), H5S_ALL, H5S_ALL, H5P_DEFAULT, out) < 0) {
+      report(IssueCode::ReadFailed, d.path, "cannot read dataset (" + last_hdf5_reason() + ")");
+      return false;
+    }
+    return true;
+  }
+  uint64_t row_elements = 1;
+  for (size_t a = 1; a < d.shape.size(); ++a) row_elements *= d.shape[a];
+  const uint64_t rows_per_piece = std::max<uint64_t>(1, kElementsPerPiece / std::max<uint64_t>(row_elements, 1));
+  Handle file_space(H5Dget_space(d.handle.get()), H5Sclose);
+  std::vector<hsize_t> start(d.shape.size(), 0), extent(d.shape.begin(), d.shape.end());
+  for (uint64_t row = first; row < first + count; row += rows_per_piece) {
+    const uint64_t rows = std::min(rows_per_piece, first + count - row);
+    start[0] = row;
+    extent[0] = rows;
+    Handle memory_space(H5Screate_simple(int(extent.size()), extent.data(), nullptr), H5Sclose);
+    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, extent.data(), nullptr) < 0 ||
+        H5Dread(d.handle.get(), TypeTraits<T>::memory_type(), memory_space.get(), file_space.get(), H5P_DEFAULT,
+                out + (row - first) * row_elements) < 0) {
+      report(IssueCode::ReadFailed, d.path, "cannot read dataset (" + last_hdf5_reason() + ")");
+      return false;
+    }
+    progress();
+  }
+  return true;
+}
+
 template <class T>
 std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& group_path, const std::string& name,
                                               const Shape& shape, std::vector<uint64_t>* shape_out) {
-  const std::string path = join_path(group_path, name);
-  std::optional<Handle> opened = open_member(group, group_path, name, false);
-  if (!opened) return std::nullopt;
-  const Handle& dset = *opened;
-  Handle type(H5Dget_type(dset.get()), H5Tclose);
-  using Traits = TypeTraits<T>;
-  if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
-  Handle space(H5Dget_space(dset.get()), H5Sclose);
-  std::vector<uint64_t> actual;
-  if (!check_shape(space.get(), shape, path, actual)) return std::nullopt;
-  uint64_t count = 1;
-  for (uint64_t d : actual) count *= d;
-  if (count > (uint64_t(1) << 31)) {
-    report(IssueCode::ValueOutOfRange, path, "dataset has " + std::to_string(count) + " elements, more than 2^31");
-    return std::nullopt;
-  }
-  if (!check_storage(dset.get(), actual, path)) return std::nullopt;
+  std::optional<OpenDataset> d = open_dataset<T>(group, group_path, name, shape);
+  if (!d) return std::nullopt;
   std::vector<T> values;
   try {
-    values.resize(size_t(count));
+    values.resize(size_t(d->elements()));
   } catch (const std::bad_alloc&) {
-    report(IssueCode::ReadFailed, path, "not enough memory for " + std::to_string(count) + " elements");
+    report(IssueCode::ReadFailed, d->path, "not enough memory for " + std::to_string(d->elements()) + " elements");
     return std::nullopt;
   }
-  if (count > 0 && H5Dread(dset.get(), Traits::memory_type(), H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()) < 0) {
-    report(IssueCode::ReadFailed, path, "cannot read dataset (" + last_hdf5_reason() + ")");
-    return std::nullopt;
-  }
-  if (shape_out) *shape_out = actual;
+  if (!read_rows<T>(*d, 0, d->shape.empty() ? 1 : d->shape[0], values.data())) return std::nullopt;
+  if (shape_out) *shape_out = d->shape;
   return values;
 }
 
@@ -450,12 +511,17 @@ bool little_endian_host() {
   return first == 1;
 }
 
-// Compresses every chunk of a 3-D grid exactly as HDF5's shuffle + deflate pipeline would, on all cores, and
-// writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose every value
-// is bitwise `*fill` are skipped.
+// Compresses every chunk of a 2-D or 3-D dataset exactly as HDF5's shuffle + deflate pipeline would, on all
+// cores, and writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose
+// every value is bitwise `*fill` are skipped. A 2-D dataset is handled as a 3-D one of depth 1.
 template <class T>
-bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, const std::vector<hsize_t>& chunk,
-                              const T* data, int level, const T* fill) {
+bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector<hsize_t> chunk, const T* data,
+                              int level, const T* fill) {
+  const size_t rank = dims.size();
+  if (rank == 2) {
+    dims.insert(dims.begin(), 1);
+    chunk.insert(chunk.begin(), 1);
+  }
   const hsize_t grid[3] = {(dims[0] + chunk[0] - 1) / chunk[0], (dims[1] + chunk[1] - 1) / chunk[1],
                            (dims[2] + chunk[2] - 1) / chunk[2]};
   const size_t chunk_count = size_t(grid[0] * grid[1] * grid[2]);
@@ -511,7 +577,8 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
     if (compressed[c].empty()) continue;
     const hsize_t offset[3] = {c / (grid[1] * grid[2]) * chunk[0], c / grid[2] % grid[1] * chunk[1],
                                c % grid[2] * chunk[2]};
-    if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset, compressed[c].size(), compressed[c].data()) < 0) return false;
+    if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset + (3 - rank), compressed[c].size(), compressed[c].data()) < 0)
+      return false;
   }
   return true;
 }
@@ -520,15 +587,17 @@ bool write_chunks_in_parallel(hid_t dset, const std::vector<hsize_t>& dims, cons
 
 template <class T>
 bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
-                     int deflate_level, unsigned chunk_edge, const T* fill) {
+                     int deflate_level, const std::vector<uint64_t>& chunk_shape, const T* fill) {
   std::vector<hsize_t> dims(shape.begin(), shape.end());
   Handle space(H5Screate_simple(int(dims.size()), dims.data(), nullptr), H5Sclose);
   Handle dcpl(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
   uint64_t count = 1;
   for (uint64_t d : shape) count *= d;
-  if (chunk_edge > 0 && count > 0) {
-    std::vector<hsize_t> chunk(dims.size());
-    for (size_t i = 0; i < dims.size(); ++i) chunk[i] = std::max<hsize_t>(1, std::min<hsize_t>(dims[i], chunk_edge));
+  const bool chunked = !chunk_shape.empty() && chunk_shape.size() == dims.size() && count > 0;
+  std::vector<hsize_t> chunk(dims.size());
+  if (chunked) {
+    for (size_t i = 0; i < dims.size(); ++i)
+      chunk[i] = std::max<hsize_t>(1, std::min<hsize_t>(dims[i], chunk_shape[i]));
     H5Pset_chunk(dcpl.get(), int(chunk.size()), chunk.data());
     if (fill && H5Pset_fill_value(dcpl.get(), TypeTraits<T>::memory_type(), fill) < 0)
       return fail("cannot set the fill value of dataset " + name);
@@ -542,9 +611,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
       H5Dclose);
   if (!dset.valid()) return fail("cannot create dataset " + name);
   if (count == 0) return true;
-  if (chunk_edge > 0 && deflate_level > 0 && dims.size() == 3 && little_endian_host()) {
-    std::vector<hsize_t> chunk(3);
-    H5Pget_chunk(dcpl.get(), 3, chunk.data());
+  if (chunked && deflate_level > 0 && (dims.size() == 2 || dims.size() == 3) && little_endian_host()) {
     if (!write_chunks_in_parallel(dset.get(), dims, chunk, data, std::min(deflate_level, 9), fill))
       return fail("cannot write dataset " + name);
     return true;
@@ -559,10 +626,14 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
                                                                       const Shape&);                                 \
   template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,           \
                                                             const Shape&, std::vector<uint64_t>*);                   \
+  template std::optional<OpenDataset> Reader::open_dataset<T>(hid_t, const std::string&, const std::string&,         \
+                                                              const Shape&);                                         \
+  template bool Reader::read_rows<T>(const OpenDataset&, uint64_t, uint64_t, T*);                                    \
   template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*);     \
-  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int, unsigned, \
-                                   const T*);
+  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,          \
+                                   const std::vector<uint64_t>&, const T*);
 VOXFMT_INSTANTIATE(int16_t)
+VOXFMT_INSTANTIATE(int32_t)
 VOXFMT_INSTANTIATE(uint32_t)
 VOXFMT_INSTANTIATE(float)
 VOXFMT_INSTANTIATE(double)

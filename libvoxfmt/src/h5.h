@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -57,6 +58,9 @@ inline constexpr size_t kMaxStringBytes = 60000;
 /// Most chunks a dataset may be split into (spec §1): 2^31 voxels in 16^3 chunks is 2^19; this leaves room.
 inline constexpr uint64_t kMaxChunks = uint64_t(1) << 22;
 
+/// Most elements a dataset may hold (spec §1).
+inline constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+
 /// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
 std::string join_path(const std::string& group_path, const std::string& name);
 
@@ -70,6 +74,14 @@ struct TypeTraits<int16_t> {
   static constexpr const char* kName = "i16";
   static hid_t file_type() { return H5T_STD_I16LE; }
   static hid_t memory_type() { return H5T_NATIVE_INT16; }
+};
+template <>
+struct TypeTraits<int32_t> {
+  static constexpr H5T_class_t kClass = H5T_INTEGER;
+  static constexpr bool kSigned = true;
+  static constexpr const char* kName = "i32";
+  static hid_t file_type() { return H5T_STD_I32LE; }
+  static hid_t memory_type() { return H5T_NATIVE_INT32; }
 };
 template <>
 struct TypeTraits<uint32_t> {
@@ -99,6 +111,18 @@ struct TypeTraits<double> {
 /// Expected shape: empty = scalar; -1 = any extent (the actual one is returned).
 using Shape = std::vector<int64_t>;
 
+/// A dataset opened and checked (dtype, shape, filters, chunk grid, size), ready to be read row by row.
+struct OpenDataset {
+  Handle handle;
+  std::string path;
+  std::vector<uint64_t> shape;
+  uint64_t elements() const {
+    uint64_t n = 1;
+    for (uint64_t d : shape) n *= d;
+    return n;
+  }
+};
+
 /// Reads objects of one open file, appending every problem to `issues`.
 class Reader {
  public:
@@ -121,6 +145,18 @@ class Reader {
   template <class T>
   std::optional<std::vector<T>> dataset(hid_t group, const std::string& group_path, const std::string& name,
                                         const Shape& shape, std::vector<uint64_t>* shape_out = nullptr);
+  /// Opens dataset `name` and checks it before anything is decoded (dtype T, shape, storage, size).
+  template <class T>
+  std::optional<OpenDataset> open_dataset(hid_t group, const std::string& group_path, const std::string& name,
+                                          const Shape& shape);
+  /// Reads rows [first, first + count) along the first dimension into `out` (count x the other extents).
+  template <class T>
+  bool read_rows(const OpenDataset& dataset, uint64_t first, uint64_t count, T* out);
+  /// Called after each piece of a large read: a watchdog in a parent process sees the read move on.
+  void set_progress(std::function<void()> progress) { progress_ = std::move(progress); }
+  void progress() {
+    if (progress_) progress_();
+  }
 
   /// Names of the members and attributes of `object` (for UNKNOWN_OBJECT reporting).
   std::vector<std::string> member_names(hid_t group);
@@ -143,6 +179,7 @@ class Reader {
   std::string file_;
   std::vector<Issue>& issues_;
   Handle file_handle_;
+  std::function<void()> progress_;
 };
 
 /// Writes objects into one file; every call returns false and records the reason on failure.
@@ -157,9 +194,11 @@ class Writer {
   bool numeric_attribute(hid_t object, const std::string& name, const std::vector<uint64_t>& shape, const T* data);
   /// With `fill` (chunked only): the dataset's fill value; chunks holding nothing else are not written (they
   /// read back as the fill value), which saves their compression and their space.
+  /// `chunk` empty: contiguous; else the chunk shape (clamped to the dataset's extents), compressed with shuffle
+  /// and deflate at `deflate_level` when it is > 0.
   template <class T>
   bool dataset(hid_t group, const std::string& name, const std::vector<uint64_t>& shape, const T* data,
-               int deflate_level = 0, unsigned chunk_edge = 0, const T* fill = nullptr);
+               int deflate_level = 0, const std::vector<uint64_t>& chunk = {}, const T* fill = nullptr);
 
   const std::string& failure() const { return failure_; }
 

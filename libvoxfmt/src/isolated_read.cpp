@@ -3,9 +3,13 @@
 // inside its decoders, where no check of ours can intervene. So the parse runs in a forked child that sends
 // back what it read (findings and data) through a pipe (voxfmt/detail/isolated_call.h); a child that dies or
 // hangs becomes a READ_FAILED finding instead of taking the caller down.
+#include <sys/mman.h>
+
+#include <atomic>
+#include <cerrno>
 #include <cstdlib>
 #include <cstring>
-#include <filesystem>
+#include <new>
 #include <mutex>
 
 #include "load.h"
@@ -26,6 +30,10 @@ bool read_isolation() { return g_isolation; }
 
 namespace detail {
 namespace {
+
+// Set in an isolated read's child: the counter its parent watches.
+std::atomic<uint64_t>* g_progress = nullptr;
+constexpr double kIdleLimitS = 10.0;
 
 #if !defined(_WIN32)
 // One visitor per structure for both directions (WireWriter with const data, WireReader with data to fill):
@@ -58,8 +66,12 @@ void visit_asset(Wire& w, A& a) {
   w.pod(vm.distance_band);
   w.maybe(vm.margin);
   w.maybe(vm.shell_thickness);
-  w.array(vm.layers);
-  w.array(vm.distances);
+  w.pod(vm.distance_quantum);
+  w.pod(vm.estimate_quantum);
+  w.pod(vm.lattice_error);
+  w.array(vm.bricks);
+  w.array(vm.brick_values);
+  w.array(vm.lattice);
   auto& ps = a.point_shell;
   w.array(ps.points);
   w.array(ps.normals);
@@ -102,14 +114,27 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   // would wait forever for HDF5's lock, which that thread holds in the parent only.
   static std::mutex one_at_a_time;
   std::lock_guard<std::mutex> lock(one_at_a_time);
-  // Generous for a real read (seconds per 100 MB), short enough that a looping parse ends.
-  std::error_code ec;
-  const auto file_size = std::filesystem::file_size(path, ec);
-  const double limit_s = 5.0 + (ec ? 0.0 : double(file_size) / 20e6);
+  // The child bumps a counter in shared memory after each piece it reads (h5::Reader's progress hook); the
+  // parent stops it only when neither that counter nor the pipe has moved for kIdleLimitS. A real read never
+  // pauses that long between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a
+  // parse that loops in HDF5 stops moving at once. What a file may make us read is bounded by the spec's limits.
+  void* shared = ::mmap(nullptr, sizeof(std::atomic<uint64_t>), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS,
+                        -1, 0);
+  if (shared == MAP_FAILED) {
+    issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/",
+                           std::string("cannot start the isolated read: ") + std::strerror(errno)});
+    return std::nullopt;
+  }
+  auto* counter = new (shared) std::atomic<uint64_t>(0);
+  struct Unmap {
+    void* p;
+    ~Unmap() { ::munmap(p, sizeof(std::atomic<uint64_t>)); }
+  } unmap{shared};
   ReadOutcome<Value> read_back;
   const ChildOutcome outcome = run_isolated(
-      limit_s, read_back,
+      Watchdog{0, kIdleLimitS, counter}, read_back,
       [&] {
+        g_progress = counter;  // in the child
         ReadOutcome<Value> r;
         r.value = read(path, r.issues);
         return r;
@@ -136,7 +161,7 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
       return refuse("the file is damaged: HDF5 died of signal " + std::to_string(outcome.signal) + " (" +
                     strsignal(outcome.signal) + ") reading it (read in isolation: nothing else was affected)");
     case ChildOutcome::TimedOut:
-      return refuse("the file is damaged: HDF5 did not finish reading it within " + std::to_string(int(limit_s)) +
+      return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
                     " s (read in isolation, stopped)");
     case ChildOutcome::OutOfMemory:
       return refuse("not enough memory to read the asset");
@@ -149,11 +174,16 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
 
 }  // namespace
 
-std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues) {
+void report_read_progress() {
+  if (g_progress) g_progress->fetch_add(1, std::memory_order_relaxed);
+}
+
+std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues, ValidationLevel level) {
+  auto read = [level](const std::string& p, std::vector<Issue>& found) { return load_asset_in_process(p, found, level); };
 #if defined(_WIN32)
-  return load_asset_in_process(path, issues);
+  return read(path, issues);
 #else
-  return read_isolated<Asset>(path, issues, load_asset_in_process, [](auto& w, auto& a) { visit_asset(w, a); });
+  return read_isolated<Asset>(path, issues, read, [](auto& w, auto& a) { visit_asset(w, a); });
 #endif
 }
 

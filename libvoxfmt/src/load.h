@@ -5,20 +5,43 @@
 #include <string>
 #include <vector>
 
+#include "h5.h"
 #include "voxfmt/asset.h"
 #include "voxfmt/issues.h"
+#include "voxfmt/validate.h"
 
 namespace voxfmt::detail {
 
 /// Reads every object of `path` it can, appending findings to `issues`. Returns the asset only when no
 /// error-severity finding was made while reading (value rules are validate_asset's job). Runs the parse in a
-/// child process unless read isolation is off (isolated_read.cpp says why).
-std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues);
+/// child process unless read isolation is off (isolated_read.cpp says why). `level` Full also checks the
+/// per-voxel rules of a 1.x file while its dense grids are converted to bricks (they are not kept).
+std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues,
+                                ValidationLevel level = ValidationLevel::Quick);
 /// Reads only the root header (format name, version) and the provenance group; isolated like load_asset.
 std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues);
 
 /// The same, in this process.
-std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues);
+std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues,
+                                           ValidationLevel level = ValidationLevel::Quick);
 std::optional<Provenance> load_provenance_in_process(const std::string& path, std::vector<Issue>& issues);
+
+/// Tells a watchdog (the parent of an isolated read) that the read moved on; no-op elsewhere.
+void report_read_progress();
+
+/// Whether `dims` is a grid the format version allows (spec §3): 1.x at most 2^31-1 voxels; 2.0 at most
+/// 2^31-1 bricks and lattice points. `grid_size_limit` says it in words.
+bool grid_size_allowed(const std::array<uint32_t, 3>& dims, const FormatVersion& version);
+std::string grid_size_limit(const FormatVersion& version);
+
+/// Format 1.x: reads the dense `layers` and `distances` of group `g` a slab of bricks at a time and converts
+/// them to bricks (legacy_voxelmap.cpp). With `level` Full, the 1.x per-voxel rules are checked on the way (the
+/// neighbour rules only for a `closed_surface`, spec 1.1 §3).
+void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& path, const FormatVersion& version,
+                         ValidationLevel level, bool closed_surface, Voxelmap& vm);
+
+/// True unless the provenance records surface defects (OPEN_BORDER, NON_MANIFOLD, SELF_INTERSECTIONS), across
+/// whose closure layers may jump.
+bool closed_surface(const Provenance& provenance);
 
 }  // namespace voxfmt::detail

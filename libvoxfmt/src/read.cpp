@@ -48,7 +48,27 @@ void report_unknown(h5::Reader& r, hid_t object, const std::string& path, std::s
                "attribute not defined by this format version; ignored");
 }
 
-void read_voxelmap(h5::Reader& r, hid_t g, Voxelmap& vm) {
+// Format 2.0 (spec §3): the brick table, the value bricks and the lattice, as they are held in memory.
+void read_bricks(h5::Reader& r, hid_t g, const std::string& p, Voxelmap& vm) {
+  if (auto v = r.numeric_attribute<uint32_t>(g, p, "brick_edge", {}))
+    if ((*v)[0] != Voxelmap::kBrickEdge)
+      r.report(IssueCode::BadAttributeValue, p + "/@brick_edge",
+               "brick edge " + std::to_string((*v)[0]) + " is not supported (format 2.0 bricks are 8 voxels)");
+  if (auto v = r.numeric_attribute<double>(g, p, "distance_quantum", {})) vm.distance_quantum = (*v)[0];
+  if (auto v = r.numeric_attribute<double>(g, p, "estimate_quantum", {})) vm.estimate_quantum = (*v)[0];
+  if (auto v = r.numeric_attribute<double>(g, p, "lattice_error", {})) vm.lattice_error = (*v)[0];
+  const auto b = vm.brick_dims();
+  const auto l = vm.lattice_dims();
+  if (auto v = r.dataset<int32_t>(g, p, "bricks", {int64_t(b[2]), int64_t(b[1]), int64_t(b[0])}))
+    vm.bricks = std::move(*v);
+  if (auto v = r.dataset<int16_t>(g, p, "brick_values", {-1, int64_t(Voxelmap::kBrickVoxels)}))
+    vm.brick_values = std::move(*v);
+  if (auto v = r.dataset<float>(g, p, "lattice", {int64_t(l[2]), int64_t(l[1]), int64_t(l[0])}))
+    vm.lattice = std::move(*v);
+}
+
+void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, ValidationLevel level, bool closed,
+                   Voxelmap& vm) {
   const std::string p = "/voxelmap";
   if (auto v = r.numeric_attribute<double>(g, p, "origin", {3})) vm.origin = to_vec3(*v);
   if (auto v = r.numeric_attribute<double>(g, p, "voxel_size", {})) vm.voxel_size = (*v)[0];
@@ -65,18 +85,24 @@ void read_voxelmap(h5::Reader& r, hid_t g, Voxelmap& vm) {
   auto dims = r.numeric_attribute<uint32_t>(g, p, "dims", {3});
   if (!dims) return;
   vm.dims = {(*dims)[0], (*dims)[1], (*dims)[2]};
-  uint64_t count = uint64_t(vm.dims[0]) * vm.dims[1] * vm.dims[2];
-  if (count == 0 || count > 0x7fffffffull) {
+  if (!grid_size_allowed(vm.dims, version)) {
     r.report(IssueCode::ValueOutOfRange, p + "/@dims",
              "dims [" + std::to_string(vm.dims[0]) + ", " + std::to_string(vm.dims[1]) + ", " +
-                 std::to_string(vm.dims[2]) + "] must each be >= 1 with at most 2^31-1 voxels in all");
+                 std::to_string(vm.dims[2]) + "] must each be >= 1 with " + grid_size_limit(version));
     return;
   }
-  const h5::Shape grid = {int64_t(vm.dims[2]), int64_t(vm.dims[1]), int64_t(vm.dims[0])};
-  if (auto v = r.dataset<int16_t>(g, p, "layers", grid)) vm.layers = std::move(*v);
-  if (auto v = r.dataset<float>(g, p, "distances", grid)) vm.distances = std::move(*v);
-  report_unknown(r, g, p, {"layers", "distances"},
-                 {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness"}, true);
+  if (version.major == 1) {
+    // Layers and distances per voxel: converted to bricks as they are read, a slab of bricks at a time.
+    read_dense_voxelmap(r, g, p, version, level, closed, vm);
+    report_unknown(r, g, p, {"layers", "distances"},
+                   {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness"}, true);
+    return;
+  }
+  read_bricks(r, g, p, vm);
+  report_unknown(r, g, p, {"bricks", "brick_values", "lattice"},
+                 {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness",
+                  "brick_edge", "distance_quantum", "estimate_quantum", "lattice_error"},
+                 true);
 }
 
 void read_point_shell(h5::Reader& r, hid_t g, PointShell& ps) {
@@ -163,19 +189,35 @@ bool check_header(h5::Reader& r, FormatVersion& version) {
   auto numbers = r.numeric_attribute<uint32_t>(root, "/", "format_version", {2});
   if (!numbers) return false;
   version = {(*numbers)[0], (*numbers)[1]};
-  if (version.major != kFormatVersion.major) {
+  if (version.major != kFormatVersion.major && version.major != 1) {
     r.report(IssueCode::VersionUnsupported, "/@format_version",
              "format version " + std::to_string(version.major) + "." + std::to_string(version.minor) +
-                 " is not supported (this reader knows " + std::to_string(kFormatVersion.major) + ".x)");
+                 " is not supported (this reader knows 1.x and " + std::to_string(kFormatVersion.major) + ".x)");
     return false;
   }
-  if (version.minor > kFormatVersion.minor)
+  if (version.major == 1 && version.minor > 1) {
+    r.report(IssueCode::VersionNewerMinor, "/@format_version",
+             "format version 1." + std::to_string(version.minor) +
+                 " is newer than the last 1.x this reader knows (1.1); objects it does not know are ignored");
+    return true;
+  }
+  if (version.major == kFormatVersion.major && version.minor > kFormatVersion.minor)
     r.report(IssueCode::VersionNewerMinor, "/@format_version",
              "format version " + std::to_string(version.major) + "." + std::to_string(version.minor) +
                  " is newer than this reader's " + std::to_string(kFormatVersion.major) + "." +
                  std::to_string(kFormatVersion.minor) + "; objects it does not know are ignored");
   return true;
 }
+
+}  // namespace
+
+bool closed_surface(const Provenance& p) {
+  for (const BuildWarning& w : p.build_warnings)
+    if (w.code == "OPEN_BORDER" || w.code == "NON_MANIFOLD" || w.code == "SELF_INTERSECTIONS") return false;
+  return true;
+}
+
+namespace {
 
 bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
   for (size_t i = first; i < issues.size(); ++i)
@@ -185,9 +227,11 @@ bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
 
 }  // namespace
 
-std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues) {
+std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues,
+                                           ValidationLevel level) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
+  r.set_progress(report_read_progress);
   if (!r.open()) return std::nullopt;
   const hid_t root = r.file();
   Asset asset;
@@ -198,10 +242,12 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   if (auto v = r.string_attribute(root, "/", "up_axis")) asset.up_axis = *v;
   if (auto v = r.numeric_attribute<double>(root, "/", "bounds_min", {3})) asset.bounds_min = to_vec3(*v);
   if (auto v = r.numeric_attribute<double>(root, "/", "bounds_max", {3})) asset.bounds_max = to_vec3(*v);
-  if (auto g = r.group(root, "/", "voxelmap")) read_voxelmap(r, g->get(), asset.voxelmap);
+  // Provenance first: its warnings say whether a 1.x grid's neighbour rules apply while it is converted.
+  if (auto g = r.group(root, "/", "provenance")) read_provenance(r, g->get(), asset.provenance);
+  if (auto g = r.group(root, "/", "voxelmap"))
+    read_voxelmap(r, g->get(), asset.version, level, closed_surface(asset.provenance), asset.voxelmap);
   if (auto g = r.group(root, "/", "pointshell")) read_point_shell(r, g->get(), asset.point_shell);
   if (auto g = r.group(root, "/", "mass_properties")) read_mass(r, g->get(), asset.mass);
-  if (auto g = r.group(root, "/", "provenance")) read_provenance(r, g->get(), asset.provenance);
   report_unknown(r, root, "/", {"voxelmap", "pointshell", "mass_properties", "provenance"},
                  {"format", "format_version", "units", "frame", "up_axis", "bounds_min", "bounds_max"}, true);
 
@@ -212,6 +258,7 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
 std::optional<Provenance> load_provenance_in_process(const std::string& path, std::vector<Issue>& issues) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
+  r.set_progress(report_read_progress);
   if (!r.open()) return std::nullopt;
   FormatVersion version;
   if (!check_header(r, version)) return std::nullopt;
@@ -226,7 +273,7 @@ std::optional<Provenance> load_provenance_in_process(const std::string& path, st
 Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings) {
   std::vector<Issue> issues;
   try {
-    std::optional<Asset> asset = detail::load_asset(path, issues);
+    std::optional<Asset> asset = detail::load_asset(path, issues, ValidationLevel::Quick);
     if (asset) {
       std::vector<Issue> more = validate_asset(*asset);
       issues.insert(issues.end(), more.begin(), more.end());

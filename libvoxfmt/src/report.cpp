@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <tuple>
 
 namespace voxfmt {
 
@@ -33,15 +34,13 @@ AssetSummary summarize_asset(const std::string& file, const Asset& a) {
   s.file_size = ec ? 0 : size;
   const Voxelmap& vm = a.voxelmap;
   s.stored_distances = vm.stored_count();
-  if (!vm.layers.empty()) {
-    auto [lo, hi] = std::minmax_element(vm.layers.begin(), vm.layers.end());
-    s.layer_min = *lo;
-    s.layer_max = *hi;
-  }
+  std::tie(s.layer_min, s.layer_max) = vm.layer_range();
+  s.value_bricks = vm.value_brick_count();
+  s.coarse_bricks = vm.brick_count() - std::min(vm.brick_count(), s.value_bricks);
   const PointShell& ps = a.point_shell;
   s.points_per_level = ps.points_per_level();
   const size_t n = ps.size();
-  s.memory_bytes = vm.layers.size() * sizeof(int16_t) + vm.distances.size() * sizeof(float) +
+  s.memory_bytes = vm.memory_bytes() +
                    n * (2 * sizeof(Vec3) + sizeof(Vec3f) + sizeof(double) + 2 * sizeof(uint32_t)) +
                    ps.level_offsets.size() * sizeof(uint32_t);
   return s;
@@ -72,7 +71,11 @@ std::string inspect_json(const std::string& file, const Asset& a, const AssetSum
         {"stored_distances", s.stored_distances},
         {"layer_min", s.layer_min},
         {"layer_max", s.layer_max},
-        {"memory_bytes", vm.layers.size() * sizeof(int16_t) + vm.distances.size() * sizeof(float)}}},
+        {"bricks", vm.brick_count()},
+        {"value_bricks", s.value_bricks},
+        {"coarse_bricks", s.coarse_bricks},
+        {"lattice_error_voxels", vm.lattice_error},
+        {"memory_bytes", vm.memory_bytes()}}},
       {"pointshell",
        {{"points", a.point_shell.size()},
         {"levels", a.point_shell.level_count()},

@@ -54,7 +54,7 @@ std::string fmt(double v) {
   return s.str();
 }
 
-void check_voxelmap(const Voxelmap& vm, Checker& c) {
+void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c) {
   const std::string g = "/voxelmap";
   c.finite(vm.origin, g + "/@origin");
   if (!std::isfinite(vm.voxel_size))
@@ -67,26 +67,57 @@ void check_voxelmap(const Voxelmap& vm, Checker& c) {
     c.add(IssueCode::NonFiniteValue, g + "/@distance_band", "distance band is not finite");
   else if (!(vm.distance_band >= 1 && vm.distance_band <= kMaxDistanceBand))
     c.add(IssueCode::ValueOutOfRange, g + "/@distance_band",
-          "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) +
-              "] (layers are 16-bit)");
-  uint64_t count = 1;
-  for (uint32_t d : vm.dims) count *= d;
-  if (vm.dims[0] == 0 || vm.dims[1] == 0 || vm.dims[2] == 0 || count > 0x7fffffffull) {
-    c.add(IssueCode::ValueOutOfRange, g + "/@dims", "dims must be >= 1 each with at most 2^31-1 voxels in all");
+          "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) + "]");
+  if (!detail::grid_size_allowed(vm.dims, version)) {
+    c.add(IssueCode::ValueOutOfRange, g + "/@dims",
+          "dims must be >= 1 each with " + detail::grid_size_limit(version));
     return;
   }
-  if (vm.layers.size() != count)
-    c.add(IssueCode::WrongShape, g + "/layers",
-          "holds " + std::to_string(vm.layers.size()) + " voxels, dims say " + std::to_string(count));
-  if (vm.distances.size() != count)
-    c.add(IssueCode::WrongShape, g + "/distances",
-          "holds " + std::to_string(vm.distances.size()) + " voxels, dims say " + std::to_string(count));
-  for (size_t v = 0; v < vm.distances.size(); ++v)
-    if (std::isinf(vm.distances[v])) {
-      c.add(IssueCode::NonFiniteValue, g + "/distances",
-            "voxel " + std::to_string(v) + " holds an infinite distance (use NaN for 'not stored')");
-      break;
-    }
+  // The quanta must let every band distance and every estimate near the band be coded in 15 bits.
+  const double band_m = vm.distance_band * vm.voxel_size;
+  if (!std::isfinite(vm.distance_quantum) || !(vm.distance_quantum > 0) ||
+      vm.distance_quantum * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
+    c.add(IssueCode::ValueOutOfRange, g + "/@distance_quantum",
+          "distance quantum " + fmt(vm.distance_quantum) + " m must be > 0 and code the band's " + fmt(band_m) +
+              " m in " + std::to_string(Voxelmap::kMaxSteps) + " steps");
+  if (!std::isfinite(vm.estimate_quantum) || !(vm.estimate_quantum > 0) ||
+      vm.estimate_quantum * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
+    c.add(IssueCode::ValueOutOfRange, g + "/@estimate_quantum",
+          "estimate quantum " + fmt(vm.estimate_quantum) + " m must be > 0 and code the band's " + fmt(band_m) +
+              " m in " + std::to_string(Voxelmap::kMaxSteps) + " steps");
+  if (!std::isfinite(vm.lattice_error) || vm.lattice_error < 0)
+    c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error", "lattice error must be finite and >= 0");
+  if (vm.bricks.size() != vm.brick_count()) {
+    c.add(IssueCode::WrongShape, g + "/bricks",
+          "holds " + std::to_string(vm.bricks.size()) + " bricks, dims say " + std::to_string(vm.brick_count()));
+    return;
+  }
+  if (vm.brick_values.size() % Voxelmap::kBrickVoxels != 0) {
+    c.add(IssueCode::WrongShape, g + "/brick_values", "is not [n, 512]");
+    return;
+  }
+  if (vm.lattice.size() != vm.lattice_count()) {
+    c.add(IssueCode::WrongShape, g + "/lattice",
+          "holds " + std::to_string(vm.lattice.size()) + " points, dims say " + std::to_string(vm.lattice_count()));
+    return;
+  }
+  const int64_t value_bricks = int64_t(vm.value_brick_count());
+  for (size_t b = 0; b < vm.bricks.size(); ++b) {
+    const int32_t entry = vm.bricks[b];
+    if (entry == Voxelmap::kCoarseOutside || entry == Voxelmap::kCoarseInside || (entry >= 0 && entry < value_bricks))
+      continue;
+    c.add(IssueCode::ValueOutOfRange, g + "/bricks",
+          "brick " + std::to_string(b) + " holds " + std::to_string(entry) + ": neither a value brick below " +
+              std::to_string(value_bricks) + " nor -1 (coarse, outside) or -2 (coarse, inside)");
+    break;
+  }
+  for (size_t n = 0; n < vm.lattice.size(); ++n) {
+    const float v = vm.lattice[n];
+    if (std::isfinite(v) && v >= 0) continue;
+    c.add(std::isfinite(v) ? IssueCode::ValueOutOfRange : IssueCode::NonFiniteValue, g + "/lattice",
+          "lattice point " + std::to_string(n) + " holds " + fmt(v) + " (a distance must be finite and >= 0)");
+    break;
+  }
 }
 
 void check_tree(const PointShell& ps, Checker& c) {
@@ -210,77 +241,123 @@ void check_provenance(const Provenance& p, Checker& c) {
 
 // ---- full level: semantic rules (spec §3-§5)
 
-bool has_surface_defects(const Provenance& p) {
-  for (const BuildWarning& w : p.build_warnings)
-    if (w.code == "OPEN_BORDER" || w.code == "NON_MANIFOLD" || w.code == "SELF_INTERSECTIONS") return true;
-  return false;
-}
-
-std::string voxel_name(const Voxelmap& vm, size_t v) {
-  const size_t i = v % vm.dims[0], j = v / vm.dims[0] % vm.dims[1], k = v / (size_t(vm.dims[0]) * vm.dims[1]);
+std::string voxel_name(uint64_t i, uint64_t j, uint64_t k) {
   return "voxel (" + std::to_string(i) + ", " + std::to_string(j) + ", " + std::to_string(k) + ")";
 }
 
+// Spec §3 for format 2.0: stored distances within the band, estimates as the lattice gives them, and no voxel on
+// the wrong side: two 6-neighbours of opposite sign must be near enough to the surface for it to pass between
+// them (|d1| + |d2| <= h). A voxel without a stored distance is at least (band - 1/2) h from the surface.
 void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {
   const std::string g = "/voxelmap";
-  const double h = vm.voxel_size;
-  const int min_outside = int(std::floor(vm.distance_band + 0.5));
-  bool layer_reported = false, band_reported = false, step_reported = false, jump_reported = false;
-  const size_t W = vm.dims[0], WH = size_t(vm.dims[0]) * vm.dims[1];
-  for (size_t v = 0; v < vm.voxel_count(); ++v) {
-    const float d = vm.distances[v];
-    const int layer = vm.layers[v];
-    if (Voxelmap::is_stored(d)) {
-      const double expected = std::clamp(std::floor(-double(d) / h + 0.5), -32767.0, 32767.0);
-      if (!layer_reported && layer != int(expected)) {
-        c.add(IssueCode::LayerDistanceMismatch, g + "/layers",
-              voxel_name(vm, v) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) + " m gives " +
-                  std::to_string(int(expected)));
-        layer_reported = true;
-      }
-    } else if (!band_reported && std::abs(layer) < min_outside) {
-      c.add(IssueCode::LayerOutsideBandTooSmall, g + "/layers",
-            voxel_name(vm, v) + " has no stored distance but layer " + std::to_string(layer) +
-                " (|layer| must be >= " + std::to_string(min_outside) + " outside the band)");
-      band_reported = true;
+  const double h = vm.voxel_size, band_m = vm.distance_band * h;
+  const double not_stored_at_least = (vm.distance_band - 0.5) * h;
+  constexpr uint32_t E = Voxelmap::kBrickEdge;
+  bool outside_reported = false, estimate_reported = false, sign_reported = false, jump_reported = false;
+  // A voxel's sign and how near the surface it may be (metres).
+  struct Near {
+    double distance;  // signed: stored, or the estimate
+    double nearest;   // lower bound of |d|
+    bool stored;
+  };
+  auto near_of = [&](uint32_t i, uint32_t j, uint32_t k) {
+    const int32_t entry = vm.bricks[vm.brick_index(i / E, j / E, k / E)];
+    if (entry < 0)
+      return Near{entry == Voxelmap::kCoarseInside ? -not_stored_at_least : not_stored_at_least, not_stored_at_least,
+                  false};
+    const int16_t code = vm.brick_values[size_t(entry) * Voxelmap::kBrickVoxels +
+                                         Voxelmap::local_index(i % E, j % E, k % E)];
+    const double d = vm.decode(code);
+    return Near{d, Voxelmap::code_is_stored(code) ? std::abs(d) : not_stored_at_least, Voxelmap::code_is_stored(code)};
+  };
+  auto check_pair = [&](uint32_t i, uint32_t j, uint32_t k, const Near& a, uint32_t ni, uint32_t nj, uint32_t nk) {
+    const Near b = near_of(ni, nj, nk);
+    if (!sign_reported && (a.distance < 0) != (b.distance < 0) && a.nearest + b.nearest > h * (1 + 1e-6) +
+                                                                      vm.distance_quantum) {
+      c.add(IssueCode::SignMismatch, g + "/brick_values",
+            voxel_name(i, j, k) + " and " + voxel_name(ni, nj, nk) +
+                " are one voxel apart and on opposite sides of the surface, but too far from it for the surface to "
+                "pass between them (" +
+                fmt(a.distance / h) + " and " + fmt(b.distance / h) + " voxels)");
+      sign_reported = true;
     }
-    if (!closed_surface) continue;  // across a closed hole both rules may break (spec §3)
-    const size_t i = v % W, j = v / W % vm.dims[1], k = v / WH;
-    const size_t neighbours[3] = {i + 1 < W ? v + 1 : v, j + 1 < vm.dims[1] ? v + W : v,
-                                  k + 1 < vm.dims[2] ? v + WH : v};
-    for (size_t n : neighbours) {
-      if (n == v) continue;
-      if (!step_reported && std::abs(layer - vm.layers[n]) > 1) {
-        c.add(IssueCode::LayerStepTooLarge, g + "/layers",
-              voxel_name(vm, v) + " and " + voxel_name(vm, n) + " differ by " +
-                  std::to_string(std::abs(layer - vm.layers[n])) + " layers");
-        step_reported = true;
-      }
-      // Exact distances of 6-neighbours differ by at most h; the rule allows the voxel diagonal, so that a
-      // producer's near-band approximations pass and only gross errors (wrong sign, garbage) are flagged.
-      if (!jump_reported && Voxelmap::is_stored(d) && Voxelmap::is_stored(vm.distances[n]) &&
-          std::abs(double(d) - double(vm.distances[n])) > h * std::sqrt(3.0)) {
-        c.add(IssueCode::DistanceJump, g + "/distances",
-              voxel_name(vm, v) + " and " + voxel_name(vm, n) +
-                  " are one voxel apart but their distances differ by more than the voxel diagonal: " +
-                  fmt(std::abs(double(d) - double(vm.distances[n])) / h) + " voxels");
-        jump_reported = true;
-      }
+    if (!jump_reported && a.stored && b.stored && std::abs(a.distance - b.distance) > h * std::sqrt(3.0)) {
+      c.add(IssueCode::DistanceJump, g + "/brick_values",
+            voxel_name(i, j, k) + " and " + voxel_name(ni, nj, nk) +
+                " are one voxel apart but their distances differ by more than the voxel diagonal: " +
+                fmt(std::abs(a.distance - b.distance) / h) + " voxels");
+      jump_reported = true;
     }
-  }
+  };
+  vm.for_each_value_brick([&](uint32_t bi, uint32_t bj, uint32_t bk, const int16_t* codes) {
+    for (uint32_t lk = 0; lk < E && bk * E + lk < vm.dims[2]; ++lk)
+      for (uint32_t lj = 0; lj < E && bj * E + lj < vm.dims[1]; ++lj)
+        for (uint32_t li = 0; li < E && bi * E + li < vm.dims[0]; ++li) {
+          const uint32_t i = bi * E + li, j = bj * E + lj, k = bk * E + lk;
+          const int16_t code = codes[Voxelmap::local_index(li, lj, lk)];
+          const double d = vm.decode(code);
+          if (Voxelmap::code_is_stored(code)) {
+            if (!outside_reported && std::abs(d) > band_m + 0.5 * vm.distance_quantum) {
+              c.add(IssueCode::DistanceOutsideBand, g + "/brick_values",
+                    voxel_name(i, j, k) + " stores the distance " + fmt(d) + " m, beyond the band of " +
+                        fmt(band_m) + " m");
+              outside_reported = true;
+            }
+          } else if (!estimate_reported) {
+            const double magnitude = vm.coarse_magnitude(i, j, k);
+            if (std::abs(std::abs(d) - magnitude) > 0.5 * vm.estimate_quantum * (1 + 1e-6) + 1e-9 * magnitude ||
+                code == 0) {
+              c.add(IssueCode::EstimateMismatch, g + "/brick_values",
+                    voxel_name(i, j, k) + " holds the estimate " + fmt(d) + " m, the lattice gives " +
+                        fmt(magnitude) + " m");
+              estimate_reported = true;
+            }
+          }
+          if (!closed_surface) continue;  // across a closed hole the sign changes away from the surface
+          const Near a{d, Voxelmap::code_is_stored(code) ? std::abs(d) : not_stored_at_least,
+                       Voxelmap::code_is_stored(code)};
+          if (i + 1 < vm.dims[0]) check_pair(i, j, k, a, i + 1, j, k);
+          if (j + 1 < vm.dims[1]) check_pair(i, j, k, a, i, j + 1, k);
+          if (k + 1 < vm.dims[2]) check_pair(i, j, k, a, i, j, k + 1);
+          if (i > 0 && li == 0) check_pair(i, j, k, a, i - 1, j, k);
+          if (j > 0 && lj == 0) check_pair(i, j, k, a, i, j - 1, k);
+          if (k > 0 && lk == 0) check_pair(i, j, k, a, i, j, k - 1);
+        }
+  });
+  if (!closed_surface || sign_reported) return;
+  // Neighbouring coarse bricks: the surface cannot pass between two voxels both farther than (band - 1/2) h.
+  const auto b = vm.brick_dims();
+  for (uint32_t bk = 0; bk < b[2] && !sign_reported; ++bk)
+    for (uint32_t bj = 0; bj < b[1] && !sign_reported; ++bj)
+      for (uint32_t bi = 0; bi < b[0] && !sign_reported; ++bi) {
+        const int32_t entry = vm.bricks[vm.brick_index(bi, bj, bk)];
+        if (entry >= 0) continue;
+        const uint32_t next[3][3] = {{bi + 1, bj, bk}, {bi, bj + 1, bk}, {bi, bj, bk + 1}};
+        for (const auto& n : next) {
+          if (n[0] >= b[0] || n[1] >= b[1] || n[2] >= b[2]) continue;
+          const int32_t other = vm.bricks[vm.brick_index(n[0], n[1], n[2])];
+          if (other >= 0 || other == entry || 2 * not_stored_at_least <= h * (1 + 1e-6)) continue;
+          c.add(IssueCode::SignMismatch, g + "/bricks",
+                "coarse bricks (" + std::to_string(bi) + ", " + std::to_string(bj) + ", " + std::to_string(bk) +
+                    ") and (" + std::to_string(n[0]) + ", " + std::to_string(n[1]) + ", " + std::to_string(n[2]) +
+                    ") touch but lie on opposite sides of the surface");
+          sign_reported = true;
+          break;
+        }
+      }
 }
 
 // Distance at the voxel nearest to p, if stored there.
 std::optional<double> nearest_distance(const Voxelmap& vm, const Vec3& p) {
-  size_t index[3];
+  uint32_t index[3];
   for (int a = 0; a < 3; ++a) {
     const double x = std::floor((p[a] - vm.origin[a]) / vm.voxel_size + 0.5);
     if (!(x >= 0 && x < vm.dims[a])) return std::nullopt;
-    index[a] = size_t(x);
+    index[a] = uint32_t(x);
   }
-  const float d = vm.distances[(index[2] * vm.dims[1] + index[1]) * vm.dims[0] + index[0]];
-  if (!Voxelmap::is_stored(d)) return std::nullopt;
-  return double(d);
+  const VoxelValue v = vm.voxel(index[0], index[1], index[2]);
+  if (!v.stored) return std::nullopt;
+  return v.distance;
 }
 
 void check_point_shell_semantics(const Asset& a, Checker& c) {
@@ -353,13 +430,13 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   for (const char* a : kAxes) axis_ok = axis_ok || asset.up_axis == a;
   if (!axis_ok)
     c.add(IssueCode::BadAttributeValue, "/@up_axis", "up_axis '" + asset.up_axis + "' is not one of +X -X +Y -Y +Z -Z");
-  check_voxelmap(asset.voxelmap, c);
+  check_voxelmap(asset.voxelmap, asset.version, c);
   check_point_shell(asset.point_shell, c);
   check_mass(asset.mass, c);
   check_provenance(asset.provenance, c);
   // Semantic rules need a structurally sound asset (sizes, tree ranges) to index safely.
   if (level == ValidationLevel::Full && !has_errors(issues)) {
-    check_voxelmap_semantics(asset.voxelmap, !has_surface_defects(asset.provenance), c);
+    check_voxelmap_semantics(asset.voxelmap, detail::closed_surface(asset.provenance), c);
     check_point_shell_semantics(asset, c);
     check_mass_semantics(asset, c);
   }
@@ -369,7 +446,7 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
 std::vector<Issue> validate_file(const std::string& path, ValidationLevel level) {
   std::vector<Issue> issues;
   try {
-    std::optional<Asset> asset = detail::load_asset(path, issues);
+    std::optional<Asset> asset = detail::load_asset(path, issues, level);
     if (asset) {
       std::vector<Issue> more = validate_asset(*asset, level);
       issues.insert(issues.end(), more.begin(), more.end());

@@ -18,8 +18,8 @@ namespace voxfmt {
 
 namespace {
 
-// Written where no distance is stored; chunks holding nothing else are left out of the file (fill value).
-const float kNotStored = std::numeric_limits<float>::quiet_NaN();
+// Value bricks per chunk of /voxelmap/brick_values: 64 KB of codes, a unit deflate compresses well.
+constexpr uint64_t kBricksPerChunk = 64;
 
 template <class T, size_t K>
 const T* flat(const std::vector<std::array<T, K>>& rows) {
@@ -40,7 +40,10 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
   const Voxelmap& vm = a.voxelmap;
   auto vg = w.create_group(root, "voxelmap");
   if (!vg) return false;
-  const std::vector<uint64_t> grid = {vm.dims[2], vm.dims[1], vm.dims[0]};
+  const auto bd = vm.brick_dims();
+  const auto ld = vm.lattice_dims();
+  const uint32_t brick_edge = Voxelmap::kBrickEdge;
+  const uint64_t edge = std::max(1u, opt.chunk_edge);
   ok = w.numeric_attribute<double>(vg->get(), "origin", {3}, vm.origin.data()) &&
        w.numeric_attribute<double>(vg->get(), "voxel_size", {}, &vm.voxel_size) &&
        w.numeric_attribute<uint32_t>(vg->get(), "dims", {3}, vm.dims.data()) &&
@@ -48,9 +51,16 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
        (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
        (!vm.shell_thickness || w.numeric_attribute<double>(vg->get(), "shell_thickness", {}, &*vm.shell_thickness)) &&
-       w.dataset<int16_t>(vg->get(), "layers", grid, vm.layers.data(), opt.deflate_level, opt.chunk_edge) &&
-       w.dataset<float>(vg->get(), "distances", grid, vm.distances.data(), opt.deflate_level, opt.chunk_edge,
-                        &kNotStored);
+       w.numeric_attribute<uint32_t>(vg->get(), "brick_edge", {}, &brick_edge) &&
+       w.numeric_attribute<double>(vg->get(), "distance_quantum", {}, &vm.distance_quantum) &&
+       w.numeric_attribute<double>(vg->get(), "estimate_quantum", {}, &vm.estimate_quantum) &&
+       w.numeric_attribute<double>(vg->get(), "lattice_error", {}, &vm.lattice_error) &&
+       w.dataset<int32_t>(vg->get(), "bricks", {bd[2], bd[1], bd[0]}, vm.bricks.data(), opt.deflate_level,
+                          {edge, edge, edge}) &&
+       w.dataset<int16_t>(vg->get(), "brick_values", {vm.value_brick_count(), Voxelmap::kBrickVoxels},
+                          vm.brick_values.data(), opt.deflate_level, {kBricksPerChunk, Voxelmap::kBrickVoxels}) &&
+       w.dataset<float>(vg->get(), "lattice", {ld[2], ld[1], ld[0]}, vm.lattice.data(), opt.deflate_level,
+                        {edge, edge, edge});
   if (!ok) return false;
 
   const PointShell& ps = a.point_shell;

@@ -11,10 +11,9 @@
 #include <string>
 #include <vector>
 
-namespace voxfmt {
+#include "voxfmt/voxelmap.h"
 
-using Vec3 = std::array<double, 3>;
-using Vec3f = std::array<float, 3>;
+namespace voxfmt {
 
 /// [major, minor] of the file format.
 struct FormatVersion {
@@ -26,37 +25,10 @@ struct FormatVersion {
 };
 
 /// The format version this library writes and fully understands.
-inline constexpr FormatVersion kFormatVersion{1, 1};
+inline constexpr FormatVersion kFormatVersion{2, 0};
 
 /// The voxel sizes a valid file may have (spec §3): beyond them the numbers mean nothing physical.
 inline constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;
-
-/// Layered distance-field voxelmap (spec §3). Grids are x-fastest: index = (k * H + j) * W + i.
-struct Voxelmap {
-  Vec3 origin{};                   ///< centre of voxel (0,0,0), metres
-  double voxel_size = 0.0;         ///< voxel edge h, metres
-  std::array<uint32_t, 3> dims{};  ///< W, H, D (voxels along x, y, z)
-  double distance_band = 2.0;      ///< half-width of the stored-distance band, in voxels
-  std::optional<uint32_t> margin;  ///< outer voxels around the bounding box (optional in the file)
-  /// Shell mode (format 1.1): the object is the solid shell of this thickness (metres) around the surface, its
-  /// signed distance the unsigned distance to the surface minus half of it. Absent: the surface's inside.
-  std::optional<double> shell_thickness;
-  std::vector<int16_t> layers;   ///< coarse penetration depth in voxels; > 0 inside, 0 surface, < 0 outside
-  std::vector<float> distances;  ///< signed distance (negative inside), NaN where not stored
-
-  size_t voxel_count() const { return size_t(dims[0]) * dims[1] * dims[2]; }
-  size_t linear_index(uint32_t i, uint32_t j, uint32_t k) const { return (size_t(k) * dims[1] + j) * dims[0] + i; }
-  Vec3 voxel_center(uint32_t i, uint32_t j, uint32_t k) const {
-    return {origin[0] + voxel_size * i, origin[1] + voxel_size * j, origin[2] + voxel_size * k};
-  }
-  static bool is_stored(float distance) { return !std::isnan(distance); }
-  /// Number of voxels with a stored distance.
-  size_t stored_count() const {
-    size_t count = 0;
-    for (float d : distances) count += is_stored(d);
-    return count;
-  }
-};
 
 /// Point shell organised as a breadth-first point-sphere tree (spec §4). Node n is point n.
 struct PointShell {

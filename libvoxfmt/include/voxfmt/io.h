@@ -15,7 +15,7 @@ namespace voxfmt {
 
 struct WriteOptions {
   int deflate_level = 4;     ///< 0..9 for the voxel grids; 0 = no compression
-  unsigned chunk_edge = 32;  ///< grid chunk edge in voxels (clamped to the grid)
+  unsigned chunk_edge = 32;  ///< chunk edge of the brick table and the lattice, in entries (clamped to their extents)
   /// What must hold before the file replaces the target. Full (the default): every rule of
   /// `validate --level full`, checked on a thread of its own while the file is written and compressed; Quick:
   /// structure, ranges and the tree only.

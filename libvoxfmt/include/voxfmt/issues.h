@@ -38,6 +38,9 @@ enum class IssueCode {
   SphereNotEnclosing,
   InertiaNotPositiveDefinite,
   CenterOfMassOutsideBounds,
+  DistanceOutsideBand,
+  EstimateMismatch,
+  SignMismatch,
   // Errors of the bake, the exports and batch runs (never validation findings).
   InputNotFound,
   UnsupportedFormat,

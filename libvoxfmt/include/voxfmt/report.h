@@ -14,9 +14,10 @@ namespace voxfmt {
 /// Figures of an asset that are not stored in it as such.
 struct AssetSummary {
   uint64_t file_size = 0;     ///< bytes of `file` on disk (0 if it cannot be read)
-  uint64_t memory_bytes = 0;  ///< the dense grids and the point shell in memory
+  uint64_t memory_bytes = 0;  ///< the voxelmap and the point shell in memory
   size_t stored_distances = 0;
   int layer_min = 0, layer_max = 0;
+  size_t value_bricks = 0, coarse_bricks = 0;
   std::vector<uint32_t> points_per_level;
 };
 

@@ -73,10 +73,15 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(con
                                                                              const LoadOptions& options) {
   voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
   if (!asset) return asset.error();
-  return from_asset(asset.value(), options);
+  return from_asset(std::move(asset.value()), options);
 }
 
 voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_asset(const voxfmt::Asset& asset,
+                                                                                   const LoadOptions& options) {
+  return from_asset(voxfmt::Asset(asset), options);
+}
+
+voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_asset(voxfmt::Asset&& asset,
                                                                                    const LoadOptions& options) {
   const std::vector<voxfmt::Issue> issues = voxfmt::validate_asset(asset, voxfmt::ValidationLevel::Quick);
   for (const voxfmt::Issue& issue : issues)
@@ -89,9 +94,7 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_ass
   object->bounds_min_ = to_double(asset.bounds_min);
   object->bounds_max_ = to_double(asset.bounds_max);
   if (options.load_voxelmap)
-    object->voxelmap_ = SparseVoxelmap::from_dense(
-        asset.voxelmap, asset.bounds_min, asset.bounds_max, options.voxelmap,
-        asset.version.minor >= 1 ? SparseVoxelmap::LayerAccuracy::WithinSqrt3 : SparseVoxelmap::LayerAccuracy::Chamfer);
+    object->voxelmap_ = SparseVoxelmap::from_voxelmap(std::move(asset.voxelmap), asset.bounds_min, asset.bounds_max);
   if (options.load_point_shell) object->tree_ = make_tree(asset.point_shell);
 
   object->volume_ = asset.mass.volume;

@@ -244,7 +244,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   // surface is baked again as a shell two voxels thick, and the asset says so.
   const bool encloses_nothing =
       shell_thickness == 0 &&
-      (closed_but_flat || (winding_inside && *std::max_element(voxelmap.layers.begin(), voxelmap.layers.end()) < 1));
+      (closed_but_flat || (winding_inside && voxelmap.layer_range().second < 1));
   if (encloses_nothing) {
     shell_thickness = 2 * voxelmap.voxel_size;
     char text[160];

@@ -1,8 +1,17 @@
-// Stage 3: layered distance-field voxelmap. Exact signed distances in a narrow band (every triangle rasterised
-// into the voxels near it); an exact Euclidean feature transform to the band's nearest surface points gives the
-// layers everywhere else.
+// Stage 3: the layered distance-field voxelmap, built sparsely (spec §3): memory and time follow the surface, not
+// the volume. The stages, in order:
+//   plan_grid            the grid, and the memory the bake will need, checked before anything is allocated
+//   bin_triangles        each 8^3 brick's triangles: those within reach of one of its voxels
+//   bake_brick_rows      exact band distances per brick (nearest triangle, pseudonormal sign), the sign carried
+//                        along each row of bricks to the voxels and bricks beyond the band; value bricks coded
+//   propagate_lattice    the unsigned distance at every brick corner: exact near the surface, nearest triangles
+//                        carried across the lattice farther away
+//   fill estimates       the codes of value-brick voxels without a stored distance, from the lattice
 #include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
+#include <oneapi/tbb/parallel_sort.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -11,6 +20,7 @@
 #include <limits>
 #include <unordered_map>
 
+#include "closest_triangle.h"
 #include "stages.h"
 #include "vec3_math.h"
 #include "winding_number.h"
@@ -19,10 +29,16 @@ namespace voxfmt::bake {
 
 namespace {
 
+constexpr int64_t kEdge = Voxelmap::kBrickEdge;
+constexpr size_t kBrickVoxels = Voxelmap::kBrickVoxels;
+
 struct GridGeometry {
   Vec3 origin{};
   double voxel_size = 0;
   std::array<uint32_t, 3> dims{};
+  std::array<int64_t, 3> bricks{};  // bricks along x, y, z
+  int64_t brick_count() const { return bricks[0] * bricks[1] * bricks[2]; }
+  int64_t lattice_count() const { return (bricks[0] + 1) * (bricks[1] + 1) * (bricks[2] + 1); }
 };
 
 GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options) {
@@ -50,7 +66,6 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
     throw BakeError(IssueCode::ScaleOutOfRange, text);
   }
   // Voxels tile the bounding box exactly from its min corner, plus `margin` voxels on every side.
-  uint64_t total = 1;
   for (int a = 0; a < 3; ++a) {
     const double cells = std::max(1.0, std::ceil((hi[a] - lo[a]) / g.voxel_size - 1e-9)) + 2.0 * options.margin;
     if (!(cells <= 65535)) {
@@ -59,167 +74,51 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
       throw BakeError(IssueCode::GridTooLarge, std::string("the grid would have ") + count +
                                                    " voxels along an axis (at most 65535): voxel size too small");
     }
-    const uint64_t n = uint64_t(cells);
-    g.dims[a] = uint32_t(n);
+    g.dims[a] = uint32_t(cells);
+    g.bricks[a] = (int64_t(g.dims[a]) + kEdge - 1) / kEdge;
     g.origin[a] = lo[a] + (0.5 - options.margin) * g.voxel_size;
-    total *= n;
   }
-  if (total > 0x7fffffffull)
-    throw BakeError(IssueCode::GridTooLarge,
-                    "the grid would have " + std::to_string(total) + " voxels (at most 2^31-1)");
+  if (g.lattice_count() > 0x7fffffffll)
+    throw BakeError(IssueCode::GridTooLarge, "the grid would have " + std::to_string(g.lattice_count()) +
+                                                 " bricks (at most 2^31-1): voxel size too small");
   return g;
 }
 
-// ---- layers beyond the band: an exact Euclidean feature transform. Every voxel finds the nearest *seed*
-// voxel (one within sqrt(3)/2 voxel of the surface, whose nearest surface point the band computed exactly), by
-// the separable lower-envelope algorithm of Felzenszwalb & Huttenlocher (2012) carried out on seed ids; its
-// depth is the distance to that seed's surface point. That is a real surface point, so the depth is never too
-// small. The surface point s nearest a voxel p lies in some voxel, whose centre is a seed within sqrt(3)/2 of s,
-// so the nearest seed is at most |p - s| + sqrt(3)/2 away and its surface point at most sqrt(3)/2 beyond it:
-// at most sqrt(3) voxels too deep (spec §3), and measured a small fraction of a voxel (the 26-neighbour chamfer
-// used before overestimated by up to 15 % of the depth).
-
-struct Seed {
-  int32_t i, j, k;  // the seed voxel
-  Vec3f closest;    // its nearest surface point, relative to the voxel, in voxels
-};
-constexpr uint32_t kNoSeed = ~uint32_t(0);
-
-// One line of the transform: `line[q]` holds the seed chosen for position q by the previous axes (or kNoSeed)
-// and `height(seed)` its squared distance across those axes; afterwards each position holds the seed that
-// minimises (p - q)^2 + height. Integer arithmetic: positions and heights are exact.
-struct EnvelopeScratch {
-  std::vector<int64_t> position;  // parabolas of the lower envelope: their apex positions,
-  std::vector<double> apex;       // their heights at the apex,
-  std::vector<double> from;       // and where each starts to be the lowest
-  std::vector<uint32_t> seed;     // the line's seeds before the pass
-};
-
-template <class Height>
-void envelope_line(uint32_t* line, int64_t stride, int64_t n, const Height& height, EnvelopeScratch& e) {
-  e.seed.resize(size_t(n));
-  e.position.resize(size_t(n));
-  e.apex.resize(size_t(n));
-  e.from.resize(size_t(n) + 1);
-  int64_t count = 0;
-  for (int64_t q = 0; q < n; ++q) {
-    const uint32_t seed = e.seed[size_t(q)] = line[q * stride];
-    if (seed == kNoSeed) continue;
-    const double fq = height(seed);  // each seed's height is looked up once (a random access)
-    double s = 0;
-    while (count > 0) {
-      const int64_t r = e.position[size_t(count - 1)];
-      s = ((fq + double(q) * double(q)) - (e.apex[size_t(count - 1)] + double(r) * double(r))) / (2.0 * double(q - r));
-      if (s > e.from[size_t(count - 1)]) break;
-      --count;
-    }
-    e.position[size_t(count)] = q;
-    e.apex[size_t(count)] = fq;
-    e.from[size_t(count)] = count == 0 ? -std::numeric_limits<double>::infinity() : s;
-    ++count;
+double surface_area(const TriangleMesh& mesh) {
+  double area = 0;
+  for (const auto& t : mesh.triangles) {
+    const Vec3 a{mesh.vertices[t[0]][0], mesh.vertices[t[0]][1], mesh.vertices[t[0]][2]};
+    const Vec3 b{mesh.vertices[t[1]][0], mesh.vertices[t[1]][1], mesh.vertices[t[1]][2]};
+    const Vec3 c{mesh.vertices[t[2]][0], mesh.vertices[t[2]][1], mesh.vertices[t[2]][2]};
+    area += 0.5 * length(cross(b - a, c - a));
   }
-  if (count == 0) return;
-  e.from[size_t(count)] = std::numeric_limits<double>::infinity();
-  int64_t k = 0;
-  for (int64_t p = 0; p < n; ++p) {
-    while (e.from[size_t(k + 1)] < double(p)) ++k;
-    line[p * stride] = e.seed[size_t(e.position[size_t(k)])];
-  }
+  return area;
 }
 
-// Depth (unsigned distance to the surface, voxels) of every voxel from its nearest seed, or the exact one
-// where the band has it (|exact| < half_width), then made 1-Lipschitz along the axes (two city-block sweeps per axis:
-// min with a 6-neighbour's value + 1, which keeps every value a distance to some surface point) so that 6-neighbouring
-// layers never differ by more than one.
-std::vector<float> feature_transform_depths(const std::vector<Seed>& seeds, const std::vector<float>& exact,
-                                            float half_width, const std::array<uint32_t, 3>& dims) {
-  const int64_t W = dims[0], H = dims[1], D = dims[2];
-  std::vector<uint32_t> nearest(size_t(W * H * D), kNoSeed);
-  for (size_t s = 0; s < seeds.size(); ++s)
-    nearest[size_t((int64_t(seeds[s].k) * H + seeds[s].j) * W + seeds[s].i)] = uint32_t(s);
-  // x: the first axis has no earlier axes (height 0).
-  tbb::parallel_for(int64_t(0), D * H, [&](int64_t row) {
-    thread_local EnvelopeScratch scratch;
-    envelope_line(
-        nearest.data() + row * W, 1, W, [](uint32_t) { return 0.0; }, scratch);
-  });
-  // y and z lines are strided in memory: they are processed 16 neighbouring lines (one cache line of each
-  // plane) at a time, gathered into a contiguous buffer.
-  constexpr int64_t kBlock = 16;
-  auto strided_lines = [&](int64_t planes, int64_t plane_stride, int64_t stride, int64_t n, auto&& height_for) {
-    tbb::parallel_for(int64_t(0), planes, [&](int64_t plane) {
-      thread_local EnvelopeScratch scratch;
-      thread_local std::vector<uint32_t> block;
-      block.resize(size_t(kBlock * n));
-      for (int64_t i0 = 0; i0 < W; i0 += kBlock) {
-        const int64_t lines = std::min(kBlock, W - i0);
-        uint32_t* base = nearest.data() + plane * plane_stride + i0;
-        for (int64_t q = 0; q < n; ++q)
-          for (int64_t l = 0; l < lines; ++l) block[size_t(l * n + q)] = base[q * stride + l];
-        for (int64_t l = 0; l < lines; ++l)
-          envelope_line(block.data() + l * n, 1, n, height_for(plane, i0 + l), scratch);
-        for (int64_t q = 0; q < n; ++q)
-          for (int64_t l = 0; l < lines; ++l) base[q * stride + l] = block[size_t(l * n + q)];
-      }
-    });
-  };
-  // y: height = squared x distance of the seed chosen in that row.
-  strided_lines(D, H * W, W, H, [&](int64_t, int64_t i) {
-    return [&seeds, i](uint32_t s) {
-      const double dx = double(seeds[s].i - i);
-      return dx * dx;
-    };
-  });
-  // z: height = squared distance in the (x, y) plane of the seed chosen in that column.
-  strided_lines(H, W, W * H, D, [&](int64_t j, int64_t i) {
-    return [&seeds, i, j](uint32_t s) {
-      const double dx = double(seeds[s].i - i), dy = double(seeds[s].j - j);
-      return dx * dx + dy * dy;
-    };
-  });
+uint64_t physical_memory_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? uint64_t(pages) * uint64_t(page) : uint64_t(8) << 30;
+}
 
-  std::vector<float> depth(nearest.size());
-  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
-    for (int64_t j = 0; j < H; ++j)
-      for (int64_t i = 0; i < W; ++i) {
-        const size_t at = size_t((k * H + j) * W + i);
-        const uint32_t s = nearest[at];
-        if (std::abs(exact[at]) < half_width) {
-          depth[at] = std::abs(exact[at]);
-          continue;
-        }
-        if (s == kNoSeed) {
-          depth[at] = std::numeric_limits<float>::infinity();
-          continue;
-        }
-        const Seed& seed = seeds[s];
-        const double dx = double(seed.i - i) + seed.closest[0], dy = double(seed.j - j) + seed.closest[1],
-                     dz = double(seed.k - k) + seed.closest[2];
-        depth[at] = float(std::sqrt(dx * dx + dy * dy + dz * dz));
-      }
-  });
-  std::vector<uint32_t>().swap(nearest);
-
-  // Rows are swept element by element; y and z steps compare whole rows at once (contiguous, vectorised).
-  auto step = [](float* to, const float* from, int64_t n) {
-    for (int64_t i = 0; i < n; ++i) to[i] = std::min(to[i], from[i] + 1.0f);
-  };
-  tbb::parallel_for(int64_t(0), D * H, [&](int64_t row) {
-    float* line = depth.data() + row * W;
-    for (int64_t i = 1; i < W; ++i) line[i] = std::min(line[i], line[i - 1] + 1.0f);
-    for (int64_t i = W - 2; i >= 0; --i) line[i] = std::min(line[i], line[i + 1] + 1.0f);
-  });
-  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
-    float* plane = depth.data() + k * H * W;
-    for (int64_t j = 1; j < H; ++j) step(plane + j * W, plane + (j - 1) * W, W);
-    for (int64_t j = H - 2; j >= 0; --j) step(plane + j * W, plane + (j + 1) * W, W);
-  });
-  tbb::parallel_for(int64_t(0), H, [&](int64_t j) {
-    float* column = depth.data() + j * W;
-    for (int64_t k = 1; k < D; ++k) step(column + k * H * W, column + (k - 1) * H * W, W);
-    for (int64_t k = D - 2; k >= 0; --k) step(column + k * H * W, column + (k + 1) * H * W, W);
-  });
-  return depth;
+// What the sparse bake holds at its peak, estimated before it starts: the brick table and the lattice (with its
+// propagation keys) grow with the volume / 512; the value bricks, their codes and the triangles binned to them with
+// the surface (a brick of 8^3 voxels per ~30 voxel^2 of surface, measured on CGAL's sample meshes). A bake that
+// would not fit is refused here, with the figures, instead of being killed halfway.
+void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const VoxelmapSettings& options) {
+  const double area_voxels = surface_area(mesh) / (g.voxel_size * g.voxel_size);
+  const double value_bricks = std::min(double(g.brick_count()), area_voxels / 30.0 + 64);
+  const double bytes = double(g.brick_count()) * 4 + double(g.lattice_count()) * (8 + 4) +
+                       value_bricks * (2 * kBrickVoxels * 2 + 8 * 64) + double(mesh.triangles.size()) * 400;
+  const double limit = options.max_memory_bytes > 0 ? double(options.max_memory_bytes)
+                                                    : 0.75 * double(physical_memory_bytes());
+  if (bytes <= limit) return;
+  char text[400];
+  std::snprintf(text, sizeof text,
+                "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.2f GB, more than the %.2f GB "
+                "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution or a larger "
+                "voxel size",
+                g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1e9, limit / 1e9);
+  throw BakeError(IssueCode::OutOfMemory, text);
 }
 
 // ---- exact near-surface distances. Every triangle is rasterised into the voxels within `half_width` of it
@@ -322,46 +221,23 @@ Vec3 feature_pseudonormal(const Pseudonormals& pn, const TriangleMesh& mesh, siz
   return pn.face[f];
 }
 
-// Layers round distances (in voxels) at half-integers, so ties matter. A distance within 1e-6 (relative, and
-// so more than a float's half ulp) of a tie is put on it (a face half a voxel from the voxel centres, with float input
-// coordinates, gives 0.49999995 here and 1.49999995 at the next voxel; exact ties round alike), and the float kept for
-// the voxel stays on the double's side of every tie (1.49999995 would otherwise round to the float 1.5 and jump a
-// layer).
-float tie_safe_float(double distance) {
-  const double tie = std::floor(distance) + 0.5;
-  if (std::abs(distance - tie) < 1e-6 * std::max(1.0, std::abs(tie))) distance = tie;
-  float f = float(distance);
-  const double layer = std::floor(distance + 0.5);
-  while (std::floor(double(f) + 0.5) > layer) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
-  while (std::floor(double(f) + 0.5) < layer) f = std::nextafter(f, std::numeric_limits<float>::infinity());
-  return f;
-}
 
-// Signed distances (voxels, index space) of every voxel within `half_width` of the surface; every other voxel
-// gets +-half_width with its inside/outside sign. That sign is carried along each x row from the last band
-// voxel: a row starts outside (its first voxel centre is at most half a voxel inside the bounding box, so were
-// it inside, a face would be within half a voxel: a band voxel), and a step between a band voxel and one
-// outside the band stays more than half_width - 1 from the surface, so it cannot cross it.
-// `seeds` receives every voxel within sqrt(3)/2 voxel of the surface with its nearest surface point.
-std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
-                                        std::vector<Seed>& seeds) {
-  const int64_t dims[3] = {g.dims[0], g.dims[1], g.dims[2]};
-  const int64_t W = dims[0], H = dims[1], D = dims[2];
-  const double r = half_width, r2 = r * r;
-  struct IndexTriangle {
-    Vec3 a, b, c, normal;
-    // Unit in-plane normals of the edges, pointing away from the triangle, and their planes' offsets: a point
-    // within r of the triangle is less than r beyond each edge's plane (and its own plane).
-    Vec3 edge_normal[3];
-    double edge_offset[3];
-    int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
-  };
-  const size_t triangle_count = mesh.triangles.size();
-  std::vector<IndexTriangle> triangles(triangle_count);
-  tbb::parallel_for(size_t(0), triangle_count, [&](size_t f) {
+// ---- triangles in index space (voxel centres at integer coordinates)
+
+struct IndexTriangle {
+  Vec3 a, b, c, normal;
+  // Unit in-plane normals of the edges, pointing away from the triangle, and their planes' offsets: a point
+  // within r of the triangle is less than r beyond each edge's plane (and its own plane).
+  Vec3 edge_normal[3];
+  double edge_offset[3];
+  int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
+};
+
+std::vector<IndexTriangle> index_triangles(const TriangleMesh& mesh, const GridGeometry& g, double r) {
+  std::vector<IndexTriangle> triangles(mesh.triangles.size());
+  tbb::parallel_for(size_t(0), triangles.size(), [&](size_t f) {
     auto to_index = [&](uint32_t v) {
-      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size,
-                  (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
                   (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
     };
     IndexTriangle& t = triangles[f];
@@ -380,230 +256,437 @@ std::vector<float> exact_band_distances(const TriangleMesh& mesh, const GridGeom
     for (int axis = 0; axis < 3; ++axis) {
       const double lo = std::min({t.a[axis], t.b[axis], t.c[axis]}), hi = std::max({t.a[axis], t.b[axis], t.c[axis]});
       t.lo[axis] = std::max<int64_t>(0, int64_t(std::ceil(lo - r)));
-      t.hi[axis] = std::min<int64_t>(dims[axis] - 1, int64_t(std::floor(hi + r)));
+      t.hi[axis] = std::min<int64_t>(int64_t(g.dims[size_t(axis)]) - 1, int64_t(std::floor(hi + r)));
     }
   });
+  return triangles;
+}
 
-  // Slabs of z layers, each listing the triangles that reach it (a counting sort: deterministic, and every
-  // slab is written by one task only).
-  constexpr int64_t kSlab = 4;
-  const int64_t slabs = (D + kSlab - 1) / kSlab;
-  std::vector<size_t> first(size_t(slabs) + 1, 0);
-  auto reached = [&](const IndexTriangle& t, auto&& visit) {
-    if (t.lo[0] > t.hi[0] || t.lo[1] > t.hi[1] || t.lo[2] > t.hi[2]) return;
-    for (int64_t s = t.lo[2] / kSlab; s <= t.hi[2] / kSlab; ++s) visit(size_t(s));
-  };
-  for (const IndexTriangle& t : triangles) reached(t, [&](size_t s) { ++first[s + 1]; });
-  for (size_t s = 0; s < size_t(slabs); ++s) first[s + 1] += first[s];
-  std::vector<uint32_t> members(first.back());
-  {
-    std::vector<size_t> next(first.begin(), first.end() - 1);
-    for (size_t f = 0; f < triangle_count; ++f)
-      reached(triangles[f], [&](size_t s) { members[next[s]++] = uint32_t(f); });
+// Narrows [i0, i1] to the positions i of a row where alpha * i + beta < reach, for each of a triangle's five
+// planes (its own, both sides, and its three edges' outward planes). Long thin triangles (CAD fans) would
+// otherwise scan their whole bounding box.
+struct RowClip {
+  int64_t i0, i1;
+  void below(double alpha, double beta, double reach) {
+    if (alpha > 1e-12)
+      i1 = std::min(i1, int64_t(std::floor((reach - beta) / alpha + 1e-9)));
+    else if (alpha < -1e-12)
+      i0 = std::max(i0, int64_t(std::ceil((reach - beta) / alpha - 1e-9)));
+    else if (beta >= reach + 1e-9)
+      i1 = i0 - 1;
   }
+  // Position i maps to the point (x0 + step * i, y, z).
+  void planes(const IndexTriangle& t, double x0, double step, double y, double z, double reach) {
+    auto plane = [&](const Vec3& outward, double offset) {
+      below(outward[0] * step, outward[0] * x0 + outward[1] * y + outward[2] * z - offset, reach);
+    };
+    const double own = dot(t.normal, t.a);
+    plane(t.normal, own);
+    plane(t.normal * -1.0, -own);
+    for (int e = 0; e < 3; ++e) plane(t.edge_normal[e], t.edge_offset[e]);
+  }
+};
 
-  const Pseudonormals pn = pseudonormals(mesh);
-  std::vector<float> signed_voxels(size_t(W * H * D));
-  std::vector<std::vector<Seed>> slab_seeds(static_cast<size_t>(slabs));
-  constexpr uint64_t kNone = ~uint64_t(0);
-  tbb::parallel_for(int64_t(0), slabs, [&](int64_t s) {
-    const int64_t k0 = s * kSlab, k1 = std::min(D, k0 + kSlab);
-    // Per voxel: (squared distance as float bits, triangle) packed so that the smallest key is the nearest
-    // triangle, ties to the lower index; the order triangles arrive in does not matter.
-    thread_local std::vector<uint64_t> nearest;
-    nearest.assign(size_t((k1 - k0) * H * W), kNone);
-    for (size_t m = first[size_t(s)]; m < first[size_t(s) + 1]; ++m) {
-      const uint32_t f = members[m];
+// ---- bin_triangles: each brick that a triangle reaches (one of its voxels within r of it) lists the triangle.
+
+struct BrickLists {
+  std::vector<int64_t> bricks;    // linear brick indices ((bk * BH + bj) * BW + bi), ascending
+  std::vector<uint64_t> first;    // members of bricks[n]: [first[n], first[n + 1])
+  std::vector<uint32_t> members;  // triangle indices
+  // Position of `brick` in `bricks`, or -1.
+  int64_t find(int64_t brick) const {
+    const auto it = std::lower_bound(bricks.begin(), bricks.end(), brick);
+    return it != bricks.end() && *it == brick ? int64_t(it - bricks.begin()) : -1;
+  }
+};
+
+BrickLists bin_triangles(const std::vector<IndexTriangle>& triangles, const GridGeometry& g, double r) {
+  // A brick's voxel centres lie within 3.5 sqrt(3) of its centre: a triangle within r of one of them is within
+  // r + 6.07 of the centre, on the near side of each of its planes.
+  const double reach = r + 3.5 * std::sqrt(3.0) + 1e-6;
+  tbb::enumerable_thread_specific<std::vector<uint64_t>> pairs;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, triangles.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
+    std::vector<uint64_t>& out = pairs.local();
+    for (size_t f = range.begin(); f < range.end(); ++f) {
       const IndexTriangle& t = triangles[f];
-      const Vec3& n = t.normal;
-      for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
-        for (int64_t j = t.lo[1]; j <= t.hi[1]; ++j) {
-          // Only voxels less than r beyond the triangle's plane (both sides) and its three edge planes: each a
-          // constraint alpha * i + beta < r on the row. Long thin triangles (CAD fans) would otherwise scan
-          // their whole bounding box.
-          int64_t i0 = t.lo[0], i1 = t.hi[0];
-          auto below_r = [&](const Vec3& outward, double offset) {
-            const double alpha = outward[0], beta = outward[1] * double(j) + outward[2] * double(k) - offset;
-            if (alpha > 1e-12) {
-              i1 = std::min(i1, int64_t(std::floor((r - beta) / alpha + 1e-9)));
-            } else if (alpha < -1e-12) {
-              i0 = std::max(i0, int64_t(std::ceil((r - beta) / alpha - 1e-9)));
-            } else if (beta >= r + 1e-9) {
-              i1 = i0 - 1;
-            }
-          };
-          const double plane = dot(n, t.a);
-          below_r(n, plane);
-          below_r(n * -1.0, -plane);
-          for (int e = 0; e < 3; ++e) below_r(t.edge_normal[e], t.edge_offset[e]);
-          if (i0 > i1) continue;
-          uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
-          for (int64_t i = i0; i <= i1; ++i) {
-            const Vec3 p{double(i), double(j), double(k)};
-            Feature feature;
-            const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
-            if (!(d2 < r2)) continue;
-            uint32_t bits;
-            const float d2f = float(d2);
-            std::memcpy(&bits, &d2f, sizeof bits);
-            row[i] = std::min(row[i], uint64_t(bits) << 32 | f);
-          }
+      if (t.lo[0] > t.hi[0] || t.lo[1] > t.hi[1] || t.lo[2] > t.hi[2]) continue;
+      for (int64_t bk = t.lo[2] / kEdge; bk <= t.hi[2] / kEdge; ++bk)
+        for (int64_t bj = t.lo[1] / kEdge; bj <= t.hi[1] / kEdge; ++bj) {
+          RowClip clip{t.lo[0] / kEdge, t.hi[0] / kEdge};
+          clip.planes(t, 3.5, double(kEdge), double(bj * kEdge) + 3.5, double(bk * kEdge) + 3.5, reach);
+          for (int64_t bi = clip.i0; bi <= clip.i1; ++bi)
+            out.push_back(uint64_t((bk * g.bricks[1] + bj) * g.bricks[0] + bi) << 32 | f);
         }
     }
-    for (int64_t k = k0; k < k1; ++k)
-      for (int64_t j = 0; j < H; ++j) {
-        const uint64_t* row = nearest.data() + ((k - k0) * H + j) * W;
-        float* out = signed_voxels.data() + (k * H + j) * W;
-        float side_of_row = 1;  // outside until a band voxel says otherwise
-        for (int64_t i = 0; i < W; ++i) {
-          if (row[i] == kNone) {
-            out[i] = side_of_row * half_width;
-            continue;
-          }
-          const size_t f = size_t(row[i] & 0xffffffffu);
-          const IndexTriangle& t = triangles[f];
+  });
+  std::vector<uint64_t> all;
+  size_t total = 0;
+  for (const auto& p : pairs) total += p.size();
+  all.reserve(total);
+  for (auto& p : pairs) {
+    all.insert(all.end(), p.begin(), p.end());
+    std::vector<uint64_t>().swap(p);
+  }
+  tbb::parallel_sort(all.begin(), all.end());
+  BrickLists lists;
+  lists.members.resize(all.size());
+  for (size_t n = 0; n < all.size(); ++n) {
+    const int64_t brick = int64_t(all[n] >> 32);
+    if (lists.bricks.empty() || lists.bricks.back() != brick) {
+      lists.bricks.push_back(brick);
+      lists.first.push_back(n);
+    }
+    lists.members[n] = uint32_t(all[n]);
+  }
+  lists.first.push_back(all.size());
+  return lists;
+}
+
+
+// ---- bake_brick_rows
+
+enum class SignRule {
+  Closed,   // a closed, outward-oriented surface: the pseudonormal's sign in the band, carried along rows beyond it
+  Winding,  // open, non-manifold or self-intersecting: inside = generalized winding number >= 1/2
+  Shell,    // shell mode: inside = within half the thickness of the surface
+};
+
+// Voxel states in a brick's scratch arrays besides a distance: farther than r from the surface, or past the grid.
+constexpr float kFar = std::numeric_limits<float>::quiet_NaN();
+constexpr float kPastGrid = std::numeric_limits<float>::infinity();
+
+struct BrickRowsInput {
+  const TriangleMesh& mesh;
+  const GridGeometry& g;
+  const std::vector<IndexTriangle>& triangles;
+  const BrickLists& lists;
+  const Pseudonormals& pn;
+  const WindingNumber* winding;  // SignRule::Winding only
+  SignRule rule;
+  double r;           // voxels: distances are computed within this reach of the surface
+  double band;        // voxels: and stored within the band
+  double half_shell;  // voxels: shell mode's half thickness
+  Bounds mesh_box;    // asset frame
+};
+
+// The unsigned distance (voxels) of every voxel of brick `slot` within r of the surface (kFar beyond, kPastGrid
+// past the grid), and for those within r the sign of the nearest feature's angle-weighted pseudonormal (exact
+// for a closed, oriented surface; Baerentzen & Aanaes 2005).
+void brick_band(const BrickRowsInput& in, int64_t slot, int64_t bi, int64_t bj, int64_t bk, float* distance,
+                float* pseudonormal_sign) {
+  constexpr uint64_t kNone = ~uint64_t(0);
+  uint64_t key[kBrickVoxels];
+  std::fill(key, key + kBrickVoxels, kNone);
+  const int64_t i0 = bi * kEdge, j0 = bj * kEdge, k0 = bk * kEdge;
+  const int64_t i1 = std::min<int64_t>(i0 + kEdge, in.g.dims[0]), j1 = std::min<int64_t>(j0 + kEdge, in.g.dims[1]),
+                k1 = std::min<int64_t>(k0 + kEdge, in.g.dims[2]);
+  const double r2 = in.r * in.r;
+  for (uint64_t m = in.lists.first[size_t(slot)]; m < in.lists.first[size_t(slot) + 1]; ++m) {
+    const uint32_t f = in.lists.members[m];
+    const IndexTriangle& t = in.triangles[f];
+    for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
+      for (int64_t j = std::max(j0, t.lo[1]); j <= std::min(j1 - 1, t.hi[1]); ++j) {
+        RowClip clip{std::max(i0, t.lo[0]), std::min(i1 - 1, t.hi[0])};
+        clip.planes(t, 0.0, 1.0, double(j), double(k), in.r);
+        for (int64_t i = clip.i0; i <= clip.i1; ++i) {
           const Vec3 p{double(i), double(j), double(k)};
           Feature feature;
-          const Vec3 d = p - closest_on_triangle(p, t.a, t.b, t.c, feature);
-          const double sign = dot(d, feature_pseudonormal(pn, mesh, f, feature)) < 0 ? -1 : 1;
-          out[i] = tie_safe_float(sign * length(d));
-          side_of_row = float(sign);
-          if (dot(d, d) <= 0.75 + 1e-9)
-            slab_seeds[size_t(s)].push_back(
-                {int32_t(i), int32_t(j), int32_t(k), Vec3f{float(-d[0]), float(-d[1]), float(-d[2])}});
+          const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
+          if (!(d2 < r2)) continue;
+          // (squared distance as float bits, triangle): the smallest key is the nearest triangle, ties to the lower
+          // index, whatever order the triangles come in.
+          uint32_t bits;
+          const float d2f = float(d2);
+          std::memcpy(&bits, &d2f, sizeof bits);
+          uint64_t& nearest = key[size_t(((k - k0) * kEdge + (j - j0)) * kEdge + (i - i0))];
+          nearest = std::min(nearest, uint64_t(bits) << 32 | f);
         }
       }
-  });
-  seeds.clear();
-  for (const auto& slab : slab_seeds) seeds.insert(seeds.end(), slab.begin(), slab.end());
-  return signed_voxels;
+  }
+  for (size_t v = 0; v < kBrickVoxels; ++v) {
+    const int64_t i = i0 + int64_t(v) % kEdge, j = j0 + int64_t(v) / kEdge % kEdge, k = k0 + int64_t(v) / (kEdge * kEdge);
+    pseudonormal_sign[v] = 0;
+    if (i >= i1 || j >= j1 || k >= k1) {
+      distance[v] = kPastGrid;
+      continue;
+    }
+    if (key[v] == kNone) {
+      distance[v] = kFar;
+      continue;
+    }
+    const size_t f = size_t(key[v] & 0xffffffffu);
+    const IndexTriangle& t = in.triangles[f];
+    const Vec3 p{double(i), double(j), double(k)};
+    Feature feature;
+    const Vec3 d = p - closest_on_triangle(p, t.a, t.b, t.c, feature);
+    distance[v] = float(length(d));
+    pseudonormal_sign[v] = dot(d, feature_pseudonormal(in.pn, in.mesh, f, feature)) < 0 ? -1.0f : 1.0f;
+  }
 }
 
-// Inside = winding number >= 1/2. Evaluated per voxel near the surface, where it changes fast; farther away it
-// is smooth, so it is evaluated on a coarser lattice and interpolated trilinearly. The lattice is fine enough
-// that every corner of an interpolated voxel's cell lies no farther from it than the band it is outside of.
-// In the band, where a wrong sign is a wrong contact, a value near 1/2 is evaluated again until its side is
-// certain (WindingNumber::inside: a stricter far field, then the exact sum). Farther away
-// an open surface can leave wide regions near 1/2 (across a hole), where the inside is a matter of closure and
-// exact sums would cost seconds.
-void sign_by_winding_number(const TriangleMesh& mesh, const GridGeometry& g, float half_width,
-                            std::vector<float>& signed_voxels) {
-  const WindingNumber winding(mesh);
-  const int64_t W = g.dims[0], H = g.dims[1], D = g.dims[2];
-  // Outside the surface's bounding box a plane separates the point from the whole surface, which then covers at
-  // most a hemisphere of directions: |winding number| <= 1/2, never inside. Approximation error (far field,
-  // interpolation) must not make it so.
-  const Bounds box = bounding_box(mesh);  // not a structured binding: C++17 lambdas cannot capture those (clang)
-  const Vec3& lo = box.lo;
-  const Vec3& hi = box.hi;
-  auto inside_bounds = [&](int64_t i, int64_t j, int64_t k) {
-    const double p[3] = {g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
-                         g.origin[2] + g.voxel_size * double(k)};
-    for (int a = 0; a < 3; ++a)
-      if (p[a] < lo[a] || p[a] > hi[a]) return false;
-    return true;
-  };
-  const int64_t kStride = std::clamp<int64_t>(int64_t(std::floor(2.0 * half_width / std::sqrt(3.0))), 1, 4);
-  auto lattice = [&](int64_t n) { return (n - 1 + kStride - 1) / kStride + 1; };
-  const int64_t cw = lattice(W), ch = lattice(H), cd = lattice(D);
-  auto at = [&](int64_t a, int64_t n) { return std::min(a * kStride, n - 1); };
-  std::vector<float> coarse(size_t(cw * ch * cd));
-  tbb::parallel_for(int64_t(0), cd, [&](int64_t c) {
-    for (int64_t b = 0; b < ch; ++b)
-      for (int64_t a = 0; a < cw; ++a) {
-        const Vec3 p = {g.origin[0] + g.voxel_size * double(at(a, W)), g.origin[1] + g.voxel_size * double(at(b, H)),
-                        g.origin[2] + g.voxel_size * double(at(c, D))};
-        coarse[size_t((c * ch + b) * cw + a)] = float(winding(p));
-      }
-  });
-  auto weight = [&](int64_t i, int64_t n, int64_t& a) {
-    a = std::min(i / kStride, lattice(n) - 2 < 0 ? 0 : lattice(n) - 2);
-    const int64_t x0 = at(a, n), x1 = at(a + 1, n);
-    return x1 > x0 ? double(i - x0) / double(x1 - x0) : 0.0;
-  };
-  tbb::parallel_for(int64_t(0), D, [&](int64_t k) {
-    for (int64_t j = 0; j < H; ++j)
-      for (int64_t i = 0; i < W; ++i) {
-        float& value = signed_voxels[size_t((k * H + j) * W + i)];
-        double w;
-        if (std::abs(value) < half_width) {
-          w = winding(Vec3{g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
-                           g.origin[2] + g.voxel_size * double(k)});
-        } else {
-          int64_t a, b, c;
-          const double u = weight(i, W, a), v = weight(j, H, b), t = weight(k, D, c);
-          auto C = [&](int64_t da, int64_t db, int64_t dc) {
-            const int64_t aa = std::min(a + da, cw - 1), bb = std::min(b + db, ch - 1), cc = std::min(c + dc, cd - 1);
-            return double(coarse[size_t((cc * ch + bb) * cw + aa)]);
-          };
-          w = (1 - t) *
-                  ((1 - v) * ((1 - u) * C(0, 0, 0) + u * C(1, 0, 0)) + v * ((1 - u) * C(0, 1, 0) + u * C(1, 1, 0))) +
-              t * ((1 - v) * ((1 - u) * C(0, 0, 1) + u * C(1, 0, 1)) + v * ((1 - u) * C(0, 1, 1) + u * C(1, 1, 1)));
+Vec3 voxel_point(const GridGeometry& g, double i, double j, double k) {
+  return {g.origin[0] + g.voxel_size * i, g.origin[1] + g.voxel_size * j, g.origin[2] + g.voxel_size * k};
+}
+
+bool inside_box(const Bounds& box, const Vec3& p) {
+  for (int a = 0; a < 3; ++a)
+    if (p[a] < box.lo[a] || p[a] > box.hi[a]) return false;
+  return true;
+}
+
+// Inside by the winding number (>= 1/2; `refine`: decided exactly near 1/2, as in the band). Outside the surface's
+// bounding box a plane separates the point from the whole surface, which then covers at most a hemisphere of
+// directions: never inside, whatever the approximation says.
+bool winding_inside(const BrickRowsInput& in, const Vec3& p, bool refine) {
+  if (!inside_box(in.mesh_box, p)) return false;
+  const double w = (*in.winding)(p);
+  return refine ? in.winding->inside(p, w) : w >= 0.5;
+}
+
+// The sign (+1 outside, -1 inside) of a brick none of whose voxels lies within r of the surface: all of them are
+// on one side (two 6-neighbours farther than r >= 1 from the surface cannot have it between them).
+float coarse_sign(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, float carried) {
+  switch (in.rule) {
+    case SignRule::Closed:
+      return carried;
+    case SignRule::Shell:
+      return 1;  // farther than r = band + half the thickness from the surface: outside the shell
+    case SignRule::Winding: {
+      // The winding number varies slowly this far from the surface; the brick's middle voxel speaks for it.
+      const double i = double(std::min<int64_t>(bi * kEdge + kEdge / 2, in.g.dims[0] - 1));
+      const double j = double(std::min<int64_t>(bj * kEdge + kEdge / 2, in.g.dims[1] - 1));
+      const double k = double(std::min<int64_t>(bk * kEdge + kEdge / 2, in.g.dims[2] - 1));
+      return winding_inside(in, voxel_point(in.g, i, j, k), false) ? -1.0f : 1.0f;
+    }
+  }
+  return 1;
+}
+
+// Winding rule: signs of a brick's voxels farther than r from the surface. Each takes the sign of the band voxels
+// it reaches through such voxels (the surface cannot pass between them); where those disagree (across a hole, which
+// the winding number closes) or there are none, each voxel's own winding number decides.
+void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, const float* distance,
+                               float* sign) {
+  constexpr int E = int(kEdge);
+  int component[kBrickVoxels];
+  std::fill(component, component + kBrickVoxels, -1);
+  std::vector<int> members;
+  members.reserve(kBrickVoxels);
+  for (int start = 0; start < int(kBrickVoxels); ++start) {
+    if (!std::isnan(distance[start]) || component[start] >= 0) continue;
+    bool seen_inside = false, seen_outside = false;
+    members.clear();
+    members.push_back(start);
+    component[start] = start;
+    for (size_t next = 0; next < members.size(); ++next) {
+      const int v = members[next];
+      const int li = v % E, lj = v / E % E, lk = v / (E * E);
+      const int steps[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+      for (const auto& s : steps) {
+        const int ni = li + s[0], nj = lj + s[1], nk = lk + s[2];
+        if (ni < 0 || nj < 0 || nk < 0 || ni >= E || nj >= E || nk >= E) continue;
+        const int n = (nk * E + nj) * E + ni;
+        if (std::isinf(distance[n])) continue;  // past the grid
+        if (!std::isnan(distance[n])) {
+          (sign[n] < 0 ? seen_inside : seen_outside) = true;
+        } else if (component[n] < 0) {
+          component[n] = start;
+          members.push_back(n);
         }
-        const Vec3 p{g.origin[0] + g.voxel_size * double(i), g.origin[1] + g.voxel_size * double(j),
-                     g.origin[2] + g.voxel_size * double(k)};
-        const bool in_band = std::abs(value) < half_width;
-        value =
-            inside_bounds(i, j, k) && (in_band ? winding.inside(p, w) : w >= 0.5) ? -std::abs(value) : std::abs(value);
       }
-  });
+    }
+    for (int v : members) {
+      if (seen_inside != seen_outside) {
+        sign[v] = seen_inside ? -1.0f : 1.0f;
+      } else {
+        const Vec3 p = voxel_point(in.g, double(bi * kEdge + v % E), double(bj * kEdge + v / E % E),
+                                   double(bk * kEdge + v / (E * E)));
+        sign[v] = winding_inside(in, p, false) ? -1.0f : 1.0f;
+      }
+    }
+  }
 }
 
-// Exact distances of 6-neighbours differ by at most one voxel, so their layers (rounded at half-integers)
-// differ by at most one. Computed distances can exceed that by ~1e-6 voxel (tie snapping moves values by up to
-// 1e-6; the nearest triangle is chosen by a float key; the feature transform's depths beyond the band are float
-// sums), enough to straddle two ties and step two layers. Such a pair has one value within `kSlack` of its tie;
-// that value is moved across it (by <= kSlack). A voxel's penetration (voxels, positive inside) is -d in the band
-// and its feature-transform depth, signed by d, beyond it, so pairs beyond the band and across its edge are
-// repaired too (fuzz_mesh_off found a box whose depths 3.49999976 and 4.5, just past a band of 3, rounded to
-// layers 3 and 5). Larger inconsistencies are real errors and are left for the validator to report. Returns the
-// number of values moved.
-// `layers` are the layers rounded from d and depth; `refresh(v)` rounds voxel v's again after a move. The scan
-// compares those integers, so the common case (no step of two) costs one pass over 16-bit values.
-template <class Refresh>
-size_t repair_layer_steps(std::vector<float>& d, std::vector<float>& depth, float band,
-                          const std::array<uint32_t, 3>& dims, const std::vector<int16_t>& layers, Refresh&& refresh) {
-  constexpr double kSlack = 1e-4;
-  const int64_t W = dims[0], H = dims[1], D = dims[2];
-  auto in_band = [&](size_t v) { return std::abs(d[v]) <= band; };
-  auto penetration = [&](size_t v) {
-    return in_band(v) ? -double(d[v]) : d[v] < 0 ? double(depth[v]) : -double(depth[v]);
+// One row of bricks' value bricks: linear brick indices and 512 codes each, in row order.
+struct RowOutput {
+  std::vector<int64_t> bricks;
+  std::vector<int16_t> codes;
+};
+
+// Bakes the row of bricks (bj, bk) whose candidate bricks (those listing triangles) are lists.bricks[first, end):
+// value bricks are coded into `out`; coarse bricks inside the object are marked in `table` (which starts as all
+// coarse, outside).
+void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, int64_t bk, int64_t first, int64_t end,
+                    std::vector<int32_t>& table, RowOutput& out) {
+  const GridGeometry& g = in.g;
+  const int64_t BW = g.bricks[0];
+  float carried[kEdge * kEdge];                       // each voxel row's sign at the last voxel reached
+  std::fill(carried, carried + kEdge * kEdge, 1.0f);  // a row starts outside: its first voxel lies in the margin
+  float distance[kBrickVoxels], near_sign[kBrickVoxels], sign[kBrickVoxels];
+  auto set_coarse = [&](int64_t bi, float s) {
+    if (s < 0) table[size_t((bk * g.bricks[1] + bj) * BW + bi)] = Voxelmap::kCoarseInside;
+    std::fill(carried, carried + kEdge * kEdge, s);
   };
-  auto set_penetration = [&](size_t v, float p) {
-    if (in_band(v))
-      d[v] = -p;
-    else
-      depth[v] = std::abs(p);
-  };
-  auto layer = [&](size_t v) { return std::floor(penetration(v) + 0.5); };
-  size_t moved = 0;
-  for (int pass = 0; pass < 4; ++pass) {
-    size_t moved_now = 0;
-    for (int64_t k = 0; k < D; ++k)
-      for (int64_t j = 0; j < H; ++j)
-        for (int64_t i = 0; i < W; ++i) {
-          const size_t v = size_t((k * H + j) * W + i);
-          const size_t next[3] = {i + 1 < W ? v + 1 : v, j + 1 < H ? v + size_t(W) : v,
-                                  k + 1 < D ? v + size_t(W * H) : v};
-          for (size_t n : next) {
-            if (n == v || std::abs(int(layers[v]) - int(layers[n])) < 2) continue;
-            const size_t lo = layer(v) < layer(n) ? v : n, hi = lo == v ? n : v;
-            const double gap_lo = layer(lo) + 0.5 - penetration(lo);    // below the tie that would raise it
-            const double gap_hi = penetration(hi) - (layer(hi) - 0.5);  // above the tie that would lower it
-            if (std::min(gap_lo, gap_hi) > kSlack) continue;
-            const size_t moved_voxel = gap_lo <= gap_hi ? lo : hi;
-            if (gap_lo <= gap_hi)
-              set_penetration(lo, float(layer(lo) + 0.5));  // exactly on the tie: rounds up
-            else
-              set_penetration(hi, std::nextafter(float(layer(hi) - 0.5), -std::numeric_limits<float>::infinity()));
-            refresh(moved_voxel);
-            ++moved_now;
+  int64_t next = 0;  // the first brick of the row not yet decided
+  for (int64_t slot = first; slot <= end; ++slot) {
+    const int64_t bi = slot < end ? in.lists.bricks[size_t(slot)] % BW : BW;
+    for (; next < bi; ++next) set_coarse(next, coarse_sign(in, next, bj, bk, carried[0]));
+    if (slot == end) break;
+    next = bi + 1;
+    brick_band(in, slot, bi, bj, bk, distance, near_sign);
+    for (size_t v = 0; v < kBrickVoxels; ++v) {
+      float& row_sign = carried[v / kEdge];
+      if (std::isinf(distance[v])) {
+        sign[v] = row_sign;
+      } else if (std::isnan(distance[v])) {
+        sign[v] = in.rule == SignRule::Shell ? 1.0f : row_sign;  // Winding: decided below
+      } else {
+        switch (in.rule) {
+          case SignRule::Closed:
+            sign[v] = near_sign[v];
+            break;
+          case SignRule::Shell:
+            sign[v] = distance[v] < in.half_shell ? -1.0f : 1.0f;
+            break;
+          case SignRule::Winding: {
+            const Vec3 p = voxel_point(g, double(bi * kEdge + int64_t(v) % kEdge),
+                                       double(bj * kEdge + int64_t(v) / kEdge % kEdge),
+                                       double(bk * kEdge + int64_t(v) / (kEdge * kEdge)));
+            sign[v] = winding_inside(in, p, true) ? -1.0f : 1.0f;
+            break;
           }
         }
-    moved += moved_now;
-    if (moved_now == 0) break;
+        row_sign = sign[v];
+      }
+    }
+    if (in.rule == SignRule::Winding) winding_signs_beyond_band(in, bi, bj, bk, distance, sign);
+    // A value brick stores the distances within the band; a brick without any, all on one side, is coarse.
+    bool any_stored = false, any_inside = false, any_outside = false;
+    int16_t codes[kBrickVoxels];
+    for (size_t v = 0; v < kBrickVoxels; ++v) {
+      codes[v] = 0;
+      if (std::isinf(distance[v])) continue;
+      (sign[v] < 0 ? any_inside : any_outside) = true;
+      if (!std::isnan(distance[v])) {
+        const double d = in.rule == SignRule::Shell ? double(distance[v]) - in.half_shell : sign[v] * double(distance[v]);
+        if (std::abs(d) <= in.band) {
+          codes[v] = vm.encode_stored(d * g.voxel_size);
+          any_stored = true;
+          continue;
+        }
+      }
+      codes[v] = int16_t(sign[v] < 0 ? -2 : 2);  // the estimate's sign; its value comes from the lattice
+    }
+    if (any_stored || (any_inside && any_outside)) {
+      out.bricks.push_back((bk * g.bricks[1] + bj) * BW + bi);
+      out.codes.insert(out.codes.end(), codes, codes + kBrickVoxels);
+    } else {
+      set_coarse(bi, any_inside ? -1.0f : 1.0f);
+    }
+    if (in.rule == SignRule::Winding)  // the next coarse brick decides by itself
+      std::fill(carried, carried + kEdge * kEdge, 1.0f);
   }
-  return moved;
+}
+
+
+// ---- propagate_lattice: the exact unsigned distance to the surface at every lattice point (brick corner). A
+// point within r of the surface takes the nearest of the triangles its brick lists, which hold every triangle
+// within r of it. Farther away, nearest triangles are first carried from point to neighbouring point in sweeps
+// along each axis (vector propagation, Danielsson 1980): a distance to a real triangle, near the exact one. A
+// hierarchy over the triangles then finds the nearest triangle within that bound, which keeps its search small.
+
+constexpr uint64_t kNoTriangle = ~uint64_t(0);
+
+struct Lattice {
+  std::array<int64_t, 3> dims{};
+  std::vector<uint64_t> keys;  // (squared distance in voxels^2 as float bits, triangle), kNoTriangle if none yet
+  size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
+};
+
+uint64_t distance_key(const IndexTriangle& t, const Vec3& p, uint32_t f) {
+  Feature feature;
+  const float d2 = float(distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature)));
+  uint32_t bits;
+  std::memcpy(&bits, &d2, sizeof bits);
+  return uint64_t(bits) << 32 | f;
+}
+
+Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, const BrickLists& lists,
+                          double r) {
+  std::vector<std::array<Vec3, 3>> corners(triangles.size());
+  for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
+  const ClosestTriangle hierarchy(corners);
+  std::vector<std::array<Vec3, 3>>().swap(corners);
+  Lattice L;
+  for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
+  L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
+  auto coordinate = [&](int64_t a, int axis) { return double(std::min<int64_t>(a * kEdge, g.dims[size_t(axis)] - 1)); };
+  auto point = [&](int64_t a, int64_t b, int64_t c) { return Vec3{coordinate(a, 0), coordinate(b, 1), coordinate(c, 2)}; };
+  // Each lattice point is a voxel of one brick (the last brick along an axis holds the grid's last voxel): that
+  // brick's list has every triangle within r of the point.
+  tbb::parallel_for(size_t(0), lists.bricks.size(), [&](size_t slot) {
+    const int64_t brick = lists.bricks[slot];
+    const int64_t bi = brick % g.bricks[0], bj = brick / g.bricks[0] % g.bricks[1], bk = brick / (g.bricks[0] * g.bricks[1]);
+    for (int64_t c = bk; c <= (bk + 1 == g.bricks[2] ? bk + 1 : bk); ++c)
+      for (int64_t b = bj; b <= (bj + 1 == g.bricks[1] ? bj + 1 : bj); ++b)
+        for (int64_t a = bi; a <= (bi + 1 == g.bricks[0] ? bi + 1 : bi); ++a) {
+          const Vec3 p = point(a, b, c);
+          uint64_t best = kNoTriangle;
+          for (uint64_t m = lists.first[slot]; m < lists.first[slot + 1]; ++m)
+            best = std::min(best, distance_key(triangles[lists.members[m]], p, lists.members[m]));
+          L.keys[L.index(a, b, c)] = best;
+        }
+  });
+  // Sweeps along one axis, both ways, every line in parallel.
+  auto sweep = [&](int axis) {
+    const int64_t n = L.dims[size_t(axis)];
+    const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
+    const int64_t lines_u = L.dims[size_t(u_axis)], lines_v = L.dims[size_t(v_axis)];
+    tbb::parallel_for(int64_t(0), lines_u * lines_v, [&](int64_t line) {
+      int64_t at[3];
+      at[u_axis] = line % lines_u;
+      at[v_axis] = line / lines_u;
+      auto visit = [&](int64_t s, int64_t from) {
+        at[axis] = from;
+        const uint64_t neighbour = L.keys[L.index(at[0], at[1], at[2])];
+        at[axis] = s;
+        uint64_t& own = L.keys[L.index(at[0], at[1], at[2])];
+        if (neighbour == kNoTriangle || uint32_t(neighbour) == uint32_t(own)) return;
+        const uint32_t f = uint32_t(neighbour);
+        own = std::min(own, distance_key(triangles[f], point(at[0], at[1], at[2]), f));
+      };
+      for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
+      for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
+    });
+  };
+  for (int axis = 0; axis < 3; ++axis) sweep(axis);
+  // Every point beyond r now has an upper bound, the distance to a real triangle: the hierarchy searches only
+  // within it for the nearest one.
+  const double r2 = r * r;
+  tbb::parallel_for(int64_t(0), L.dims[2], [&](int64_t c) {
+    for (int64_t b = 0; b < L.dims[1]; ++b)
+      for (int64_t a = 0; a < L.dims[0]; ++a) {
+        uint64_t& key = L.keys[L.index(a, b, c)];
+        float d2f;
+        const uint32_t bits = uint32_t(key >> 32);
+        std::memcpy(&d2f, &bits, sizeof d2f);
+        if (key != kNoTriangle && double(d2f) < r2) continue;  // exact already
+        const double bound2 = key == kNoTriangle ? std::numeric_limits<double>::infinity() : double(d2f) * (1 + 1e-6);
+        const auto [d2, f] = hierarchy.nearest(point(a, b, c), bound2, uint32_t(key));
+        if (!(d2 < bound2)) continue;
+        const float nearest = float(d2);
+        uint32_t nearest_bits;
+        std::memcpy(&nearest_bits, &nearest, sizeof nearest_bits);
+        key = std::min(key, uint64_t(nearest_bits) << 32 | f);
+      }
+  });
+  return L;
+}
+
+float float_not_below(double value) {
+  float f = float(value);
+  if (double(f) < value) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
 }
 
 }  // namespace
@@ -611,7 +694,6 @@ size_t repair_layer_steps(std::vector<float>& d, std::vector<float>& depth, floa
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options) {
   if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
   GridGeometry g = plan_grid(mesh, options);
-
   // Shell mode: the object is every point within half the thickness of the surface; the grid's margin grows
   // by that much so that the shell's outer sheets keep the margin's outer voxels around them.
   const bool shell = options.shell_thickness > 0;
@@ -625,10 +707,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     grid_options.voxel_size = g.voxel_size;  // the same voxels, more of them
     g = plan_grid(mesh, grid_options);
   }
-  // Exact distances just past the band (voxels at exactly `band` must be exact too).
-  const float half_width = float(options.distance_band + half_shell) + 0.5f;
-  std::vector<Seed> seeds;
-  std::vector<float> signed_voxels = exact_band_distances(mesh, g, half_width, seeds);
+  check_memory(mesh, g, options);
 
   Voxelmap vm;
   vm.origin = g.origin;
@@ -636,60 +715,80 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   vm.dims = g.dims;
   vm.distance_band = options.distance_band;
   vm.margin = grid_options.margin;
-  const size_t count = vm.voxel_count();
+  if (shell) vm.shell_thickness = options.shell_thickness;
+  vm.choose_quanta();
 
-  if (shell) {
-    vm.shell_thickness = options.shell_thickness;
-    for (float& d : signed_voxels) d = std::abs(d);  // the feature transform takes the unsigned distances
-  } else if (options.winding_number_sign) {
-    sign_by_winding_number(mesh, g, half_width, signed_voxels);
+  // Distances are computed half a voxel past the band, so that the band's edge is exact.
+  const double r = options.distance_band + half_shell + 0.5;
+  const std::vector<IndexTriangle> triangles = index_triangles(mesh, g, r);
+  const BrickLists lists = bin_triangles(triangles, g, r);
+  const Pseudonormals pn = pseudonormals(mesh);
+  std::unique_ptr<WindingNumber> winding;
+  const SignRule rule = shell ? SignRule::Shell : options.winding_number_sign ? SignRule::Winding : SignRule::Closed;
+  if (rule == SignRule::Winding) winding = std::make_unique<WindingNumber>(mesh);
+  const BrickRowsInput in{mesh, g, triangles, lists, pn, winding.get(), rule, r, options.distance_band, half_shell,
+                          bounding_box(mesh)};
+
+  // Rows of bricks in parallel. Under the closed and shell rules a row without candidate bricks is outside; the
+  // winding rule decides every brick within the surface's bounding box.
+  std::vector<std::array<int64_t, 3>> rows;  // (row, first slot, end slot)
+  for (size_t slot = 0; slot < lists.bricks.size();) {
+    const int64_t row = lists.bricks[slot] / g.bricks[0];
+    size_t end = slot;
+    while (end < lists.bricks.size() && lists.bricks[end] / g.bricks[0] == row) ++end;
+    rows.push_back({row, int64_t(slot), int64_t(end)});
+    slot = end;
+  }
+  if (rule == SignRule::Winding) {
+    std::vector<std::array<int64_t, 3>> all;
+    size_t n = 0;
+    for (int64_t row = 0; row < g.bricks[1] * g.bricks[2]; ++row) {
+      if (n < rows.size() && rows[n][0] == row) {
+        all.push_back(rows[n++]);
+      } else {
+        const int64_t first = n < rows.size() ? rows[n][1] : int64_t(lists.bricks.size());
+        all.push_back({row, first, first});
+      }
+    }
+    rows.swap(all);
+  }
+  vm.bricks.assign(size_t(g.brick_count()), Voxelmap::kCoarseOutside);
+  std::vector<RowOutput> outputs(rows.size());
+  tbb::parallel_for(size_t(0), rows.size(), [&](size_t n) {
+    const int64_t row = rows[n][0];
+    bake_brick_row(in, vm, row % g.bricks[1], row / g.bricks[1], rows[n][1], rows[n][2], vm.bricks, outputs[n]);
+  });
+  size_t value_bricks = 0;
+  for (const RowOutput& o : outputs) value_bricks += o.bricks.size();
+  vm.brick_values.reserve(value_bricks * kBrickVoxels);
+  for (RowOutput& o : outputs) {
+    for (size_t n = 0; n < o.bricks.size(); ++n) vm.bricks[size_t(o.bricks[n])] = int32_t(vm.value_brick_count() + n);
+    vm.brick_values.insert(vm.brick_values.end(), o.codes.begin(), o.codes.end());
+    std::vector<int64_t>().swap(o.bricks);
+    std::vector<int16_t>().swap(o.codes);
   }
 
-  // Distances are stored in the band. Layers are rounded from the distances in voxel units, where a voxel
-  // centre exactly half a voxel off a face (common: the grid is aligned to the bounding box) is an exact tie,
-  // so neighbours round alike. Converting to metres in float would turn such ties into +-1 ulp noise and
-  // round 2.5 up but 1.5 down (a step of 2), so each stored value is then nudged by ulps until the spec's
-  // floor(-d/h + 1/2), evaluated on the stored float as a reader does, gives the layer chosen here.
-  const float band = float(options.distance_band);
-  vm.distances.resize(count);
-  vm.layers.resize(count);
-  const double h = g.voxel_size;
-  auto layer_of = [](double depth) { return std::clamp(std::floor(depth + 0.5), -32767.0, 32767.0); };
-  std::vector<float> depth = feature_transform_depths(seeds, signed_voxels, half_width, g.dims);
-  std::vector<Seed>().swap(seeds);
-  if (shell) {  // the shell's signed distance, everywhere: exact wherever the band's distances are
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t v = r.begin(); v < r.end(); ++v) {
-        signed_voxels[v] = tie_safe_float(double(depth[v]) - half_shell);
-        depth[v] = std::abs(signed_voxels[v]);
-      }
+  // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
+  {
+    const Lattice L = propagate_lattice(g, triangles, lists, r);
+    vm.lattice.resize(L.keys.size());
+    tbb::parallel_for(size_t(0), L.keys.size(), [&](size_t n) {
+      float d2;
+      const uint32_t bits = uint32_t(L.keys[n] >> 32);
+      std::memcpy(&d2, &bits, sizeof d2);
+      const double u = L.keys[n] == kNoTriangle ? 1e9 : std::sqrt(double(d2));
+      vm.lattice[n] = float_not_below((shell ? std::abs(u - half_shell) : u) * g.voxel_size);
     });
   }
-  // Rounds voxel v's layer and stores its distance (in the band).
-  auto finalize = [&](size_t v) {
-    const float d = signed_voxels[v];
-    if (!(std::abs(d) <= band)) {
-      // Penetration in voxels is positive inside.
-      vm.distances[v] = std::numeric_limits<float>::quiet_NaN();
-      vm.layers[v] = int16_t(layer_of(d < 0 ? double(depth[v]) : -double(depth[v])));
-      return;
-    }
-    const double layer = layer_of(-double(d));
-    float stored = float(double(d) * h);
-    for (int step = 0; step < 8; ++step) {  // one or two ulps at most in practice
-      const double read = layer_of(-double(stored) / h);
-      if (read == layer) break;
-      // A larger distance gives a smaller layer.
-      stored = std::nextafter(
-          stored, read > layer ? std::numeric_limits<float>::infinity() : -std::numeric_limits<float>::infinity());
-    }
-    vm.distances[v] = stored;
-    vm.layers[v] = int16_t(layer);
-  };
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 1 << 16), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t v = r.begin(); v < r.end(); ++v) finalize(v);
+  // Exact but for rounding: squared distances compared as floats (2^-24 relative) and values kept as floats.
+  vm.lattice_error = 1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]}));
+  tbb::parallel_for(size_t(0), vm.bricks.size(), [&](size_t n) {
+    const int32_t entry = vm.bricks[n];
+    if (entry < 0) return;
+    const auto bd = vm.brick_dims();
+    fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
+                         vm.brick_values.data() + size_t(entry) * kBrickVoxels);
   });
-  repair_layer_steps(signed_voxels, depth, band, g.dims, vm.layers, finalize);
   return vm;
 }
 

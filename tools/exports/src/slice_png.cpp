@@ -80,29 +80,28 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
   info.rows = vm.dims[size_t(row_axis)];
   const int zoom = spec.zoom > 0 ? spec.zoom : std::clamp(900 / int(std::max(info.columns, info.rows)), 1, 16);
   info.zoom = zoom;
-  auto voxel = [&](int64_t col, int64_t row) {
-    uint32_t ijk[3];
-    ijk[spec.axis] = uint32_t(spec.index);
-    ijk[col_axis] = uint32_t(col);
-    ijk[row_axis] = uint32_t(row);
-    return vm.linear_index(ijk[0], ijk[1], ijk[2]);
-  };
+  // The slice's voxels, read as one block: columns fastest.
+  std::array<uint32_t, 3> first{0, 0, 0}, size = vm.dims;
+  first[size_t(spec.axis)] = uint32_t(spec.index);
+  size[size_t(spec.axis)] = 1;
+  std::vector<float> distances(size_t(info.columns) * info.rows);
+  std::vector<int16_t> layers(distances.size());
+  vm.read_block(first, size, distances.data(), layers.data());
+  // The block is x fastest, then y, then z; the slice's columns and rows are two of those in that order.
+  auto voxel = [&](int64_t col, int64_t row) { return size_t(row * info.columns + col); };
 
   // Colour scale over the whole grid (so slices compare): inside 0..deepest layer, outside 0..farthest layer,
   // each half of the scale to its own end; distances over the band.
-  int max_inside = 1, max_outside = 1;
-  for (int16_t l : vm.layers) {
-    max_inside = std::max(max_inside, int(l));
-    max_outside = std::max(max_outside, -int(l));
-  }
+  const auto [lowest, highest] = vm.layer_range();
+  const int max_inside = std::max(1, highest), max_outside = std::max(1, -lowest);
   const double band_depth = vm.distance_band * vm.voxel_size;
   const double depth_in = spec.distances ? band_depth : double(max_inside);
   const double depth_out = spec.distances ? band_depth : double(max_outside);
   auto scale = [&](double depth) { return depth >= 0 ? depth / depth_in : depth / depth_out; };  // -1..1
   // Penetration depth (inside > 0) of a voxel, NaN where the distance field has no value.
   auto depth = [&](size_t v) -> double {
-    if (!spec.distances) return vm.layers[v];
-    return Voxelmap::is_stored(vm.distances[v]) ? -double(vm.distances[v]) : std::numeric_limits<double>::quiet_NaN();
+    if (!spec.distances) return layers[v];
+    return std::isnan(distances[v]) ? std::numeric_limits<double>::quiet_NaN() : -double(distances[v]);
   };
 
   const int map_w = int(info.columns) * zoom, map_h = int(info.rows) * zoom;
@@ -129,11 +128,9 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
       const int64_t r0 = std::clamp<int64_t>(int64_t(std::floor(w)), 0, info.rows - 1);
       const int64_t c1 = std::min<int64_t>(c0 + 1, info.columns - 1), r1 = std::min<int64_t>(r0 + 1, info.rows - 1);
       const double fu = std::clamp(u - double(c0), 0.0, 1.0), fw = std::clamp(w - double(r0), 0.0, 1.0);
-      const float d00 = vm.distances[voxel(c0, r0)], d10 = vm.distances[voxel(c1, r0)];
-      const float d01 = vm.distances[voxel(c0, r1)], d11 = vm.distances[voxel(c1, r1)];
-      if (!Voxelmap::is_stored(d00) || !Voxelmap::is_stored(d10) || !Voxelmap::is_stored(d01) ||
-          !Voxelmap::is_stored(d11))
-        continue;
+      const float d00 = distances[voxel(c0, r0)], d10 = distances[voxel(c1, r0)];
+      const float d01 = distances[voxel(c0, r1)], d11 = distances[voxel(c1, r1)];
+      if (std::isnan(d00) || std::isnan(d10) || std::isnan(d01) || std::isnan(d11)) continue;
       field[size_t(py) * size_t(map_w) + size_t(px)] =
           (1 - fw) * ((1 - fu) * d00 + fu * d10) + fw * ((1 - fu) * d01 + fu * d11);
     }

@@ -11,11 +11,13 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <new>
 #include <optional>
@@ -101,11 +103,25 @@ class WireWriter {
   bool ok_ = true;
 };
 
-// Bounds-checked and deadline-bound: the bytes come from our own child, but a child that a hostile file
+/// When the parent gives up on a child: after `total_s` seconds in all (0: never), or after `idle_s` seconds
+/// without progress (0: never), progress being bytes arriving or the child bumping `*progress` (a counter in
+/// memory shared with it). A parse whose work is bounded by what the file declares needs no total limit: one that
+/// stops making progress has hung, whatever the file's size and the machine's load.
+struct Watchdog {
+  double total_s = 0;
+  double idle_s = 0;
+  const std::atomic<uint64_t>* progress = nullptr;
+};
+
+// Bounds-checked and watchdog-bound: the bytes come from our own child, but a child that a hostile file
 // corrupted before it finished could send anything, or nothing.
 class WireReader {
  public:
-  WireReader(int fd, std::chrono::steady_clock::time_point deadline) : fd_(fd), deadline_(deadline) {}
+  using Clock = std::chrono::steady_clock;
+  WireReader(int fd, const Watchdog& watchdog) : fd_(fd), watchdog_(watchdog), start_(Clock::now()) {
+    seen_ = watchdog.progress ? watchdog.progress->load() : 0;
+    last_progress_ = start_;
+  }
   bool ok() const { return ok_; }
   bool timed_out() const { return timed_out_; }
   template <class T>
@@ -165,30 +181,51 @@ class WireReader {
  private:
   // The format allows 2^31 elements per dataset (h5.cpp); anything more is not an asset.
   static constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+  // Milliseconds left before the watchdog fires (<= 0: it has).
+  long long left_ms() {
+    const auto now = Clock::now();
+    if (watchdog_.progress) {
+      const uint64_t count = watchdog_.progress->load();
+      if (count != seen_) {
+        seen_ = count;
+        last_progress_ = now;
+      }
+    }
+    long long left = std::numeric_limits<long long>::max();
+    auto until = [&](Clock::time_point from, double seconds) {
+      const auto end = from + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+      left = std::min<long long>(left, std::chrono::duration_cast<std::chrono::milliseconds>(end - now).count());
+    };
+    if (watchdog_.total_s > 0) until(start_, watchdog_.total_s);
+    if (watchdog_.idle_s > 0) until(last_progress_, watchdog_.idle_s);
+    return left;
+  }
   void get(void* data, size_t size) {
     char* p = static_cast<char*>(data);
     while (ok_ && size > 0) {
-      const auto left =
-          std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - std::chrono::steady_clock::now()).count();
+      const long long left = left_ms();
       if (left <= 0) {
         ok_ = false;
         timed_out_ = true;
         return;
       }
       pollfd pfd{fd_, POLLIN, 0};
-      if (::poll(&pfd, 1, int(std::min<long long>(left, 1000))) <= 0) continue;
+      if (::poll(&pfd, 1, int(std::min<long long>(left, 200))) <= 0) continue;
       const ssize_t n = ::read(fd_, p, size);
       if (n < 0 && errno == EINTR) continue;
       if (n <= 0) {
         ok_ = false;  // the child closed the pipe early (it died, or sent less than it announced)
         return;
       }
+      last_progress_ = Clock::now();
       p += n;
       size -= size_t(n);
     }
   }
   int fd_;
-  std::chrono::steady_clock::time_point deadline_;
+  Watchdog watchdog_;
+  Clock::time_point start_, last_progress_;
+  uint64_t seen_ = 0;
   bool ok_ = true;
   bool timed_out_ = false;
 };
@@ -202,11 +239,11 @@ struct ChildOutcome {
 };
 
 /// Runs `produce()` in a forked child and fills `value` with what it returned, both sides through
-/// `visit(wire, value)` (one visitor for WireWriter and WireReader, so they cannot drift apart). The child gets
-/// `time_limit_s` seconds to finish sending; it dies plainly on a crash (the caller's crash handlers — a
-/// fuzzer's, a sanitizer's — would take it for one of the caller's); an exception in it is `Malformed`.
+/// `visit(wire, value)` (one visitor for WireWriter and WireReader, so they cannot drift apart). The child is
+/// stopped when the `watchdog` fires; it dies plainly on a crash (the caller's crash handlers — a fuzzer's, a
+/// sanitizer's — would take it for one of the caller's); an exception in it is `Malformed`.
 template <class Value, class Produce, class Visit>
-ChildOutcome run_isolated(double time_limit_s, Value& value, Produce&& produce, Visit&& visit) {
+ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& produce, Visit&& visit) {
   ChildOutcome outcome;
   int fds[2];
   if (::pipe(fds) != 0)
@@ -233,10 +270,7 @@ ChildOutcome run_isolated(double time_limit_s, Value& value, Produce&& produce, 
     _exit(ok ? 0 : 3);  // none of the parent's exit handlers
   }
   ::close(fds[1]);
-  const auto deadline =
-      std::chrono::steady_clock::now() +
-      std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(time_limit_s));
-  WireReader r(fds[0], deadline);
+  WireReader r(fds[0], watchdog);
   bool out_of_memory = false;
   try {
     visit(r, value);
@@ -253,6 +287,13 @@ ChildOutcome run_isolated(double time_limit_s, Value& value, Produce&& produce, 
   if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
   if (r.timed_out()) return {ChildOutcome::TimedOut, 0, {}};
   return {ChildOutcome::Malformed, 0, {}};
+}
+
+/// The same with only a total time limit.
+template <class Value, class Produce, class Visit>
+ChildOutcome run_isolated(double time_limit_s, Value& value, Produce&& produce, Visit&& visit) {
+  return run_isolated(Watchdog{time_limit_s, 0, nullptr}, value, std::forward<Produce>(produce),
+                      std::forward<Visit>(visit));
 }
 
 }  // namespace voxfmt::detail

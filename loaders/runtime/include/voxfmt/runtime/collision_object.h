@@ -49,7 +49,6 @@ struct PointTree {
 };
 
 struct LoadOptions {
-  SparseVoxelmap::Options voxelmap;
   bool load_voxelmap = true;     ///< false: a point-shell-only object (a probe that never gets hit)
   bool load_point_shell = true;  ///< false: a voxelmap-only object (static environment)
 };
@@ -59,8 +58,11 @@ class CollisionObject {
   /// Reads and validates (quick level) an asset file, then converts it. Errors name the file and the reason.
   static voxfmt::Result<std::shared_ptr<const CollisionObject>> load(const std::string& path,
                                                                      const LoadOptions& options = {});
-  /// Converts an asset already in memory (it must pass quick validation).
+  /// Converts an asset already in memory (it must pass quick validation); the rvalue overload takes over its
+  /// voxelmap's arrays instead of copying them.
   static voxfmt::Result<std::shared_ptr<const CollisionObject>> from_asset(const voxfmt::Asset& asset,
+                                                                           const LoadOptions& options = {});
+  static voxfmt::Result<std::shared_ptr<const CollisionObject>> from_asset(voxfmt::Asset&& asset,
                                                                            const LoadOptions& options = {});
 
   bool has_voxelmap() const { return !voxelmap_.empty(); }

@@ -1,0 +1,203 @@
+// Format 1.x voxelmaps: dense `layers` (i16) and `distances` (f32, NaN where not stored) per voxel. They are read
+// a slab of 8 (+1) z layers at a time and converted to the bricks of format 2.0, so memory follows the slab and
+// the surface, not the whole grid. The 1.x per-voxel rules are checked on the way when asked to.
+#include <cmath>
+#include <limits>
+
+#include "load.h"
+
+namespace voxfmt::detail {
+
+namespace {
+
+constexpr uint32_t kEdge = Voxelmap::kBrickEdge;
+
+float float_not_below(double value) {
+  float f = float(value);
+  if (double(f) < value) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+std::string voxel_name(uint64_t i, uint64_t j, uint64_t k) {
+  return "voxel (" + std::to_string(i) + ", " + std::to_string(j) + ", " + std::to_string(k) + ")";
+}
+
+std::string fmt(double v) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", v);
+  return text;
+}
+
+// The 1.x rules of spec 1.1 §3 (validate --level full), each reported once.
+class LegacyRules {
+ public:
+  LegacyRules(h5::Reader& r, const std::string& path, const Voxelmap& vm, bool closed)
+      : r_(r), path_(path), vm_(vm), closed_(closed), min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
+
+  void voxel(uint64_t i, uint64_t j, uint64_t k, int layer, float d) {
+    if (!std::isnan(d)) {
+      const double expected = std::clamp(std::floor(-double(d) / vm_.voxel_size + 0.5), -32767.0, 32767.0);
+      if (!mismatch_ && layer != int(expected)) {
+        r_.report(IssueCode::LayerDistanceMismatch, path_ + "/layers",
+                  voxel_name(i, j, k) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) +
+                      " m gives " + std::to_string(int(expected)));
+        mismatch_ = true;
+      }
+    } else if (!too_small_ && std::abs(layer) < min_outside_) {
+      r_.report(IssueCode::LayerOutsideBandTooSmall, path_ + "/layers",
+                voxel_name(i, j, k) + " has no stored distance but layer " + std::to_string(layer) +
+                    " (|layer| must be >= " + std::to_string(min_outside_) + " outside the band)");
+      too_small_ = true;
+    }
+  }
+  // 6-neighbours a and b (b one step up along some axis).
+  void neighbours(uint64_t i, uint64_t j, uint64_t k, int layer_a, float d_a, int layer_b, float d_b) {
+    if (!closed_) return;  // across a closed hole both rules may break (spec 1.1 §3)
+    if (!step_ && std::abs(layer_a - layer_b) > 1) {
+      r_.report(IssueCode::LayerStepTooLarge, path_ + "/layers",
+                voxel_name(i, j, k) + " and a 6-neighbour differ by " + std::to_string(std::abs(layer_a - layer_b)) +
+                    " layers");
+      step_ = true;
+    }
+    if (!jump_ && !std::isnan(d_a) && !std::isnan(d_b) &&
+        std::abs(double(d_a) - double(d_b)) > vm_.voxel_size * std::sqrt(3.0)) {
+      r_.report(IssueCode::DistanceJump, path_ + "/distances",
+                voxel_name(i, j, k) +
+                    " and a 6-neighbour are one voxel apart but their distances differ by more than the voxel "
+                    "diagonal: " +
+                    fmt(std::abs(double(d_a) - double(d_b)) / vm_.voxel_size) + " voxels");
+      jump_ = true;
+    }
+  }
+
+ private:
+  h5::Reader& r_;
+  const std::string& path_;
+  const Voxelmap& vm_;
+  bool closed_;
+  int min_outside_;
+  bool mismatch_ = false, too_small_ = false, step_ = false, jump_ = false;
+};
+
+}  // namespace
+
+bool grid_size_allowed(const std::array<uint32_t, 3>& dims, const FormatVersion& version) {
+  if (dims[0] == 0 || dims[1] == 0 || dims[2] == 0) return false;
+  if (version.major == 1) return uint64_t(dims[0]) * dims[1] * dims[2] <= 0x7fffffffull;
+  uint64_t lattice = 1;
+  for (uint32_t d : dims) lattice *= (d + kEdge - 1) / kEdge + 1;
+  return lattice <= 0x7fffffffull;
+}
+
+std::string grid_size_limit(const FormatVersion& version) {
+  return version.major == 1 ? "at most 2^31-1 voxels in all" : "at most 2^31-1 bricks and lattice points in all";
+}
+
+void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const FormatVersion& version,
+                         ValidationLevel level, bool closed_surface, Voxelmap& vm) {
+  const int64_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
+  const h5::Shape grid = {D, H, W};
+  std::optional<h5::OpenDataset> layers = r.open_dataset<int16_t>(g, p, "layers", grid);
+  std::optional<h5::OpenDataset> distances = r.open_dataset<float>(g, p, "distances", grid);
+  if (!layers || !distances) return;
+  if (!(vm.distance_band >= 1 && vm.distance_band <= 32767) || !(vm.voxel_size > 0)) return;  // validate reports
+
+  vm.choose_quanta();
+  const double h = vm.voxel_size;
+  const auto bd = vm.brick_dims();
+  vm.bricks.assign(vm.brick_count(), Voxelmap::kCoarseOutside);
+  vm.lattice.assign(vm.lattice_count(), 0.0f);
+  // 1.1 layers lie within [|d| - 1/2 - sqrt(3), |d| + 1/2] (in voxels) of the exact depth; 1.0's came from a chamfer
+  // transform, never shallower and at most ~11 % deeper (spec 1.1 §3). A lattice value is an upper bound.
+  double deepest_layer = 0;
+  const bool chamfer = version.minor == 0;
+  LegacyRules rules(r, p, vm, closed_surface);
+  const bool check = level == ValidationLevel::Full;
+  bool infinite_reported = false;
+
+  std::vector<int16_t> slab_layers;
+  std::vector<float> slab_distances;
+  std::vector<int16_t> codes(Voxelmap::kBrickVoxels);
+  for (uint32_t bk = 0; bk < bd[2]; ++bk) {
+    const int64_t z0 = int64_t(bk) * kEdge, rows = std::min<int64_t>(kEdge + 1, D - z0);
+    slab_layers.resize(size_t(rows * H * W));
+    slab_distances.resize(size_t(rows * H * W));
+    if (!r.read_rows<int16_t>(*layers, uint64_t(z0), uint64_t(rows), slab_layers.data()) ||
+        !r.read_rows<float>(*distances, uint64_t(z0), uint64_t(rows), slab_distances.data()))
+      return;
+    auto at = [&](int64_t i, int64_t j, int64_t k) { return size_t(((k - z0) * H + j) * W + i); };
+    const int64_t z_end = std::min<int64_t>(z0 + kEdge, D);
+    if (check || !infinite_reported)
+      for (int64_t k = z0; k < z_end; ++k)
+        for (int64_t j = 0; j < H; ++j)
+          for (int64_t i = 0; i < W; ++i) {
+            const size_t v = at(i, j, k);
+            const float d = slab_distances[v];
+            if (std::isinf(d) && !infinite_reported) {
+              r.report(IssueCode::NonFiniteValue, p + "/distances",
+                       voxel_name(uint64_t(i), uint64_t(j), uint64_t(k)) +
+                           " holds an infinite distance (use NaN for 'not stored')");
+              infinite_reported = true;
+            }
+            if (!check) continue;
+            rules.voxel(uint64_t(i), uint64_t(j), uint64_t(k), slab_layers[v], d);
+            if (i + 1 < W) rules.neighbours(i, j, k, slab_layers[v], d, slab_layers[v + 1], slab_distances[v + 1]);
+            if (j + 1 < H)
+              rules.neighbours(i, j, k, slab_layers[v], d, slab_layers[v + size_t(W)], slab_distances[v + size_t(W)]);
+            if (k + 1 < D)
+              rules.neighbours(i, j, k, slab_layers[v], d, slab_layers[v + size_t(W * H)],
+                               slab_distances[v + size_t(W * H)]);
+          }
+    // The lattice planes this slab holds: its first z layer, and the grid's last one for the last slab.
+    auto lattice_plane = [&](uint32_t c) {
+      const int64_t k = Voxelmap::lattice_coordinate(c, uint32_t(D));
+      for (uint32_t b = 0; b < bd[1] + 1; ++b)
+        for (uint32_t a = 0; a < bd[0] + 1; ++a) {
+          const size_t v = at(Voxelmap::lattice_coordinate(a, uint32_t(W)), Voxelmap::lattice_coordinate(b, uint32_t(H)), k);
+          const float d = slab_distances[v];
+          double value;
+          if (std::isfinite(d)) {
+            value = std::abs(double(d));
+          } else {
+            value = (std::abs(double(slab_layers[v])) + 0.5) * h;
+            deepest_layer = std::max(deepest_layer, std::abs(double(slab_layers[v])));
+          }
+          vm.lattice[vm.lattice_index(a, b, c)] = float_not_below(value);
+        }
+    };
+    lattice_plane(bk);
+    if (bk + 1 == bd[2]) lattice_plane(bk + 1);
+    for (uint32_t bj = 0; bj < bd[1]; ++bj)
+      for (uint32_t bi = 0; bi < bd[0]; ++bi) {
+        std::fill(codes.begin(), codes.end(), int16_t(0));
+        bool any_stored = false, any_inside = false, any_outside = false;
+        for (int64_t k = z0; k < z_end; ++k)
+          for (int64_t j = int64_t(bj) * kEdge; j < std::min<int64_t>(H, int64_t(bj + 1) * kEdge); ++j)
+            for (int64_t i = int64_t(bi) * kEdge; i < std::min<int64_t>(W, int64_t(bi + 1) * kEdge); ++i) {
+              const size_t v = at(i, j, k);
+              const float d = slab_distances[v];
+              int16_t& code = codes[Voxelmap::local_index(uint32_t(i % kEdge), uint32_t(j % kEdge),
+                                                          uint32_t(k % kEdge))];
+              const bool inside = std::isfinite(d) ? d < 0 : slab_layers[v] > 0;
+              if (std::isfinite(d)) {
+                code = vm.encode_stored(double(d));
+                any_stored = true;
+              } else {
+                code = int16_t(inside ? -2 : 2);
+              }
+              (inside ? any_inside : any_outside) = true;
+            }
+        const size_t n = vm.brick_index(bi, bj, bk);
+        if (any_stored || (any_inside && any_outside)) {
+          vm.bricks[n] = int32_t(vm.value_brick_count());
+          vm.brick_values.insert(vm.brick_values.end(), codes.begin(), codes.end());
+        } else {
+          vm.bricks[n] = any_inside ? Voxelmap::kCoarseInside : Voxelmap::kCoarseOutside;
+        }
+      }
+  }
+  vm.lattice_error = chamfer ? 0.95 + 0.1 * deepest_layer : 1.0 + std::sqrt(3.0);
+  fill_estimates(vm);
+}
+
+}  // namespace voxfmt::detail

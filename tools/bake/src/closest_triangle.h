@@ -1,0 +1,33 @@
+// The nearest triangle to a point: a bounding-volume hierarchy over a mesh's triangles, for the voxelmap lattice's
+// exact distances. CGAL's AABB tree answers the same query but took 10-20 us per lattice point of the bunny; this
+// one, given the upper bound the lattice propagation already has, visits only the boxes within it (~1 us).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "voxfmt/asset.h"
+
+namespace voxfmt::bake {
+
+class ClosestTriangle {
+ public:
+  /// `corners`: three corners per triangle (any frame; queries use the same one).
+  explicit ClosestTriangle(const std::vector<std::array<Vec3, 3>>& corners);
+  /// Squared distance to the nearest triangle and its index, searching only closer than sqrt(`bound2`); if none
+  /// is, returns {bound2, `hint`}.
+  std::pair<double, uint32_t> nearest(const Vec3& p, double bound2, uint32_t hint) const;
+
+ private:
+  struct Node {
+    double lo[3], hi[3];  // box of the node's triangles
+    uint32_t first;       // inner: index of the second child (the first follows the node); leaf: first triangle
+    uint32_t count;       // 0 for an inner node
+  };
+  uint32_t build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids);
+  std::vector<Node> nodes_;
+  std::vector<uint32_t> order_;            // triangle indices in leaf order
+  std::vector<std::array<Vec3, 3>> tris_;  // corners in leaf order
+};
+
+}  // namespace voxfmt::bake
