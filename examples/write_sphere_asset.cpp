@@ -22,27 +22,18 @@ voxfmt::Asset make_sphere_asset() {
   a.bounds_min = {c[0] - r, c[1] - r, c[2] - r};
   a.bounds_max = {c[0] + r, c[1] + r, c[2] + r};
 
-  voxfmt::Voxelmap& vm = a.voxelmap;
-  vm.voxel_size = h;
-  vm.distance_band = band;
-  vm.margin = margin;
+  // The grid's geometry; make_voxelmap fills its bricks and lattice from the exact signed distance.
+  voxfmt::Voxelmap grid;
+  grid.voxel_size = h;
+  grid.distance_band = band;
+  grid.margin = margin;
   const double half_extent = r + margin * h;
   const uint32_t n = uint32_t(std::lround(2 * half_extent / h)) + 1;
-  vm.dims = {n, n, n};
-  vm.origin = {c[0] - half_extent, c[1] - half_extent, c[2] - half_extent};
-  vm.layers.resize(vm.voxel_count());
-  vm.distances.resize(vm.voxel_count());
-  for (uint32_t k = 0; k < n; ++k)
-    for (uint32_t j = 0; j < n; ++j)
-      for (uint32_t i = 0; i < n; ++i) {
-        const voxfmt::Vec3 p = vm.voxel_center(i, j, k);
-        const double d =
-            std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2])) -
-            r;
-        const size_t v = vm.linear_index(i, j, k);
-        vm.layers[v] = int16_t(std::floor(-d / h + 0.5));
-        vm.distances[v] = std::abs(d) <= band * h + 1e-12 ? float(d) : std::nanf("");
-      }
+  grid.dims = {n, n, n};
+  grid.origin = {c[0] - half_extent, c[1] - half_extent, c[2] - half_extent};
+  a.voxelmap = voxfmt::make_voxelmap(grid, [&](const voxfmt::Vec3& p) {
+    return std::sqrt((p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1]) + (p[2] - c[2]) * (p[2] - c[2])) - r;
+  });
 
   // Fibonacci sphere: evenly spread points with inward normals.
   voxfmt::PointShell& ps = a.point_shell;

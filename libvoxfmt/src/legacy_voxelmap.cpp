@@ -196,7 +196,10 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
         }
       }
   }
-  vm.lattice_error = chamfer ? 0.95 + 0.1 * deepest_layer : 1.0 + std::sqrt(3.0);
+  // A lattice value (|layer| + 1/2) h is never below the exact distance u; it exceeds it by at most 1 + sqrt(3)
+  // voxels (1.1), or by 1 voxel + 1/9 of u (1.0: |d| >= 0.9 (|layer| - 1/2) h).
+  vm.lattice_error = chamfer ? std::array<double, 2>{1.0, 1.0 / 9.0} : std::array<double, 2>{1.0 + std::sqrt(3.0), 0.0};
+  (void)deepest_layer;
   fill_estimates(vm);
 }
 

@@ -56,7 +56,7 @@ void read_bricks(h5::Reader& r, hid_t g, const std::string& p, Voxelmap& vm) {
                "brick edge " + std::to_string((*v)[0]) + " is not supported (format 2.0 bricks are 8 voxels)");
   if (auto v = r.numeric_attribute<double>(g, p, "distance_quantum", {})) vm.distance_quantum = (*v)[0];
   if (auto v = r.numeric_attribute<double>(g, p, "estimate_quantum", {})) vm.estimate_quantum = (*v)[0];
-  if (auto v = r.numeric_attribute<double>(g, p, "lattice_error", {})) vm.lattice_error = (*v)[0];
+  if (auto v = r.numeric_attribute<double>(g, p, "lattice_error", {2})) vm.lattice_error = {(*v)[0], (*v)[1]};
   const auto b = vm.brick_dims();
   const auto l = vm.lattice_dims();
   if (auto v = r.dataset<int32_t>(g, p, "bricks", {int64_t(b[2]), int64_t(b[1]), int64_t(b[0])}))

@@ -74,7 +74,7 @@ std::string inspect_json(const std::string& file, const Asset& a, const AssetSum
         {"bricks", vm.brick_count()},
         {"value_bricks", s.value_bricks},
         {"coarse_bricks", s.coarse_bricks},
-        {"lattice_error_voxels", vm.lattice_error},
+        {"lattice_error", {vm.lattice_error[0], vm.lattice_error[1]}},
         {"memory_bytes", vm.memory_bytes()}}},
       {"pointshell",
        {{"points", a.point_shell.size()},

@@ -85,8 +85,10 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
     c.add(IssueCode::ValueOutOfRange, g + "/@estimate_quantum",
           "estimate quantum " + fmt(vm.estimate_quantum) + " m must be > 0 and code the band's " + fmt(band_m) +
               " m in " + std::to_string(Voxelmap::kMaxSteps) + " steps");
-  if (!std::isfinite(vm.lattice_error) || vm.lattice_error < 0)
-    c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error", "lattice error must be finite and >= 0");
+  if (!(std::isfinite(vm.lattice_error[0]) && vm.lattice_error[0] >= 0 && std::isfinite(vm.lattice_error[1]) &&
+        vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
+    c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
+          "lattice error must be finite, [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
   if (vm.bricks.size() != vm.brick_count()) {
     c.add(IssueCode::WrongShape, g + "/bricks",
           "holds " + std::to_string(vm.bricks.size()) + " bricks, dims say " + std::to_string(vm.brick_count()));

@@ -89,8 +89,17 @@ VoxelValue Voxelmap::voxel(uint32_t i, uint32_t j, uint32_t k) const {
 }
 
 int Voxelmap::layer(uint32_t i, uint32_t j, uint32_t k) const {
-  const double d = voxel(i, j, k).distance;
-  return int(std::clamp(std::floor(-d / voxel_size + 0.5), -32767.0, 32767.0));
+  // In voxels straight from the code: steps times (quantum / h), which is exact for the bake's h/16 estimates, so
+  // an estimate on a layer tie rounds the same way whatever h is (m q / h in metres could land an ulp either side).
+  const int32_t entry = bricks[brick_index(i / kEdge, j / kEdge, k / kEdge)];
+  double d;
+  if (entry >= 0) {
+    const int16_t code = brick_values[size_t(entry) * kBrickVoxels + local_index(i % kEdge, j % kEdge, k % kEdge)];
+    d = double(code >> 1) * ((code_is_stored(code) ? distance_quantum : estimate_quantum) / voxel_size);
+  } else {
+    d = voxel(i, j, k).distance / voxel_size;
+  }
+  return int(std::clamp(std::floor(-d + 0.5), -32767.0, 32767.0));
 }
 
 void Voxelmap::read_block(const std::array<uint32_t, 3>& first, const std::array<uint32_t, 3>& size,
@@ -101,8 +110,7 @@ void Voxelmap::read_block(const std::array<uint32_t, 3>& first, const std::array
       for (uint32_t i = first[0]; i < first[0] + size[0]; ++i, ++n) {
         const VoxelValue v = voxel(i, j, k);
         if (distances) distances[n] = v.stored ? float(v.distance) : std::numeric_limits<float>::quiet_NaN();
-        if (layers)
-          layers[n] = int16_t(std::clamp(std::floor(-v.distance / voxel_size + 0.5), -32767.0, 32767.0));
+        if (layers) layers[n] = int16_t(layer(i, j, k));
       }
 }
 
@@ -190,7 +198,7 @@ Voxelmap make_voxelmap(const Voxelmap& geometry, const SignedDistanceFunction& s
   vm.brick_values.clear();
   vm.lattice.clear();
   if (!(vm.distance_quantum > 0) || !(vm.estimate_quantum > 0)) vm.choose_quanta();
-  vm.lattice_error = 0;
+  vm.lattice_error = {1e-6 * double(std::max({vm.dims[0], vm.dims[1], vm.dims[2]})), 0.0};  // float rounding
   const double h = vm.voxel_size, band = vm.distance_band * h;
   const auto l = vm.lattice_dims();
   vm.lattice.resize(vm.lattice_count());

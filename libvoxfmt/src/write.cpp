@@ -54,7 +54,7 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
        w.numeric_attribute<uint32_t>(vg->get(), "brick_edge", {}, &brick_edge) &&
        w.numeric_attribute<double>(vg->get(), "distance_quantum", {}, &vm.distance_quantum) &&
        w.numeric_attribute<double>(vg->get(), "estimate_quantum", {}, &vm.estimate_quantum) &&
-       w.numeric_attribute<double>(vg->get(), "lattice_error", {}, &vm.lattice_error) &&
+       w.numeric_attribute<double>(vg->get(), "lattice_error", {2}, vm.lattice_error.data()) &&
        w.dataset<int32_t>(vg->get(), "bricks", {bd[2], bd[1], bd[0]}, vm.bricks.data(), opt.deflate_level,
                           {edge, edge, edge}) &&
        w.dataset<int16_t>(vg->get(), "brick_values", {vm.value_brick_count(), Voxelmap::kBrickVoxels},

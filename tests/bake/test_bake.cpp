@@ -27,63 +27,72 @@ struct ErrorStats {
   double max_error = 0, mean_error = 0;  // in voxels
 };
 
+/// A voxel with a stored distance (metres).
+struct StoredVoxel {
+  uint32_t i, j, k;
+  double d;
+};
+
+/// Every voxel with a stored distance, read brick by brick.
+std::vector<StoredVoxel> stored_voxels(const Voxelmap& vm) {
+  std::vector<StoredVoxel> out;
+  constexpr uint32_t E = Voxelmap::kBrickEdge;
+  vm.for_each_value_brick([&](uint32_t bi, uint32_t bj, uint32_t bk, const int16_t* codes) {
+    for (uint32_t lk = 0; lk < E && bk * E + lk < vm.dims[2]; ++lk)
+      for (uint32_t lj = 0; lj < E && bj * E + lj < vm.dims[1]; ++lj)
+        for (uint32_t li = 0; li < E && bi * E + li < vm.dims[0]; ++li) {
+          const int16_t code = codes[Voxelmap::local_index(li, lj, lk)];
+          if (Voxelmap::code_is_stored(code)) out.push_back({bi * E + li, bj * E + lj, bk * E + lk, vm.decode(code)});
+        }
+  });
+  return out;
+}
+
+/// A voxel of the grid chosen at random.
+std::array<uint32_t, 3> random_voxel(const Voxelmap& vm, std::mt19937_64& rng) {
+  return {uint32_t(rng() % vm.dims[0]), uint32_t(rng() % vm.dims[1]), uint32_t(rng() % vm.dims[2])};
+}
+
 /// Compares stored distances at (up to) `wanted` stored voxels against `exact` (signed, negative inside).
 /// Signs are compared where the exact distance exceeds `sign_tolerance` (metres): a tessellated reference
-/// surface may lie on the other side of a voxel centre that close to it.
+/// surface may lie on the other side of a voxel centre that close to it. A stored 0 (within half a quantum of the
+/// surface) is on it, of either sign (spec §3.1).
 ErrorStats compare_distances(const Voxelmap& vm, const std::function<double(const Vec3&)>& exact, size_t wanted,
                              double sign_tolerance) {
-  std::vector<size_t> stored;
-  for (size_t v = 0; v < vm.voxel_count(); ++v)
-    if (Voxelmap::is_stored(vm.distances[v])) stored.push_back(v);
+  std::vector<StoredVoxel> stored = stored_voxels(vm);
   std::mt19937_64 rng(7);
   std::shuffle(stored.begin(), stored.end(), rng);
   if (stored.size() > wanted) stored.resize(wanted);
   ErrorStats s;
-  for (size_t v : stored) {
-    const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
-                   k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
-    const double truth = exact(vm.voxel_center(i, j, k));
-    const double error = std::abs(double(vm.distances[v]) - truth) / vm.voxel_size;
+  for (const StoredVoxel& v : stored) {
+    const double truth = exact(vm.voxel_center(v.i, v.j, v.k));
+    const double error = std::abs(v.d - truth) / vm.voxel_size;
     s.max_error = std::max(s.max_error, error);
     s.mean_error += error;
     // A sign is only meaningful away from the surface itself.
-    if (std::abs(truth) > sign_tolerance && (truth < 0) != (vm.distances[v] < 0)) ++s.sign_mismatches;
+    if (std::abs(truth) > sign_tolerance && v.d != 0 && (truth < 0) != (v.d < 0)) ++s.sign_mismatches;
     ++s.samples;
   }
   s.mean_error /= double(std::max<size_t>(1, s.samples));
   return s;
 }
 
-/// The issue's accuracy bar: >= 10,000 samples, max error <= 0.5 voxel, mean <= 0.1 voxel, no sign mismatch.
-void expect_accurate(const ErrorStats& s, const char* label) {
-  std::printf("%s: %zu samples, max error %.4f voxel, mean %.4f voxel, %zu sign mismatches\n", label, s.samples,
+/// The spec's band accuracy (§3.1): >= 10,000 samples, each within `max_error` voxel of the reference (half a
+/// distance quantum, 9.2e-5 voxel at band 3, against an exact mesh distance), no sign mismatch.
+void expect_accurate(const ErrorStats& s, const char* label, double max_error = 1e-4) {
+  std::printf("%s: %zu samples, max error %.3g voxel, mean %.3g voxel, %zu sign mismatches\n", label, s.samples,
               s.max_error, s.mean_error, s.sign_mismatches);
   EXPECT_GE(s.samples, 10000u);
-  EXPECT_LE(s.max_error, 0.5);
-  EXPECT_LE(s.mean_error, 0.1);
+  EXPECT_LE(s.max_error, max_error);
   EXPECT_EQ(s.sign_mismatches, 0u);
 }
 
-void expect_layers_consistent(const Voxelmap& vm, bool closed_surface = true) {
-  // 6-neighbours differ by at most one layer; stored voxels follow floor(-d/h + 1/2).
-  size_t bad_step = 0, bad_band = 0;
-  const uint32_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
-  for (uint32_t k = 0; k < D; ++k)
-    for (uint32_t j = 0; j < H; ++j)
-      for (uint32_t i = 0; i < W; ++i) {
-        const size_t v = vm.linear_index(i, j, k);
-        if (i + 1 < W) bad_step += std::abs(vm.layers[v] - vm.layers[v + 1]) > 1;
-        if (j + 1 < H) bad_step += std::abs(vm.layers[v] - vm.layers[v + W]) > 1;
-        if (k + 1 < D) bad_step += std::abs(vm.layers[v] - vm.layers[v + size_t(W) * H]) > 1;
-        if (Voxelmap::is_stored(vm.distances[v]))
-          bad_band += vm.layers[v] != int(std::floor(-double(vm.distances[v]) / vm.voxel_size + 0.5));
-        else
-          bad_band += std::abs(vm.layers[v]) < int(std::floor(vm.distance_band + 0.5));
-      }
-  if (closed_surface) {
-    EXPECT_EQ(bad_step, 0u);
-  }
-  EXPECT_EQ(bad_band, 0u);
+/// Errors of `validate --level full` (signs, band, estimates, tree, mass), with their messages.
+std::vector<std::string> full_errors(const Asset& a) {
+  std::vector<std::string> out;
+  for (const Issue& issue : validate_asset(a, ValidationLevel::Full))
+    if (issue.severity == Severity::Error) out.push_back(std::string(code_name(issue.code)) + " " + issue.message);
+  return out;
 }
 
 void expect_tree_encloses_descendants(const PointShell& ps, double tolerance) {
@@ -158,56 +167,59 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
       asset.voxelmap, [&](const Vec3& p) { return surface.inside(p) ? -surface.distance(p) : surface.distance(p); },
       12000, 1e-9);
   expect_accurate(s, "bunny res 128");
-  expect_layers_consistent(asset.voxelmap);
-  // Spec §3: every voxel within (band - 1/2) voxels of the surface has its distance stored.
+  EXPECT_EQ(full_errors(asset), std::vector<std::string>());
+  // Spec §3.1: every voxel within (band - 1/2) voxels of the surface has its distance stored.
   {
     const Voxelmap& vm = asset.voxelmap;
     std::mt19937_64 rng(11);
     size_t missing = 0, checked = 0;
     for (int n = 0; n < 200000; ++n) {
-      const size_t v = rng() % vm.voxel_count();
-      if (Voxelmap::is_stored(vm.distances[v])) continue;
-      const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
-                     k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
+      const auto [i, j, k] = random_voxel(vm, rng);
+      if (vm.voxel(i, j, k).stored) continue;
       ++checked;
       const double exact = surface.distance(vm.voxel_center(i, j, k));
       if (exact <= (vm.distance_band - 0.5) * vm.voxel_size) {
         ++missing;
-        std::printf("not stored: voxel (%u, %u, %u) at %.4f voxels from the surface, layer %d\n", i, j, k,
-                    exact / vm.voxel_size, vm.layers[v]);
+        std::printf("not stored: voxel (%u, %u, %u) at %.4f voxels from the surface\n", i, j, k, exact / vm.voxel_size);
       }
     }
     EXPECT_GT(checked, 100000u);
     EXPECT_EQ(missing, 0u);
   }
-  // Spec §3: beyond the band a layer is never shallower than the exact depth - 1/2 and, from this producer's
-  // exact feature transform, within one voxel of it (the chamfer used before was up to 15 % too deep).
+  // Spec §3.1: beyond the band an estimate has the voxel's sign and bounds the exact distance both ways
+  // (interpolation of an exact lattice: within the position's interpolation bound); on the smooth bunny it is
+  // close to it on average.
   {
     const Voxelmap& vm = asset.voxelmap;
     std::mt19937_64 rng(12);
-    double worst_over = 0, worst_under = 0, deepest = 0;
-    size_t checked = 0;
+    double worst_over = 0, worst_under = 0, deepest = 0, sum = 0;
+    size_t checked = 0, out_of_bound = 0, wrong_sign = 0;
+    const double q = 0.5 * vm.estimate_quantum / vm.voxel_size;
     for (int n = 0; n < 400000 && checked < 20000; ++n) {
-      const size_t v = rng() % vm.voxel_count();
-      if (Voxelmap::is_stored(vm.distances[v])) continue;
-      const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
-                     k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
+      const auto [i, j, k] = random_voxel(vm, rng);
+      const VoxelValue value = vm.voxel(i, j, k);
+      if (value.stored) continue;
       const Vec3 p = vm.voxel_center(i, j, k);
-      const double depth = -(surface.inside(p) ? -surface.distance(p) : surface.distance(p)) / vm.voxel_size;
+      const double exact = (surface.inside(p) ? -surface.distance(p) : surface.distance(p)) / vm.voxel_size;
+      const double m = std::abs(value.distance) / vm.voxel_size, u = std::abs(exact);
       ++checked;
-      deepest = std::max(deepest, depth);
-      const double error = double(vm.layers[v]) - depth;  // > 0: too deep
-      worst_over = std::max(worst_over, depth >= 0 ? error : -error);
-      worst_under = std::max(worst_under, depth >= 0 ? -error : error);
+      wrong_sign += (exact < 0) != (value.distance < 0);
+      deepest = std::max(deepest, -exact);
+      worst_over = std::max(worst_over, m - u);
+      worst_under = std::max(worst_under, u - m);
+      sum += std::abs(m - u);
+      const double B = vm.interpolation_bound(i, j, k);
+      out_of_bound += u > m + B + q || u < (m - vm.lattice_error[0]) / (1 + vm.lattice_error[1]) - B - q;
     }
     std::printf(
-        "layers beyond the band: %zu voxels, deepest %.1f voxels, at most %.3f too far from the surface, "
-        "%.3f too near\n",
-        checked, deepest, worst_over, worst_under);
+        "estimates beyond the band: %zu voxels, deepest %.1f voxels, at most %.3f too far from the surface, "
+        "%.3f too near, mean error %.3f voxel\n",
+        checked, deepest, worst_over, worst_under, sum / double(checked));
     EXPECT_GT(checked, 10000u);
     EXPECT_GT(deepest, 10.0);
-    EXPECT_LE(worst_under, 0.5 + 1e-6);
-    EXPECT_LE(worst_over, 1.0);
+    EXPECT_EQ(wrong_sign, 0u);
+    EXPECT_EQ(out_of_bound, 0u);
+    EXPECT_LE(sum / double(checked), 0.6);  // measured 0.53 at this coarse resolution
   }
 
   const PointShell& ps = asset.point_shell;
@@ -278,12 +290,15 @@ TEST(Bake, AMeshFarFromItsOriginBakesLikeTheSameMeshAtTheOrigin) {
   EXPECT_NEAR(b.origin[0] - a.origin[0], 2000.0, 1e-9);
   size_t wrong_sign = 0, layer_differs = 0;
   double worst = 0;
-  for (size_t v = 0; v < a.voxel_count(); ++v) {
-    layer_differs += a.layers[v] != b.layers[v];
-    if (!Voxelmap::is_stored(a.distances[v]) || !Voxelmap::is_stored(b.distances[v])) continue;
-    worst = std::max(worst, std::abs(double(a.distances[v]) - double(b.distances[v])) / a.voxel_size);
-    wrong_sign += (a.distances[v] < 0) != (b.distances[v] < 0);
-  }
+  for (uint32_t k = 0; k < a.dims[2]; ++k)
+    for (uint32_t j = 0; j < a.dims[1]; ++j)
+      for (uint32_t i = 0; i < a.dims[0]; ++i) {
+        layer_differs += a.layer(i, j, k) != b.layer(i, j, k);
+        const VoxelValue va = a.voxel(i, j, k), vb = b.voxel(i, j, k);
+        if (!va.stored || !vb.stored) continue;
+        worst = std::max(worst, std::abs(va.distance - vb.distance) / a.voxel_size);
+        wrong_sign += va.distance != 0 && vb.distance != 0 && (va.distance < 0) != (vb.distance < 0);
+      }
   double worst_angle = 0;
   ASSERT_EQ(near_asset.point_shell.size(), far_asset.point_shell.size());
   for (size_t i = 0; i < near_asset.point_shell.size(); ++i) {
@@ -314,14 +329,15 @@ TEST(Bake, TorusDistancesMatchClosedForm) {
   const ErrorStats s = compare_distances(
       asset.voxelmap, [&](const Vec3& p) { return std::hypot(std::hypot(p[0], p[1]) - R, p[2]) - r; }, 20000,
       2e-5 /* > sagitta of the 720 x 240 tessellation, ~9e-6 m */);
-  expect_accurate(s, "torus res 160");
-  expect_layers_consistent(asset.voxelmap);
+  // Against the ideal torus the tessellation's sagitta (~9e-6 m, 0.002 voxel) dominates the error.
+  expect_accurate(s, "torus res 160", 0.01);
+  EXPECT_EQ(full_errors(asset), std::vector<std::string>());
   // Deep layers approximate the true depth: the tube centre is r deep.
   const Voxelmap& vm = asset.voxelmap;
   const double i = (R - vm.origin[0]) / vm.voxel_size, j = (0 - vm.origin[1]) / vm.voxel_size,
                k = (0 - vm.origin[2]) / vm.voxel_size;
-  const size_t centre = vm.linear_index(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k)));
-  EXPECT_NEAR(vm.layers[centre] * vm.voxel_size, r, 1.5 * vm.voxel_size);
+  EXPECT_NEAR(vm.layer(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k))) * vm.voxel_size,
+              r, 1.5 * vm.voxel_size);
   // Analytic volume 2 pi^2 R r^2, within the tessellation's shrinkage.
   EXPECT_NEAR(asset.mass.volume, 2 * M_PI * M_PI * R * r * r, 2e-3 * asset.mass.volume);
   expect_tree_encloses_descendants(asset.point_shell, 1e-9);
@@ -341,7 +357,7 @@ TEST(Bake, BoxFacesOnVoxelBoundariesKeepLayersConsistent) {
     BuildReport report;
     const Asset asset = build_asset(file, options, report);
     ASSERT_TRUE(report.repair.closed);
-    expect_layers_consistent(asset.voxelmap);
+    EXPECT_EQ(full_errors(asset), std::vector<std::string>()) << resolution;
     EXPECT_NEAR(asset.mass.volume, 1.0, 1e-12);
   }
 }
@@ -414,9 +430,10 @@ TEST(Bake, SameInputSameDatasets) {
   BuildReport r1, r2;
   const Asset a = build_asset(kMeshes + "/bunny00.off", options, r1);
   const Asset b = build_asset(kMeshes + "/bunny00.off", options, r2);
-  EXPECT_EQ(a.voxelmap.layers, b.voxelmap.layers);
-  ASSERT_EQ(a.voxelmap.distances.size(), b.voxelmap.distances.size());
-  EXPECT_EQ(0, std::memcmp(a.voxelmap.distances.data(), b.voxelmap.distances.data(), a.voxelmap.distances.size() * 4));
+  EXPECT_EQ(a.voxelmap.bricks, b.voxelmap.bricks);
+  EXPECT_EQ(a.voxelmap.brick_values, b.voxelmap.brick_values);
+  ASSERT_EQ(a.voxelmap.lattice.size(), b.voxelmap.lattice.size());
+  EXPECT_EQ(0, std::memcmp(a.voxelmap.lattice.data(), b.voxelmap.lattice.data(), a.voxelmap.lattice.size() * 4));
   EXPECT_EQ(a.point_shell.points, b.point_shell.points);
   EXPECT_EQ(a.point_shell.normals, b.point_shell.normals);
   EXPECT_EQ(a.point_shell.sphere_centers, b.point_shell.sphere_centers);
@@ -515,19 +532,16 @@ TEST(Bake, OverlappingPartsGetTheExactWindingSignInTheBand) {
   const Voxelmap vm = build_voxelmap(soup, options);
   const WindingNumber winding(soup);
   size_t band = 0, near_half = 0, wrong = 0;
-  for (uint32_t k = 0; k < vm.dims[2]; ++k)
-    for (uint32_t j = 0; j < vm.dims[1]; ++j)
-      for (uint32_t i = 0; i < vm.dims[0]; ++i) {
-        const size_t v = (size_t(k) * vm.dims[1] + j) * vm.dims[0] + i;
-        if (!Voxelmap::is_stored(vm.distances[v]) || vm.distances[v] == 0) continue;
-        ++band;
-        const Vec3 p = vm.voxel_center(i, j, k);
-        const bool near = std::abs(winding(p) - 0.5) < 0.1;  // where the bake refines
-        if (!near && rng() % 8 != 0) continue;               // and a sample of the rest (exact sums are slow)
-        near_half += near;
-        const double exact = winding.evaluate(p, std::numeric_limits<double>::infinity());
-        wrong += (exact >= 0.5) != (vm.distances[v] < 0);
-      }
+  for (const StoredVoxel& v : stored_voxels(vm)) {
+    if (v.d == 0) continue;
+    ++band;
+    const Vec3 p = vm.voxel_center(v.i, v.j, v.k);
+    const bool near = std::abs(winding(p) - 0.5) < 0.1;  // where the bake refines
+    if (!near && rng() % 8 != 0) continue;               // and a sample of the rest (exact sums are slow)
+    near_half += near;
+    const double exact = winding.evaluate(p, std::numeric_limits<double>::infinity());
+    wrong += (exact >= 0.5) != (v.d < 0);
+  }
   std::printf("%zu band voxels, %zu with the fast winding number within 0.1 of 1/2, %zu with the wrong sign\n", band,
               near_half, wrong);
   EXPECT_GT(band, 5000u);
@@ -547,13 +561,17 @@ TEST(Bake, OpenCubeIsFilledByWindingNumber) {
   bool warned = false;
   for (const BuildWarning& w : asset.provenance.build_warnings) warned |= w.code == "OPEN_BORDER";
   EXPECT_TRUE(warned);
+  const Voxelmap& vm = asset.voxelmap;
+  std::vector<int16_t> layers(vm.voxel_count());
+  vm.read_block({0, 0, 0}, vm.dims, nullptr, layers.data());
   size_t inside = 0;
-  for (int16_t layer : asset.voxelmap.layers) inside += layer > 0;
+  for (int16_t layer : layers) inside += layer > 0;
   // The cube spans 40 voxels per axis; voxel centres on its missing face's plane count as either side.
   EXPECT_GE(inside, 40u * 40 * 39);
   EXPECT_LE(inside, 40u * 40 * 41);
-  // Layers may jump across the missing face (spec §3: the step rule holds for closed surfaces only).
-  expect_layers_consistent(asset.voxelmap, /*closed_surface=*/false);
+  // Signs may change across the missing face without a surface between (spec §3: the sign rule holds for closed
+  // surfaces only): every other rule holds.
+  EXPECT_EQ(full_errors(asset), std::vector<std::string>());
 }
 
 }  // namespace
@@ -579,17 +597,29 @@ class FullValidation : public ::testing::Test {
     for (const Issue& issue : validate_asset(a, ValidationLevel::Full)) out.push_back(code_name(issue.code));
     return out;
   }
-  // Finds a voxel whose stored distance and 6-neighbours satisfy `pick`.
-  static size_t find_voxel(const Voxelmap& vm, const std::function<bool(size_t, const std::vector<size_t>&)>& pick) {
-    const size_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
-    for (size_t k = 1; k + 1 < D; ++k)
-      for (size_t j = 1; j + 1 < H; ++j)
-        for (size_t i = 1; i + 1 < W; ++i) {
-          const size_t v = (k * H + j) * W + i;
-          if (pick(v, {v - 1, v + 1, v - W, v + W, v - W * H, v + W * H})) return v;
+  // The code of voxel (i, j, k) of a value brick (nullptr in a coarse brick).
+  static int16_t* code_of(Voxelmap& vm, uint32_t i, uint32_t j, uint32_t k) {
+    constexpr uint32_t E = Voxelmap::kBrickEdge;
+    const int32_t entry = vm.bricks[vm.brick_index(i / E, j / E, k / E)];
+    if (entry < 0) return nullptr;
+    return &vm.brick_values[size_t(entry) * Voxelmap::kBrickVoxels + Voxelmap::local_index(i % E, j % E, k % E)];
+  }
+  // Finds an inner voxel of a value brick whose code and its 6-neighbours' codes (nullptr for coarse ones) satisfy
+  // `pick`.
+  static int16_t* find_code(Voxelmap& vm, const std::function<bool(int16_t, const std::vector<int16_t*>&)>& pick) {
+    for (uint32_t k = 1; k + 1 < vm.dims[2]; ++k)
+      for (uint32_t j = 1; j + 1 < vm.dims[1]; ++j)
+        for (uint32_t i = 1; i + 1 < vm.dims[0]; ++i) {
+          int16_t* c = code_of(vm, i, j, k);
+          if (!c) continue;
+          const std::vector<int16_t*> n = {code_of(vm, i - 1, j, k), code_of(vm, i + 1, j, k),
+                                           code_of(vm, i, j - 1, k), code_of(vm, i, j + 1, k),
+                                           code_of(vm, i, j, k - 1), code_of(vm, i, j, k + 1)};
+          if (pick(*c, n)) return c;
         }
     ADD_FAILURE() << "no suitable voxel";
-    return 0;
+    static int16_t none = 0;
+    return &none;
   }
   static Asset* asset_;
 };
@@ -597,69 +627,61 @@ Asset* FullValidation::asset_ = nullptr;
 
 TEST_F(FullValidation, BakedAssetIsClean) { EXPECT_TRUE(codes(*asset_).empty()); }
 
-TEST_F(FullValidation, LayerDistanceMismatch) {
+TEST_F(FullValidation, DistanceOutsideBand) {
   Asset a = *asset_;
   Voxelmap& vm = a.voxelmap;
   const double h = vm.voxel_size;
-  // A stored voxel just above a rounding boundary: nudging its distance by 0.03 h changes the rounded layer,
-  // while its own layer (and so every layer step) and the neighbour distance bound stay as they were.
-  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>&) {
-    if (!Voxelmap::is_stored(vm.distances[c])) return false;
-    const double x = -double(vm.distances[c]) / h + 0.5;
-    return x - std::floor(x) < 0.02;
+  // The bake's quantum codes exactly the band; a producer with a coarser one can code beyond it. Twice the
+  // quantum (every stored code halved: the same distances within a step), then a stored distance near the band's
+  // edge moved half a voxel past it: its neighbours stay within the voxel diagonal and on its side.
+  vm.distance_quantum *= 2;
+  for (int16_t& code : vm.brick_values)
+    if (Voxelmap::code_is_stored(code)) code = int16_t(((code >> 1) / 2) * 2 + 1);
+  int16_t* c = find_code(vm, [&](int16_t code, const std::vector<int16_t*>&) {
+    return Voxelmap::code_is_stored(code) && vm.decode(code) > (vm.distance_band - 0.2) * h;
   });
-  vm.distances[v] += float(0.03 * h);
-  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_DISTANCE_MISMATCH"});
+  *c = vm.encode_stored((vm.distance_band + 0.5) * h);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"DISTANCE_OUTSIDE_BAND"});
 }
 
-TEST_F(FullValidation, LayerOutsideBandTooSmall) {
+TEST_F(FullValidation, EstimateMismatch) {
   Asset a = *asset_;
   Voxelmap& vm = a.voxelmap;
-  const int limit = int(std::floor(vm.distance_band + 0.5));
-  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>& n) {
-    if (Voxelmap::is_stored(vm.distances[c]) || vm.layers[c] != limit) return false;
-    for (size_t m : n)
-      if (std::abs(vm.layers[m] - (limit - 1)) > 1) return false;
-    return true;
+  // A value-brick voxel without a stored distance whose estimate is two voxels off the lattice's (same side).
+  int16_t* c = find_code(vm, [&](int16_t code, const std::vector<int16_t*>&) {
+    return !Voxelmap::code_is_stored(code) && vm.decode(code) > 0;
   });
-  vm.layers[v] = int16_t(limit - 1);
-  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_OUTSIDE_BAND_TOO_SMALL"});
+  *c = vm.encode_estimate(vm.decode(*c) + 2 * vm.voxel_size);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"ESTIMATE_MISMATCH"});
 }
 
-TEST_F(FullValidation, LayerStepTooLarge) {
+TEST_F(FullValidation, SignMismatch) {
   Asset a = *asset_;
   Voxelmap& vm = a.voxelmap;
-  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>&) {
-    return !Voxelmap::is_stored(vm.distances[c]) && vm.layers[c] >= 6;
-  });
-  vm.layers[v] = int16_t(vm.layers[v] + 3);
-  EXPECT_EQ(codes(a), std::vector<std::string>{"LAYER_STEP_TOO_LARGE"});
+  // The grid's corner brick (far outside, in the margin) said to be inside, among coarse bricks outside.
+  ASSERT_EQ(vm.bricks[0], Voxelmap::kCoarseOutside);
+  vm.bricks[0] = Voxelmap::kCoarseInside;
+  EXPECT_EQ(codes(a), std::vector<std::string>{"SIGN_MISMATCH"});
 }
 
 TEST_F(FullValidation, DistanceJump) {
   Asset a = *asset_;
   Voxelmap& vm = a.voxelmap;
   const double h = vm.voxel_size;
-  // Give a stored voxel a distance 1.8 voxels from a neighbour's whose depth sits just above an integer, and
-  // the layer that distance implies: layers stay consistent (step 1), only the distance jump is wrong.
-  auto depth = [&](size_t v) { return -double(vm.distances[v]) / h + 0.5; };
-  double new_depth = 0;
-  const size_t v = find_voxel(vm, [&](size_t c, const std::vector<size_t>& n) {
-    if (!Voxelmap::is_stored(vm.distances[c])) return false;
-    for (size_t m : n) {
-      if (!Voxelmap::is_stored(vm.distances[m]) || depth(m) - std::floor(depth(m)) > 0.1) continue;
-      const double candidate = depth(m) + 1.8;
-      const int layer = int(std::floor(candidate));
-      bool steps_ok = true;
-      for (size_t o : n) steps_ok = steps_ok && std::abs(vm.layers[o] - layer) <= 1;
-      if (!steps_ok) continue;
-      new_depth = candidate;
-      return true;
+  // A stored voxel just outside, all of whose neighbours are stored and outside, moved 1.8 voxels farther out:
+  // still within the band, on its side, but more than the voxel diagonal from the neighbour toward the surface.
+  int16_t* c = find_code(vm, [&](int16_t code, const std::vector<int16_t*>& n) {
+    if (!Voxelmap::code_is_stored(code)) return false;
+    const double d = vm.decode(code);
+    if (!(d > 0.3 * h && d < 0.9 * h)) return false;
+    bool nearer = false;
+    for (int16_t* m : n) {
+      if (!m || !Voxelmap::code_is_stored(*m) || !(vm.decode(*m) > 0.1 * h)) return false;
+      nearer |= vm.decode(*m) < d + 1.8 * h - std::sqrt(3.0) * h - 0.01 * h;
     }
-    return false;
+    return nearer;
   });
-  vm.distances[v] = float(-(new_depth - 0.5) * h);
-  vm.layers[v] = int16_t(std::floor(-double(vm.distances[v]) / h + 0.5));
+  *c = vm.encode_stored(vm.decode(*c) + 1.8 * h);
   EXPECT_EQ(codes(a), std::vector<std::string>{"DISTANCE_JUMP"});
 }
 
@@ -699,13 +721,6 @@ Asset bake_default(const std::string& name, BuildReport& report, uint32_t points
   Settings options;  // resolution 128, margin 4, band 3: the defaults
   options.point_shell.points = points;
   return build_asset(kMeshes + "/" + name, options, report);
-}
-
-std::vector<std::string> full_errors(const Asset& a) {
-  std::vector<std::string> out;
-  for (const Issue& issue : validate_asset(a, ValidationLevel::Full))
-    if (issue.severity == Severity::Error) out.push_back(std::string(code_name(issue.code)) + " " + issue.message);
-  return out;
 }
 
 TEST(LibraryRegressions, HalfVoxelTiesDoNotStepTwoLayers) {
@@ -783,14 +798,13 @@ TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
     for (uint32_t k = 0; k < vm.dims[2]; ++k)
       for (uint32_t j = 0; j < vm.dims[1]; ++j)
         for (uint32_t i = 0; i < vm.dims[0]; ++i) {
-          const size_t v = vm.linear_index(i, j, k);
           const double exact = surface.signed_distance(vm.voxel_center(i, j, k)) / h;
-          const bool stored = Voxelmap::is_stored(vm.distances[v]);
+          const VoxelValue value = vm.voxel(i, j, k);
           if (std::abs(std::abs(exact) - vm.distance_band) > edge)
-            wrong_band += stored != (std::abs(exact) <= vm.distance_band);
-          if (stored) wrong_distance += std::abs(vm.distances[v] / h - exact) > 1e-4;
-          if (exact < -0.5 - edge) wrong_side += vm.layers[v] < 1;
-          if (exact > 0.5 + edge) wrong_side += vm.layers[v] > -1;
+            wrong_band += value.stored != (std::abs(exact) <= vm.distance_band);
+          if (value.stored) wrong_distance += std::abs(value.distance / h - exact) > 1e-4;
+          if (exact < -0.5 - edge) wrong_side += vm.layer(i, j, k) < 1;
+          if (exact > 0.5 + edge) wrong_side += vm.layer(i, j, k) > -1;
         }
     EXPECT_EQ(wrong_band, 0u) << name;
     EXPECT_EQ(wrong_distance, 0u) << name;
@@ -828,17 +842,16 @@ void expect_shell_distances(const Asset& asset, const TriangleMesh& mesh, const 
   const Voxelmap& vm = asset.voxelmap;
   ASSERT_TRUE(vm.shell_thickness.has_value()) << name;
   const ExactSurface surface(mesh);
+  std::vector<StoredVoxel> stored = stored_voxels(vm);
   std::mt19937_64 rng(21);
+  std::shuffle(stored.begin(), stored.end(), rng);
   double worst = 0;
   size_t checked = 0, inside = 0;
-  for (int n = 0; n < 200000 && checked < 3000; ++n) {
-    const size_t v = rng() % vm.voxel_count();
-    if (!Voxelmap::is_stored(vm.distances[v])) continue;
-    const uint32_t i = uint32_t(v % vm.dims[0]), j = uint32_t(v / vm.dims[0] % vm.dims[1]),
-                   k = uint32_t(v / (size_t(vm.dims[0]) * vm.dims[1]));
-    const double expected = surface.distance(vm.voxel_center(i, j, k)) - *vm.shell_thickness / 2;
-    worst = std::max(worst, std::abs(double(vm.distances[v]) - expected) / vm.voxel_size);
-    inside += vm.distances[v] < 0;
+  for (const StoredVoxel& v : stored) {
+    if (checked == 3000) break;
+    const double expected = surface.distance(vm.voxel_center(v.i, v.j, v.k)) - *vm.shell_thickness / 2;
+    worst = std::max(worst, std::abs(v.d - expected) / vm.voxel_size);
+    inside += v.d < 0;
     ++checked;
   }
   std::printf("%s: shell %.4g m, %zu band voxels checked (%zu inside), max error %.2e voxel\n", name.c_str(),

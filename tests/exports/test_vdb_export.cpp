@@ -50,16 +50,24 @@ TEST(VdbExport, GridsHoldTheVoxelmap) {
   size_t wrong_distance = 0, wrong_side = 0, wrong_layer = 0;
   auto d_access = distance->getConstAccessor();
   auto l_access = layers->getConstAccessor();
+  constexpr uint32_t E = Voxelmap::kBrickEdge;
   for (uint32_t k = 0; k < vm.dims[2]; ++k)
     for (uint32_t j = 0; j < vm.dims[1]; ++j)
       for (uint32_t i = 0; i < vm.dims[0]; ++i) {
-        const size_t v = vm.linear_index(i, j, k);
         const openvdb::Coord c{int(i), int(j), int(k)};
-        wrong_layer += l_access.getValue(c) != vm.layers[v];
-        if (Voxelmap::is_stored(vm.distances[v])) {
-          wrong_distance += !d_access.isValueOn(c) || d_access.getValue(c) != vm.distances[v];
-        } else if (vm.layers[v] != 0) {
-          wrong_side += (d_access.getValue(c) < 0) != (vm.layers[v] > 0);  // inside: negative background
+        const VoxelValue value = vm.voxel(i, j, k);
+        const int layer = vm.layer(i, j, k);
+        // A coarse brick is one tile holding its middle voxel's layer.
+        const bool coarse = vm.bricks[vm.brick_index(i / E, j / E, k / E)] < 0;
+        const int expected_layer = coarse ? vm.layer(std::min(i / E * E + E / 2, vm.dims[0] - 1),
+                                                     std::min(j / E * E + E / 2, vm.dims[1] - 1),
+                                                     std::min(k / E * E + E / 2, vm.dims[2] - 1))
+                                          : layer;
+        wrong_layer += l_access.getValue(c) != expected_layer;
+        if (value.stored) {
+          wrong_distance += !d_access.isValueOn(c) || d_access.getValue(c) != float(value.distance);
+        } else if (layer != 0) {
+          wrong_side += (d_access.getValue(c) < 0) != (layer > 0);  // inside: negative background
         }
       }
   EXPECT_EQ(wrong_distance, 0u);

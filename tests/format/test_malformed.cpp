@@ -80,8 +80,18 @@ TEST_F(Malformed, MissingDataset) {
 }
 
 TEST_F(Malformed, WrongDtype) {
-  mutate([](hid_t f) { replace_dataset(f, "/voxelmap/layers", H5T_IEEE_F32LE, {5, 9, 13}); });
-  expect_refused(IssueCode::WrongDtype, "/voxelmap/layers");
+  mutate([](hid_t f) { replace_dataset(f, "/voxelmap/bricks", H5T_IEEE_F32LE, {1, 2, 2}); });
+  expect_refused(IssueCode::WrongDtype, "/voxelmap/bricks");
+}
+
+TEST_F(Malformed, BrickTableEntryOutOfRange) {
+  mutate([](hid_t f) {
+    hid_t d = H5Dopen2(f, "/voxelmap/bricks", H5P_DEFAULT);
+    const int32_t entries[4] = {0, -1, -3, 1};  // -3 is neither a value brick nor a coarse side
+    ASSERT_GE(H5Dwrite(d, H5T_NATIVE_INT32, H5S_ALL, H5S_ALL, H5P_DEFAULT, entries), 0);
+    H5Dclose(d);
+  });
+  expect_refused(IssueCode::ValueOutOfRange, "/voxelmap/bricks");
 }
 
 TEST_F(Malformed, WrongShape) {
@@ -106,17 +116,17 @@ TEST_F(Malformed, ChildrenNotBreadthFirst) {
 TEST_F(Malformed, UnknownMajorVersion) {
   mutate([](hid_t f) {
     hid_t a = H5Aopen(f, "format_version", H5P_DEFAULT);
-    const uint32_t v[2] = {2, 0};
+    const uint32_t v[2] = {3, 0};
     H5Awrite(a, H5T_NATIVE_UINT32, v);
     H5Aclose(a);
   });
-  expect_refused(IssueCode::VersionUnsupported, "format version 2.0");
+  expect_refused(IssueCode::VersionUnsupported, "format version 3.0");
 }
 
 TEST_F(Malformed, NewerMinorVersionIsReadWithAWarning) {
   mutate([](hid_t f) {
     hid_t a = H5Aopen(f, "format_version", H5P_DEFAULT);
-    const uint32_t v[2] = {1, 3};
+    const uint32_t v[2] = {2, 3};
     H5Awrite(a, H5T_NATIVE_UINT32, v);
     H5Aclose(a);
     hid_t g = H5Gcreate2(f, "/from_the_future", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);

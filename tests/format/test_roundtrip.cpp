@@ -36,11 +36,12 @@ TEST(RoundTrip, EveryFieldSurvivesWriteAndRead) {
   EXPECT_EQ(b.voxelmap.dims, a.voxelmap.dims);
   EXPECT_EQ(b.voxelmap.distance_band, a.voxelmap.distance_band);
   EXPECT_EQ(b.voxelmap.margin, a.voxelmap.margin);
-  EXPECT_EQ(b.voxelmap.layers, a.voxelmap.layers);
-  ASSERT_EQ(b.voxelmap.distances.size(), a.voxelmap.distances.size());
-  // Bitwise: NaN marks "not stored" and must stay exactly where it was.
-  EXPECT_EQ(0, std::memcmp(b.voxelmap.distances.data(), a.voxelmap.distances.data(),
-                           a.voxelmap.distances.size() * sizeof(float)));
+  EXPECT_EQ(b.voxelmap.distance_quantum, a.voxelmap.distance_quantum);
+  EXPECT_EQ(b.voxelmap.estimate_quantum, a.voxelmap.estimate_quantum);
+  EXPECT_EQ(b.voxelmap.lattice_error, a.voxelmap.lattice_error);
+  EXPECT_EQ(b.voxelmap.bricks, a.voxelmap.bricks);
+  EXPECT_EQ(b.voxelmap.brick_values, a.voxelmap.brick_values);
+  EXPECT_EQ(b.voxelmap.lattice, a.voxelmap.lattice);
 
   EXPECT_EQ(b.point_shell.points, a.point_shell.points);
   EXPECT_EQ(b.point_shell.normals, a.point_shell.normals);
@@ -134,9 +135,10 @@ TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
   const auto old_size = std::filesystem::file_size(path);
 
   Asset changed = test::make_full_asset();
-  changed.voxelmap.distances.assign(changed.voxelmap.distances.size(), std::numeric_limits<float>::quiet_NaN());
+  changed.voxelmap.bricks.assign(changed.voxelmap.bricks.size(), Voxelmap::kCoarseOutside);
+  changed.voxelmap.brick_values.clear();
   WriteOptions options;
-  options.validation = ValidationLevel::Quick;  // all-NaN distances break the full rules; this is about the hook
+  options.validation = ValidationLevel::Quick;  // an all-coarse map breaks no rule here; this is about the hook
   bool temporary_was_complete = false;
   options.before_commit = [&]() -> Status {
     // The temporary is flushed and closed by now: it reads back as a whole asset.
@@ -156,26 +158,31 @@ TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
   ASSERT_TRUE(write_asset(path, changed, options));
   const Result<Asset> back = read_asset(path);
   ASSERT_TRUE(back);
-  EXPECT_EQ(back.value().voxelmap.stored_count(), 0u);  // all-NaN distances: no chunk written, all read as NaN
+  EXPECT_EQ(back.value().voxelmap.stored_count(), 0u);  // no value bricks: an empty dataset reads back empty
+  EXPECT_EQ(back.value().voxelmap.value_brick_count(), 0u);
 }
 
 TEST(Write, FullRulesAreCheckedBeforeTheFileIsReplaced) {
-  // Structurally fine, semantically wrong: a stored distance whose layer says the voxel is deep inside. The
-  // default write checks every rule of `validate --level full` and keeps the earlier file.
+  // Structurally fine, semantically wrong: a stored distance more than a voxel outside turned inside, among
+  // neighbours outside. The default write checks every rule of `validate --level full` and keeps the earlier file.
   const std::string dir = test::scratch_dir("full-rules");
   const std::string path = dir + "/a.vox.h5";
   const Asset sphere = test::make_sphere_asset();  // exact: passes every rule
   ASSERT_TRUE(write_asset(path, sphere));
   const auto old_size = std::filesystem::file_size(path);
   Asset wrong = sphere;
+  Voxelmap& vm = wrong.voxelmap;
   size_t stored = 0;
-  while (!Voxelmap::is_stored(wrong.voxelmap.distances[stored])) ++stored;
-  wrong.voxelmap.layers[stored] = 9;
+  while (!(Voxelmap::code_is_stored(vm.brick_values[stored]) && vm.decode(vm.brick_values[stored]) > 1.2 * vm.voxel_size))
+    ++stored;
+  vm.brick_values[stored] = vm.encode_stored(-vm.decode(vm.brick_values[stored]));
   ASSERT_FALSE(has_errors(validate_asset(wrong, ValidationLevel::Quick)));
   const Status status = write_asset(path, wrong);
   ASSERT_FALSE(status);
   EXPECT_EQ(status.error().code, IssueCode::InvalidAsset);
-  EXPECT_NE(status.error().message.find("spec rule LAYER_"), std::string::npos) << status.error().message;
+  EXPECT_TRUE(status.error().message.find("spec rule SIGN_MISMATCH") != std::string::npos ||
+              status.error().message.find("spec rule DISTANCE_JUMP") != std::string::npos)
+      << status.error().message;
   EXPECT_EQ(std::filesystem::file_size(path), old_size);
   EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()), 1);
 

@@ -16,10 +16,12 @@ Asset make_full_asset() {
   vm.dims = {13, 9, 5};
   vm.distance_band = 2.5;
   vm.margin = 2;
-  for (size_t v = 0; v < vm.voxel_count(); ++v) {
-    vm.layers.push_back(int16_t(int(v % 11) - 5));
-    vm.distances.push_back(v % 3 == 0 ? std::nanf("") : float(0.001 * double(v) - 0.2));
-  }
+  // Structurally valid bricks with arbitrary contents: 2 x 2 x 1 bricks, two of them value bricks.
+  vm.choose_quanta();
+  vm.lattice_error = {0.25, 0.05};
+  vm.bricks = {0, Voxelmap::kCoarseOutside, Voxelmap::kCoarseInside, 1};
+  for (size_t v = 0; v < 2 * Voxelmap::kBrickVoxels; ++v) vm.brick_values.push_back(int16_t(int(v * 37 % 2001) - 1000));
+  for (size_t n = 0; n < vm.lattice_count(); ++n) vm.lattice.push_back(float(0.01 * double(n)));
   PointShell& ps = a.point_shell;
   // Root 0 with children 1..3; node 1 has children 4..5, node 3 has child 6.
   for (int i = 0; i < 7; ++i) {

@@ -35,15 +35,7 @@ std::shared_ptr<const CollisionObject> big_sphere() {
 std::shared_ptr<const CollisionObject> thin_wall() {
   static const auto object = [] {
     Asset a = test::make_sphere_asset({{0, 0, 0}, kObjectRadius, kVoxel, 2000, 4});
-    Voxelmap& vm = a.voxelmap;
-    for (uint32_t k = 0; k < vm.dims[2]; ++k)
-      for (uint32_t j = 0; j < vm.dims[1]; ++j)
-        for (uint32_t i = 0; i < vm.dims[0]; ++i) {
-          const double d = std::abs(vm.voxel_center(i, j, k)[0]) - kVoxel;
-          const size_t v = vm.linear_index(i, j, k);
-          vm.layers[v] = int16_t(std::floor(-d / kVoxel + 0.5));
-          vm.distances[v] = std::abs(d) <= (vm.distance_band - 0.25) * kVoxel ? float(d) : std::nanf("");
-        }
+    a.voxelmap = make_voxelmap(a.voxelmap, [](const Vec3& p) { return std::abs(p[0]) - kVoxel; });
     return load(a);
   }();
   return object;

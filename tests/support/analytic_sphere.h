@@ -1,5 +1,5 @@
 // An exact sphere asset made in code, without the bake: the synthetic fixture of the runtime and Bullet tests,
-// so they run (and fail) on their own. Distances and layers are the closed form |p - c| - r at every voxel.
+// so they run (and fail) on their own. Distances and lattice are the closed form |p - c| - r.
 #pragma once
 
 #include <cmath>
@@ -25,25 +25,15 @@ inline Asset make_sphere_asset(const SphereSpec& s = {}) {
   Asset a;
   a.bounds_min = {c[0] - r, c[1] - r, c[2] - r};
   a.bounds_max = {c[0] + r, c[1] + r, c[2] + r};
-  Voxelmap& vm = a.voxelmap;
-  vm.voxel_size = h;
-  vm.distance_band = band;
-  vm.margin = margin;
+  Voxelmap grid;
+  grid.voxel_size = h;
+  grid.distance_band = band;
+  grid.margin = margin;
   const double half_extent = r + margin * h;
   const uint32_t n = uint32_t(std::lround(2 * half_extent / h)) + 1;
-  vm.dims = {n, n, n};
-  vm.origin = {c[0] - half_extent, c[1] - half_extent, c[2] - half_extent};
-  vm.layers.resize(vm.voxel_count());
-  vm.distances.resize(vm.voxel_count());
-  for (uint32_t k = 0; k < n; ++k)
-    for (uint32_t j = 0; j < n; ++j)
-      for (uint32_t i = 0; i < n; ++i) {
-        const Vec3 p = vm.voxel_center(i, j, k);
-        const double d = std::hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2]) - r;
-        const size_t v = vm.linear_index(i, j, k);
-        vm.layers[v] = int16_t(std::floor(-d / h + 0.5));
-        vm.distances[v] = std::abs(d) <= (band - 0.25) * h ? float(d) : std::nanf("");
-      }
+  grid.dims = {n, n, n};
+  grid.origin = {c[0] - half_extent, c[1] - half_extent, c[2] - half_extent};
+  a.voxelmap = make_voxelmap(grid, [&](const Vec3& p) { return std::hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2]) - r; });
   // Fibonacci sphere: evenly spread points with inward normals, in a complete k-ary breadth-first tree.
   PointShell& ps = a.point_shell;
   const uint32_t count = s.points, b = s.branching;

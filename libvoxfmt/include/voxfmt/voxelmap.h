@@ -46,8 +46,9 @@ struct Voxelmap {
   // ---- encoding (format 2.0)
   double distance_quantum = 0.0;  ///< metres per step of a stored distance (odd codes)
   double estimate_quantum = 0.0;  ///< metres per step of an estimate (even codes)
-  /// Voxels: how far a lattice value may exceed the exact unsigned distance (it is never below it).
-  double lattice_error = 0.0;
+  /// How far a lattice value may exceed the exact unsigned distance u (it is never below it): at most
+  /// lattice_error[0] voxels + lattice_error[1] x u.
+  std::array<double, 2> lattice_error{0.0, 0.0};
   /// Brick table, [BD][BH][BW] (x fastest): >= 0 the index of a value brick, else kCoarseOutside/kCoarseInside.
   std::vector<int32_t> bricks;
   /// Value bricks, kBrickVoxels codes each (x fastest within the brick). Odd code c: a stored distance

@@ -36,8 +36,9 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
   map.decode_step_[1] = float(vm.distance_quantum / h);
   // Fixed point rounds a stored distance by half a step; float arithmetic adds a few ulps of the band.
   map.stored_slack_ = float(0.5 * vm.distance_quantum / h + 1e-6 * vm.distance_band);
-  map.estimate_error_ = float(vm.lattice_error + 0.5 * vm.estimate_quantum / h + 1e-5 * vm.distance_band) +
-                        kInterpolationBound;
+  map.estimate_slack_ = float(0.5 * vm.estimate_quantum / h + 1e-5 * vm.distance_band) + kInterpolationBound;
+  map.estimate_offset_ = float(vm.lattice_error[0]);
+  map.estimate_shrink_ = float(1.0 / (1.0 + vm.lattice_error[1]));
   map.band_edge_ = float(vm.distance_band - 0.5);
   map.bricks_ = std::move(vm.bricks);
   map.codes_ = std::move(vm.brick_values);
@@ -121,9 +122,10 @@ float SparseVoxelmap::lattice_at(const Eigen::Vector3f& u, Eigen::Vector3f* grad
 
 [[gnu::always_inline]] inline float SparseVoxelmap::value_lower_bound(float value, bool stored) const {
   if (stored) return value - stored_slack_;
-  // An estimate is within estimate_error_ of the exact distance, and a voxel without a stored distance is at least
-  // the band's edge from the surface (spec §3).
-  return value > 0 ? std::max(band_edge_, value - estimate_error_) : value - estimate_error_;
+  // A voxel without a stored distance is at least the band's edge from the surface, and its estimate bounds the
+  // exact distance both ways (spec §3.3).
+  return value > 0 ? std::max(band_edge_, (value - estimate_offset_) * estimate_shrink_ - estimate_slack_)
+                   : value - estimate_slack_;
 }
 
 float SparseVoxelmap::value_at(int i, int j, int k) const {

@@ -214,6 +214,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   Voxelmap voxelmap;
   PointShell shell;
   double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
+  std::vector<StageTiming> voxelmap_stages;
   auto timed = [](double& seconds, auto&& work) {
     const auto t0 = std::chrono::steady_clock::now();
     work();
@@ -230,7 +231,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
     }
   });
   try {
-    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options); });
+    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
   } catch (...) {
     tasks.wait();
     throw;
@@ -254,7 +255,8 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
                   shell_thickness);
     report.repair.warnings.push_back({"SHELL_MODE", text});
     voxelmap_options.shell_thickness = shell_thickness;
-    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options); });
+    voxelmap_stages.clear();
+    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
     timed(shell_seconds, [&] { shell = sample_shell(shell_thickness); });
     timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
   }
@@ -271,6 +273,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   report.timings.insert(
       report.timings.end() - 2,
       {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds}, {"sphere tree", tree_seconds}});
+  report.timings.insert(report.timings.end() - 2, voxelmap_stages.begin(), voxelmap_stages.end());
   Asset asset;
   asset.up_axis = options.up_axis;
   asset.bounds_min = lo;

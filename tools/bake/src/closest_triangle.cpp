@@ -92,7 +92,9 @@ uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<
   return id;
 }
 
-std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound2, uint32_t hint) const {
+std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound2, uint32_t hint,
+                                                     double slack) const {
+  const double shrink = 1 / ((1 + slack) * (1 + slack));  // a box must be this much nearer than the best to open
   double best = bound2;
   uint32_t best_triangle = hint;
   if (nodes_.empty()) return {best, best_triangle};
@@ -111,7 +113,7 @@ std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound
   stack[top++] = 0;
   while (top > 0) {
     const Node& n = nodes_[stack[--top]];
-    if (box_distance2(n) >= best) continue;
+    if (box_distance2(n) >= best * shrink) continue;
     if (n.count > 0) {
       for (uint32_t i = n.first; i < n.first + n.count; ++i) {
         const double d2 = distance2_to_triangle(p, tris_[i][0], tris_[i][1], tris_[i][2]);
@@ -125,12 +127,13 @@ std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound
     const uint32_t left = uint32_t(&n - nodes_.data()) + 1, right = n.first;
     const double dl = box_distance2(nodes_[left]), dr = box_distance2(nodes_[right]);
     if (top + 2 > 64) continue;  // deeper than any median-split tree of 2^32 triangles
+    const double open_below = best * shrink;
     if (dl <= dr) {
-      if (dr < best) stack[top++] = right;
-      if (dl < best) stack[top++] = left;
+      if (dr < open_below) stack[top++] = right;
+      if (dl < open_below) stack[top++] = left;
     } else {
-      if (dl < best) stack[top++] = left;
-      if (dr < best) stack[top++] = right;
+      if (dl < open_below) stack[top++] = left;
+      if (dr < open_below) stack[top++] = right;
     }
   }
   return {best, best_triangle};

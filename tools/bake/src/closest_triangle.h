@@ -15,8 +15,9 @@ class ClosestTriangle {
   /// `corners`: three corners per triangle (any frame; queries use the same one).
   explicit ClosestTriangle(const std::vector<std::array<Vec3, 3>>& corners);
   /// Squared distance to the nearest triangle and its index, searching only closer than sqrt(`bound2`); if none
-  /// is, returns {bound2, `hint`}.
-  std::pair<double, uint32_t> nearest(const Vec3& p, double bound2, uint32_t hint) const;
+  /// is, returns {bound2, `hint`}. With `slack` > 0 the result may be up to (1 + slack) times the nearest
+  /// distance: boxes that could only improve it by less are not opened (far from the surface that is most).
+  std::pair<double, uint32_t> nearest(const Vec3& p, double bound2, uint32_t hint, double slack = 0) const;
 
  private:
   struct Node {

@@ -59,9 +59,11 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
 
 // ---------------------------------------------------------------- 3. voxelmap
 
-/// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh: exact distances in the band,
-/// chamfer layers beyond it.
-Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings);
+/// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh, sparsely: exact distances in
+/// the band (value bricks), exact unsigned distances at the brick corners (the lattice) for everything beyond.
+/// `timings`, if given, receives the sub-stages ("voxelmap: band", "voxelmap: lattice", "voxelmap: estimates").
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings,
+                        std::vector<StageTiming>* timings = nullptr);
 
 // ---------------------------------------------------------------- 4. point shell
 

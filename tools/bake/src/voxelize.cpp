@@ -14,10 +14,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <tuple>
 #include <unordered_map>
 
 #include "closest_triangle.h"
@@ -451,15 +453,56 @@ float coarse_sign(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, 
       return carried;
     case SignRule::Shell:
       return 1;  // farther than r = band + half the thickness from the surface: outside the shell
-    case SignRule::Winding: {
-      // The winding number varies slowly this far from the surface; the brick's middle voxel speaks for it.
-      const double i = double(std::min<int64_t>(bi * kEdge + kEdge / 2, in.g.dims[0] - 1));
-      const double j = double(std::min<int64_t>(bj * kEdge + kEdge / 2, in.g.dims[1] - 1));
-      const double k = double(std::min<int64_t>(bk * kEdge + kEdge / 2, in.g.dims[2] - 1));
-      return winding_inside(in, voxel_point(in.g, i, j, k), false) ? -1.0f : 1.0f;
-    }
+    case SignRule::Winding:
+      break;  // winding_brick_signs decides
   }
+  (void)bi, (void)bj, (void)bk;
   return 1;
+}
+
+// Winding rule, a brick without a voxel within r of the surface: no surface passes through it (its voxel centres'
+// hull lies more than r - sqrt(3)/2 from it), so the winding number is smooth there and changes side only across
+// the closure of a hole. The middle voxel decides a brick far from 1/2; nearer, the brick's 8 corner voxels do,
+// and where they disagree each voxel takes the side of their trilinear interpolation (spec §3.1: beyond the band
+// the winding number may be interpolated). Returns true if every voxel is on the side `sign[0]` says.
+bool winding_brick_signs(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, float* sign) {
+  const GridGeometry& g = in.g;
+  int64_t first[3] = {bi * kEdge, bj * kEdge, bk * kEdge}, last[3];
+  for (int a = 0; a < 3; ++a) last[a] = std::min<int64_t>(first[a] + kEdge, g.dims[size_t(a)]) - 1;
+  auto point = [&](int64_t i, int64_t j, int64_t k) { return voxel_point(g, double(i), double(j), double(k)); };
+  // The approximate winding number itself (no bounding-box rule: that applies to each voxel's decision below, and
+  // the value is what says how far the brick is from 1/2).
+  const double middle =
+      (*in.winding)(point((first[0] + last[0]) / 2, (first[1] + last[1]) / 2, (first[2] + last[2]) / 2));
+  const bool whole_brick_in_box = inside_box(in.mesh_box, point(first[0], first[1], first[2])) &&
+                                  inside_box(in.mesh_box, point(last[0], last[1], last[2]));
+  if (std::abs(middle - 0.5) >= 0.4 && (whole_brick_in_box || middle < 0.5)) {
+    std::fill(sign, sign + kBrickVoxels, middle >= 0.5 ? -1.0f : 1.0f);
+    return true;
+  }
+  double corner[8];
+  bool corners_known = false;
+  if (std::abs(middle - 0.5) < 0.4) {
+    for (int c = 0; c < 8; ++c)
+      corner[c] = (*in.winding)(point(c & 1 ? last[0] : first[0], c & 2 ? last[1] : first[1], c & 4 ? last[2] : first[2]));
+    corners_known = true;
+  }
+  bool uniform = true;
+  for (size_t v = 0; v < kBrickVoxels; ++v) {
+    const int64_t l[3] = {int64_t(v) % kEdge, int64_t(v) / kEdge % kEdge, int64_t(v) / (kEdge * kEdge)};
+    double w = middle;
+    if (corners_known) {
+      double t[3];
+      for (int a = 0; a < 3; ++a) t[a] = last[a] > first[a] ? std::min(1.0, double(l[a]) / double(last[a] - first[a])) : 0.0;
+      w = 0;
+      for (int c = 0; c < 8; ++c)
+        w += corner[c] * (c & 1 ? t[0] : 1 - t[0]) * (c & 2 ? t[1] : 1 - t[1]) * (c & 4 ? t[2] : 1 - t[2]);
+    }
+    const bool inside = w >= 0.5 && inside_box(in.mesh_box, point(first[0] + l[0], first[1] + l[1], first[2] + l[2]));
+    sign[v] = inside ? -1.0f : 1.0f;
+    uniform = uniform && sign[v] == sign[0];
+  }
+  return uniform;
 }
 
 // Winding rule: signs of a brick's voxels farther than r from the surface. Each takes the sign of the band voxels
@@ -523,14 +566,28 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
   float carried[kEdge * kEdge];                       // each voxel row's sign at the last voxel reached
   std::fill(carried, carried + kEdge * kEdge, 1.0f);  // a row starts outside: its first voxel lies in the margin
   float distance[kBrickVoxels], near_sign[kBrickVoxels], sign[kBrickVoxels];
+  std::fill(sign, sign + kBrickVoxels, 1.0f);
   auto set_coarse = [&](int64_t bi, float s) {
     if (s < 0) table[size_t((bk * g.bricks[1] + bj) * BW + bi)] = Voxelmap::kCoarseInside;
     std::fill(carried, carried + kEdge * kEdge, s);
   };
+  // A brick with no voxel within r of the surface: coarse, unless the winding number's closure of a hole passes
+  // through it (then a value brick of estimates only, each voxel with its own sign).
+  auto beyond_band = [&](int64_t bi) {
+    if (in.rule != SignRule::Winding) return set_coarse(bi, coarse_sign(in, bi, bj, bk, carried[0]));
+    if (winding_brick_signs(in, bi, bj, bk, sign)) return set_coarse(bi, sign[0]);
+    out.bricks.push_back((bk * g.bricks[1] + bj) * BW + bi);
+    for (size_t v = 0; v < kBrickVoxels; ++v) {
+      const bool in_grid = bi * kEdge + int64_t(v) % kEdge < g.dims[0] &&
+                           bj * kEdge + int64_t(v) / kEdge % kEdge < g.dims[1] &&
+                           bk * kEdge + int64_t(v) / (kEdge * kEdge) < g.dims[2];
+      out.codes.push_back(in_grid ? int16_t(sign[v] < 0 ? -2 : 2) : int16_t(0));
+    }
+  };
   int64_t next = 0;  // the first brick of the row not yet decided
   for (int64_t slot = first; slot <= end; ++slot) {
     const int64_t bi = slot < end ? in.lists.bricks[size_t(slot)] % BW : BW;
-    for (; next < bi; ++next) set_coarse(next, coarse_sign(in, next, bj, bk, carried[0]));
+    for (; next < bi; ++next) beyond_band(next);
     if (slot == end) break;
     next = bi + 1;
     brick_band(in, slot, bi, bj, bk, distance, near_sign);
@@ -596,6 +653,11 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
 // hierarchy over the triangles then finds the nearest triangle within that bound, which keeps its search small.
 
 constexpr uint64_t kNoTriangle = ~uint64_t(0);
+// Within kExactReach voxels of the surface lattice values are exact; beyond, they may exceed the exact distance by
+// kFarSlack of it (spec §3.3): a search that needs only that much opens far fewer boxes far from the surface, where
+// the lattice serves deep penetrations and distant pruning only.
+constexpr double kExactReach = 16.0;
+constexpr double kFarSlack = 0.1;
 
 struct Lattice {
   std::array<int64_t, 3> dims{};
@@ -672,7 +734,11 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
         std::memcpy(&d2f, &bits, sizeof d2f);
         if (key != kNoTriangle && double(d2f) < r2) continue;  // exact already
         const double bound2 = key == kNoTriangle ? std::numeric_limits<double>::infinity() : double(d2f) * (1 + 1e-6);
-        const auto [d2, f] = hierarchy.nearest(point(a, b, c), bound2, uint32_t(key));
+        // A search with slack finds a distance d within (1 + slack) of the exact one: if d is beyond
+        // kExactReach (1 + slack), the point is beyond kExactReach and may keep it; otherwise it is searched exactly.
+        const double reach2 = kExactReach * kExactReach * (1 + kFarSlack) * (1 + kFarSlack);
+        auto [d2, f] = hierarchy.nearest(point(a, b, c), bound2, uint32_t(key), bound2 > reach2 ? kFarSlack : 0.0);
+        if (bound2 > reach2 && d2 <= reach2) std::tie(d2, f) = hierarchy.nearest(point(a, b, c), d2 * (1 + 1e-9), f, 0.0);
         if (!(d2 < bound2)) continue;
         const float nearest = float(d2);
         uint32_t nearest_bits;
@@ -691,7 +757,13 @@ float float_not_below(double value) {
 
 }  // namespace
 
-Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options) {
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings) {
+  auto clock = std::chrono::steady_clock::now();
+  auto lap = [&](const char* name) {
+    const auto now = std::chrono::steady_clock::now();
+    if (timings) timings->push_back({name, std::chrono::duration<double>(now - clock).count()});
+    clock = now;
+  };
   if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
   GridGeometry g = plan_grid(mesh, options);
   // Shell mode: the object is every point within half the thickness of the surface; the grid's margin grows
@@ -768,6 +840,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     std::vector<int16_t>().swap(o.codes);
   }
 
+  lap("voxelmap: band");
   // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
   {
     const Lattice L = propagate_lattice(g, triangles, lists, r);
@@ -780,8 +853,10 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
       vm.lattice[n] = float_not_below((shell ? std::abs(u - half_shell) : u) * g.voxel_size);
     });
   }
-  // Exact but for rounding: squared distances compared as floats (2^-24 relative) and values kept as floats.
-  vm.lattice_error = 1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]}));
+  lap("voxelmap: lattice");
+  // Within kExactReach of the surface, or within kFarSlack beyond it (spec §3.3), but for rounding: squared distances
+  // compared as floats (2^-24 relative) and values kept as floats.
+  vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
   tbb::parallel_for(size_t(0), vm.bricks.size(), [&](size_t n) {
     const int32_t entry = vm.bricks[n];
     if (entry < 0) return;
@@ -789,6 +864,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
                          vm.brick_values.data() + size_t(entry) * kBrickVoxels);
   });
+  lap("voxelmap: estimates");
   return vm;
 }
 

@@ -59,8 +59,11 @@ class SparseVoxelmap {
   size_t brick_count() const { return bricks_.size(); }
   /// Bricks with a code per voxel (those near the surface); the others are read from the lattice.
   size_t value_brick_count() const { return codes_.size() / kBrickVoxels; }
-  /// Voxels: the most an estimate (a voxel without a stored distance) may be from the exact distance.
-  float estimate_error() const { return estimate_error_; }
+  /// How far an estimate m (voxels; a voxel without a stored distance) may be from the exact distance u:
+  /// u <= m + estimate_slack() and u >= (m - estimate_offset()) / (1 + estimate_relative()) - estimate_slack().
+  float estimate_slack() const { return estimate_slack_; }
+  float estimate_offset() const { return estimate_offset_; }
+  float estimate_relative() const { return 1.0f / estimate_shrink_ - 1.0f; }
 
   static constexpr int kBrickEdge = int(voxfmt::Voxelmap::kBrickEdge);
   static constexpr int kBrickVoxels = int(voxfmt::Voxelmap::kBrickVoxels);
@@ -88,7 +91,12 @@ class SparseVoxelmap {
   std::array<int, 3> lattice_dims_{};
   float decode_step_[2] = {1.0f, 1.0f};  ///< a code's multiplier by its lowest bit: estimate, stored distance
   float stored_slack_ = 0.0f;    ///< how far a decoded stored distance may be from the file's exact one
-  float estimate_error_ = 0.0f;  ///< how far an estimate may be from the exact distance
+  // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack, with
+  // slack the interpolation's reach (4 sqrt(3)) and half an estimate step, offset the lattice's absolute error and
+  // shrink 1 / (1 + its relative error).
+  float estimate_slack_ = 0.0f;
+  float estimate_offset_ = 0.0f;
+  float estimate_shrink_ = 1.0f;
   float band_edge_ = 0.0f;       ///< distance_band - 1/2: voxels without a stored distance are at least this far
   Eigen::Vector3f cover_max_ = -Eigen::Vector3f::Ones();  ///< upper end of the grid's voxels, grid coordinates
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
