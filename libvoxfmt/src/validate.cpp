@@ -7,8 +7,11 @@
 #include <new>
 #include <optional>
 #include <sstream>
+#include <system_error>
+#include <thread>
 
 #include "load.h"
+#include "voxfmt/cores.h"
 
 namespace voxfmt {
 
@@ -247,104 +250,235 @@ std::string voxel_name(uint64_t i, uint64_t j, uint64_t k) {
   return "voxel (" + std::to_string(i) + ", " + std::to_string(j) + ", " + std::to_string(k) + ")";
 }
 
-// Spec §3 for format 2.0: stored distances within the band, estimates as the lattice gives them, and no voxel on
-// the wrong side: two 6-neighbours of opposite sign must be near enough to the surface for it to pass between
-// them (|d1| + |d2| <= h). A voxel without a stored distance is at least (band - 1/2) h from the surface.
-void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {
-  const std::string g = "/voxelmap";
-  const double h = vm.voxel_size, band_m = vm.distance_band * h;
-  const double not_stored_at_least = (vm.distance_band - 0.5) * h;
-  constexpr uint32_t E = Voxelmap::kBrickEdge;
-  bool outside_reported = false, estimate_reported = false, sign_reported = false, jump_reported = false;
-  // A voxel's sign and how near the surface it may be (metres).
+// Spec §3 for format 2.0, checked brick by brick: stored distances within the band, estimates as the lattice gives
+// them, and no voxel on the wrong side: two 6-neighbours of opposite sign must be near enough to the surface for it
+// to pass between them (|d1| + |d2| <= h, a voxel without a stored distance being at least (band - 1/2) h from
+// it), and stored neighbours no more than the voxel diagonal apart. Value bricks are shared among threads; each
+// reports its own first findings, merged in brick order.
+class VoxelmapRules {
+ public:
+  VoxelmapRules(const Voxelmap& vm, bool closed_surface)
+      : vm_(vm),
+        closed_(closed_surface),
+        h_(vm.voxel_size),
+        inverse_h_(1.0 / vm.voxel_size),
+        band_m_(vm.distance_band * vm.voxel_size),
+        edge_m_((vm.distance_band - 0.5) * vm.voxel_size),
+        sign_limit_(vm.voxel_size * (1 + 1e-6) + vm.distance_quantum),
+        jump_limit_(vm.voxel_size * std::sqrt(3.0)) {}
+
+  // Checks the value bricks among `bricks` (table indices) in order, appending findings to `issues`.
+  void check(const std::vector<size_t>& bricks, size_t begin, size_t end, std::vector<Issue>& issues) {
+    Findings f{issues};
+    const auto bd = vm_.brick_dims();
+    for (size_t n = begin; n < end && !f.all(); ++n) {
+      const size_t b = bricks[n];
+      brick(uint32_t(b % bd[0]), uint32_t(b / bd[0] % bd[1]), uint32_t(b / (size_t(bd[0]) * bd[1])), f);
+    }
+  }
+
+ private:
+  static constexpr uint32_t E = Voxelmap::kBrickEdge;
   struct Near {
     double distance;  // signed: stored, or the estimate
     double nearest;   // lower bound of |d|
     bool stored;
   };
-  auto near_of = [&](uint32_t i, uint32_t j, uint32_t k) {
-    const int32_t entry = vm.bricks[vm.brick_index(i / E, j / E, k / E)];
-    if (entry < 0)
-      return Near{entry == Voxelmap::kCoarseInside ? -not_stored_at_least : not_stored_at_least, not_stored_at_least,
-                  false};
-    const int16_t code = vm.brick_values[size_t(entry) * Voxelmap::kBrickVoxels +
-                                         Voxelmap::local_index(i % E, j % E, k % E)];
-    const double d = vm.decode(code);
-    return Near{d, Voxelmap::code_is_stored(code) ? std::abs(d) : not_stored_at_least, Voxelmap::code_is_stored(code)};
-  };
-  auto check_pair = [&](uint32_t i, uint32_t j, uint32_t k, const Near& a, uint32_t ni, uint32_t nj, uint32_t nk) {
-    const Near b = near_of(ni, nj, nk);
-    if (!sign_reported && (a.distance < 0) != (b.distance < 0) && a.nearest + b.nearest > h * (1 + 1e-6) +
-                                                                      vm.distance_quantum) {
-      c.add(IssueCode::SignMismatch, g + "/brick_values",
-            voxel_name(i, j, k) + " and " + voxel_name(ni, nj, nk) +
-                " are one voxel apart and on opposite sides of the surface, but too far from it for the surface to "
-                "pass between them (" +
-                fmt(a.distance / h) + " and " + fmt(b.distance / h) + " voxels)");
-      sign_reported = true;
-    }
-    if (!jump_reported && a.stored && b.stored && std::abs(a.distance - b.distance) > h * std::sqrt(3.0)) {
-      c.add(IssueCode::DistanceJump, g + "/brick_values",
-            voxel_name(i, j, k) + " and " + voxel_name(ni, nj, nk) +
-                " are one voxel apart but their distances differ by more than the voxel diagonal: " +
-                fmt(std::abs(a.distance - b.distance) / h) + " voxels");
-      jump_reported = true;
+  struct Findings {
+    std::vector<Issue>& issues;
+    bool outside = false, estimate = false, sign = false, jump = false;
+    bool all() const { return outside && estimate && sign && jump; }
+    void add(IssueCode code, const std::string& message) {
+      issues.push_back(Issue{code, severity_of(code), "/voxelmap/brick_values", message});
     }
   };
-  vm.for_each_value_brick([&](uint32_t bi, uint32_t bj, uint32_t bk, const int16_t* codes) {
-    for (uint32_t lk = 0; lk < E && bk * E + lk < vm.dims[2]; ++lk)
-      for (uint32_t lj = 0; lj < E && bj * E + lj < vm.dims[1]; ++lj)
-        for (uint32_t li = 0; li < E && bi * E + li < vm.dims[0]; ++li) {
-          const uint32_t i = bi * E + li, j = bj * E + lj, k = bk * E + lk;
-          const int16_t code = codes[Voxelmap::local_index(li, lj, lk)];
-          const double d = vm.decode(code);
-          if (Voxelmap::code_is_stored(code)) {
-            if (!outside_reported && std::abs(d) > band_m + 0.5 * vm.distance_quantum) {
-              c.add(IssueCode::DistanceOutsideBand, g + "/brick_values",
-                    voxel_name(i, j, k) + " stores the distance " + fmt(d) + " m, beyond the band of " +
-                        fmt(band_m) + " m");
-              outside_reported = true;
-            }
-          } else if (!estimate_reported) {
-            const double magnitude = vm.coarse_magnitude(i, j, k);
-            if (std::abs(std::abs(d) - magnitude) > 0.5 * vm.estimate_quantum * (1 + 1e-6) + 1e-9 * magnitude ||
-                code == 0) {
-              c.add(IssueCode::EstimateMismatch, g + "/brick_values",
-                    voxel_name(i, j, k) + " holds the estimate " + fmt(d) + " m, the lattice gives " +
-                        fmt(magnitude) + " m");
-              estimate_reported = true;
-            }
-          }
-          if (!closed_surface) continue;  // across a closed hole the sign changes away from the surface
-          const Near a{d, Voxelmap::code_is_stored(code) ? std::abs(d) : not_stored_at_least,
-                       Voxelmap::code_is_stored(code)};
-          if (i + 1 < vm.dims[0]) check_pair(i, j, k, a, i + 1, j, k);
-          if (j + 1 < vm.dims[1]) check_pair(i, j, k, a, i, j + 1, k);
-          if (k + 1 < vm.dims[2]) check_pair(i, j, k, a, i, j, k + 1);
-          if (i > 0 && li == 0) check_pair(i, j, k, a, i - 1, j, k);
-          if (j > 0 && lj == 0) check_pair(i, j, k, a, i, j - 1, k);
-          if (k > 0 && lk == 0) check_pair(i, j, k, a, i, j, k - 1);
+
+  Near near_of(uint32_t i, uint32_t j, uint32_t k) const {
+    const int32_t entry = vm_.bricks[vm_.brick_index(i / E, j / E, k / E)];
+    if (entry < 0) return Near{entry == Voxelmap::kCoarseInside ? -edge_m_ : edge_m_, edge_m_, false};
+    const int16_t code = vm_.brick_values[size_t(entry) * Voxelmap::kBrickVoxels + Voxelmap::local_index(i % E, j % E, k % E)];
+    const double d = vm_.decode(code);
+    return Near{d, Voxelmap::code_is_stored(code) ? std::abs(d) : edge_m_, Voxelmap::code_is_stored(code)};
+  }
+
+  bool pair_breaks_a_rule(const Near& a, const Near& b) const {
+    return ((a.distance < 0) != (b.distance < 0) && a.nearest + b.nearest > sign_limit_) ||
+           (a.stored && b.stored && std::abs(a.distance - b.distance) > jump_limit_);
+  }
+
+  void report_pair(const uint32_t (&at)[3], const Near& a, const uint32_t (&other)[3], const Near& b, Findings& f) const {
+    const std::string names = voxel_name(at[0], at[1], at[2]) + " and " + voxel_name(other[0], other[1], other[2]);
+    if (!f.sign && (a.distance < 0) != (b.distance < 0) && a.nearest + b.nearest > sign_limit_) {
+      f.add(IssueCode::SignMismatch, names +
+                                         " are one voxel apart and on opposite sides of the surface, but too far "
+                                         "from it for the surface to pass between them (" +
+                                         fmt(a.distance / h_) + " and " + fmt(b.distance / h_) + " voxels)");
+      f.sign = true;
+    }
+    if (!f.jump && a.stored && b.stored && std::abs(a.distance - b.distance) > jump_limit_) {
+      f.add(IssueCode::DistanceJump, names + " are one voxel apart but their distances differ by more than the voxel "
+                                             "diagonal: " +
+                                             fmt(std::abs(a.distance - b.distance) / h_) + " voxels");
+      f.jump = true;
+    }
+  }
+
+  void brick(uint32_t bi, uint32_t bj, uint32_t bk, Findings& f) const {
+    const int16_t* codes = vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
+    // The estimates this brick's codes must hold, computed as the producer does (fill_brick_estimates keeps each
+    // code's sign and leaves stored codes alone).
+    int16_t expected[Voxelmap::kBrickVoxels];
+    std::copy(codes, codes + Voxelmap::kBrickVoxels, expected);
+    fill_brick_estimates(vm_, bi, bj, bk, expected);
+    const uint32_t first[3] = {bi * E, bj * E, bk * E};
+    const uint32_t count[3] = {std::min(E, vm_.dims[0] - first[0]), std::min(E, vm_.dims[1] - first[1]),
+                               std::min(E, vm_.dims[2] - first[2])};
+    Near near[Voxelmap::kBrickVoxels];
+    // Flat copies in voxels for the pair pass below; positions past the grid take part in no pair.
+    float value[Voxelmap::kBrickVoxels], nearest[Voxelmap::kBrickVoxels];
+    uint8_t stored[Voxelmap::kBrickVoxels], valid[Voxelmap::kBrickVoxels];
+    for (uint32_t v = 0; v < Voxelmap::kBrickVoxels; ++v) {
+      const uint32_t li = v % E, lj = v / E % E, lk = v / (E * E);
+      valid[v] = li < count[0] && lj < count[1] && lk < count[2];
+      const int16_t code = codes[v];
+      const bool is_stored = Voxelmap::code_is_stored(code);
+      const double d = vm_.decode(code);
+      near[v] = Near{d, is_stored ? std::abs(d) : edge_m_, is_stored};
+      value[v] = valid[v] ? float(d * inverse_h_) : 1.0f;
+      nearest[v] = valid[v] ? float(near[v].nearest * inverse_h_) : 1e9f;
+      stored[v] = valid[v] && is_stored;
+      if (!valid[v]) continue;
+      if (is_stored) {
+        if (!f.outside && std::abs(d) > band_m_ + 0.5 * vm_.distance_quantum) {
+          f.add(IssueCode::DistanceOutsideBand, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
+                                                    " stores the distance " + fmt(d) + " m, beyond the band of " +
+                                                    fmt(band_m_) + " m");
+          f.outside = true;
         }
-  });
-  if (!closed_surface || sign_reported) return;
+      } else if (!f.estimate && (code == 0 || std::abs((code >> 1) - (expected[v] >> 1)) > 1)) {
+        // One step either way: another producer may round the same value the other way.
+        f.add(IssueCode::EstimateMismatch, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
+                                               " holds the estimate " + fmt(d) + " m, the lattice gives " +
+                                               fmt(vm_.decode(expected[v])) + " m");
+        f.estimate = true;
+      }
+    }
+    if (!closed_ || (f.sign && f.jump)) return;  // across a closed hole the sign changes away from the surface
+    // Pairs inside the brick, one axis at a time, branch-free: the common case finds nothing; the brick is searched
+    // pair by pair only if some pair breaks a rule.
+    const float sign_limit = float(sign_limit_ / h_), jump_limit = float(jump_limit_ / h_);
+    int bad = 0;
+    auto pairs_along = [&](uint32_t stride, uint32_t ni, uint32_t nj, uint32_t nk) {
+      for (uint32_t lk = 0; lk < nk; ++lk)
+        for (uint32_t lj = 0; lj < nj; ++lj)
+          for (uint32_t li = 0; li < ni; ++li) {
+            const uint32_t v = (lk * E + lj) * E + li, n = v + stride;
+            const int sides = (value[v] < 0) != (value[n] < 0);
+            const int far = nearest[v] + nearest[n] > sign_limit;
+            const int jump = stored[v] & stored[n] & (std::abs(value[v] - value[n]) > jump_limit);
+            bad |= valid[v] & valid[n] & ((sides & far) | jump);
+          }
+    };
+    pairs_along(1, E - 1, E, E);
+    pairs_along(E, E, E - 1, E);
+    pairs_along(E * E, E, E, E - 1);
+    // Across the brick's faces through the table: toward a value brick only on the upper faces (that brick's lower
+    // faces would repeat them), toward a coarse one on both.
+    for (int axis = 0; axis < 3; ++axis) {
+      const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
+      for (uint32_t side = 0; side < 2; ++side) {
+        const uint32_t l_axis = side == 0 ? 0 : count[axis] - 1;
+        const int64_t neighbour_axis = int64_t(first[axis] + l_axis) + (side == 0 ? -1 : 1);
+        if (neighbour_axis < 0 || neighbour_axis >= int64_t(vm_.dims[size_t(axis)])) continue;
+        uint32_t probe[3] = {first[0], first[1], first[2]};
+        probe[axis] = uint32_t(neighbour_axis);
+        const bool coarse_neighbour = vm_.bricks[vm_.brick_index(probe[0] / E, probe[1] / E, probe[2] / E)] < 0;
+        if (side == 0 && !coarse_neighbour) continue;
+        for (uint32_t lv = 0; lv < count[w]; ++lv)
+          for (uint32_t lu = 0; lu < count[u]; ++lu) {
+            uint32_t l[3];
+            l[axis] = l_axis;
+            l[u] = lu;
+            l[w] = lv;
+            uint32_t at[3] = {first[0] + l[0], first[1] + l[1], first[2] + l[2]}, other[3] = {at[0], at[1], at[2]};
+            other[axis] = uint32_t(neighbour_axis);
+            const Near& a = near[Voxelmap::local_index(l[0], l[1], l[2])];
+            const Near b = near_of(other[0], other[1], other[2]);
+            if (pair_breaks_a_rule(a, b)) report_pair(at, a, other, b, f);
+          }
+      }
+    }
+    if (!bad) return;
+    for (uint32_t lk = 0; lk < count[2]; ++lk)
+      for (uint32_t lj = 0; lj < count[1]; ++lj)
+        for (uint32_t li = 0; li < count[0]; ++li) {
+          const uint32_t l[3] = {li, lj, lk};
+          const uint32_t at[3] = {first[0] + li, first[1] + lj, first[2] + lk};
+          const Near& a = near[Voxelmap::local_index(li, lj, lk)];
+          for (int axis = 0; axis < 3; ++axis) {
+            if (l[axis] + 1 >= count[axis]) continue;
+            uint32_t n[3] = {l[0], l[1], l[2]}, other[3] = {at[0], at[1], at[2]};
+            ++n[axis];
+            ++other[axis];
+            const Near& b = near[Voxelmap::local_index(n[0], n[1], n[2])];
+            if (pair_breaks_a_rule(a, b)) report_pair(at, a, other, b, f);
+          }
+        }
+  }
+
+  const Voxelmap& vm_;
+  bool closed_;
+  double h_, inverse_h_, band_m_, edge_m_, sign_limit_, jump_limit_;
+};
+
+void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {
+  std::vector<size_t> bricks;
+  bricks.reserve(vm.value_brick_count());
+  for (size_t b = 0; b < vm.bricks.size(); ++b)
+    if (vm.bricks[b] >= 0) bricks.push_back(b);
+  // A share of the bricks per thread; each thread's findings are its bricks' in order, so the merged list is too.
+  const unsigned threads = std::max(1u, std::min<unsigned>(usable_cores(), unsigned(bricks.size() / 256 + 1)));
+  std::vector<std::vector<Issue>> found(threads);
+  std::vector<std::thread> pool;
+  auto run = [&](unsigned t) {
+    VoxelmapRules(vm, closed_surface).check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t]);
+  };
+  for (unsigned t = 1; t < threads; ++t) {
+    try {
+      pool.emplace_back(run, t);
+    } catch (const std::system_error&) {
+      run(t);  // no thread to be had: this one does that share too
+    }
+  }
+  run(0);
+  for (std::thread& t : pool) t.join();
+  std::vector<IssueCode> reported;
+  for (const auto& issues : found)
+    for (const Issue& issue : issues) {
+      if (std::find(reported.begin(), reported.end(), issue.code) != reported.end()) continue;
+      reported.push_back(issue.code);
+      c.add(issue.code, issue.path, issue.message);
+    }
+  if (!closed_surface || std::find(reported.begin(), reported.end(), IssueCode::SignMismatch) != reported.end()) return;
   // Neighbouring coarse bricks: the surface cannot pass between two voxels both farther than (band - 1/2) h.
+  const double h = vm.voxel_size;
+  if (2 * (vm.distance_band - 0.5) * h <= h * (1 + 1e-6)) return;
   const auto b = vm.brick_dims();
-  for (uint32_t bk = 0; bk < b[2] && !sign_reported; ++bk)
-    for (uint32_t bj = 0; bj < b[1] && !sign_reported; ++bj)
-      for (uint32_t bi = 0; bi < b[0] && !sign_reported; ++bi) {
+  for (uint32_t bk = 0; bk < b[2]; ++bk)
+    for (uint32_t bj = 0; bj < b[1]; ++bj)
+      for (uint32_t bi = 0; bi < b[0]; ++bi) {
         const int32_t entry = vm.bricks[vm.brick_index(bi, bj, bk)];
         if (entry >= 0) continue;
         const uint32_t next[3][3] = {{bi + 1, bj, bk}, {bi, bj + 1, bk}, {bi, bj, bk + 1}};
         for (const auto& n : next) {
           if (n[0] >= b[0] || n[1] >= b[1] || n[2] >= b[2]) continue;
           const int32_t other = vm.bricks[vm.brick_index(n[0], n[1], n[2])];
-          if (other >= 0 || other == entry || 2 * not_stored_at_least <= h * (1 + 1e-6)) continue;
-          c.add(IssueCode::SignMismatch, g + "/bricks",
+          if (other >= 0 || other == entry) continue;
+          c.add(IssueCode::SignMismatch, "/voxelmap/bricks",
                 "coarse bricks (" + std::to_string(bi) + ", " + std::to_string(bj) + ", " + std::to_string(bk) +
                     ") and (" + std::to_string(n[0]) + ", " + std::to_string(n[1]) + ", " + std::to_string(n[2]) +
                     ") touch but lie on opposite sides of the surface");
-          sign_reported = true;
-          break;
+          return;
         }
       }
 }

@@ -8,6 +8,14 @@ namespace {
 
 constexpr uint32_t kEdge = Voxelmap::kBrickEdge;
 
+// std::lround (half away from zero) without the library call: codes are rounded for every voxel of a bake and a
+// full validation. Exact for the magnitudes clamp_steps keeps.
+long round_half_away(double x) {
+  const double r = std::floor(std::abs(x) + 0.5);
+  const long magnitude = r < 1e9 ? long(r) : 1000000000L;
+  return x < 0 ? -magnitude : magnitude;
+}
+
 int16_t clamp_steps(long steps, long minimum_magnitude) {
   steps = std::clamp<long>(steps, -Voxelmap::kMaxSteps, Voxelmap::kMaxSteps);
   if (std::abs(steps) < minimum_magnitude) steps = steps < 0 ? -minimum_magnitude : minimum_magnitude;
@@ -40,11 +48,11 @@ float float_not_below(double value) {
 }  // namespace
 
 int16_t Voxelmap::encode_stored(double distance) const {
-  return int16_t(clamp_steps(std::lround(distance / distance_quantum), 0) * 2 + 1);
+  return int16_t(clamp_steps(round_half_away(distance / distance_quantum), 0) * 2 + 1);
 }
 
 int16_t Voxelmap::encode_estimate(double distance) const {
-  const int16_t steps = clamp_steps(std::lround(distance / estimate_quantum), 1);
+  const int16_t steps = clamp_steps(round_half_away(distance / estimate_quantum), 1);
   return int16_t(steps * 2 * ((distance < 0) == (steps < 0) ? 1 : -1));
 }
 

@@ -46,8 +46,9 @@ def test_signed_distance_is_negative_inside(sphere: voxfmt.Body) -> None:
         assert d.shape == (4,) and d.dtype == np.float64
         np.testing.assert_allclose(d, offset, atol=0.15 * h)
     centre = sphere.signed_distance(np.zeros((1, 3)))[0]
-    # A layer estimate this deep: spec §3 bounds it within 1/2 + sqrt(3) voxels of the exact depth.
-    assert centre == pytest.approx(-RADIUS, abs=(0.5 + math.sqrt(3)) * h)
+    # An estimate this deep: spec §3.1 bounds it within 4 sqrt(3) voxels of the exact depth (half a voxel diagonal
+    # more between voxel centres), the lattice's 10 % farther than 16 voxels from the surface besides.
+    assert centre == pytest.approx(-RADIUS, abs=(4.5 * math.sqrt(3)) * h + 0.1 * RADIUS)
 
 
 def overlap_pose(depth: float) -> np.ndarray:

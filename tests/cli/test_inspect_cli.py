@@ -1,15 +1,20 @@
 """`voxfmt inspect --slice ... --png`, `--ply [--level L]` and `--vdb` on a small baked asset, and their usage
-errors. (The VDB grids' contents are checked with OpenVDB itself in test_vdb_export.cpp.)"""
+errors. (The VDB grids' contents are checked with OpenVDB itself in test_vdb_export.cpp.) The asset (format 2.0)
+is read with the spec's own decoder, tests/spec/spec_support.py (bricks, codes and lattice to dense arrays)."""
 import json
 import os
 import struct
 import subprocess
+import sys
 import tempfile
 import unittest
 import zlib
 
 import h5py
 import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "spec"))
+import spec_support  # noqa: E402  (the spec's voxelmap decoder)
 
 VOXFMT = os.environ.get("VOXFMT_BIN")
 
@@ -96,8 +101,10 @@ class InspectExports(unittest.TestCase):
                            capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         with h5py.File(cls.asset, "r") as f:
-            cls.dims = [int(v) for v in f["voxelmap"].attrs["dims"]]
-            cls.layers = f["voxelmap/layers"][()]
+            assert f.attrs["format_version"].tolist() == [2, 0], f.attrs["format_version"]
+            cls.voxelmap = spec_support.decode_voxelmap(f)
+            cls.dims = list(cls.voxelmap.dims)
+            cls.layers = cls.voxelmap.layers  # floor(-value/h + 1/2) of every voxel, [D, H, W]
             cls.offsets = f["pointshell/level_offsets"][()]
             cls.points = f["pointshell/points"][()]
             cls.normals = f["pointshell/normals"][()]
@@ -108,6 +115,25 @@ class InspectExports(unittest.TestCase):
 
     def inspect(self, *args):
         return subprocess.run([VOXFMT, "inspect", self.asset, *args], capture_output=True, text=True, timeout=60)
+
+    def summary(self):
+        r = self.inspect("--json")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        return json.loads(r.stdout)
+
+    def test_summary_agrees_with_the_spec_decoder(self):
+        """inspect --json's voxelmap figures are the decoded file's: stored distances, the layers of the values,
+        the brick table's counts, lattice_error."""
+        vm = self.summary()["voxelmap"]
+        v = self.voxelmap
+        self.assertEqual(vm["dims"], list(v.dims))
+        self.assertEqual(vm["stored_distances"], v.stored_count)
+        self.assertEqual((vm["layer_min"], vm["layer_max"]), (int(self.layers.min()), int(self.layers.max())))
+        self.assertEqual((vm["bricks"], vm["value_bricks"], vm["coarse_bricks"]),
+                         (v.brick_count, v.value_brick_count, v.coarse_brick_count))
+        np.testing.assert_allclose(vm["lattice_error"], v.lattice_error, rtol=1e-12)
+        self.assertLess(self.layers.min(), 0)  # the tetrahedron's grid has outside...
+        self.assertGreater(self.layers.max(), 0)  # ...and inside voxels
 
     def test_ply_of_every_level(self):
         levels = len(self.offsets) - 1
@@ -134,9 +160,11 @@ class InspectExports(unittest.TestCase):
         self.assertEqual(r.returncode, 0, r.stderr)
         export = json.loads(r.stdout)["exports"][0]
         self.assertEqual(export["kind"], "vdb")
+        # "layers": the whole voxelmap (value-brick voxels one by one, a coarse brick one 8^3 tile);
+        # "distance": a level set of the stored distances only.
         self.assertEqual(export["layer_voxels"], int(np.prod(self.dims)))
-        with h5py.File(self.asset, "r") as f:
-            self.assertEqual(export["distance_voxels"], int(np.count_nonzero(~np.isnan(f["voxelmap/distances"][()]))))
+        self.assertEqual(export["distance_voxels"], self.voxelmap.stored_count)
+        self.assertEqual(export["distance_voxels"], self.summary()["voxelmap"]["stored_distances"])
         with open(out, "rb") as f:
             self.assertEqual(f.read(4), b" BDV", "OpenVDB's magic number 0x56444220, little-endian")
 

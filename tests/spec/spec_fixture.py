@@ -673,8 +673,10 @@ def write_fixture_h5py(path, *, legacy=False, grid=FIXTURE_GRID, values=None, dt
                 if opath in grid_datasets and grid_layout == "chunked" and data.size > 0:
                     if opath == "/voxelmap/brick_values" and data.ndim == 2:
                         want = (value_chunk_rows, data.shape[1])
-                    else:
+                    elif data.ndim == len(grid_chunks):
                         want = grid_chunks
+                    else:  # a malformed rank (tests of WRONG_SHAPE)
+                        want = (grid_chunks[0],) * data.ndim
                     kw["chunks"] = tuple(max(1, min(c, s)) for c, s in zip(want, data.shape))
                     if shuffle:
                         kw["shuffle"] = True

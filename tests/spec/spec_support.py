@@ -286,11 +286,12 @@ class DecodedVoxelmap(object):
                     its estimate (the code of a value brick, or sign * max(L, (band - 1/2) h) in a coarse brick)
       stored        bool [D, H, W]: the voxel has a stored distance
       value_brick   bool [D, H, W]: the voxel lies in a value brick
+      code          int64 [D, H, W]: the voxel's 16-bit code (0 in coarse bricks; None for a 1.x file)
       interpolated  float64 [D, H, W]: L, the lattice interpolated at the voxel (§3.3)
       spread        float64 [D, H, W]: B of §3.1's accuracy bound, in voxels
       lattice_estimate  float64 [D, H, W]: max(L, (band - 1/2) h), the magnitude §3.1 gives an estimate
       bricks        int64 [BD, BH, BW]: the brick table (value brick row n >= 0, -1 coarse outside, -2 inside)
-      codes         int64 [V, 512] or None: the value bricks' codes
+      codes         int64 [V, 512] or None (1.x): the value bricks' codes, as stored
       lattice       float64 [BD + 1, BH + 1, BW + 1]: unsigned distances at the lattice points
       dims (W, H, D), voxel_size, origin, distance_band, distance_quantum, estimate_quantum,
       lattice_error [eps0, eps1], format_version
@@ -420,8 +421,9 @@ def decode_legacy_voxelmap(source):
     sees it: a brick with a stored distance or with layers of both signs is a value brick (numbered in table
     order here; §3.4 does not fix the order), stored distances rounded to distance_band * h / 16383, every other
     brick coarse with its layers' sign, lattice values (|v| + 1/2) h from the layer at the lattice voxel (the
-    stored |d| where there is one; as float32, the lattice's dtype, rounded up), lattice_error [1 + sqrt 3, 0] (1.1) or [1, 1/9] (1.0), and every voxel without
-    a stored distance estimated from the lattice with its layer's sign (unrounded: §3.4 names no estimate step).
+    stored |d| where there is one; as float32, the lattice's dtype, rounded up), lattice_error [1 + sqrt 3, 0]
+    (1.1) or [1, 1/9] (1.0), and every voxel without a stored distance estimated from the lattice with its
+    layer's sign (unrounded: §3.4 names no estimate step).
 
     Extra attributes: file_layers (int64) and file_distances (float64, NaN where not stored) as stored."""
     if isinstance(source, (str, bytes, os.PathLike)):

@@ -17,7 +17,6 @@
 Run:  VOXFMT_BIN=.../voxfmt VOXFMT_SAMPLE_WRITER=.../write_sphere_asset /usr/bin/python3 -m unittest -v
 """
 
-import functools
 import json
 import math
 import os

@@ -4,6 +4,10 @@ For every case `voxfmt validate FILE --json` must exit 1, list the expected issu
 "error" (codes from spec/issue-codes.md), and `voxfmt inspect FILE` must exit non-zero with a message on
 stderr naming the file. Neither may crash (a negative return code, i.e. a signal, is a failure).
 
+The base file is the format 2.0 sphere fixture (spec_fixture.write_fixture_h5py); TestMalformedBricks breaks the
+2.0 voxelmap (§3.2 bricks and codes, §3.3 lattice), TestMalformedLegacy a 1.1 file's dense grids (§3.4), which
+2.0 readers still read and judge by the 1.x rules.
+
 Run:  VOXFMT_BIN=.../voxfmt /usr/bin/python3 -m unittest -v test_malformed
 """
 
@@ -53,8 +57,9 @@ class MalformedBase(unittest.TestCase):
         self.assertTrue(path in proc.stderr or os.path.basename(path) in proc.stderr,
                         "inspect's error message does not name the file\n" + describe(proc))
 
-    def assert_rejected(self, path, codes, path_contains=None, message_re=None):
-        """validate exits 1 with an error issue whose code is one of `codes`; inspect fails."""
+    def assert_rejected(self, path, codes, path_contains=None, message_re=None, inspect_must_fail=True):
+        """validate exits 1 with an error issue whose code is one of `codes`; inspect fails (inspect_must_fail), or
+        at least does not crash: full-level (semantic) findings are validate's, and inspect reads such a file."""
         if isinstance(codes, str):
             codes = (codes,)
         for c in codes:
@@ -73,8 +78,20 @@ class MalformedBase(unittest.TestCase):
         if message_re is not None:
             self.assertTrue(any(re.search(message_re, i["message"]) for i in hits),
                             "no %s issue message matching %r: %s" % (codes, message_re, hits))
-        self.assert_inspect_fails(path)
+        if inspect_must_fail:
+            self.assert_inspect_fails(path)
+        else:
+            self.assert_not_crashed(ss.run([ss.VOXFMT_BIN, "inspect", path]))
         return entry
+
+    def assert_not_found_at_quick_level(self, path, code):
+        """issue-codes.md: `code` is a full-level (semantic) finding; the quick level does not look for it, and
+        this file breaks no quick-level rule, so `--level quick` finds it valid."""
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--level", "quick", "--json"])
+        self.assert_not_crashed(proc)
+        entry = ss.check_validate_json(self, proc, [path])[path]
+        self.assertNotIn(code, [i["code"] for i in entry["issues"]], describe(proc))
+        self.assertEqual(proc.returncode, 0, "a full-level violation only, yet quick finds errors\n" + describe(proc))
 
 
 @ss.requires_bin
@@ -108,10 +125,6 @@ class TestMalformed(MalformedBase):
         path = self.bad("no_format_version", omit=["/format_version"])
         self.assert_rejected(path, "MISSING_OBJECT")
 
-    def test_layers_float32(self):
-        path = self.bad("layers_f32", dtypes={"/voxelmap/layers": "<f4"})
-        self.assert_rejected(path, "WRONG_DTYPE", path_contains="/voxelmap/layers")
-
     def test_points_int32(self):
         path = self.bad("points_i32", dtypes={"/pointshell/points": "<i4"})
         self.assert_rejected(path, "WRONG_DTYPE", path_contains="/pointshell/points")
@@ -120,10 +133,6 @@ class TestMalformed(MalformedBase):
         path = self.bad("points_n2", values={"/pointshell/points": sf.points_expected()[:, :2]})
         self.assert_rejected(path, "WRONG_SHAPE", path_contains="/pointshell/points")
 
-    def test_distances_shape_not_dims(self):
-        path = self.bad("dist_shape", values={"/voxelmap/distances": sf.distances_expected()[:, :, :-1]})
-        self.assert_rejected(path, "WRONG_SHAPE", path_contains="/voxelmap/distances")
-
     def test_child_begin_past_n(self):
         cb = sf.child_begin_expected()
         self.assertEqual(int(sf.child_count_expected()[5]), 4)
@@ -131,9 +140,10 @@ class TestMalformed(MalformedBase):
         path = self.bad("child_past_n", values={"/pointshell/child_begin": cb})
         self.assert_rejected(path, "CHILD_RANGE_INVALID")
 
-    def test_major_version_2(self):
-        path = self.bad("v2", format_version=(2, 0))
-        self.assert_rejected(path, "VERSION_UNSUPPORTED", message_re=r"(?<![0-9])2(?![0-9])")
+    def test_major_version_3(self):
+        """§7: a major version the reader does not know (2.0 readers know 1 and 2) is refused, naming it."""
+        path = self.bad("v3", format_version=(3, 0))
+        self.assert_rejected(path, "VERSION_UNSUPPORTED", message_re=r"(?<![0-9])3(?![0-9])")
 
     def test_format_name_mismatch(self):
         path = self.bad("notvox", values={"/format": "notvox"})
@@ -210,11 +220,6 @@ class TestMalformedMore(MalformedBase):
         path = self.bad("normals_f64", dtypes={"/pointshell/normals": "<f8"})
         self.assert_rejected(path, "WRONG_DTYPE", path_contains="/pointshell/normals")
 
-    def test_layers_unsigned(self):
-        path = self.bad("layers_u16", dtypes={"/voxelmap/layers": "<u2"},
-                        values={"/voxelmap/layers": np.abs(sf.layers_expected())})
-        self.assert_rejected(path, "WRONG_DTYPE", path_contains="/voxelmap/layers")
-
     def test_child_count_signed(self):
         path = self.bad("cc_i32", dtypes={"/pointshell/child_count": "<i4"})
         self.assert_rejected(path, "WRONG_DTYPE", path_contains="child_count")
@@ -234,11 +239,6 @@ class TestMalformedMore(MalformedBase):
     def test_voxel_size_not_scalar(self):
         path = self.bad("h_array", values={"/voxelmap/voxel_size": np.array([sf.VOXEL_SIZE, sf.VOXEL_SIZE])})
         self.assert_rejected(path, "WRONG_SHAPE", path_contains="voxel_size")
-
-    def test_layers_shape_swapped(self):
-        lay = np.zeros((sf.DIM, sf.DIM, sf.DIM + 1), dtype=np.int16)
-        path = self.bad("layers_shape", values={"/voxelmap/layers": lay})
-        self.assert_rejected(path, "WRONG_SHAPE", path_contains="/voxelmap/layers")
 
     def test_index_order_xyz(self):
         path = self.bad("order_xyz", values={"/voxelmap/index_order": "xyz"})
@@ -282,13 +282,6 @@ class TestMalformedMore(MalformedBase):
         o[2] = np.nan
         path = self.bad("origin_nan", values={"/voxelmap/origin": o})
         self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="origin")
-
-    def test_stored_distance_infinite(self):
-        d = sf.distances_expected()
-        k, j, i = np.argwhere(~np.isnan(d))[0]
-        d[k, j, i] = np.inf
-        path = self.bad("dist_inf", values={"/voxelmap/distances": d})
-        self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="distances")
 
     def test_level_offsets_second_not_one(self):
         lo = np.array([0, 2, 5, 21, 85, 200], dtype=np.uint32)
@@ -335,19 +328,6 @@ class TestMalformedMore(MalformedBase):
     def test_source_sha256_63_digits(self):
         path = self.bad("sha_63", values={"/provenance/source_sha256": "a" * 63})
         self.assert_rejected(path, "BAD_SHA256")
-
-    def test_corrupt_chunk_fletcher32(self):
-        """A flipped byte in a fletcher32-protected chunk of /voxelmap/layers -> READ_FAILED."""
-        path = self.bad("bad_chunk", fletcher32=True)
-        with h5py.File(path, "r") as f:
-            info = f["/voxelmap/layers"].id.get_chunk_info(0)
-            offset, size = info.byte_offset, info.size
-        with open(path, "r+b") as fh:
-            fh.seek(offset + size // 2)
-            b = fh.read(1)
-            fh.seek(offset + size // 2)
-            fh.write(bytes([b[0] ^ 0xFF]))
-        self.assert_rejected(path, "READ_FAILED")
 
     def test_missing_file_among_good(self):
         """A file that cannot be opened at all makes validate exit 2 even next to a good file."""
@@ -439,6 +419,396 @@ class TestHostile(MalformedBase):
         path = self.bad("band_huge", values={"/voxelmap/distance_band": np.float64(1e30)})
         self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="distance_band")
 
+
+
+def code_position(table, i, j, k):
+    """(row of brick_values, column) of voxel (i, j, k) (§3.2: column (lk*8 + lj)*8 + li), or None in a coarse
+    brick."""
+    n = int(table[k // 8, j // 8, i // 8])
+    if n < 0:
+        return None
+    return n, ((k % 8) * 8 + (j % 8)) * 8 + (i % 8)
+
+
+def voxel_where(mask):
+    """The first voxel (i, j, k) where mask ([D, H, W]) is true."""
+    k, j, i = np.argwhere(mask)[0]
+    return int(i), int(j), int(k)
+
+
+@ss.requires_bin
+class TestMalformedBricks(MalformedBase):
+    """Format 2.0 voxelmaps (§3.2 bricks and codes, §3.3 lattice) with one violation each, codes from
+    issue-codes.md: structure and ranges (quick level) and the semantic rules (full level: DISTANCE_OUTSIDE_BAND,
+    ESTIMATE_MISMATCH, SIGN_MISMATCH)."""
+
+    H = sf.VOXEL_SIZE
+    BAND = sf.DISTANCE_BAND
+
+    def encoded(self, grid=sf.FIXTURE_GRID, **kw):
+        return sf.encode_voxelmap(grid, **kw)
+
+    def with_code(self, name, i, j, k, code, grid=sf.FIXTURE_GRID, **write):
+        """A file whose voxel (i, j, k) has `code` (a function of the old code), everything else conforming."""
+        enc = self.encoded(grid, **{key: write[key] for key in ("distance_quantum", "estimate_quantum")
+                                    if key in write})
+        values = enc["/voxelmap/brick_values"]
+        pos = code_position(enc["/voxelmap/bricks"], i, j, k)
+        self.assertIsNotNone(pos, "test bug: voxel (%d, %d, %d) lies in a coarse brick" % (i, j, k))
+        old = int(values[pos])
+        values[pos] = code(old)
+        return self.bad(name, grid=grid, values={"/voxelmap/brick_values": values}, **write), old
+
+    # -- control ----------------------------------------------------------------------------------------------
+
+    def test_good_files_are_valid(self):
+        """Controls: the 2.0 fixture and its fine grid (coarse bricks) are accepted at both levels."""
+        for path in (self.good, self.bad("good_fine", grid=sf.FINE_GRID)):
+            for level in ("quick", "full"):
+                proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--level", level, "--json"])
+                self.assertEqual(proc.returncode, 0, describe(proc))
+
+    # -- brick table ------------------------------------------------------------------------------------------
+
+    def test_brick_entry_past_the_last_row(self):
+        """§3.2: entry n >= 0 names row n of brick_values; n = V names none."""
+        table = self.encoded()["/voxelmap/bricks"]
+        v = self.encoded()["/voxelmap/brick_values"].shape[0]
+        table[1, 0, 1] = v
+        path = self.bad("brick_past_v", values={"/voxelmap/bricks": table})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="bricks")
+
+    def test_brick_entry_minus_3(self):
+        """§3.2: -1, -2 or a row; "nothing else"."""
+        table = self.encoded(sf.FINE_GRID)["/voxelmap/bricks"]
+        k = np.argwhere(table == -1)[0]
+        table[tuple(k)] = -3
+        path = self.bad("brick_minus3", grid=sf.FINE_GRID, values={"/voxelmap/bricks": table})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="bricks")
+
+    def test_brick_values_one_row_short(self):
+        """The table names row V - 1 of V value bricks, the dataset holds V - 1 rows."""
+        values = self.encoded()["/voxelmap/brick_values"][:-1]
+        path = self.bad("rows_short", values={"/voxelmap/brick_values": values})
+        self.assert_rejected(path, ("VALUE_OUT_OF_RANGE", "WRONG_SHAPE"))
+
+    # -- dtypes -----------------------------------------------------------------------------------------------
+
+    def test_wrong_dtypes(self):
+        """§1: readers MUST reject any other class, width or signedness than the table's (i32 bricks, i16
+        brick_values, f32 lattice, u32 brick_edge, f64 quanta and lattice_error)."""
+        cases = [
+            ("/voxelmap/bricks", "<i2"), ("/voxelmap/bricks", "<i8"), ("/voxelmap/bricks", "<u4"),
+            ("/voxelmap/bricks", "<f4"),
+            ("/voxelmap/brick_values", "<i4"), ("/voxelmap/brick_values", "<u2"), ("/voxelmap/brick_values", "<f4"),
+            ("/voxelmap/lattice", "<f8"), ("/voxelmap/lattice", "<f2"), ("/voxelmap/lattice", "<i4"),
+            ("/voxelmap/brick_edge", "<i4"), ("/voxelmap/brick_edge", "<u2"),
+            ("/voxelmap/distance_quantum", "<f4"), ("/voxelmap/estimate_quantum", "<f4"),
+            ("/voxelmap/lattice_error", "<f4"),
+        ]
+        for path_, dt in cases:
+            with self.subTest(object=path_, dtype=dt):
+                name = "dtype_%s_%s" % (sf.split_path(path_)[1], dt.strip("<"))
+                path = self.bad(name, dtypes={path_: dt})
+                self.assert_rejected(path, "WRONG_DTYPE", path_contains=sf.split_path(path_)[1])
+
+    def test_big_endian_is_not_a_wrong_dtype(self):
+        """§1: the big-endian variant of the same type is accepted (control for the cases above)."""
+        path = self.bad("be_voxelmap", dtypes={"/voxelmap/bricks": ">i4", "/voxelmap/brick_values": ">i2",
+                                               "/voxelmap/lattice": ">f4"})
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+
+    # -- shapes -----------------------------------------------------------------------------------------------
+
+    def test_wrong_shapes(self):
+        """§3.2: bricks [BD, BH, BW], brick_values [V, 512], lattice [BD + 1, BH + 1, BW + 1], lattice_error [2],
+        brick_edge and the quanta scalar."""
+        enc = self.encoded()
+        table, values, lattice = (enc["/voxelmap/bricks"], enc["/voxelmap/brick_values"], enc["/voxelmap/lattice"])
+        cases = [
+            ("/voxelmap/bricks", np.concatenate([table, table[:, :, :1]], axis=2)),
+            ("/voxelmap/bricks", table.reshape(2, 4)),
+            ("/voxelmap/brick_values", values[:, :511]),
+            ("/voxelmap/brick_values", values.reshape(-1)),
+            ("/voxelmap/brick_values", values.reshape(-1, 8, 8, 8)),
+            ("/voxelmap/lattice", lattice[:-1, :-1, :-1]),
+            ("/voxelmap/lattice", lattice.reshape(9, 3)),
+            ("/voxelmap/lattice_error", np.array([1e-5, 0.0, 0.0])),
+            ("/voxelmap/brick_edge", np.array([8, 8], dtype=np.uint32)),
+            ("/voxelmap/distance_quantum", np.array([1.0, 1.0]) * sf.default_distance_quantum()),
+        ]
+        for n, (path_, value) in enumerate(cases):
+            with self.subTest(object=path_, shape=value.shape):
+                path = self.bad("shape_%d" % n, values={path_: value})
+                self.assert_rejected(path, "WRONG_SHAPE", path_contains=sf.split_path(path_)[1])
+
+    def test_dims_disagree_with_the_brick_table(self):
+        """dims [17, 15, 15] asks for BW = 3 bricks along x; the table has 2."""
+        path = self.bad("dims_17", values={"/voxelmap/dims": np.array([17, 15, 15], dtype=np.uint32)})
+        self.assert_rejected(path, "WRONG_SHAPE")
+
+    def test_dims_beyond_the_lattice_limit(self):
+        """§3.2: (BW + 1)(BH + 1)(BD + 1) <= 2^31 - 1; 65535^3 voxels give 8193^3 lattice points."""
+        path = self.bad("dims_huge", values={"/voxelmap/dims": np.array([65535] * 3, dtype=np.uint32)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="dims")
+
+    # -- missing objects --------------------------------------------------------------------------------------
+
+    def test_missing_2_0_objects(self):
+        """§3.2: brick_edge, distance_quantum, estimate_quantum, lattice_error, bricks, brick_values and lattice
+        are REQUIRED."""
+        for path_ in sf.VOXELMAP_2_0_PATHS:
+            with self.subTest(object=path_):
+                path = self.bad("missing_" + sf.split_path(path_)[1], omit=[path_])
+                self.assert_rejected(path, "MISSING_OBJECT", path_contains=sf.split_path(path_)[1])
+
+    def test_lattice_a_group(self):
+        path = self.bad("lattice_group", omit=["/voxelmap/lattice"],
+                        post=lambda f: f.create_group("/voxelmap/lattice"))
+        self.assert_rejected(path, "WRONG_KIND", path_contains="lattice")
+
+    def test_dense_1_x_grids_labelled_2_0(self):
+        """A 1.1 file's voxelmap (layers, distances) under format_version [2, 0]: the 2.0 objects are missing."""
+        path = sf.write_legacy_fixture_h5py(os.path.join(self.tmp, "dense_as_2_0.vox.h5"), format_version=(2, 0))
+        self.assert_rejected(path, "MISSING_OBJECT", path_contains="/voxelmap")
+
+    def test_bricks_labelled_1_1(self):
+        """A 2.0 voxelmap under format_version [1, 1]: §3.4's layers and distances are missing."""
+        path = self.bad("bricks_as_1_1", format_version=(1, 1))
+        self.assert_rejected(path, "MISSING_OBJECT", path_contains="/voxelmap")
+
+    # -- lattice values ---------------------------------------------------------------------------------------
+
+    def test_lattice_negative(self):
+        """§3.2: lattice distances are >= 0."""
+        lattice = self.encoded()["/voxelmap/lattice"]
+        lattice[1, 1, 1] = -lattice[1, 1, 1]
+        path = self.bad("lattice_negative", values={"/voxelmap/lattice": lattice})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="lattice")
+
+    def test_lattice_not_finite(self):
+        """§3.2: lattice distances are finite."""
+        for bad_value in (np.nan, np.inf):
+            with self.subTest(value=bad_value):
+                lattice = self.encoded()["/voxelmap/lattice"]
+                lattice[2, 0, 1] = bad_value
+                path = self.bad("lattice_%s" % bad_value, values={"/voxelmap/lattice": lattice})
+                self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="lattice")
+
+    # -- attributes -------------------------------------------------------------------------------------------
+
+    def test_brick_edge_not_8(self):
+        for edge in (16, 0, 4):
+            with self.subTest(brick_edge=edge):
+                path = self.bad("edge_%d" % edge, values={"/voxelmap/brick_edge": np.uint32(edge)})
+                self.assert_rejected(path, "BAD_ATTRIBUTE_VALUE", path_contains="brick_edge")
+
+    def test_quanta_too_small_for_the_band(self):
+        """§3.2: 16383 * quantum >= distance_band * h (codes are 15-bit), for either quantum."""
+        small = self.BAND * self.H / 16383 * 0.99
+        for name in ("distance_quantum", "estimate_quantum"):
+            with self.subTest(attribute=name):
+                path = self.bad(name + "_small", values={"/voxelmap/" + name: np.float64(small)})
+                self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains=name)
+
+    def test_quanta_not_positive(self):
+        for name in ("distance_quantum", "estimate_quantum"):
+            for value in (0.0, -sf.default_distance_quantum()):
+                with self.subTest(attribute=name, value=value):
+                    path = self.bad("%s_%g" % (name, value), values={"/voxelmap/" + name: np.float64(value)})
+                    self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains=name)
+
+    def test_quanta_not_finite(self):
+        for name in ("distance_quantum", "estimate_quantum"):
+            for value in (np.nan, np.inf):
+                with self.subTest(attribute=name, value=value):
+                    path = self.bad("%s_%s" % (name, value), values={"/voxelmap/" + name: np.float64(value)})
+                    self.assert_rejected(path, "NON_FINITE_VALUE", path_contains=name)
+
+    def test_lattice_error_out_of_range(self):
+        """§3.2: eps0 >= 0, 0 <= eps1 <= 1, both finite."""
+        for n, err in enumerate(((-0.1, 0.0), (1e-5, 1.5), (1e-5, -0.1))):
+            with self.subTest(lattice_error=err):
+                path = self.bad("lattice_error_%d" % n, values={"/voxelmap/lattice_error": np.array(err)})
+                self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="lattice_error")
+        path = self.bad("lattice_error_nan", values={"/voxelmap/lattice_error": np.array([np.nan, 0.0])})
+        self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="lattice_error")
+
+    # -- semantic rules (full level) ----------------------------------------------------------------------------
+
+    def test_stored_distance_beyond_the_band(self):
+        """§3.1: distances are stored only for |d| <= distance_band * h. With a distance_quantum coarse enough for
+        4 bands (allowed: 16383 q >= band h), a voxel 2.5-3 voxels out gets its exact distance as a stored code:
+        right value, right sign, but beyond the band -> DISTANCE_OUTSIDE_BAND (full level)."""
+        q = 4 * self.BAND * self.H / 16383
+        d = sf.signed_distance_grid()
+        i, j, k = voxel_where((d > (self.BAND + 0.5) * self.H) & (d < (self.BAND + 1.0) * self.H))
+        path, old = self.with_code("beyond_band", i, j, k, lambda c: 2 * int(round(d[k, j, i] / q)) + 1,
+                                   distance_quantum=q)
+        self.assertEqual(old % 2, 0, "test bug: the voxel had a stored distance already")
+        self.assert_rejected(path, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "DISTANCE_OUTSIDE_BAND")
+
+    def test_estimate_code_disagrees_with_the_lattice(self):
+        """§3.2: an even code MUST be the lattice's estimate rounded to the nearest step; here 8 steps (half a
+        voxel) farther out at the grid's corner voxel -> ESTIMATE_MISMATCH (full level)."""
+        path, old = self.with_code("estimate_off", 0, 0, 0, lambda c: c + 2 * 8)
+        self.assertEqual(old % 2, 0)
+        self.assertGreater(old, 0)
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "ESTIMATE_MISMATCH")
+
+    def test_estimate_code_zero(self):
+        """§3.2: an estimate is never 0 (a 0 code would be an even code of estimate 0)."""
+        path, old = self.with_code("estimate_zero", 0, 0, 0, lambda c: 0)
+        self.assertEqual(old % 2, 0)
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+
+    def test_lattice_raised_under_unchanged_codes(self):
+        """The lattice point at the grid's far corner (voxel (14, 14, 14)) one voxel higher, lattice_error
+        widened to allow it (so the lattice itself stays valid): the value bricks' codes no longer are its
+        interpolation -> ESTIMATE_MISMATCH (full level)."""
+        lattice = self.encoded()["/voxelmap/lattice"]
+        lattice[2, 2, 2] += np.float32(self.H)
+        path = self.bad("lattice_raised", values={"/voxelmap/lattice": lattice,
+                                                  "/voxelmap/lattice_error": np.array([2.0, 0.0])})
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "ESTIMATE_MISMATCH")
+
+    def test_stored_sign_flipped_deep_in_the_band(self):
+        """A stored distance of about -1.5 voxels (inside) written as +1.5: its 6-neighbours are inside and
+        |d1| + |d2| > h, so the surface cannot pass between them -> SIGN_MISMATCH (full level)."""
+        d = sf.signed_distance_grid()
+        i, j, k = voxel_where((d < -1.4 * self.H) & (d > -1.6 * self.H))
+        path, old = self.with_code("stored_sign", i, j, k, lambda c: -(c >> 1) * 2 + 1)
+        self.assertEqual(old % 2, 1)
+        self.assertLess(old >> 1, 0)
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
+
+    def test_estimate_sign_flipped_inside(self):
+        """The sphere's centre voxel (an estimate, 5 voxels deep) coded outside: SIGN_MISMATCH (full level)."""
+        path, old = self.with_code("estimate_sign", 7, 7, 7, lambda c: -c)
+        self.assertEqual(old % 2, 0)
+        self.assertLess(old, 0)
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
+
+    def test_coarse_brick_sign_flipped(self):
+        """FINE_GRID: a coarse inside brick (-2) amid inside bricks marked outside (-1) -> SIGN_MISMATCH."""
+        table = self.encoded(sf.FINE_GRID)["/voxelmap/bricks"]
+        inside = np.argwhere(table == -2)
+        self.assertGreater(len(inside), 0)
+        table[tuple(inside[len(inside) // 2])] = -1
+        path = self.bad("coarse_sign", grid=sf.FINE_GRID, values={"/voxelmap/bricks": table})
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
+
+    # -- reading ----------------------------------------------------------------------------------------------
+
+    def test_filter_the_format_does_not_name(self):
+        """§1: a dataset with a filter other than deflate, shuffle, fletcher32 is refused before decoding."""
+        for path_ in sf.VOXELMAP_2_0_DATASETS:
+            with self.subTest(dataset=path_):
+                path = self.bad("lzf_" + sf.split_path(path_)[1],
+                                post=lambda f, p=path_: sf.replace_dataset(f, p, chunks=True, compression="lzf"))
+                self.assert_rejected(path, "READ_FAILED", path_contains=path_, message_re="filter")
+
+    def test_corrupt_chunk_fletcher32(self):
+        """A flipped byte in a fletcher32-protected chunk of /voxelmap/brick_values -> READ_FAILED."""
+        path = self.bad("bad_chunk_values", fletcher32=True)
+        with h5py.File(path, "r") as f:
+            info = f["/voxelmap/brick_values"].id.get_chunk_info(0)
+            offset, size = info.byte_offset, info.size
+        with open(path, "r+b") as fh:
+            fh.seek(offset + size // 2)
+            b = fh.read(1)
+            fh.seek(offset + size // 2)
+            fh.write(bytes([b[0] ^ 0xFF]))
+        self.assert_rejected(path, "READ_FAILED")
+
+    def test_one_entry_chunks_over_a_huge_brick_table(self):
+        """2^30 brick table entries in 1-entry chunks, none written (8192^3 voxels): refused before HDF5 walks
+        2^30 chunks (§1: at most 2^22 chunks per dataset)."""
+        def huge(f):
+            del f["/voxelmap/bricks"]
+            f["/voxelmap"].create_dataset("bricks", shape=(1024, 1024, 1024), dtype="<i4", chunks=(1, 1, 1))
+            f["/voxelmap"].attrs.create("dims", np.array([8192, 8192, 8192], dtype="<u4"))
+        path = self.bad("tiny_chunks_bricks", post=huge)
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="bricks", message_re="chunks")
+
+
+@ss.requires_bin
+class TestMalformedLegacy(MalformedBase):
+    """Legacy 1.x files (§3.4: dense layers and distances), one violation at a time: a 2.0 reader still reads
+    them (by the legacy path), so it must still judge them by the 1.x rules."""
+
+    def bad(self, name, **kw):
+        return sf.write_legacy_fixture_h5py(os.path.join(self.tmp, name + ".vox.h5"), **kw)
+
+    def test_good_legacy_file_is_valid(self):
+        """Control: the unmodified 1.1 file is accepted."""
+        path = self.bad("good_1_1")
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+
+    def test_layers_float32(self):
+        path = self.bad("layers_f32", dtypes={"/voxelmap/layers": "<f4"})
+        self.assert_rejected(path, "WRONG_DTYPE", path_contains="/voxelmap/layers")
+
+    def test_distances_shape_not_dims(self):
+        path = self.bad("dist_shape", values={"/voxelmap/distances": sf.distances_expected()[:, :, :-1]})
+        self.assert_rejected(path, "WRONG_SHAPE", path_contains="/voxelmap/distances")
+
+    def test_layers_unsigned(self):
+        path = self.bad("layers_u16", dtypes={"/voxelmap/layers": "<u2"},
+                        values={"/voxelmap/layers": np.abs(sf.layers_expected())})
+        self.assert_rejected(path, "WRONG_DTYPE", path_contains="/voxelmap/layers")
+
+    def test_layers_shape_swapped(self):
+        lay = np.zeros((sf.DIM, sf.DIM, sf.DIM + 1), dtype=np.int16)
+        path = self.bad("layers_shape", values={"/voxelmap/layers": lay})
+        self.assert_rejected(path, "WRONG_SHAPE", path_contains="/voxelmap/layers")
+
+    def test_stored_distance_infinite(self):
+        d = sf.distances_expected()
+        k, j, i = np.argwhere(~np.isnan(d))[0]
+        d[k, j, i] = np.inf
+        path = self.bad("dist_inf", values={"/voxelmap/distances": d})
+        self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="distances")
+
+    def test_layer_distance_mismatch(self):
+        """§3.4 (full): where a distance is stored the layer MUST be floor(-d/h + 1/2)."""
+        lay = sf.layers_expected()
+        k, j, i = np.argwhere(sf.stored_mask() & (lay == 0))[0]
+        lay[k, j, i] = 1
+        path = self.bad("layer_mismatch", values={"/voxelmap/layers": lay})
+        self.assert_rejected(path, "LAYER_DISTANCE_MISMATCH", path_contains="/voxelmap/layers",
+                             inspect_must_fail=False)
+
+    def test_layer_outside_band_too_small(self):
+        """§3.4 (full): a layer without a stored distance has |v| >= floor(distance_band + 1/2)."""
+        lay = sf.layers_expected()
+        k, j, i = np.argwhere(~sf.stored_mask() & (lay == -3))[0]  # outside, just beyond the band
+        lay[k, j, i] = -1
+        path = self.bad("layer_too_small", values={"/voxelmap/layers": lay})
+        self.assert_rejected(path, "LAYER_OUTSIDE_BAND_TOO_SMALL", path_contains="/voxelmap/layers",
+                             inspect_must_fail=False)
+
+    def test_corrupt_chunk_fletcher32(self):
+        """A flipped byte in a fletcher32-protected chunk of /voxelmap/layers -> READ_FAILED."""
+        path = self.bad("bad_chunk", fletcher32=True)
+        with h5py.File(path, "r") as f:
+            info = f["/voxelmap/layers"].id.get_chunk_info(0)
+            offset, size = info.byte_offset, info.size
+        with open(path, "r+b") as fh:
+            fh.seek(offset + size // 2)
+            b = fh.read(1)
+            fh.seek(offset + size // 2)
+            fh.write(bytes([b[0] ^ 0xFF]))
+        self.assert_rejected(path, "READ_FAILED")
+
     def test_filter_the_format_does_not_name(self):
         path = self.bad("lzf", compression="lzf", shuffle=False)
         self.assert_rejected(path, "READ_FAILED", path_contains="/voxelmap/", message_re="filter")
@@ -451,6 +821,28 @@ class TestHostile(MalformedBase):
             f["/voxelmap"].attrs.create("dims", np.array([1024, 1024, 1024], dtype="<u4"))
         path = self.bad("tiny_chunks", post=huge)
         self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="layers", message_re="chunks")
+
+    def test_voxel_size_infinite_legacy(self):
+        """§3.2: voxel_size finite, in a 1.1 file: NON_FINITE_VALUE at the default (full) level too."""
+        path = self.bad("h_inf_legacy", values={"/voxelmap/voxel_size": np.float64(np.inf)})
+        self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="voxel_size")
+
+    def test_findings_name_only_objects_of_the_file(self):
+        """§8: a finding names the HDF5 path it concerns. A 1.1 file with distance_band 0.5 breaks one rule of
+        its own attributes; findings about 2.0 objects it does not have (quanta, bricks, lattice: what a reader
+        converts it into, §3.4) would blame the file for the reader's conversion."""
+        path = self.bad("band_half_legacy", values={"/voxelmap/distance_band": np.float64(0.5)})
+        entry = self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="distance_band")
+        foreign = ["@" + sf.split_path(p)[1] if p in ("/voxelmap/brick_edge", "/voxelmap/distance_quantum",
+                                                        "/voxelmap/estimate_quantum", "/voxelmap/lattice_error")
+                   else p for p in sf.VOXELMAP_2_0_PATHS]
+        blamed = [(i["code"], i["path"]) for i in entry["issues"] if any(f in i["path"] for f in foreign)]
+        self.assertEqual(blamed, [], "findings about objects a 1.1 file does not have")
+
+    def test_voxel_size_1e300_small_legacy(self):
+        """§3.2 range of voxel_size, in a 1.1 file: VALUE_OUT_OF_RANGE at the default (full) level too."""
+        path = self.bad("h_tiny", values={"/voxelmap/voxel_size": np.float64(1e-300)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="voxel_size")
 
 
 if __name__ == "__main__":
