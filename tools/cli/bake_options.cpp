@@ -1,5 +1,6 @@
 #include "bake_options.h"
 
+#include <algorithm>
 #include <cstdio>
 
 namespace voxfmt::cli {
@@ -72,6 +73,8 @@ std::vector<std::string> bake_option_args(const bake::Settings& b) {
                            std::to_string(b.point_shell.seed), "--deflate", std::to_string(b.deflate), "--threads",
                            std::to_string(b.threads)});
   if (!b.check_self_intersections) args.push_back("--no-self-intersection-check");
+  if (b.voxelmap.max_memory_bytes > 0)
+    args.insert(args.end(), {"--max-memory", std::to_string(std::max<uint64_t>(1, b.voxelmap.max_memory_bytes >> 20))});
   if (b.voxelmap.shell_thickness > 0) args.insert(args.end(), {"--shell-thickness", exact(b.voxelmap.shell_thickness)});
   return args;
 }

@@ -306,6 +306,8 @@ int Runner::run() {
     settings.threads = std::max(
         1u, cores / std::max<unsigned>(1, unsigned(std::min<size_t>(jobs_, std::max<size_t>(1, todo_.size())))));
   threads_ = settings.threads;
+  // The same limit for the bake's up-front estimate: refused with the figures rather than killed halfway.
+  if (o_.max_memory_mib > 0) settings.voxelmap.max_memory_bytes = uint64_t(o_.max_memory_mib) << 20;
   const std::vector<std::string> option_args = bake_option_args(settings);
   const std::string exe = self_executable();
   ChildLimits limits;
@@ -437,7 +439,8 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1e7));
   cmd->add_option("--max-memory", o->max_memory_mib,
-                  "MiB of address space one bake may use (OUT_OF_MEMORY beyond); 0 = no limit")
+                  "MiB one bake may use: its address space (OUT_OF_MEMORY beyond), and what its voxelmap may need "
+                  "(refused up front beyond, with the estimate); 0 = no limit")
       ->capture_default_str();
   cmd->add_option(
       "--manifest", o->manifest,

@@ -19,5 +19,6 @@ void add_build_command(CLI::App& app, int& exit_code);
 void add_batch_command(CLI::App& app, int& exit_code);
 void add_inspect_command(CLI::App& app, int& exit_code);
 void add_validate_command(CLI::App& app, int& exit_code);
+void add_upgrade_command(CLI::App& app, int& exit_code);
 
 }  // namespace voxfmt::cli

@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   voxfmt::cli::add_batch_command(app, exit_code);
   voxfmt::cli::add_inspect_command(app, exit_code);
   voxfmt::cli::add_validate_command(app, exit_code);
+  voxfmt::cli::add_upgrade_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

@@ -1,0 +1,147 @@
+// `voxfmt upgrade IN... -o OUT`: rewrite assets of format 1.x in the current format (spec §3.4: the dense grids read
+// as bricks). One file to a file, or files and folders (searched for *.vox.h5) into a folder, keeping their relative
+// paths. Each output is validated like any written asset and replaces its target atomically.
+#include <unistd.h>
+
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+
+#include "commands.h"
+#include "json_report.h"
+#include "voxfmt/io.h"
+
+namespace voxfmt::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Options {
+  std::vector<std::string> inputs;
+  std::string output;
+  bool force = false;
+  bool json = false;
+  bool quiet = false;
+};
+
+struct Item {
+  std::string input, output;
+};
+
+bool is_asset_name(const fs::path& p) {
+  const std::string name = p.filename().string();
+  return name.size() > 7 && name.compare(name.size() - 7, 7, ".vox.h5") == 0;
+}
+
+// The files to upgrade and where each goes. A single file input with an output that is not an existing folder
+// is a file-to-file upgrade; otherwise the output is a folder.
+Result<std::vector<Item>> plan(const Options& o) {
+  std::vector<Item> items;
+  std::error_code ec;
+  const bool single_file = o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
+  if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
+  for (const std::string& input : o.inputs) {
+    if (fs::is_directory(input, ec)) {
+      for (auto it = fs::recursive_directory_iterator(input, ec); !ec && it != fs::recursive_directory_iterator();
+           it.increment(ec))
+        if (it->is_regular_file(ec) && is_asset_name(it->path()))
+          items.push_back({it->path().string(), (fs::path(o.output) / fs::relative(it->path(), input, ec)).string()});
+      if (ec) return Error{IssueCode::FileNotFound, input + ": cannot list the folder: " + ec.message(), input};
+    } else if (fs::is_regular_file(input, ec)) {
+      items.push_back({input, (fs::path(o.output) / fs::path(input).filename()).string()});
+    } else {
+      return Error{IssueCode::FileNotFound, input + ": no such file or folder", input};
+    }
+  }
+  std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
+  return items;
+}
+
+int run(const Options& o) {
+  const Result<std::vector<Item>> planned = plan(o);
+  if (!planned) return report_error("upgrade", planned.error());
+  const std::vector<Item>& items = planned.value();
+  const bool progress = !o.quiet && !o.json && isatty(STDERR_FILENO) && items.size() > 1;
+  nlohmann::json report = {{"files", nlohmann::json::array()}};
+  size_t upgraded = 0, current = 0, failed = 0;
+  int worst = kExitOk;
+  for (size_t n = 0; n < items.size(); ++n) {
+    const Item& item = items[n];
+    if (progress) std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << item.input << std::flush;
+    nlohmann::json entry = {{"input", item.input}, {"output", item.output}};
+    std::vector<Issue> warnings;
+    Result<Asset> asset = read_asset(item.input, &warnings);
+    Status written = Status::success();
+    if (asset && asset.value().version.major == kFormatVersion.major && !o.force) {
+      ++current;
+      entry["status"] = "current";
+      entry["format_version"] = {asset.value().version.major, asset.value().version.minor};
+    } else if (asset) {
+      const FormatVersion from = asset.value().version;
+      std::error_code ec;
+      if (fs::path(item.output).has_parent_path()) fs::create_directories(fs::path(item.output).parent_path(), ec);
+      written = write_asset(item.output, asset.value());
+      if (written) {
+        ++upgraded;
+        entry["status"] = "upgraded";
+        entry["from"] = {from.major, from.minor};
+        entry["bytes_before"] = fs::file_size(item.input, ec);
+        entry["bytes_after"] = fs::file_size(item.output, ec);
+        if (!o.json && !o.quiet) {
+          if (progress) std::cerr << "\r\033[K";
+          std::cout << item.input << " (" << from.major << "." << from.minor << ", " << std::fixed
+                    << std::setprecision(1) << double(fs::file_size(item.input, ec)) / 1e6 << " MB) -> " << item.output
+                    << " (" << kFormatVersion.major << "." << kFormatVersion.minor << ", "
+                    << double(fs::file_size(item.output, ec)) / 1e6 << " MB)\n";
+        }
+      }
+    }
+    const Error* error = !asset ? &asset.error() : !written ? &written.error() : nullptr;
+    if (error) {
+      ++failed;
+      worst = std::max(worst, exit_status(error->code));
+      entry["status"] = "failed";
+      entry["error"] = {{"code", code_name(error->code)}, {"message", error->message}};
+      if (!o.json) {
+        if (progress) std::cerr << "\r\033[K";
+        std::cerr << "voxfmt upgrade: error: " << code_name(error->code) << ": " << error->message << "\n";
+      }
+    }
+    report["files"].push_back(entry);
+  }
+  if (progress) std::cerr << "\r\033[K" << std::flush;
+  report["upgraded"] = upgraded;
+  report["current"] = current;
+  report["failed"] = failed;
+  if (o.json) {
+    std::cout << to_text(report) << "\n";
+  } else if (!o.quiet) {
+    std::cout << upgraded << " upgraded to format " << kFormatVersion.major << "." << kFormatVersion.minor << ", "
+              << current << " already current" << (o.force ? "" : " (left alone; --force rewrites them)") << ", "
+              << failed << " failed\n";
+  }
+  return worst;
+}
+
+}  // namespace
+
+void add_upgrade_command(CLI::App& app, int& exit_code) {
+  auto o = std::make_shared<Options>();
+  CLI::App* cmd = app.add_subcommand(
+      "upgrade", "Rewrite assets of an older format version (1.0, 1.1: dense grids) in the current one (bricks)");
+  cmd->add_option("inputs", o->inputs, "Asset files, or folders searched for *.vox.h5")->required();
+  cmd->add_option("-o,--output", o->output,
+                  "Output file (one input file), or folder (several inputs, or a folder: relative paths are kept)")
+      ->required();
+  cmd->add_flag("--force", o->force, "Rewrite assets that are already of the current format too");
+  cmd->add_flag("--json", o->json, "Print a JSON report on stdout");
+  cmd->add_flag("-q,--quiet", o->quiet, "Print nothing but errors");
+  cmd->footer(
+      "\nExamples:\n"
+      "  voxfmt upgrade old/bunny.vox.h5 -o bunny.vox.h5     # one file\n"
+      "  voxfmt upgrade assets/ -o assets-2.0/               # a library, folder structure kept\n");
+  cmd->callback([o, &exit_code] { exit_code = run(*o); });
+}
+
+}  // namespace voxfmt::cli
