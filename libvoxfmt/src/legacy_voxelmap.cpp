@@ -31,20 +31,20 @@ std::string fmt(double v) {
 // The 1.x rules of spec 1.1 §3 (validate --level full), each reported once.
 class LegacyRules {
  public:
-  LegacyRules(h5::Reader& r, const std::string& path, const Voxelmap& vm, bool closed)
-      : r_(r), path_(path), vm_(vm), closed_(closed), min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
+  LegacyRules(std::vector<Issue>& findings, const std::string& path, const Voxelmap& vm, bool closed)
+      : findings_(findings), path_(path), vm_(vm), closed_(closed), min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
 
   void voxel(uint64_t i, uint64_t j, uint64_t k, int layer, float d) {
     if (!std::isnan(d)) {
       const double expected = std::clamp(std::floor(-double(d) / vm_.voxel_size + 0.5), -32767.0, 32767.0);
       if (!mismatch_ && layer != int(expected)) {
-        r_.report(IssueCode::LayerDistanceMismatch, path_ + "/layers",
+        report(IssueCode::LayerDistanceMismatch, path_ + "/layers",
                   voxel_name(i, j, k) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) +
                       " m gives " + std::to_string(int(expected)));
         mismatch_ = true;
       }
     } else if (!too_small_ && std::abs(layer) < min_outside_) {
-      r_.report(IssueCode::LayerOutsideBandTooSmall, path_ + "/layers",
+      report(IssueCode::LayerOutsideBandTooSmall, path_ + "/layers",
                 voxel_name(i, j, k) + " has no stored distance but layer " + std::to_string(layer) +
                     " (|layer| must be >= " + std::to_string(min_outside_) + " outside the band)");
       too_small_ = true;
@@ -54,14 +54,14 @@ class LegacyRules {
   void neighbours(uint64_t i, uint64_t j, uint64_t k, int layer_a, float d_a, int layer_b, float d_b) {
     if (!closed_) return;  // across a closed hole both rules may break (spec 1.1 §3)
     if (!step_ && std::abs(layer_a - layer_b) > 1) {
-      r_.report(IssueCode::LayerStepTooLarge, path_ + "/layers",
+      report(IssueCode::LayerStepTooLarge, path_ + "/layers",
                 voxel_name(i, j, k) + " and a 6-neighbour differ by " + std::to_string(std::abs(layer_a - layer_b)) +
                     " layers");
       step_ = true;
     }
     if (!jump_ && !std::isnan(d_a) && !std::isnan(d_b) &&
         std::abs(double(d_a) - double(d_b)) > vm_.voxel_size * std::sqrt(3.0)) {
-      r_.report(IssueCode::DistanceJump, path_ + "/distances",
+      report(IssueCode::DistanceJump, path_ + "/distances",
                 voxel_name(i, j, k) +
                     " and a 6-neighbour are one voxel apart but their distances differ by more than the voxel "
                     "diagonal: " +
@@ -71,7 +71,10 @@ class LegacyRules {
   }
 
  private:
-  h5::Reader& r_;
+  void report(IssueCode code, const std::string& path, const std::string& message) {
+    findings_.push_back(Issue{code, severity_of(code), path, message});
+  }
+  std::vector<Issue>& findings_;
   const std::string& path_;
   const Voxelmap& vm_;
   bool closed_;
@@ -94,13 +97,16 @@ std::string grid_size_limit(const FormatVersion& version) {
 }
 
 void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const FormatVersion& version,
-                         ValidationLevel level, bool closed_surface, Voxelmap& vm) {
+                         ValidationLevel level, bool closed_surface, Voxelmap& vm, std::vector<Issue>& findings) {
   const int64_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
   const h5::Shape grid = {D, H, W};
   std::optional<h5::OpenDataset> layers = r.open_dataset<int16_t>(g, p, "layers", grid);
   std::optional<h5::OpenDataset> distances = r.open_dataset<float>(g, p, "distances", grid);
   if (!layers || !distances) return;
-  if (!(vm.distance_band >= 1 && vm.distance_band <= 32767) || !(vm.voxel_size > 0)) return;  // validate reports
+  // Out-of-range geometry is validate_asset's finding; nothing is converted from it.
+  if (!(vm.distance_band >= 1 && vm.distance_band <= 32767) ||
+      !(vm.voxel_size >= kMinVoxelSize && vm.voxel_size <= kMaxVoxelSize))
+    return;
 
   vm.choose_quanta();
   const double h = vm.voxel_size;
@@ -111,7 +117,7 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
   // transform, never shallower and at most ~11 % deeper (spec 1.1 §3). A lattice value is an upper bound.
   double deepest_layer = 0;
   const bool chamfer = version.minor == 0;
-  LegacyRules rules(r, p, vm, closed_surface);
+  LegacyRules rules(findings, p, vm, closed_surface);
   const bool check = level == ValidationLevel::Full;
   bool infinite_reported = false;
 

@@ -36,9 +36,10 @@ std::string grid_size_limit(const FormatVersion& version);
 
 /// Format 1.x: reads the dense `layers` and `distances` of group `g` a slab of bricks at a time and converts
 /// them to bricks (legacy_voxelmap.cpp). With `level` Full, the 1.x per-voxel rules are checked on the way (the
-/// neighbour rules only for a `closed_surface`, spec 1.1 §3).
+/// neighbour rules only for a `closed_surface`, spec 1.1 §3), their findings going to `findings` (value rules,
+/// which do not stop the read).
 void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& path, const FormatVersion& version,
-                         ValidationLevel level, bool closed_surface, Voxelmap& vm);
+                         ValidationLevel level, bool closed_surface, Voxelmap& vm, std::vector<Issue>& findings);
 
 /// True unless the provenance records surface defects (OPEN_BORDER, NON_MANIFOLD, SELF_INTERSECTIONS), across
 /// whose closure layers may jump.

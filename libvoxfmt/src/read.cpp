@@ -68,7 +68,7 @@ void read_bricks(h5::Reader& r, hid_t g, const std::string& p, Voxelmap& vm) {
 }
 
 void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, ValidationLevel level, bool closed,
-                   Voxelmap& vm) {
+                   Voxelmap& vm, std::vector<Issue>& value_findings) {
   const std::string p = "/voxelmap";
   if (auto v = r.numeric_attribute<double>(g, p, "origin", {3})) vm.origin = to_vec3(*v);
   if (auto v = r.numeric_attribute<double>(g, p, "voxel_size", {})) vm.voxel_size = (*v)[0];
@@ -93,7 +93,7 @@ void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, Validat
   }
   if (version.major == 1) {
     // Layers and distances per voxel: converted to bricks as they are read, a slab of bricks at a time.
-    read_dense_voxelmap(r, g, p, version, level, closed, vm);
+    read_dense_voxelmap(r, g, p, version, level, closed, vm, value_findings);
     report_unknown(r, g, p, {"layers", "distances"},
                    {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness"}, true);
     return;
@@ -244,14 +244,18 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   if (auto v = r.numeric_attribute<double>(root, "/", "bounds_max", {3})) asset.bounds_max = to_vec3(*v);
   // Provenance first: its warnings say whether a 1.x grid's neighbour rules apply while it is converted.
   if (auto g = r.group(root, "/", "provenance")) read_provenance(r, g->get(), asset.provenance);
+  // A 1.x grid's per-voxel rules are checked as it is converted; they are value rules (validate_asset's kind), so
+  // they join the findings after the structural verdict below.
+  std::vector<Issue> value_findings;
   if (auto g = r.group(root, "/", "voxelmap"))
-    read_voxelmap(r, g->get(), asset.version, level, closed_surface(asset.provenance), asset.voxelmap);
+    read_voxelmap(r, g->get(), asset.version, level, closed_surface(asset.provenance), asset.voxelmap, value_findings);
   if (auto g = r.group(root, "/", "pointshell")) read_point_shell(r, g->get(), asset.point_shell);
   if (auto g = r.group(root, "/", "mass_properties")) read_mass(r, g->get(), asset.mass);
   report_unknown(r, root, "/", {"voxelmap", "pointshell", "mass_properties", "provenance"},
                  {"format", "format_version", "units", "frame", "up_axis", "bounds_min", "bounds_max"}, true);
 
   if (!no_errors_since(issues, first)) return std::nullopt;
+  issues.insert(issues.end(), value_findings.begin(), value_findings.end());
   return asset;
 }
 

@@ -76,22 +76,29 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
           "dims must be >= 1 each with " + detail::grid_size_limit(version));
     return;
   }
-  // The quanta must let every band distance and every estimate near the band be coded in 15 bits.
-  const double band_m = vm.distance_band * vm.voxel_size;
-  if (!std::isfinite(vm.distance_quantum) || !(vm.distance_quantum > 0) ||
-      vm.distance_quantum * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
-    c.add(IssueCode::ValueOutOfRange, g + "/@distance_quantum",
-          "distance quantum " + fmt(vm.distance_quantum) + " m must be > 0 and code the band's " + fmt(band_m) +
-              " m in " + std::to_string(Voxelmap::kMaxSteps) + " steps");
-  if (!std::isfinite(vm.estimate_quantum) || !(vm.estimate_quantum > 0) ||
-      vm.estimate_quantum * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
-    c.add(IssueCode::ValueOutOfRange, g + "/@estimate_quantum",
-          "estimate quantum " + fmt(vm.estimate_quantum) + " m must be > 0 and code the band's " + fmt(band_m) +
-              " m in " + std::to_string(Voxelmap::kMaxSteps) + " steps");
-  if (!(std::isfinite(vm.lattice_error[0]) && vm.lattice_error[0] >= 0 && std::isfinite(vm.lattice_error[1]) &&
-        vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
-    c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
-          "lattice error must be finite, [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
+  // A 1.x file's bricks are this library's conversion (spec §3.4): its quanta and lattice errors are not the
+  // file's, and a conversion its other errors stopped leaves none to check.
+  if (version.major == 1 && vm.bricks.empty()) return;
+  if (version.major != 1) {
+    // The quanta must let every band distance and every estimate near the band be coded in 15 bits.
+    const double band_m = vm.distance_band * vm.voxel_size;
+    auto quantum = [&](double q, const char* name) {
+      const std::string path = g + "/@" + name;
+      if (!std::isfinite(q))
+        c.add(IssueCode::NonFiniteValue, path, std::string(name) + " is not finite");
+      else if (!(q > 0) || q * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
+        c.add(IssueCode::ValueOutOfRange, path,
+              std::string(name) + " " + fmt(q) + " m must be > 0 and code the band's " + fmt(band_m) + " m in " +
+                  std::to_string(Voxelmap::kMaxSteps) + " steps");
+    };
+    quantum(vm.distance_quantum, "distance_quantum");
+    quantum(vm.estimate_quantum, "estimate_quantum");
+    if (!std::isfinite(vm.lattice_error[0]) || !std::isfinite(vm.lattice_error[1]))
+      c.add(IssueCode::NonFiniteValue, g + "/@lattice_error", "lattice error is not finite");
+    else if (!(vm.lattice_error[0] >= 0 && vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
+      c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
+            "lattice error must have [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
+  }
   if (vm.bricks.size() != vm.brick_count()) {
     c.add(IssueCode::WrongShape, g + "/bricks",
           "holds " + std::to_string(vm.bricks.size()) + " bricks, dims say " + std::to_string(vm.brick_count()));
@@ -327,9 +334,8 @@ class VoxelmapRules {
     const int16_t* codes = vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
     // The estimates this brick's codes must hold, computed as the producer does (fill_brick_estimates keeps each
     // code's sign and leaves stored codes alone).
-    int16_t expected[Voxelmap::kBrickVoxels];
-    std::copy(codes, codes + Voxelmap::kBrickVoxels, expected);
-    fill_brick_estimates(vm_, bi, bj, bk, expected);
+    double expected[Voxelmap::kBrickVoxels];
+    brick_estimate_magnitudes(vm_, bi, bj, bk, expected);
     const uint32_t first[3] = {bi * E, bj * E, bk * E};
     const uint32_t count[3] = {std::min(E, vm_.dims[0] - first[0]), std::min(E, vm_.dims[1] - first[1]),
                                std::min(E, vm_.dims[2] - first[2])};
@@ -355,11 +361,13 @@ class VoxelmapRules {
                                                     fmt(band_m_) + " m");
           f.outside = true;
         }
-      } else if (!f.estimate && (code == 0 || std::abs((code >> 1) - (expected[v] >> 1)) > 1)) {
-        // One step either way: another producer may round the same value the other way.
+      } else if (!f.estimate && (code == 0 || std::abs(std::abs(d) - expected[v]) >
+                                                  0.5 * vm_.estimate_quantum * (1 + 1e-6) + 1e-12 * expected[v])) {
+        // The nearest step (spec §3.2): within half a step of the lattice's value, but for the rounding of the
+        // interpolation itself.
         f.add(IssueCode::EstimateMismatch, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
                                                " holds the estimate " + fmt(d) + " m, the lattice gives " +
-                                               fmt(vm_.decode(expected[v])) + " m");
+                                               fmt(code < 0 ? -expected[v] : expected[v]) + " m");
         f.estimate = true;
       }
     }

@@ -166,7 +166,7 @@ std::pair<int, int> Voxelmap::layer_range() const {
   return {lo, hi};
 }
 
-void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, int16_t* codes) {
+void brick_estimate_magnitudes(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, double* magnitudes) {
   // The brick's voxels all lie in the lattice cell of its 8 corners: those are read once, and the weights along each
   // axis are the same for every row. The result is coarse_magnitude()'s, term for term.
   const uint32_t first[3] = {bi * kEdge, bj * kEdge, bk * kEdge};
@@ -180,16 +180,29 @@ void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t
     for (uint32_t l = 0; l < count[a]; ++l) t[a][l] = axis_cell(first[a] + l, vm.dims[size_t(a)]).t;
   }
   const double edge_of_band = (vm.distance_band - 0.5) * vm.voxel_size;
+  std::fill(magnitudes, magnitudes + Voxelmap::kBrickVoxels, 0.0);
+  for (uint32_t lk = 0; lk < count[2]; ++lk)
+    for (uint32_t lj = 0; lj < count[1]; ++lj)
+      for (uint32_t li = 0; li < count[0]; ++li) {
+        const double tx = t[0][li], ty = t[1][lj], tz = t[2][lk];
+        const double x00 = corner[0] + tx * (corner[1] - corner[0]), x10 = corner[2] + tx * (corner[3] - corner[2]);
+        const double x01 = corner[4] + tx * (corner[5] - corner[4]), x11 = corner[6] + tx * (corner[7] - corner[6]);
+        const double y0 = x00 + ty * (x10 - x00), y1 = x01 + ty * (x11 - x01);
+        magnitudes[Voxelmap::local_index(li, lj, lk)] = std::max(y0 + tz * (y1 - y0), edge_of_band);
+      }
+}
+
+void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, int16_t* codes) {
+  double magnitudes[Voxelmap::kBrickVoxels];
+  brick_estimate_magnitudes(vm, bi, bj, bk, magnitudes);
+  const uint32_t count[3] = {std::min(kEdge, vm.dims[0] - bi * kEdge), std::min(kEdge, vm.dims[1] - bj * kEdge),
+                             std::min(kEdge, vm.dims[2] - bk * kEdge)};
   for (uint32_t lk = 0; lk < count[2]; ++lk)
     for (uint32_t lj = 0; lj < count[1]; ++lj)
       for (uint32_t li = 0; li < count[0]; ++li) {
         int16_t& code = codes[Voxelmap::local_index(li, lj, lk)];
         if (Voxelmap::code_is_stored(code)) continue;
-        const double tx = t[0][li], ty = t[1][lj], tz = t[2][lk];
-        const double x00 = corner[0] + tx * (corner[1] - corner[0]), x10 = corner[2] + tx * (corner[3] - corner[2]);
-        const double x01 = corner[4] + tx * (corner[5] - corner[4]), x11 = corner[6] + tx * (corner[7] - corner[6]);
-        const double y0 = x00 + ty * (x10 - x00), y1 = x01 + ty * (x11 - x01);
-        const double magnitude = std::max(y0 + tz * (y1 - y0), edge_of_band);
+        const double magnitude = magnitudes[Voxelmap::local_index(li, lj, lk)];
         code = vm.encode_estimate(code < 0 ? -magnitude : magnitude);
       }
 }

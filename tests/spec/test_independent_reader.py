@@ -8,7 +8,8 @@
   * Python -> C++: format 2.0 files written with h5py alone (spec_fixture.write_fixture_h5py), including the
     variants the spec says readers must accept, are fed to `voxfmt validate --level full --json` and
     `voxfmt inspect --json`. Legacy 1.x files (dense layers and distances, §3.4), which 2.0 readers must still
-    read, get the same treatment (TestLegacyPythonToCpp).
+    read, get the same treatment (TestLegacyPythonToCpp); `voxfmt upgrade` of such files must write what §3.4
+    says a 2.0 reader sees in them (TestLegacyUpgrade, skipped where voxfmt has no upgrade subcommand).
   * h5dump -H of the C++-written file lists every required object with the spec's HDF5 type.
   * Self-checks run every C++ -> Python check on the h5py-written fixtures (2.0 at the fixture's grid and at a
     finer grid with coarse bricks, and the legacy 1.1 file), so the checks themselves are known to accept a
@@ -1170,6 +1171,86 @@ class TestLegacyPythonToCpp(PythonToCppBase, unittest.TestCase):
         self.assert_valid(path)
         js = self.check_inspect(path, grid=sf.FINE_GRID)
         self.assertGreater(js["voxelmap"]["coarse_bricks"], 0)
+
+
+def have_upgrade():
+    """`voxfmt upgrade` (spec §3.4) is listed by `voxfmt --help`."""
+    if not ss.have_bin():
+        return False
+    proc = ss.run([ss.VOXFMT_BIN, "--help"])
+    return proc.returncode == 0 and any(line.split()[:1] == ["upgrade"] for line in proc.stdout.splitlines())
+
+
+@unittest.skipUnless(have_upgrade(), "voxfmt has no upgrade subcommand")
+class TestLegacyUpgrade(unittest.TestCase):
+    """§3.4: "A 2.0 reader reads a 1.x voxelmap as the bricks of §3.2 ... `voxfmt upgrade` writes that as a 2.0
+    file." h5py-written 1.0 and 1.1 files are upgraded with voxfmt and the result is decoded with the spec's 2.0
+    decoder: it must be what spec_support.decode_legacy_voxelmap reads from the 1.x file."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="voxfmt-upgrade-")
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def upgrade(self, name, **kw):
+        old = sf.write_legacy_fixture_h5py(os.path.join(self.tmp, name + "-1x.vox.h5"), **kw)
+        new = os.path.join(self.tmp, name + "-2.0.vox.h5")
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", old, "-o", new, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        report = ss.parse_json_stdout(self, proc)
+        self.assertEqual([f["status"] for f in report["files"]], ["upgraded"], describe(proc))
+        proc = ss.run([ss.VOXFMT_BIN, "validate", new, "--level", "full", "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertTrue(ss.check_validate_json(self, proc, [new])[new]["valid"])
+        return old, new
+
+    def check_as_bricks(self, old, new, version):
+        want = ss.decode_legacy_voxelmap(old)
+        got = ss.decode_voxelmap(new)
+        with h5py.File(new, "r") as f:
+            self.assertEqual(f.attrs["format_version"].tolist(), [2, 0])
+            self.assertNotIn("layers", f["/voxelmap"])
+            self.assertNotIn("distances", f["/voxelmap"])
+        self.assertEqual(got.dims, want.dims)
+        np.testing.assert_allclose(got.lattice_error, want.lattice_error, rtol=1e-12, err_msg="§3.4 lattice_error")
+        self.assertAlmostEqual(got.distance_quantum, got.distance_band * got.voxel_size / 16383, delta=1e-18)
+        np.testing.assert_array_equal(got.stored, want.stored, "stored distances where the 1.x file has them")
+        np.testing.assert_allclose(got.values[got.stored], want.values[want.stored], rtol=0,
+                                   atol=1e-6 * got.distance_quantum, err_msg="stored distances on §3.4's steps")
+        np.testing.assert_array_equal(np.minimum(got.bricks, 0), np.minimum(want.bricks, 0),
+                                      "value bricks where §3.4 puts them, coarse bricks with their layers' sign")
+        np.testing.assert_array_equal(got.lattice, want.lattice, "lattice (|v| + 1/2) h, or the stored |d|")
+        est = ~got.stored
+        err = np.abs(got.values - want.values)[est]
+        self.assertLessEqual(float(err.max()), got.estimate_quantum / 2 * (1 + 1e-9) + 1e-12 * got.voxel_size,
+                             "estimates are the lattice's, rounded to estimate_quantum")
+        self.assertEqual(list(want.lattice_error), [1.0, 1.0 / 9.0] if version == (1, 0) else
+                         [1.0 + math.sqrt(3.0), 0.0])
+
+    def test_upgrade_1_1(self):
+        old, new = self.upgrade("sphere11")
+        self.check_as_bricks(old, new, (1, 1))
+
+    def test_upgrade_1_0(self):
+        old, new = self.upgrade("sphere10", format_version=(1, 0))
+        self.check_as_bricks(old, new, (1, 0))
+
+    def test_upgrade_fine_grid_with_coarse_bricks(self):
+        old, new = self.upgrade("fine11", grid=sf.FINE_GRID)
+        self.check_as_bricks(old, new, (1, 1))
+        self.assertGreater(ss.decode_voxelmap(new).coarse_brick_count, 0)
+
+    def test_inspect_reads_both_alike(self):
+        """inspect reports the same voxelmap for the 1.1 file and its upgrade (a 2.0 reader reads 1.x as 2.0)."""
+        old, new = self.upgrade("inspect11", grid=sf.FINE_GRID)
+        a, b = (ss.parse_json_stdout(self, ss.run([ss.VOXFMT_BIN, "inspect", p, "--json"]))["voxelmap"]
+                for p in (old, new))
+        for key in ("dims", "stored_distances", "bricks", "value_bricks", "coarse_bricks"):
+            self.assertEqual(a[key], b[key], key)
+        np.testing.assert_allclose(a["lattice_error"], b["lattice_error"], rtol=1e-12)
 
 
 if __name__ == "__main__":

@@ -457,7 +457,9 @@ class TestMalformedBricks(MalformedBase):
         self.assertIsNotNone(pos, "test bug: voxel (%d, %d, %d) lies in a coarse brick" % (i, j, k))
         old = int(values[pos])
         values[pos] = code(old)
-        return self.bad(name, grid=grid, values={"/voxelmap/brick_values": values}, **write), old
+        extra = dict(write.pop("values", {}))
+        extra["/voxelmap/brick_values"] = values
+        return self.bad(name, grid=grid, values=extra, **write), old
 
     # -- control ----------------------------------------------------------------------------------------------
 
@@ -650,6 +652,19 @@ class TestMalformedBricks(MalformedBase):
         self.assert_rejected(path, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap", inspect_must_fail=False)
         self.assert_not_found_at_quick_level(path, "DISTANCE_OUTSIDE_BAND")
 
+    def test_band_edge_is_half_a_quantum_beyond_the_band(self):
+        """issue-codes.md: DISTANCE_OUTSIDE_BAND is a stored distance beyond band*h by more than half a quantum.
+        With q = 4 band h / 16383 the band edge is 4095.75 q: a stored 4096 q (0.25 q beyond) is accepted, 4097 q
+        (1.25 q beyond) is not."""
+        q = 4 * self.BAND * self.H / 16383
+        d = sf.signed_distance_grid()
+        i, j, k = voxel_where((d > (self.BAND + 0.5) * self.H) & (d < (self.BAND + 1.0) * self.H))
+        inside, _ = self.with_code("band_edge_4096", i, j, k, lambda c: 2 * 4096 + 1, distance_quantum=q)
+        proc = ss.run([ss.VOXFMT_BIN, "validate", inside, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        beyond, _ = self.with_code("band_edge_4097", i, j, k, lambda c: 2 * 4097 + 1, distance_quantum=q)
+        self.assert_rejected(beyond, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap", inspect_must_fail=False)
+
     def test_estimate_code_disagrees_with_the_lattice(self):
         """§3.2: an even code MUST be the lattice's estimate rounded to the nearest step; here 8 steps (half a
         voxel) farther out at the grid's corner voxel -> ESTIMATE_MISMATCH (full level)."""
@@ -658,6 +673,28 @@ class TestMalformedBricks(MalformedBase):
         self.assertGreater(old, 0)
         self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
         self.assert_not_found_at_quick_level(path, "ESTIMATE_MISMATCH")
+
+    def test_estimate_code_one_step_off(self):
+        """§3.2: the code is the estimate rounded to the *nearest* step. At the corner voxel the unrounded estimate
+        lies within 0.1 step of the coded one (checked here with the spec's decoder), so one step more is at least
+        0.9 step (> half a step) from it -> ESTIMATE_MISMATCH (full level)."""
+        vm = ss.decode_voxelmap(self.good)
+        unrounded = vm.lattice_estimate[0, 0, 0]  # outside: positive
+        self.assertLess(abs(unrounded - vm.values[0, 0, 0]), 0.1 * vm.estimate_quantum)
+        for step in (1, -1):
+            with self.subTest(step=step):
+                path, old = self.with_code("estimate_step_%d" % step, 0, 0, 0, lambda c: c + 2 * step)
+                self.assertEqual(old % 2, 0)
+                self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+
+    def test_sign_rule_only_for_closed_surfaces(self):
+        """issue-codes.md: SIGN_MISMATCH is checked for closed surfaces only. The flipped centre voxel of
+        test_estimate_sign_flipped_inside, in an asset whose build warnings say OPEN_BORDER, is valid."""
+        warnings = '[{"code": "OPEN_BORDER", "message": "the surface has holes"}]'
+        path, old = self.with_code("estimate_sign_open", 7, 7, 7, lambda c: -c,
+                                   values={"/provenance/build_warnings": warnings})
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
 
     def test_estimate_code_zero(self):
         """§3.2: an estimate is never 0 (a 0 code would be an even code of estimate 0)."""

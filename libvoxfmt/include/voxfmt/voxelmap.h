@@ -158,5 +158,8 @@ Voxelmap make_voxelmap(const Voxelmap& geometry, const SignedDistanceFunction& s
 void fill_estimates(Voxelmap& vm);
 /// The same for one value brick (bi, bj, bk) whose codes are `codes`; bricks can be filled concurrently.
 void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, int16_t* codes);
+/// The estimate magnitudes (metres, before rounding to a step) of the voxels of brick (bi, bj, bk), x fastest,
+/// kBrickVoxels of them (positions past the grid: 0).
+void brick_estimate_magnitudes(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, double* magnitudes);
 
 }  // namespace voxfmt
