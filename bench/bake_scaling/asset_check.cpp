@@ -5,8 +5,8 @@
 #include <CGAL/AABB_traits.h>
 #include <CGAL/AABB_tree.h>
 #include <CGAL/AABB_triangle_primitive.h>
-#include <CGAL/Simple_cartesian.h>
 #include <CGAL/Side_of_triangle_mesh.h>
+#include <CGAL/Simple_cartesian.h>
 #include <CGAL/Surface_mesh.h>
 #include <CLI/CLI.hpp>
 

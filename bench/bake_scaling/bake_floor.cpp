@@ -1,9 +1,9 @@
 // The floor of the bake's cost: OpenVDB's own narrow band (tools::meshToLevelSet) of the same mesh at the same
 // voxel size and band, alone in this process, for bench/bench_bake.py --scaling to show beside the whole bake.
 // Prints one JSON object: {"resolution", "voxel_size", "band", "seconds", "active_voxels"}.
-#include <CLI/CLI.hpp>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <CLI/CLI.hpp>
 
 #include <algorithm>
 #include <chrono>
@@ -19,7 +19,8 @@ int main(int argc, char** argv) {
   app.add_option("mesh", mesh_path, "Mesh file (any format voxfmt build reads)")->required();
   app.add_option("--resolution", resolution, "Voxels along the longest bounding-box axis, as voxfmt build's")
       ->capture_default_str();
-  app.add_option("--band", band, "Half-width of the narrow band in voxels (voxfmt build's --band)")->capture_default_str();
+  app.add_option("--band", band, "Half-width of the narrow band in voxels (voxfmt build's --band)")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   const auto mesh = voxfmt::bake::read_mesh(mesh_path);

@@ -375,9 +375,9 @@ std::optional<OpenDataset> Reader::open_dataset(hid_t group, const std::string& 
     return std::nullopt;
   }
   if (count * sizeof(T) > memory_limit_bytes()) {
-    report(IssueCode::ReadFailed, path,
-           "dataset declares " + std::to_string(count * sizeof(T) >> 20) +
-               " MB, more than half of this machine's memory");
+    report(
+        IssueCode::ReadFailed, path,
+        "dataset declares " + std::to_string(count * sizeof(T) >> 20) + " MB, more than half of this machine's memory");
     return std::nullopt;
   }
   if (!check_storage(result.handle.get(), result.shape, path)) return std::nullopt;
@@ -630,7 +630,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
                                                               const Shape&);                                         \
   template bool Reader::read_rows<T>(const OpenDataset&, uint64_t, uint64_t, T*);                                    \
   template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*);     \
-  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,          \
+  template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,           \
                                    const std::vector<uint64_t>&, const T*);
 VOXFMT_INSTANTIATE(int16_t)
 VOXFMT_INSTANTIATE(int32_t)

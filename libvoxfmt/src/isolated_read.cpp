@@ -9,8 +9,8 @@
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
-#include <new>
 #include <mutex>
+#include <new>
 
 #include "load.h"
 #include "voxfmt/detail/isolated_call.h"
@@ -118,8 +118,8 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   // parent stops it only when neither that counter nor the pipe has moved for kIdleLimitS. A real read never
   // pauses that long between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a
   // parse that loops in HDF5 stops moving at once. What a file may make us read is bounded by the spec's limits.
-  void* shared = ::mmap(nullptr, sizeof(std::atomic<uint64_t>), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS,
-                        -1, 0);
+  void* shared =
+      ::mmap(nullptr, sizeof(std::atomic<uint64_t>), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
   if (shared == MAP_FAILED) {
     issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/",
                            std::string("cannot start the isolated read: ") + std::strerror(errno)});
@@ -179,7 +179,9 @@ void report_read_progress() {
 }
 
 std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues, ValidationLevel level) {
-  auto read = [level](const std::string& p, std::vector<Issue>& found) { return load_asset_in_process(p, found, level); };
+  auto read = [level](const std::string& p, std::vector<Issue>& found) {
+    return load_asset_in_process(p, found, level);
+  };
 #if defined(_WIN32)
   return read(path, issues);
 #else

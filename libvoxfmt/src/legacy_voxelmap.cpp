@@ -32,21 +32,25 @@ std::string fmt(double v) {
 class LegacyRules {
  public:
   LegacyRules(std::vector<Issue>& findings, const std::string& path, const Voxelmap& vm, bool closed)
-      : findings_(findings), path_(path), vm_(vm), closed_(closed), min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
+      : findings_(findings),
+        path_(path),
+        vm_(vm),
+        closed_(closed),
+        min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
 
   void voxel(uint64_t i, uint64_t j, uint64_t k, int layer, float d) {
     if (!std::isnan(d)) {
       const double expected = std::clamp(std::floor(-double(d) / vm_.voxel_size + 0.5), -32767.0, 32767.0);
       if (!mismatch_ && layer != int(expected)) {
         report(IssueCode::LayerDistanceMismatch, path_ + "/layers",
-                  voxel_name(i, j, k) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) +
-                      " m gives " + std::to_string(int(expected)));
+               voxel_name(i, j, k) + " has layer " + std::to_string(layer) + " but its distance " + fmt(d) +
+                   " m gives " + std::to_string(int(expected)));
         mismatch_ = true;
       }
     } else if (!too_small_ && std::abs(layer) < min_outside_) {
       report(IssueCode::LayerOutsideBandTooSmall, path_ + "/layers",
-                voxel_name(i, j, k) + " has no stored distance but layer " + std::to_string(layer) +
-                    " (|layer| must be >= " + std::to_string(min_outside_) + " outside the band)");
+             voxel_name(i, j, k) + " has no stored distance but layer " + std::to_string(layer) +
+                 " (|layer| must be >= " + std::to_string(min_outside_) + " outside the band)");
       too_small_ = true;
     }
   }
@@ -55,17 +59,17 @@ class LegacyRules {
     if (!closed_) return;  // across a closed hole both rules may break (spec 1.1 §3)
     if (!step_ && std::abs(layer_a - layer_b) > 1) {
       report(IssueCode::LayerStepTooLarge, path_ + "/layers",
-                voxel_name(i, j, k) + " and a 6-neighbour differ by " + std::to_string(std::abs(layer_a - layer_b)) +
-                    " layers");
+             voxel_name(i, j, k) + " and a 6-neighbour differ by " + std::to_string(std::abs(layer_a - layer_b)) +
+                 " layers");
       step_ = true;
     }
     if (!jump_ && !std::isnan(d_a) && !std::isnan(d_b) &&
         std::abs(double(d_a) - double(d_b)) > vm_.voxel_size * std::sqrt(3.0)) {
       report(IssueCode::DistanceJump, path_ + "/distances",
-                voxel_name(i, j, k) +
-                    " and a 6-neighbour are one voxel apart but their distances differ by more than the voxel "
-                    "diagonal: " +
-                    fmt(std::abs(double(d_a) - double(d_b)) / vm_.voxel_size) + " voxels");
+             voxel_name(i, j, k) +
+                 " and a 6-neighbour are one voxel apart but their distances differ by more than the voxel "
+                 "diagonal: " +
+                 fmt(std::abs(double(d_a) - double(d_b)) / vm_.voxel_size) + " voxels");
       jump_ = true;
     }
   }
@@ -159,7 +163,8 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
       const int64_t k = Voxelmap::lattice_coordinate(c, uint32_t(D));
       for (uint32_t b = 0; b < bd[1] + 1; ++b)
         for (uint32_t a = 0; a < bd[0] + 1; ++a) {
-          const size_t v = at(Voxelmap::lattice_coordinate(a, uint32_t(W)), Voxelmap::lattice_coordinate(b, uint32_t(H)), k);
+          const size_t v =
+              at(Voxelmap::lattice_coordinate(a, uint32_t(W)), Voxelmap::lattice_coordinate(b, uint32_t(H)), k);
           const float d = slab_distances[v];
           double value;
           if (std::isfinite(d)) {
@@ -182,8 +187,8 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
             for (int64_t i = int64_t(bi) * kEdge; i < std::min<int64_t>(W, int64_t(bi + 1) * kEdge); ++i) {
               const size_t v = at(i, j, k);
               const float d = slab_distances[v];
-              int16_t& code = codes[Voxelmap::local_index(uint32_t(i % kEdge), uint32_t(j % kEdge),
-                                                          uint32_t(k % kEdge))];
+              int16_t& code =
+                  codes[Voxelmap::local_index(uint32_t(i % kEdge), uint32_t(j % kEdge), uint32_t(k % kEdge))];
               const bool inside = std::isfinite(d) ? d < 0 : slab_layers[v] > 0;
               if (std::isfinite(d)) {
                 code = vm.encode_stored(double(d));

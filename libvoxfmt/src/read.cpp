@@ -227,8 +227,7 @@ bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
 
 }  // namespace
 
-std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues,
-                                           ValidationLevel level) {
+std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues, ValidationLevel level) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
   r.set_progress(report_read_progress);

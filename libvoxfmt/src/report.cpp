@@ -40,8 +40,7 @@ AssetSummary summarize_asset(const std::string& file, const Asset& a) {
   const PointShell& ps = a.point_shell;
   s.points_per_level = ps.points_per_level();
   const size_t n = ps.size();
-  s.memory_bytes = vm.memory_bytes() +
-                   n * (2 * sizeof(Vec3) + sizeof(Vec3f) + sizeof(double) + 2 * sizeof(uint32_t)) +
+  s.memory_bytes = vm.memory_bytes() + n * (2 * sizeof(Vec3) + sizeof(Vec3f) + sizeof(double) + 2 * sizeof(uint32_t)) +
                    ps.level_offsets.size() * sizeof(uint32_t);
   return s;
 }

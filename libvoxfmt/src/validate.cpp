@@ -72,8 +72,7 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
     c.add(IssueCode::ValueOutOfRange, g + "/@distance_band",
           "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) + "]");
   if (!detail::grid_size_allowed(vm.dims, version)) {
-    c.add(IssueCode::ValueOutOfRange, g + "/@dims",
-          "dims must be >= 1 each with " + detail::grid_size_limit(version));
+    c.add(IssueCode::ValueOutOfRange, g + "/@dims", "dims must be >= 1 each with " + detail::grid_size_limit(version));
     return;
   }
   // A 1.x file's bricks are this library's conversion (spec §3.4): its quanta and lattice errors are not the
@@ -303,7 +302,8 @@ class VoxelmapRules {
   Near near_of(uint32_t i, uint32_t j, uint32_t k) const {
     const int32_t entry = vm_.bricks[vm_.brick_index(i / E, j / E, k / E)];
     if (entry < 0) return Near{entry == Voxelmap::kCoarseInside ? -edge_m_ : edge_m_, edge_m_, false};
-    const int16_t code = vm_.brick_values[size_t(entry) * Voxelmap::kBrickVoxels + Voxelmap::local_index(i % E, j % E, k % E)];
+    const int16_t code =
+        vm_.brick_values[size_t(entry) * Voxelmap::kBrickVoxels + Voxelmap::local_index(i % E, j % E, k % E)];
     const double d = vm_.decode(code);
     return Near{d, Voxelmap::code_is_stored(code) ? std::abs(d) : edge_m_, Voxelmap::code_is_stored(code)};
   }
@@ -313,7 +313,8 @@ class VoxelmapRules {
            (a.stored && b.stored && std::abs(a.distance - b.distance) > jump_limit_);
   }
 
-  void report_pair(const uint32_t (&at)[3], const Near& a, const uint32_t (&other)[3], const Near& b, Findings& f) const {
+  void report_pair(const uint32_t (&at)[3], const Near& a, const uint32_t (&other)[3], const Near& b,
+                   Findings& f) const {
     const std::string names = voxel_name(at[0], at[1], at[2]) + " and " + voxel_name(other[0], other[1], other[2]);
     if (!f.sign && (a.distance < 0) != (b.distance < 0) && a.nearest + b.nearest > sign_limit_) {
       f.add(IssueCode::SignMismatch, names +
@@ -323,15 +324,17 @@ class VoxelmapRules {
       f.sign = true;
     }
     if (!f.jump && a.stored && b.stored && std::abs(a.distance - b.distance) > jump_limit_) {
-      f.add(IssueCode::DistanceJump, names + " are one voxel apart but their distances differ by more than the voxel "
-                                             "diagonal: " +
-                                             fmt(std::abs(a.distance - b.distance) / h_) + " voxels");
+      f.add(IssueCode::DistanceJump, names +
+                                         " are one voxel apart but their distances differ by more than the voxel "
+                                         "diagonal: " +
+                                         fmt(std::abs(a.distance - b.distance) / h_) + " voxels");
       f.jump = true;
     }
   }
 
   void brick(uint32_t bi, uint32_t bj, uint32_t bk, Findings& f) const {
-    const int16_t* codes = vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
+    const int16_t* codes =
+        vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
     // The estimates this brick's codes must hold, computed as the producer does (fill_brick_estimates keeps each
     // code's sign and leaves stored codes alone).
     double expected[Voxelmap::kBrickVoxels];
@@ -449,7 +452,8 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
   std::vector<std::vector<Issue>> found(threads);
   std::vector<std::thread> pool;
   auto run = [&](unsigned t) {
-    VoxelmapRules(vm, closed_surface).check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t]);
+    VoxelmapRules(vm, closed_surface)
+        .check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t]);
   };
   for (unsigned t = 1; t < threads; ++t) {
     try {

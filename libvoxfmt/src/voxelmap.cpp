@@ -24,8 +24,8 @@ int16_t clamp_steps(long steps, long minimum_magnitude) {
 
 // The lattice corners around voxel coordinate `v` along an axis of `n` voxels, and v's weight toward the upper.
 struct AxisCell {
-  uint32_t lower = 0;  // lattice index of the lower corner (the upper is lower + 1)
-  double t = 0;        // 0 at the lower corner, 1 at the upper
+  uint32_t lower = 0;                         // lattice index of the lower corner (the upper is lower + 1)
+  double t = 0;                               // 0 at the lower corner, 1 at the upper
   double lower_offset = 0, upper_offset = 0;  // voxels from the corners
 };
 AxisCell axis_cell(uint32_t v, uint32_t n) {
@@ -88,8 +88,7 @@ double Voxelmap::interpolation_bound(uint32_t i, uint32_t j, uint32_t k) const {
 VoxelValue Voxelmap::voxel(uint32_t i, uint32_t j, uint32_t k) const {
   const int32_t entry = bricks[brick_index(i / kEdge, j / kEdge, k / kEdge)];
   if (entry >= 0) {
-    const int16_t code =
-        brick_values[size_t(entry) * kBrickVoxels + local_index(i % kEdge, j % kEdge, k % kEdge)];
+    const int16_t code = brick_values[size_t(entry) * kBrickVoxels + local_index(i % kEdge, j % kEdge, k % kEdge)];
     return {decode(code), code_is_stored(code)};
   }
   const double magnitude = coarse_magnitude(i, j, k);
@@ -110,8 +109,8 @@ int Voxelmap::layer(uint32_t i, uint32_t j, uint32_t k) const {
   return int(std::clamp(std::floor(-d + 0.5), -32767.0, 32767.0));
 }
 
-void Voxelmap::read_block(const std::array<uint32_t, 3>& first, const std::array<uint32_t, 3>& size,
-                          float* distances, int16_t* layers) const {
+void Voxelmap::read_block(const std::array<uint32_t, 3>& first, const std::array<uint32_t, 3>& size, float* distances,
+                          int16_t* layers) const {
   size_t n = 0;
   for (uint32_t k = first[2]; k < first[2] + size[2]; ++k)
     for (uint32_t j = first[1]; j < first[1] + size[1]; ++j)
@@ -145,7 +144,8 @@ std::pair<int, int> Voxelmap::layer_range() const {
   for_each_value_brick([&](uint32_t bi, uint32_t bj, uint32_t bk, const int16_t* codes) {
     for (uint32_t lk = 0; lk < kEdge && bk * kEdge + lk < dims[2]; ++lk)
       for (uint32_t lj = 0; lj < kEdge && bj * kEdge + lj < dims[1]; ++lj)
-        for (uint32_t li = 0; li < kEdge && bi * kEdge + li < dims[0]; ++li) add(decode(codes[local_index(li, lj, lk)]));
+        for (uint32_t li = 0; li < kEdge && bi * kEdge + li < dims[0]; ++li)
+          add(decode(codes[local_index(li, lj, lk)]));
   });
   // Coarse bricks: their estimates lie between their corners' values (and the band's edge).
   const auto b = brick_dims();

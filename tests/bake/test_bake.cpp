@@ -336,8 +336,8 @@ TEST(Bake, TorusDistancesMatchClosedForm) {
   const Voxelmap& vm = asset.voxelmap;
   const double i = (R - vm.origin[0]) / vm.voxel_size, j = (0 - vm.origin[1]) / vm.voxel_size,
                k = (0 - vm.origin[2]) / vm.voxel_size;
-  EXPECT_NEAR(vm.layer(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k))) * vm.voxel_size,
-              r, 1.5 * vm.voxel_size);
+  EXPECT_NEAR(vm.layer(uint32_t(std::lround(i)), uint32_t(std::lround(j)), uint32_t(std::lround(k))) * vm.voxel_size, r,
+              1.5 * vm.voxel_size);
   // Analytic volume 2 pi^2 R r^2, within the tessellation's shrinkage.
   EXPECT_NEAR(asset.mass.volume, 2 * M_PI * M_PI * R * r * r, 2e-3 * asset.mass.volume);
   expect_tree_encloses_descendants(asset.point_shell, 1e-9);

@@ -59,10 +59,10 @@ TEST(VdbExport, GridsHoldTheVoxelmap) {
         const int layer = vm.layer(i, j, k);
         // A coarse brick is one tile holding its middle voxel's layer.
         const bool coarse = vm.bricks[vm.brick_index(i / E, j / E, k / E)] < 0;
-        const int expected_layer = coarse ? vm.layer(std::min(i / E * E + E / 2, vm.dims[0] - 1),
-                                                     std::min(j / E * E + E / 2, vm.dims[1] - 1),
-                                                     std::min(k / E * E + E / 2, vm.dims[2] - 1))
-                                          : layer;
+        const int expected_layer =
+            coarse ? vm.layer(std::min(i / E * E + E / 2, vm.dims[0] - 1), std::min(j / E * E + E / 2, vm.dims[1] - 1),
+                              std::min(k / E * E + E / 2, vm.dims[2] - 1))
+                   : layer;
         wrong_layer += l_access.getValue(c) != expected_layer;
         if (value.stored) {
           wrong_distance += !d_access.isValueOn(c) || d_access.getValue(c) != float(value.distance);

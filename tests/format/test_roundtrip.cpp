@@ -173,7 +173,8 @@ TEST(Write, FullRulesAreCheckedBeforeTheFileIsReplaced) {
   Asset wrong = sphere;
   Voxelmap& vm = wrong.voxelmap;
   size_t stored = 0;
-  while (!(Voxelmap::code_is_stored(vm.brick_values[stored]) && vm.decode(vm.brick_values[stored]) > 1.2 * vm.voxel_size))
+  while (
+      !(Voxelmap::code_is_stored(vm.brick_values[stored]) && vm.decode(vm.brick_values[stored]) > 1.2 * vm.voxel_size))
     ++stored;
   vm.brick_values[stored] = vm.encode_stored(-vm.decode(vm.brick_values[stored]));
   ASSERT_FALSE(has_errors(validate_asset(wrong, ValidationLevel::Quick)));

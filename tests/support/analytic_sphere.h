@@ -33,7 +33,8 @@ inline Asset make_sphere_asset(const SphereSpec& s = {}) {
   const uint32_t n = uint32_t(std::lround(2 * half_extent / h)) + 1;
   grid.dims = {n, n, n};
   grid.origin = {c[0] - half_extent, c[1] - half_extent, c[2] - half_extent};
-  a.voxelmap = make_voxelmap(grid, [&](const Vec3& p) { return std::hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2]) - r; });
+  a.voxelmap =
+      make_voxelmap(grid, [&](const Vec3& p) { return std::hypot(p[0] - c[0], p[1] - c[1], p[2] - c[2]) - r; });
   // Fibonacci sphere: evenly spread points with inward normals, in a complete k-ary breadth-first tree.
   PointShell& ps = a.point_shell;
   const uint32_t count = s.points, b = s.branching;

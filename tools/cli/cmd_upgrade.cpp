@@ -39,7 +39,8 @@ bool is_asset_name(const fs::path& p) {
 Result<std::vector<Item>> plan(const Options& o) {
   std::vector<Item> items;
   std::error_code ec;
-  const bool single_file = o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
+  const bool single_file =
+      o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
   if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
   for (const std::string& input : o.inputs) {
     if (fs::is_directory(input, ec)) {

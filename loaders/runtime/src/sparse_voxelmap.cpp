@@ -208,7 +208,8 @@ FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gr
   }
   if (!fetched) {
     for (int corner = 0; corner < 8; ++corner) {
-      const int x = std::min(base[0] + (corner & 1), dims_[0] - 1), y = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1),
+      const int x = std::min(base[0] + (corner & 1), dims_[0] - 1),
+                y = std::min(base[1] + ((corner >> 1) & 1), dims_[1] - 1),
                 z = std::min(base[2] + (corner >> 2), dims_[2] - 1);
       v[corner] = voxel_value(x, y, z, exact);
     }

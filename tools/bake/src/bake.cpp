@@ -244,8 +244,7 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent. Such a
   // surface is baked again as a shell two voxels thick, and the asset says so.
   const bool encloses_nothing =
-      shell_thickness == 0 &&
-      (closed_but_flat || (winding_inside && voxelmap.layer_range().second < 1));
+      shell_thickness == 0 && (closed_but_flat || (winding_inside && voxelmap.layer_range().second < 1));
   if (encloses_nothing) {
     shell_thickness = 2 * voxelmap.voxel_size;
     char text[160];

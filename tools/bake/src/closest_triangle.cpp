@@ -92,8 +92,7 @@ uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<
   return id;
 }
 
-std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound2, uint32_t hint,
-                                                     double slack) const {
+std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound2, uint32_t hint, double slack) const {
   const double shrink = 1 / ((1 + slack) * (1 + slack));  // a box must be this much nearer than the best to open
   double best = bound2;
   uint32_t best_triangle = hint;

@@ -111,15 +111,16 @@ void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const Voxelma
   const double value_bricks = std::min(double(g.brick_count()), area_voxels / 30.0 + 64);
   const double bytes = double(g.brick_count()) * 4 + double(g.lattice_count()) * (8 + 4) +
                        value_bricks * (2 * kBrickVoxels * 2 + 8 * 64) + double(mesh.triangles.size()) * 400;
-  const double limit = options.max_memory_bytes > 0 ? double(options.max_memory_bytes)
-                                                    : 0.75 * double(physical_memory_bytes());
+  const double limit =
+      options.max_memory_bytes > 0 ? double(options.max_memory_bytes) : 0.75 * double(physical_memory_bytes());
   if (bytes <= limit) return;
   char text[400];
-  std::snprintf(text, sizeof text,
-                "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.2f GB, more than the %.2f GB "
-                "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution or a larger "
-                "voxel size",
-                g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1e9, limit / 1e9);
+  std::snprintf(
+      text, sizeof text,
+      "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.2f GB, more than the %.2f GB "
+      "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution or a larger "
+      "voxel size",
+      g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1e9, limit / 1e9);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 
@@ -223,7 +224,6 @@ Vec3 feature_pseudonormal(const Pseudonormals& pn, const TriangleMesh& mesh, siz
   return pn.face[f];
 }
 
-
 // ---- triangles in index space (voxel centres at integer coordinates)
 
 struct IndexTriangle {
@@ -239,7 +239,8 @@ std::vector<IndexTriangle> index_triangles(const TriangleMesh& mesh, const GridG
   std::vector<IndexTriangle> triangles(mesh.triangles.size());
   tbb::parallel_for(size_t(0), triangles.size(), [&](size_t f) {
     auto to_index = [&](uint32_t v) {
-      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size,
+                  (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
                   (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
     };
     IndexTriangle& t = triangles[f];
@@ -344,7 +345,6 @@ BrickLists bin_triangles(const std::vector<IndexTriangle>& triangles, const Grid
   return lists;
 }
 
-
 // ---- bake_brick_rows
 
 enum class SignRule {
@@ -406,7 +406,8 @@ void brick_band(const BrickRowsInput& in, int64_t slot, int64_t bi, int64_t bj, 
       }
   }
   for (size_t v = 0; v < kBrickVoxels; ++v) {
-    const int64_t i = i0 + int64_t(v) % kEdge, j = j0 + int64_t(v) / kEdge % kEdge, k = k0 + int64_t(v) / (kEdge * kEdge);
+    const int64_t i = i0 + int64_t(v) % kEdge, j = j0 + int64_t(v) / kEdge % kEdge,
+                  k = k0 + int64_t(v) / (kEdge * kEdge);
     pseudonormal_sign[v] = 0;
     if (i >= i1 || j >= j1 || k >= k1) {
       distance[v] = kPastGrid;
@@ -484,7 +485,8 @@ bool winding_brick_signs(const BrickRowsInput& in, int64_t bi, int64_t bj, int64
   bool corners_known = false;
   if (std::abs(middle - 0.5) < 0.4) {
     for (int c = 0; c < 8; ++c)
-      corner[c] = (*in.winding)(point(c & 1 ? last[0] : first[0], c & 2 ? last[1] : first[1], c & 4 ? last[2] : first[2]));
+      corner[c] =
+          (*in.winding)(point(c & 1 ? last[0] : first[0], c & 2 ? last[1] : first[1], c & 4 ? last[2] : first[2]));
     corners_known = true;
   }
   bool uniform = true;
@@ -493,7 +495,8 @@ bool winding_brick_signs(const BrickRowsInput& in, int64_t bi, int64_t bj, int64
     double w = middle;
     if (corners_known) {
       double t[3];
-      for (int a = 0; a < 3; ++a) t[a] = last[a] > first[a] ? std::min(1.0, double(l[a]) / double(last[a] - first[a])) : 0.0;
+      for (int a = 0; a < 3; ++a)
+        t[a] = last[a] > first[a] ? std::min(1.0, double(l[a]) / double(last[a] - first[a])) : 0.0;
       w = 0;
       for (int c = 0; c < 8; ++c)
         w += corner[c] * (c & 1 ? t[0] : 1 - t[0]) * (c & 2 ? t[1] : 1 - t[1]) * (c & 4 ? t[2] : 1 - t[2]);
@@ -527,7 +530,8 @@ void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj,
   auto interpolated_winding = [&](int v) {
     if (!lattice_known) {
       for (int n = 0; n < 27; ++n)
-        lattice[n] = (*in.winding)(voxel_point(in.g, coordinate(0, n % 3), coordinate(1, n / 3 % 3), coordinate(2, n / 9)));
+        lattice[n] =
+            (*in.winding)(voxel_point(in.g, coordinate(0, n % 3), coordinate(1, n / 3 % 3), coordinate(2, n / 9)));
       lattice_known = true;
     }
     const int l[3] = {v % E, v / E % E, v / (E * E)};
@@ -573,8 +577,8 @@ void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj,
       if (seen_inside != seen_outside) {
         sign[v] = seen_inside ? -1.0f : 1.0f;
       } else {
-        const Vec3 p = voxel_point(in.g, double(first[0] + v % E), double(first[1] + v / E % E),
-                                   double(first[2] + v / (E * E)));
+        const Vec3 p =
+            voxel_point(in.g, double(first[0] + v % E), double(first[1] + v / E % E), double(first[2] + v / (E * E)));
         sign[v] = interpolated_winding(v) >= 0.5 && inside_box(in.mesh_box, p) ? -1.0f : 1.0f;
       }
     }
@@ -637,9 +641,9 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
             sign[v] = distance[v] < in.half_shell ? -1.0f : 1.0f;
             break;
           case SignRule::Winding: {
-            const Vec3 p = voxel_point(g, double(bi * kEdge + int64_t(v) % kEdge),
-                                       double(bj * kEdge + int64_t(v) / kEdge % kEdge),
-                                       double(bk * kEdge + int64_t(v) / (kEdge * kEdge)));
+            const Vec3 p =
+                voxel_point(g, double(bi * kEdge + int64_t(v) % kEdge), double(bj * kEdge + int64_t(v) / kEdge % kEdge),
+                            double(bk * kEdge + int64_t(v) / (kEdge * kEdge)));
             sign[v] = winding_inside(in, p, true) ? -1.0f : 1.0f;
             break;
           }
@@ -656,7 +660,8 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
       if (std::isinf(distance[v])) continue;
       (sign[v] < 0 ? any_inside : any_outside) = true;
       if (!std::isnan(distance[v])) {
-        const double d = in.rule == SignRule::Shell ? double(distance[v]) - in.half_shell : sign[v] * double(distance[v]);
+        const double d =
+            in.rule == SignRule::Shell ? double(distance[v]) - in.half_shell : sign[v] * double(distance[v]);
         if (std::abs(d) <= in.band) {
           codes[v] = vm.encode_stored(d * g.voxel_size);
           any_stored = true;
@@ -675,7 +680,6 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
       std::fill(carried, carried + kEdge * kEdge, 1.0f);
   }
 }
-
 
 // ---- propagate_lattice: the exact unsigned distance to the surface at every lattice point (brick corner). A
 // point within r of the surface takes the nearest of the triangles its brick lists, which hold every triangle
@@ -714,12 +718,15 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
   for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
   L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
   auto coordinate = [&](int64_t a, int axis) { return double(std::min<int64_t>(a * kEdge, g.dims[size_t(axis)] - 1)); };
-  auto point = [&](int64_t a, int64_t b, int64_t c) { return Vec3{coordinate(a, 0), coordinate(b, 1), coordinate(c, 2)}; };
+  auto point = [&](int64_t a, int64_t b, int64_t c) {
+    return Vec3{coordinate(a, 0), coordinate(b, 1), coordinate(c, 2)};
+  };
   // Each lattice point is a voxel of one brick (the last brick along an axis holds the grid's last voxel): that
   // brick's list has every triangle within r of the point.
   tbb::parallel_for(size_t(0), lists.bricks.size(), [&](size_t slot) {
     const int64_t brick = lists.bricks[slot];
-    const int64_t bi = brick % g.bricks[0], bj = brick / g.bricks[0] % g.bricks[1], bk = brick / (g.bricks[0] * g.bricks[1]);
+    const int64_t bi = brick % g.bricks[0], bj = brick / g.bricks[0] % g.bricks[1],
+                  bk = brick / (g.bricks[0] * g.bricks[1]);
     for (int64_t c = bk; c <= (bk + 1 == g.bricks[2] ? bk + 1 : bk); ++c)
       for (int64_t b = bj; b <= (bj + 1 == g.bricks[1] ? bj + 1 : bj); ++b)
         for (int64_t a = bi; a <= (bi + 1 == g.bricks[0] ? bi + 1 : bi); ++a) {
@@ -769,7 +776,8 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
         // kExactReach (1 + slack), the point is beyond kExactReach and may keep it; otherwise it is searched exactly.
         const double reach2 = kExactReach * kExactReach * (1 + kFarSlack) * (1 + kFarSlack);
         auto [d2, f] = hierarchy.nearest(point(a, b, c), bound2, uint32_t(key), bound2 > reach2 ? kFarSlack : 0.0);
-        if (bound2 > reach2 && d2 <= reach2) std::tie(d2, f) = hierarchy.nearest(point(a, b, c), d2 * (1 + 1e-9), f, 0.0);
+        if (bound2 > reach2 && d2 <= reach2)
+          std::tie(d2, f) = hierarchy.nearest(point(a, b, c), d2 * (1 + 1e-9), f, 0.0);
         if (!(d2 < bound2)) continue;
         const float nearest = float(d2);
         uint32_t nearest_bits;
@@ -829,8 +837,8 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   std::unique_ptr<WindingNumber> winding;
   const SignRule rule = shell ? SignRule::Shell : options.winding_number_sign ? SignRule::Winding : SignRule::Closed;
   if (rule == SignRule::Winding) winding = std::make_unique<WindingNumber>(mesh);
-  const BrickRowsInput in{mesh, g, triangles, lists, pn, winding.get(), rule, r, options.distance_band, half_shell,
-                          bounding_box(mesh)};
+  const BrickRowsInput in{
+      mesh, g, triangles, lists, pn, winding.get(), rule, r, options.distance_band, half_shell, bounding_box(mesh)};
 
   // Rows of bricks in parallel. Under the closed and shell rules a row without candidate bricks is outside; the
   // winding rule decides every brick within the surface's bounding box.

@@ -37,8 +37,8 @@ Result<VdbInfo> write_voxelmap_vdb(const Asset& asset, const std::string& path) 
             const uint32_t mi = std::min(i0 + E / 2, vm.dims[0] - 1), mj = std::min(j0 + E / 2, vm.dims[1] - 1),
                            mk = std::min(k0 + E / 2, vm.dims[2] - 1);
             layers->tree().addTile(1, openvdb::Coord(int(i0), int(j0), int(k0)), vm.layer(mi, mj, mk), true);
-            info.layer_voxels += size_t(std::min(E, vm.dims[0] - i0)) * std::min(E, vm.dims[1] - j0) *
-                                 std::min(E, vm.dims[2] - k0);
+            info.layer_voxels +=
+                size_t(std::min(E, vm.dims[0] - i0)) * std::min(E, vm.dims[1] - j0) * std::min(E, vm.dims[2] - k0);
             continue;
           }
           for (uint32_t k = k0; k < std::min(k0 + E, vm.dims[2]); ++k)

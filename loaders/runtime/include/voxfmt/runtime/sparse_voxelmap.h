@@ -90,14 +90,14 @@ class SparseVoxelmap {
   std::array<int, 3> brick_dims_{};
   std::array<int, 3> lattice_dims_{};
   float decode_step_[2] = {1.0f, 1.0f};  ///< a code's multiplier by its lowest bit: estimate, stored distance
-  float stored_slack_ = 0.0f;    ///< how far a decoded stored distance may be from the file's exact one
+  float stored_slack_ = 0.0f;            ///< how far a decoded stored distance may be from the file's exact one
   // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack, with
   // slack the interpolation's reach (4 sqrt(3)) and half an estimate step, offset the lattice's absolute error and
   // shrink 1 / (1 + its relative error).
   float estimate_slack_ = 0.0f;
   float estimate_offset_ = 0.0f;
   float estimate_shrink_ = 1.0f;
-  float band_edge_ = 0.0f;       ///< distance_band - 1/2: voxels without a stored distance are at least this far
+  float band_edge_ = 0.0f;  ///< distance_band - 1/2: voxels without a stored distance are at least this far
   Eigen::Vector3f cover_max_ = -Eigen::Vector3f::Ones();  ///< upper end of the grid's voxels, grid coordinates
   Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
