@@ -45,6 +45,7 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::InputNotFound, "INPUT_NOT_FOUND", Severity::Error},
     {IssueCode::UnsupportedFormat, "UNSUPPORTED_FORMAT", Severity::Error},
     {IssueCode::ImportFailed, "IMPORT_FAILED", Severity::Error},
+    {IssueCode::RepairFailed, "REPAIR_FAILED", Severity::Error},
     {IssueCode::EmptyScene, "EMPTY_SCENE", Severity::Error},
     {IssueCode::NonFiniteCoordinates, "NON_FINITE_COORDINATES", Severity::Error},
     {IssueCode::ZeroVolume, "ZERO_VOLUME", Severity::Error},

@@ -607,7 +607,8 @@ NB_MODULE(_voxfmt, m) {
            nb::sig("def signed_distance(self, points: numpy.typing.ArrayLike) -> numpy.typing.NDArray[numpy.float64]"),
            "Signed distance (metres) of each asset-frame point (M, 3) to the surface: NEGATIVE INSIDE, positive\n"
            "outside (trimesh.proximity.signed_distance uses the opposite sign). Exact within the stored band\n"
-           "(a few voxels of the surface), a layer estimate deeper inside, and outside the grid the distance to\n"
+           "(a few voxels of the surface; 15-bit fixed point), an estimate from the asset's lattice of exact\n"
+           "distances beyond it (within 4*sqrt(3) voxels, spec section 3.1), and outside the grid the distance to\n"
            "the bounding box (a lower bound).")
       .def("__repr__", [](const Body& b) {
         const auto& d = b.object->voxelmap().dims();

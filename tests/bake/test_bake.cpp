@@ -412,6 +412,23 @@ TEST(Repair, ReportsAPinchedVertexAndSplitsIt) {
   EXPECT_TRUE(report.closed);
 }
 
+TEST(Repair, ASoupRepairThatDoesNotFinishIsStoppedAsRepairFailed) {
+  // CGAL's soup orientation has looped on a fuzzed mesh: the soup steps run in a child stopped at their time limit.
+  // A limit no repair can meet stands in for such a mesh (none is known since that one was fixed).
+  RepairReport report;
+  const TriangleMesh bunny = import_mesh(kMeshes + "/bunny00.off");
+  try {
+    repair_mesh(bunny, report, false, 1e-6);
+    ADD_FAILURE() << "the repair was not stopped";
+  } catch (const BakeError& e) {
+    EXPECT_EQ(e.code(), IssueCode::RepairFailed) << e.what();
+    EXPECT_NE(std::string(e.what()).find("did not finish"), std::string::npos) << e.what();
+  }
+  // The same mesh with the default limit repairs.
+  RepairReport again;
+  EXPECT_EQ(repair_mesh(bunny, again, false).triangles.size(), bunny.triangles.size());
+}
+
 TEST(Repair, ReportsAnEdgeSharedByThreeFaces) {
   TriangleMesh fin = tetrahedron({0, 0, 0}, false);
   fin.vertices.push_back({1, 1, -1});

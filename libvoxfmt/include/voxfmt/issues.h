@@ -45,6 +45,7 @@ enum class IssueCode {
   InputNotFound,
   UnsupportedFormat,
   ImportFailed,
+  RepairFailed,
   EmptyScene,
   NonFiniteCoordinates,
   ZeroVolume,

@@ -177,7 +177,8 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   report.input_triangles = raw.triangles.size();
 
   stage("repair");
-  const TriangleMesh mesh = repair_mesh(raw, report.repair, options.check_self_intersections);
+  const TriangleMesh mesh =
+      repair_mesh(raw, report.repair, options.check_self_intersections, options.import.time_limit_s);
   const auto [lo, hi] = bounding_box(mesh);
   const double diagonal = length(hi - lo);
   // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the

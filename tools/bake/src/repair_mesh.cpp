@@ -9,9 +9,12 @@
 #include <CGAL/Surface_mesh.h>
 
 #include <algorithm>
+#include <cstring>
 #include <numeric>
 
 #include "stages.h"
+#include "voxfmt/detail/isolated_call.h"
+#include "voxfmt/io.h"
 
 namespace voxfmt::bake {
 
@@ -88,9 +91,18 @@ double signed_volume(const SurfaceMesh& sm) {
   return six_v / 6.0;
 }
 
-}  // namespace
+// The soup steps of the repair — CGAL's merge of duplicates and its orientation of the soup — and what they did.
+struct Soup {
+  std::vector<Vec3> points;
+  std::vector<std::array<uint64_t, 3>> triangles;
+  uint64_t merged_vertices = 0, removed_faces = 0, non_manifold_vertices = 0;
+  bool consistently_oriented = false;
+  bool failed = false;  // with `code` and `message`
+  IssueCode code = IssueCode::Internal;
+  std::string message;
+};
 
-TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections) {
+Soup repair_soup(const TriangleMesh& mesh) {
   std::vector<Point> points;
   points.reserve(mesh.vertices.size());
   for (const Vec3& v : mesh.vertices) points.emplace_back(v[0], v[1], v[2]);
@@ -113,24 +125,114 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
   PMP::repair_polygon_soup(points, triangles);
   // CGAL's soup repair can leave a triangle whose three corners are one merged point (a soup of nothing but
   // such triangles: found by fuzz_mesh_gltf); the mesh builder drops it, and an empty mesh crashed the
-  // orientation below.
+  // orientation that follows.
   triangles.erase(std::remove_if(triangles.begin(), triangles.end(),
                                  [](const auto& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }),
                   triangles.end());
-  report.merged_vertices = points_before - points.size();
-  report.removed_faces = collinear + bad_index + (faces_before - triangles.size());
-  if (triangles.empty()) throw BakeError(IssueCode::EmptyScene, "no non-degenerate triangle is left after repair");
+  Soup soup;
+  soup.merged_vertices = points_before - points.size();
+  soup.removed_faces = collinear + bad_index + (faces_before - triangles.size());
+  if (triangles.empty()) {
+    soup.failed = true;
+    soup.code = IssueCode::EmptyScene;
+    soup.message = "no non-degenerate triangle is left after repair";
+    return soup;
+  }
+  const size_t points_oriented_before = points.size();
+  soup.consistently_oriented =
+      is_oriented_manifold_soup(triangles, points.size()) || PMP::orient_polygon_soup(points, triangles);
+  soup.non_manifold_vertices = points.size() - points_oriented_before;
+  soup.points.reserve(points.size());
+  for (const Point& p : points) soup.points.push_back({p.x(), p.y(), p.z()});
+  soup.triangles.reserve(triangles.size());
+  for (const auto& t : triangles) soup.triangles.push_back({t[0], t[1], t[2]});
+  return soup;
+}
+
+#if !defined(_WIN32)
+// CGAL's soup orientation has looped forever on a fuzzed mesh (a face whose corners merged into one point sent its
+// walk around a vertex in circles), and a stage that can hang on its input must not hang the bake: the soup steps
+// run in a child process, like the import, and a crash or a hang there is REPAIR_FAILED. They are sequential code
+// (no thread pool in the forked child).
+Soup repair_soup_isolated(const TriangleMesh& mesh, double time_limit_s) {
+  const double limit_s = time_limit_s > 0 ? time_limit_s : 30.0 + double(mesh.triangles.size()) / 5e4;
+  Soup soup;
+  const detail::ChildOutcome outcome = detail::run_isolated(
+      limit_s, soup,
+      [&] {
+        try {
+          return repair_soup(mesh);
+        } catch (const std::bad_alloc&) {
+          Soup failed;
+          failed.failed = true;
+          failed.code = IssueCode::OutOfMemory;
+          failed.message = "out of memory repairing the mesh";
+          return failed;
+        }
+      },
+      [](auto& w, auto& s) {
+        w.array(s.points);
+        w.array(s.triangles);
+        w.pod(s.merged_vertices);
+        w.pod(s.removed_faces);
+        w.pod(s.non_manifold_vertices);
+        w.pod(s.consistently_oriented);
+        w.pod(s.failed);
+        w.pod(s.code);
+        w.text(s.message);
+      });
+  switch (outcome.kind) {
+    case detail::ChildOutcome::Finished:
+      return soup;
+    case detail::ChildOutcome::CannotStart:
+      throw BakeError(IssueCode::Internal, "cannot repair the mesh in isolation: " + outcome.detail);
+    case detail::ChildOutcome::Died:
+      throw BakeError(IssueCode::RepairFailed, "CGAL's repair of the triangle soup died of signal " +
+                                                   std::to_string(outcome.signal) + " (" + strsignal(outcome.signal) +
+                                                   ") on this mesh (run in isolation)");
+    case detail::ChildOutcome::TimedOut:
+      throw BakeError(IssueCode::RepairFailed, "CGAL's repair of the triangle soup did not finish within " +
+                                                   std::to_string(int(limit_s)) + " s on this mesh (stopped)");
+    case detail::ChildOutcome::OutOfMemory:
+      throw BakeError(IssueCode::OutOfMemory, "out of memory receiving the repaired mesh");
+    case detail::ChildOutcome::Malformed:
+      break;
+  }
+  throw BakeError(IssueCode::RepairFailed, "the isolated repair failed (out of memory, or malformed data)");
+}
+#endif
+
+}  // namespace
+
+TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections,
+                         double time_limit_s) {
+#if !defined(_WIN32)
+  Soup soup = read_isolation() ? repair_soup_isolated(mesh, time_limit_s) : repair_soup(mesh);
+#else
+  Soup soup = repair_soup(mesh);
+#endif
+  if (soup.failed) throw BakeError(soup.code, soup.message);
+  report.merged_vertices = soup.merged_vertices;
+  report.removed_faces = soup.removed_faces;
   if (report.removed_faces)
     warn(report, "DEGENERATE_FACES", std::to_string(report.removed_faces) + " degenerate or duplicate face(s) removed");
-
-  const size_t points_oriented_before = points.size();
-  report.consistently_oriented =
-      is_oriented_manifold_soup(triangles, points.size()) || PMP::orient_polygon_soup(points, triangles);
-  report.non_manifold_vertices = points.size() - points_oriented_before;
+  report.consistently_oriented = soup.consistently_oriented;
+  report.non_manifold_vertices = soup.non_manifold_vertices;
   if (!report.consistently_oriented)
     warn(report, "NON_MANIFOLD",
          "the surface is non-manifold or not orientable; " + std::to_string(report.non_manifold_vertices) +
              " vertex copies were made to orient it");
+  std::vector<Point> points;
+  points.reserve(soup.points.size());
+  for (const Vec3& p : soup.points) points.emplace_back(p[0], p[1], p[2]);
+  std::vector<std::array<size_t, 3>> triangles;
+  triangles.reserve(soup.triangles.size());
+  for (const auto& t : soup.triangles) {
+    if (t[0] >= points.size() || t[1] >= points.size() || t[2] >= points.size())
+      throw BakeError(IssueCode::RepairFailed, "the isolated repair sent back a triangle with a corner out of range");
+    triangles.push_back({size_t(t[0]), size_t(t[1]), size_t(t[2])});
+  }
+  std::vector<Vec3>().swap(soup.points);
 
   SurfaceMesh sm;
   PMP::polygon_soup_to_polygon_mesh(points, triangles, sm);

@@ -55,7 +55,10 @@ struct RepairReport {
 };
 /// Merges duplicate vertices, drops degenerate faces, orients consistently (outward when closed), and
 /// reports defects as warnings. Throws BakeError EMPTY_SCENE when nothing is left.
-TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections = true);
+/// The soup steps (CGAL's merge and orientation, which has looped on hostile input) run in a child process when
+/// read isolation is on, stopped after `time_limit_s` (0: 30 s plus 1 s per 50,000 triangles): REPAIR_FAILED.
+TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections = true,
+                         double time_limit_s = 0);
 
 // ---------------------------------------------------------------- 3. voxelmap
 

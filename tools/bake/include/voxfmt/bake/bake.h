@@ -32,8 +32,9 @@ struct TriangleMesh {
 
 struct ImportSettings {
   double unit_scale = 1.0;  ///< multiply coordinates by this to get metres (e.g. 0.001 for millimetres)
-  /// Seconds the isolated import may take before it is stopped as hung (IMPORT_FAILED); 0: 30 s plus 1 s per
-  /// 5 MB of file. The fuzzers set a few seconds so that a hanging importer is not taken for a slow input.
+  /// Seconds the isolated import may take before it is stopped as hung (IMPORT_FAILED; 0: 30 s plus 1 s per 5 MB
+  /// of file), and the isolated soup repair (REPAIR_FAILED; 0: 30 s plus 1 s per 50,000 triangles). The fuzzers set
+  /// a few seconds so that a hanging stage is not taken for a slow input.
   double time_limit_s = 0;
 };
 
