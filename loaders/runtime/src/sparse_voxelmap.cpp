@@ -42,9 +42,17 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
   map.band_edge_ = float(vm.distance_band - 0.5);
   map.bricks_ = std::move(vm.bricks);
   map.codes_ = std::move(vm.brick_values);
-  map.lattice_ = std::move(vm.lattice);
-  const float to_voxels = float(1.0 / h);
-  for (float& v : map.lattice_) v *= to_voxels;
+  // 1/16 voxel steps, coarser only if the largest distance would not fit in 16 bits.
+  float largest = 0;
+  for (float v : vm.lattice) largest = std::max(largest, v);
+  const double largest_voxels = double(largest) / h;
+  map.lattice_step_ = float(std::max(1.0 / 16, largest_voxels / 65000.0));
+  map.estimate_slack_ += 0.5f * map.lattice_step_;
+  map.lattice_.resize(vm.lattice.size());
+  const double to_steps = 1.0 / (h * double(map.lattice_step_));
+  for (size_t n = 0; n < vm.lattice.size(); ++n)
+    map.lattice_[n] = uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)));
+  std::vector<float>().swap(vm.lattice);
   map.bricks_.shrink_to_fit();
   map.codes_.shrink_to_fit();
   return map;
@@ -52,7 +60,7 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
 
 size_t SparseVoxelmap::memory_bytes() const {
   return bricks_.capacity() * sizeof(int32_t) + codes_.capacity() * sizeof(int16_t) +
-         lattice_.capacity() * sizeof(float);
+         lattice_.capacity() * sizeof(uint16_t);
 }
 
 // The per-voxel helpers run for every sphere-tree node a query visits: always inlined (GCC kept them calls).
@@ -74,12 +82,13 @@ float SparseVoxelmap::coarse_value(int i, int j, int k, int32_t entry) const {
     t[a] = x1 > x0 ? float(c[a] - x0) / float(x1 - x0) : 0.0f;
   }
   const size_t row = size_t(lattice_dims_[0]), plane = row * size_t(lattice_dims_[1]);
-  const float* p = &lattice_[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[row] + t[0] * (p[row + 1] - p[row]);
-  const float x01 = p[plane] + t[0] * (p[plane + 1] - p[plane]);
-  const float x11 = p[plane + row] + t[0] * (p[plane + row + 1] - p[plane + row]);
+  const uint16_t* q = &lattice_[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const float p[8] = {float(q[0]),           float(q[1]),          float(q[row]),         float(q[row + 1]),
+                      float(q[plane]),       float(q[plane + 1]),  float(q[plane + row]), float(q[plane + row + 1])};
+  const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
+  const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
   const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);
-  const float magnitude = std::max(y0 + t[2] * (y1 - y0), band_edge_);
+  const float magnitude = std::max((y0 + t[2] * (y1 - y0)) * lattice_step_, band_edge_);
   return entry == voxfmt::Voxelmap::kCoarseInside ? -magnitude : magnitude;
 }
 
@@ -94,8 +103,10 @@ float SparseVoxelmap::lattice_at(const Eigen::Vector3f& u, Eigen::Vector3f* grad
     t[a] = std::clamp((c - float(x0)) * inverse[a], 0.0f, 1.0f);
   }
   const size_t row = size_t(lattice_dims_[0]), plane = row * size_t(lattice_dims_[1]);
-  const float* p = &lattice_[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const float v[8] = {p[0], p[1], p[row], p[row + 1], p[plane], p[plane + 1], p[plane + row], p[plane + row + 1]};
+  const uint16_t* p = &lattice_[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const float s = lattice_step_;
+  const float v[8] = {s * p[0],     s * p[1],         s * p[row],         s * p[row + 1],
+                      s * p[plane], s * p[plane + 1], s * p[plane + row], s * p[plane + row + 1]};
   const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
   const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
   const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);

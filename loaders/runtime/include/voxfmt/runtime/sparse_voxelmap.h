@@ -103,7 +103,10 @@ class SparseVoxelmap {
   Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
   std::vector<int32_t> bricks_;  ///< the brick table (>= 0: value brick; -1 / -2: coarse outside / inside)
   std::vector<int16_t> codes_;   ///< value bricks, 512 codes each
-  std::vector<float> lattice_;   ///< unsigned distances at the lattice points, voxel units
+  /// Unsigned distances at the lattice points in steps of lattice_step_ voxels (16 bits: half a float's memory; the
+  /// far field needs no more, and the step's half is in estimate_slack_).
+  std::vector<uint16_t> lattice_;
+  float lattice_step_ = 1.0f / 16;
 };
 
 }  // namespace voxfmt::runtime
