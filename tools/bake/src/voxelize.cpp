@@ -371,40 +371,73 @@ struct BrickRowsInput {
   Bounds mesh_box;    // asset frame
 };
 
-// The unsigned distance (voxels) of every voxel of brick `slot` within r of the surface (kFar beyond, kPastGrid
-// past the grid), and for those within r the sign of the nearest feature's angle-weighted pseudonormal (exact
-// for a closed, oriented surface; Baerentzen & Aanaes 2005).
-void brick_band(const BrickRowsInput& in, int64_t slot, int64_t bi, int64_t bj, int64_t bk, float* distance,
-                float* pseudonormal_sign) {
-  constexpr uint64_t kNone = ~uint64_t(0);
-  uint64_t key[kBrickVoxels];
-  std::fill(key, key + kBrickVoxels, kNone);
-  const int64_t i0 = bi * kEdge, j0 = bj * kEdge, k0 = bk * kEdge;
-  const int64_t i1 = std::min<int64_t>(i0 + kEdge, in.g.dims[0]), j1 = std::min<int64_t>(j0 + kEdge, in.g.dims[1]),
-                k1 = std::min<int64_t>(k0 + kEdge, in.g.dims[2]);
+constexpr uint64_t kNoKey = ~uint64_t(0);
+
+// For every voxel of the candidate bricks lists.bricks[first, end) of the row of bricks (bj, bk), the nearest
+// triangle within r: a key (squared distance as float bits, triangle) whose smallest value is the nearest triangle,
+// ties to the lower index, whatever order the triangles come in. Each triangle's voxel rows are clipped once for the
+// whole row of bricks (a small triangle reaches several bricks of it), then its voxels go to their bricks.
+void row_nearest_keys(const BrickRowsInput& in, int64_t first, int64_t end, int64_t bj, int64_t bk,
+                      std::vector<uint64_t>& keys, std::vector<int32_t>& slot_of_brick) {
+  const GridGeometry& g = in.g;
+  keys.assign(size_t(end - first) * kBrickVoxels, kNoKey);
+  slot_of_brick.assign(size_t(g.bricks[0]), -1);
+  std::vector<uint32_t> triangles;
+  for (int64_t slot = first; slot < end; ++slot) {
+    slot_of_brick[size_t(in.lists.bricks[size_t(slot)] % g.bricks[0])] = int32_t(slot - first);
+    triangles.insert(triangles.end(), in.lists.members.begin() + int64_t(in.lists.first[size_t(slot)]),
+                     in.lists.members.begin() + int64_t(in.lists.first[size_t(slot) + 1]));
+  }
+  std::sort(triangles.begin(), triangles.end());
+  triangles.erase(std::unique(triangles.begin(), triangles.end()), triangles.end());
+  const int64_t j0 = bj * kEdge, k0 = bk * kEdge;
+  const int64_t j1 = std::min<int64_t>(j0 + kEdge, g.dims[1]), k1 = std::min<int64_t>(k0 + kEdge, g.dims[2]);
   const double r2 = in.r * in.r;
-  for (uint64_t m = in.lists.first[size_t(slot)]; m < in.lists.first[size_t(slot) + 1]; ++m) {
-    const uint32_t f = in.lists.members[m];
+  for (const uint32_t f : triangles) {
     const IndexTriangle& t = in.triangles[f];
     for (int64_t k = std::max(k0, t.lo[2]); k <= std::min(k1 - 1, t.hi[2]); ++k)
       for (int64_t j = std::max(j0, t.lo[1]); j <= std::min(j1 - 1, t.hi[1]); ++j) {
-        RowClip clip{std::max(i0, t.lo[0]), std::min(i1 - 1, t.hi[0])};
+        RowClip clip{t.lo[0], t.hi[0]};
         clip.planes(t, 0.0, 1.0, double(j), double(k), in.r);
+        const size_t row = size_t(((k - k0) * kEdge + (j - j0)) * kEdge);
+        // The distance to the triangle's plane along the row: a lower bound that skips the closest point where a
+        // nearer triangle is already known (small triangles overlap every voxel many times).
+        const double plane_at_0 = t.normal[1] * double(j) + t.normal[2] * double(k) - dot(t.normal, t.a);
         for (int64_t i = clip.i0; i <= clip.i1; ++i) {
+          const int32_t slot = slot_of_brick[size_t(i / kEdge)];
+          if (slot < 0) {  // a brick with no voxel within r of this triangle: on to the next brick
+            i = (i / kEdge + 1) * kEdge - 1;
+            continue;
+          }
+          uint64_t& nearest = keys[size_t(slot) * kBrickVoxels + row + size_t(i % kEdge)];
+          const double plane = plane_at_0 + t.normal[0] * double(i);
+          if (nearest != kNoKey) {
+            float known;
+            const uint32_t known_bits = uint32_t(nearest >> 32);
+            std::memcpy(&known, &known_bits, sizeof known);
+            if (float(plane * plane) > known) continue;  // strictly farther: cannot win even a tie
+          }
           const Vec3 p{double(i), double(j), double(k)};
           Feature feature;
           const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
           if (!(d2 < r2)) continue;
-          // (squared distance as float bits, triangle): the smallest key is the nearest triangle, ties to the lower
-          // index, whatever order the triangles come in.
           uint32_t bits;
           const float d2f = float(d2);
           std::memcpy(&bits, &d2f, sizeof bits);
-          uint64_t& nearest = key[size_t(((k - k0) * kEdge + (j - j0)) * kEdge + (i - i0))];
           nearest = std::min(nearest, uint64_t(bits) << 32 | f);
         }
       }
   }
+}
+
+// From a brick's keys: the unsigned distance (voxels) of every voxel within r of the surface (kFar beyond,
+// kPastGrid past the grid), and for those within r the sign of the nearest feature's angle-weighted pseudonormal
+// (exact for a closed, oriented surface; Baerentzen & Aanaes 2005).
+void brick_band(const BrickRowsInput& in, const uint64_t* key, int64_t bi, int64_t bj, int64_t bk, float* distance,
+                float* pseudonormal_sign) {
+  const int64_t i0 = bi * kEdge, j0 = bj * kEdge, k0 = bk * kEdge;
+  const int64_t i1 = std::min<int64_t>(i0 + kEdge, in.g.dims[0]), j1 = std::min<int64_t>(j0 + kEdge, in.g.dims[1]),
+                k1 = std::min<int64_t>(k0 + kEdge, in.g.dims[2]);
   for (size_t v = 0; v < kBrickVoxels; ++v) {
     const int64_t i = i0 + int64_t(v) % kEdge, j = j0 + int64_t(v) / kEdge % kEdge,
                   k = k0 + int64_t(v) / (kEdge * kEdge);
@@ -413,7 +446,7 @@ void brick_band(const BrickRowsInput& in, int64_t slot, int64_t bi, int64_t bj, 
       distance[v] = kPastGrid;
       continue;
     }
-    if (key[v] == kNone) {
+    if (key[v] == kNoKey) {
       distance[v] = kFar;
       continue;
     }
@@ -619,13 +652,16 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
       out.codes.push_back(in_grid ? int16_t(sign[v] < 0 ? -2 : 2) : int16_t(0));
     }
   };
+  std::vector<uint64_t> keys;
+  std::vector<int32_t> slot_of_brick;
+  if (end > first) row_nearest_keys(in, first, end, bj, bk, keys, slot_of_brick);
   int64_t next = 0;  // the first brick of the row not yet decided
   for (int64_t slot = first; slot <= end; ++slot) {
     const int64_t bi = slot < end ? in.lists.bricks[size_t(slot)] % BW : BW;
     for (; next < bi; ++next) beyond_band(next);
     if (slot == end) break;
     next = bi + 1;
-    brick_band(in, slot, bi, bj, bk, distance, near_sign);
+    brick_band(in, keys.data() + size_t(slot - first) * kBrickVoxels, bi, bj, bk, distance, near_sign);
     for (size_t v = 0; v < kBrickVoxels; ++v) {
       float& row_sign = carried[v / kEdge];
       if (std::isinf(distance[v])) {
