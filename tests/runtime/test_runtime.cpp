@@ -83,8 +83,8 @@ TEST(SparseVoxelmap, ReadsEveryVoxelAsTheAssetHoldsIt) {
           ++layer_mismatches;
         stored_mismatches += value.stored == std::isnan(map.stored_distance_at(int(i), int(j), int(k)));
       }
-  std::cout << "[ figures  ] runtime values differ from the asset's by at most " << max_code_error
-            << " voxel (codes), " << max_coarse_error << " voxel (coarse bricks)\n";
+  std::cout << "[ figures  ] runtime values differ from the asset's by at most " << max_code_error << " voxel (codes), "
+            << max_coarse_error << " voxel (coarse bricks)\n";
   EXPECT_EQ(layer_mismatches, 0u);
   EXPECT_EQ(stored_mismatches, 0u);
   EXPECT_LT(max_code_error, 1e-4);

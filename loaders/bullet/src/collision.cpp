@@ -25,6 +25,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 #include <new>
 #include <string>
 
@@ -60,16 +61,36 @@ struct Shared {
 
 // A's points against any convex partner, and the partner's extreme points in A's voxelmap (a small or sharp
 // partner can poke between A's points).
+// Runs A's points against a partner's distance function (world coordinates), coherently with the pair's front
+// when there is one (the partner's pose `partner` fixes its function).
+template <class Distance>
+void points_against(const VpsShape& a, const runtime::Pose& pose_a, const runtime::Pose& partner, Distance&& distance,
+                    const runtime::QueryOptions& options, runtime::ContactSet& contacts, runtime::QueryScratch& scratch,
+                    runtime::TraversalFront* front) {
+  if (front)
+    runtime::query_against_function(a.object(), pose_a, partner, distance, options, contacts, scratch, *front);
+  else
+    runtime::query_against_function(a.object(), pose_a, distance, options, contacts, scratch);
+}
+
+runtime::Pose partner_pose(const btTransform& t) {
+  runtime::Pose pose;
+  pose.rotation = to_eigen(t.getBasis());
+  pose.translation = to_eigen(t.getOrigin());
+  return pose;
+}
+
 void collide_convex(const VpsShape& a, const runtime::Pose& pose_a, const btConvexShape& b, const btTransform& tb,
-                    const runtime::QueryOptions& options, runtime::ContactSet& contacts,
-                    runtime::QueryScratch& scratch) {
+                    const runtime::QueryOptions& options, runtime::ContactSet& contacts, runtime::QueryScratch& scratch,
+                    runtime::TraversalFront* front) {
   const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
   const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
   auto world = [&](const btVector3& local) { return Eigen::Vector3d(ob + rb * to_eigen(local)); };
   const int type = b.getShapeType();
   if (a.uses_points()) {
+    const runtime::Pose partner = partner_pose(tb);
     auto run = [&](auto&& distance) {
-      runtime::query_against_function(a.object(), pose_a, distance, options, contacts, scratch);
+      points_against(a, pose_a, partner, distance, options, contacts, scratch, front);
     };
     if (type == BOX_SHAPE_PROXYTYPE) {
       const Eigen::Matrix3f rbf = rb.cast<float>();
@@ -320,7 +341,9 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
-    collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch);
+    if (settings.coherent && !state_) state_ = std::make_unique<runtime::QueryState>();
+    if (!settings.coherent) state_.reset();
+    collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch, state_.get());
 
     result->setPersistentManifold(manifold_);
     CollisionCounters& counters = shared_->counters;  // atomic: pairs may run on several threads at once
@@ -373,7 +396,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
  private:
   void collide(const VpsShape& a, const btTransform& ta, const runtime::Pose& pose_a,
                const btCollisionObjectWrapper* b_wrap, runtime::QueryOptions options, runtime::ContactSet& contacts,
-               runtime::QueryScratch& scratch) const {
+               runtime::QueryScratch& scratch, runtime::QueryState* state) const {
     const btCollisionShape* b_shape = b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
     options.point_budget = a.point_budget();
@@ -394,14 +417,20 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
           options.direction = runtime::QueryDirection::APointsInB;
           options.point_budget = a.point_budget();
           options.max_level = a.max_level();
-          runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
+          if (state)
+            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
+          else
+            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
         if (b_in_a &&
             (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::BPointsInA;
           options.point_budget = b.point_budget();
           options.max_level = b.max_level();
-          runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
+          if (state)
+            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
+          else
+            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
         return;
       }
@@ -410,10 +439,10 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         const auto& plane = static_cast<const btStaticPlaneShape&>(*b_shape);
         const Eigen::Vector3f n = (to_eigen(tb.getBasis()) * to_eigen(plane.getPlaneNormal())).cast<float>();
         const float c = float(plane.getPlaneConstant()) + n.dot(to_eigen(tb.getOrigin()).cast<float>());
-        runtime::query_against_function(
-            a.object(), pose_a,
+        points_against(
+            a, pose_a, partner_pose(tb),
             [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return plane_distance(n, c, x, outward); },
-            options, contacts, scratch);
+            options, contacts, scratch, state ? &state->a_in_b : nullptr);
         return;
       }
       case TRIANGLE_MESH_SHAPE_PROXYTYPE:
@@ -423,7 +452,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         return;
       default:
         if (b_shape->isConvex()) {
-          collide_convex(a, pose_a, static_cast<const btConvexShape&>(*b_shape), tb, options, contacts, scratch);
+          collide_convex(a, pose_a, static_cast<const btConvexShape&>(*b_shape), tb, options, contacts, scratch,
+                         state ? &state->a_in_b : nullptr);
           return;
         }
         shared_->report_unsupported(b_shape);
@@ -435,6 +465,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   bool owns_manifold_ = false;
   bool swapped_;
   Shared* shared_;
+  std::unique_ptr<runtime::QueryState> state_;  ///< the pair's fronts (CollisionSettings::coherent), made on first use
 };
 
 // Bullet's pool slots are sized from its own algorithms; ours must not be larger (see prepare_construction_info).

@@ -42,6 +42,9 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
     if (node.child_count == 0) node.first_child = uint32_t(n);  // no children: an empty range past the end
   }
   tree.level_offsets = shell.level_offsets;
+  for (size_t i = 0; i < n; ++i)
+    tree.extent = std::max({tree.extent, tree.points[i].norm(), tree.nodes[i].centre.norm() + tree.nodes[i].radius});
+  tree.extent = tree.extent * (1.0f + 1e-6f) + rounding_pad;
   // How far each child's sphere reaches from its parent's centre (computed in double, rounded up).
   for (size_t parent = 0; parent < n; ++parent)
     for (uint32_t c = 0; c < shell.child_count[parent]; ++c) {

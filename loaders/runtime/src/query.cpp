@@ -24,7 +24,7 @@ struct VoxelmapTarget {
 // caller: if the shell is B's, the separating direction for A is the opposite of the shell object's.
 void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const CollisionObject& field,
                     const Pose& field_pose, bool shell_is_b, const QueryOptions& options, ContactSet& out,
-                    QueryScratch& scratch) {
+                    QueryScratch& scratch, TraversalFront* front) {
   if (!shell.has_point_shell() || !field.has_voxelmap()) return;
   const SparseVoxelmap& map = field.voxelmap();
   const PointTree& tree = shell.point_tree();
@@ -41,26 +41,33 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   const Eigen::Matrix3f Mf = M.cast<float>();
   const Eigen::Vector3f mf = m.cast<float>();
 
-  detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch,
-                        [&](uint32_t node, float d, bool exact) {
-                          Contact contact;
-                          contact.point = shell_pose.apply(tree.points[node].cast<double>());
-                          Eigen::Vector3d normal = Eigen::Vector3d::Zero();
-                          if (options.normal_source == NormalSource::DistanceGradient) {
-                            Eigen::Vector3f gradient;
-                            map.sample(Mf * tree.points[node] + mf, &gradient);
-                            if (gradient.squaredNorm() > 0.0f)
-                              normal = field_pose.rotation * gradient.cast<double>().normalized();
-                          }
-                          if (normal.squaredNorm() == 0.0)  // classical VPS, or a flat field
-                            normal = (shell_pose.rotation * tree.normals[node].cast<double>()).normalized();
-                          contact.normal = sign * normal;
-                          contact.depth = -double(d) * metres_per_unit;
-                          contact.point_index = node;
-                          contact.point_of_b = shell_is_b;
-                          contact.exact = exact;
-                          out.contacts.push_back(contact);
-                        });
+  auto emit = [&](uint32_t node, float d, bool exact) {
+    Contact contact;
+    contact.point = shell_pose.apply(tree.points[node].cast<double>());
+    Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+    if (options.normal_source == NormalSource::DistanceGradient) {
+      Eigen::Vector3f gradient;
+      map.sample(Mf * tree.points[node] + mf, &gradient);
+      if (gradient.squaredNorm() > 0.0f) normal = field_pose.rotation * gradient.cast<double>().normalized();
+    }
+    if (normal.squaredNorm() == 0.0)  // classical VPS, or a flat field
+      normal = (shell_pose.rotation * tree.normals[node].cast<double>()).normalized();
+    contact.normal = sign * normal;
+    contact.depth = -double(d) * metres_per_unit;
+    contact.point_index = node;
+    contact.point_of_b = shell_is_b;
+    contact.exact = exact;
+    out.contacts.push_back(contact);
+  };
+  if (front && detail::coherent_query_allowed(options)) {
+    // The voxelmap is fixed in its own grid: displacements are measured there too.
+    detail::traverse_coherent(tree, Mf, mf, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, out.stats, scratch,
+                              *front, emit);
+  } else {
+    if (front) front->reset();
+    detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch,
+                          emit);
+  }
 }
 
 }  // namespace
@@ -91,9 +98,19 @@ void query_contacts(const CollisionObject& a, const Pose& pose_a, const Collisio
                     const QueryOptions& options, ContactSet& out, QueryScratch& scratch) {
   const QueryDirection direction = resolve_direction(a, pose_a, b, pose_b, options.direction);
   if (direction == QueryDirection::APointsInB || direction == QueryDirection::Both)
-    shell_in_field(a, pose_a, b, pose_b, false, options, out, scratch);
+    shell_in_field(a, pose_a, b, pose_b, false, options, out, scratch, nullptr);
   if (direction == QueryDirection::BPointsInA || direction == QueryDirection::Both)
-    shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch);
+    shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch, nullptr);
+}
+
+void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
+                    const QueryOptions& options, ContactSet& out, QueryScratch& scratch, QueryState& state) {
+  const QueryDirection direction = resolve_direction(a, pose_a, b, pose_b, options.direction);
+  // A direction not queried keeps its front: it measures motion from its own pose, whenever it is used again.
+  if (direction == QueryDirection::APointsInB || direction == QueryDirection::Both)
+    shell_in_field(a, pose_a, b, pose_b, false, options, out, scratch, &state.a_in_b);
+  if (direction == QueryDirection::BPointsInA || direction == QueryDirection::Both)
+    shell_in_field(b, pose_b, a, pose_a, true, options, out, scratch, &state.b_in_a);
 }
 
 void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,

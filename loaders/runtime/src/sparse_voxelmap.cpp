@@ -83,8 +83,8 @@ float SparseVoxelmap::coarse_value(int i, int j, int k, int32_t entry) const {
   }
   const size_t row = size_t(lattice_dims_[0]), plane = row * size_t(lattice_dims_[1]);
   const uint16_t* q = &lattice_[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const float p[8] = {float(q[0]),           float(q[1]),          float(q[row]),         float(q[row + 1]),
-                      float(q[plane]),       float(q[plane + 1]),  float(q[plane + row]), float(q[plane + row + 1])};
+  const float p[8] = {float(q[0]),     float(q[1]),         float(q[row]),         float(q[row + 1]),
+                      float(q[plane]), float(q[plane + 1]), float(q[plane + row]), float(q[plane + row + 1])};
   const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
   const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
   const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);

@@ -44,6 +44,12 @@ struct CollisionSettings {
   bool speculative_contacts = true;
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
+  /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
+  /// with the pair when it leaves the broadphase) and looks up only what the motion since can have brought within
+  /// reach: the same contacts, and a body at rest costs about its contact points a step. Pairs against a static
+  /// triangle mesh or terrain (whose triangles near the body change as it moves) and shapes limited to a tree
+  /// level or point budget query from the root.
+  bool coherent = true;
   /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs
   /// produce no contacts). Default (empty): the message goes to stderr. With a multi-threaded dispatcher it is
   /// called on the dispatcher's threads, possibly on two at once for two shape types.

@@ -38,6 +38,9 @@ struct PointTree {
   std::vector<Eigen::Vector3f> points;   ///< asset frame, metres
   std::vector<Eigen::Vector3f> normals;  ///< inward unit normals
   std::vector<uint32_t> level_offsets;
+  /// The largest |x| of any point or sphere of the tree (asset frame, metres): how far a rigid motion can move
+  /// any of them at most, for coherent queries.
+  float extent = 0;
 
   size_t size() const { return points.size(); }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }

@@ -119,12 +119,57 @@ struct QueryScratch {
   std::vector<Eigen::Vector3f>* tested_points = nullptr;
 };
 
+/// What a traversal leaves for the next one of the same pair, so that a step costs what changed (temporal
+/// coherence): the nodes where it stopped — subtrees it pruned, and the points of the nodes it opened — each with
+/// its distance bound, and the relative pose they were taken at. The next traversal keeps an entry as long as the
+/// motion since cannot have brought it within reach (its bound less the largest displacement of its sphere or
+/// point) and looks up only the rest: the same contacts as a traversal from the root, for a fraction of the
+/// lookups when little moves. Valid for full traversals (no point budget, level limit or time budget); a query
+/// with one starts the front afresh.
+struct TraversalFront {
+  enum Kind : uint32_t { kSubtree = 0, kPoint = 1 };
+  struct Entry {
+    uint32_t node;
+    Kind kind;
+    /// A lower bound of the distance (target units) of the subtree's spheres' points (kSubtree: its sphere's
+    /// bound less its radius) or of the point (kPoint), at the recorded pose.
+    float bound;
+  };
+  std::vector<Entry> entries;
+  std::vector<Entry> next;                      ///< the front a query builds (swapped with `entries` at its end)
+  Eigen::Matrix3f M = Eigen::Matrix3f::Zero();  ///< shell asset -> target frame, at the recorded pose
+  Eigen::Vector3f m = Eigen::Vector3f::Zero();
+  float radius_scale = 0;    ///< target units per shell asset unit when recorded
+  size_t fresh_entries = 0;  ///< entries after the last traversal from the root
+  uint32_t queries = 0;      ///< queries since then
+  bool valid = false;
+  void reset() {
+    valid = false;
+    entries.clear();
+  }
+};
+
+/// Per-pair state for coherent queries: one front per direction. Keep one per pair of objects (a physics
+/// engine's pair, a haptic tool and an object) and drop it when the pair separates for good.
+struct QueryState {
+  TraversalFront a_in_b;  ///< A's points against B's voxelmap (or against an analytic partner)
+  TraversalFront b_in_a;  ///< B's points against A's voxelmap
+  void reset() {
+    a_in_b.reset();
+    b_in_a.reset();
+  }
+};
+
 /// Appends to `out` (call out.clear() first for a fresh set). Objects without the needed structure (no point
 /// shell on the querying side, no voxelmap on the other) contribute nothing for that direction.
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
                     const QueryOptions& options, ContactSet& out, QueryScratch& scratch);
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
                     const QueryOptions& options, ContactSet& out);
+/// The same, coherent with the pair's earlier queries (`state`; see TraversalFront): the same contacts, in the
+/// same order, as without.
+void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
+                    const QueryOptions& options, ContactSet& out, QueryScratch& scratch, QueryState& state);
 
 /// The direction Auto resolves to for these objects and poses (never Auto).
 QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b,
@@ -151,6 +196,12 @@ template <class SignedDistance, class LowerBound>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
                             LowerBound&& lower_bound, const QueryOptions& options, ContactSet& out,
                             QueryScratch& scratch);
+/// The same, coherent with the pair's earlier queries (`front`): `partner` is the rigid partner's pose in the
+/// world (its distance function moves with it), so that only their relative motion counts.
+template <class SignedDistance>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
+                            SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
+                            QueryScratch& scratch, TraversalFront& front);
 
 }  // namespace voxfmt::runtime
 

@@ -169,6 +169,136 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   stats.deepest_level = std::max(stats.deepest_level, completed);
 }
 
+/// Whether a query can use (and keep) a traversal front: full traversals only.
+inline bool coherent_query_allowed(const QueryOptions& options) {
+  return options.point_budget == std::numeric_limits<size_t>::max() &&
+         options.max_level == std::numeric_limits<uint32_t>::max() && options.time_budget_us <= 0.0;
+}
+
+/// The traversal of traverse_tree, coherent with `front` (see TraversalFront): the previous query's entries are
+/// kept while the relative motion since (Mr, mr against the front's) cannot have brought them within `proximity`,
+/// and re-examined otherwise — a pruned subtree is traversed again from its node, a point looked up again. The
+/// points closer than `proximity` are those a traversal from the root finds (pruning is conservative both
+/// ways), reported in increasing node order as it reports them. (M, m) maps the shell into the target's frame
+/// for lookups; (Mr, mr) into the frame in which the target is fixed, for displacements (the same for a
+/// voxelmap; the partner's frame for a function given in world coordinates).
+template <class Target, class Emit>
+void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m,
+                       const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float radius_scale, float proximity,
+                       const Target& target, QueryStats& stats, QueryScratch& scratch, TraversalFront& front,
+                       Emit&& emit) {
+  using Hit = QueryScratch::Hit;
+  using Entry = TraversalFront::Entry;
+  if (tree.size() == 0) return;
+  const PointTree::Node* nodes = tree.nodes.data();
+  const Eigen::Vector3f* points = tree.points.data();
+  // Back to the root when the scale changed, and once the front has grown well past a fresh one (entries only
+  // split: a subtree traversed again never joins up), or after many queries, so that a pair that moved far
+  // does not keep a needlessly fine front.
+  const bool fresh = !front.valid || front.radius_scale != radius_scale ||
+                     front.entries.size() > 2 * front.fresh_entries + 64 || front.queries >= 1024;
+  if (fresh) {
+    front.entries.assign(1, Entry{0, TraversalFront::kSubtree, -std::numeric_limits<float>::infinity()});
+    front.queries = 0;
+  }
+  // How far anything of the shell moved in the target's frame since the front was taken: |dM x + dm| for x in a
+  // node's sphere is at most |dM c + dm| + |dM|_F r, and for all of them at most |dm| + |dM|_F extent.
+  const Eigen::Matrix3f dM = fresh ? Eigen::Matrix3f::Zero() : Eigen::Matrix3f(Mr - front.M);
+  const Eigen::Vector3f dm = fresh ? Eigen::Vector3f::Zero() : Eigen::Vector3f(mr - front.m);
+  // Float rounding of the poses and of these products: a few ulps of the coordinates involved, added to every
+  // displacement so that rounding never keeps an entry that moved within reach.
+  const float rounding = 8e-7f * (mr.norm() + Mr.norm() * tree.extent + m.norm() + M.norm() * tree.extent) + 1e-6f;
+  const float spin = dM.norm();
+  const float everywhere = dm.norm() + spin * tree.extent + rounding;
+  std::vector<Entry>& next = front.next;
+  next.clear();
+  std::vector<Hit>& hits = scratch.level_hits;  // emitted at the end, in node order
+  hits.clear();
+  std::vector<uint32_t>& queue = scratch.queue;
+  auto test_point = [&](uint32_t node, float point_bound) {
+    // The point's distance where its bound allows a contact; its bound (or distance) goes to the front.
+    float bound = point_bound;
+    if (point_bound < proximity) {
+      bool exact = false;
+      bound = target.distance(M * points[node] + m, exact);
+      ++stats.points_tested;
+      if (bound < proximity) hits.push_back({node, bound, exact});
+    }
+    next.push_back({node, TraversalFront::kPoint, bound});
+  };
+  // Traverses the subtree of `root` as traverse_tree does, recording where it stops.
+  auto descend = [&](uint32_t root) {
+    queue.clear();
+    queue.push_back(root);
+    for (size_t q = 0; q < queue.size(); ++q) {
+      const uint32_t node = queue[q];
+      const PointTree::Node& n = nodes[node];
+      const float radius = n.radius * radius_scale;
+      const float sphere_bound = target.lower_bound(M * n.centre + m);
+      ++stats.nodes_visited;
+      if (sphere_bound > radius + proximity) {
+        next.push_back({node, TraversalFront::kSubtree, sphere_bound - radius});
+        continue;
+      }
+      float point_bound = -std::numeric_limits<float>::infinity();
+      if (Target::kBoundBeforeDistance && n.child_count > 0) point_bound = target.lower_bound(M * points[node] + m);
+      test_point(node, point_bound);
+      for (uint32_t c = n.first_child; c < n.first_child + n.child_count; ++c) {
+        const float carried = std::max(sphere_bound - nodes[c].reach_from_parent * radius_scale,
+                                       point_bound - nodes[c].reach_from_parent_point * radius_scale);
+        if (carried > proximity)
+          next.push_back({c, TraversalFront::kSubtree, carried});
+        else
+          queue.push_back(c);
+      }
+    }
+  };
+  for (const Entry& e : front.entries) {
+    if (e.kind == TraversalFront::kSubtree) {
+      // Nothing of the subtree came within reach: kept with its bound lowered by the most it can have moved.
+      if (e.bound - everywhere > proximity) {
+        next.push_back({e.node, e.kind, e.bound - everywhere});
+        continue;
+      }
+      const PointTree::Node& n = nodes[e.node];
+      const float moved = (dM * n.centre + dm).norm() + spin * n.radius + rounding;
+      if (e.bound - moved > proximity) {
+        next.push_back({e.node, e.kind, e.bound - moved});
+        continue;
+      }
+      descend(e.node);
+    } else {
+      if (e.bound - everywhere > proximity) {
+        next.push_back({e.node, e.kind, e.bound - everywhere});
+        continue;
+      }
+      const float moved = (dM * points[e.node] + dm).norm() + rounding;
+      if (e.bound - moved > proximity) {
+        next.push_back({e.node, e.kind, e.bound - moved});
+        continue;
+      }
+      // The point again: its own bound first where a distance costs more (an inner node), as descend does.
+      float point_bound = -std::numeric_limits<float>::infinity();
+      if (Target::kBoundBeforeDistance && nodes[e.node].child_count > 0)
+        point_bound = target.lower_bound(M * points[e.node] + m);
+      test_point(e.node, point_bound);
+    }
+  }
+  front.entries.swap(next);
+  front.M = Mr;
+  front.m = mr;
+  front.radius_scale = radius_scale;
+  front.valid = true;
+  ++front.queries;
+  if (fresh) front.fresh_entries = front.entries.size();
+  // A traversal from the root reports its points level by level, in node order: so does this one.
+  std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) { return a.node < b.node; });
+  for (const Hit& hit : hits) emit(hit.node, hit.distance, hit.exact);
+  uint32_t deepest = 0;
+  for (size_t l = 0; l + 1 < tree.level_offsets.size(); ++l) deepest = uint32_t(l);
+  stats.deepest_level = std::max(stats.deepest_level, deepest);
+}
+
 /// A signed-distance function in world coordinates seen as a traversal target, with a cheaper lower bound
 /// for pruning (or the function itself).
 template <class SignedDistance, class LowerBound>
@@ -212,6 +342,45 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
                           contact.exact = exact;
                           out.contacts.push_back(contact);
                         });
+}
+
+template <class SignedDistance>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
+                            SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
+                            QueryScratch& scratch, TraversalFront& front) {
+  if (!detail::coherent_query_allowed(options)) {
+    front.reset();
+    query_against_function(shell_object, pose, distance, options, out, scratch);
+    return;
+  }
+  if (!shell_object.has_point_shell()) return;
+  const PointTree& tree = shell_object.point_tree();
+  const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
+  const Eigen::Vector3f m = pose.translation.cast<float>();
+  // Displacements in the partner's frame, where its distance function is fixed.
+  const Eigen::Matrix3f Mr = (partner.rotation.transpose() * pose.rotation * pose.scale).cast<float>();
+  const Eigen::Vector3f mr = (partner.rotation.transpose() * (pose.translation - partner.translation)).cast<float>();
+  auto bound = [&](const Eigen::Vector3f& u) {
+    Eigen::Vector3f normal;
+    return distance(u, normal);
+  };
+  detail::FunctionTarget<std::remove_reference_t<SignedDistance>, decltype(bound)> target{distance, bound};
+  const Eigen::Matrix3d rotation = pose.rotation;
+  detail::traverse_coherent(tree, M, m, Mr, mr, float(pose.scale), float(options.proximity), target, out.stats, scratch,
+                            front, [&](uint32_t node, float d, bool exact) {
+                              Contact contact;
+                              contact.point = pose.apply(tree.points[node].cast<double>());
+                              Eigen::Vector3f outward;
+                              distance(contact.point.cast<float>(), outward);
+                              if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
+                                contact.normal = (rotation * tree.normals[node].cast<double>()).normalized();
+                              else
+                                contact.normal = outward.cast<double>().normalized();
+                              contact.depth = -double(d);
+                              contact.point_index = node;
+                              contact.exact = exact;
+                              out.contacts.push_back(contact);
+                            });
 }
 
 template <class SignedDistance>

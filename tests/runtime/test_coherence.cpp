@@ -1,0 +1,163 @@
+// Coherent queries (TraversalFront): over whole trajectories, every step's contacts equal those of a query from the
+// root, bit for bit and in the same order, while far fewer lookups are made when little moves.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+#include <cstring>
+#include <iostream>
+
+#include "baked_bunny.h"
+#include "voxfmt/runtime/query.h"
+
+namespace voxfmt::runtime {
+namespace {
+
+using test::BakedBunny;
+
+Pose pose_at(const Eigen::Vector3d& axis, double angle, const Eigen::Vector3d& translation) {
+  Pose p;
+  p.rotation = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix();
+  p.translation = translation;
+  return p;
+}
+
+// Contacts compared field by field, bitwise: the coherent query must not change a single bit.
+void expect_identical(const ContactSet& fresh, const ContactSet& coherent, size_t step) {
+  ASSERT_EQ(fresh.contacts.size(), coherent.contacts.size()) << "step " << step;
+  for (size_t i = 0; i < fresh.contacts.size(); ++i) {
+    const Contact &a = fresh.contacts[i], &b = coherent.contacts[i];
+    ASSERT_EQ(a.point_index, b.point_index) << "step " << step << " contact " << i;
+    ASSERT_EQ(a.point_of_b, b.point_of_b);
+    ASSERT_EQ(std::memcmp(&a.depth, &b.depth, sizeof a.depth), 0) << a.depth << " vs " << b.depth;
+    ASSERT_EQ(a.point, b.point);
+    ASSERT_EQ(a.normal, b.normal);
+    ASSERT_EQ(a.exact, b.exact);
+  }
+}
+
+struct Lookups {
+  size_t fresh = 0, coherent = 0, contacts = 0;
+};
+
+// Runs `steps` poses of A against the fixed B through both queries; returns the lookups each made.
+template <class PoseAt>
+Lookups run_trajectory(const CollisionObject& a, const CollisionObject& b, QueryOptions options, size_t steps,
+                       PoseAt&& pose_at_step) {
+  QueryScratch scratch;
+  QueryState state;
+  ContactSet fresh, coherent;
+  Lookups lookups;
+  const Pose pose_b;
+  for (size_t s = 0; s < steps; ++s) {
+    const Pose pa = pose_at_step(s);
+    fresh.clear();
+    coherent.clear();
+    query_contacts(a, pa, b, pose_b, options, fresh, scratch);
+    query_contacts(a, pa, b, pose_b, options, coherent, scratch, state);
+    expect_identical(fresh, coherent, s);
+    if (::testing::Test::HasFatalFailure()) return lookups;
+    lookups.fresh += fresh.stats.nodes_visited + fresh.stats.points_tested;
+    lookups.coherent += coherent.stats.nodes_visited + coherent.stats.points_tested;
+    lookups.contacts += fresh.contacts.size();
+  }
+  return lookups;
+}
+
+TEST(Coherence, BunnyApproachingSlidingAndLeavingABunnyGivesTheSameContacts) {
+  // A 1 kHz trajectory: A comes in along x, overlaps up to ~4 voxels while turning and sliding, and leaves.
+  const BakedBunny& bunny = BakedBunny::get();
+  const double h = bunny.h;
+  for (const QueryDirection direction :
+       {QueryDirection::APointsInB, QueryDirection::BPointsInA, QueryDirection::Both}) {
+    QueryOptions options;
+    options.direction = direction;
+    options.proximity = 0.5 * h;
+    const size_t steps = 600;
+    const Lookups l = run_trajectory(*bunny.object, *bunny.object, options, steps, [&](size_t s) {
+      const double t = double(s) / double(steps);
+      const double gap = 0.97 - 0.12 * std::sin(3.14159265358979 * t);  // in, deepest at the middle, out
+      return pose_at(Eigen::Vector3d(0.2, 1, 0.1), 0.3 * t, Eigen::Vector3d(gap, 0.05 * t, -0.02 * t));
+    });
+    std::cout << "[ figures  ] direction " << int(direction) << ": " << l.contacts << " contacts over " << steps
+              << " steps; lookups from the root " << l.fresh << ", coherent " << l.coherent << " ("
+              << double(l.fresh) / double(std::max<size_t>(l.coherent, 1)) << "x fewer)\n";
+    EXPECT_GT(l.contacts, 1000u);
+    EXPECT_LT(l.coherent, l.fresh);
+  }
+}
+
+TEST(Coherence, ABodyAtRestLooksUpOnlyItsContacts) {
+  // Resting contact: the same pose step after step. After the first step only the points in contact (and those
+  // within reach) are looked up again.
+  const BakedBunny& bunny = BakedBunny::get();
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  const Pose rest = pose_at(Eigen::Vector3d::UnitY(), 0.0, Eigen::Vector3d(0.85, 0, 0));
+  const Lookups l = run_trajectory(*bunny.object, *bunny.object, options, 100, [&](size_t) { return rest; });
+  std::cout << "[ figures  ] at rest: lookups from the root " << l.fresh / 100 << " a step, coherent "
+            << l.coherent / 100 << " a step (" << l.contacts / 100 << " contacts)\n";
+  EXPECT_GT(l.contacts, 100u);
+  // The first step from the root, then only the contacts: about the contacts a step.
+  EXPECT_LT(l.coherent, l.contacts + l.fresh / 100 + 100);
+}
+
+TEST(Coherence, AnAnalyticPartnerMovingWithTheShellChangesNothing) {
+  // A plane (a function in world coordinates) and the bunny moving together: the relative pose is constant, so
+  // the front is kept whole although both move in the world; contacts match the query from the root.
+  const BakedBunny& bunny = BakedBunny::get();
+  QueryOptions options;
+  options.proximity = 0.2 * bunny.h;
+  QueryScratch scratch;
+  TraversalFront front;
+  ContactSet fresh, coherent;
+  size_t fresh_lookups = 0, coherent_lookups = 0;
+  for (int s = 0; s < 200; ++s) {
+    const Pose partner = pose_at(Eigen::Vector3d(1, 1, 0), 0.002 * s, Eigen::Vector3d(0.001 * s, 0.0005 * s, 0));
+    Pose shell = partner;  // the bunny 0.49 m above the plane's origin, in the plane's frame, 2 voxels deep
+    shell.translation = partner.rotation * Eigen::Vector3d(0, 0.49 - 2 * bunny.h, 0) + partner.translation;
+    const Eigen::Vector3f n = (partner.rotation * Eigen::Vector3d::UnitY()).cast<float>();
+    const float c = n.dot(partner.translation.cast<float>());
+    auto plane = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+      outward = n;
+      return n.dot(x) - c;
+    };
+    fresh.clear();
+    coherent.clear();
+    query_against_function(*bunny.object, shell, plane, options, fresh, scratch);
+    query_against_function(*bunny.object, shell, partner, plane, options, coherent, scratch, front);
+    expect_identical(fresh, coherent, size_t(s));
+    if (HasFatalFailure()) return;
+    // Nothing moves relative to the plane: after the first step only the points in contact are looked up.
+    if (s > 0) EXPECT_LE(coherent.stats.nodes_visited + coherent.stats.points_tested, coherent.contacts.size() + 16);
+    fresh_lookups += fresh.stats.nodes_visited + fresh.stats.points_tested;
+    coherent_lookups += coherent.stats.nodes_visited + coherent.stats.points_tested;
+  }
+  EXPECT_GT(fresh.contacts.size(), 100u);
+  std::cout << "[ figures  ] lookups from the root " << fresh_lookups / 200 << " a step, coherent "
+            << coherent_lookups / 200 << " (" << fresh.contacts.size() << " contacts)\n";
+}
+
+TEST(Coherence, QueriesWithABudgetStartAfresh) {
+  // A point budget cuts the traversal: such a query cannot keep a front, and the next full one starts afresh.
+  const BakedBunny& bunny = BakedBunny::get();
+  QueryScratch scratch;
+  QueryState state;
+  ContactSet fresh, coherent;
+  const Pose pa = pose_at(Eigen::Vector3d::UnitZ(), 0.2, Eigen::Vector3d(0.96, 0, 0));
+  QueryOptions full, budget;
+  full.direction = budget.direction = QueryDirection::APointsInB;
+  budget.point_budget = 800;
+  for (const QueryOptions* o : {&full, &budget, &full}) {
+    fresh.clear();
+    coherent.clear();
+    query_contacts(*bunny.object, pa, *bunny.object, Pose{}, *o, fresh, scratch);
+    query_contacts(*bunny.object, pa, *bunny.object, Pose{}, *o, coherent, scratch, state);
+    expect_identical(fresh, coherent, 0);
+    EXPECT_EQ(state.a_in_b.valid, o == &full);
+  }
+}
+
+}  // namespace
+}  // namespace voxfmt::runtime
