@@ -121,31 +121,34 @@ struct QueryScratch {
 
 /// What a traversal leaves for the next one of the same pair, so that a step costs what changed (temporal
 /// coherence): the nodes where it stopped — subtrees it pruned, and the points of the nodes it opened — each with
-/// its distance bound, and the relative pose they were taken at. The next traversal keeps an entry as long as the
-/// motion since cannot have brought it within reach (its bound less the largest displacement of its sphere or
-/// point) and looks up only the rest: the same contacts as a traversal from the root, for a fraction of the
-/// lookups when little moves. Valid for full traversals (no point budget, level limit or time budget); a query
-/// with one starts the front afresh.
+/// a lower bound of its distance at an anchor pose (a recent relative pose of the pair). A query at another pose
+/// bounds how far anything of the shell is from where it was at the anchor; an entry whose bound exceeds that
+/// (plus the proximity) cannot be within reach and is not touched. The entries are a min-heap on their bound, so
+/// a query pops only those that may be (the contacts, and what the motion brought close), checks each against
+/// its own displacement and looks up the rest: a body at rest, or rocking about where it was, costs about its
+/// contacts whatever the size of the front. When much of the front would be popped, every entry's bound is
+/// carried to the current pose in one pass, which becomes the anchor. Valid for full traversals (no point
+/// budget, level limit or time budget); a query with one starts the front afresh.
 struct TraversalFront {
-  enum Kind : uint32_t { kSubtree = 0, kPoint = 1 };
   struct Entry {
-    uint32_t node;
-    Kind kind;
-    /// A lower bound of the distance (target units) of the subtree's spheres' points (kSubtree: its sphere's
-    /// bound less its radius) or of the point (kPoint), at the recorded pose.
+    /// A lower bound (target units) of the distance at the anchor pose of the subtree's spheres' points (a
+    /// subtree: its sphere's bound less its radius) or of the node's own point.
     float bound;
+    uint32_t node : 31;
+    uint32_t is_point : 1;
   };
-  std::vector<Entry> entries;
-  std::vector<Entry> next;                      ///< the front a query builds (swapped with `entries` at its end)
-  Eigen::Matrix3f M = Eigen::Matrix3f::Zero();  ///< shell asset -> target frame, at the recorded pose
+  std::vector<Entry> heap;     ///< a min-heap on bound while `ordered`
+  bool ordered = true;         ///< false while the motion is large: every query makes one pass over the front
+  std::vector<Entry> revisit;  ///< scratch: the entries a query pops
+  Eigen::Matrix3f M = Eigen::Matrix3f::Zero();  ///< the anchor: shell asset -> target frame
   Eigen::Vector3f m = Eigen::Vector3f::Zero();
-  float radius_scale = 0;    ///< target units per shell asset unit when recorded
+  float radius_scale = 0;    ///< target units per shell asset unit
   size_t fresh_entries = 0;  ///< entries after the last traversal from the root
   uint32_t queries = 0;      ///< queries since then
   bool valid = false;
   void reset() {
     valid = false;
-    entries.clear();
+    heap.clear();
   }
 };
 

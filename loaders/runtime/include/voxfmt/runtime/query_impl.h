@@ -175,13 +175,13 @@ inline bool coherent_query_allowed(const QueryOptions& options) {
          options.max_level == std::numeric_limits<uint32_t>::max() && options.time_budget_us <= 0.0;
 }
 
-/// The traversal of traverse_tree, coherent with `front` (see TraversalFront): the previous query's entries are
-/// kept while the relative motion since (Mr, mr against the front's) cannot have brought them within `proximity`,
-/// and re-examined otherwise — a pruned subtree is traversed again from its node, a point looked up again. The
-/// points closer than `proximity` are those a traversal from the root finds (pruning is conservative both
-/// ways), reported in increasing node order as it reports them. (M, m) maps the shell into the target's frame
-/// for lookups; (Mr, mr) into the frame in which the target is fixed, for displacements (the same for a
-/// voxelmap; the partner's frame for a function given in world coordinates).
+/// The traversal of traverse_tree, coherent with `front` (see TraversalFront): an entry is kept while the motion
+/// since the front's anchor pose (Mr, mr against the front's) cannot have brought it within `proximity`, and
+/// re-examined otherwise — a pruned subtree is traversed again from its node, a point looked up again. The
+/// points closer than `proximity` are those a traversal from the root finds (its pruning only skips points whose
+/// lower bound is beyond reach), reported in increasing node order as it reports them. (M, m) maps the shell
+/// into the target's frame for lookups; (Mr, mr) into the frame in which the target is fixed, for displacements
+/// (the same for a voxelmap; the partner's frame for a function given in world coordinates).
 template <class Target, class Emit>
 void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m,
                        const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float radius_scale, float proximity,
@@ -192,26 +192,80 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   if (tree.size() == 0) return;
   const PointTree::Node* nodes = tree.nodes.data();
   const Eigen::Vector3f* points = tree.points.data();
+  std::vector<Entry>& heap = front.heap;
+  const auto later = [](const Entry& a, const Entry& b) { return a.bound > b.bound; };  // min-heap on bound
   // Back to the root when the scale changed, and once the front has grown well past a fresh one (entries only
   // split: a subtree traversed again never joins up), or after many queries, so that a pair that moved far
   // does not keep a needlessly fine front.
-  const bool fresh = !front.valid || front.radius_scale != radius_scale ||
-                     front.entries.size() > 2 * front.fresh_entries + 64 || front.queries >= 1024;
+  const bool fresh = !front.valid || front.radius_scale != radius_scale || heap.size() > 2 * front.fresh_entries + 64 ||
+                     front.queries >= 1024;
   if (fresh) {
-    front.entries.assign(1, Entry{0, TraversalFront::kSubtree, -std::numeric_limits<float>::infinity()});
+    heap.assign(1, Entry{-std::numeric_limits<float>::infinity(), 0, 0});
+    front.M = Mr;
+    front.m = mr;
     front.queries = 0;
   }
-  // How far anything of the shell moved in the target's frame since the front was taken: |dM x + dm| for x in a
-  // node's sphere is at most |dM c + dm| + |dM|_F r, and for all of them at most |dm| + |dM|_F extent.
-  const Eigen::Matrix3f dM = fresh ? Eigen::Matrix3f::Zero() : Eigen::Matrix3f(Mr - front.M);
-  const Eigen::Vector3f dm = fresh ? Eigen::Vector3f::Zero() : Eigen::Vector3f(mr - front.m);
-  // Float rounding of the poses and of these products: a few ulps of the coordinates involved, added to every
-  // displacement so that rounding never keeps an entry that moved within reach.
+  // Float rounding of the poses and of the displacement products: a few ulps of the coordinates involved, so
+  // that rounding never keeps an entry that moved within reach.
   const float rounding = 8e-7f * (mr.norm() + Mr.norm() * tree.extent + m.norm() + M.norm() * tree.extent) + 1e-6f;
-  const float spin = dM.norm();
+  // How far a sphere (c, r) of the shell is from where it was at the anchor: |dM x + dm| for x in it is at most
+  // |dM c + dm| + |dM|_F r; for anything of the shell at most |dm| + |dM|_F extent.
+  Eigen::Matrix3f dM = Mr - front.M;
+  Eigen::Vector3f dm = mr - front.m;
+  float spin = dM.norm();
+  auto moved = [&](const Entry& e) {
+    const Eigen::Vector3f& x = e.is_point ? points[e.node] : nodes[e.node].centre;
+    const float r = e.is_point ? 0.0f : nodes[e.node].radius;
+    return (dM * x + dm).norm() + spin * r + rounding;
+  };
   const float everywhere = dm.norm() + spin * tree.extent + rounding;
-  std::vector<Entry>& next = front.next;
-  next.clear();
+  // The entries that may be within reach (always the contacts, whose bound is below it): popped one by one while
+  // the motion is small and they are few. Otherwise one pass over the front carries every entry to this pose,
+  // which becomes the anchor, and the front stays unordered (a pass each query) until the motion calms down.
+  std::vector<Entry>& revisit = front.revisit;
+  revisit.clear();
+  bool ordered = front.ordered && !fresh ? true : fresh;
+  if (ordered) {
+    const size_t pop_limit = heap.size() / 32 + 16;
+    while (!heap.empty() && heap.front().bound - everywhere <= proximity) {
+      if (revisit.size() == pop_limit) {
+        ordered = false;
+        break;
+      }
+      std::pop_heap(heap.begin(), heap.end(), later);
+      revisit.push_back(heap.back());
+      heap.pop_back();
+    }
+    if (!ordered) {
+      heap.insert(heap.end(), revisit.begin(), revisit.end());
+      revisit.clear();
+    }
+  }
+  if (!ordered) {
+    // A cheap carry by the motion of the whole shell first, the entry's own displacement where that is not enough.
+    size_t kept = 0;
+    for (Entry e : heap) {
+      float carried = e.bound - everywhere;
+      if (carried <= proximity) carried = e.bound - moved(e);
+      e.bound = carried;
+      if (carried > proximity)
+        heap[kept++] = e;
+      else
+        revisit.push_back(e);
+    }
+    heap.resize(kept);
+    front.M = Mr;
+    front.m = mr;
+    dM.setZero();
+    dm.setZero();
+    spin = 0;
+  }
+  auto record = [&](uint32_t node, bool is_point, float bound) {
+    Entry e{bound, node, uint32_t(is_point)};
+    e.bound -= moved(e);
+    heap.push_back(e);
+    if (ordered) std::push_heap(heap.begin(), heap.end(), later);
+  };
   std::vector<Hit>& hits = scratch.level_hits;  // emitted at the end, in node order
   hits.clear();
   std::vector<uint32_t>& queue = scratch.queue;
@@ -224,7 +278,7 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
       ++stats.points_tested;
       if (bound < proximity) hits.push_back({node, bound, exact});
     }
-    next.push_back({node, TraversalFront::kPoint, bound});
+    record(node, true, bound);
   };
   // Traverses the subtree of `root` as traverse_tree does, recording where it stops.
   auto descend = [&](uint32_t root) {
@@ -237,7 +291,7 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
       const float sphere_bound = target.lower_bound(M * n.centre + m);
       ++stats.nodes_visited;
       if (sphere_bound > radius + proximity) {
-        next.push_back({node, TraversalFront::kSubtree, sphere_bound - radius});
+        record(node, false, sphere_bound - radius);
         continue;
       }
       float point_bound = -std::numeric_limits<float>::infinity();
@@ -247,36 +301,20 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
         const float carried = std::max(sphere_bound - nodes[c].reach_from_parent * radius_scale,
                                        point_bound - nodes[c].reach_from_parent_point * radius_scale);
         if (carried > proximity)
-          next.push_back({c, TraversalFront::kSubtree, carried});
+          record(c, false, carried);
         else
           queue.push_back(c);
       }
     }
   };
-  for (const Entry& e : front.entries) {
-    if (e.kind == TraversalFront::kSubtree) {
-      // Nothing of the subtree came within reach: kept with its bound lowered by the most it can have moved.
-      if (e.bound - everywhere > proximity) {
-        next.push_back({e.node, e.kind, e.bound - everywhere});
-        continue;
-      }
-      const PointTree::Node& n = nodes[e.node];
-      const float moved = (dM * n.centre + dm).norm() + spin * n.radius + rounding;
-      if (e.bound - moved > proximity) {
-        next.push_back({e.node, e.kind, e.bound - moved});
-        continue;
-      }
+  for (const Entry& e : revisit) {
+    // The entry's own displacement since the anchor often keeps it without a lookup.
+    if (e.bound - moved(e) > proximity) {
+      heap.push_back(e);
+      if (ordered) std::push_heap(heap.begin(), heap.end(), later);
+    } else if (!e.is_point) {
       descend(e.node);
     } else {
-      if (e.bound - everywhere > proximity) {
-        next.push_back({e.node, e.kind, e.bound - everywhere});
-        continue;
-      }
-      const float moved = (dM * points[e.node] + dm).norm() + rounding;
-      if (e.bound - moved > proximity) {
-        next.push_back({e.node, e.kind, e.bound - moved});
-        continue;
-      }
       // The point again: its own bound first where a distance costs more (an inner node), as descend does.
       float point_bound = -std::numeric_limits<float>::infinity();
       if (Target::kBoundBeforeDistance && nodes[e.node].child_count > 0)
@@ -284,13 +322,16 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
       test_point(e.node, point_bound);
     }
   }
-  front.entries.swap(next);
-  front.M = Mr;
-  front.m = mr;
+  // Ordered again once a pass finds little within reach.
+  if (!ordered && revisit.size() <= heap.size() / 64 + 8) {
+    std::make_heap(heap.begin(), heap.end(), later);
+    ordered = true;
+  }
+  front.ordered = ordered;
   front.radius_scale = radius_scale;
   front.valid = true;
   ++front.queries;
-  if (fresh) front.fresh_entries = front.entries.size();
+  if (fresh) front.fresh_entries = heap.size();
   // A traversal from the root reports its points level by level, in node order: so does this one.
   std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) { return a.node < b.node; });
   for (const Hit& hit : hits) emit(hit.node, hit.distance, hit.exact);
