@@ -6,7 +6,8 @@
 // Writes, per run, a CSV of every cycle (device pose, wrench, penetration, cycle time) and a PNG plot (force,
 // torque, cycle time against time) into --out, and with --json the figures of every run:
 //   {"runs": [{"pairs", "rate_hz", "points_per_tool", "cycles", "cycle_us": {"p50", "p99", "p999", "max"},
-//              "overruns", "levels_completed_min", "max_force_jump_n", "max_penetration_m"}, ...]}
+//              "overruns", "levels_completed_min", "max_force_jump_n", "max_penetration_m",
+//              "realtime_priority", "memory_locked", "cpu"}, ...]}
 // plus "tree_levels", "max_force_jump_on_time_n" (jumps between cycles that both ran on time: after an overrun
 // the step covers the missed periods, and the force moves further), "max_force_n", "seconds" and "csv".
 #include <CLI/CLI.hpp>
@@ -19,6 +20,7 @@
 #include <iomanip>
 #include <iostream>
 #include <sstream>
+#include <thread>
 
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/exports/raster_image.h"
@@ -189,8 +191,13 @@ int main(int argc, char** argv) {
   app.add_option("--out", out, "folder for the CSV files and plots")->capture_default_str();
   app.add_option("--seconds", seconds, "simulated (and real) seconds per run")->capture_default_str();
   app.add_flag("--quick", quick, "2 s per run");
+  bool no_realtime = false;
+  app.add_flag("--no-realtime", no_realtime,
+               "do not ask for SCHED_FIFO, locked memory and a pinned CPU (by default asked for, and used where "
+               "the system permits; the JSON says what was granted)");
   app.add_option("--json", json_path, "figures of every run (the shape is in the file's header comment)");
   CLI11_PARSE(app, argc, argv);
+  const bool realtime = !no_realtime;
   if (quick) seconds = 2;
   try {
     fs::create_directories(cache);
@@ -231,7 +238,10 @@ int main(int argc, char** argv) {
         const auto cycles = uint64_t(std::llround(seconds * rate));
         std::vector<Record> records;
         records.reserve(cycles + 1);
-        voxfmt::runtime::RealtimeLoop loop({rate, 80.0}, [&](double t, double dt) {
+        voxfmt::runtime::LoopSettings loop_settings{rate, 80.0};
+        loop_settings.realtime_priority = loop_settings.lock_memory = realtime;
+        loop_settings.cpu = realtime ? int(std::thread::hardware_concurrency()) - 1 : -1;
+        voxfmt::runtime::RealtimeLoop loop(loop_settings, [&](double t, double dt) {
           const auto start = Clock::now();
           const Pose pose = device.read_pose(t);
           const auto& cycle = renderer.step(pose, dt);
@@ -289,6 +299,8 @@ int main(int argc, char** argv) {
              << ", \"points_per_tool\": " << bunny->point_tree().size() << ", \"cycles\": " << records.size()
              << ", \"cycle_us\": {\"p50\": " << p50 << ", \"p99\": " << p99 << ", \"p999\": " << p999
              << ", \"max\": " << max << "}, \"overruns\": " << stats.overruns
+             << ", \"realtime_priority\": " << (stats.realtime_priority ? "true" : "false")
+             << ", \"memory_locked\": " << (stats.memory_locked ? "true" : "false") << ", \"cpu\": " << stats.cpu
              << ", \"levels_completed_min\": " << levels_min
              << ", \"tree_levels\": " << bunny->point_tree().level_count() << ", \"max_force_jump_n\": " << max_jump
              << ", \"max_force_jump_on_time_n\": " << max_jump_on_time << ", \"max_penetration_m\": " << max_penetration

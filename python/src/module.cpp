@@ -23,6 +23,7 @@
 #include <cstring>
 #include <exception>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -215,6 +216,16 @@ struct Contacts {
   Eigen::Vector3d reference = Eigen::Vector3d::Zero();  ///< A's centre of mass, world frame
 };
 
+/// A pair queried pose after pose (a trajectory, a simulation): the query keeps its last traversal, so a step
+/// costs what moved; the contacts are those of voxfmt.contacts() at the same poses, bit for bit.
+struct Tracker {
+  Body a, b;
+  runtime::QueryState state;
+  runtime::QueryScratch scratch;
+  ContactSet work;
+  std::mutex busy;  // one query at a time: the state is the pair's history
+};
+
 static_assert(sizeof(runtime::Contact) % sizeof(double) == 0 && sizeof(runtime::Contact) % sizeof(uint32_t) == 0,
               "strided views into the contacts need whole-element strides");
 
@@ -254,6 +265,21 @@ Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_
   return out;
 }
 
+Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, double proximity) {
+  const Pose pa = parse_pose(pose_a, "pose_a");
+  const Pose pb = parse_pose(pose_b, "pose_b");
+  const QueryOptions options = query_options(std::nullopt, std::nullopt, proximity);
+  std::lock_guard<std::mutex> lock(tracker.busy);
+  tracker.work.clear();
+  runtime::query_contacts(*tracker.a.object, pa, *tracker.b.object, pb, options, tracker.work, tracker.scratch,
+                          tracker.state);
+  Contacts out;
+  out.set.contacts.assign(tracker.work.contacts.begin(), tracker.work.contacts.end());
+  out.set.stats = tracker.work.stats;
+  out.reference = pa.apply(tracker.a.object->center_of_mass());
+  return out;
+}
+
 std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrench(const Contacts& contacts,
                                                                                   double stiffness,
                                                                                   std::optional<nb::handle> reference) {
@@ -274,9 +300,11 @@ std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrenc
 
 using BatchDict = nb::typed<nb::dict, nb::str, nb::any>;
 
+// With a tracker: the poses in order on one thread, each query coherent with the one before (a trajectory).
 BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
                          std::optional<int64_t> threads, bool with_contacts, double stiffness,
-                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity) {
+                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
+                         Tracker* tracker) {
   const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
   if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
@@ -296,7 +324,9 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   OutArray<double> force({k, 3});
   OutArray<double> torque({k, 3});
   const size_t hardware = voxfmt::usable_cores();
-  const size_t workers = std::max<size_t>(1, std::min<size_t>(threads ? size_t(*threads) : hardware, k));
+  const size_t workers = tracker ? 1 : std::max<size_t>(1, std::min<size_t>(threads ? size_t(*threads) : hardware, k));
+  std::unique_lock<std::mutex> tracker_lock;
+  if (tracker) tracker_lock = std::unique_lock<std::mutex>(tracker->busy);
   constexpr size_t kChunk = 16;
   std::atomic<size_t> next{0};
   // Contacts per chunk of poses: concatenated in chunk order they are in pose order, whichever thread ran them.
@@ -311,7 +341,10 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
       // left one thread idle while the other finished its half (1.48x on 2 threads).
       for (size_t i = next.fetch_add(kChunk); i < k; i = (i + 1) % kChunk == 0 ? next.fetch_add(kChunk) : i + 1) {
         set.clear();
-        runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, scratch);
+        if (tracker)
+          runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, tracker->scratch, tracker->state);
+        else
+          runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, scratch);
         const runtime::Wrench wr = runtime::penalty_wrench(set, pa[i].apply(a.object->center_of_mass()), stiffness);
         count.data[i] = int64_t(set.contacts.size());
         max_depth.data[i] = deepest_depth(set);
@@ -704,7 +737,24 @@ NB_MODULE(_voxfmt, m) {
         "Penalty force (3,) and torque (3,) on A: F = sum k * depth * n over penetrating contacts, torque about\n"
         "`reference` (default: A's centre of mass in the world).");
   m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, "threads"_a.none(),
-        "with_contacts"_a, "stiffness"_a, "point_budget"_a.none(), "time_budget_us"_a.none(), "proximity"_a);
+        "with_contacts"_a, "stiffness"_a, "point_budget"_a.none(), "time_budget_us"_a.none(), "proximity"_a,
+        "tracker"_a.none() = nb::none());
+  nb::class_<Tracker>(m, "_Tracker")
+      .def(
+          "__init__",
+          [](Tracker* t, const Body& a, const Body& b) {
+            new (t) Tracker();
+            t->a = a;
+            t->b = b;
+          },
+          "a"_a, "b"_a)
+      .def_prop_ro("a", [](const Tracker& t) { return t.a; })
+      .def_prop_ro("b", [](const Tracker& t) { return t.b; })
+      .def("_contacts", &tracked_query, "pose_a"_a, "pose_b"_a, "proximity"_a)
+      .def("reset", [](Tracker& t) {
+        std::lock_guard<std::mutex> lock(t.busy);
+        t.state.reset();
+      });
   m.def("_bake", &bake, "mesh"_a, "output"_a, "resolution"_a, "voxel_size"_a, "points"_a, "point_spacing"_a,
         "branching"_a, "margin"_a, "band"_a, "shell_thickness"_a, "unit_scale"_a, "up_axis"_a,
         "self_intersection_check"_a, "seed"_a, "deflate"_a, "threads"_a, "progress"_a.none());

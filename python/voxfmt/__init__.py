@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, wrench
-from ._voxfmt import _bake, _contacts_batch, _inspect, _validate
+from ._voxfmt import _bake, _contacts_batch, _inspect, _Tracker, _validate
 
 __version__: str = _library_version()
 
@@ -40,6 +40,7 @@ __all__ = [
     "OptionError",
     "PoseError",
     "QueryStats",
+    "Tracker",
     "ValidationReport",
     "WriteError",
     "bake",
@@ -254,3 +255,60 @@ def contacts_batch(
         _real("proximity", proximity),
     )
     return Batch(**out)
+
+
+class Tracker:
+    """A pair of bodies queried pose after pose — a trajectory, a simulation, a haptic path. Each query keeps
+    the point-sphere tree's last traversal (its front), so a step costs what moved: at rest, about the contacts.
+    The contacts are those of contacts() at the same poses, bit for bit and in the same order; only the work
+    differs. Full traversals only (no point or time budget). One query at a time per tracker; use one tracker
+    per pair (and per thread)."""
+
+    def __init__(self, a: Body, b: Body) -> None:
+        if not isinstance(a, Body) or not isinstance(b, Body):
+            raise OptionError("BAD_OPTION", "Tracker(a, b): expected two voxfmt.Body objects")
+        self._tracker = _Tracker(a, b)
+
+    @property
+    def a(self) -> Body:
+        return self._tracker.a
+
+    @property
+    def b(self) -> Body:
+        return self._tracker.b
+
+    def contacts(self, pose_a: npt.ArrayLike, pose_b: npt.ArrayLike, *, proximity: float = 0.0) -> Contacts:
+        """contacts(a, pose_a, b, pose_b), coherent with this pair's earlier queries."""
+        return self._tracker._contacts(pose_a, pose_b, _real("proximity", proximity))
+
+    def contacts_batch(
+        self,
+        poses_a: npt.ArrayLike,
+        poses_b: npt.ArrayLike,
+        *,
+        with_contacts: bool = False,
+        stiffness: float = 1.0,
+        proximity: float = 0.0,
+    ) -> Batch:
+        """contacts_batch() over K consecutive poses (a trajectory), in order on one thread, each query coherent
+        with the one before (and with this tracker's earlier queries). The GIL is released."""
+        if not isinstance(with_contacts, bool):
+            raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
+        out = _contacts_batch(
+            self.a,
+            poses_a,
+            self.b,
+            poses_b,
+            None,
+            with_contacts,
+            _real("stiffness", stiffness),
+            None,
+            None,
+            _real("proximity", proximity),
+            self._tracker,
+        )
+        return Batch(**out)
+
+    def reset(self) -> None:
+        """Forgets the pair's history: the next query starts from the root."""
+        self._tracker.reset()

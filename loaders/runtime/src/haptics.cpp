@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <limits>
 #include <stdexcept>
 
@@ -13,6 +14,13 @@ namespace voxfmt::runtime {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// CPU time of the calling thread: the computation's own time, which a preemption or a late wake-up does not add to.
+double thread_cpu_us() {
+  timespec t{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return double(t.tv_sec) * 1e6 + double(t.tv_nsec) * 1e-3;
+}
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 using Vector6d = Eigen::Matrix<double, 6, 1>;
 
@@ -67,7 +75,7 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
 
 size_t HapticRenderer::add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose) {
   if (!object || !object->has_voxelmap()) throw std::invalid_argument("HapticRenderer: an object needs a voxelmap");
-  objects_.push_back({std::move(object), pose});
+  objects_.push_back({std::move(object), pose, {}});
   return objects_.size() - 1;
 }
 
@@ -92,6 +100,9 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
   options.cut_level = CutLevel::Points;
   options.max_level = std::min(options.max_level, level_cap_);
   options.time_budget_us = 0.0;
+  // No level cut and no point budget: the queries keep a traversal front per object.
+  const bool full_tree = options.max_level >= leaf_level && options.point_budget == std::numeric_limits<size_t>::max();
+  if (full_tree) options.max_level = std::numeric_limits<uint32_t>::max();
   cycle_.levels_completed = objects_.empty() ? 0 : std::numeric_limits<uint32_t>::max();
   for (size_t i = 0; i < objects_.size(); ++i) {
     if (budget_us > 0) {
@@ -99,7 +110,16 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
       options.time_budget_us = std::max(1e-3, (budget_us - spent) / double(objects_.size() - i));
     }
     scratch_set_.clear();
-    query_contacts(*tool_, tool_pose, *objects_[i].object, objects_[i].pose, options, scratch_set_, scratch_);
+    if (full_tree) {
+      // The whole tree, coherent with this pair's last cycles: a cycle costs what moved. Its time is checked by
+      // the caller (a late cycle moves the cap up, and the budgeted traversals take over).
+      QueryOptions coherent = options;
+      coherent.time_budget_us = 0.0;
+      query_contacts(*tool_, tool_pose, *objects_[i].object, objects_[i].pose, coherent, scratch_set_, scratch_,
+                     objects_[i].state);
+    } else {
+      query_contacts(*tool_, tool_pose, *objects_[i].object, objects_[i].pose, options, scratch_set_, scratch_);
+    }
     const QueryStats& stats = scratch_set_.stats;
     cycle_.levels_completed = std::min(cycle_.levels_completed, stats.deepest_level);
     cycle_.points_tested += stats.points_tested;
@@ -139,19 +159,22 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   const Eigen::Vector3d com = tool_pose_.apply(com_asset);
 
   const auto start = Clock::now();
+  const double cpu_start = thread_cpu_us();
   gather_contacts(tool_pose_, p.time_budget_us);
   cycle_.query_us = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
+  cycle_.query_cpu_us = thread_cpu_us() - cpu_start;
   if (p.time_budget_us > 0) {
-    // Out of time: one level shallower (or the level completed, if deeper), so a single late cycle (the
-    // kernel, another process) costs one level for a while, not the whole tree. Back one level deeper after
-    // 100 cycles in less than half the budget.
+    // The cap follows the queries' own (CPU) time, not the wall clock: a cycle delayed by the kernel or another
+    // process is cut where its budget ran out, but does not move the cap. Over budget: one level shallower (or
+    // the level completed, if deeper). Back one level deeper after 100 cycles in less than half the budget.
     const PointTree& tree = tool_->point_tree();
     const uint32_t leaf_level = uint32_t(tree.level_count() - 1);
     const uint32_t effective = std::min(level_cap_, leaf_level);
-    if (cycle_.time_budget_hit) {
-      level_cap_ = std::max(cycle_.levels_completed, effective > 0 ? effective - 1 : 0);
+    if (cycle_.query_cpu_us > p.time_budget_us && effective > 0) {
+      // A budgeted traversal that ran out keeps the level it completed; a full-tree (coherent) one runs to the end.
+      level_cap_ = cycle_.time_budget_hit ? std::max(cycle_.levels_completed, effective - 1) : effective - 1;
       relaxed_cycles_ = 0;
-    } else if (cycle_.query_us < 0.5 * p.time_budget_us && effective < leaf_level) {
+    } else if (cycle_.query_cpu_us < 0.5 * p.time_budget_us && effective < leaf_level) {
       if (++relaxed_cycles_ >= 100) {
         level_cap_ = effective + 1 >= leaf_level ? p.query.max_level : effective + 1;
         relaxed_cycles_ = 0;

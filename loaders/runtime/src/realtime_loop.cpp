@@ -1,5 +1,13 @@
 #include "voxfmt/runtime/realtime_loop.h"
 
+#include <algorithm>
+
+#ifdef __linux__
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+#endif
+
 namespace voxfmt::runtime {
 
 void RealtimeLoop::start(uint64_t max_cycles) {
@@ -7,6 +15,9 @@ void RealtimeLoop::start(uint64_t max_cycles) {
   stop_ = false;
   cycles_ = 0;
   overruns_ = 0;
+  realtime_priority_ = false;
+  memory_locked_ = false;
+  cpu_ = -1;
   thread_ = std::thread([this, max_cycles] { run(max_cycles); });
 }
 
@@ -19,8 +30,35 @@ void RealtimeLoop::join() {
   if (thread_.joinable()) thread_.join();
 }
 
+namespace {
+
+// Each request is tried on its own; a refusal (no permission, no such CPU) is reported, never fatal.
+void apply_realtime_settings(const LoopSettings& settings, std::atomic<bool>& priority, std::atomic<bool>& locked,
+                             std::atomic<int>& cpu) {
+#ifdef __linux__
+  if (settings.lock_memory) locked = mlockall(MCL_CURRENT | MCL_FUTURE) == 0;
+  if (settings.cpu >= 0 && settings.cpu < CPU_SETSIZE) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(settings.cpu, &set);
+    if (pthread_setaffinity_np(pthread_self(), sizeof set, &set) == 0) cpu = settings.cpu;
+  }
+  if (settings.realtime_priority) {
+    sched_param param{};
+    param.sched_priority =
+        std::clamp(settings.priority, sched_get_priority_min(SCHED_FIFO), sched_get_priority_max(SCHED_FIFO));
+    priority = pthread_setschedparam(pthread_self(), SCHED_FIFO, &param) == 0;
+  }
+#else
+  (void)settings, (void)priority, (void)locked, (void)cpu;
+#endif
+}
+
+}  // namespace
+
 void RealtimeLoop::run(uint64_t max_cycles) {
   using Clock = std::chrono::steady_clock;
+  apply_realtime_settings(settings_, realtime_priority_, memory_locked_, cpu_);
   const auto period =
       std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / settings_.rate_hz));
   const auto spin =

@@ -57,7 +57,8 @@ struct HapticCycle {
   size_t points_tested = 0;       ///< all queries
   size_t nodes_visited = 0;
   bool time_budget_hit = false;
-  double query_us = 0.0;  ///< wall time of the queries
+  double query_us = 0.0;      ///< wall time of the queries
+  double query_cpu_us = 0.0;  ///< CPU time of the queries (what the level cap follows)
 };
 
 class HapticRenderer {
@@ -88,13 +89,15 @@ class HapticRenderer {
   double energy() const { return energy_; }
   /// Contacts of the last cycle (all objects, world frame, normals pushing the tool out).
   const std::vector<Contact>& contacts() const { return contacts_; }
-  /// The tree level the renderer stops at. Every point of the tool is a surface point (the tree's levels are
-  /// disjoint subsets of the shell), so a traversal cut at level L reports the points of levels 0..L that
+  /// The tree level the renderer stops at. At the leaf level (no cut) the queries are coherent: each object keeps
+  /// the tool's last traversal, so a cycle costs what moved. Every point of the tool is a surface point (the tree's
+  /// levels are disjoint subsets of the shell), so a traversal cut at level L reports the points of levels 0..L that
   /// penetrate; each penetrating point of level L whose children were not reached counts with the weight of its
   /// subtree (the points it stands for), so the force keeps its size when the cut moves. With a time budget, a
-  /// cycle that runs out of time moves the cap one level up (or to the level it completed, if deeper); it moves
-  /// one level down after 100 cycles that used less than half the budget. So the cut changes rarely instead of
-  /// flickering between levels, and a single late cycle costs one level for a tenth of a second at 1 kHz.
+  /// cycle whose queries take more CPU time than the budget moves the cap one level up (or to the level it
+  /// completed, if deeper; full-tree cycles run to the end); it moves one level down after 100 cycles that used
+  /// less than half the budget. So the cut changes rarely instead of flickering between levels, and a cycle the
+  /// kernel delays (a late wake-up, a preemption) is cut where its wall-clock budget ran out but leaves the cap.
   uint32_t level_cap() const { return level_cap_; }
   const HapticParameters& parameters() const { return parameters_; }
 
@@ -104,6 +107,7 @@ class HapticRenderer {
   struct Object {
     std::shared_ptr<const CollisionObject> object;
     Pose pose;
+    QueryState state;  ///< the tool against this object: the last traversal, for the next cycle
   };
   std::shared_ptr<const CollisionObject> tool_;
   HapticParameters parameters_;

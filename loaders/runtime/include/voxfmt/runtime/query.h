@@ -134,8 +134,14 @@ struct TraversalFront {
     /// A lower bound (target units) of the distance at the anchor pose of the subtree's spheres' points (a
     /// subtree: its sphere's bound less its radius) or of the node's own point.
     float bound;
-    uint32_t node : 31;
-    uint32_t is_point : 1;
+    /// The node, and in the top bit whether the entry is its point rather than its subtree (one word: the
+    /// passes over the front copy entries as two plain words).
+    uint32_t packed;
+    static Entry make(float bound, uint32_t node, bool is_point) {
+      return {bound, node | (is_point ? 0x80000000u : 0u)};
+    }
+    uint32_t node() const { return packed & 0x7fffffffu; }
+    bool is_point() const { return (packed & 0x80000000u) != 0; }
   };
   std::vector<Entry> heap;     ///< a min-heap on bound while `ordered`
   bool ordered = true;         ///< false while the motion is large: every query makes one pass over the front

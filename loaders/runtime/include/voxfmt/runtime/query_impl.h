@@ -200,7 +200,7 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   const bool fresh = !front.valid || front.radius_scale != radius_scale || heap.size() > 2 * front.fresh_entries + 64 ||
                      front.queries >= 1024;
   if (fresh) {
-    heap.assign(1, Entry{-std::numeric_limits<float>::infinity(), 0, 0});
+    heap.assign(1, Entry::make(-std::numeric_limits<float>::infinity(), 0, false));
     front.M = Mr;
     front.m = mr;
     front.queries = 0;
@@ -214,8 +214,9 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   Eigen::Vector3f dm = mr - front.m;
   float spin = dM.norm();
   auto moved = [&](const Entry& e) {
-    const Eigen::Vector3f& x = e.is_point ? points[e.node] : nodes[e.node].centre;
-    const float r = e.is_point ? 0.0f : nodes[e.node].radius;
+    const uint32_t node = e.node();
+    const Eigen::Vector3f& x = e.is_point() ? points[node] : nodes[node].centre;
+    const float r = e.is_point() ? 0.0f : nodes[node].radius;
     return (dM * x + dm).norm() + spin * r + rounding;
   };
   const float everywhere = dm.norm() + spin * tree.extent + rounding;
@@ -244,14 +245,20 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   if (!ordered) {
     // A cheap carry by the motion of the whole shell first, the entry's own displacement where that is not enough.
     size_t kept = 0;
-    for (Entry e : heap) {
+    const size_t count = heap.size();
+    Entry* entries = heap.data();
+    for (size_t i = 0; i < count; ++i) {
+      // Field by field: a whole entry rewritten after its bound made the store wait on the load (~15 cycles).
+      const Entry e = entries[i];
       float carried = e.bound - everywhere;
       if (carried <= proximity) carried = e.bound - moved(e);
-      e.bound = carried;
-      if (carried > proximity)
-        heap[kept++] = e;
-      else
-        revisit.push_back(e);
+      if (carried > proximity) {
+        entries[kept].bound = carried;
+        entries[kept].packed = e.packed;
+        ++kept;
+      } else {
+        revisit.push_back({carried, e.packed});
+      }
     }
     heap.resize(kept);
     front.M = Mr;
@@ -261,7 +268,7 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
     spin = 0;
   }
   auto record = [&](uint32_t node, bool is_point, float bound) {
-    Entry e{bound, node, uint32_t(is_point)};
+    Entry e = Entry::make(bound, node, is_point);
     e.bound -= moved(e);
     heap.push_back(e);
     if (ordered) std::push_heap(heap.begin(), heap.end(), later);
@@ -312,14 +319,14 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
     if (e.bound - moved(e) > proximity) {
       heap.push_back(e);
       if (ordered) std::push_heap(heap.begin(), heap.end(), later);
-    } else if (!e.is_point) {
-      descend(e.node);
+    } else if (!e.is_point()) {
+      descend(e.node());
     } else {
       // The point again: its own bound first where a distance costs more (an inner node), as descend does.
       float point_bound = -std::numeric_limits<float>::infinity();
-      if (Target::kBoundBeforeDistance && nodes[e.node].child_count > 0)
-        point_bound = target.lower_bound(M * points[e.node] + m);
-      test_point(e.node, point_bound);
+      if (Target::kBoundBeforeDistance && nodes[e.node()].child_count > 0)
+        point_bound = target.lower_bound(M * points[e.node()] + m);
+      test_point(e.node(), point_bound);
     }
   }
   // Ordered again once a pass finds little within reach.

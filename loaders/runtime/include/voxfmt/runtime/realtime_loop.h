@@ -69,11 +69,22 @@ struct LoopSettings {
   /// The loop sleeps until this long before a deadline, then spins: the kernel wakes a sleeping thread tens of
   /// microseconds late, a fifth of a 5 kHz period.
   double spin_us = 80.0;
+  /// Where the system permits (Linux; root or CAP_SYS_NICE / CAP_IPC_LOCK, or the matching rlimits): run the
+  /// loop's thread under SCHED_FIFO at `priority`, so that ordinary threads never delay a wake-up; lock the
+  /// process's memory (mlockall), so that no page fault stalls a cycle; pin the thread to CPU `cpu` (-1: any).
+  /// LoopStats says what was granted; a request that is refused leaves the loop running as before.
+  bool realtime_priority = false;
+  int priority = 80;
+  bool lock_memory = false;
+  int cpu = -1;
 };
 
 struct LoopStats {
   uint64_t cycles = 0;
-  uint64_t overruns = 0;  ///< cycles that ended after the next one's deadline (that deadline is then skipped)
+  uint64_t overruns = 0;           ///< cycles that ended after the next one's deadline (that deadline is then skipped)
+  bool realtime_priority = false;  ///< SCHED_FIFO was granted
+  bool memory_locked = false;      ///< mlockall succeeded
+  int cpu = -1;                    ///< the CPU the thread is pinned to (-1: not pinned)
 };
 
 /// Runs `cycle(time, dt)` at a fixed rate on a thread of its own until stop() (or `max_cycles`). Deadlines are
@@ -94,7 +105,9 @@ class RealtimeLoop {
   /// Waits until the thread has run its cycles.
   void join();
   /// Counters so far (exact after join()/stop()).
-  LoopStats stats() const { return {cycles_.load(), overruns_.load()}; }
+  LoopStats stats() const {
+    return {cycles_.load(), overruns_.load(), realtime_priority_.load(), memory_locked_.load(), cpu_.load()};
+  }
 
  private:
   void run(uint64_t max_cycles);
@@ -103,6 +116,8 @@ class RealtimeLoop {
   std::thread thread_;
   std::atomic<bool> stop_{false};
   std::atomic<uint64_t> cycles_{0}, overruns_{0};
+  std::atomic<bool> realtime_priority_{false}, memory_locked_{false};
+  std::atomic<int> cpu_{-1};
 };
 
 }  // namespace voxfmt::runtime

@@ -1,0 +1,68 @@
+"""Tracker: coherent queries over a trajectory give exactly the contacts of independent queries, with less work."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import voxfmt
+from conftest import RADIUS, rotation, translation
+
+
+def trajectory(steps: int) -> np.ndarray:
+    """B approaches A, presses in while turning and sliding, rests, and leaves: consecutive 1 kHz-like poses."""
+    poses = np.empty((steps, 4, 4))
+    for k in range(steps):
+        t = k / (steps - 1)
+        gap = 2 * RADIUS * (1.03 - 0.06 * np.sin(np.pi * min(1.0, 1.5 * t)))
+        poses[k] = translation(gap, 0.02 * RADIUS * t, 0.0) @ rotation([0.3, 1.0, 0.2], 0.4 * t)
+    return poses
+
+
+def test_tracker_matches_independent_queries_and_does_less_work(sphere: voxfmt.Body) -> None:
+    poses_b = trajectory(300)
+    tracker = voxfmt.Tracker(sphere, sphere)
+    lookups_fresh = lookups_tracked = contacts = 0
+    for k in range(len(poses_b)):
+        fresh = voxfmt.contacts(sphere, np.eye(4), sphere, poses_b[k], proximity=0.01 * RADIUS)
+        tracked = tracker.contacts(np.eye(4), poses_b[k], proximity=0.01 * RADIUS)
+        assert len(tracked) == len(fresh), k
+        np.testing.assert_array_equal(tracked.points, fresh.points)
+        np.testing.assert_array_equal(tracked.normals, fresh.normals)
+        np.testing.assert_array_equal(tracked.depths, fresh.depths)
+        np.testing.assert_array_equal(tracked.point_index, fresh.point_index)
+        np.testing.assert_array_equal(tracked.point_of_b, fresh.point_of_b)
+        lookups_fresh += fresh.stats.nodes_visited + fresh.stats.points_tested
+        lookups_tracked += tracked.stats.nodes_visited + tracked.stats.points_tested
+        contacts += len(fresh)
+    assert contacts > 1000
+    assert lookups_tracked < 0.5 * lookups_fresh
+
+
+def test_tracker_batch_equals_the_batch_and_continues_across_calls(sphere: voxfmt.Body) -> None:
+    poses_b = trajectory(200)
+    stiffness = 300.0
+    independent = voxfmt.contacts_batch(sphere, np.eye(4), sphere, poses_b, with_contacts=True, stiffness=stiffness)
+    tracker = voxfmt.Tracker(sphere, sphere)
+    first = tracker.contacts_batch(np.eye(4), poses_b[:120], with_contacts=True, stiffness=stiffness)
+    rest = tracker.contacts_batch(np.eye(4), poses_b[120:], with_contacts=True, stiffness=stiffness)
+    count = np.concatenate([first.count, rest.count])
+    np.testing.assert_array_equal(count, independent.count)
+    np.testing.assert_array_equal(np.concatenate([first.force, rest.force]), independent.force)
+    np.testing.assert_array_equal(np.concatenate([first.torque, rest.torque]), independent.torque)
+    assert first.depths is not None and rest.depths is not None and independent.depths is not None
+    np.testing.assert_array_equal(np.concatenate([first.depths, rest.depths]), independent.depths)
+    assert np.count_nonzero(count) > 50
+    tracker.reset()
+    again = tracker.contacts(np.eye(4), poses_b[100])
+    assert len(again) == independent.count[100]
+
+
+def test_tracker_rejects_what_is_not_a_body_and_bad_poses(sphere: voxfmt.Body) -> None:
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.Tracker(sphere, "sphere.vox.h5")  # type: ignore[arg-type]
+    tracker = voxfmt.Tracker(sphere, sphere)
+    with pytest.raises(voxfmt.PoseError):
+        tracker.contacts(np.eye(4), 2 * np.eye(4))
+    with pytest.raises(voxfmt.OptionError):
+        tracker.contacts(np.eye(4), np.eye(4), proximity=float("nan"))
