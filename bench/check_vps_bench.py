@@ -11,7 +11,8 @@ import tempfile
 binary, cache = sys.argv[1], sys.argv[2]
 with tempfile.TemporaryDirectory() as tmp:
     out = os.path.join(tmp, "quick.json")
-    run = subprocess.run([binary, "--quick", "--json", out, "--cache", cache], capture_output=True, text=True)
+    run = subprocess.run([binary, "--quick", "--trajectories", "--json", out, "--cache", cache], capture_output=True,
+                         text=True)
     if run.returncode != 0:
         sys.exit(f"vps-bench failed ({run.returncode}):\n{run.stderr}")
     report = json.load(open(out))
@@ -21,7 +22,7 @@ def check(condition, message):
     if not condition:
         failures.append(message)
 
-for key in ("machine", "scenarios", "asset"):
+for key in ("machine", "scenarios", "trajectories", "asset"):
     check(key in report, f"missing top-level key {key}")
 check(0 < report["asset"]["runtime_mb"] <= 16, f"runtime memory {report['asset']['runtime_mb']} MB (target <= 16)")
 names = [s["name"] for s in report["scenarios"]]
@@ -52,6 +53,32 @@ for scenario in report["scenarios"]:
         check(coarse["detects_where_fine_touches"] >= 0.95,
               f"{scenario['name']}: vps-coarse detects {coarse['detects_where_fine_touches']} of fine's contacts")
 
+# Trajectories: every method on the same consecutive steps. The coherent query must find exactly the contacts
+# of the query from scratch, step by step (here: the same mean), with fewer nodes visited.
+runs = [(t["scenario"], t["kind"]) for t in report["trajectories"]]
+check(runs == [("bunny-plane", "drop"), ("bunny-static-mesh", "drop"), ("bunny-bunny", "drop"),
+               ("tori-stacked", "drop"), ("tori-linked", "drop"), ("bunny-bunny", "haptic")], f"trajectories {runs}")
+for t in report["trajectories"]:
+    where = f"trajectory {t['scenario']}/{t['kind']}"
+    methods = {m["name"]: m for m in t["methods"]}
+    check(set(methods) == {"vps-fine", "vps-fine-coherent", "gimpact", "hacd", "hull", "fcl"},
+          f"{where}: methods {sorted(methods)}")
+    for name, m in methods.items():
+        if "unavailable" in m:
+            check(name == "hacd", f"{where}/{name} unavailable: {m['unavailable']}")
+            continue
+        for field in ("step_p50_us", "step_p99_us", "step_max_us", "nodes_mean", "contacts_mean", "steps_measured"):
+            check(field in m, f"{where}/{name}: no {field}")
+        check(0 < m["step_p50_us"] <= m["step_p99_us"] <= m["step_max_us"], f"{where}/{name}: percentiles")
+    fine, coherent = methods["vps-fine"], methods["vps-fine-coherent"]
+    check(coherent.get("steps_compared_with_vps_fine", 0) >= min(20, t["steps"]), f"{where}: steps compared")
+    check(coherent.get("steps_differing_from_vps_fine") == 0,
+          f"{where}: {coherent.get('steps_differing_from_vps_fine')} steps where the coherent contacts differ")
+    check(fine["contacts_mean"] > 0, f"{where}: no contact along the trajectory")
+    # (A static triangle mesh is not a coherent partner yet: its pairs start afresh each step.)
+    check(t["scenario"] == "bunny-static-mesh" or coherent["nodes_mean"] < fine["nodes_mean"],
+          f"{where}: coherent visits {coherent['nodes_mean']} nodes a step, from scratch {fine['nodes_mean']}")
+
 if failures:
     sys.exit("vps-bench --quick:\n  " + "\n  ".join(failures))
-print(f"vps-bench --quick: {len(names)} scenarios checked")
+print(f"vps-bench --quick: {len(names)} scenarios and {len(runs)} trajectories checked")

@@ -15,6 +15,7 @@
 #include "../common/reduced_hull.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
+#include "voxfmt/bullet/world.h"
 
 namespace vps_bench {
 namespace {
@@ -62,13 +63,16 @@ class CountingResult : public btManifoldResult {
 /// Bullet world's narrow phase calls it.
 class BulletMethod : public Method {
  public:
-  BulletMethod(std::shared_ptr<btCollisionShape> a, std::shared_ptr<btCollisionShape> b, std::string note)
+  /// `coherent`: VPS pairs keep their last traversal from query to query (CollisionSettings::coherent).
+  BulletMethod(std::shared_ptr<btCollisionShape> a, std::shared_ptr<btCollisionShape> b, std::string note,
+               bool coherent = false)
       : a_shape_(std::move(a)), b_shape_(std::move(b)), note_(std::move(note)) {
     btDefaultCollisionConstructionInfo info;
     voxfmt::bullet::prepare_construction_info(info);
     config_ = std::make_unique<btDefaultCollisionConfiguration>(info);
     dispatcher_ = std::make_unique<btCollisionDispatcher>(config_.get());
     vps_ = voxfmt::bullet::register_vps_collision(*dispatcher_);
+    vps_->settings().coherent = coherent;
     btGImpactCollisionAlgorithm::registerAlgorithm(dispatcher_.get());
     a_.setCollisionShape(a_shape_.get());
     b_.setCollisionShape(b_shape_.get());
@@ -102,13 +106,15 @@ class BulletMethod : public Method {
       out.points_tested = counters.points_tested;
     }
     counters = {};
-    // Persistent manifolds would carry this pose's points into the next query.
-    for (int m = 0; m < dispatcher_->getNumManifolds(); ++m)
-      dispatcher_->getManifoldByIndexInternal(m)->clearManifold();
+    // On a pose set, persistent manifolds would carry this pose's points into the next query.
+    if (!keep_state_)
+      for (int m = 0; m < dispatcher_->getNumManifolds(); ++m)
+        dispatcher_->getManifoldByIndexInternal(m)->clearManifold();
     return out;
   }
 
   std::string note() const override { return note_; }
+  void keep_state(bool keep) override { keep_state_ = keep; }
 
  private:
   std::shared_ptr<btCollisionShape> a_shape_, b_shape_;
@@ -120,6 +126,7 @@ class BulletMethod : public Method {
   btCollisionAlgorithm* algorithm_ = nullptr;
   btDispatcherInfo dispatch_info_;
   std::optional<CountingResult> result_;
+  bool keep_state_ = false;
 };
 
 /// Shapes that live as long as the program (GImpact and BVH shapes keep pointers to the triangle arrays,
@@ -195,7 +202,8 @@ std::unique_ptr<Method> vps_method(const std::string& name, const Scenario& s, c
   std::shared_ptr<btCollisionShape> b = s.b->kind == Body::Kind::BakedMesh
                                             ? std::shared_ptr<btCollisionShape>(make(*s.b))
                                             : static_partner(*s.b, settings.margin);
-  return std::make_unique<BulletMethod>(a, b, vps_note(*a));
+  const bool coherent = name == "vps-fine-coherent";
+  return std::make_unique<BulletMethod>(a, b, vps_note(*a) + (coherent ? ", coherent" : ""), coherent);
 }
 
 std::shared_ptr<btCollisionShape> gimpact_of(const Body& body, double margin) {
@@ -287,11 +295,97 @@ const std::vector<std::string>& method_names() {
   return names;
 }
 
+const std::vector<std::string>& trajectory_method_names() {
+  static const std::vector<std::string> names = {"vps-fine", "vps-fine-coherent", "gimpact", "hacd", "hull", "fcl"};
+  return names;
+}
+
+namespace {
+
+/// The unit direction A falls in: down onto a plane, box or floor, towards the centre of a baked B.
+Eigen::Vector3d fall_direction(const Scenario& s, const PosePair& pose) {
+  if (s.b->kind != Body::Kind::BakedMesh) return -Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d d = pose.b.translation() - pose.a.translation();
+  return d.norm() > 0 ? Eigen::Vector3d(d.normalized()) : Eigen::Vector3d(-Eigen::Vector3d::UnitY());
+}
+
+Eigen::Isometry3d from_bt(const btTransform& t) {
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) pose.linear()(r, c) = double(t.getBasis()[r][c]);
+    pose.translation()[r] = double(t.getOrigin()[r]);
+  }
+  return pose;
+}
+
+}  // namespace
+
+Trajectory simulated_drop(const Scenario& s, size_t steps, double margin) {
+  if (s.poses.empty()) throw std::runtime_error("scenario " + s.name + " has no poses");
+  PosePair start = s.poses.front();
+  const Eigen::Vector3d down = fall_direction(s, start);
+  start.a.translation() -= 0.01 * down;
+  voxfmt::bullet::World world;
+  world.dynamics().setGravity(
+      btVector3(btScalar(9.81 * down.x()), btScalar(9.81 * down.y()), btScalar(9.81 * down.z())));
+  std::shared_ptr<btCollisionShape> b =
+      s.b->kind == Body::Kind::BakedMesh ? std::shared_ptr<btCollisionShape>(std::make_shared<VpsMixedShape>(s.b->vps))
+                                         : static_partner(*s.b, margin);
+  world.add_body(b, 0, to_bt(start.b));
+  btRigidBody* a = world.add_body(std::make_shared<VpsMixedShape>(s.a->vps), 1, to_bt(start.a));
+  a->setFriction(0.6f);
+  a->setActivationState(DISABLE_DEACTIVATION);  // a body asleep would leave the pair untested
+  Trajectory t{s.name, "drop", "", 1000.0, {}};
+  t.steps.reserve(steps);
+  for (size_t i = 0; i < steps; ++i) {
+    world.step(btScalar(1e-3));
+    PosePair pose;
+    pose.a = from_bt(a->getWorldTransform());
+    pose.b = start.b;
+    t.steps.push_back(pose);
+  }
+  t.description = "A dropped from 10 mm onto B at 1 kHz (Bullet, VPS), " + std::to_string(steps) + " steps";
+  return t;
+}
+
+Trajectory haptic_path(const Scenario& s, size_t steps) {
+  if (s.poses.empty()) throw std::runtime_error("scenario " + s.name + " has no poses");
+  const PosePair& touching = s.poses.front();
+  const Eigen::Vector3d in = fall_direction(s, touching);  // from A towards B
+  const Eigen::Vector3d along = in.unitOrthogonal();
+  Trajectory t{s.name, "haptic", "", 5000.0, {}};
+  for (size_t i = 0; i < steps; ++i) {
+    const double u = steps > 1 ? double(i) / double(steps - 1) : 0.0;
+    // Offset along `in` (positive: pressed in), slide along the surface, turn about `in`.
+    double press = 0, slide = 0, turn = 0;
+    if (u < 0.3) {
+      press = -0.005 + 0.007 * (u / 0.3);
+    } else if (u < 0.8) {
+      press = 0.002;
+      slide = 0.02 * (u - 0.3) / 0.5;
+      turn = 0.3 * (u - 0.3) / 0.5;
+    } else {
+      press = 0.002 - 0.007 * (u - 0.8) / 0.2;
+      slide = 0.02;
+      turn = 0.3;
+    }
+    PosePair pose = touching;
+    pose.exact_depth.reset();
+    pose.a.translation() += press * in + slide * along;
+    pose.a.linear() = Eigen::AngleAxisd(turn, in).toRotationMatrix() * touching.a.linear();
+    t.steps.push_back(pose);
+  }
+  t.description = "a 5 kHz haptic path: approach, press 2 mm, slide 20 mm turning 0.3 rad, pull out; " +
+                  std::to_string(steps) + " steps";
+  return t;
+}
+
 std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, const MethodSettings& settings,
                                     std::string& why) {
   why.clear();
   const bool b_dynamic = s.b->kind == Body::Kind::BakedMesh;
-  if (name == "vps-fine" || name == "vps-coarse" || name == "vps-fine-prox") return vps_method(name, s, settings);
+  if (name == "vps-fine" || name == "vps-coarse" || name == "vps-fine-prox" || name == "vps-fine-coherent")
+    return vps_method(name, s, settings);
   if (name == "gimpact") {
     auto a = gimpact_of(*s.a, settings.margin);
     auto b = b_dynamic ? (s.b == s.a ? a : gimpact_of(*s.b, settings.margin)) : static_partner(*s.b, settings.margin);
@@ -332,7 +426,8 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
         std::string("OBBRSS, all contacts with depth") + (plane ? "; plane as a 20 m box" : ""));
   }
   std::string known;
-  for (const auto& n : method_names()) known += " " + n;
+  for (const auto& n : trajectory_method_names()) known += " " + n;
+  known += " vps-coarse vps-fine-prox";
   throw std::runtime_error("unknown method '" + name + "' (known:" + known + ")");
 }
 

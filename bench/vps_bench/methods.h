@@ -36,10 +36,29 @@ class Method {
   virtual QueryOutcome outcome() = 0;
   /// A note for the table (e.g. the tree level of vps-coarse, the number of hulls).
   virtual std::string note() const { return {}; }
+  /// On a trajectory the method keeps what it keeps across the steps of a world (Bullet's persistent
+  /// manifolds); on a pose set every query starts afresh.
+  virtual void keep_state(bool) {}
 };
 
-/// Method names in table order.
+/// Method names in table order (pose sets: every query from scratch, VPS without coherence).
 const std::vector<std::string>& method_names();
+/// Method names for trajectories: also vps-fine-coherent (the pair keeps its last traversal, as in a world).
+const std::vector<std::string>& trajectory_method_names();
+
+/// A trajectory: consecutive poses of a scenario's pair and the rate they were taken at.
+struct Trajectory {
+  std::string scenario, kind, description;
+  double rate_hz = 1000;
+  std::vector<PosePair> steps;
+};
+
+/// A from 10 mm above the scenario's first pose falls onto B (down onto a plane, box or floor; towards B's
+/// centre onto a baked B), bounces, slides and settles, simulated at 1 kHz by Bullet with VPS; B stays put.
+Trajectory simulated_drop(const Scenario& s, size_t steps, double margin);
+/// A haptic path at 5 kHz: from 5 mm off the scenario's first (touching) pose A approaches B, presses 2 mm in,
+/// slides 20 mm along B's surface while turning 0.3 rad, and pulls out.
+Trajectory haptic_path(const Scenario& s, size_t steps);
 
 /// Sets up `name` for `scenario`; null with `why` set when the method cannot run that scenario. Throws
 /// std::runtime_error for real failures.

@@ -49,6 +49,9 @@ struct Options {
   std::string bunny_mesh = VPS_BENCH_BUNNY;
   double margin = 0.001;
   bool cached_decompositions_only = false;
+  bool trajectories = false;       ///< also run the trajectories
+  bool pose_sets = true;           ///< run the pose sets
+  size_t trajectory_steps = 1000;  ///< per trajectory
 };
 
 // ------------------------------------------------------------------------------------------------ figures
@@ -164,6 +167,40 @@ std::vector<double> lookup_floor_us(const Scenario& s, size_t poses) {
     floor.push_back(quantile(runs, 0.5));
   }
   return floor;
+}
+
+// ------------------------------------------------------------------------------------------------ trajectories
+
+struct TrajectoryFigures {
+  std::string name, note, unavailable;
+  std::vector<double> step_us;
+  std::vector<QueryOutcome> per_step;
+  bool budget_hit = false;
+};
+
+/// The steps in order, as a world would run them: one pass to warm up (its state carried into the timed pass,
+/// like one more step), then one timed pass; a slow method stops at the budget.
+TrajectoryFigures measure_trajectory(Method& method, const Trajectory& t, const Options& options) {
+  TrajectoryFigures f;
+  method.keep_state(true);
+  const auto start = Clock::now();
+  auto over_budget = [&] { return std::chrono::duration<double>(Clock::now() - start).count() > options.budget_s; };
+  for (size_t i = 0; i < t.steps.size() && !over_budget(); ++i) {
+    method.query(t.steps[i]);
+    method.outcome();
+  }
+  for (size_t i = 0; i < t.steps.size(); ++i) {
+    const auto t0 = Clock::now();
+    method.query(t.steps[i]);
+    f.step_us.push_back(elapsed_us(t0));
+    f.per_step.push_back(method.outcome());
+    if (over_budget() && f.step_us.size() >= std::min<size_t>(20, t.steps.size())) {
+      f.budget_hit = f.step_us.size() < t.steps.size();
+      break;
+    }
+  }
+  f.note = method.note();
+  return f;
 }
 
 // ------------------------------------------------------------------------------------------------ output
@@ -286,17 +323,26 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--cached-decompositions-only", options.cached_decompositions_only,
                "run hacd only where a decomposition is cached (never spend minutes computing one)");
+  app.add_flag("--trajectories", options.trajectories,
+               "also run trajectories: consecutive poses of a 1 kHz simulated drop for each scenario and a 5 kHz "
+               "haptic path (bunny-bunny), every method keeping its state across steps as in a world, with "
+               "vps-fine (from scratch each step) beside vps-fine-coherent");
+  app.add_flag("!--no-pose-sets", options.pose_sets, "skip the pose sets (with --trajectories: trajectories only)");
+  app.add_option("--steps", options.trajectory_steps, "steps per trajectory")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (options.quick) {
     options.poses = std::min<size_t>(options.poses, 20);
     options.reps = std::min<size_t>(options.reps, 60);
     options.cold = std::min<size_t>(options.cold, 10);
     options.budget_s = std::min(options.budget_s, 2.0);
+    options.trajectory_steps = std::min<size_t>(options.trajectory_steps, 300);
   }
   if (options.scenarios.empty()) options.scenarios = scenario_names();
-  if (options.methods.empty()) options.methods = method_names();
+  const bool methods_given = !options.methods.empty();
   for (const auto& m : options.methods)
-    if (std::find(method_names().begin(), method_names().end(), m) == method_names().end()) {
+    if (std::find(method_names().begin(), method_names().end(), m) == method_names().end() &&
+        std::find(trajectory_method_names().begin(), trajectory_method_names().end(), m) ==
+            trajectory_method_names().end()) {
       std::cerr << "vps-bench: unknown method '" << m << "'\n";
       return 2;
     }
@@ -334,11 +380,12 @@ int main(int argc, char** argv) {
          << ", \"reps\": " << options.reps << ", \"cold\": " << options.cold << ", \"budget_s\": " << options.budget_s
          << ", \"margin_m\": " << options.margin << ", \"quick\": " << (options.quick ? "true" : "false")
          << "},\n  \"scenarios\": [";
-    for (size_t si = 0; si < options.scenarios.size(); ++si) {
+    const std::vector<std::string> pose_set_methods = methods_given ? options.methods : method_names();
+    for (size_t si = 0; si < options.scenarios.size() && options.pose_sets; ++si) {
       const Scenario scenario = make_scenario(options.scenarios[si], scenario_settings);
       std::cerr << "scenario " << scenario.name << ": " << scenario.poses.size() << " poses\n";
       std::vector<MethodFigures> results;
-      for (const std::string& name : options.methods) {
+      for (const std::string& name : pose_set_methods) {
         std::string why;
         std::unique_ptr<Method> method = make_method(name, scenario, method_settings, why);
         if (!method) {
@@ -405,6 +452,101 @@ int main(int argc, char** argv) {
                   << fixed(quantile(floor, 0.5), 2) << " µs (p50), " << fixed(fine_p50 / quantile(floor, 0.5), 1)
                   << "x below vps-fine's p50.\n";
       std::cout << std::flush;
+    }
+    json << "\n  ],\n  \"trajectories\": [";
+    if (options.trajectories) {
+      const std::vector<std::string> methods = methods_given ? options.methods : trajectory_method_names();
+      // A drop per scenario with a dynamic body on a partner it can rest on; the haptic path on bunny-bunny.
+      std::vector<std::pair<std::string, std::string>> runs;  // scenario, kind
+      for (const std::string& name : options.scenarios)
+        if (name != "tori-gap" && name != "bunny-box") runs.push_back({name, "drop"});
+      if (std::find(options.scenarios.begin(), options.scenarios.end(), "bunny-bunny") != options.scenarios.end())
+        runs.push_back({"bunny-bunny", "haptic"});
+      for (size_t ti = 0; ti < runs.size(); ++ti) {
+        const Scenario scenario = make_scenario(runs[ti].first, scenario_settings);
+        const Trajectory trajectory = runs[ti].second == "drop"
+                                          ? simulated_drop(scenario, options.trajectory_steps, options.margin)
+                                          : haptic_path(scenario, 5 * options.trajectory_steps);
+        std::cerr << "trajectory " << trajectory.scenario << " (" << trajectory.kind << "): " << trajectory.steps.size()
+                  << " steps\n";
+        std::vector<TrajectoryFigures> results;
+        for (const std::string& name : methods) {
+          std::string why;
+          std::unique_ptr<Method> method = make_method(name, scenario, method_settings, why);
+          TrajectoryFigures f;
+          if (method) {
+            std::cerr << "  " << name << "…" << std::flush;
+            f = measure_trajectory(*method, trajectory, options);
+            std::cerr << " p50 " << fixed(quantile(f.step_us, 0.5), 1) << " µs\n";
+          }
+          f.name = name;
+          f.unavailable = why;
+          results.push_back(std::move(f));
+        }
+        double coherent_p50 = NAN;
+        const TrajectoryFigures *scratch = nullptr, *coherent = nullptr;
+        for (const auto& r : results) {
+          if (r.name == "vps-fine-coherent") coherent_p50 = quantile(r.step_us, 0.5), coherent = &r;
+          if (r.name == "vps-fine") scratch = &r;
+        }
+        // The coherent query's contacts against the query from scratch, step by step (the same count and the
+        // same deepest penetration), over the steps both measured.
+        size_t compared = 0, differing = 0;
+        if (scratch && coherent) {
+          compared = std::min(scratch->per_step.size(), coherent->per_step.size());
+          for (size_t i = 0; i < compared; ++i)
+            differing += scratch->per_step[i].contacts != coherent->per_step[i].contacts ||
+                         scratch->per_step[i].deepest != coherent->per_step[i].deepest;
+        }
+        std::cout << "\n## trajectory: " << trajectory.scenario << ", " << trajectory.kind << "\n\n"
+                  << trajectory.description << " (" << trajectory.rate_hz << " Hz). Times in µs per step; ratio = "
+                  << "p50 / vps-fine-coherent p50.\n\n"
+                  << "| method | p50 | p99 | max | p99/p50 | ratio | contacts | nodes | points | steps | note |\n"
+                  << "|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|---|\n";
+        json << (ti ? "," : "") << "\n    {\"scenario\": " << json_string(trajectory.scenario)
+             << ", \"kind\": " << json_string(trajectory.kind) << ", \"rate_hz\": " << trajectory.rate_hz
+             << ", \"steps\": " << trajectory.steps.size()
+             << ", \"description\": " << json_string(trajectory.description) << ", \"methods\": [";
+        for (size_t mi = 0; mi < results.size(); ++mi) {
+          const TrajectoryFigures& f = results[mi];
+          json << (mi ? "," : "") << "\n      {\"name\": " << json_string(f.name);
+          if (!f.unavailable.empty()) {
+            std::cout << "| " << f.name << " | cannot run: " << f.unavailable << " ||||||||||\n";
+            json << ", \"unavailable\": " << json_string(f.unavailable) << "}";
+            continue;
+          }
+          std::vector<double> contacts, nodes, points;
+          for (const QueryOutcome& o : f.per_step) {
+            contacts.push_back(double(o.contacts));
+            nodes.push_back(double(o.nodes_visited));
+            points.push_back(double(o.points_tested));
+          }
+          const bool vps = f.name.rfind("vps", 0) == 0;
+          const double p50 = quantile(f.step_us, 0.5), p99 = quantile(f.step_us, 0.99);
+          const double max = f.step_us.empty() ? NAN : *std::max_element(f.step_us.begin(), f.step_us.end());
+          const double nodes_mean = vps ? mean(nodes) : NAN, points_mean = vps ? mean(points) : NAN;
+          std::cout << "| " << f.name << " | " << fixed(p50, 1) << " | " << fixed(p99, 1) << " | " << fixed(max, 1)
+                    << " | " << fixed(p99 / p50, 1) << " | " << fixed(p50 / coherent_p50, 2) << " | "
+                    << fixed(mean(contacts), 1) << " | " << fixed(nodes_mean, 0) << " | " << fixed(points_mean, 0)
+                    << " | " << f.step_us.size() << (f.budget_hit ? " (budget)" : "") << " | " << f.note << " |\n";
+          json << ", \"step_p50_us\": " << json_number(p50) << ", \"step_p99_us\": " << json_number(p99)
+               << ", \"step_max_us\": " << json_number(max) << ", \"nodes_mean\": " << json_number(nodes_mean)
+               << ", \"points_tested_mean\": " << json_number(points_mean)
+               << ", \"contacts_mean\": " << json_number(mean(contacts))
+               << ", \"ratio_to_vps_fine_coherent\": " << json_number(p50 / coherent_p50)
+               << ", \"steps_measured\": " << f.step_us.size();
+          if (&f == coherent)
+            json << ", \"steps_compared_with_vps_fine\": " << compared
+                 << ", \"steps_differing_from_vps_fine\": " << differing;
+          json << ", \"budget_hit\": " << (f.budget_hit ? "true" : "false") << ", \"note\": " << json_string(f.note)
+               << "}";
+        }
+        json << "\n    ]}";
+        if (coherent && scratch)
+          std::cout << "\nvps-fine-coherent against vps-fine: " << differing << " of " << compared
+                    << " steps differ (contact count or deepest penetration).\n";
+        std::cout << std::flush;
+      }
     }
     json << "\n  ],\n  \"asset\": {\"runtime_mb\": " << json_number(runtime_mb)
          << ", \"file_mb\": " << json_number(file_mb) << ", \"points\": " << bunny->vps->point_tree().size()

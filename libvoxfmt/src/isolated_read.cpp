@@ -115,7 +115,8 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   static std::mutex one_at_a_time;
   std::lock_guard<std::mutex> lock(one_at_a_time);
   // The child bumps a counter in shared memory after each piece it reads (h5::Reader's progress hook); the
-  // parent stops it only when neither that counter nor the pipe has moved for kIdleLimitS. A real read never
+  // parent stops it only when neither that counter nor the pipe has moved while the child used kIdleLimitS of
+  // CPU time (a starved child is not a hung one; see Watchdog). A real read never
   // pauses that long between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a
   // parse that loops in HDF5 stops moving at once. What a file may make us read is bounded by the spec's limits.
   void* shared =
@@ -162,7 +163,7 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
                     strsignal(outcome.signal) + ") reading it (read in isolation: nothing else was affected)");
     case ChildOutcome::TimedOut:
       return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
-                    " s (read in isolation, stopped)");
+                    " s of its CPU time (read in isolation, stopped)");
     case ChildOutcome::OutOfMemory:
       return refuse("not enough memory to read the asset");
     case ChildOutcome::Malformed:

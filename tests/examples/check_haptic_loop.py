@@ -22,7 +22,7 @@ with tempfile.TemporaryDirectory() as tmp:
         failures.append(f"runs {sorted(runs)}")
     for key, r in runs.items():
         for field in ("points_per_tool", "cycles", "cycle_us", "overruns", "levels_completed_min",
-                      "max_force_jump_n", "max_penetration_m"):
+                      "max_force_jump_n", "max_penetration_m", "realtime_priority", "memory_locked", "cpu"):
             if field not in r:
                 failures.append(f"{key}: no {field}")
         if set(r.get("cycle_us", {})) != {"p50", "p99", "p999", "max"}:

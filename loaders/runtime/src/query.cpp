@@ -59,12 +59,13 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
     contact.exact = exact;
     out.contacts.push_back(contact);
   };
-  if (front && detail::coherent_query_allowed(options)) {
+  const bool allowed = front && detail::coherent_query_allowed(options);
+  if (allowed && front->take_turn(Mf, mf, tree.extent)) {
     // The voxelmap is fixed in its own grid: displacements are measured there too.
     detail::traverse_coherent(tree, Mf, mf, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, out.stats, scratch,
                               *front, emit);
   } else {
-    if (front) front->reset();
+    if (front && !allowed) front->reset();
     detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch,
                           emit);
   }

@@ -105,22 +105,46 @@ class WireWriter {
 
 /// When the parent gives up on a child: after `total_s` seconds in all (0: never), or after `idle_s` seconds
 /// without progress (0: never), progress being bytes arriving or the child bumping `*progress` (a counter in
-/// memory shared with it). A parse whose work is bounded by what the file declares needs no total limit: one that
-/// stops making progress has hung, whatever the file's size and the machine's load.
+/// memory shared with it). Idle time is the child's own CPU time (Linux: /proc), so a child that a loaded machine
+/// (or a sanitizer) starves is not taken for one that hangs: a parse looping in HDF5 burns CPU without progress.
+/// A child that neither progresses nor runs (blocked) is stopped after kBlockedFactor times `idle_s` of wall
+/// time. A parse whose work is bounded by what the file declares needs no total limit: one that stops making
+/// progress has hung, whatever the file's size and the machine's load.
 struct Watchdog {
   double total_s = 0;
   double idle_s = 0;
   const std::atomic<uint64_t>* progress = nullptr;
+  static constexpr double kBlockedFactor = 12;
 };
+
+/// CPU seconds (user + system) a child process has used so far; negative where it cannot be read.
+inline double child_cpu_seconds(pid_t pid) {
+  char path[64];
+  std::snprintf(path, sizeof path, "/proc/%d/stat", int(pid));
+  std::FILE* f = std::fopen(path, "r");
+  if (!f) return -1;
+  char line[1024];
+  const size_t n = std::fread(line, 1, sizeof line - 1, f);
+  std::fclose(f);
+  line[n] = 0;
+  // Fields after the command name (which may hold spaces and parentheses): state is field 3, utime 14, stime 15.
+  const char* p = std::strrchr(line, ')');
+  if (!p) return -1;
+  unsigned long long utime = 0, stime = 0;
+  if (std::sscanf(p + 1, " %*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &utime, &stime) != 2) return -1;
+  const long ticks = ::sysconf(_SC_CLK_TCK);
+  return ticks > 0 ? double(utime + stime) / double(ticks) : -1;
+}
 
 // Bounds-checked and watchdog-bound: the bytes come from our own child, but a child that a hostile file
 // corrupted before it finished could send anything, or nothing.
 class WireReader {
  public:
   using Clock = std::chrono::steady_clock;
-  WireReader(int fd, const Watchdog& watchdog) : fd_(fd), watchdog_(watchdog), start_(Clock::now()) {
+  WireReader(int fd, const Watchdog& watchdog, pid_t child = 0)
+      : fd_(fd), watchdog_(watchdog), child_(child), start_(Clock::now()) {
     seen_ = watchdog.progress ? watchdog.progress->load() : 0;
-    last_progress_ = start_;
+    progressed();
   }
   bool ok() const { return ok_; }
   bool timed_out() const { return timed_out_; }
@@ -181,23 +205,46 @@ class WireReader {
  private:
   // The format allows 2^31 elements per dataset (h5.cpp); anything more is not an asset.
   static constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+  // The child's CPU time, read from /proc at most every 100 ms (the wire calls this for every value).
+  double child_cpu() {
+    const auto now = Clock::now();
+    if (now - cpu_polled_ >= std::chrono::milliseconds(100) || cpu_ < 0) {
+      cpu_ = child_cpu_seconds(child_);
+      cpu_polled_ = now;
+    }
+    return cpu_;
+  }
+  void progressed() {
+    last_progress_ = Clock::now();
+    if (watchdog_.idle_s > 0 && child_ > 0) cpu_at_progress_ = child_cpu();
+  }
   // Milliseconds left before the watchdog fires (<= 0: it has).
   long long left_ms() {
-    const auto now = Clock::now();
     if (watchdog_.progress) {
       const uint64_t count = watchdog_.progress->load();
       if (count != seen_) {
         seen_ = count;
-        last_progress_ = now;
+        progressed();
       }
     }
+    const auto now = Clock::now();
     long long left = std::numeric_limits<long long>::max();
     auto until = [&](Clock::time_point from, double seconds) {
       const auto end = from + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
       left = std::min<long long>(left, std::chrono::duration_cast<std::chrono::milliseconds>(end - now).count());
     };
     if (watchdog_.total_s > 0) until(start_, watchdog_.total_s);
-    if (watchdog_.idle_s > 0) until(last_progress_, watchdog_.idle_s);
+    if (watchdog_.idle_s > 0) {
+      const double cpu = cpu_at_progress_ >= 0 ? child_cpu() : -1;
+      if (cpu >= 0) {
+        // The child's CPU time since its last progress; blocked (no CPU, no progress) for long, it is stopped too.
+        const double idle_cpu = cpu - cpu_at_progress_;
+        left = std::min<long long>(left, (long long)((watchdog_.idle_s - idle_cpu) * 1000.0) + 1);
+        until(last_progress_, watchdog_.idle_s * Watchdog::kBlockedFactor);
+      } else {
+        until(last_progress_, watchdog_.idle_s);
+      }
+    }
     return left;
   }
   void get(void* data, size_t size) {
@@ -217,14 +264,17 @@ class WireReader {
         ok_ = false;  // the child closed the pipe early (it died, or sent less than it announced)
         return;
       }
-      last_progress_ = Clock::now();
+      progressed();
       p += n;
       size -= size_t(n);
     }
   }
   int fd_;
   Watchdog watchdog_;
+  pid_t child_ = 0;
   Clock::time_point start_, last_progress_;
+  double cpu_at_progress_ = -1, cpu_ = -1;
+  Clock::time_point cpu_polled_{};
   uint64_t seen_ = 0;
   bool ok_ = true;
   bool timed_out_ = false;
@@ -270,7 +320,7 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
     _exit(ok ? 0 : 3);  // none of the parent's exit handlers
   }
   ::close(fds[1]);
-  WireReader r(fds[0], watchdog);
+  WireReader r(fds[0], watchdog, child);
   bool out_of_memory = false;
   try {
     visit(r, value);

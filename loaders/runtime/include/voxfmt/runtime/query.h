@@ -134,14 +134,16 @@ struct TraversalFront {
     /// A lower bound (target units) of the distance at the anchor pose of the subtree's spheres' points (a
     /// subtree: its sphere's bound less its radius) or of the node's own point.
     float bound;
-    /// The node, and in the top bit whether the entry is its point rather than its subtree (one word: the
-    /// passes over the front copy entries as two plain words).
+    /// The node; in the top bit whether the entry is its point rather than its subtree, in the next whether the
+    /// bound is the point's interpolated distance (which falls faster than a true-distance bound). One word: the
+    /// passes over the front copy entries as two plain words.
     uint32_t packed;
-    static Entry make(float bound, uint32_t node, bool is_point) {
-      return {bound, node | (is_point ? 0x80000000u : 0u)};
+    static Entry make(float bound, uint32_t node, bool is_point, bool sampled = false) {
+      return {bound, node | (is_point ? 0x80000000u : 0u) | (sampled ? 0x40000000u : 0u)};
     }
-    uint32_t node() const { return packed & 0x7fffffffu; }
+    uint32_t node() const { return packed & 0x3fffffffu; }
     bool is_point() const { return (packed & 0x80000000u) != 0; }
+    bool is_sampled() const { return (packed & 0x40000000u) != 0; }
   };
   std::vector<Entry> heap;     ///< a min-heap on bound while `ordered`
   bool ordered = true;         ///< false while the motion is large: every query makes one pass over the front
@@ -151,10 +153,36 @@ struct TraversalFront {
   float radius_scale = 0;    ///< target units per shell asset unit
   size_t fresh_entries = 0;  ///< entries after the last traversal from the root
   uint32_t queries = 0;      ///< queries since then
+  size_t last_hits = 0;      ///< points within reach at the last query (popped every query)
+  /// While the pair moves a lot, the front costs more than it saves (a pass over it every query, lookups one
+  /// by one): after `kBusyQueries` such queries in a row the next `skip` queries traverse from the root (batched)
+  /// and keep no front, then try again, skipping twice as long each time it is still busy (up to kMaxSkip).
+  /// Skipping ends early once a step moves the shell less than an eighth of what a busy step moved.
+  uint32_t busy = 0;
+  uint32_t skip = 0;
+  uint32_t next_skip = kFirstSkip;
+  float busy_step = 0;                               ///< the motion of the step that started the skip
+  Eigen::Matrix3f last_M = Eigen::Matrix3f::Zero();  ///< the relative pose of the last query
+  Eigen::Vector3f last_m = Eigen::Vector3f::Zero();
+  static constexpr uint32_t kBusyQueries = 4, kFirstSkip = 8, kMaxSkip = 256;
   bool valid = false;
   void reset() {
     valid = false;
     heap.clear();
+  }
+  /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt
+  /// after). `extent`: the shell's largest distance from its origin.
+  bool take_turn(const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float extent) {
+    const float step = (mr - last_m).norm() + (Mr - last_M).norm() * extent;
+    last_M = Mr;
+    last_m = mr;
+    if (skip == 0) return true;
+    if (step < busy_step / 8 || --skip == 0) {
+      skip = 0;
+      reset();
+      return step < busy_step / 8;
+    }
+    return false;
   }
 };
 

@@ -213,21 +213,28 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   Eigen::Matrix3f dM = Mr - front.M;
   Eigen::Vector3f dm = mr - front.m;
   float spin = dM.norm();
+  // A bound from a sampled distance falls faster than the point moves: inside a voxel cell the interpolated field
+  // has a slope of at most sqrt(3) times the largest difference of adjacent stored values (1 voxel per voxel,
+  // plus quantisation). Bounds of the true distance (a subtree's, a point's lower bound) fall as fast as it moves.
+  constexpr float kSampledSlope = 1.7321f * 1.001f;
   auto moved = [&](const Entry& e) {
     const uint32_t node = e.node();
     const Eigen::Vector3f& x = e.is_point() ? points[node] : nodes[node].centre;
     const float r = e.is_point() ? 0.0f : nodes[node].radius;
-    return (dM * x + dm).norm() + spin * r + rounding;
+    const float distance = (dM * x + dm).norm() + spin * r + rounding;
+    return e.is_sampled() ? kSampledSlope * distance : distance;
   };
-  const float everywhere = dm.norm() + spin * tree.extent + rounding;
+  const float everywhere = kSampledSlope * (dm.norm() + spin * tree.extent + rounding);
   // The entries that may be within reach (always the contacts, whose bound is below it): popped one by one while
   // the motion is small and they are few. Otherwise one pass over the front carries every entry to this pose,
   // which becomes the anchor, and the front stays unordered (a pass each query) until the motion calms down.
   std::vector<Entry>& revisit = front.revisit;
   revisit.clear();
-  bool ordered = front.ordered && !fresh ? true : fresh;
+  // A fresh front is built unordered (one heap at the end, not one push per entry).
+  bool ordered = front.ordered && !fresh;
   if (ordered) {
-    const size_t pop_limit = heap.size() / 32 + 16;
+    // The contacts are popped every query whatever the motion: the limit is on the rest.
+    const size_t pop_limit = front.last_hits + heap.size() / 32 + 16;
     while (!heap.empty() && heap.front().bound - everywhere <= proximity) {
       if (revisit.size() == pop_limit) {
         ordered = false;
@@ -267,8 +274,8 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
     dm.setZero();
     spin = 0;
   }
-  auto record = [&](uint32_t node, bool is_point, float bound) {
-    Entry e = Entry::make(bound, node, is_point);
+  auto record = [&](uint32_t node, bool is_point, float bound, bool sampled = false) {
+    Entry e = Entry::make(bound, node, is_point, sampled);
     e.bound -= moved(e);
     heap.push_back(e);
     if (ordered) std::push_heap(heap.begin(), heap.end(), later);
@@ -279,13 +286,18 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   auto test_point = [&](uint32_t node, float point_bound) {
     // The point's distance where its bound allows a contact; its bound (or distance) goes to the front.
     float bound = point_bound;
+    bool sampled = false;
     if (point_bound < proximity) {
       bool exact = false;
       bound = target.distance(M * points[node] + m, exact);
       ++stats.points_tested;
       if (bound < proximity) hits.push_back({node, bound, exact});
+      // Interpolated from estimates (the band's edge and beyond), the distance has no useful slope bound:
+      // looked up again at the next query.
+      sampled = true;
+      if (!exact) bound = -std::numeric_limits<float>::infinity();
     }
-    record(node, true, bound);
+    record(node, true, bound, sampled);
   };
   // Traverses the subtree of `root` as traverse_tree does, recording where it stops.
   auto descend = [&](uint32_t root) {
@@ -330,11 +342,21 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
     }
   }
   // Ordered again once a pass finds little within reach.
-  if (!ordered && revisit.size() <= heap.size() / 64 + 8) {
+  if (!ordered && revisit.size() <= hits.size() + heap.size() / 64 + 8) {
     std::make_heap(heap.begin(), heap.end(), later);
     ordered = true;
   }
   front.ordered = ordered;
+  front.last_hits = hits.size();
+  if (ordered) {
+    front.busy = 0;
+    front.next_skip = TraversalFront::kFirstSkip;
+  } else if (++front.busy >= TraversalFront::kBusyQueries) {
+    front.busy = 0;
+    front.busy_step = everywhere / kSampledSlope;
+    front.skip = front.next_skip;
+    front.next_skip = std::min(2 * front.next_skip, TraversalFront::kMaxSkip);
+  }
   front.radius_scale = radius_scale;
   front.valid = true;
   ++front.queries;
@@ -396,18 +418,21 @@ template <class SignedDistance>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
                             SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
                             QueryScratch& scratch, TraversalFront& front) {
-  if (!detail::coherent_query_allowed(options)) {
+  if (!detail::coherent_query_allowed(options) || !shell_object.has_point_shell()) {
     front.reset();
     query_against_function(shell_object, pose, distance, options, out, scratch);
     return;
   }
-  if (!shell_object.has_point_shell()) return;
   const PointTree& tree = shell_object.point_tree();
   const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
   const Eigen::Vector3f m = pose.translation.cast<float>();
   // Displacements in the partner's frame, where its distance function is fixed.
   const Eigen::Matrix3f Mr = (partner.rotation.transpose() * pose.rotation * pose.scale).cast<float>();
   const Eigen::Vector3f mr = (partner.rotation.transpose() * (pose.translation - partner.translation)).cast<float>();
+  if (!front.take_turn(Mr, mr, tree.extent)) {
+    query_against_function(shell_object, pose, distance, options, out, scratch);
+    return;
+  }
   auto bound = [&](const Eigen::Vector3f& u) {
     Eigen::Vector3f normal;
     return distance(u, normal);

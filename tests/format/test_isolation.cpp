@@ -1,0 +1,70 @@
+// The isolated call's watchdog (voxfmt/detail/isolated_call.h): a child that burns CPU without progress is stopped
+// after its idle CPU time; one that makes no progress because it does not run (a starved or sleeping child) is
+// not taken for a hung one until it has been blocked for kBlockedFactor times as long.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <thread>
+
+#include "voxfmt/detail/isolated_call.h"
+
+namespace voxfmt::detail {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+
+// One int through the wire.
+auto visit_int = [](auto& wire, int& value) { wire.pod(value); };
+
+TEST(Isolation, AChildThatSpinsWithoutProgressIsStoppedAfterItsIdleCpuTime) {
+  std::atomic<uint64_t> progress{0};
+  int value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 0.5, &progress}, value,
+      [] {
+        volatile uint64_t spin = 0;
+        for (;;) spin = spin + 1;  // a parse looping in HDF5
+        return 0;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
+  EXPECT_GE(seconds_since(start), 0.5);
+  EXPECT_LT(seconds_since(start), 0.5 * Watchdog::kBlockedFactor);
+}
+
+TEST(Isolation, AChildThatDoesNotRunIsNotTakenForAHungOne) {
+  // Sleeping 1.5 s without progress uses no CPU: with an idle limit of 0.5 s of CPU it finishes.
+  std::atomic<uint64_t> progress{0};
+  int value = 0;
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 0.5, &progress}, value,
+      [] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+        return 42;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::Finished);
+  EXPECT_EQ(value, 42);
+}
+
+TEST(Isolation, AChildBlockedForLongIsStoppedToo) {
+  std::atomic<uint64_t> progress{0};
+  int value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 0.2, &progress}, value,
+      [] {
+        std::this_thread::sleep_for(std::chrono::seconds(60));  // a deadlock
+        return 0;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
+  EXPECT_GE(seconds_since(start), 0.2 * Watchdog::kBlockedFactor);
+  EXPECT_LT(seconds_since(start), 30.0);
+}
+
+}  // namespace
+}  // namespace voxfmt::detail
