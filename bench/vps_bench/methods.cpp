@@ -65,7 +65,7 @@ class BulletMethod : public Method {
  public:
   /// `coherent`: VPS pairs keep their last traversal from query to query (CollisionSettings::coherent).
   BulletMethod(std::shared_ptr<btCollisionShape> a, std::shared_ptr<btCollisionShape> b, std::string note,
-               bool coherent = false)
+               bool coherent = false, voxfmt::runtime::CutLevel cut_level = voxfmt::runtime::CutLevel::Spheres)
       : a_shape_(std::move(a)), b_shape_(std::move(b)), note_(std::move(note)) {
     btDefaultCollisionConstructionInfo info;
     voxfmt::bullet::prepare_construction_info(info);
@@ -73,6 +73,9 @@ class BulletMethod : public Method {
     dispatcher_ = std::make_unique<btCollisionDispatcher>(config_.get());
     vps_ = voxfmt::bullet::register_vps_collision(*dispatcher_);
     vps_->settings().coherent = coherent;
+    // A detection benchmark: a cut level's points stand for their spheres, so vps-coarse finds every contact
+    // the full tree finds (dynamics use the level's points, CollisionSettings::cut_level).
+    vps_->settings().cut_level = cut_level;
     btGImpactCollisionAlgorithm::registerAlgorithm(dispatcher_.get());
     a_.setCollisionShape(a_shape_.get());
     b_.setCollisionShape(b_shape_.get());

@@ -330,6 +330,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const CollisionSettings& settings = shared_->settings;
     runtime::QueryOptions options;
     options.normal_source = settings.normal_source;
+    options.cut_level = settings.cut_level;
     options.proximity =
         std::max({settings.proximity, double(result->m_closestPointDistanceThreshold), a_shape->proximity()});
     if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)

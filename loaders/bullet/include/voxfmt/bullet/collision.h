@@ -42,6 +42,12 @@ struct CollisionSettings {
   /// 2-voxel wall. Off: only `proximity` applies, and a fast body can pass through a wall thinner than its
   /// motion in one step.
   bool speculative_contacts = true;
+  /// What the last level of a shape cut above its leaves (VpsShape::set_max_level, set_point_budget) reports.
+  /// Points (default): the level's own surface points, with their true depths: a coarse body rests a little
+  /// deeper between its points but never deeper than its surface is. Spheres: each point stands for its sphere,
+  /// up to two sphere radii deeper than the surface; the solver turns that extra depth into energy (a coarse
+  /// bunny dropped on a bunny was thrown off at 51 m/s), so use it for detection, not for dynamics.
+  runtime::CutLevel cut_level = runtime::CutLevel::Points;
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
   /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
