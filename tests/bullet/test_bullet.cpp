@@ -114,22 +114,33 @@ TEST(Bullet, BunnyDroppedOnBunnyComesToRestWithoutSinking) {
     EXPECT_GT(lowest_vertex_y(bunny, *shape, body->getWorldTransform()), -bunny.h);
 }
 
-/// Drops a coarse bunny (tree levels 0-2 of its shell) from 2 cm onto a static coarse bunny standing on a plane;
-/// returns the largest rise of its energy (kinetic, rotational and potential) above the energy it started with,
-/// over the fall's potential energy, and its final speed.
-double coarse_bunny_energy_gain(runtime::CutLevel cut_level, double& final_speed) {
+/// What a bunny dropped on a bunny did (coarse_bunny_drop).
+struct DropOutcome {
+  double gain = 0;         ///< largest rise of its energy above the start, over the fall's potential energy
+  double final_speed = 0;  ///< m/s
+  double deepest = 0;      ///< deepest penetration between the bunnies (full shells, every 10 steps), voxels
+  uint64_t budget_cuts = 0;
+  double narrow_phase_us_p50 = 0;  ///< over the last second (in contact)
+};
+
+/// Drops a bunny from 2 cm onto a static bunny standing on a plane for 3 s, both cut at tree level `max_level`
+/// of their shells, or both whole under a step time budget of `step_budget_us`.
+DropOutcome coarse_bunny_drop(runtime::CutLevel cut_level, uint32_t max_level, double step_budget_us = 0.0,
+                              bool coherent = true) {
   const Bunny& bunny = Bunny::get();
   CollisionSettings settings;
   settings.cut_level = cut_level;
+  settings.step_time_budget_us = step_budget_us;
+  settings.coherent = coherent;
   World world(settings);
   const double g = 9.81;
   world.dynamics().setGravity(btVector3(0, btScalar(-g), 0));
   world.add_body(std::make_shared<btStaticPlaneShape>(btVector3(0, 1, 0), 0), 0, btTransform::getIdentity());
   auto lower_shape = std::make_shared<VpsMixedShape>(bunny.object);
   auto upper_shape = std::make_shared<VpsMixedShape>(bunny.object);
-  for (auto* shape : {lower_shape.get(), upper_shape.get()}) shape->set_max_level(2);
+  for (auto* shape : {lower_shape.get(), upper_shape.get()}) shape->set_max_level(max_level);
   const btScalar floor_lift = btScalar(-bunny.object->bounds_min().y());
-  world.add_body(lower_shape, 0, place_asset(*lower_shape, btVector3(0, floor_lift, 0)));
+  btRigidBody* lower = world.add_body(lower_shape, 0, place_asset(*lower_shape, btVector3(0, floor_lift, 0)));
   const double height = bunny.object->bounds_max().y() - bunny.object->bounds_min().y();
   const double drop = 0.02;
   btRigidBody* upper = world.add_body(
@@ -144,30 +155,58 @@ double coarse_bunny_energy_gain(runtime::CutLevel cut_level, double& final_speed
            g * double(upper->getCenterOfMassPosition().y());
   };
   const double start = energy();
-  double gain = 0;
+  DropOutcome outcome;
+  std::vector<double> narrow_us;
   for (int step = 0; step < 3000; ++step) {
     world.step(kDt);
+    if (step >= 2000) narrow_us.push_back(world.dispatcher().last_narrow_phase_us());
+    if (step % 10 == 0)
+      outcome.deepest = std::max(outcome.deepest, deepest_penetration(*upper_shape, upper->getWorldTransform(),
+                                                                      *lower_shape, lower->getWorldTransform()) /
+                                                      bunny.h);
     const double e = energy();
-    if (!std::isfinite(e)) return INFINITY;
-    gain = std::max(gain, e - start);
+    if (!std::isfinite(e)) {
+      outcome.gain = INFINITY;
+      return outcome;
+    }
+    outcome.gain = std::max(outcome.gain, e - start);
   }
-  final_speed = double(upper->getLinearVelocity().length());
-  return gain / (g * drop);
+  outcome.gain /= g * drop;
+  outcome.final_speed = double(upper->getLinearVelocity().length());
+  outcome.budget_cuts = world.vps()->counters().budget_cuts;
+  std::nth_element(narrow_us.begin(), narrow_us.begin() + narrow_us.size() / 2, narrow_us.end());
+  outcome.narrow_phase_us_p50 = narrow_us[narrow_us.size() / 2];
+  return outcome;
 }
 
 TEST(Bullet, ACoarseShapeDoesNotGainEnergyFromItsCut) {
   // Shapes cut at tree level 2 report the level's own points (CutLevel::Points, the default): dropped on a
   // bunny, the body never has more energy than it started with, and it comes to rest. Reporting each point as
   // its sphere (Spheres, up to two radii deeper than the surface), the solver turns the extra depth into energy.
-  double final_points = 0, final_spheres = 0;
-  const double points = coarse_bunny_energy_gain(runtime::CutLevel::Points, final_points);
-  const double spheres = coarse_bunny_energy_gain(runtime::CutLevel::Spheres, final_spheres);
-  std::cout << "[ figures  ] largest energy gain over the drop's potential energy: points " << points
-            << " (final speed " << final_points << " m/s), spheres " << spheres << " (final " << final_spheres
-            << " m/s)\n";
-  EXPECT_LT(points, 0.05);
-  EXPECT_LT(final_points, 1e-2);
-  EXPECT_GT(spheres, points);
+  const DropOutcome points = coarse_bunny_drop(runtime::CutLevel::Points, 2);
+  const DropOutcome spheres = coarse_bunny_drop(runtime::CutLevel::Spheres, 2);
+  std::cout << "[ figures  ] largest energy gain over the drop's potential energy: points " << points.gain
+            << " (final speed " << points.final_speed << " m/s), spheres " << spheres.gain << " (final "
+            << spheres.final_speed << " m/s)\n";
+  EXPECT_LT(points.gain, 0.05);
+  EXPECT_LT(points.final_speed, 1e-2);
+  EXPECT_GT(spheres.gain, points.gain);
+}
+
+TEST(Bullet, AStepTimeBudgetCutsWithoutAddingEnergy) {
+  // Whole shells under a step budget of half what the pair costs at rest from the root (measured first, so the
+  // test means the same on a slow, instrumented build): the cap drops tree levels until the steps fit, never
+  // below the levels within step_budget_min_points (the bunny's first 4 levels, 330 points), and the bunny
+  // lands on the bunny without gaining energy or sinking into it by more than that level's spacing allows.
+  const DropOutcome full = coarse_bunny_drop(runtime::CutLevel::Points, UINT32_MAX, 0.0, false);
+  const double budget_us = 0.5 * full.narrow_phase_us_p50;
+  const DropOutcome budget = coarse_bunny_drop(runtime::CutLevel::Points, UINT32_MAX, budget_us);
+  std::cout << "[ figures  ] full tree " << full.narrow_phase_us_p50 << " us a step at rest; a budget of " << budget_us
+            << " us cut " << budget.budget_cuts << " pair tests of 6000: energy gain " << budget.gain
+            << ", deepest penetration " << budget.deepest << " voxel (full tree " << full.deepest << ")\n";
+  EXPECT_GT(budget.budget_cuts, 100u);
+  EXPECT_LT(budget.gain, 0.05);
+  EXPECT_LT(budget.deepest, 5.0);  // level 3 alone (no floor) sinks 9.4 voxels, level 2 33
 }
 
 TEST(Bullet, BulletsOwnPairsStillWork) {

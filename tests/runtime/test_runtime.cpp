@@ -460,6 +460,34 @@ TEST(Query, ATimeBudgetEndsAtAWholeLevelAndKeepsEveryContact) {
   EXPECT_EQ(generous.stats.deepest_level, full.stats.deepest_level);
 }
 
+TEST(Query, ATimeBudgetWithPointsReportsWholeLevels) {
+  // Under a budget, CutLevel::Points reports the points of whole levels: exactly the contacts of a max_level query
+  // stopping at the level the budget let complete, wherever in the next level time ran out.
+  const Bunny& bunny = Bunny::get();
+  const Pose pa = make_pose(20, Eigen::Vector3d(0.3, 1, 0.2), Eigen::Vector3d(0.7, 0.05, 0.0)), pb;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  options.cut_level = CutLevel::Points;
+  size_t cut_queries = 0;
+  for (int repeat = 0; repeat < 20; ++repeat)
+    for (const double budget_us : {1e-3, 1.0, 3.0, 10.0, 30.0, 1e6}) {
+      options.time_budget_us = budget_us;
+      ContactSet timed, levels;
+      query_contacts(*bunny.object, pa, *bunny.object, pb, options, timed);
+      QueryOptions whole = options;
+      whole.time_budget_us = 0.0;
+      whole.max_level = timed.stats.deepest_level;
+      query_contacts(*bunny.object, pa, *bunny.object, pb, whole, levels);
+      cut_queries += timed.stats.time_budget_hit;
+      ASSERT_EQ(timed.contacts.size(), levels.contacts.size()) << "budget " << budget_us << " us";
+      for (size_t i = 0; i < levels.contacts.size(); ++i) {
+        EXPECT_EQ(timed.contacts[i].point_index, levels.contacts[i].point_index);
+        EXPECT_EQ(timed.contacts[i].depth, levels.contacts[i].depth);
+      }
+    }
+  EXPECT_GT(cut_queries, 0u);  // the 1 ns budget always cuts
+}
+
 TEST(Query, BothDirectionsMirror) {
   const Bunny& bunny = Bunny::get();
   const Pose pa = make_pose(30, Eigen::Vector3d::UnitZ(), Eigen::Vector3d(0.5, 0.1, 0.0)), pb;

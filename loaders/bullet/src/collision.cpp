@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -42,6 +43,43 @@ struct Shared {
   // On a line of their own: the counters change with every pair test, the settings are read by every one.
   alignas(64) CollisionCounters counters;
   std::atomic<uint64_t> reported_types{0};  // one bit per Bullet shape type already reported as unsupported
+
+  // The step time budget (CollisionSettings::step_time_budget_us): the time the step's pair tests took
+  // together, and how many tree levels every shell drops because steps ran over.
+  std::atomic<int64_t> step_ns{0};
+  std::atomic<uint32_t> levels_dropped{0};
+  uint32_t relaxed_steps = 0;
+
+  void begin_step() {
+    const double budget = settings.step_time_budget_us;
+    const double spent_us = double(step_ns.exchange(0, std::memory_order_relaxed)) * 1e-3;
+    uint32_t dropped = levels_dropped.load(std::memory_order_relaxed);
+    if (budget <= 0.0) {
+      dropped = 0;
+    } else if (spent_us > budget) {  // over: one level coarser at once
+      dropped = std::min<uint32_t>(dropped + 1, 31);
+      relaxed_steps = 0;
+    } else if (spent_us < 0.5 * budget && dropped > 0) {  // well under for a while: one level finer
+      if (++relaxed_steps >= kRelaxedSteps) {
+        --dropped;
+        relaxed_steps = 0;
+      }
+    } else {
+      relaxed_steps = 0;
+    }
+    levels_dropped.store(dropped, std::memory_order_relaxed);
+  }
+  /// The deepest level a shell of `tree` is tested to under the budget: its leaves less the levels dropped, but
+  /// never above the levels within step_budget_min_points.
+  uint32_t level_cap(const runtime::PointTree& tree) const {
+    const uint32_t leaf = uint32_t(tree.level_count()) - 1;
+    const uint32_t dropped = levels_dropped.load(std::memory_order_relaxed);
+    if (dropped == 0) return std::numeric_limits<uint32_t>::max();
+    uint32_t floor = 0;
+    while (floor < leaf && tree.points_up_to_level(floor + 1) <= settings.step_budget_min_points) ++floor;
+    return std::max(floor, dropped >= leaf ? 0u : leaf - dropped);
+  }
+  static constexpr uint32_t kRelaxedSteps = 50;
 
   // A pair the algorithm cannot handle produces no contacts: say so once per shape type, never silently.
   void report_unsupported(const btCollisionShape* shape) {
@@ -339,12 +377,20 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     if (settings.speculative_contacts)
       options.proximity = std::max(options.proximity, speculative_distance(a_wrap, b_wrap, info.m_timeStep));
 
+    const bool budgeted = settings.step_time_budget_us > 0.0;
+    const auto start = budgeted ? std::chrono::steady_clock::now() : std::chrono::steady_clock::time_point{};
+
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
     if (settings.coherent && !state_) state_ = std::make_unique<runtime::QueryState>();
     if (!settings.coherent) state_.reset();
-    collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch, state_.get());
+    const bool cut =
+        collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch, state_.get());
+    if (budgeted)
+      shared_->step_ns.fetch_add(
+          std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count(),
+          std::memory_order_relaxed);
 
     result->setPersistentManifold(manifold_);
     CollisionCounters& counters = shared_->counters;  // atomic: pairs may run on several threads at once
@@ -352,6 +398,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     counters.raw_contacts += contacts.contacts.size();
     counters.points_tested += contacts.stats.points_tested;
     counters.nodes_visited += contacts.stats.nodes_visited;
+    if (cut) ++counters.budget_cuts;
     for (size_t index : runtime::reduce_contacts(contacts.contacts, settings.manifold_points)) {
       const runtime::Contact& c = contacts.contacts[index];
       // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.
@@ -395,13 +442,21 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
  private:
-  void collide(const VpsShape& a, const btTransform& ta, const runtime::Pose& pose_a,
+  /// Returns whether the step time budget cut a shell above its leaves.
+  bool collide(const VpsShape& a, const btTransform& ta, const runtime::Pose& pose_a,
                const btCollisionObjectWrapper* b_wrap, runtime::QueryOptions options, runtime::ContactSet& contacts,
                runtime::QueryScratch& scratch, runtime::QueryState* state) const {
     const btCollisionShape* b_shape = b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
+    bool cut = false;
+    // A shell's deepest level: its shape's own limit, and the step budget's cap.
+    auto max_level = [&](const VpsShape& shell) {
+      const uint32_t cap = shared_->level_cap(shell.object().point_tree());
+      cut |= cap < shell.max_level() && cap + 1 < shell.object().point_tree().level_count();
+      return std::min(shell.max_level(), cap);
+    };
     options.point_budget = a.point_budget();
-    options.max_level = a.max_level();
+    options.max_level = max_level(a);
     switch (b_shape->getShapeType()) {
       case VpsShape::kShapeType: {
         const auto& b = static_cast<const VpsShape&>(*b_shape);
@@ -417,7 +472,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
             (direction == runtime::QueryDirection::APointsInB || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::APointsInB;
           options.point_budget = a.point_budget();
-          options.max_level = a.max_level();
+          options.max_level = max_level(a);
           if (state)
             runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
           else
@@ -427,16 +482,16 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
             (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
           options.direction = runtime::QueryDirection::BPointsInA;
           options.point_budget = b.point_budget();
-          options.max_level = b.max_level();
+          options.max_level = max_level(b);
           if (state)
             runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
           else
             runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
         }
-        return;
+        return cut;
       }
       case STATIC_PLANE_PROXYTYPE: {
-        if (!a.uses_points()) return;
+        if (!a.uses_points()) return cut;
         const auto& plane = static_cast<const btStaticPlaneShape&>(*b_shape);
         const Eigen::Vector3f n = (to_eigen(tb.getBasis()) * to_eigen(plane.getPlaneNormal())).cast<float>();
         const float c = float(plane.getPlaneConstant()) + n.dot(to_eigen(tb.getOrigin()).cast<float>());
@@ -444,21 +499,21 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
             a, pose_a, partner_pose(tb),
             [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return plane_distance(n, c, x, outward); },
             options, contacts, scratch, state ? &state->a_in_b : nullptr);
-        return;
+        return cut;
       }
       case TRIANGLE_MESH_SHAPE_PROXYTYPE:
       case SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE:
       case TERRAIN_SHAPE_PROXYTYPE:
         collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
-        return;
+        return cut;
       default:
         if (b_shape->isConvex()) {
           collide_convex(a, pose_a, static_cast<const btConvexShape&>(*b_shape), tb, options, contacts, scratch,
                          state ? &state->a_in_b : nullptr);
-          return;
+          return cut;
         }
         shared_->report_unsupported(b_shape);
-        return;
+        return cut;
     }
   }
 
@@ -508,6 +563,7 @@ class Registration : public VpsCollisionRegistration {
   }
   CollisionSettings& settings() override { return shared_.settings; }
   CollisionCounters& counters() override { return shared_.counters; }
+  void begin_step() override { shared_.begin_step(); }
 
  private:
   Shared shared_;

@@ -140,6 +140,7 @@ void TriangleSet::clear() {
   normals_.clear();
   first_.clear();
   members_.clear();
+  ring_.clear();
 }
 
 void TriangleSet::build() {
@@ -196,6 +197,34 @@ void TriangleSet::build() {
           }
     }
   }
+  // Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell
+  // (a step to any of them is one Chebyshev ring).
+  ring_.assign(cells, uint8_t(kEmptyRings));
+  std::vector<uint32_t> wave, next_wave;
+  for (size_t c = 0; c < cells; ++c)
+    if (first_[c + 1] > first_[c]) {
+      ring_[c] = 0;
+      wave.push_back(uint32_t(c));
+    }
+  for (int r = 1; r < kEmptyRings && !wave.empty(); ++r) {
+    next_wave.clear();
+    for (const uint32_t c : wave) {
+      const int i = int(c % uint32_t(dims_[0])), j = int(c / uint32_t(dims_[0]) % uint32_t(dims_[1])),
+                k = int(c / uint32_t(dims_[0] * dims_[1]));
+      for (int dk = -1; dk <= 1; ++dk)
+        for (int dj = -1; dj <= 1; ++dj)
+          for (int di = -1; di <= 1; ++di) {
+            const int ni = i + di, nj = j + dj, nk = k + dk;
+            if (ni < 0 || nj < 0 || nk < 0 || ni >= dims_[0] || nj >= dims_[1] || nk >= dims_[2]) continue;
+            const size_t n = index(ni, nj, nk);
+            if (ring_[n] > r) {
+              ring_[n] = uint8_t(r);
+              next_wave.push_back(uint32_t(n));
+            }
+          }
+    }
+    wave.swap(next_wave);
+  }
 }
 
 float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
@@ -204,6 +233,14 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     // Beyond the box on the side every triangle faces: above a surface that is a graph over that direction,
     // so outside, and no triangle is nearer than the box.
     if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
+  }
+  if (!ring_.empty()) {
+    // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
+    // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away.
+    Eigen::Vector3i c;
+    for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
+    const int ring = ring_[size_t((c.z() * dims_.y() + c.y()) * dims_.x() + c.x())];
+    if (ring > 1) return std::max((x - x.cwiseMax(lo_).cwiseMin(hi_)).norm(), float(ring - 1) * cell_);
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
@@ -238,7 +275,13 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   Eigen::Vector3i c;
   for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
   const float box = (x - x.cwiseMax(lo_).cwiseMin(hi_)).norm();
-  for (int r = 0; r <= kMaxRings; ++r) {
+  // The rings before the nearest occupied one hold nothing: the search starts there.
+  const int first_ring = ring_.empty() ? 0 : int(ring_[size_t((c.z() * dims_.y() + c.y()) * dims_.x() + c.x())]);
+  if (first_ring >= kEmptyRings) {  // no triangle within the rings the map covers
+    outward = box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(lo_).cwiseMin(hi_)) / box) : Eigen::Vector3f::UnitY();
+    return std::max(box, float(kEmptyRings - 1) * cell_);
+  }
+  for (int r = first_ring; r <= first_ring + kMaxRings; ++r) {
     for (int k = c.z() - r; k <= c.z() + r; ++k) {
       if (k < 0 || k >= dims_.z()) continue;
       for (int j = c.y() - r; j <= c.y() + r; ++j) {
@@ -257,9 +300,9 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
     if (best2 <= reach * reach * (1 + 1e-6f)) return side * std::sqrt(best2);
     if (r > dims_.maxCoeff()) return side * std::sqrt(best2);  // every cell visited: exact
   }
-  // Not settled within kMaxRings: every triangle is farther than the rings reach and than the box. Such a
-  // point counts as outside (a point that deep behind a floor has tunnelled through it).
-  const float bound = std::max(box, float(kMaxRings) * cell_);
+  // Not settled within kMaxRings of the first occupied ring: every triangle is farther than the rings reach and
+  // than the box. Such a point counts as outside (a point that deep behind a floor has tunnelled through it).
+  const float bound = std::max(box, float(first_ring + kMaxRings) * cell_);
   outward = box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(lo_).cwiseMin(hi_)) / box) : Eigen::Vector3f::UnitY();
   return bound;
 }

@@ -6,6 +6,7 @@ namespace voxfmt::bullet {
 
 void TimedDispatcher::dispatchAllCollisionPairs(btOverlappingPairCache* pairs, const btDispatcherInfo& info,
                                                 btDispatcher* dispatcher) {
+  if (vps_) vps_->begin_step();
   const auto start = std::chrono::steady_clock::now();
   btCollisionDispatcher::dispatchAllCollisionPairs(pairs, info, dispatcher);
   last_us_ = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count();
@@ -20,7 +21,10 @@ World::World(const CollisionSettings& settings, bool register_vps) {
   solver_ = std::make_unique<btSequentialImpulseConstraintSolver>();
   world_ = std::make_unique<btDiscreteDynamicsWorld>(dispatcher_.get(), broadphase_.get(), solver_.get(),
                                                      configuration_.get());
-  if (register_vps) registration_ = register_vps_collision(*dispatcher_, settings);
+  if (register_vps) {
+    registration_ = register_vps_collision(*dispatcher_, settings);
+    dispatcher_->set_vps(registration_.get());
+  }
 }
 
 World::~World() {

@@ -50,6 +50,19 @@ struct CollisionSettings {
   runtime::CutLevel cut_level = runtime::CutLevel::Points;
   /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
+  /// Time budget of one step's VPS pair tests together, microseconds (0 = none): a frame rate the narrow phase
+  /// keeps whatever piles up. It moves a level cap shared by every shell, as a haptic loop's does: after a step
+  /// whose pair tests took longer, every shell is tested one tree level less deep; after 50 steps under half the
+  /// budget, one level deeper again, up to the leaves. A cap reports its level as `cut_level` says (Points, the
+  /// default: the level's own points at their true depths, so a cut body never reports a contact deeper than its
+  /// surface and a moving cap never adds depth the surface does not have), and holds for many steps, so a body
+  /// rests on a fixed set of points. Within the budget the pairs are full and coherent; a step may overrun by what
+  /// changed since the one before. Steps start at VpsCollisionRegistration::begin_step(), which World calls as its
+  /// narrow phase starts; with a world of your own, call it before each step (e.g. from a pre-tick callback).
+  double step_time_budget_us = 0.0;
+  /// Under a step time budget, the tree levels within this many points are always tested, however late the
+  /// steps run (the seed's coarse shell is ~800 points): a budget never leaves a body too few points to stand on.
+  size_t step_budget_min_points = 1000;
   /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
   /// with the pair when it leaves the broadphase) and looks up only what the motion since can have brought within
   /// reach: the same contacts, and a body at rest costs about its contact points a step. Pairs against a static
@@ -93,6 +106,7 @@ struct CollisionCounters {
   SharedCount points_tested = 0;      ///< point-shell points whose distance was looked up
   SharedCount nodes_visited = 0;      ///< sphere-tree nodes whose bound was looked up (pruning)
   SharedCount unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
+  SharedCount budget_cuts = 0;        ///< pair tests whose shell the step time budget cut above its leaves
 };
 
 /// Thread safety: the algorithm's only shared mutable state is these atomic counters, and its scratch memory is
@@ -104,6 +118,9 @@ class VpsCollisionRegistration {
   virtual ~VpsCollisionRegistration() = default;
   virtual CollisionSettings& settings() = 0;
   virtual CollisionCounters& counters() = 0;
+  /// Marks the start of a step's narrow phase, for CollisionSettings::step_time_budget_us (World calls it). Not
+  /// to be called while pairs are being tested.
+  virtual void begin_step() = 0;
 };
 
 /// Registers the VPS algorithm for every supported pair in `dispatcher`. The returned object owns the create

@@ -56,7 +56,8 @@ class TriangleSet {
   float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
   /// A value the signed distance at x is not below, cheap far from the triangles: for a set whose normals all
   /// lean one way (a floor, a terrain patch), a point beyond the set's box on that side is outside by at least
-  /// its distance to the box. Elsewhere the exact distance.
+  /// its distance to the box; a point whose cell has no triangle within r rings is at least r - 1 cells from
+  /// every triangle. Elsewhere (a cell with a triangle) the exact distance.
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
@@ -68,6 +69,11 @@ class TriangleSet {
   Eigen::Vector3i dims_ = Eigen::Vector3i::Ones();
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
   std::vector<uint32_t> first_, members_;
+  // Per cell: the ring (Chebyshev distance in cells) of the nearest cell that holds a triangle, at most
+  // kEmptyRings. A search from the cell starts there, and a point in it is at least (ring - 1) cells from
+  // every triangle: a lower bound that costs one read.
+  static constexpr int kEmptyRings = 64;
+  std::vector<uint8_t> ring_;
 };
 
 }  // namespace voxfmt::bullet

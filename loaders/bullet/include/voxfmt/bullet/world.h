@@ -18,9 +18,12 @@ class TimedDispatcher : public btCollisionDispatcher {
   void dispatchAllCollisionPairs(btOverlappingPairCache* pairs, const btDispatcherInfo& info,
                                  btDispatcher* dispatcher) override;
   double last_narrow_phase_us() const { return last_us_; }
+  /// Told as each narrow phase starts (CollisionSettings::step_time_budget_us).
+  void set_vps(VpsCollisionRegistration* vps) { vps_ = vps; }
 
  private:
   double last_us_ = 0.0;
+  VpsCollisionRegistration* vps_ = nullptr;
 };
 
 class World {

@@ -64,12 +64,15 @@ struct QueryOptions {
   uint32_t max_level = std::numeric_limits<uint32_t>::max();
   /// What the last level of a cut query reports (see CutLevel).
   CutLevel cut_level = CutLevel::Spheres;
-  /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops: the clock is read at
-  /// level ends and every 32 nodes. With CutLevel::Spheres a level the budget interrupts is dropped and the last
-  /// completed level is the cut (so contacts are those of whole levels: no contact found by the full tree is
-  /// lost, and the force does not depend on where in a level time ran out); with CutLevel::Points the points
-  /// tested so far count. The root level always completes.
+  /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops and physics steps: the
+  /// clock is read at level ends and every 32 nodes. A level the budget interrupts is dropped and the last
+  /// completed level is the cut, reported as `cut_level` says: contacts are those of whole levels (the same as a
+  /// `max_level` query stopping there), so they do not depend on where in a level time ran out, and with
+  /// CutLevel::Spheres no contact found by the full tree is lost. The root level always completes.
   double time_budget_us = 0.0;
+  /// Under a time budget, the levels whose points number at most this together always complete, however late:
+  /// the coarsest shell a budget may leave (a physics engine needs enough points to hold a body up).
+  size_t time_budget_min_points = 0;
 };
 
 /// One colliding (or near) point, world frame.

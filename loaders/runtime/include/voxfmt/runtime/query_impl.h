@@ -49,9 +49,17 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   const Eigen::Vector3f* points = tree.points.data();
   const bool spheres = options.cut_level == CutLevel::Spheres;
   const bool timed = options.time_budget_us > 0.0;
+  // Hits are held back until their level completes: a level the budget interrupts is dropped whatever the cut
+  // level reports, so contacts never depend on where in a level time ran out.
+  const bool hold = spheres || timed;
   const auto deadline =
       timed ? std::chrono::steady_clock::now() + std::chrono::nanoseconds(int64_t(options.time_budget_us * 1e3))
             : std::chrono::steady_clock::time_point::max();
+  // Levels the budget never cuts: the root, and those within time_budget_min_points.
+  uint32_t min_level = 0;
+  while (min_level + 2 < tree.level_offsets.size() &&
+         tree.points_up_to_level(min_level + 1) <= options.time_budget_min_points)
+    ++min_level;
   auto emit_points = [&](const std::vector<Hit>& level_hits) {
     for (const Hit& hit : level_hits) emit(hit.node, hit.distance, hit.exact);
   };
@@ -81,7 +89,7 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     level_done = false;
     for (size_t begin = 0; begin < frontier_size; begin += kBatch) {
       // The clock is read before each batch; the root level always completes.
-      if (timed && level > 0 && std::chrono::steady_clock::now() >= deadline) {
+      if (timed && level > min_level && std::chrono::steady_clock::now() >= deadline) {
         out_of_time = true;
         break;
       }
@@ -115,7 +123,7 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
           bool exact = false;
           const float d = target.distance(point[i], exact);
           if (d < proximity) {
-            if (spheres)
+            if (hold)
               hits.push_back({node, d, exact});
             else
               emit(node, d, exact);
@@ -136,7 +144,7 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     level_done = true;
     // `level` is complete: go on to the next one unless it is empty, too deep or over the point budget.
     if (next_size == 0 || level + 1 > options.max_level || tested + next_size > options.point_budget) break;
-    if (timed && std::chrono::steady_clock::now() >= deadline) {
+    if (timed && level >= min_level && std::chrono::steady_clock::now() >= deadline) {
       out_of_time = true;
       break;
     }
@@ -146,6 +154,9 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
       done_parents.swap(parents);
       hits.clear();
       parents.clear();
+    } else if (hold) {
+      emit_points(hits);
+      hits.clear();
     }
     frontier.swap(next);
     frontier_size = next_size;
@@ -154,7 +165,7 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   }
   uint32_t completed = level;
   if (out_of_time && !level_done) {
-    // Stopped inside `level`: its partial hits are dropped, the level before is the cut (sphere semantics).
+    // Stopped inside `level`: its partial hits are dropped, the level before is the cut.
     completed = level - 1;
     if (spheres) emit_cut(done_hits, done_parents);
   } else if (spheres) {
@@ -163,6 +174,8 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
       emit_cut(hits, parents);
     else
       emit_points(hits);
+  } else if (hold) {
+    emit_points(hits);
   }
   if (out_of_time) stats.time_budget_hit = true;
   stats.points_tested += tested;
