@@ -69,15 +69,13 @@ struct Shared {
     }
     levels_dropped.store(dropped, std::memory_order_relaxed);
   }
-  /// The deepest level a shell of `tree` is tested to under the budget: its leaves less the levels dropped, but
-  /// never above the levels within step_budget_min_points.
+  /// The deepest level a shell of `tree` is tested to under the budget (its leaves less the levels dropped;
+  /// QueryOptions::min_points keeps the coarsest levels), or no limit.
   uint32_t level_cap(const runtime::PointTree& tree) const {
     const uint32_t leaf = uint32_t(tree.level_count()) - 1;
     const uint32_t dropped = levels_dropped.load(std::memory_order_relaxed);
     if (dropped == 0) return std::numeric_limits<uint32_t>::max();
-    uint32_t floor = 0;
-    while (floor < leaf && tree.points_up_to_level(floor + 1) <= settings.step_budget_min_points) ++floor;
-    return std::max(floor, dropped >= leaf ? 0u : leaf - dropped);
+    return dropped >= leaf ? 0u : leaf - dropped;
   }
   static constexpr uint32_t kRelaxedSteps = 50;
 
@@ -449,11 +447,18 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const btCollisionShape* b_shape = b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
     bool cut = false;
-    // A shell's deepest level: its shape's own limit, and the step budget's cap.
+    // A shell's deepest level: its shape's own limit, or else the step budget's cap, which always leaves the
+    // levels within step_budget_min_points.
     auto max_level = [&](const VpsShape& shell) {
+      options.min_points = 0;
+      if (shell.max_level() != std::numeric_limits<uint32_t>::max() ||
+          shell.point_budget() != std::numeric_limits<size_t>::max())
+        return shell.max_level();
       const uint32_t cap = shared_->level_cap(shell.object().point_tree());
-      cut |= cap < shell.max_level() && cap + 1 < shell.object().point_tree().level_count();
-      return std::min(shell.max_level(), cap);
+      if (cap == std::numeric_limits<uint32_t>::max()) return cap;
+      cut = true;
+      options.min_points = shared_->settings.step_budget_min_points;
+      return cap;
     };
     options.point_budget = a.point_budget();
     options.max_level = max_level(a);

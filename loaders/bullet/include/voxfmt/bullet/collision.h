@@ -60,8 +60,10 @@ struct CollisionSettings {
   /// changed since the one before. Steps start at VpsCollisionRegistration::begin_step(), which World calls as its
   /// narrow phase starts; with a world of your own, call it before each step (e.g. from a pre-tick callback).
   double step_time_budget_us = 0.0;
-  /// Under a step time budget, the tree levels within this many points are always tested, however late the
-  /// steps run (the seed's coarse shell is ~800 points): a budget never leaves a body too few points to stand on.
+  /// Under a step time budget, the tree levels within this many points tested are always tested, however late
+  /// the steps run (the seed's coarse shell is ~800 points): a budget never leaves a body too few points to stand
+  /// on. Shapes with a level or point budget of their own (VpsShape::set_max_level, set_point_budget) keep it and
+  /// are not cut further.
   size_t step_budget_min_points = 1000;
   /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
   /// with the pair when it leaves the broadphase) and looks up only what the motion since can have brought within

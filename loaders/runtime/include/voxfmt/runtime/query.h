@@ -70,9 +70,10 @@ struct QueryOptions {
   /// `max_level` query stopping there), so they do not depend on where in a level time ran out, and with
   /// CutLevel::Spheres no contact found by the full tree is lost. The root level always completes.
   double time_budget_us = 0.0;
-  /// Under a time budget, the levels whose points number at most this together always complete, however late:
-  /// the coarsest shell a budget may leave (a physics engine needs enough points to hold a body up).
-  size_t time_budget_min_points = 0;
+  /// Levels are tested whatever `max_level`, `point_budget` and `time_budget_us` say while the points tested,
+  /// with the next level's, number at most this: the coarsest shell a limit may leave (a physics engine needs
+  /// enough points to hold a body up). 0: only the root level is sure to be tested.
+  size_t min_points = 0;
 };
 
 /// One colliding (or near) point, world frame.

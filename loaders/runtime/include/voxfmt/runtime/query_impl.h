@@ -55,11 +55,6 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   const auto deadline =
       timed ? std::chrono::steady_clock::now() + std::chrono::nanoseconds(int64_t(options.time_budget_us * 1e3))
             : std::chrono::steady_clock::time_point::max();
-  // Levels the budget never cuts: the root, and those within time_budget_min_points.
-  uint32_t min_level = 0;
-  while (min_level + 2 < tree.level_offsets.size() &&
-         tree.points_up_to_level(min_level + 1) <= options.time_budget_min_points)
-    ++min_level;
   auto emit_points = [&](const std::vector<Hit>& level_hits) {
     for (const Hit& hit : level_hits) emit(hit.node, hit.distance, hit.exact);
   };
@@ -87,9 +82,11 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
   bool level_done = false;  // the last level entered was completed
   for (;;) {
     level_done = false;
+    // A level within min_points is tested whatever the limits say (the root level always is).
+    const bool floor_level = level == 0 || tested + frontier_size <= options.min_points;
     for (size_t begin = 0; begin < frontier_size; begin += kBatch) {
-      // The clock is read before each batch; the root level always completes.
-      if (timed && level > min_level && std::chrono::steady_clock::now() >= deadline) {
+      // The clock is read before each batch.
+      if (timed && !floor_level && std::chrono::steady_clock::now() >= deadline) {
         out_of_time = true;
         break;
       }
@@ -143,8 +140,11 @@ void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen:
     if (out_of_time) break;
     level_done = true;
     // `level` is complete: go on to the next one unless it is empty, too deep or over the point budget.
-    if (next_size == 0 || level + 1 > options.max_level || tested + next_size > options.point_budget) break;
-    if (timed && level >= min_level && std::chrono::steady_clock::now() >= deadline) {
+    const bool next_in_floor = tested + next_size <= options.min_points;
+    if (next_size == 0 ||
+        (!next_in_floor && (level + 1 > options.max_level || tested + next_size > options.point_budget)))
+      break;
+    if (timed && !next_in_floor && std::chrono::steady_clock::now() >= deadline) {
       out_of_time = true;
       break;
     }
