@@ -263,6 +263,7 @@ RunResult run(const Scene& scene, const std::string& method, const Options& opti
 
   voxfmt::bullet::CollisionSettings settings;
   if (method == "vps-budget") settings.step_time_budget_us = budget_us;
+
   if (options.cut_level == "points") settings.cut_level = voxfmt::runtime::CutLevel::Points;
   if (options.cut_level == "spheres") settings.cut_level = voxfmt::runtime::CutLevel::Spheres;
   voxfmt::bullet::World world(settings, factory.is_vps());

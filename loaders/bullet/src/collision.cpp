@@ -354,6 +354,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
 
   ~VpsCollisionAlgorithm() override {
     if (owns_manifold_ && manifold_) m_dispatcher->releaseManifold(manifold_);
+    for (btPersistentManifold* m : extra_)
+      if (m) m_dispatcher->releaseManifold(m);
   }
 
   void processCollision(const btCollisionObjectWrapper* body0, const btCollisionObjectWrapper* body1,
@@ -397,13 +399,55 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     counters.points_tested += contacts.stats.points_tested;
     counters.nodes_visited += contacts.stats.nodes_visited;
     if (cut) ++counters.budget_cuts;
-    for (size_t index : runtime::reduce_contacts(contacts.contacts, settings.manifold_points)) {
-      const runtime::Contact& c = contacts.contacts[index];
-      // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.
-      const Eigen::Vector3d on_b = c.point_of_b ? c.point : c.point + c.normal * c.depth;
-      result->addContactPoint(to_bt_vector(c.normal), to_bt_vector(on_b), btScalar(-c.depth));
+    auto add = [&](const std::vector<runtime::Contact>& set, btPersistentManifold* manifold) {
+      const runtime::ReducedContacts chosen = runtime::reduce_contacts(set, settings.manifold_points);
+      std::array<btVector3, 4> on_b;
+      for (size_t i = 0; i < chosen.size(); ++i) {
+        const runtime::Contact& c = set[chosen.index[i]];
+        // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.
+        on_b[i] = to_bt_vector(c.point_of_b ? c.point : c.point + c.normal * c.depth);
+      }
+      // Points of earlier steps that none of this step's is near (Bullet matches them within its breaking
+      // threshold) are gone: kept, a stale point holds a body where it was (a peg on a hole's rim climbed out).
+      const btScalar near2 = manifold->getContactBreakingThreshold() * manifold->getContactBreakingThreshold();
+      for (int p = manifold->getNumContacts() - 1; p >= 0; --p) {
+        bool matched = false;
+        for (size_t i = 0; i < chosen.size() && !matched; ++i)
+          matched = (manifold->getContactPoint(p).m_positionWorldOnB - on_b[i]).length2() <= near2;
+        if (!matched) manifold->removeContactPoint(p);
+      }
+      for (size_t i = 0; i < chosen.size(); ++i) {
+        const runtime::Contact& c = set[chosen.index[i]];
+        result->addContactPoint(to_bt_vector(c.normal), on_b[i], btScalar(-c.depth));
+      }
+    };
+    const size_t regions = owns_manifold_ ? std::clamp<size_t>(settings.contact_regions, 1, kMaxRegions) : 1;
+    if (regions == 1) {
+      add(contacts.contacts, manifold_);
+      if (owns_manifold_) result->refreshContactPoints();
+      return;
     }
-    if (owns_manifold_) result->refreshContactPoints();
+    // Each contact's region: its cell in A's asset frame (cells as wide as A's bounding radius, fixed to A, so a
+    // contact keeps its region from step to step), folded onto the manifolds; each region keeps its own 4 points.
+    thread_local std::array<std::vector<runtime::Contact>, kMaxRegions> groups;
+    for (auto& g : groups) g.clear();
+    const double cell = a_shape->object().bounding_radius() * pose_a.scale;
+    for (const runtime::Contact& c : contacts.contacts) {
+      const Eigen::Vector3d local = pose_a.rotation.transpose() * (c.point - pose_a.translation) / cell;
+      const auto key = [](double x) { return uint64_t(int64_t(std::floor(x))); };
+      const uint64_t hash = key(local.x()) * 73856093u ^ key(local.y()) * 19349663u ^ key(local.z()) * 83492791u;
+      groups[hash % regions].push_back(c);
+    }
+    for (size_t k = 0; k < regions; ++k) {
+      btPersistentManifold*& manifold = k == 0 ? manifold_ : extra_[k - 1];
+      if (!manifold) {
+        if (groups[k].empty()) continue;
+        manifold = m_dispatcher->getNewManifold(a_wrap->getCollisionObject(), b_wrap->getCollisionObject());
+      }
+      result->setPersistentManifold(manifold);
+      add(groups[k], manifold);
+      result->refreshContactPoints();
+    }
   }
 
   /// How far the pair can close in one step: the relative speed of the centres plus each body's spin times its
@@ -437,6 +481,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
 
   void getAllContactManifolds(btManifoldArray& manifolds) override {
     if (manifold_ && owns_manifold_) manifolds.push_back(manifold_);
+    for (btPersistentManifold* m : extra_)
+      if (m) manifolds.push_back(m);
   }
 
  private:
@@ -522,7 +568,9 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     }
   }
 
+  static constexpr size_t kMaxRegions = 4;
   btPersistentManifold* manifold_;
+  std::array<btPersistentManifold*, kMaxRegions - 1> extra_{};  ///< the other regions' manifolds, made on first use
   bool owns_manifold_ = false;
   bool swapped_;
   Shared* shared_;
@@ -530,7 +578,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
 };
 
 // Bullet's pool slots are sized from its own algorithms; ours must not be larger (see prepare_construction_info).
-static_assert(sizeof(VpsCollisionAlgorithm) <= 64, "keep the algorithm small: it lives in the dispatcher's pool");
+static_assert(sizeof(VpsCollisionAlgorithm) <= 96, "keep the algorithm small: it lives in the dispatcher's pool");
 
 class CreateFunc : public btCollisionAlgorithmCreateFunc {
  public:

@@ -48,8 +48,14 @@ struct CollisionSettings {
   /// up to two sphere radii deeper than the surface; the solver turns that extra depth into energy (a coarse
   /// bunny dropped on a bunny was thrown off at 51 m/s), so use it for detection, not for dynamics.
   runtime::CutLevel cut_level = runtime::CutLevel::Points;
-  /// Contacts handed to Bullet's persistent manifold per pair and step (at most 4, Bullet keeps 4).
+  /// Contacts handed to Bullet's persistent manifold per pair, region and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
+  /// Contact regions per pair (1-4), each with a persistent manifold of its own: a pair touching in several
+  /// places (a body across another, a peg against a hole's wall) keeps points in each, where one manifold's four
+  /// points would leave the others to sink in before they are seen. Contacts fall into regions by their cell
+  /// in the point-carrying body's frame (cells as wide as its bounding radius), so a contact keeps its region
+  /// and its manifold from step to step.
+  size_t contact_regions = 4;
   /// Time budget of one step's VPS pair tests together, microseconds (0 = none): a frame rate the narrow phase
   /// keeps whatever piles up. It moves a level cap shared by every shell, as a haptic loop's does: after a step
   /// whose pair tests took longer, every shell is tested one tree level less deep; after 50 steps under half the
