@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <limits>
 #include <optional>
 #include <string>
 
@@ -123,6 +124,24 @@ TEST(SphereQuery, PointBudgetStopsAtWholeLevels) {
   query_contacts(*sphere(), at(0), *sphere(), at(0.1), options, contacts);
   EXPECT_LE(contacts.stats.points_tested, 100u);
   EXPECT_GT(contacts.stats.points_tested, 0u);
+  // Whole levels: exactly what a query limited to the last level it completed tests and finds, and that level is
+  // not the leaves (the budget stopped it, not the tree).
+  const uint32_t level = contacts.stats.deepest_level;
+  EXPECT_LT(level + 1, sphere()->point_tree().level_count());
+  QueryOptions whole = options;
+  whole.point_budget = std::numeric_limits<size_t>::max();
+  whole.max_level = level;
+  ContactSet levels;
+  query_contacts(*sphere(), at(0), *sphere(), at(0.1), whole, levels);
+  EXPECT_EQ(levels.stats.points_tested, contacts.stats.points_tested);
+  ASSERT_EQ(levels.contacts.size(), contacts.contacts.size());
+  for (size_t i = 0; i < levels.contacts.size(); ++i)
+    EXPECT_EQ(levels.contacts[i].point_index, contacts.contacts[i].point_index);
+  // The next level would have taken it over the budget.
+  whole.max_level = level + 1;
+  ContactSet deeper;
+  query_contacts(*sphere(), at(0), *sphere(), at(0.1), whole, deeper);
+  EXPECT_GT(deeper.stats.points_tested, 100u);
 }
 
 TEST(SphereLoad, InvalidAssetIsAnErrorWithACode) {
