@@ -448,6 +448,11 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   add_bake_options(*cmd, o->bake);
   cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
+  cmd->footer(
+      "\nExamples:\n"
+      "  voxfmt batch meshes/ -o assets/                       # every mesh below meshes/, on every core\n"
+      "  voxfmt batch meshes/ -o assets/ --retry-failed -j 2   # again: only what failed or changed\n"
+      "  voxfmt batch /shared/meshes -o /shared/assets --shard 3/16 --timeout 3600   # one Slurm array task\n");
   cmd->callback([o, &exit_code] {
     try {
       exit_code = Runner(*o).run();

@@ -65,6 +65,11 @@ void add_build_command(CLI::App& app, int& exit_code) {
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
   cmd->add_flag("--json", o->json, "Print a JSON summary (timings, peak memory, sizes, warnings) on stdout");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress, warnings or summary");
+  cmd->footer(
+      "\nExamples:\n"
+      "  voxfmt build bunny.off -o bunny.vox.h5                         # defaults: 128 voxels, 10,000 points\n"
+      "  voxfmt build part.stl -o part.vox.h5 --unit-scale 0.001 --voxel-size 5e-5   # a mesh in mm, 50 um voxels\n"
+      "  voxfmt build bunny.off -o bunny.vox.h5 --resolution 306 --points 35000 --json   # the seed's settings\n");
   cmd->callback([o, &exit_code] { exit_code = run(*o); });
 }
 

@@ -185,6 +185,11 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--vdb", options->vdb,
                   "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
                   "\"layers\" (int32), for Houdini, Blender or vdb_view");
+  cmd->footer(
+      "\nExamples:\n"
+      "  voxfmt inspect bunny.vox.h5                                  # what the asset holds\n"
+      "  voxfmt inspect bunny.vox.h5 --slice z=150 --png slice.png    # a picture of the voxelmap\n"
+      "  voxfmt inspect bunny.vox.h5 --ply shell.ply --vdb grids.vdb  # point shell and grids for other tools\n");
   cmd->callback([options, &exit_code] {
     std::vector<Issue> warnings;
     Result<Asset> asset = read_asset(options->file, &warnings);

@@ -30,6 +30,11 @@ void add_validate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  cmd->footer(
+      "\nExamples:\n"
+      "  voxfmt validate bunny.vox.h5                      # the structure (quick)\n"
+      "  voxfmt validate --level full assets/*.vox.h5      # every rule of the spec, every voxel\n"
+      "  voxfmt validate --json bunny.vox.h5 | jq '.files[].issues'  # findings for a script\n");
   cmd->callback([options, &exit_code] {
     nlohmann::json report = {{"files", nlohmann::json::array()}};
     int worst = kExitOk;  // the highest exit status of any file's first error
