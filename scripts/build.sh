@@ -6,5 +6,23 @@ bash scripts/install-deps.sh
 BUILD_DIR=${BUILD_DIR:-build}
 # ccache keys on paths relative to the checkout, so a fresh clone elsewhere reuses the cache.
 export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD}
-cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=${BUILD_TYPE:-Release} ${CMAKE_ARGS:-} >/dev/null
-cmake --build "$BUILD_DIR" -j "${JOBS:-$(nproc)}"
+# One line per stage; the compiler's output goes to a log, shown (its end) only if the build fails. VERBOSE=1
+# shows everything as it happens.
+mkdir -p .logs
+log=.logs/build-$(basename "$BUILD_DIR").log
+run() {
+  if [ "${VERBOSE:-0}" = 1 ]; then "$@"; return; fi
+  if ! "$@" >>"$log" 2>&1; then
+    grep -E "error|Error|FAILED" "$log" | tail -n 20 >&2 || true
+    tail -n 20 "$log" >&2
+    echo "build: failed; the whole log is $log" >&2
+    exit 1
+  fi
+}
+: >"$log"
+start=$SECONDS
+echo "build: configuring $BUILD_DIR (log: $log)"
+run cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=${BUILD_TYPE:-Release} ${CMAKE_ARGS:-}
+echo "build: compiling on ${JOBS:-$(nproc)} cores (a fresh build takes 10-20 min on 2 cores; ccache makes the next ones quick) ..."
+run cmake --build "$BUILD_DIR" -j "${JOBS:-$(nproc)}"
+echo "build: $BUILD_DIR/bin is up to date ($((SECONDS - start)) s)"

@@ -32,19 +32,32 @@ if [ ${#missing[@]} -eq 0 ]; then
 else
   SUDO=""
   if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-  echo "install-deps: installing ${#missing[@]} missing package(s): ${missing[*]}"
+  # apt's and dpkg's thousands of lines go to a log, named (with its end) only if something fails.
+  mkdir -p .logs
+  log=.logs/install-deps.log
+  echo "install-deps: installing ${#missing[@]} missing package(s) with apt-get (log: $log) ..."
   export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+  start=$SECONDS
+  if ! { $SUDO apt-get update -q && $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"; } >"$log" 2>&1; then
+    tail -n 20 "$log" >&2
+    echo "install-deps: apt-get failed; the whole log is $log" >&2
+    exit 1
+  fi
+  echo "install-deps: installed ${#missing[@]} package(s) in $((SECONDS - start)) s"
 fi
 
 # The Python tools (python/requirements-dev.txt), from PyPI into .venv/ with Debian's interpreter. pip's
 # `--dry-run` would still reach the index, so the check is an import.
 VENV=.venv
 if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py" >/dev/null 2>&1; then
-  echo "install-deps: creating $VENV with python/requirements-dev.txt"
-  /usr/bin/python3 -m venv "$VENV"
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r python/requirements-dev.txt
+  echo "install-deps: creating $VENV with python/requirements-dev.txt (log: .logs/pip.log) ..."
+  mkdir -p .logs
+  if ! { /usr/bin/python3 -m venv "$VENV" &&
+    "$VENV/bin/python" -m pip install --disable-pip-version-check -r python/requirements-dev.txt; } >.logs/pip.log 2>&1; then
+    tail -n 20 .logs/pip.log >&2
+    echo "install-deps: pip failed; the whole log is .logs/pip.log" >&2
+    exit 1
+  fi
 else
   echo "install-deps: $VENV has the Python tools"
 fi
