@@ -118,8 +118,9 @@ struct QueryScratch {
   /// The same for the last completed level, held while the next one runs (a time budget may end it).
   std::vector<Hit> done_hits;
   std::vector<uint32_t> done_parents;
-  /// Benchmarks: when set, every point whose distance is looked up is appended here, in the target's
-  /// coordinates (a voxelmap's grid), so the cost of the lookups alone can be measured.
+  /// For benchmarks and tests only (not part of the query's contract): when set, every point whose distance is
+  /// looked up is appended here, in the target's coordinates (a voxelmap's grid), so the cost of the lookups
+  /// alone can be measured.
   std::vector<Eigen::Vector3f>* tested_points = nullptr;
 };
 
