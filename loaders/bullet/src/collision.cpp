@@ -362,6 +362,19 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   }
 }
 
+/// A static mesh's vertices that were near a VPS body (A) at an anchor pose, for coherent queries.
+struct VertexCache {
+  bool valid = false;
+  Eigen::Matrix3d rotation;  ///< A's shape frame from the mesh's at the anchor
+  Eigen::Vector3d translation;
+  Eigen::Vector3d centre;  ///< the box scanned (mesh frame): centre and half diagonal
+  double radius = 0;
+  double to_voxels = 0;                   ///< A's voxels per metre then
+  double threshold = 0;                   ///< vertices kept: A's distance bound below this (voxels) ...
+  double pad = 0;                         ///< ... within A's box grown by this (metres)
+  std::vector<Eigen::Vector3f> vertices;  ///< in scan order
+};
+
 /// A static mesh index's lower bound in world coordinates: one sample read, so inner nodes' points are bounded
 /// before their exact distance is searched.
 struct MeshBound {
@@ -378,7 +391,7 @@ struct MeshBound {
 // voxelmap, each once.
 void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const StaticMeshIndex& mesh,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
-                     runtime::QueryScratch& scratch, runtime::TraversalFront* front) {
+                     runtime::QueryScratch& scratch, runtime::TraversalFront* front, VertexCache* cache) {
   if (mesh.empty()) return;
   // The mesh's frame: x_b = R^T (x - t).
   const Eigen::Matrix3f rt = to_eigen(tb.getBasis()).transpose().cast<float>();
@@ -399,22 +412,13 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
       runtime::query_against_function(a.object(), pose_a, distance, bound, options, contacts, scratch);
   }
   if (!a.uses_voxelmap()) return;
-  // The vertices in A's box (its own frame, grown by the reach), blocks of cells out of A's reach skipped by one
-  // lookup of A's distance bound at their centre.
+  // The vertices in A's box (its own frame, grown by the reach) whose bound of A's distance is within reach; blocks
+  // of cells out of reach are skipped by one bound at their centre. With a cache, the vertices found within a
+  // slack are kept, and reused while the relative motion since cannot have used the slack up.
   btVector3 a_lo, a_hi;
   a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
-  const btScalar grow = btScalar(options.proximity) + a.getMargin();
-  a_lo -= btVector3(grow, grow, grow);
-  a_hi += btVector3(grow, grow, grow);
-  const btTransform b_from_a = tb.inverse() * ta, a_from_b = b_from_a.inverse();
-  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
-  for (int k = 0; k < 8; ++k) {
-    const btVector3 corner = b_from_a * btVector3((k & 1) ? a_hi.x() : a_lo.x(), (k & 2) ? a_hi.y() : a_lo.y(),
-                                                  (k & 4) ? a_hi.z() : a_lo.z());
-    const Eigen::Vector3f c(float(corner.x()), float(corner.y()), float(corner.z()));
-    lo = lo.cwiseMin(c);
-    hi = hi.cwiseMax(c);
-  }
+  const double grow = options.proximity + double(a.getMargin());
+  const btTransform a_from_b = ta.inverse() * tb;
   const runtime::SparseVoxelmap& map = a.object().voxelmap();
   const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
   const double reach = options.proximity * to_voxels;
@@ -425,23 +429,67 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   auto lower_bound = [&](const Eigen::Vector3f& x) {
     return double(map.distance_lower_bound(map.to_grid(to_asset_rotation * x.cast<double>() + to_asset_offset)));
   };
-  auto in_a_box = [&](const Eigen::Vector3f& x, btScalar pad) {
+  auto in_a_box = [&](const Eigen::Vector3f& x, double pad) {
     const btVector3 q = a_from_b * btVector3(x.x(), x.y(), x.z());
-    return q.x() >= a_lo.x() - pad && q.y() >= a_lo.y() - pad && q.z() >= a_lo.z() - pad && q.x() <= a_hi.x() + pad &&
-           q.y() <= a_hi.y() + pad && q.z() <= a_hi.z() + pad;
+    const btScalar p = btScalar(pad);
+    return q.x() >= a_lo.x() - p && q.y() >= a_lo.y() - p && q.z() >= a_lo.z() - p && q.x() <= a_hi.x() + p &&
+           q.y() <= a_hi.y() + p && q.z() <= a_hi.z() + p;
   };
   thread_local std::vector<Eigen::Vector3d> corners;
   corners.clear();
   const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
   const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
+  auto take = [&](const Eigen::Vector3f& v) {
+    if (in_a_box(v, grow) && lower_bound(v) < reach) corners.push_back(rb * v.cast<double>() + ob);
+  };
+  if (cache && cache->valid && cache->to_voxels == to_voxels) {
+    // How far any vertex of the region can have moved relative to A since the anchor: |dR c + dt| + |dR| r.
+    const Eigen::Matrix3d d_rotation = to_eigen(a_from_b.getBasis()) - cache->rotation;
+    const double moved = (d_rotation * cache->centre + to_eigen(a_from_b.getOrigin()) - cache->translation).norm() +
+                         d_rotation.norm() * cache->radius + 1e-6 * cache->radius;
+    // A vertex left out had a bound of at least `threshold` (or lay beyond the box grown by `pad`); A's distance
+    // is not below a bound less the motion (as the traversal's pruning assumes), so it stays out of reach.
+    if (reach + moved * to_voxels <= cache->threshold && grow + moved <= cache->pad) {
+      for (const Eigen::Vector3f& v : cache->vertices) take(v);
+      runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+      return;
+    }
+  }
+  // The slack: 4 voxels of A (a body at rest keeps its vertices for good, one sliding at 1 m/s for a step or two).
+  const double slack = cache ? 4.0 / to_voxels : 0.0;
+  const double pad = grow + slack, threshold = reach + slack * to_voxels;
+  const btTransform b_from_a = a_from_b.inverse();
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
+  for (int k = 0; k < 8; ++k) {
+    const btVector3 corner = b_from_a * btVector3((k & 1) ? a_hi.x() + btScalar(pad) : a_lo.x() - btScalar(pad),
+                                                  (k & 2) ? a_hi.y() + btScalar(pad) : a_lo.y() - btScalar(pad),
+                                                  (k & 4) ? a_hi.z() + btScalar(pad) : a_lo.z() - btScalar(pad));
+    const Eigen::Vector3f c(float(corner.x()), float(corner.y()), float(corner.z()));
+    lo = lo.cwiseMin(c);
+    hi = hi.cwiseMax(c);
+  }
+  if (cache) cache->vertices.clear();
   mesh.vertices_in_box(
       lo, hi,
       [&](const Eigen::Vector3f& centre, float radius) {
-        return in_a_box(centre, btScalar(radius)) && lower_bound(centre) <= double(radius) * to_voxels + reach;
+        return in_a_box(centre, double(radius) + pad) && lower_bound(centre) <= double(radius) * to_voxels + threshold;
       },
       [&](const Eigen::Vector3f& v) {
-        if (in_a_box(v, 0) && lower_bound(v) < reach) corners.push_back(rb * v.cast<double>() + ob);
+        if (!cache) return take(v);
+        if (!in_a_box(v, pad) || !(lower_bound(v) < threshold)) return;
+        cache->vertices.push_back(v);
+        take(v);
       });
+  if (cache) {
+    cache->valid = true;
+    cache->rotation = to_eigen(a_from_b.getBasis());
+    cache->translation = to_eigen(a_from_b.getOrigin());
+    cache->centre = 0.5 * (lo + hi).cast<double>();
+    cache->radius = 0.5 * double((hi - lo).norm());
+    cache->to_voxels = to_voxels;
+    cache->threshold = threshold;
+    cache->pad = pad;
+  }
   runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
 }
 
@@ -451,6 +499,11 @@ struct PairState {
   runtime::QueryState query;
   std::shared_ptr<const StaticMeshIndex> mesh;
   uint64_t mesh_generation = 0;
+  VertexCache vertices;
+  void reset() {
+    query.reset();
+    vertices.valid = false;
+  }
 };
 
 /// Contacts of a VPS shape (A) with any supported partner (B), reduced and fed to a persistent manifold
@@ -500,7 +553,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
     if (!state_) state_ = std::make_unique<PairState>();
-    if (!settings.coherent) state_->query.reset();
+    if (!settings.coherent) state_->reset();
     const bool cut = collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch,
                              settings.coherent ? &state_->query : nullptr);
     if (budgeted)
@@ -672,7 +725,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       case SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE:
         if (shared_->settings.static_mesh_index) {
           const StaticMeshIndex& mesh = mesh_index(static_cast<const btConcaveShape&>(*b_shape));
-          collide_indexed(a, pose_a, ta, mesh, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr);
+          collide_indexed(a, pose_a, ta, mesh, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr,
+                          state ? &state_->vertices : nullptr);
           return cut;
         }
         collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
@@ -705,7 +759,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     if (!state.mesh || state.mesh_generation != generation || !(state.mesh->signature() == MeshSignature::of(shape))) {
       state.mesh = shared_->mesh_index(shape);
       state.mesh_generation = generation;
-      state.query.reset();
+      state.reset();
     }
     return *state.mesh;
   }

@@ -6,6 +6,8 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -106,18 +108,18 @@ void StaticMeshIndex::vertices_in_box(const Eigen::Vector3f& lo, const Eigen::Ve
   const Eigen::Vector3i c0 = cell_of(lo), c1 = cell_of(hi);
   constexpr int kBlock = 4;
   const float radius = 0.5f * std::sqrt(3.0f) * kBlock * cell_;
-  for (int bk = c0.z(); bk <= c1.z(); bk += kBlock)
-    for (int bj = c0.y(); bj <= c1.y(); bj += kBlock)
-      for (int bi = c0.x(); bi <= c1.x(); bi += kBlock) {
+  for (int bk = c0.z() / kBlock * kBlock; bk <= c1.z(); bk += kBlock)
+    for (int bj = c0.y() / kBlock * kBlock; bj <= c1.y(); bj += kBlock)
+      for (int bi = c0.x() / kBlock * kBlock; bi <= c1.x(); bi += kBlock) {
         const Eigen::Vector3f centre =
             lo_ + cell_ * (Eigen::Vector3f(float(bi), float(bj), float(bk)) + Eigen::Vector3f::Constant(0.5f * kBlock));
         if (!keep(centre, radius)) continue;
-        for (int k = bk; k <= std::min(bk + kBlock - 1, c1.z()); ++k)
-          for (int j = bj; j <= std::min(bj + kBlock - 1, c1.y()); ++j) {
+        const int i0 = std::max(bi, c0.x()), i1 = std::min(bi + kBlock - 1, c1.x());
+        for (int k = std::max(bk, c0.z()); k <= std::min(bk + kBlock - 1, c1.z()); ++k)
+          for (int j = std::max(bj, c0.y()); j <= std::min(bj + kBlock - 1, c1.y()); ++j) {
             const size_t row = cell_index(0, j, k);
-            const uint32_t begin = vertex_first_[row + size_t(bi)];
-            const uint32_t end = vertex_first_[row + size_t(std::min(bi + kBlock - 1, c1.x())) + 1];
-            for (uint32_t v = begin; v < end; ++v) visit(vertices_[v]);
+            for (uint32_t v = vertex_first_[row + size_t(i0)]; v < vertex_first_[row + size_t(i1) + 1]; ++v)
+              visit(vertices_[v]);
           }
       }
 }
