@@ -561,6 +561,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
           std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count(),
           std::memory_order_relaxed);
 
+    if (settings.on_contacts)
+      settings.on_contacts(a_wrap->getCollisionObject(), b_wrap->getCollisionObject(), contacts);
     result->setPersistentManifold(manifold_);
     CollisionCounters& counters = shared_->counters;  // atomic: pairs may run on several threads at once
     ++counters.pair_tests;

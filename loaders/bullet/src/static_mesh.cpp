@@ -221,6 +221,15 @@ Eigen::Vector3i StaticMeshIndex::cell_of(const Eigen::Vector3f& x) const {
 bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
                              float& distance, Eigen::Vector3f& outward, float& beyond) const {
   detail::NearestTriangle nearest(x);
+  // A triangle is listed in every cell its box covers: each is looked at once per search (a stamp per triangle
+  // and thread; a triangle passed over stays out of reach, as the nearest only gets nearer).
+  thread_local std::vector<uint32_t> seen;
+  thread_local uint32_t search_id = 0;
+  if (seen.size() < triangles_.size()) seen.resize(triangles_.size(), 0);
+  if (++search_id == 0) {
+    std::fill(seen.begin(), seen.end(), 0u);
+    search_id = 1;
+  }
   for (int r = first_ring;; ++r) {
     // The cells of ring r that may hold a nearer triangle than the nearest so far.
     for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, dims_.z() - 1); ++k) {
@@ -234,7 +243,10 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
           if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
           const size_t cell = cell_index(i, j, k);
           for (uint32_t m = first_[cell]; m < first_[cell + 1]; ++m) {
-            const Triangle& t = triangles_[members_[m]];
+            const uint32_t id = members_[m];
+            if (seen[id] == search_id) continue;
+            seen[id] = search_id;
+            const Triangle& t = triangles_[id];
             if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
             nearest.consider(t.a, t.b, t.c, t.normal);
           }

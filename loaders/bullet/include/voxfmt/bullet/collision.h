@@ -85,6 +85,11 @@ struct CollisionSettings {
   /// a rescaled or refitted mesh (a new box) is noticed. Off: each test gathers the triangles in the body's box
   /// through Bullet and grids them (terrains always do: their heights may change under Bullet's feet).
   bool static_mesh_index = true;
+  /// Called with every pair test's contacts before they are reduced to the manifold's points (tests, debugging
+  /// views): `a` is the VPS body the contacts' normals push (Contact::normal), `b` its partner. Empty: not called.
+  /// With a multi-threaded dispatcher it is called on the dispatcher's threads.
+  std::function<void(const btCollisionObject* a, const btCollisionObject* b, const runtime::ContactSet& contacts)>
+      on_contacts;
   /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs
   /// produce no contacts). Default (empty): the message goes to stderr. With a multi-threaded dispatcher it is
   /// called on the dispatcher's threads, possibly on two at once for two shape types.
