@@ -219,8 +219,9 @@ Eigen::Vector3i StaticMeshIndex::cell_of(const Eigen::Vector3f& x) const {
 }
 
 bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
-                             float& distance, Eigen::Vector3f& outward, float& beyond) const {
+                             float& distance, Eigen::Vector3f& outward, float& beyond, float seed) const {
   detail::NearestTriangle nearest(x);
+  if (seed < band) nearest.best2 = seed * seed;  // cells farther than the seed are passed over
   // A triangle is listed in every cell its box covers: each is looked at once per search (a stamp per triangle
   // and thread; a triangle passed over stays out of reach, as the nearest only gets nearer).
   thread_local std::vector<uint32_t> seen;
@@ -262,6 +263,8 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
     }
     const float reach = std::max(box, block);
     if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+      if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
+        return search(x, c, first_ring, box, band, distance, outward, beyond);
       const float d = std::sqrt(nearest.best2);
       if (d > band) {
         beyond = d;
@@ -305,7 +308,8 @@ float StaticMeshIndex::distance(const Eigen::Vector3f& x, float proximity, Eigen
   return beyond;
 }
 
-float StaticMeshIndex::exact_lower_bound(const Eigen::Vector3f& x, float band) const {
+float StaticMeshIndex::exact_lower_bound(const Eigen::Vector3f& x, float band, float seed, bool* exact) const {
+  if (exact) *exact = false;
   if (triangles_.empty()) return std::numeric_limits<float>::infinity();
   const Eigen::Vector3i c = cell_of(x);
   const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
@@ -316,7 +320,10 @@ float StaticMeshIndex::exact_lower_bound(const Eigen::Vector3f& x, float band) c
   if (bound > band) return facing ? bound : bound - 2.0f * band;
   float d, beyond;
   Eigen::Vector3f outward;
-  if (search(x, c, ring, box, band, d, outward, beyond)) return d;
+  if (search(x, c, ring, box, band, d, outward, beyond, seed)) {
+    if (exact) *exact = true;
+    return d;
+  }
   return facing ? beyond : beyond - 2.0f * band;
 }
 
@@ -332,19 +339,11 @@ float StaticMeshIndex::lower_bound(const Eigen::Vector3f& x, float proximity) co
   if (bound > band) return facing ? bound : bound - 2.0f * band;
   const uint32_t block = sample_block_[cell];
   if (block == kNoSamples) return exact_lower_bound(x, band);
-  // The nearest sample s: distance() is not below its value less |y - s| wherever it has a contact (within the
-  // base band the sample is the exact distance; a sample beyond it may hold a point behind the mesh at most the
-  // proximity deeper than the base band, which twice the proximity more covers).
-  const float half = 0.5f * cell_;
-  const Eigen::Vector3f corner = lo_ + cell_ * c.cast<float>();
-  int sub = 0;
-  Eigen::Vector3f s;
-  for (int a = 0; a < 3; ++a) {
-    const int upper = x[a] >= corner[a] + half ? 1 : 0;
-    sub |= upper << a;
-    s[a] = corner[a] + half * (float(upper) + 0.5f);
-  }
-  const float value = samples_[8 * size_t(block) + size_t(sub)] - (x - s).norm() - 2.0f * proximity;
+  // The cell's sample s (at its centre): distance() is not below its value less |y - s| wherever it has a
+  // contact (within the base band the sample is the exact distance; a sample beyond it may hold a point behind the
+  // mesh at most the proximity deeper than the base band, which twice the proximity more covers).
+  const Eigen::Vector3f s = lo_ + cell_ * (c.cast<float>() + Eigen::Vector3f::Constant(0.5f));
+  const float value = samples_[size_t(block)] - (x - s).norm() - 2.0f * proximity;
   return facing ? std::max(value, bound) : value;
 }
 
@@ -354,19 +353,25 @@ void StaticMeshIndex::sample() {
   uint32_t blocks = 0;
   for (size_t c = 0; c < cells; ++c)
     if (ring_[c] <= kSampledRings) sample_block_[c] = blocks++;
-  samples_.resize(8 * size_t(blocks));
-  const float half = 0.5f * cell_, band = base_band();
+  samples_.resize(size_t(blocks));
+  const float band = base_band();
+  bool have_last = false;
+  float last = 0;
+  Eigen::Vector3f last_at = Eigen::Vector3f::Zero();
   for (int k = 0; k < dims_.z(); ++k)
     for (int j = 0; j < dims_.y(); ++j)
       for (int i = 0; i < dims_.x(); ++i) {
         const uint32_t block = sample_block_[cell_index(i, j, k)];
         if (block == kNoSamples) continue;
         const Eigen::Vector3f corner = lo_ + cell_ * Eigen::Vector3f(float(i), float(j), float(k));
-        for (int sub = 0; sub < 8; ++sub) {
-          const Eigen::Vector3f s = corner + half * Eigen::Vector3f(float(sub & 1) + 0.5f, float((sub >> 1) & 1) + 0.5f,
-                                                                    float((sub >> 2) & 1) + 0.5f);
-          samples_[8 * size_t(block) + size_t(sub)] = exact_lower_bound(s, band);
-        }
+        // The sample before bounds this one's nearest triangle: |its distance| + the step, rounding aside.
+        const Eigen::Vector3f s = corner + Eigen::Vector3f::Constant(0.5f * cell_);
+        const float seed = have_last ? (std::abs(last) + (s - last_at).norm()) * (1 + 1e-4f) + 1e-6f * cell_
+                                     : std::numeric_limits<float>::infinity();
+        float& value = samples_[size_t(block)];
+        value = exact_lower_bound(s, band, seed, &have_last);
+        last = value;
+        last_at = s;
       }
   info_.samples = samples_.size();
 }
