@@ -111,7 +111,7 @@ CollisionSettings unindexed() {
   return settings;
 }
 
-// Bit for bit: every field of every contact, in order.
+// Bit for bit: every field of every contact, in order (a mesh vertex's contact is numbered by the vertex).
 void expect_same(const std::vector<runtime::Contact>& a, const std::vector<runtime::Contact>& b, size_t step) {
   ASSERT_EQ(a.size(), b.size()) << "step " << step;
   for (size_t i = 0; i < a.size(); ++i) {

@@ -369,10 +369,10 @@ struct VertexCache {
   Eigen::Vector3d translation;
   Eigen::Vector3d centre;  ///< the box scanned (mesh frame): centre and half diagonal
   double radius = 0;
-  double to_voxels = 0;                   ///< A's voxels per metre then
-  double threshold = 0;                   ///< vertices kept: A's distance bound below this (voxels) ...
-  double pad = 0;                         ///< ... within A's box grown by this (metres)
-  std::vector<Eigen::Vector3f> vertices;  ///< in scan order
+  double to_voxels = 0;            ///< A's voxels per metre then
+  double threshold = 0;            ///< vertices kept: A's distance bound below this (voxels) ...
+  double pad = 0;                  ///< ... within A's box grown by this (metres)
+  std::vector<uint32_t> vertices;  ///< their ids in the index, in scan order
 };
 
 /// A static mesh index's lower bound in world coordinates: one sample read, so inner nodes' points are bounded
@@ -436,11 +436,23 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
            q.y() <= a_hi.y() + p && q.z() <= a_hi.z() + p;
   };
   thread_local std::vector<Eigen::Vector3d> corners;
+  thread_local std::vector<uint32_t> ids;
   corners.clear();
+  ids.clear();
   const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
   const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
-  auto take = [&](const Eigen::Vector3f& v) {
-    if (in_a_box(v, grow) && lower_bound(v) < reach) corners.push_back(rb * v.cast<double>() + ob);
+  auto take = [&](const Eigen::Vector3f& v, uint32_t id) {
+    if (!in_a_box(v, grow) || !(lower_bound(v) < reach)) return;
+    corners.push_back(rb * v.cast<double>() + ob);
+    ids.push_back(id);
+  };
+  // A vertex's contact is numbered by the vertex (its id in the index), not by its place in this test's list,
+  // which holds vertices out of reach too and differs between a kept list and a fresh scan.
+  auto in_voxelmap = [&] {
+    const size_t first = contacts.contacts.size();
+    runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+    for (size_t i = first; i < contacts.contacts.size(); ++i)
+      contacts.contacts[i].point_index = ids[contacts.contacts[i].point_index];
   };
   if (cache && cache->valid && cache->to_voxels == to_voxels) {
     // How far any vertex of the region can have moved relative to A since the anchor: |dR c + dt| + |dR| r.
@@ -450,8 +462,8 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     // A vertex left out had a bound of at least `threshold` (or lay beyond the box grown by `pad`); A's distance
     // is not below a bound less the motion (as the traversal's pruning assumes), so it stays out of reach.
     if (reach + moved * to_voxels <= cache->threshold && grow + moved <= cache->pad) {
-      for (const Eigen::Vector3f& v : cache->vertices) take(v);
-      runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+      for (const uint32_t id : cache->vertices) take(mesh.vertex(id), id);
+      in_voxelmap();
       return;
     }
   }
@@ -474,11 +486,11 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
       [&](const Eigen::Vector3f& centre, float radius) {
         return in_a_box(centre, double(radius) + pad) && lower_bound(centre) <= double(radius) * to_voxels + threshold;
       },
-      [&](const Eigen::Vector3f& v) {
-        if (!cache) return take(v);
+      [&](const Eigen::Vector3f& v, uint32_t id) {
+        if (!cache) return take(v, id);
         if (!in_a_box(v, pad) || !(lower_bound(v) < threshold)) return;
-        cache->vertices.push_back(v);
-        take(v);
+        cache->vertices.push_back(id);
+        take(v, id);
       });
   if (cache) {
     cache->valid = true;
@@ -490,7 +502,7 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     cache->threshold = threshold;
     cache->pad = pad;
   }
-  runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+  in_voxelmap();
 }
 
 /// What a pair keeps between its tests: the traversal fronts (CollisionSettings::coherent) and its static mesh's
@@ -812,7 +824,8 @@ class Registration : public VpsCollisionRegistration {
   StaticMeshInfo prepare_static_mesh(const btCollisionShape& shape) override {
     const int type = shape.getShapeType();
     if (type != TRIANGLE_MESH_SHAPE_PROXYTYPE && type != SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE) return {};
-    const StaticMeshIndex::Info& built = shared_.mesh_index(static_cast<const btConcaveShape&>(shape))->info();
+    const std::shared_ptr<const StaticMeshIndex> index = shared_.mesh_index(static_cast<const btConcaveShape&>(shape));
+    const StaticMeshIndex::Info& built = index->info();
     StaticMeshInfo info;
     info.triangles = built.triangles;
     info.vertices = built.vertices;

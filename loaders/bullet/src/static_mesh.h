@@ -59,11 +59,13 @@ class StaticMeshIndex {
   /// proximity (every contact), for pruning spheres.
   float lower_bound(const Eigen::Vector3f& x, float proximity) const;
 
-  /// The cells whose box overlaps [lo, hi] (shape frame), in blocks of up to 4 x 4 x 4 cells: `keep(centre,
-  /// radius)` says whether a block's ball may hold a vertex of interest, and `visit(vertex)` gets every vertex of
-  /// the blocks kept (each vertex once).
+  /// The vertices of the cells whose box overlaps [lo, hi] (shape frame), by blocks of 4 x 4 x 4 cells on a
+  /// lattice fixed to the grid (so any two vertices come in the same order whatever the box): `keep(centre,
+  /// radius)` says whether a block's ball may hold a vertex of interest, and `visit(vertex, id)` gets every vertex
+  /// of the cells kept, each once, with its place in the index (vertex(id)).
   template <class Keep, class Visit>
   void vertices_in_box(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, Keep&& keep, Visit&& visit) const;
+  const Eigen::Vector3f& vertex(uint32_t id) const { return vertices_[id]; }
 
  private:
   struct Triangle {
@@ -125,7 +127,7 @@ void StaticMeshIndex::vertices_in_box(const Eigen::Vector3f& lo, const Eigen::Ve
           for (int j = std::max(bj, c0.y()); j <= std::min(bj + kBlock - 1, c1.y()); ++j) {
             const size_t row = cell_index(0, j, k);
             for (uint32_t v = vertex_first_[row + size_t(i0)]; v < vertex_first_[row + size_t(i1) + 1]; ++v)
-              visit(vertices_[v]);
+              visit(vertices_[v], v);
           }
       }
 }
