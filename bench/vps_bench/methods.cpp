@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <iomanip>
 #include <sstream>
 #include <stdexcept>
 
@@ -83,6 +84,15 @@ class BulletMethod : public Method {
     btCollisionObjectWrapper wb(nullptr, b_shape_.get(), &b_, b_.getWorldTransform(), -1, -1);
     algorithm_ = dispatcher_->findAlgorithm(&wa, &wb, nullptr, BT_CONTACT_POINT_ALGORITHMS);
     if (!algorithm_) throw std::runtime_error("Bullet has no algorithm for this pair");
+    // A static mesh is indexed as a world indexes it when the mesh is added, before any query is timed.
+    if (a_shape_->getShapeType() == voxfmt::bullet::VpsShape::kShapeType &&
+        b_shape_->getShapeType() == TRIANGLE_MESH_SHAPE_PROXYTYPE && vps_->settings().static_mesh_index) {
+      const voxfmt::bullet::StaticMeshInfo info = vps_->prepare_static_mesh(*b_shape_);
+      std::ostringstream index;
+      index << std::setprecision(3) << "; mesh index " << double(info.memory_bytes) / 1e6 << " MB, built in "
+            << info.build_seconds * 1e3 << " ms";
+      note_ += index.str();
+    }
   }
   ~BulletMethod() override {
     algorithm_->~btCollisionAlgorithm();
@@ -91,7 +101,7 @@ class BulletMethod : public Method {
 
   void query(const PosePair& pose) override {
     a_.setWorldTransform(to_bt(pose.a));
-    b_.setWorldTransform(to_bt(pose.b));
+    b_.setWorldTransform(to_bt(pose.b) * b_offset_);
     btCollisionObjectWrapper wa(nullptr, a_shape_.get(), &a_, a_.getWorldTransform(), -1, -1);
     btCollisionObjectWrapper wb(nullptr, b_shape_.get(), &b_, b_.getWorldTransform(), -1, -1);
     result_.emplace(&wa, &wb);
@@ -117,9 +127,18 @@ class BulletMethod : public Method {
   }
 
   std::string note() const override { return note_; }
-  void keep_state(bool keep) override { keep_state_ = keep; }
+  void keep_state(bool keep) override {
+    keep_state_ = keep;
+    if (coherent_in_worlds_) vps_->settings().coherent = keep;
+  }
+  /// B's shape frame in B's pose frame (a VPS shape standing for a mesh: the asset's principal frame).
+  void set_b_offset(const btTransform& offset) { b_offset_ = offset; }
+  /// Coherent on trajectories, as in a world; from scratch on pose sets.
+  void set_coherent_in_worlds() { coherent_in_worlds_ = true; }
 
  private:
+  btTransform b_offset_ = btTransform::getIdentity();
+  bool coherent_in_worlds_ = false;
   std::shared_ptr<btCollisionShape> a_shape_, b_shape_;
   std::string note_;
   std::unique_ptr<btDefaultCollisionConfiguration> config_;
@@ -209,6 +228,28 @@ std::unique_ptr<Method> vps_method(const std::string& name, const Scenario& s, c
   return std::make_unique<BulletMethod>(a, b, vps_note(*a) + (coherent ? ", coherent" : ""), coherent);
 }
 
+/// bunny-static-mesh's floor baked offline (baked_floor) as a voxelmap-only VPS shape; the bunny's points go
+/// into it.
+std::unique_ptr<Method> baked_floor_method(const Scenario& s, const MethodSettings& settings, std::string& why) {
+  if (s.b->kind != Body::Kind::StaticMesh) {
+    why = "only bunny-static-mesh has a mesh floor to bake";
+    return nullptr;
+  }
+  const double voxel = settings.baked_floor_voxel > 0 ? settings.baked_floor_voxel : s.a->vps->voxelmap().voxel_size();
+  const BakedFloor floor = baked_floor(settings.cache_dir, voxel);
+  auto b = std::make_shared<voxfmt::bullet::VpsVoxelmapShape>(floor.object);
+  auto a = std::make_shared<VpsMixedShape>(s.a->vps);
+  std::ostringstream note;
+  note << vps_note(*a) << "; floor baked offline as a " << floor.triangles << "-triangle slab at "
+       << floor.voxel_size * 1e3 << " mm voxels: " << std::setprecision(3) << floor.bake_s << " s, peak "
+       << floor.bake_peak_mb << " MB (the process), " << floor.runtime_mb << " MB in the runtime, " << floor.file_mb
+       << " MB file; coherent on trajectories";
+  auto method = std::make_unique<BulletMethod>(a, b, note.str());
+  method->set_b_offset(b->asset_to_shape().inverse());
+  method->set_coherent_in_worlds();
+  return method;
+}
+
 std::shared_ptr<btCollisionShape> gimpact_of(const Body& body, double margin) {
   auto mesh = keep(std::make_shared<BulletMesh>(body.mesh));
   auto shape = std::make_shared<btGImpactMeshShape>(mesh->array.get());
@@ -293,13 +334,14 @@ std::shared_ptr<fcl::CollisionGeometryd> fcl_geometry(const Body& body) {
 }  // namespace
 
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"vps-fine", "vps-coarse", "vps-fine-prox", "gimpact", "hacd",
-                                                 "hull",     "fcl"};
+  static const std::vector<std::string> names = {"vps-fine", "vps-coarse", "vps-fine-prox", "vps-fine-baked-floor",
+                                                 "gimpact",  "hacd",       "hull",          "fcl"};
   return names;
 }
 
 const std::vector<std::string>& trajectory_method_names() {
-  static const std::vector<std::string> names = {"vps-fine", "vps-fine-coherent", "gimpact", "hacd", "hull", "fcl"};
+  static const std::vector<std::string> names = {
+      "vps-fine", "vps-fine-coherent", "vps-fine-baked-floor", "gimpact", "hacd", "hull", "fcl"};
   return names;
 }
 
@@ -389,6 +431,7 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
   const bool b_dynamic = s.b->kind == Body::Kind::BakedMesh;
   if (name == "vps-fine" || name == "vps-coarse" || name == "vps-fine-prox" || name == "vps-fine-coherent")
     return vps_method(name, s, settings);
+  if (name == "vps-fine-baked-floor") return baked_floor_method(s, settings, why);
   if (name == "gimpact") {
     auto a = gimpact_of(*s.a, settings.margin);
     auto b = b_dynamic ? (s.b == s.a ? a : gimpact_of(*s.b, settings.margin)) : static_partner(*s.b, settings.margin);

@@ -25,6 +25,8 @@ struct MethodSettings {
   std::string cache_dir;  ///< HACD decompositions
   /// false: hacd runs only where a cached decomposition exists (computing one takes minutes per mesh).
   bool compute_decompositions = true;
+  /// vps-fine-baked-floor: the floor's voxel (metres); 0: the bunny's.
+  double baked_floor_voxel = 0;
 };
 
 class Method {
@@ -44,6 +46,7 @@ class Method {
 /// Method names in table order (pose sets: every query from scratch, VPS without coherence).
 const std::vector<std::string>& method_names();
 /// Method names for trajectories: also vps-fine-coherent (the pair keeps its last traversal, as in a world).
+/// vps-fine-baked-floor (bunny-static-mesh only) is in both: the floor baked offline into a voxelmap.
 const std::vector<std::string>& trajectory_method_names();
 
 /// A trajectory: consecutive poses of a scenario's pair and the rate they were taken at.

@@ -221,6 +221,44 @@ std::shared_ptr<Body> floor_body() {
   return body;
 }
 
+/// The floor closed into a solid slab: the floor's grid on top (normals +y), a wall under each edge down to
+/// y = -depth, and a flat bottom fanned from its centre; every triangle facing out.
+Mesh floor_slab(double depth) {
+  Mesh slab = floor_body()->mesh;
+  const int n = kFloorGrid;
+  // The boundary of the top grid as one loop of grid positions (i, j), counter-clockwise seen from above.
+  std::vector<std::array<int, 2>> loop;
+  for (int j = 0; j + 1 < n; ++j) loop.push_back({0, j});
+  for (int i = 0; i + 1 < n; ++i) loop.push_back({i, n - 1});
+  for (int j = n - 1; j > 0; --j) loop.push_back({n - 1, j});
+  for (int i = n - 1; i > 0; --i) loop.push_back({i, 0});
+  const int below = int(slab.vertices.size());
+  for (const auto& p : loop) {
+    const Eigen::Vector3d& top = slab.vertices[size_t(p[0] * n + p[1])];
+    slab.vertices.emplace_back(top.x(), -depth, top.z());
+  }
+  const int centre = int(slab.vertices.size());
+  slab.vertices.emplace_back(0.0, -depth, 0.0);
+  // Orients each new triangle away from `inside` (a point within the slab on the triangle's side).
+  auto add = [&](int a, int b, int c, const Eigen::Vector3d& outward) {
+    const Eigen::Vector3d normal = (slab.vertices[size_t(b)] - slab.vertices[size_t(a)])
+                                       .cross(slab.vertices[size_t(c)] - slab.vertices[size_t(a)]);
+    if (normal.dot(outward) < 0) std::swap(b, c);
+    slab.triangles.push_back({a, b, c});
+  };
+  const int m = int(loop.size());
+  for (int k = 0; k < m; ++k) {
+    const int next = (k + 1) % m;
+    const int t0 = loop[size_t(k)][0] * n + loop[size_t(k)][1], t1 = loop[size_t(next)][0] * n + loop[size_t(next)][1];
+    const Eigen::Vector3d mid = 0.5 * (slab.vertices[size_t(t0)] + slab.vertices[size_t(t1)]);
+    const Eigen::Vector3d out(mid.x(), 0.0, mid.z());  // walls face away from the centre line
+    add(t0, t1, below + next, out);
+    add(t0, below + next, below + k, out);
+    add(centre, below + k, below + next, -Eigen::Vector3d::UnitY());
+  }
+  return slab;
+}
+
 // ------------------------------------------------------------------------------------------------ poses
 
 /// A resting-like pose on the plane y = 0 (or the box top): random orientation, the lowest vertex `depth`
@@ -380,6 +418,49 @@ Scenario make_scenario(const std::string& name, const ScenarioSettings& settings
     throw std::runtime_error("unknown scenario '" + name + "' (known:" + known + ")");
   }
   return s;
+}
+
+BakedFloor baked_floor(const std::string& cache_dir, double voxel_size, bool verbose) {
+  constexpr double kDepth = 0.02;
+  fs::create_directories(cache_dir);
+  std::ostringstream stem;
+  stem << "mesh-floor-slab-v" << voxel_size * 1e3 << "mm";
+  const fs::path base = fs::path(cache_dir) / stem.str();
+  const std::string asset_path = base.string() + ".vox.h5", figures_path = base.string() + ".bake.txt";
+  const Mesh slab = floor_slab(kDepth);
+  BakedFloor floor;
+  floor.voxel_size = voxel_size;
+  floor.triangles = slab.triangles.size();
+  if (!fs::exists(asset_path) || !fs::exists(figures_path)) {
+    const std::string mesh_path = base.string() + ".off";
+    {
+      std::ofstream out(mesh_path);
+      out << std::setprecision(17) << "OFF\n" << slab.vertices.size() << " " << slab.triangles.size() << " 0\n";
+      for (const auto& v : slab.vertices) out << v.x() << " " << v.y() << " " << v.z() << "\n";
+      for (const auto& t : slab.triangles) out << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
+      if (!out) throw std::runtime_error("cannot write " + mesh_path);
+    }
+    if (verbose)
+      std::cerr << "bake: the floor as a " << kDepth * 1e3 << " mm slab (" << slab.triangles.size() << " triangles), "
+                << voxel_size * 1e3 << " mm voxels -> " << asset_path << "\n";
+    voxfmt::bake::Settings bake;
+    bake.voxelmap.voxel_size = voxel_size;
+    bake.point_shell.points = 2000;  // never used: the floor is a voxelmap only
+    const auto summary = voxfmt::bake::bake_to_file(mesh_path, asset_path, bake);
+    if (!summary) throw std::runtime_error("baking the floor: " + summary.error().describe());
+    std::ofstream figures(figures_path);
+    figures << summary.value().total_s << " " << double(summary.value().peak_memory_bytes) / 1e6 << "\n";
+  }
+  std::ifstream figures(figures_path);
+  figures >> floor.bake_s >> floor.bake_peak_mb;
+  voxfmt::runtime::LoadOptions load;
+  load.load_point_shell = false;
+  auto loaded = voxfmt::runtime::CollisionObject::load(asset_path, load);
+  if (!loaded) throw std::runtime_error("loading " + asset_path + ": " + loaded.error().describe());
+  floor.object = loaded.value();
+  floor.file_mb = double(fs::file_size(asset_path)) / 1e6;
+  floor.runtime_mb = double(floor.object->memory_bytes()) / 1e6;
+  return floor;
 }
 
 }  // namespace vps_bench

@@ -75,4 +75,18 @@ Scenario make_scenario(const std::string& name, const ScenarioSettings& settings
 /// The bunny asset used for the memory figure (resolution 306, 35k points).
 std::shared_ptr<Body> bunny_body(const ScenarioSettings& settings);
 
+/// bunny-static-mesh's floor baked offline into an asset (what a user can do for level geometry instead of a
+/// triangle mesh): the wavy floor closed into a solid slab (vertical sides down to a flat bottom 20 mm below) and
+/// baked with `voxel_size` voxels, once into the cache; loaded as a voxelmap only. The bake's figures are those
+/// of the run that baked it (kept beside the asset).
+struct BakedFloor {
+  std::shared_ptr<const voxfmt::runtime::CollisionObject> object;
+  double voxel_size = 0;
+  double bake_s = 0;        ///< the whole bake (import, repair, voxelmap, point shell, write)
+  double bake_peak_mb = 0;  ///< the baking process's peak memory (the benchmark's own included)
+  double file_mb = 0, runtime_mb = 0;
+  size_t triangles = 0;  ///< of the closed slab
+};
+BakedFloor baked_floor(const std::string& cache_dir, double voxel_size, bool verbose = true);
+
 }  // namespace vps_bench

@@ -52,6 +52,7 @@ struct Options {
   bool trajectories = false;       ///< also run the trajectories
   bool pose_sets = true;           ///< run the pose sets
   size_t trajectory_steps = 1000;  ///< per trajectory
+  double floor_voxel = 0;          ///< vps-fine-baked-floor's voxel, metres (0: the bunny's; --quick: 2 mm)
 };
 
 // ------------------------------------------------------------------------------------------------ figures
@@ -329,6 +330,8 @@ int main(int argc, char** argv) {
                "vps-fine (from scratch each step) beside vps-fine-coherent");
   app.add_flag("!--no-pose-sets", options.pose_sets, "skip the pose sets (with --trajectories: trajectories only)");
   app.add_option("--steps", options.trajectory_steps, "steps per trajectory")->capture_default_str();
+  app.add_option("--floor-voxel", options.floor_voxel,
+                 "voxel of the floor vps-fine-baked-floor bakes, metres (default: the bunny's; --quick: 0.002)");
   CLI11_PARSE(app, argc, argv);
   if (options.quick) {
     options.poses = std::min<size_t>(options.poses, 20);
@@ -336,6 +339,7 @@ int main(int argc, char** argv) {
     options.cold = std::min<size_t>(options.cold, 10);
     options.budget_s = std::min(options.budget_s, 2.0);
     options.trajectory_steps = std::min<size_t>(options.trajectory_steps, 300);
+    if (options.floor_voxel <= 0) options.floor_voxel = 0.002;
   }
   if (options.scenarios.empty()) options.scenarios = scenario_names();
   const bool methods_given = !options.methods.empty();
@@ -365,6 +369,7 @@ int main(int argc, char** argv) {
     method_settings.margin = options.margin;
     method_settings.cache_dir = options.cache_dir;
     method_settings.compute_decompositions = !options.quick && !options.cached_decompositions_only;
+    method_settings.baked_floor_voxel = options.floor_voxel;
 
     const auto bunny = bunny_body(scenario_settings);
     const double runtime_mb = double(bunny->vps->memory_bytes()) / 1e6;

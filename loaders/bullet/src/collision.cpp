@@ -27,10 +27,13 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <mutex>
 #include <new>
 #include <string>
+#include <unordered_map>
 
 #include "bt_eigen.h"
+#include "static_mesh.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/runtime/contact_reduction.h"
@@ -78,6 +81,28 @@ struct Shared {
     return dropped >= leaf ? 0u : leaf - dropped;
   }
   static constexpr uint32_t kRelaxedSteps = 50;
+
+  // Static triangle meshes indexed once each (CollisionSettings::static_mesh_index), shared by every pair that
+  // meets them. A pair keeps its mesh's index and looks here only when it has none, or its generation is old.
+  std::mutex meshes_mutex;
+  std::unordered_map<const btCollisionShape*, std::shared_ptr<const StaticMeshIndex>> meshes;
+  std::atomic<uint64_t> mesh_generation{1};  ///< moves on whenever an index is forgotten
+
+  std::shared_ptr<const StaticMeshIndex> mesh_index(const btConcaveShape& shape) {
+    const MeshSignature signature = MeshSignature::of(shape);
+    std::lock_guard<std::mutex> lock(meshes_mutex);
+    std::shared_ptr<const StaticMeshIndex>& index = meshes[&shape];
+    if (!index || !(index->signature() == signature)) {  // new, or another mesh at a freed shape's address
+      index = StaticMeshIndex::build(shape);
+      ++counters.static_mesh_builds;
+    }
+    return index;
+  }
+  void forget_mesh(const btCollisionShape& shape) {
+    std::lock_guard<std::mutex> lock(meshes_mutex);
+    meshes.erase(&shape);
+    mesh_generation.fetch_add(1, std::memory_order_relaxed);
+  }
 
   // A pair the algorithm cannot handle produces no contacts: say so once per shape type, never silently.
   void report_unsupported(const btCollisionShape* shape) {
@@ -337,6 +362,162 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   }
 }
 
+/// A static mesh's vertices that were near a VPS body (A) at an anchor pose, for coherent queries.
+struct VertexCache {
+  bool valid = false;
+  Eigen::Matrix3d rotation;  ///< A's shape frame from the mesh's at the anchor
+  Eigen::Vector3d translation;
+  Eigen::Vector3d centre;  ///< the box scanned (mesh frame): centre and half diagonal
+  double radius = 0;
+  double to_voxels = 0;            ///< A's voxels per metre then
+  double threshold = 0;            ///< vertices kept: A's distance bound below this (voxels) ...
+  double pad = 0;                  ///< ... within A's box grown by this (metres)
+  std::vector<uint32_t> vertices;  ///< their ids in the index, in scan order
+};
+
+/// A static mesh index's lower bound in world coordinates: one sample read, so inner nodes' points are bounded
+/// before their exact distance is searched.
+struct MeshBound {
+  const StaticMeshIndex& mesh;
+  const Eigen::Matrix3f& rt;  ///< world -> mesh frame: x_b = rt (x - t)
+  const Eigen::Vector3f& t;
+  float proximity;
+  static constexpr bool kBoundBeforeDistance = true;
+  float operator()(const Eigen::Vector3f& x) const { return mesh.lower_bound(rt * (x - t), proximity); }
+};
+
+// A's points against a static mesh's index (which holds the whole mesh in its shape frame, so nothing is gathered
+// per query), coherently with the pair's front when there is one; and the mesh's vertices near A in A's
+// voxelmap, each once.
+void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const StaticMeshIndex& mesh,
+                     const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
+                     runtime::QueryScratch& scratch, runtime::TraversalFront* front, VertexCache* cache) {
+  if (mesh.empty()) return;
+  // The mesh's frame: x_b = R^T (x - t).
+  const Eigen::Matrix3f rt = to_eigen(tb.getBasis()).transpose().cast<float>();
+  const Eigen::Vector3f t = to_eigen(tb.getOrigin()).cast<float>();
+  const float proximity = float(options.proximity);
+  if (a.uses_points()) {
+    auto distance = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+      Eigen::Vector3f n;
+      const float d = mesh.distance(rt * (x - t), proximity, n);
+      outward = rt.transpose() * n;
+      return d;
+    };
+    MeshBound bound{mesh, rt, t, proximity};
+    if (front)
+      runtime::query_against_function(a.object(), pose_a, partner_pose(tb), distance, bound, options, contacts, scratch,
+                                      *front);
+    else
+      runtime::query_against_function(a.object(), pose_a, distance, bound, options, contacts, scratch);
+  }
+  if (!a.uses_voxelmap()) return;
+  // The vertices in A's box (its own frame, grown by the reach) whose bound of A's distance is within reach; blocks
+  // of cells out of reach are skipped by one bound at their centre. With a cache, the vertices found within a
+  // slack are kept, and reused while the relative motion since cannot have used the slack up.
+  btVector3 a_lo, a_hi;
+  a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
+  const double grow = options.proximity + double(a.getMargin());
+  const btTransform a_from_b = ta.inverse() * tb;
+  const runtime::SparseVoxelmap& map = a.object().voxelmap();
+  const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
+  const double reach = options.proximity * to_voxels;
+  // Mesh frame -> A's asset frame: asset = R_a^T (tb * x - t_a) / s.
+  const Eigen::Matrix3d to_asset_rotation = pose_a.rotation.transpose() * to_eigen(tb.getBasis()) / pose_a.scale;
+  const Eigen::Vector3d to_asset_offset =
+      pose_a.rotation.transpose() * (to_eigen(tb.getOrigin()) - pose_a.translation) / pose_a.scale;
+  auto lower_bound = [&](const Eigen::Vector3f& x) {
+    return double(map.distance_lower_bound(map.to_grid(to_asset_rotation * x.cast<double>() + to_asset_offset)));
+  };
+  auto in_a_box = [&](const Eigen::Vector3f& x, double pad) {
+    const btVector3 q = a_from_b * btVector3(x.x(), x.y(), x.z());
+    const btScalar p = btScalar(pad);
+    return q.x() >= a_lo.x() - p && q.y() >= a_lo.y() - p && q.z() >= a_lo.z() - p && q.x() <= a_hi.x() + p &&
+           q.y() <= a_hi.y() + p && q.z() <= a_hi.z() + p;
+  };
+  thread_local std::vector<Eigen::Vector3d> corners;
+  thread_local std::vector<uint32_t> ids;
+  corners.clear();
+  ids.clear();
+  const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
+  const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
+  auto take = [&](const Eigen::Vector3f& v, uint32_t id) {
+    if (!in_a_box(v, grow) || !(lower_bound(v) < reach)) return;
+    corners.push_back(rb * v.cast<double>() + ob);
+    ids.push_back(id);
+  };
+  // A vertex's contact is numbered by the vertex (its id in the index), not by its place in this test's list,
+  // which holds vertices out of reach too and differs between a kept list and a fresh scan.
+  auto in_voxelmap = [&] {
+    const size_t first = contacts.contacts.size();
+    runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
+    for (size_t i = first; i < contacts.contacts.size(); ++i)
+      contacts.contacts[i].point_index = ids[contacts.contacts[i].point_index];
+  };
+  if (cache && cache->valid && cache->to_voxels == to_voxels) {
+    // How far any vertex of the region can have moved relative to A since the anchor: |dR c + dt| + |dR| r.
+    const Eigen::Matrix3d d_rotation = to_eigen(a_from_b.getBasis()) - cache->rotation;
+    const double moved = (d_rotation * cache->centre + to_eigen(a_from_b.getOrigin()) - cache->translation).norm() +
+                         d_rotation.norm() * cache->radius + 1e-6 * cache->radius;
+    // A vertex left out had a bound of at least `threshold` (or lay beyond the box grown by `pad`); A's distance
+    // is not below a bound less the motion (as the traversal's pruning assumes), so it stays out of reach.
+    if (reach + moved * to_voxels <= cache->threshold && grow + moved <= cache->pad) {
+      for (const uint32_t id : cache->vertices) take(mesh.vertex(id), id);
+      in_voxelmap();
+      return;
+    }
+  }
+  // The slack: 4 voxels of A (a body at rest keeps its vertices for good, one sliding at 1 m/s for a step or two).
+  const double slack = cache ? 4.0 / to_voxels : 0.0;
+  const double pad = grow + slack, threshold = reach + slack * to_voxels;
+  const btTransform b_from_a = a_from_b.inverse();
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
+  for (int k = 0; k < 8; ++k) {
+    const btVector3 corner = b_from_a * btVector3((k & 1) ? a_hi.x() + btScalar(pad) : a_lo.x() - btScalar(pad),
+                                                  (k & 2) ? a_hi.y() + btScalar(pad) : a_lo.y() - btScalar(pad),
+                                                  (k & 4) ? a_hi.z() + btScalar(pad) : a_lo.z() - btScalar(pad));
+    const Eigen::Vector3f c(float(corner.x()), float(corner.y()), float(corner.z()));
+    lo = lo.cwiseMin(c);
+    hi = hi.cwiseMax(c);
+  }
+  if (cache) cache->vertices.clear();
+  mesh.vertices_in_box(
+      lo, hi,
+      [&](const Eigen::Vector3f& centre, float radius) {
+        return in_a_box(centre, double(radius) + pad) && lower_bound(centre) <= double(radius) * to_voxels + threshold;
+      },
+      [&](const Eigen::Vector3f& v, uint32_t id) {
+        if (!cache) return take(v, id);
+        if (!in_a_box(v, pad) || !(lower_bound(v) < threshold)) return;
+        cache->vertices.push_back(id);
+        take(v, id);
+      });
+  if (cache) {
+    cache->valid = true;
+    cache->rotation = to_eigen(a_from_b.getBasis());
+    cache->translation = to_eigen(a_from_b.getOrigin());
+    cache->centre = 0.5 * (lo + hi).cast<double>();
+    cache->radius = 0.5 * double((hi - lo).norm());
+    cache->to_voxels = to_voxels;
+    cache->threshold = threshold;
+    cache->pad = pad;
+  }
+  in_voxelmap();
+}
+
+/// What a pair keeps between its tests: the traversal fronts (CollisionSettings::coherent) and its static mesh's
+/// index (CollisionSettings::static_mesh_index).
+struct PairState {
+  runtime::QueryState query;
+  std::shared_ptr<const StaticMeshIndex> mesh;
+  uint64_t mesh_generation = 0;
+  VertexCache vertices;
+  void reset() {
+    query.reset();
+    vertices.valid = false;
+  }
+};
+
 /// Contacts of a VPS shape (A) with any supported partner (B), reduced and fed to a persistent manifold
 /// created as (A, B): normals are "on B" and points on B's surface, whatever order Bullet calls us in.
 class VpsCollisionAlgorithm : public btCollisionAlgorithm {
@@ -383,15 +564,17 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
-    if (settings.coherent && !state_) state_ = std::make_unique<runtime::QueryState>();
-    if (!settings.coherent) state_.reset();
-    const bool cut =
-        collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch, state_.get());
+    if (!state_) state_ = std::make_unique<PairState>();
+    if (!settings.coherent) state_->reset();
+    const bool cut = collide(*a_shape, a_wrap->getWorldTransform(), pose_a, b_wrap, options, contacts, scratch,
+                             settings.coherent ? &state_->query : nullptr);
     if (budgeted)
       shared_->step_ns.fetch_add(
           std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count(),
           std::memory_order_relaxed);
 
+    if (settings.on_contacts)
+      settings.on_contacts(a_wrap->getCollisionObject(), b_wrap->getCollisionObject(), contacts);
     result->setPersistentManifold(manifold_);
     CollisionCounters& counters = shared_->counters;  // atomic: pairs may run on several threads at once
     ++counters.pair_tests;
@@ -554,6 +737,14 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       }
       case TRIANGLE_MESH_SHAPE_PROXYTYPE:
       case SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE:
+        if (shared_->settings.static_mesh_index) {
+          const StaticMeshIndex& mesh = mesh_index(static_cast<const btConcaveShape&>(*b_shape));
+          collide_indexed(a, pose_a, ta, mesh, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr,
+                          state ? &state_->vertices : nullptr);
+          return cut;
+        }
+        collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
+        return cut;
       case TERRAIN_SHAPE_PROXYTYPE:
         collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
         return cut;
@@ -574,7 +765,20 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   bool owns_manifold_ = false;
   bool swapped_;
   Shared* shared_;
-  std::unique_ptr<runtime::QueryState> state_;  ///< the pair's fronts (CollisionSettings::coherent), made on first use
+  /// The pair's static mesh index, looked up in the shared cache when the pair has none or it is stale (the mesh
+  /// changed, or was forgotten); a new index starts the fronts afresh (their bounds are of the old one).
+  const StaticMeshIndex& mesh_index(const btConcaveShape& shape) const {
+    PairState& state = *state_;
+    const uint64_t generation = shared_->mesh_generation.load(std::memory_order_relaxed);
+    if (!state.mesh || state.mesh_generation != generation || !(state.mesh->signature() == MeshSignature::of(shape))) {
+      state.mesh = shared_->mesh_index(shape);
+      state.mesh_generation = generation;
+      state.reset();
+    }
+    return *state.mesh;
+  }
+
+  std::unique_ptr<PairState> state_;  ///< made on first use (a pointer: the algorithm lives in Bullet's pool)
 };
 
 // Bullet's pool slots are sized from its own algorithms; ours must not be larger (see prepare_construction_info).
@@ -617,6 +821,20 @@ class Registration : public VpsCollisionRegistration {
   CollisionSettings& settings() override { return shared_.settings; }
   CollisionCounters& counters() override { return shared_.counters; }
   void begin_step() override { shared_.begin_step(); }
+  StaticMeshInfo prepare_static_mesh(const btCollisionShape& shape) override {
+    const int type = shape.getShapeType();
+    if (type != TRIANGLE_MESH_SHAPE_PROXYTYPE && type != SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE) return {};
+    const std::shared_ptr<const StaticMeshIndex> index = shared_.mesh_index(static_cast<const btConcaveShape&>(shape));
+    const StaticMeshIndex::Info& built = index->info();
+    StaticMeshInfo info;
+    info.triangles = built.triangles;
+    info.vertices = built.vertices;
+    info.cells = built.cells;
+    info.memory_bytes = built.memory_bytes;
+    info.build_seconds = built.build_seconds;
+    return info;
+  }
+  void forget_static_mesh(const btCollisionShape& shape) override { shared_.forget_mesh(shape); }
 
  private:
   Shared shared_;

@@ -1,5 +1,7 @@
 #include "voxfmt/bullet/partners.h"
 
+#include "triangle_distance.h"
+
 #include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
 
 #include <Eigen/Geometry>
@@ -107,32 +109,6 @@ void TriangleSet::add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const 
   const float length = n.norm();
   normals_.push_back(length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero());
 }
-
-namespace {
-
-// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5).
-Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
-                                    const Eigen::Vector3f& c) {
-  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
-  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) return a;
-  const Eigen::Vector3f bp = p - b;
-  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) return b;
-  const float vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
-  const Eigen::Vector3f cp = p - c;
-  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) return c;
-  const float vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
-  const float va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-  const float denom = 1.0f / (va + vb + vc);
-  return a + ab * (vb * denom) + ac * (vc * denom);
-}
-
-}  // namespace
 
 void TriangleSet::clear() {
   common_normal_.setZero();
@@ -247,24 +223,13 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
 }
 
 float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
-  float best2 = std::numeric_limits<float>::infinity();
-  float best_alignment = -1.0f, side = 1.0f;
+  detail::NearestTriangle nearest(x);
   auto consider = [&](size_t t) {
-    const Eigen::Vector3f q = closest_on_triangle(x, corners_[3 * t], corners_[3 * t + 1], corners_[3 * t + 2]);
-    const Eigen::Vector3f v = x - q;
-    const float d2 = v.squaredNorm();
-    // Ties (a shared edge or vertex, to float precision) go to the triangle whose plane faces the point.
-    const float tie = 1e-6f * std::max(best2 < std::numeric_limits<float>::infinity() ? best2 : d2, 1e-12f);
-    if (d2 > best2 + tie) return;
-    const float length = std::sqrt(d2);
-    const float along = length > 0.0f ? normals_[t].dot(v) / length : 1.0f;
-    if (d2 < best2 - tie || std::abs(along) > best_alignment) {
-      best_alignment = std::abs(along);
-      side = along < 0.0f ? -1.0f : 1.0f;
-      best2 = std::min(best2, d2);
-      outward = length > 0.0f ? Eigen::Vector3f(side * v / length) : normals_[t];
-    }
+    nearest.consider(corners_[3 * t], corners_[3 * t + 1], corners_[3 * t + 2], normals_[t]);
+    outward = nearest.outward;
   };
+  const float& best2 = nearest.best2;
+  const float& side = nearest.side;
   if (empty()) return std::numeric_limits<float>::infinity();
   if (first_.empty()) {  // not built: every triangle
     for (size_t t = 0; t < size(); ++t) consider(t);

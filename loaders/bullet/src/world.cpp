@@ -52,6 +52,9 @@ btRigidBody* World::add_body(std::shared_ptr<btCollisionShape> shape, btScalar m
   motion_states_.push_back(std::make_unique<btDefaultMotionState>(transform));
   btRigidBody::btRigidBodyConstructionInfo info(mass, motion_states_.back().get(), shape.get(), inertia);
   bodies_.push_back(std::make_unique<btRigidBody>(info));
+  // A static mesh is indexed as it enters the world, not in the middle of the first step that touches it.
+  if (registration_ && mass == 0 && registration_->settings().static_mesh_index)
+    registration_->prepare_static_mesh(*shape);
   shapes_.push_back(std::move(shape));
   world_->addRigidBody(bodies_.back().get());
   return bodies_.back().get();

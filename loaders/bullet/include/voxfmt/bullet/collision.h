@@ -73,10 +73,23 @@ struct CollisionSettings {
   size_t step_budget_min_points = 1000;
   /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
   /// with the pair when it leaves the broadphase) and looks up only what the motion since can have brought within
-  /// reach: the same contacts, and a body at rest costs about its contact points a step. Pairs against a static
-  /// triangle mesh or terrain (whose triangles near the body change as it moves) and shapes limited to a tree
-  /// level or point budget query from the root.
+  /// reach: the same contacts, and a body at rest costs about its contact points a step. Pairs against a terrain
+  /// or an unindexed static mesh (static_mesh_index off: the triangles near the body change as it moves) and
+  /// shapes limited to a tree level or point budget query from the root.
   bool coherent = true;
+  /// Static triangle meshes (btBvhTriangleMeshShape, scaled or not) are indexed once, the first time a VPS body
+  /// meets one (or ahead of time: VpsCollisionRegistration::prepare_static_mesh, which World::add_body calls for
+  /// static meshes): every triangle in the shape's frame, binned in cells about a triangle's size, shared by every
+  /// pair and thread. A pair's points then look up the nearest triangle in the index (coherently) and nothing is
+  /// gathered per step. A mesh whose triangles change must be forgotten (forget_static_mesh) to be indexed anew;
+  /// a rescaled or refitted mesh (a new box) is noticed. Off: each test gathers the triangles in the body's box
+  /// through Bullet and grids them (terrains always do: their heights may change under Bullet's feet).
+  bool static_mesh_index = true;
+  /// Called with every pair test's contacts before they are reduced to the manifold's points (tests, debugging
+  /// views): `a` is the VPS body the contacts' normals push (Contact::normal), `b` its partner. Empty: not called.
+  /// With a multi-threaded dispatcher it is called on the dispatcher's threads.
+  std::function<void(const btCollisionObject* a, const btCollisionObject* b, const runtime::ContactSet& contacts)>
+      on_contacts;
   /// Called once per Bullet shape type that meets a VPS shape without an algorithm for the pair (such pairs
   /// produce no contacts). Default (empty): the message goes to stderr. With a multi-threaded dispatcher it is
   /// called on the dispatcher's threads, possibly on two at once for two shape types.
@@ -110,11 +123,21 @@ class SharedCount {
 /// the dispatcher runs the pairs on.
 struct CollisionCounters {
   SharedCount pair_tests = 0;
-  SharedCount raw_contacts = 0;       ///< contacts found by the queries before reduction
-  SharedCount points_tested = 0;      ///< point-shell points whose distance was looked up
-  SharedCount nodes_visited = 0;      ///< sphere-tree nodes whose bound was looked up (pruning)
-  SharedCount unsupported_pairs = 0;  ///< pair tests with a partner shape the algorithm cannot handle
-  SharedCount budget_cuts = 0;        ///< pair tests whose shell the step time budget cut above its leaves
+  SharedCount raw_contacts = 0;        ///< contacts found by the queries before reduction
+  SharedCount points_tested = 0;       ///< point-shell points whose distance was looked up
+  SharedCount nodes_visited = 0;       ///< sphere-tree nodes whose bound was looked up (pruning)
+  SharedCount unsupported_pairs = 0;   ///< pair tests with a partner shape the algorithm cannot handle
+  SharedCount budget_cuts = 0;         ///< pair tests whose shell the step time budget cut above its leaves
+  SharedCount static_mesh_builds = 0;  ///< static mesh indexes built (CollisionSettings::static_mesh_index)
+};
+
+/// A static mesh's index (CollisionSettings::static_mesh_index).
+struct StaticMeshInfo {
+  size_t triangles = 0;
+  size_t vertices = 0;       ///< distinct vertices (tested in the VPS bodies' voxelmaps)
+  size_t cells = 0;          ///< cells of its grid
+  size_t memory_bytes = 0;   ///< what it holds
+  double build_seconds = 0;  ///< what building it took
 };
 
 /// Thread safety: the algorithm's only shared mutable state is these atomic counters, and its scratch memory is
@@ -129,6 +152,13 @@ class VpsCollisionRegistration {
   /// Marks the start of a step's narrow phase, for CollisionSettings::step_time_budget_us (World calls it). Not
   /// to be called while pairs are being tested.
   virtual void begin_step() = 0;
+  /// Indexes a static triangle mesh now rather than when a VPS body first meets it (CollisionSettings::
+  /// static_mesh_index); an index already built for it is reused. Other shapes: nothing is built (all zero).
+  virtual StaticMeshInfo prepare_static_mesh(const btCollisionShape& shape) = 0;
+  /// Drops the mesh's index: after its triangles changed, or before the shape is deleted (an index holds no
+  /// pointer into the mesh, but keeps its memory until forgotten or the registration goes). Pairs that use it
+  /// index it again at their next test. Not to be called while pairs are being tested.
+  virtual void forget_static_mesh(const btCollisionShape& shape) = 0;
 };
 
 /// Registers the VPS algorithm for every supported pair in `dispatcher`. The returned object owns the create

@@ -39,8 +39,9 @@ class World {
   /// Null for a world without VPS.
   VpsCollisionRegistration* vps() { return registration_.get(); }
 
-  /// Adds a body; mass 0 makes it static. The world keeps the shape alive. Without `inertia`, the shape's
-  /// calculateLocalInertia decides.
+  /// Adds a body; mass 0 makes it static (a static triangle mesh is indexed here: CollisionSettings::
+  /// static_mesh_index). The world keeps the shape alive. Without `inertia`, the shape's calculateLocalInertia
+  /// decides.
   btRigidBody* add_body(std::shared_ptr<btCollisionShape> shape, btScalar mass, const btTransform& transform,
                         const btVector3* inertia = nullptr);
   /// One fixed step of `dt` seconds (no sub-stepping: a haptic loop steps at its own rate).

@@ -233,7 +233,9 @@ template <class SignedDistance>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
                             const QueryOptions& options, ContactSet& out, QueryScratch& scratch);
 /// The same with a cheaper `lower_bound(world_point)` (never above the signed distance) used to prune
-/// sphere-tree clusters, for partners whose exact distance is expensive far away (triangle meshes).
+/// sphere-tree clusters, for partners whose exact distance is expensive far away (triangle meshes). A bound much
+/// cheaper than the distance everywhere says so in its type (`static constexpr bool kBoundBeforeDistance =
+/// true`): inner nodes' points are then tested on their bound before their distance, as against a voxelmap.
 template <class SignedDistance, class LowerBound>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
                             LowerBound&& lower_bound, const QueryOptions& options, ContactSet& out,
@@ -244,6 +246,13 @@ template <class SignedDistance>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
                             SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
                             QueryScratch& scratch, TraversalFront& front);
+/// The same with a cheaper `lower_bound` for pruning. Coherence carries its values (and the function's) from
+/// pose to pose as the motion allows, so both must keep the partner's pose fixed between calls: a function
+/// `distance(y)` is not below `lower_bound(x) - |y - x|` for any y.
+template <class SignedDistance, class LowerBound>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
+                            SignedDistance&& distance, LowerBound&& lower_bound, const QueryOptions& options,
+                            ContactSet& out, QueryScratch& scratch, TraversalFront& front);
 
 }  // namespace voxfmt::runtime
 

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <limits>
+#include <type_traits>
 
 namespace voxfmt::runtime {
 namespace detail {
@@ -382,6 +383,14 @@ void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Ei
   stats.deepest_level = std::max(stats.deepest_level, deepest);
 }
 
+/// Whether a lower bound says it is much cheaper than its distance (`static constexpr bool
+/// kBoundBeforeDistance = true` in its type), so that inner nodes' points are bounded before their distance.
+template <class LowerBound, class = void>
+struct CheapBound : std::false_type {};
+template <class LowerBound>
+struct CheapBound<LowerBound, std::void_t<decltype(LowerBound::kBoundBeforeDistance)>>
+    : std::bool_constant<LowerBound::kBoundBeforeDistance> {};
+
 /// A signed-distance function in world coordinates seen as a traversal target, with a cheaper lower bound
 /// for pruning (or the function itself).
 template <class SignedDistance, class LowerBound>
@@ -389,7 +398,7 @@ struct FunctionTarget {
   SignedDistance& function;
   LowerBound& bound;
   float lower_bound(const Eigen::Vector3f& u) const { return bound(u); }
-  static constexpr bool kBoundBeforeDistance = false;
+  static constexpr bool kBoundBeforeDistance = CheapBound<std::remove_cv_t<LowerBound>>::value;
   float distance(const Eigen::Vector3f& u, bool& exact) const {
     Eigen::Vector3f normal;
     exact = true;
@@ -427,13 +436,13 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
                         });
 }
 
-template <class SignedDistance>
+template <class SignedDistance, class LowerBound>
 void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
-                            SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
-                            QueryScratch& scratch, TraversalFront& front) {
+                            SignedDistance&& distance, LowerBound&& lower_bound, const QueryOptions& options,
+                            ContactSet& out, QueryScratch& scratch, TraversalFront& front) {
   if (!detail::coherent_query_allowed(options) || !shell_object.has_point_shell()) {
     front.reset();
-    query_against_function(shell_object, pose, distance, options, out, scratch);
+    query_against_function(shell_object, pose, distance, lower_bound, options, out, scratch);
     return;
   }
   const PointTree& tree = shell_object.point_tree();
@@ -443,14 +452,11 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   const Eigen::Matrix3f Mr = (partner.rotation.transpose() * pose.rotation * pose.scale).cast<float>();
   const Eigen::Vector3f mr = (partner.rotation.transpose() * (pose.translation - partner.translation)).cast<float>();
   if (!front.take_turn(Mr, mr, tree.extent)) {
-    query_against_function(shell_object, pose, distance, options, out, scratch);
+    query_against_function(shell_object, pose, distance, lower_bound, options, out, scratch);
     return;
   }
-  auto bound = [&](const Eigen::Vector3f& u) {
-    Eigen::Vector3f normal;
-    return distance(u, normal);
-  };
-  detail::FunctionTarget<std::remove_reference_t<SignedDistance>, decltype(bound)> target{distance, bound};
+  detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
+      distance, lower_bound};
   const Eigen::Matrix3d rotation = pose.rotation;
   detail::traverse_coherent(tree, M, m, Mr, mr, float(pose.scale), float(options.proximity), target, out.stats, scratch,
                             front, [&](uint32_t node, float d, bool exact) {
@@ -467,6 +473,17 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
                               contact.exact = exact;
                               out.contacts.push_back(contact);
                             });
+}
+
+template <class SignedDistance>
+void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
+                            SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
+                            QueryScratch& scratch, TraversalFront& front) {
+  auto bound = [&](const Eigen::Vector3f& u) {
+    Eigen::Vector3f normal;
+    return distance(u, normal);
+  };
+  query_against_function(shell_object, pose, partner, distance, bound, options, out, scratch, front);
 }
 
 template <class SignedDistance>

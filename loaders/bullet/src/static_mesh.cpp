@@ -1,0 +1,379 @@
+#include "static_mesh.h"
+
+#include <BulletCollision/CollisionShapes/btBvhTriangleMeshShape.h>
+#include <BulletCollision/CollisionShapes/btScaledBvhTriangleMeshShape.h>
+#include <BulletCollision/CollisionShapes/btTriangleCallback.h>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <tuple>
+#include <utility>
+
+#include "triangle_distance.h"
+
+namespace voxfmt::bullet {
+
+MeshSignature MeshSignature::of(const btConcaveShape& shape) {
+  MeshSignature s;
+  s.type = shape.getShapeType();
+  if (s.type == TRIANGLE_MESH_SHAPE_PROXYTYPE)
+    s.mesh = static_cast<const btBvhTriangleMeshShape&>(shape).getMeshInterface();
+  else if (s.type == SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE)
+    s.mesh = static_cast<const btScaledBvhTriangleMeshShape&>(shape).getChildShape();
+  const btVector3& scaling = shape.getLocalScaling();
+  btVector3 lo, hi;
+  shape.getAabb(btTransform::getIdentity(), lo, hi);
+  for (int a = 0; a < 3; ++a) {
+    s.scaling[a] = float(scaling[a]);
+    s.lo[a] = float(lo[a]);
+    s.hi[a] = float(hi[a]);
+  }
+  return s;
+}
+
+bool MeshSignature::operator==(const MeshSignature& o) const {
+  return type == o.type && mesh == o.mesh && std::equal(scaling, scaling + 3, o.scaling) &&
+         std::equal(lo, lo + 3, o.lo) && std::equal(hi, hi + 3, o.hi);
+}
+
+namespace {
+
+class Collector : public btTriangleCallback {
+ public:
+  explicit Collector(std::vector<Eigen::Vector3f>& corners) : corners_(corners) {}
+  void processTriangle(btVector3* triangle, int, int) override {
+    for (int k = 0; k < 3; ++k)
+      corners_.emplace_back(float(triangle[k].x()), float(triangle[k].y()), float(triangle[k].z()));
+  }
+
+ private:
+  std::vector<Eigen::Vector3f>& corners_;
+};
+
+}  // namespace
+
+std::shared_ptr<const StaticMeshIndex> StaticMeshIndex::build(const btConcaveShape& shape) {
+  const auto start = std::chrono::steady_clock::now();
+  auto index = std::make_shared<StaticMeshIndex>();
+  index->signature_ = MeshSignature::of(shape);
+  std::vector<Eigen::Vector3f> corners;
+  Collector collect(corners);
+  btVector3 lo, hi;
+  shape.getAabb(btTransform::getIdentity(), lo, hi);
+  const btVector3 pad = (hi - lo) * btScalar(0.01) + btVector3(1, 1, 1) * btScalar(1e-6);
+  shape.processAllTriangles(&collect, lo - pad, hi + pad);
+  index->triangles_.reserve(corners.size() / 3);
+  for (size_t t = 0; t + 2 < corners.size(); t += 3) {
+    Triangle tri;
+    tri.a = corners[t];
+    tri.b = corners[t + 1];
+    tri.c = corners[t + 2];
+    const Eigen::Vector3f n = (tri.b - tri.a).cross(tri.c - tri.a);
+    const float length = n.norm();
+    tri.normal = length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero();
+    tri.lo = tri.a.cwiseMin(tri.b).cwiseMin(tri.c);
+    tri.hi = tri.a.cwiseMax(tri.b).cwiseMax(tri.c);
+    index->triangles_.push_back(tri);
+  }
+  index->vertices_ = std::move(corners);
+  index->index();
+  index->info_.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return index;
+}
+
+void StaticMeshIndex::index() {
+  info_.triangles = triangles_.size();
+  if (triangles_.empty()) {
+    vertices_.clear();
+    return;
+  }
+  lo_ = triangles_[0].lo;
+  hi_ = triangles_[0].hi;
+  double edges = 0;
+  for (const Triangle& t : triangles_) {
+    lo_ = lo_.cwiseMin(t.lo);
+    hi_ = hi_.cwiseMax(t.hi);
+    edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
+  }
+  // One-sided (every proper triangle faces within 90 degrees of the mean normal: a floor, a terrain): beyond the
+  // box on that side is outside. Degenerate triangles lie among their neighbours and do not count.
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const Triangle& t : triangles_) mean += t.normal;
+  common_normal_ = mean.squaredNorm() > 0.0f ? Eigen::Vector3f(mean.normalized()) : Eigen::Vector3f::Zero();
+  for (const Triangle& t : triangles_)
+    if (t.normal.squaredNorm() > 0.0f && !(t.normal.dot(common_normal_) > 0.0f)) {
+      common_normal_.setZero();
+      break;
+    }
+
+  // Cells about a triangle's size (a few triangles each), coarser where a mesh of very unequal triangles
+  // would need too many cells or put a large triangle into too many.
+  const Eigen::Vector3f extent = hi_ - lo_;
+  const size_t n = triangles_.size();
+  cell_ = std::max({float(edges / double(3 * n)), extent.maxCoeff() / 4096.0f, 1e-30f});
+  for (;;) {
+    for (int a = 0; a < 3; ++a) dims_[a] = std::max(1, int(std::ceil(extent[a] / cell_)));
+    const double cells = double(dims_.x()) * double(dims_.y()) * double(dims_.z());
+    double members = 0;
+    if (cells <= std::max(64.0 * 64 * 64, 8.0 * double(n))) {
+      for (const Triangle& t : triangles_) {
+        const Eigen::Vector3i c0 = cell_of(t.lo), c1 = cell_of(t.hi);
+        members += double(c1.x() - c0.x() + 1) * double(c1.y() - c0.y() + 1) * double(c1.z() - c0.z() + 1);
+      }
+      if (members <= 32.0 * double(n)) break;
+    }
+    cell_ *= 1.5f;
+  }
+  const size_t cells = size_t(dims_.prod());
+  info_.cells = cells;
+
+  // Each triangle goes into the cells its bounding box covers (counting sort: count, then place).
+  first_.assign(cells + 1, 0);
+  for (int pass = 0; pass < 2; ++pass) {
+    std::vector<uint32_t> next;
+    if (pass == 1) {
+      for (size_t c = 0; c < cells; ++c) first_[c + 1] += first_[c];
+      members_.resize(first_[cells]);
+      next.assign(first_.begin(), first_.end() - 1);
+    }
+    for (size_t t = 0; t < n; ++t) {
+      const Eigen::Vector3i c0 = cell_of(triangles_[t].lo), c1 = cell_of(triangles_[t].hi);
+      for (int k = c0.z(); k <= c1.z(); ++k)
+        for (int j = c0.y(); j <= c1.y(); ++j)
+          for (int i = c0.x(); i <= c1.x(); ++i) {
+            if (pass == 0)
+              ++first_[cell_index(i, j, k) + 1];
+            else
+              members_[next[cell_index(i, j, k)]++] = uint32_t(t);
+          }
+    }
+  }
+
+  // Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell.
+  ring_.assign(cells, uint8_t(kEmptyRings));
+  std::vector<uint32_t> wave, next_wave;
+  for (size_t c = 0; c < cells; ++c)
+    if (first_[c + 1] > first_[c]) {
+      ring_[c] = 0;
+      wave.push_back(uint32_t(c));
+    }
+  for (int r = 1; r < kEmptyRings && !wave.empty(); ++r) {
+    next_wave.clear();
+    for (const uint32_t c : wave) {
+      const int i = int(c % uint32_t(dims_.x())), j = int(c / uint32_t(dims_.x()) % uint32_t(dims_.y())),
+                k = int(c / uint32_t(dims_.x() * dims_.y()));
+      for (int dk = -1; dk <= 1; ++dk)
+        for (int dj = -1; dj <= 1; ++dj)
+          for (int di = -1; di <= 1; ++di) {
+            const int ni = i + di, nj = j + dj, nk = k + dk;
+            if (ni < 0 || nj < 0 || nk < 0 || ni >= dims_.x() || nj >= dims_.y() || nk >= dims_.z()) continue;
+            const size_t nc = cell_index(ni, nj, nk);
+            if (ring_[nc] > r) {
+              ring_[nc] = uint8_t(r);
+              next_wave.push_back(uint32_t(nc));
+            }
+          }
+    }
+    wave.swap(next_wave);
+  }
+
+  // Vertices: each once, sorted by cell.
+  std::vector<std::pair<uint32_t, Eigen::Vector3f>> keyed;
+  keyed.reserve(vertices_.size());
+  for (const Eigen::Vector3f& v : vertices_) {
+    const Eigen::Vector3i c = cell_of(v);
+    keyed.emplace_back(uint32_t(cell_index(c.x(), c.y(), c.z())), v);
+  }
+  auto tied = [](const std::pair<uint32_t, Eigen::Vector3f>& p) {
+    return std::make_tuple(p.first, p.second.x(), p.second.y(), p.second.z());
+  };
+  std::sort(keyed.begin(), keyed.end(), [&](const auto& a, const auto& b) { return tied(a) < tied(b); });
+  keyed.erase(std::unique(keyed.begin(), keyed.end(), [&](const auto& a, const auto& b) { return tied(a) == tied(b); }),
+              keyed.end());
+  vertices_.clear();
+  vertices_.shrink_to_fit();
+  vertices_.reserve(keyed.size());
+  vertex_first_.assign(cells + 1, 0);
+  for (const auto& [cell, v] : keyed) {
+    vertices_.push_back(v);
+    ++vertex_first_[cell + 1];
+  }
+  for (size_t c = 0; c < cells; ++c) vertex_first_[c + 1] += vertex_first_[c];
+
+  sample();
+  info_.vertices = vertices_.size();
+  info_.memory_bytes = triangles_.capacity() * sizeof(Triangle) + vertices_.capacity() * sizeof(Eigen::Vector3f) +
+                       (first_.capacity() + members_.capacity() + vertex_first_.capacity() + sample_block_.capacity()) *
+                           sizeof(uint32_t) +
+                       samples_.capacity() * sizeof(float) + ring_.capacity();
+}
+
+Eigen::Vector3i StaticMeshIndex::cell_of(const Eigen::Vector3f& x) const {
+  Eigen::Vector3i c;
+  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
+  return c;
+}
+
+bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
+                             float& distance, Eigen::Vector3f& outward, float& beyond, float seed) const {
+  detail::NearestTriangle nearest(x);
+  if (seed < band) nearest.best2 = seed * seed;  // cells farther than the seed are passed over
+  // A triangle is listed in every cell its box covers: each is looked at once per search (a stamp per triangle
+  // and thread; a triangle passed over stays out of reach, as the nearest only gets nearer).
+  thread_local std::vector<uint32_t> seen;
+  thread_local uint32_t search_id = 0;
+  if (seen.size() < triangles_.size()) seen.resize(triangles_.size(), 0);
+  if (++search_id == 0) {
+    std::fill(seen.begin(), seen.end(), 0u);
+    search_id = 1;
+  }
+  for (int r = first_ring;; ++r) {
+    // The cells of ring r that may hold a nearer triangle than the nearest so far.
+    for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, dims_.z() - 1); ++k) {
+      for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, dims_.y() - 1); ++j) {
+        const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
+        const int step = (face || r == 0) ? 1 : 2 * r;
+        for (int i = c.x() - r; i <= c.x() + r; i += step) {
+          if (i < 0 || i >= dims_.x()) continue;
+          const Eigen::Vector3f cell_lo = lo_ + cell_ * Eigen::Vector3f(float(i), float(j), float(k));
+          const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(cell_));
+          if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
+          const size_t cell = cell_index(i, j, k);
+          for (uint32_t m = first_[cell]; m < first_[cell + 1]; ++m) {
+            const uint32_t id = members_[m];
+            if (seen[id] == search_id) continue;
+            seen[id] = search_id;
+            const Triangle& t = triangles_[id];
+            if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
+            nearest.consider(t.a, t.b, t.c, t.normal);
+          }
+        }
+      }
+    }
+    // A triangle not yet seen lies in no cell of the block within r rings of c (every cell its box covers lists
+    // it), so it is at least as far as the block's faces inside the grid, and no nearer than the grid's box.
+    float block = std::numeric_limits<float>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (lo_[a] + float(c[a] - r) * cell_)));
+      if (c[a] + r + 1 < dims_[a]) block = std::min(block, std::max(0.0f, lo_[a] + float(c[a] + r + 1) * cell_ - x[a]));
+    }
+    const float reach = std::max(box, block);
+    if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+      if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
+        return search(x, c, first_ring, box, band, distance, outward, beyond);
+      const float d = std::sqrt(nearest.best2);
+      if (d > band) {
+        beyond = d;
+        return false;
+      }
+      distance = nearest.signed_distance();
+      outward = nearest.outward;
+      return true;
+    }
+    if (reach > band) {  // every triangle not seen is beyond the band, and so is the nearest seen
+      beyond = std::min(std::sqrt(nearest.best2), reach);
+      return false;
+    }
+  }
+}
+
+float StaticMeshIndex::distance(const Eigen::Vector3f& x, float proximity, Eigen::Vector3f& outward) const {
+  if (triangles_.empty()) {
+    outward = Eigen::Vector3f::UnitY();
+    return std::numeric_limits<float>::infinity();
+  }
+  const float band = base_band() + proximity;
+  const Eigen::Vector3i c = cell_of(x);
+  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const float box = off.norm();
+  const int ring = ring_[cell_index(c.x(), c.y(), c.z())];
+  auto away = [&] {
+    return box > 0.0f ? Eigen::Vector3f(off / box)
+                      : (common_normal_.squaredNorm() > 0.0f ? common_normal_ : Eigen::Vector3f::UnitY());
+  };
+  // No triangle within ring - 1 cells (x's projection onto the box lies in its cell; projecting onto a convex
+  // set brings nothing of it nearer) nor nearer than the box.
+  const float bound = std::max(box, float(ring - 1) * cell_);
+  if (bound > band) {
+    outward = away();
+    return bound;
+  }
+  float d, beyond;
+  if (search(x, c, ring, box, band, d, outward, beyond)) return d;
+  outward = away();
+  return beyond;
+}
+
+float StaticMeshIndex::exact_lower_bound(const Eigen::Vector3f& x, float band, float seed, bool* exact) const {
+  if (exact) *exact = false;
+  if (triangles_.empty()) return std::numeric_limits<float>::infinity();
+  const Eigen::Vector3i c = cell_of(x);
+  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const float box = off.norm();
+  const int ring = ring_[cell_index(c.x(), c.y(), c.z())];
+  const bool facing = common_normal_.squaredNorm() > 0.0f && off.dot(common_normal_) > 0.0f;
+  const float bound = std::max(box, float(ring - 1) * cell_);
+  if (bound > band) return facing ? bound : bound - 2.0f * band;
+  float d, beyond;
+  Eigen::Vector3f outward;
+  if (search(x, c, ring, box, band, d, outward, beyond, seed)) {
+    if (exact) *exact = true;
+    return d;
+  }
+  return facing ? beyond : beyond - 2.0f * band;
+}
+
+float StaticMeshIndex::lower_bound(const Eigen::Vector3f& x, float proximity) const {
+  if (triangles_.empty()) return std::numeric_limits<float>::infinity();
+  const float band = base_band() + proximity;
+  const Eigen::Vector3i c = cell_of(x);
+  const size_t cell = cell_index(c.x(), c.y(), c.z());
+  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const float box = off.norm();
+  const bool facing = common_normal_.squaredNorm() > 0.0f && off.dot(common_normal_) > 0.0f;
+  const float bound = std::max(box, float(ring_[cell] - 1) * cell_);
+  if (bound > band) return facing ? bound : bound - 2.0f * band;
+  const uint32_t block = sample_block_[cell];
+  if (block == kNoSamples) return exact_lower_bound(x, band);
+  // The cell's sample s (at its centre): distance() is not below its value less |y - s| wherever it has a
+  // contact (within the base band the sample is the exact distance; a sample beyond it may hold a point behind the
+  // mesh at most the proximity deeper than the base band, which twice the proximity more covers).
+  const Eigen::Vector3f s = lo_ + cell_ * (c.cast<float>() + Eigen::Vector3f::Constant(0.5f));
+  const float value = samples_[size_t(block)] - (x - s).norm() - 2.0f * proximity;
+  return facing ? std::max(value, bound) : value;
+}
+
+void StaticMeshIndex::sample() {
+  const size_t cells = ring_.size();
+  sample_block_.assign(cells, kNoSamples);
+  uint32_t blocks = 0;
+  for (size_t c = 0; c < cells; ++c)
+    if (ring_[c] <= kSampledRings) sample_block_[c] = blocks++;
+  samples_.resize(size_t(blocks));
+  const float band = base_band();
+  bool have_last = false;
+  float last = 0;
+  Eigen::Vector3f last_at = Eigen::Vector3f::Zero();
+  for (int k = 0; k < dims_.z(); ++k)
+    for (int j = 0; j < dims_.y(); ++j)
+      for (int i = 0; i < dims_.x(); ++i) {
+        const uint32_t block = sample_block_[cell_index(i, j, k)];
+        if (block == kNoSamples) continue;
+        const Eigen::Vector3f corner = lo_ + cell_ * Eigen::Vector3f(float(i), float(j), float(k));
+        // The sample before bounds this one's nearest triangle: |its distance| + the step, rounding aside.
+        const Eigen::Vector3f s = corner + Eigen::Vector3f::Constant(0.5f * cell_);
+        const float seed = have_last ? (std::abs(last) + (s - last_at).norm()) * (1 + 1e-4f) + 1e-6f * cell_
+                                     : std::numeric_limits<float>::infinity();
+        float& value = samples_[size_t(block)];
+        value = exact_lower_bound(s, band, seed, &have_last);
+        last = value;
+        last_at = s;
+      }
+  info_.samples = samples_.size();
+}
+
+}  // namespace voxfmt::bullet

@@ -1,0 +1,69 @@
+// Private: the nearest-triangle search step shared by TriangleSet (partners.cpp) and StaticMeshIndex
+// (static_mesh.cpp), so that both sign and tie-break their distances the same way.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace voxfmt::bullet::detail {
+
+/// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5).
+inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
+                                           const Eigen::Vector3f& c) {
+  const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
+  const float d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0 && d2 <= 0) return a;
+  const Eigen::Vector3f bp = p - b;
+  const float d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0 && d4 <= d3) return b;
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
+  const Eigen::Vector3f cp = p - c;
+  const float d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0 && d5 <= d6) return c;
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+  const float denom = 1.0f / (va + vb + vc);
+  return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+/// The nearest of the triangles offered to it, with the sign of the side of the nearest triangle whose plane is
+/// most nearly perpendicular to the direction to the point (at a shared edge or vertex several are equally near;
+/// the one facing the point decides).
+struct NearestTriangle {
+  Eigen::Vector3f x;
+  float best2 = std::numeric_limits<float>::infinity();
+  float best_alignment = -1.0f, side = 1.0f;
+  Eigen::Vector3f outward = Eigen::Vector3f::UnitY();
+
+  explicit NearestTriangle(const Eigen::Vector3f& point) : x(point) {}
+  /// The tolerance within which two squared distances count as a tie (float precision at a shared edge).
+  float tie(float d2) const {
+    return 1e-6f * std::max(best2 < std::numeric_limits<float>::infinity() ? best2 : d2, 1e-12f);
+  }
+  /// Whether a triangle at least sqrt(d2_low) away can change the result.
+  bool may_improve(float d2_low) const { return !(d2_low > best2 + tie(d2_low)); }
+  void consider(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c,
+                const Eigen::Vector3f& normal) {
+    const Eigen::Vector3f v = x - closest_on_triangle(x, a, b, c);
+    const float d2 = v.squaredNorm();
+    const float t = tie(d2);
+    if (d2 > best2 + t) return;
+    const float length = std::sqrt(d2);
+    const float along = length > 0.0f ? normal.dot(v) / length : 1.0f;
+    if (d2 < best2 - t || std::abs(along) > best_alignment) {
+      best_alignment = std::abs(along);
+      side = along < 0.0f ? -1.0f : 1.0f;
+      best2 = std::min(best2, d2);
+      outward = length > 0.0f ? Eigen::Vector3f(side * v / length) : normal;
+    }
+  }
+  float signed_distance() const { return side * std::sqrt(best2); }
+};
+
+}  // namespace voxfmt::bullet::detail

@@ -1,0 +1,268 @@
+// A VPS body against a static triangle mesh indexed once (CollisionSettings::static_mesh_index): the coherent pair
+// (a traversal front and the mesh's vertices kept near the body) finds bit for bit the contacts of the pair from
+// scratch, along a body sliding across a tilted wavy floor and one jumping far beyond where what it kept was made;
+// both find the contacts of the unindexed path (the triangles in the body's box gathered and gridded each test).
+#include <BulletCollision/BroadphaseCollision/btCollisionAlgorithm.h>
+#include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
+#include <BulletCollision/CollisionDispatch/btManifoldResult.h>
+#include <BulletCollision/CollisionShapes/btBoxShape.h>
+#include <BulletCollision/CollisionShapes/btBvhTriangleMeshShape.h>
+#include <BulletCollision/CollisionShapes/btTriangleMesh.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <iostream>
+#include <iterator>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "baked_bunny.h"
+#include "voxfmt/bullet/collision.h"
+#include "voxfmt/bullet/shape.h"
+
+namespace voxfmt::bullet {
+namespace {
+
+using Bunny = voxfmt::test::BakedBunny;
+constexpr double kPi = 3.14159265358979323846;
+
+// The floor's heights: 2 cm waves over 0.7 and 0.9 m.
+double wave(double x, double z) { return 0.02 * std::sin(2 * kPi * x / 0.7) * std::cos(2 * kPi * z / 0.9); }
+
+// A grid of triangles over [-2, 2]^2 m in x-z at height wave(x, z), 2 cm cells (80,000 triangles), counter-
+// clockwise seen from above.
+std::unique_ptr<btTriangleMesh> wavy_floor() {
+  constexpr int kCells = 200;
+  auto mesh = std::make_unique<btTriangleMesh>();
+  auto p = [&](int i, int k) {
+    const double x = -2 + 4.0 * i / kCells, z = -2 + 4.0 * k / kCells;
+    return btVector3(btScalar(x), btScalar(wave(x, z)), btScalar(z));
+  };
+  for (int i = 0; i < kCells; ++i)
+    for (int k = 0; k < kCells; ++k) {
+      mesh->addTriangle(p(i, k), p(i, k + 1), p(i + 1, k + 1));
+      mesh->addTriangle(p(i, k), p(i + 1, k + 1), p(i + 1, k));
+    }
+  return mesh;
+}
+
+// One VPS body against one static mesh through the registered algorithm, as a world's narrow phase calls it, one
+// pose after another (the algorithm and what it keeps persist); each test's contacts before reduction are kept.
+class Pair {
+ public:
+  Pair(std::shared_ptr<btCollisionShape> floor, const btTransform& floor_at, const CollisionSettings& settings)
+      : floor_(std::move(floor)) {
+    btDefaultCollisionConstructionInfo info;
+    prepare_construction_info(info);
+    config_ = std::make_unique<btDefaultCollisionConfiguration>(info);
+    dispatcher_ = std::make_unique<btCollisionDispatcher>(config_.get());
+    CollisionSettings with_hook = settings;
+    with_hook.on_contacts = [this](const btCollisionObject*, const btCollisionObject*,
+                                   const runtime::ContactSet& contacts) { contacts_ = contacts.contacts; };
+    vps_ = register_vps_collision(*dispatcher_, with_hook);
+    body_shape_ = std::make_shared<VpsMixedShape>(Bunny::get().object);
+    body_.setCollisionShape(body_shape_.get());
+    floor_object_.setCollisionShape(floor_.get());
+    floor_object_.setWorldTransform(floor_at);
+    btCollisionObjectWrapper wa(nullptr, body_shape_.get(), &body_, body_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, floor_.get(), &floor_object_, floor_object_.getWorldTransform(), -1, -1);
+    algorithm_ = dispatcher_->findAlgorithm(&wa, &wb, nullptr, BT_CONTACT_POINT_ALGORITHMS);
+  }
+  ~Pair() {
+    algorithm_->~btCollisionAlgorithm();
+    dispatcher_->freeCollisionAlgorithm(algorithm_);
+  }
+
+  /// The contacts with the body's shape frame at `body_at` (world).
+  const std::vector<runtime::Contact>& test(const btTransform& body_at) {
+    body_.setWorldTransform(body_at);
+    btCollisionObjectWrapper wa(nullptr, body_shape_.get(), &body_, body_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, floor_.get(), &floor_object_, floor_object_.getWorldTransform(), -1, -1);
+    btManifoldResult result(&wa, &wb);
+    contacts_.clear();
+    algorithm_->processCollision(&wa, &wb, btDispatcherInfo(), &result);
+    return contacts_;
+  }
+  VpsCollisionRegistration& vps() { return *vps_; }
+  const VpsShape& body_shape() const { return *body_shape_; }
+
+ private:
+  std::shared_ptr<btCollisionShape> floor_;
+  std::unique_ptr<btDefaultCollisionConfiguration> config_;
+  std::unique_ptr<btCollisionDispatcher> dispatcher_;
+  std::unique_ptr<VpsCollisionRegistration> vps_;
+  std::shared_ptr<VpsMixedShape> body_shape_;
+  btCollisionObject body_, floor_object_;
+  btCollisionAlgorithm* algorithm_ = nullptr;
+  std::vector<runtime::Contact> contacts_;
+};
+
+CollisionSettings indexed(bool coherent) {
+  CollisionSettings settings;
+  settings.coherent = coherent;
+  return settings;
+}
+
+CollisionSettings unindexed() {
+  CollisionSettings settings;
+  settings.static_mesh_index = false;
+  return settings;
+}
+
+// Bit for bit: every field of every contact, in order (a mesh vertex's contact is numbered by the vertex).
+void expect_same(const std::vector<runtime::Contact>& a, const std::vector<runtime::Contact>& b, size_t step) {
+  ASSERT_EQ(a.size(), b.size()) << "step " << step;
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].point_index, b[i].point_index) << "step " << step << " contact " << i;
+    EXPECT_EQ(a[i].point_of_b, b[i].point_of_b) << "step " << step << " contact " << i;
+    EXPECT_EQ(a[i].depth, b[i].depth) << "step " << step << " contact " << i;
+    EXPECT_EQ(a[i].point, b[i].point) << "step " << step << " contact " << i;
+    EXPECT_EQ(a[i].normal, b[i].normal) << "step " << step << " contact " << i;
+  }
+}
+
+// The unindexed path's contacts: the same shell points at the same depths (to float rounding of the frames), and
+// the same mesh vertices in the body (it lists a vertex once per triangle that has it, the index once).
+void expect_as_unindexed(const std::vector<runtime::Contact>& indexed, const std::vector<runtime::Contact>& gathered,
+                         size_t step) {
+  auto points = [](const std::vector<runtime::Contact>& set) {
+    std::vector<std::pair<uint32_t, double>> out;
+    for (const auto& c : set)
+      if (!c.point_of_b) out.emplace_back(c.point_index, c.depth);
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  const auto a = points(indexed), b = points(gathered);
+  ASSERT_EQ(a.size(), b.size()) << "step " << step;
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].first, b[i].first) << "step " << step;
+    EXPECT_NEAR(a[i].second, b[i].second, 1e-6) << "step " << step << " point " << a[i].first;
+  }
+  auto vertices = [](const std::vector<runtime::Contact>& set) {
+    std::vector<Eigen::Vector3d> out;
+    for (const auto& c : set)
+      if (c.point_of_b &&
+          std::none_of(out.begin(), out.end(), [&](const Eigen::Vector3d& p) { return (p - c.point).norm() < 1e-6; }))
+        out.push_back(c.point);
+    return out;
+  };
+  const auto va = vertices(indexed), vb = vertices(gathered);
+  ASSERT_EQ(va.size(), vb.size()) << "step " << step;
+  for (const Eigen::Vector3d& p : va)
+    EXPECT_TRUE(std::any_of(vb.begin(), vb.end(), [&](const Eigen::Vector3d& q) { return (p - q).norm() < 1e-6; }))
+        << "step " << step;
+}
+
+// The body's shape frame placed in the floor's frame: turned by `turn` about y (after a fixed tilt), its lowest
+// shell point `depth` below the wave under it.
+btTransform on_floor(double x, double z, double turn, double depth) {
+  const Bunny& bunny = Bunny::get();
+  const btQuaternion q = btQuaternion(btVector3(0, 1, 0), btScalar(turn)) * btQuaternion(btVector3(1, 0, 1), 0.3f);
+  btTransform t(q, btVector3(0, 0, 0));
+  VpsMixedShape shape(bunny.object);
+  const runtime::Pose pose = shape.asset_pose(t);
+  double lowest = 1e30;
+  for (const Eigen::Vector3f& p : bunny.object->point_tree().points) {
+    const Eigen::Vector3d w = pose.apply(p.cast<double>());
+    lowest = std::min(lowest, w.y() - wave(w.x() + x, w.z() + z));
+  }
+  t.setOrigin(btVector3(btScalar(x), btScalar(-lowest - depth), btScalar(z)));
+  return t;
+}
+
+TEST(BulletStaticMesh, CoherentPairFindsTheContactsFromScratchSlidingAcrossAFloor) {
+  static std::unique_ptr<btTriangleMesh> mesh = wavy_floor();
+  auto floor = std::make_shared<btBvhTriangleMeshShape>(mesh.get(), true);
+  // A tilted, shifted floor: the index works in the mesh's frame, the unindexed path in the world's.
+  const btTransform floor_at(btQuaternion(btVector3(1, 0, 0), 0.2f), btVector3(0.1f, -0.3f, 0.2f));
+  Pair coherent(floor, floor_at, indexed(true)), scratch(floor, floor_at, indexed(false)),
+      gathered(floor, floor_at, unindexed());
+  const double h = Bunny::get().h;
+  const int steps = 500;
+  size_t touching = 0, contacts = 0, vertices = 0;
+  for (int step = 0; step < steps; ++step) {
+    // 1.5 m across the floor at 3 mm (a voxel) a step, turning half a radian, pressed 0.5-2 voxels in.
+    const double u = double(step) / steps;
+    const btTransform at =
+        floor_at * on_floor(-0.75 + 1.5 * u, 0.3 * std::sin(4 * u), 0.5 * u, h * (1.25 + 0.75 * std::sin(0.1 * step)));
+    const auto a = coherent.test(at);
+    const auto b = scratch.test(at);
+    const auto c = gathered.test(at);
+    expect_same(a, b, size_t(step));
+    expect_as_unindexed(a, c, size_t(step));
+    if (::testing::Test::HasFailure()) return;
+    touching += !a.empty();
+    contacts += a.size();
+    vertices += size_t(std::count_if(a.begin(), a.end(), [](const runtime::Contact& x) { return x.point_of_b; }));
+  }
+  std::cout << "[ figures  ] " << steps << " steps, " << touching << " touching, " << double(contacts) / steps
+            << " contacts a step (" << double(vertices) / steps << " of the mesh's vertices); index "
+            << coherent.vps().prepare_static_mesh(*floor).memory_bytes / 1e6 << " MB\n";
+  EXPECT_EQ(touching, size_t(steps));
+  std::cout << "[ figures  ] points looked up: coherent " << coherent.vps().counters().points_tested
+            << ", from scratch " << scratch.vps().counters().points_tested << "\n";
+  EXPECT_LT(coherent.vps().counters().points_tested, scratch.vps().counters().points_tested);
+  EXPECT_EQ(coherent.vps().counters().static_mesh_builds, 1u);
+}
+
+TEST(BulletStaticMesh, ABodyJumpingBeyondWhatItKeptStillGetsExactContacts) {
+  static std::unique_ptr<btTriangleMesh> mesh = wavy_floor();
+  auto floor = std::make_shared<btBvhTriangleMeshShape>(mesh.get(), true);
+  const btTransform floor_at = btTransform::getIdentity();
+  Pair coherent(floor, floor_at, indexed(true)), scratch(floor, floor_at, indexed(false)),
+      gathered(floor, floor_at, unindexed());
+  const double h = Bunny::get().h;
+  // Rests (moving by a micrometre a step) at one place, then jumps 0.2-0.5 m to another, or lifts off; the kept
+  // front and vertices were made far from the new place.
+  const double places[][2] = {{0, 0}, {0.4, 0.1}, {-0.3, 0.5}, {-0.35, 0.45}, {0.6, -0.6}, {0.2, 0.3}};
+  size_t step = 0, touching_after_jumps = 0;
+  for (const auto& place : places)
+    for (int rest = 0; rest < 30; ++rest, ++step) {
+      const bool lifted = step % 45 == 44;
+      const btTransform at =
+          on_floor(place[0] + 1e-6 * rest, place[1], 0.1 * place[0], lifted ? -0.05 : h * (1.0 + 1e-3 * rest));
+      const auto a = coherent.test(at);
+      const auto b = scratch.test(at);
+      const auto c = gathered.test(at);
+      expect_same(a, b, step);
+      expect_as_unindexed(a, c, step);
+      if (::testing::Test::HasFailure()) return;
+      EXPECT_EQ(a.empty(), lifted) << "step " << step;
+      if (rest == 0 && !lifted) ++touching_after_jumps;
+    }
+  EXPECT_EQ(touching_after_jumps, std::size(places));
+}
+
+TEST(BulletStaticMesh, AnIndexIsSharedRebuiltWhenForgottenOrRescaledAndCountsTheMesh) {
+  static std::unique_ptr<btTriangleMesh> mesh = wavy_floor();
+  auto floor = std::make_shared<btBvhTriangleMeshShape>(mesh.get(), true);
+  Pair pair(floor, btTransform::getIdentity(), indexed(true));
+  const StaticMeshInfo info = pair.vps().prepare_static_mesh(*floor);
+  std::cout << "[ figures  ] index of " << info.triangles << " triangles, " << info.vertices << " vertices, "
+            << info.cells << " cells: " << info.memory_bytes / 1e6 << " MB, built in " << info.build_seconds * 1e3
+            << " ms\n";
+  EXPECT_EQ(info.triangles, size_t(mesh->getNumTriangles()));
+  EXPECT_EQ(info.vertices, size_t(201 * 201));
+  EXPECT_EQ(pair.vps().prepare_static_mesh(btBoxShape(btVector3(1, 1, 1))).triangles, 0u);  // not a mesh
+
+  const double h = Bunny::get().h;
+  const btTransform at = on_floor(0.1, 0.2, 0.4, 2 * h);
+  const auto first = pair.test(at);
+  ASSERT_FALSE(first.empty());
+  EXPECT_EQ(pair.vps().counters().static_mesh_builds, 1u);  // prepared, then used
+  // Forgotten: indexed again at the next test, with the same contacts.
+  pair.vps().forget_static_mesh(*floor);
+  expect_same(pair.test(at), first, 0);
+  EXPECT_EQ(pair.vps().counters().static_mesh_builds, 2u);
+  // Rescaled (the floor's waves twice as high): a new box, noticed without being told; deeper contacts.
+  floor->setLocalScaling(btVector3(1, 2, 1));
+  const auto rescaled = pair.test(at);
+  EXPECT_EQ(pair.vps().counters().static_mesh_builds, 3u);
+  Pair fresh(floor, btTransform::getIdentity(), unindexed());
+  expect_as_unindexed(rescaled, fresh.test(at), 0);
+}
+
+}  // namespace
+}  // namespace voxfmt::bullet
