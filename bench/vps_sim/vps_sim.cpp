@@ -625,6 +625,7 @@ int main(int argc, char** argv) {
       if (!written) throw std::runtime_error(written.error().describe());
       std::cout << "wrote " << options.json << "\n";
     }
+    std::cout << std::flush;  // the plot script's line comes after the table
     if (options.plots) {
       const std::string command =
           "'" VPS_SIM_PYTHON "' '" VPS_SIM_PLOT_SCRIPT "' '" + csv + "' '" + options.out_dir + "'";
