@@ -122,15 +122,16 @@ def load_plugin() -> str:
 
 
 def lookup_profile(restart: bool = True) -> dict[str, float]:
-    """Counts the plugin's lookups (every asset, every thread): the calls of ``sdf_distance`` and
-    ``sdf_gradient`` since the last restart and the nanoseconds spent in them, as a dict (``distance_calls``,
-    ``gradient_calls``, ``distance_ns``, ``gradient_ns``). ``restart`` starts a new count, ``False`` stops
-    counting. Counting costs two time-stamp reads per call: use it to split a step's time, not to time it."""
+    """Profiles the plugin's lookups on this thread: since the last call, the calls MuJoCo made of
+    ``sdf_distance`` and ``sdf_gradient``, the voxelmap lookups they cost (a repeated point is answered from the
+    last evaluations), and the nanoseconds those lookups take replayed in a loop without MuJoCo (``lookup_ns``;
+    what the lookups cost of a step, as opposed to MuJoCo's own search). ``restart`` starts a new profile,
+    ``False`` stops profiling. Profiling records every looked-up point: not for timing a step."""
     load_plugin()
     assert _library is not None
     out = np.zeros(4)
     _library.voxfmt_mujoco_profile(1 if restart else 0, out.ctypes.data)
-    return dict(zip(("distance_calls", "gradient_calls", "distance_ns", "gradient_ns"), out.tolist()))
+    return dict(zip(("distance_calls", "gradient_calls", "lookups", "lookup_ns"), out.tolist()))
 
 
 def evaluate(

@@ -27,17 +27,9 @@ std::unique_ptr<CachedAsset> load_entry(const std::string& path) {
     entry->error = voxfmt::Error(voxfmt::IssueCode::BadOption, "the plugin instance has no config key 'file'");
     return entry;
   }
-  voxfmt::runtime::LoadOptions options;
-  options.load_point_shell = false;  // MuJoCo asks for distances only
-  auto object = voxfmt::runtime::CollisionObject::load(path, options);
-  if (!object) {
-    entry->error = object.error();
-    return entry;
-  }
-  auto field = AssetField::from_object(std::move(object.value()));
+  auto field = AssetField::load(path);
   if (!field) {
     entry->error = field.error();
-    entry->error.file = path;
     return entry;
   }
   entry->field = std::move(field.value());
