@@ -33,6 +33,7 @@ __all__ = [
     "evaluate",
     "insert",
     "load_plugin",
+    "loaded_files",
     "lookup_profile",
     "part",
     "plugin_path",
@@ -115,10 +116,19 @@ def load_plugin() -> str:
             ctypes.c_char_p,
             ctypes.c_int,
         ]
+        library.voxfmt_mujoco_loaded_files.restype = ctypes.c_int
         library.voxfmt_mujoco_profile.restype = None
         library.voxfmt_mujoco_profile.argtypes = [ctypes.c_int, ctypes.c_void_p]
         _library = library
         return path
+
+
+def loaded_files() -> int:
+    """How many asset files the plugin has loaded (or failed to load) in this process: each file once, however
+    many geoms and models name it."""
+    load_plugin()
+    assert _library is not None
+    return int(_library.voxfmt_mujoco_loaded_files())
 
 
 def lookup_profile(restart: bool = True) -> dict[str, float]:

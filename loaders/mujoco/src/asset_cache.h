@@ -30,6 +30,8 @@ class AssetCache {
   int acquire(const std::string& path);
   /// The entry of a handle, or null for a handle this cache never gave. Lock-free.
   const CachedAsset* get(double handle) const;
+  /// Entries made so far (one per file loaded, or failed to load).
+  int size() const { return count_.load(std::memory_order_acquire); }
 
  private:
   int add(std::unique_ptr<CachedAsset> entry);  // under mutex_

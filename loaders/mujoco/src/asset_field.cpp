@@ -60,8 +60,15 @@ voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt:
   }
   f.band_edge_ = float(vm.distance_band - 0.5);
   f.table_ = vm.bricks;
+  // The lattice in the runtime's 16-bit steps (1/16 voxel, coarser only where the largest distance needs it),
+  // so that the lattice cells agree with the runtime's values of the coarse voxels the blocks hold.
+  float largest = 0;
+  for (float v : vm.lattice) largest = std::max(largest, v);
+  const float step = float(std::max(1.0 / 16, double(largest) / vm.voxel_size / 65000.0));
+  const double to_steps = 1.0 / (vm.voxel_size * double(step));
   f.lattice_.resize(vm.lattice.size());
-  for (size_t n = 0; n < vm.lattice.size(); ++n) f.lattice_[n] = float(double(vm.lattice[n]) / vm.voxel_size);
+  for (size_t n = 0; n < vm.lattice.size(); ++n)
+    f.lattice_[n] = float(uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)))) * step;
   f.bounds_min_ = to_eigen(asset.bounds_min);
   f.bounds_max_ = to_eigen(asset.bounds_max);
   f.centre_ = 0.5 * (f.bounds_min_ + f.bounds_max_);

@@ -197,6 +197,9 @@ extern "C" {
 
 __attribute__((visibility("default"))) int voxfmt_mujoco_built_version() { return mjVERSION_HEADER; }
 
+/// Files the plugin has loaded (or failed to load) in this process: one per file, however many geoms name it.
+__attribute__((visibility("default"))) int voxfmt_mujoco_loaded_files() { return AssetCache::instance().size(); }
+
 /// Distances (n) and unit gradients (n x 3, may be null) of the asset at `path` at `points` (n x 3, asset frame,
 /// metres), through the plugin's cache. Returns 0, or -1 with the voxfmt error's "CODE: message" in `error`.
 __attribute__((visibility("default"))) int voxfmt_mujoco_evaluate(const char* path, int n, const double* points,
