@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <mutex>
 #include <string>
@@ -36,12 +37,21 @@ constexpr int kAttributeCount = 1;
 // sphere at the origin.
 constexpr double kPlaceholderRadius = 0.01;
 
-// The box MuJoCo's marching cubes samples (300 cells across the sum of its half-sizes): the object's bounds
-// with room for two cells or two voxels, so the surface closes inside it.
+// MuJoCo makes the geom's mesh by marching cubes over the box sdf_aabb gives, 300 cells across the sum of its
+// half-sizes, and takes the geom's bounding box and sphere from that mesh. Cells finer than the voxels add
+// triangles (compile time, memory) and no detail the field has, so the box is grown until a cell is a voxel;
+// never less than two voxels around the object, so the surface closes inside it. Env VOXFMT_MUJOCO_MESH_CELL
+// (metres) asks for another cell size (0: the object's box plus two voxels, MuJoCo's finest mesh).
 double aabb_margin(const AssetField& field) {
   double box[6];
   field.aabb(0.0, box);
-  return std::max(2.0 * field.voxel_size(), 4.0 / 300.0 * (box[3] + box[4] + box[5]));
+  const double total = box[3] + box[4] + box[5], h = field.voxel_size();
+  static const double cell = [] {
+    const char* text = std::getenv("VOXFMT_MUJOCO_MESH_CELL");
+    return text ? std::atof(text) : -1.0;
+  }();
+  const double target = cell >= 0 ? cell : h;
+  return std::max(2.0 * h, (150.0 * target - total) / 3.0);
 }
 
 // What an instance keeps per mjData (d->plugin_data): its field, and the last two points it evaluated.
