@@ -78,10 +78,10 @@ def bunny_asset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def speed(model, data, body: int, reach: float) -> float:  # type: ignore[no-untyped-def]
-    """The speed of the body's fastest point (metres per second), `reach` its farthest point from the COM."""
+def speed(model, data, body: int) -> float:  # type: ignore[no-untyped-def]
+    """The linear speed of the body's centre of mass (metres per second)."""
     import mujoco
 
     velocity = np.zeros(6)
-    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, body, velocity, 0)
-    return float(np.linalg.norm(velocity[3:]) + np.linalg.norm(velocity[:3]) * reach)
+    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, body, velocity, 0)  # at the centre of mass
+    return float(np.linalg.norm(velocity[3:]))

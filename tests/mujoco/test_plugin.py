@@ -66,24 +66,24 @@ def test_sphere_rests_at_its_radius(sphere_asset) -> None:  # type: ignore[no-un
 
 
 def test_bunny_comes_to_rest_on_a_box(bunny_asset) -> None:  # type: ignore[no-untyped-def]
-    # The seed's bunny (1 m) dropped 0.2 m, MuJoCo's default sdf_initpoints and sdf_iterations: below 1 mm/s within
-    # a second of landing, and it stays there.
+    # The seed's bunny (1 m) dropped 0.2 m, MuJoCo's default sdf_initpoints and sdf_iterations: its centre of mass
+    # below 1 mm/s within a second of landing, and it stays there (MuJoCo's native SDF: 1-2 mm/s).
     body = voxfmt.load(bunny_asset)
     v = body.points @ np.array(mujoco_matrix(UPRIGHT)).T
     start = 0.2 - v[:, 2].min()
     bunny = vm.part(bunny_asset, "bunny", pos=(0, 0, start), quat=UPRIGHT)
     model = mujoco.MjModel.from_xml_string(vm.insert(scene(), bunny))
     data = mujoco.MjData(model)
-    reach = float(np.linalg.norm(body.points - body.center_of_mass, axis=1).max())
     landed, speeds = None, []
     for step in range(2000):
         mujoco.mj_step(model, data)
         if landed is None and data.ncon:
             landed = step
-        speeds.append(speed(model, data, 1, reach))
+        speeds.append(speed(model, data, 1))
     assert landed is not None and 150 < landed < 250  # it fell 0.2 m: 0.2 s
     settled = np.array(speeds[landed + 1000 :])
     assert settled.max() < 1e-3, settled.max()
+    assert np.array(speeds[landed : landed + 100]).max() > 0.1  # it did land (and bounce) in the window
 
 
 def mujoco_matrix(quat: tuple[float, ...]) -> np.ndarray:
