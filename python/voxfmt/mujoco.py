@@ -31,6 +31,7 @@ __all__ = [
     "MujocoVersionError",
     "Part",
     "evaluate",
+    "field_bytes",
     "insert",
     "load_plugin",
     "loaded_files",
@@ -117,6 +118,8 @@ def load_plugin() -> str:
             ctypes.c_int,
         ]
         library.voxfmt_mujoco_loaded_files.restype = ctypes.c_int
+        library.voxfmt_mujoco_field_bytes.restype = ctypes.c_longlong
+        library.voxfmt_mujoco_field_bytes.argtypes = [ctypes.c_char_p]
         library.voxfmt_mujoco_profile.restype = None
         library.voxfmt_mujoco_profile.argtypes = [ctypes.c_int, ctypes.c_void_p]
         _library = library
@@ -131,17 +134,29 @@ def loaded_files() -> int:
     return int(_library.voxfmt_mujoco_loaded_files())
 
 
+def field_bytes(asset_path: str | os.PathLike[str]) -> int:
+    """Heap bytes of the field the plugin holds for the asset (what a model using it adds to MuJoCo's own model),
+    loading it through the plugin's cache. Raises AssetError for a file the plugin cannot use."""
+    load_plugin()
+    assert _library is not None
+    n = int(_library.voxfmt_mujoco_field_bytes(os.fsencode(os.path.abspath(asset_path))))
+    if n < 0:
+        evaluate(asset_path, np.zeros((0, 3)))  # raises the load's error
+    return n
+
+
 def lookup_profile(restart: bool = True) -> dict[str, float]:
     """Profiles the plugin's lookups on this thread: since the last call, the calls MuJoCo made of
     ``sdf_distance`` and ``sdf_gradient``, the voxelmap lookups they cost (a repeated point is answered from the
     last evaluations), and the nanoseconds those lookups take replayed in a loop without MuJoCo (``lookup_ns``;
-    what the lookups cost of a step, as opposed to MuJoCo's own search). ``restart`` starts a new profile,
+    what the lookups cost of a step, as opposed to MuJoCo's own search), and ``collisions``, the SDF pair
+    tests MuJoCo ran with one of the plugin's geoms as the SDF. ``restart`` starts a new profile,
     ``False`` stops profiling. Profiling records every looked-up point: not for timing a step."""
     load_plugin()
     assert _library is not None
-    out = np.zeros(4)
+    out = np.zeros(5)
     _library.voxfmt_mujoco_profile(1 if restart else 0, out.ctypes.data)
-    return dict(zip(("distance_calls", "gradient_calls", "lookups", "lookup_ns"), out.tolist()))
+    return dict(zip(("distance_calls", "gradient_calls", "lookups", "lookup_ns", "collisions"), out.tolist()))
 
 
 def evaluate(

@@ -75,10 +75,12 @@ struct Instance {
 struct Record {
   const AssetField* field;
   double point[3];
+  int kind;  // what asked first: sdf_distance (0) or sdf_gradient (1, which also normalises)
 };
 struct Profile {
   std::mutex mutex;
   uint64_t calls[2] = {0, 0};  // sdf_distance, sdf_gradient
+  uint64_t collisions = 0;     // mjc_SDF calls (reset is called once at the start of each)
   uint64_t lookups = 0;
   std::vector<Record> records;  // the first kMaxRecords lookups
 };
@@ -99,7 +101,7 @@ const Evaluation& evaluate(const mjData* d, int instance, const double point[3],
     const std::lock_guard<std::mutex> lock(g_profile.mutex);
     ++g_profile.lookups;
     if (g_profile.records.size() < kMaxRecords)
-      g_profile.records.push_back({self.field, {point[0], point[1], point[2]}});
+      g_profile.records.push_back({self.field, {point[0], point[1], point[2]}, kind});
   }
   Evaluation& e = self.recent[self.next];
   self.next ^= 1;
@@ -137,7 +139,12 @@ void destroy(mjData* d, int instance) {
 }
 
 // mjc_SDF calls reset and compute on every SDF collision (counters for visualisation); there is nothing to do.
-void reset(const mjModel*, mjtNum*, void*, int) {}
+void reset(const mjModel*, mjtNum*, void*, int) {
+  if (g_profiling.load(std::memory_order_relaxed)) {
+    const std::lock_guard<std::mutex> lock(g_profile.mutex);
+    ++g_profile.collisions;
+  }
+}
 void compute(const mjModel*, mjData*, int, int) {}
 
 mjtNum sdf_distance(const mjtNum point[3], const mjData* d, int instance) {
@@ -207,6 +214,12 @@ extern "C" {
 
 __attribute__((visibility("default"))) int voxfmt_mujoco_built_version() { return mjVERSION_HEADER; }
 
+/// Bytes of the field the plugin holds for the asset at `path` (loading it through the cache), or -1 if it cannot.
+__attribute__((visibility("default"))) long long voxfmt_mujoco_field_bytes(const char* path) {
+  const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
+  return entry && entry->field ? static_cast<long long>(entry->field->memory_bytes()) : -1;
+}
+
 /// Files the plugin has loaded (or failed to load) in this process: one per file, however many geoms name it.
 __attribute__((visibility("default"))) int voxfmt_mujoco_loaded_files() { return AssetCache::instance().size(); }
 
@@ -229,8 +242,9 @@ __attribute__((visibility("default"))) int voxfmt_mujoco_evaluate(const char* pa
 /// Profiling of the lookups: `enable` 1 starts afresh, 0 stops. `out` (may be null) gets the calls of
 /// sdf_distance and sdf_gradient since the start, the lookups they cost (calls not answered by an instance's
 /// last evaluations), and the nanoseconds the recorded lookups (the first 2^21) take replayed in a loop without
-/// MuJoCo (best of three), scaled to all of them.
-__attribute__((visibility("default"))) void voxfmt_mujoco_profile(int enable, double out[4]) {
+/// MuJoCo (best of three), scaled to all of them, and the SDF collisions MuJoCo ran (pair tests whose second geom
+/// is this plugin's: mjc_SDF calls reset first).
+__attribute__((visibility("default"))) void voxfmt_mujoco_profile(int enable, double out[5]) {
   g_profiling.store(false);
   const std::lock_guard<std::mutex> lock(g_profile.mutex);
   if (out) {
@@ -241,16 +255,22 @@ __attribute__((visibility("default"))) void voxfmt_mujoco_profile(int enable, do
     for (int round = 0; round < 3; ++round) {
       const auto start = std::chrono::steady_clock::now();
       for (const Record& r : g_profile.records) {
-        double gradient[3];
-        sink += r.field->evaluate(r.point, gradient) + gradient[0];
+        Eigen::Vector3f direction;
+        sink += r.field->evaluate_raw(r.point, direction);
+        if (r.kind == 1) {
+          double gradient[3];
+          r.field->unit_gradient(direction, r.point, gradient);
+          sink += gradient[0];
+        }
       }
       const double ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - start).count();
       best = round == 0 ? ns : std::min(best, ns);
     }
     const double scale = g_profile.records.empty() ? 0.0 : double(g_profile.lookups) / double(g_profile.records.size());
     out[3] = best * scale + (sink == 1e300 ? 1 : 0);  // the sum keeps the loop from being optimised away
+    out[4] = double(g_profile.collisions);
   }
-  g_profile.calls[0] = g_profile.calls[1] = g_profile.lookups = 0;
+  g_profile.calls[0] = g_profile.calls[1] = g_profile.lookups = g_profile.collisions = 0;
   g_profile.records.clear();
   if (enable) g_profile.records.reserve(size_t(1) << 16);
   g_profiling.store(enable != 0);
