@@ -81,9 +81,9 @@ def main() -> int:
     print(f"model compiled and loaded in {time.perf_counter() - t0:.2f} s")
 
     if args.viewer:
-        import mujoco.viewer
+        from mujoco import viewer
 
-        mujoco.viewer.launch(model, data)
+        viewer.launch(model, data)
         return 0
     bunny = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "bunny")
     velocity = np.zeros(6)

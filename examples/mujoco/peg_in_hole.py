@@ -74,9 +74,9 @@ def main() -> int:
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
     if args.viewer:
-        import mujoco.viewer
+        from mujoco import viewer
 
-        mujoco.viewer.launch(model, data)
+        viewer.launch(model, data)
         return 0
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "peg")
     times = []
