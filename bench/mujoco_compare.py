@@ -15,7 +15,8 @@ Both SDF methods run MuJoCo's own SDF collision (mjc_SDF) at the same sdf_initpo
 default: MuJoCo's 40/10 and the cheaper 10/5).
 
 Scenes (z up, 1 ms steps, MuJoCo's default solver and contact parameters):
-  bunny-on-box    CGAL's bunny00.off (1 m, 75,408 faces) upright, dropped from 0.2 m onto a 2 x 2 x 0.2 m box (3 s)
+  bunny-on-box    CGAL's bunny00.off (1 m, 75,408 faces) upright, dropped from 0.2 m onto a 2 x 2 x 0.2 m box (3 s);
+                  and (--rest-trials) 5 more drops turned about the vertical, for the rest
   bunny-on-bunny  a bunny dropped half-overlapping (0.25 m off-centre) onto a static one standing on the floor,
                   inside four walls (without them it tumbles off with every method)
   peg-0.5mm       a chamfered steel peg (radius 5 mm, 30 mm long) released 2 mm above a static block's
@@ -24,8 +25,8 @@ Scenes (z up, 1 ms steps, MuJoCo's default solver and contact parameters):
 
 Figures per run: model compile time (for voxfmt plus the bake, done once offline, reported apart), model and
 field memory, wall time of mj_step p50/p99 over the steps after first contact, the largest penetration of the
-exact meshes (their vertices against the other body's exact mesh, every step for boxes, every 10th step
-between meshes), the time at which the dropped body comes to rest for good (speed of its fastest point below
+exact meshes (their vertices against the other body's exact mesh, or the peg's and block's exact shapes,
+every step for boxes, every 10th step between meshes), the time at which the dropped body comes to rest for good (speed of its fastest point below
 1 mm/s from then on), the peg's inserted depth; for voxfmt also the lookups per step and their time replayed
 without MuJoCo (the rest of the step is MuJoCo's own search and solver).
 """
@@ -196,6 +197,17 @@ class ExactMesh:
         return best, normal
 
 
+class AnalyticShape:
+    """The peg's or the block's exact signed distance (examples/mujoco/shapes.py: within 0.4 um of their meshes,
+    exact inside, where penetrations are measured)."""
+
+    def __init__(self, function: Any, spec: shapes.PegInHole) -> None:
+        self.function, self.spec = function, spec
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        return self.function(points, self.spec)
+
+
 def box_signed_distance(points: np.ndarray, half: np.ndarray) -> np.ndarray:
     q = np.abs(points) - half
     outside = np.linalg.norm(np.maximum(q, 0), axis=1)
@@ -234,7 +246,7 @@ class Assets:
 
     folder: Path
     meshes: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    exact: dict[str, ExactMesh] = field(default_factory=dict)
+    exact: dict[str, ExactMesh | AnalyticShape] = field(default_factory=dict)
     prefilter: dict[str, str] = field(default_factory=dict)  # an asset of each mesh, to find candidate vertices
     prefilter_voxel: dict[str, float] = field(default_factory=dict)
 
@@ -385,6 +397,9 @@ def penetration(scene: Scene, model: Any, data: Any, assets: Assets) -> float:
         for verts, (p, r), other in ((va, (pb, rb), bodies[b].mesh), (vb, (pa, ra), bodies[a].mesh)):
             local = (verts - p) @ r
             exact = assets.exact[other]
+            if isinstance(exact, AnalyticShape):
+                deepest = max(deepest, float(-exact.signed_distance(local).min()))
+                continue
             coarse = vm.evaluate(assets.prefilter[other], local)
             near = np.flatnonzero(coarse < 2 * assets.prefilter_voxel[other])
             if len(near):
@@ -410,13 +425,13 @@ print(json.dumps({"compile_s": time.perf_counter() - start}))
 """
 
 
-def compile_cold(xml: str, depth: int, folder: Path) -> float:
+def compile_cold(xml: str, depth: int, folder: Path, repeats: int) -> float:
     """Seconds to compile the model and make its data in a fresh interpreter: nothing cached (MuJoCo's mesh
-    cache, the plugin's loaded assets), as a user's first load. The best of three."""
+    cache, the plugin's loaded assets), as a user's first load. The best of `repeats`."""
     path = folder / "compile-me.xml"
     path.write_text(xml)
     best = math.inf
-    for _ in range(3):
+    for _ in range(repeats):
         child = subprocess.run([sys.executable, "-c", COMPILE_CHILD, str(path), str(depth)], capture_output=True,
                                text=True, timeout=600)
         if child.returncode != 0:
@@ -426,7 +441,7 @@ def compile_cold(xml: str, depth: int, folder: Path) -> float:
 
 
 def simulate(scene: Scene, method: str, assets: Assets, depth: int, sdf: tuple[int, int],
-             profile: bool) -> dict[str, Any]:
+             profile: bool, compile_repeats: int = 3) -> dict[str, Any]:
     import mujoco
     import voxfmt.mujoco as vm
 
@@ -475,7 +490,7 @@ def simulate(scene: Scene, method: str, assets: Assets, depth: int, sdf: tuple[i
     after = step_us[first:] if first < steps else step_us
     last = slice(steps - max(100, min(500, steps // 4)), steps)  # "at the end": the last half second at most
     figures: dict[str, Any] = {
-        "compile_s": round(compile_cold(xml, depth, assets.folder), 4),
+        "compile_s": round(compile_cold(xml, depth, assets.folder, compile_repeats), 4) if compile_repeats else None,
         "memory_mb": round(model.nbuffer / 1e6 + field_mb, 3),
         "step_us_p50": round(float(np.percentile(after, 50)), 2),
         "step_us_p99": round(float(np.percentile(after, 99)), 2),
@@ -509,6 +524,45 @@ def simulate(scene: Scene, method: str, assets: Assets, depth: int, sdf: tuple[i
     return figures
 
 
+REST_YAWS = (20.0, 45.0, 70.0, 110.0, 160.0)  # degrees about z: more drops of the bunny on the box
+
+
+def rest_trials(method: str, assets: Assets, depth: int, sdf: tuple[int, int], seconds: float) -> dict[str, Any]:
+    """The bunny dropped on the box again, turned about the vertical by each of REST_YAWS: one drop may rest or
+    rock by chance (MuJoCo's SDF contacts come from a local search whose outcome jumps with the pose), so the
+    rest is judged over several. A drop rests if its centre of mass stays below 1 mm/s over its last second."""
+    import mujoco
+
+    bunny_v, _ = assets.meshes["bunny"]
+    speeds = []
+    for yaw in REST_YAWS:
+        half = math.radians(yaw) / 2
+        turn, quat = np.array([math.cos(half), 0, 0, math.sin(half)]), np.zeros(4)
+        mujoco.mju_mulQuat(quat, turn, np.array(UPRIGHT))
+        q = tuple(float(x) for x in quat)
+        scene = Scene("bunny-on-box", [Body("bunny", "bunny", "bunny", (0.0, 0.0, 0.2 - lowest_z(bunny_v, q)), q)],
+                      [("table", (1.0, 1.0, 0.1), (0.0, 0.0, -0.1))], seconds)
+        spec = mujoco.MjSpec.from_string(mjcf(scene, method, assets, f"d{depth}", sdf))
+        for mesh in spec.meshes:
+            mesh.octree_maxdepth = depth
+        model = spec.compile()
+        data = mujoco.MjData(model)
+        velocity = np.zeros(6)
+        steps = int(round(seconds / TIMESTEP))
+        last = []
+        for i in range(steps):
+            mujoco.mj_step(model, data)
+            if i >= steps - 1000:
+                mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, 1, velocity, 0)
+                last.append(float(np.linalg.norm(velocity[3:])))
+        speeds.append(max(last))
+    return {
+        "rest_trials": len(speeds),
+        "rest_trials_at_rest": int(sum(v < REST_SPEED for v in speeds)),
+        "rest_trials_final_com_speed_mm_s": [round(v * 1e3, 3) for v in speeds],
+    }
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write the runs as JSON here")
@@ -520,12 +574,16 @@ def main() -> int:
     ap.add_argument("--sdf", default=None, help="initpoints/iterations pairs (default 40/10,10/5; quick 40/10)")
     ap.add_argument("--cache", default="out/mujoco-compare", help="meshes and baked assets (reused)")
     ap.add_argument("--bunny", default=str(ROOT / "build/cgal-data/data/meshes/bunny00.off"))
+    ap.add_argument("--rest-trials", type=int, choices=(0, 1), default=None,
+                    help="1: drop the bunny on the box at 5 more headings (default: 1, quick: 0)")
     args = ap.parse_args()
     import mujoco
     import voxfmt
     import voxfmt.mujoco as vm
 
     vm.load_plugin()
+    if args.rest_trials is None:
+        args.rest_trials = 0 if args.quick else 1
     depths = [int(d) for d in (args.depth or ("6" if args.quick else "6,7")).split(",")]
     sdfs = [tuple(int(x) for x in s.split("/")) for s in (args.sdf or ("40/10" if args.quick else "40/10,10/5")).split(",")]
     scene_names = args.scenes.split(",")
@@ -553,8 +611,13 @@ def main() -> int:
     bake_s: dict[str, float] = json.loads(bakes_file.read_text()) if bakes_file.exists() else {}
     for name, (v, f) in assets.meshes.items():
         extent = v.max(axis=0) - v.min(axis=0)
-        reach = max(0.02 * float(extent.max()), 0.004)  # deeper than any penetration seen
-        assets.exact[name] = ExactMesh(v, f, reach)
+        if name == "bunny":
+            assets.exact[name] = ExactMesh(v, f, reach=0.02)  # deeper than any penetration seen
+        elif name == "peg":
+            assets.exact[name] = AnalyticShape(shapes.peg_distance, shapes.PegInHole())
+        else:
+            clearance = float(name.split("-")[1]) * 1e-3
+            assets.exact[name] = AnalyticShape(shapes.hole_block_distance, shapes.PegInHole(clearance=clearance))
         for depth in depths:
             # The peg and the block share one voxel size: the block's leaf.
             reference = assets.meshes["block-0.5"][0] if name != "bunny" else v
@@ -577,12 +640,15 @@ def main() -> int:
         for method in methods:
             configs = [(depths[0], (40, 10))] if method == "hull" else [(d, s) for d in depths for s in sdfs]
             for depth, sdf in configs:
-                fig = simulate(scene, method, assets, depth, sdf, profile=False)
+                fig = simulate(scene, method, assets, depth, sdf, profile=False,
+                               compile_repeats=1 if args.quick else 3)
                 if method == "voxfmt":
                     # The same run again (MuJoCo is deterministic), counting and recording the lookups.
-                    again = simulate(scene, method, assets, depth, sdf, profile=True)
+                    again = simulate(scene, method, assets, depth, sdf, profile=True, compile_repeats=0)
                     for k in ("sdf_collisions_per_step", "calls_per_step", "lookups_per_step", "lookup_us_per_step"):
                         fig[k] = again[k]
+                if scene.name == "bunny-on-box" and args.rest_trials:
+                    fig.update(rest_trials(method, assets, depth, sdf, scene.seconds))
                 asset = assets.folder / f"{scene.bodies[-1].asset}-d{depth}.vox.h5"
                 resolution = {
                     "hull": None,
@@ -634,6 +700,7 @@ def ratios(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
                     "sdf": f"{v['sdf_initpoints']}/{v['sdf_iterations']}",
                     "step_p50_voxfmt_over_native": round(v["step_us_p50"] / n["step_us_p50"], 3),
                     "compile_voxfmt_over_native": round(v["compile_s"] / n["compile_s"], 3),
+                    "memory_voxfmt_over_native": round(v["memory_mb"] / n["memory_mb"], 3),
                     "lookup_share_of_voxfmt_step": round(v.get("lookup_us_per_step", 0) / v["step_us_p50"], 3),
                 })
     return out
@@ -647,8 +714,8 @@ def markdown(result: dict[str, Any]) -> str:
         f"MuJoCo {result['mujoco']}, {result['machine']}, 1 ms steps: `{result['command']}`",
         "",
         "| scene | method | resolution | sdf | compile s | memory MB | step µs p50 / p99 | max pen. mm (rest) | "
-        "at rest from s | COM / point mm/s at end | peg in mm | lookups µs/step |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "at rest from s | COM / point mm/s at end | peg in mm | lookups µs/step | drops at rest |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in result["runs"]:
         sdf = "—" if r["sdf_initpoints"] is None else f"{r['sdf_initpoints']}/{r['sdf_iterations']}"
@@ -657,13 +724,15 @@ def markdown(result: dict[str, Any]) -> str:
             f"{f(r['memory_mb'])} | {f(r['step_us_p50'])} / {f(r['step_us_p99'])} | "
             f"{f(r['max_penetration_mm'], 2)} ({f(r['rest_penetration_mm'], 2)}) | {f(r['rest_time_s'], 2)} | "
             f"{f(r['final_com_speed_mm_s'], 2)} / {f(r['final_point_speed_mm_s'], 2)} | "
-            f"{f(r['outcome']['inserted_mm'], 2)} | {f(r.get('lookup_us_per_step'))} |"
+            f"{f(r['outcome']['inserted_mm'], 2)} | {f(r.get('lookup_us_per_step'))} | "
+            + (f"{r['rest_trials_at_rest']} of {r['rest_trials']} |" if "rest_trials" in r else "— |")
         )
-    lines += ["", "| scene | octree depth | sdf | voxfmt / native step p50 | voxfmt / native compile | lookups' share of a voxfmt step |",
-              "|---|---|---|---|---|---|"]
+    lines += ["", "| scene | octree depth | sdf | voxfmt / native: step p50 | compile | memory | lookups' share of a "
+              "voxfmt step |", "|---|---|---|---|---|---|---|"]
     for q in result["ratios"]:
         lines.append(f"| {q['scene']} | {q['octree_depth']} | {q['sdf']} | {q['step_p50_voxfmt_over_native']:.2f} | "
-                     f"{q['compile_voxfmt_over_native']:.2f} | {q['lookup_share_of_voxfmt_step']:.2f} |")
+                     f"{q['compile_voxfmt_over_native']:.2f} | {q['memory_voxfmt_over_native']:.2f} | "
+                     f"{q['lookup_share_of_voxfmt_step']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
