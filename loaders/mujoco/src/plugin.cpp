@@ -54,6 +54,16 @@ double aabb_margin(const AssetField& field) {
   return std::max(2.0 * h, (150.0 * target - total) / 3.0);
 }
 
+// Marching cubes cuts the corners and tips of a surface by up to a cell, and the geom's box and bounding sphere
+// come from its mesh: too small, they would let MuJoCo's broad phase skip a pair whose tips touch. So the mesh
+// is made of the surface grown by half a cell (the distance less that), which holds the object; the collision
+// field is the exact one.
+double mesh_offset(const AssetField& field) {
+  double box[6];
+  field.aabb(aabb_margin(field), box);
+  return 0.5 * 2.0 * (box[3] + box[4] + box[5]) / 300.0;
+}
+
 // What an instance keeps per mjData (d->plugin_data): its field, and the last two points it evaluated.
 // MuJoCo's descent asks for the distance at a point, then the gradient there, then the distance again (and for
 // an SDF pair alternates between the two geoms): the gradient is computed with the distance and both are kept,
@@ -157,8 +167,10 @@ void sdf_gradient(mjtNum gradient[3], const mjtNum point[3], const mjData* d, in
 }
 
 mjtNum sdf_staticdistance(const mjtNum point[3], const mjtNum* attributes) {
-  Eigen::Vector3f direction;
-  if (const AssetField* field = field_of(attributes)) return field->evaluate_raw(point, direction);
+  if (const AssetField* field = field_of(attributes)) {
+    Eigen::Vector3f direction;
+    return field->evaluate_raw(point, direction) - mesh_offset(*field);  // a few flops next to the lookup
+  }
   return std::sqrt(point[0] * point[0] + point[1] * point[1] + point[2] * point[2]) - kPlaceholderRadius;
 }
 
@@ -187,6 +199,10 @@ __attribute__((constructor)) void register_plugin() {
     mju_warning("%s: built for MuJoCo %d, loaded into %d: not registered", kPluginName, mjVERSION_HEADER, mj_version());
     return;
   }
+  // A second copy of this library (another path, a copy in mujoco's plugin folder) must not register again:
+  // MuJoCo would raise a fatal error from inside dlopen.
+  int slot = -1;
+  if (mjp_getPlugin(kPluginName, &slot)) return;
   mjpPlugin plugin;
   mjp_defaultPlugin(&plugin);
   plugin.name = kPluginName;
