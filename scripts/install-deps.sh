@@ -49,8 +49,10 @@ fi
 # The Python tools (python/requirements-dev.txt), from PyPI into .venv/ with Debian's interpreter. pip's
 # `--dry-run` would still reach the index, so the check is an import.
 VENV=.venv
-if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py" >/dev/null 2>&1; then
-  echo "install-deps: creating $VENV with python/requirements-dev.txt (log: .logs/pip.log) ..."
+MUJOCO_PIN=$(sed -n 's/^mujoco==//p' python/requirements-dev.txt)
+if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py, mujoco; assert mujoco.__version__ == '$MUJOCO_PIN'" \
+    >/dev/null 2>&1; then
+  echo "install-deps: setting up $VENV with python/requirements-dev.txt (log: .logs/pip.log) ..."
   mkdir -p .logs
   if ! { /usr/bin/python3 -m venv "$VENV" &&
     "$VENV/bin/python" -m pip install --disable-pip-version-check -r python/requirements-dev.txt; } >.logs/pip.log 2>&1; then

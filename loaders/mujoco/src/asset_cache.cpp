@@ -1,0 +1,79 @@
+#include "asset_cache.h"
+
+#include <filesystem>
+
+namespace voxfmt::mujoco {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The canonical path with the file's size and modification time: a file baked again is loaded again. A path
+// that does not resolve is keyed as written (its entry holds the error; once the file exists it has a new key).
+std::string key_of(const std::string& path) {
+  std::error_code error;
+  const fs::path canonical = fs::canonical(path, error);
+  if (error) return "?" + path;
+  const auto size = fs::file_size(canonical, error);
+  if (error) return "?" + path;
+  const auto time = fs::last_write_time(canonical, error);
+  if (error) return "?" + path;
+  return canonical.string() + '\n' + std::to_string(size) + '\n' + std::to_string(time.time_since_epoch().count());
+}
+
+std::unique_ptr<CachedAsset> load_entry(const std::string& path) {
+  auto entry = std::make_unique<CachedAsset>();
+  entry->path = path;
+  if (path.empty()) {
+    entry->error = voxfmt::Error(voxfmt::IssueCode::BadOption, "the plugin instance has no config key 'file'");
+    return entry;
+  }
+  auto field = AssetField::load(path);
+  if (!field) {
+    entry->error = field.error();
+    return entry;
+  }
+  entry->field = std::move(field.value());
+  return entry;
+}
+
+}  // namespace
+
+AssetCache& AssetCache::instance() {
+  static AssetCache cache;  // never destroyed before MuJoCo's models: the process ends with it
+  return cache;
+}
+
+int AssetCache::acquire(const std::string& path) {
+  const std::string key = key_of(path);
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto found = handles_.find(key);
+  if (found != handles_.end()) return found->second;
+  const int handle = add(load_entry(path));
+  if (handle < kCapacity - 1) handles_.emplace(key, handle);
+  return handle;
+}
+
+int AssetCache::add(std::unique_ptr<CachedAsset> entry) {
+  const int n = count_.load(std::memory_order_relaxed);
+  if (n < kCapacity - 1) {
+    entries_[n].store(entry.release(), std::memory_order_release);
+    count_.store(n + 1, std::memory_order_release);
+    return n;
+  }
+  // The last slot says why no more files are loaded.
+  if (!overflow_) {
+    overflow_ = std::make_unique<CachedAsset>();
+    overflow_->error =
+        voxfmt::Error(voxfmt::IssueCode::OutOfMemory, "the plugin holds " + std::to_string(kCapacity - 1) +
+                                                          " asset files already, the most one process may load");
+    entries_[kCapacity - 1].store(overflow_.get(), std::memory_order_release);
+  }
+  return kCapacity - 1;
+}
+
+const CachedAsset* AssetCache::get(double handle) const {
+  if (!(handle >= 0 && handle < kCapacity)) return nullptr;  // also NaN
+  return entries_[int(handle)].load(std::memory_order_acquire);
+}
+
+}  // namespace voxfmt::mujoco

@@ -1,0 +1,212 @@
+#include "asset_field.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "voxfmt/io.h"
+#include "voxfmt/runtime/collision_object.h"
+
+namespace voxfmt::mujoco {
+namespace {
+
+constexpr int kEdge = 8;  // voxels per brick edge
+constexpr int kRow = AssetField::kBlockEdge, kSlice = kRow * kRow;
+
+Eigen::Vector3d to_eigen(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
+
+// Trilinear interpolation of the 8 corner values c (x fastest) at t in [0,1]^3, and its gradient in cell units.
+inline float trilinear(const float c[8], const float t[3], Eigen::Vector3f& gradient) {
+  const float x0 = c[0] + t[0] * (c[1] - c[0]), x1 = c[2] + t[0] * (c[3] - c[2]);
+  const float x2 = c[4] + t[0] * (c[5] - c[4]), x3 = c[6] + t[0] * (c[7] - c[6]);
+  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
+  const float dx0 = c[1] - c[0], dx1 = c[3] - c[2], dx2 = c[5] - c[4], dx3 = c[7] - c[6];
+  gradient[0] = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
+  gradient[1] = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
+  gradient[2] = y1 - y0;
+  return y0 + t[2] * (y1 - y0);
+}
+
+}  // namespace
+
+voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::load(const std::string& path) {
+  voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
+  if (!asset) return asset.error();
+  auto field = from_asset(std::move(asset.value()));
+  if (!field) {
+    voxfmt::Error error = field.error();
+    if (error.file.empty()) error.file = path;
+    if (error.message.find(path) == std::string::npos) error.message = path + ": " + error.message;
+    return error;
+  }
+  return field;
+}
+
+voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt::Asset asset) {
+  const voxfmt::Voxelmap& vm = asset.voxelmap;
+  if (vm.bricks.empty() || vm.dims[0] < 2 || vm.dims[1] < 2 || vm.dims[2] < 2)
+    return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
+                         "the asset has no voxelmap of at least 2 voxels a side: MuJoCo needs its distance field");
+  std::shared_ptr<AssetField> field(new AssetField);
+  AssetField& f = *field;
+  f.voxel_size_ = vm.voxel_size;
+  f.inverse_voxel_size_ = 1.0 / vm.voxel_size;
+  f.origin_ = to_eigen(vm.origin);
+  const auto bd = vm.brick_dims();
+  for (int a = 0; a < 3; ++a) {
+    f.dims_[a] = int(vm.dims[size_t(a)]);
+    f.brick_dims_[a] = int(bd[size_t(a)]);
+    f.lattice_dims_[a] = f.brick_dims_[a] + 1;
+    f.grid_max_[a] = float(f.dims_[a] - 1);
+  }
+  f.band_edge_ = float(vm.distance_band - 0.5);
+  f.table_ = vm.bricks;
+  // The lattice in the runtime's 16-bit steps (1/16 voxel, coarser only where the largest distance needs it),
+  // so that the lattice cells agree with the runtime's values of the coarse voxels the blocks hold.
+  float largest = 0;
+  for (float v : vm.lattice) largest = std::max(largest, v);
+  const float step = float(std::max(1.0 / 16, double(largest) / vm.voxel_size / 65000.0));
+  const double to_steps = 1.0 / (vm.voxel_size * double(step));
+  f.lattice_.resize(vm.lattice.size());
+  for (size_t n = 0; n < vm.lattice.size(); ++n)
+    f.lattice_[n] = float(uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)))) * step;
+  f.bounds_min_ = to_eigen(asset.bounds_min);
+  f.bounds_max_ = to_eigen(asset.bounds_max);
+  f.centre_ = 0.5 * (f.bounds_min_ + f.bounds_max_);
+  f.volume_ = asset.mass.volume;
+  f.center_of_mass_ = to_eigen(asset.mass.center_of_mass);
+
+  // The runtime decodes the voxels (and validates the asset); its map is only needed while the blocks are made.
+  voxfmt::runtime::LoadOptions options;
+  options.load_point_shell = false;
+  auto object = voxfmt::runtime::CollisionObject::from_asset(std::move(asset), options);
+  if (!object) return object.error();
+  const voxfmt::runtime::SparseVoxelmap& map = object.value()->voxelmap();
+
+  // A block for every value brick, and for every coarse brick with a value brick among its + neighbours (its
+  // cells along that face reach into the value brick's voxels).
+  const int bx = f.brick_dims_[0], by = f.brick_dims_[1], bz = f.brick_dims_[2];
+  auto brick = [&](int i, int j, int k) { return (size_t(k) * size_t(by) + size_t(j)) * size_t(bx) + size_t(i); };
+  std::vector<char> blocked(f.table_.size(), 0);
+  for (int k = 0; k < bz; ++k)
+    for (int j = 0; j < by; ++j)
+      for (int i = 0; i < bx; ++i) {
+        if (f.table_[brick(i, j, k)] < 0) continue;
+        for (int d = 0; d < 8; ++d) {
+          const int ni = i - (d & 1), nj = j - ((d >> 1) & 1), nk = k - (d >> 2);
+          if (ni >= 0 && nj >= 0 && nk >= 0) blocked[brick(ni, nj, nk)] = 1;
+        }
+      }
+  size_t count = 0;
+  for (char b : blocked) count += size_t(b);
+  f.blocks_.resize(count * size_t(kBlockValues));
+  size_t next = 0;
+  for (int k = 0; k < bz; ++k)
+    for (int j = 0; j < by; ++j)
+      for (int i = 0; i < bx; ++i) {
+        const size_t b = brick(i, j, k);
+        if (!blocked[b]) continue;  // keeps the coarse brick's kFarOutside / kFarInside
+        float* out = &f.blocks_[next];
+        for (int z = 0; z < kBlockEdge; ++z)
+          for (int y = 0; y < kBlockEdge; ++y)
+            for (int x = 0; x < kBlockEdge; ++x)
+              *out++ = map.value_at(std::min(i * kEdge + x, f.dims_[0] - 1), std::min(j * kEdge + y, f.dims_[1] - 1),
+                                    std::min(k * kEdge + z, f.dims_[2] - 1));
+        f.table_[b] = int32_t(next);
+        next += size_t(kBlockValues);
+      }
+  f.blocks_.shrink_to_fit();
+  return std::shared_ptr<const AssetField>(std::move(field));
+}
+
+size_t AssetField::memory_bytes() const {
+  return table_.capacity() * sizeof(int32_t) + blocks_.capacity() * sizeof(float) + lattice_.capacity() * sizeof(float);
+}
+
+[[gnu::always_inline]] inline float AssetField::lookup(const Eigen::Vector3f& u, Eigen::Vector3f& gradient) const {
+  // The cell whose corners surround u, clamped so that all 8 corners exist.
+  int base[3];
+  float t[3];
+  for (int a = 0; a < 3; ++a) {
+    base[a] = std::min(int(u[a]), dims_[a] - 2);
+    t[a] = u[a] - float(base[a]);
+  }
+  const int bi = base[0] >> 3, bj = base[1] >> 3, bk = base[2] >> 3;
+  const int32_t entry =
+      table_[(size_t(bk) * size_t(brick_dims_[1]) + size_t(bj)) * size_t(brick_dims_[0]) + size_t(bi)];
+  if (entry >= 0) {
+    const float* v = &blocks_[size_t(entry) + size_t(((base[2] & 7) * kRow + (base[1] & 7)) * kRow + (base[0] & 7))];
+    const float c[8] = {v[0],      v[1],          v[kRow],          v[kRow + 1],
+                        v[kSlice], v[kSlice + 1], v[kSlice + kRow], v[kSlice + kRow + 1]};
+    return trilinear(c, t, gradient);
+  }
+  // A coarse brick away from the surface: the lattice's cell is the brick (from its first voxel to the next
+  // brick's), interpolated at u; at least the band's edge, signed by the brick.
+  float s[3], inverse[3];
+  const int lower[3] = {bi, bj, bk};
+  for (int a = 0; a < 3; ++a) {
+    // A brick's lattice cell is 8 voxels long, but the last one may be shorter.
+    const int x0 = lower[a] * kEdge, x1 = std::min(x0 + kEdge, dims_[a] - 1);
+    inverse[a] = x1 - x0 == kEdge ? 1.0f / kEdge : 1.0f / float(x1 - x0);
+    s[a] = std::min((u[a] - float(x0)) * inverse[a], 1.0f);
+  }
+  const size_t row = size_t(lattice_dims_[0]), plane = row * size_t(lattice_dims_[1]);
+  const float* p = &lattice_[size_t(bk) * plane + size_t(bj) * row + size_t(bi)];
+  const float c[8] = {p[0], p[1], p[row], p[row + 1], p[plane], p[plane + 1], p[plane + row], p[plane + row + 1]};
+  const float magnitude = trilinear(c, s, gradient);
+  const float sign = entry == kFarInside ? -1.0f : 1.0f;
+  if (magnitude < band_edge_) {
+    gradient.setZero();
+    return sign * band_edge_;
+  }
+  for (int a = 0; a < 3; ++a) gradient[a] *= sign * inverse[a];
+  return sign * magnitude;
+}
+
+double AssetField::evaluate_raw(const double point[3], Eigen::Vector3f& direction) const {
+  Eigen::Vector3f u;
+  for (int a = 0; a < 3; ++a) u[a] = float((point[a] - origin_[a]) * inverse_voxel_size_);
+  // Beyond the voxel centres the trilinear field would be constant along the clamped axes (a zero gradient that
+  // strands a descent): the distance to the box is added there instead.
+  const Eigen::Vector3f clamped = u.cwiseMax(Eigen::Vector3f::Zero()).cwiseMin(grid_max_);
+  float distance = lookup(clamped, direction);
+  const Eigen::Vector3f out = u - clamped;
+  const float out2 = out.squaredNorm();
+  if (out2 > 0.0f) {
+    // Along an axis where the point is past the box the distance grows with the offset from it; along the
+    // others, with the field at the clamped point.
+    const float beyond = std::sqrt(out2), inverse = 1.0f / beyond;
+    distance += beyond;
+    for (int a = 0; a < 3; ++a)
+      if (out[a] != 0.0f) direction[a] = out[a] * inverse;
+  }
+  return double(distance) * voxel_size_;
+}
+
+void AssetField::unit_gradient(const Eigen::Vector3f& direction, const double point[3], double gradient[3]) const {
+  const float length2 = direction.squaredNorm();
+  if (length2 > 1e-12f) {
+    const float scale = 1.0f / std::sqrt(length2);
+    for (int a = 0; a < 3; ++a) gradient[a] = double(direction[a] * scale);
+    return;
+  }
+  Eigen::Vector3d away = Eigen::Vector3d(point[0], point[1], point[2]) - centre_;
+  const double n = away.norm();
+  away = n > 0 ? Eigen::Vector3d(away / n) : Eigen::Vector3d::UnitZ();
+  for (int a = 0; a < 3; ++a) gradient[a] = away[a];
+}
+
+double AssetField::evaluate(const double point[3], double gradient[3]) const {
+  Eigen::Vector3f direction;
+  const double distance = evaluate_raw(point, direction);
+  if (gradient) unit_gradient(direction, point, gradient);
+  return distance;
+}
+
+void AssetField::aabb(double margin, double box[6]) const {
+  for (int a = 0; a < 3; ++a) {
+    box[a] = 0.5 * (bounds_min_[a] + bounds_max_[a]);
+    box[3 + a] = 0.5 * (bounds_max_[a] - bounds_min_[a]) + margin;
+  }
+}
+
+}  // namespace voxfmt::mujoco

@@ -1,0 +1,289 @@
+"""voxfmt assets as MuJoCo SDF geoms: the plugin ``voxfmt.sdf.asset`` and the MJCF that uses it.
+
+    import mujoco, voxfmt.mujoco
+    voxfmt.mujoco.load_plugin()
+    bunny = voxfmt.mujoco.part("bunny.vox.h5", name="bunny", pos=(0, 0, 0.5), density=1000.0)
+    model = mujoco.MjModel.from_xml_string(voxfmt.mujoco.insert(scene_xml, bunny))
+
+The plugin answers MuJoCo's distance and gradient queries from the asset's voxelmap (the file Bullet loads too);
+MuJoCo's own SDF collision (``mjc_SDF``) searches for the contacts. The plugin library is built for exactly one
+MuJoCo release, :data:`MUJOCO_VERSION`; :func:`load_plugin` checks it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import re
+import threading
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from ._errors import Error
+
+__all__ = [
+    "MUJOCO_VERSION",
+    "PLUGIN_NAME",
+    "MujocoVersionError",
+    "Part",
+    "evaluate",
+    "field_bytes",
+    "insert",
+    "load_plugin",
+    "loaded_files",
+    "lookup_profile",
+    "part",
+    "plugin_path",
+]
+
+#: The MuJoCo release the plugin is built against and works with (the `mujoco` wheel's version; CMake reads it
+#: from this line, and python/requirements-dev.txt pins the same).
+MUJOCO_VERSION = "4.0.0"
+#: The plugin's name in MJCF (``<plugin plugin="voxfmt.sdf.asset">``).
+PLUGIN_NAME = "voxfmt.sdf.asset"
+_LIBRARY = "libvoxfmt_mujoco.so"
+
+_lock = threading.Lock()
+_library: ctypes.CDLL | None = None
+
+
+class MujocoVersionError(Error, ImportError):
+    """The installed ``mujoco`` is not the release the plugin was built for (code VERSION_UNSUPPORTED)."""
+
+
+def plugin_path() -> str:
+    """Where the plugin library is: ``$VOXFMT_MUJOCO_PLUGIN`` if set, else ``libvoxfmt_mujoco.so`` beside this
+    package (CMake builds it into ``build/python/voxfmt/``; ``pip install`` puts it into the package)."""
+    return os.environ.get("VOXFMT_MUJOCO_PLUGIN") or os.path.join(os.path.dirname(__file__), _LIBRARY)
+
+
+def _mujoco():  # type: ignore[no-untyped-def]
+    try:
+        import mujoco
+    except ImportError as e:
+        raise MujocoVersionError(
+            "VERSION_UNSUPPORTED", f"cannot import mujoco ({e}): pip install mujoco=={MUJOCO_VERSION}"
+        ) from None
+    if mujoco.__version__ != MUJOCO_VERSION:
+        raise MujocoVersionError(
+            "VERSION_UNSUPPORTED",
+            f"the voxfmt MuJoCo plugin is built for mujoco {MUJOCO_VERSION}, this Python has {mujoco.__version__} "
+            f"(pip install mujoco=={MUJOCO_VERSION}, or rebuild voxfmt against it)",
+        )
+    return mujoco
+
+
+def load_plugin() -> str:
+    """Registers the plugin ``voxfmt.sdf.asset`` with MuJoCo, once per process (later calls do nothing), and
+    returns the library's path. Raises MujocoVersionError if ``mujoco`` is missing or not
+    :data:`MUJOCO_VERSION`, and AssetError (FILE_NOT_FOUND) if the library was not built."""
+    global _library
+    with _lock:
+        if _library is not None:
+            return plugin_path()
+        mujoco = _mujoco()  # loads libmujoco, which the plugin's library needs by soname
+        path = plugin_path()
+        if not os.path.exists(path):
+            from ._errors import AssetError
+
+            raise AssetError(
+                "FILE_NOT_FOUND",
+                f"{path}: the voxfmt MuJoCo plugin was not built (CMake builds it when the build's Python has "
+                f"mujoco=={MUJOCO_VERSION}: VOXFMT_MUJOCO)",
+                path,
+            )
+        try:
+            library = ctypes.CDLL(os.path.abspath(path))
+        except OSError as e:
+            raise MujocoVersionError("VERSION_UNSUPPORTED", f"{path}: cannot load the plugin: {e}", path) from None
+        built = int(library.voxfmt_mujoco_built_version())
+        if built != mujoco.mj_version():
+            raise MujocoVersionError(
+                "VERSION_UNSUPPORTED",
+                f"{path} was built against MuJoCo {built}, this process runs {mujoco.mj_version()}",
+                path,
+            )
+        library.voxfmt_mujoco_evaluate.restype = ctypes.c_int
+        library.voxfmt_mujoco_evaluate.argtypes = [
+            ctypes.c_char_p,
+            ctypes.c_int,
+            ctypes.c_void_p,
+            ctypes.c_void_p,
+            ctypes.c_void_p,
+            ctypes.c_char_p,
+            ctypes.c_int,
+        ]
+        library.voxfmt_mujoco_loaded_files.restype = ctypes.c_int
+        library.voxfmt_mujoco_field_bytes.restype = ctypes.c_longlong
+        library.voxfmt_mujoco_field_bytes.argtypes = [ctypes.c_char_p]
+        library.voxfmt_mujoco_profile.restype = None
+        library.voxfmt_mujoco_profile.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        _library = library
+        return path
+
+
+def loaded_files() -> int:
+    """How many asset files the plugin has loaded (or failed to load) in this process: each file once, however
+    many geoms and models name it."""
+    load_plugin()
+    assert _library is not None
+    return int(_library.voxfmt_mujoco_loaded_files())
+
+
+def field_bytes(asset_path: str | os.PathLike[str]) -> int:
+    """Heap bytes of the field the plugin holds for the asset (what a model using it adds to MuJoCo's own model),
+    loading it through the plugin's cache. Raises AssetError for a file the plugin cannot use."""
+    load_plugin()
+    assert _library is not None
+    n = int(_library.voxfmt_mujoco_field_bytes(os.fsencode(os.path.abspath(asset_path))))
+    if n < 0:
+        evaluate(asset_path, np.zeros((0, 3)))  # raises the load's error
+    return n
+
+
+def lookup_profile(restart: bool = True) -> dict[str, float]:
+    """Profiles the plugin's lookups on this thread: since the last call, the calls MuJoCo made of
+    ``sdf_distance`` and ``sdf_gradient``, the voxelmap lookups they cost (a repeated point is answered from the
+    last evaluations), and the nanoseconds those lookups take replayed in a loop without MuJoCo (``lookup_ns``;
+    what the lookups cost of a step, as opposed to MuJoCo's own search), and ``collisions``, the SDF pair
+    tests MuJoCo ran with one of the plugin's geoms as the SDF. ``restart`` starts a new profile,
+    ``False`` stops profiling. Profiling records every looked-up point: not for timing a step."""
+    load_plugin()
+    assert _library is not None
+    out = np.zeros(5)
+    _library.voxfmt_mujoco_profile(1 if restart else 0, out.ctypes.data)
+    return dict(zip(("distance_calls", "gradient_calls", "lookups", "lookup_ns", "collisions"), out.tolist()))
+
+
+def evaluate(
+    asset_path: str | os.PathLike[str], points: npt.ArrayLike, *, gradients: bool = False
+) -> npt.NDArray[np.float64] | tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The field the plugin gives MuJoCo for the asset at ``asset_path``, at ``points`` (N, 3) in the asset
+    frame, metres: distances (N,), negative inside, and with ``gradients=True`` also the unit gradients (N, 3).
+    The asset is loaded through the plugin's cache (the same object MuJoCo's geoms use). Raises AssetError for a
+    file the plugin cannot use."""
+    load_plugin()
+    assert _library is not None
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        from ._errors import OptionError
+
+        raise OptionError("BAD_OPTION", f"points: expected shape (N, 3), got {p.shape}")
+    n = p.shape[0]
+    distances = np.empty(n)
+    grads = np.empty((n, 3)) if gradients else None
+    message = ctypes.create_string_buffer(4096)
+    status = _library.voxfmt_mujoco_evaluate(
+        os.fsencode(os.path.abspath(asset_path)),
+        n,
+        p.ctypes.data,
+        distances.ctypes.data,
+        grads.ctypes.data if grads is not None else None,
+        message,
+        len(message),
+    )
+    if status != 0:
+        from ._errors import make_error
+
+        text = message.value.decode(errors="replace")
+        code, _, rest = text.partition(": ")
+        raise make_error(code, rest, os.fspath(asset_path), "")
+    return (distances, grads) if grads is not None else distances
+
+
+@dataclass(frozen=True)
+class Part:
+    """One baked part as MJCF pieces (see :func:`part`). ``extension`` and ``asset`` are shared by every part of
+    the same file: :func:`insert` writes them once."""
+
+    name: str
+    file: str  #: absolute path of the asset
+    instance: str  #: the plugin instance's name, and the mesh's
+    extension: str  #: ``<instance>`` for ``<extension><plugin plugin="voxfmt.sdf.asset">``
+    asset: str  #: ``<mesh>`` for ``<asset>``
+    body: str  #: ``<body>`` for ``<worldbody>``: joint (unless static), ``<inertial>``, the SDF geom
+    mass: float
+    center_of_mass: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
+
+
+def _numbers(values: Sequence[float] | npt.ArrayLike) -> str:
+    return " ".join(f"{float(v):.10g}" for v in np.asarray(values, dtype=float).ravel())
+
+
+def _attribute(value: str) -> str:
+    return value.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def part(
+    asset_path: str | os.PathLike[str],
+    name: str,
+    *,
+    pos: Sequence[float] = (0.0, 0.0, 0.0),
+    quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+    density: float = 1000.0,
+    static: bool = False,
+    geom: dict[str, str] | None = None,
+) -> Part:
+    """The MJCF pieces of a body made of the asset at ``asset_path``: a plugin instance and mesh named after the
+    file, and a body ``name`` at ``pos``/``quat`` (the asset frame's pose; MuJoCo's quaternion order w x y z)
+    with a free joint (none if ``static``), an ``<inertial>`` from the asset's own mass properties at
+    ``density`` (kg/m^3) and an SDF geom with the extra ``geom`` attributes (e.g. ``{"friction": "0.3"}``).
+
+    The asset is read once here (AssetError if it cannot be); MuJoCo reads it again through the plugin's cache
+    when it compiles the model, from the absolute path written into the MJCF."""
+    from . import load
+
+    path = os.path.abspath(os.fspath(asset_path))
+    body = load(path, density=density)
+    instance = "voxfmt_" + re.sub(r"[^A-Za-z0-9_]", "_", os.path.basename(path).split(".")[0])
+    instance += "_" + hashlib.sha1(path.encode()).hexdigest()[:8]
+    extension = f'<instance name="{instance}"><config key="file" value="{_attribute(path)}"/></instance>'
+    asset = f'<mesh name="{instance}"><plugin instance="{instance}"/></mesh>'
+    inertia = np.asarray(body.inertia)
+    full = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    extra = "".join(f' {k}="{_attribute(str(v))}"' for k, v in (geom or {}).items())
+    joint = "" if static else "<freejoint/>"
+    xml = (
+        f'<body name="{_attribute(name)}" pos="{_numbers(pos)}" quat="{_numbers(quat)}">{joint}'
+        f'<inertial pos="{_numbers(body.center_of_mass)}" mass="{body.mass:.10g}" fullinertia="{_numbers(full)}"/>'
+        f'<geom name="{_attribute(name)}" type="sdf" mesh="{instance}"{extra}><plugin instance="{instance}"/></geom>'
+        "</body>"
+    )
+    com = tuple(float(c) for c in body.center_of_mass)
+    return Part(name, path, instance, extension, asset, xml, float(body.mass), com)  # type: ignore[arg-type]
+
+
+def insert(mjcf: str, *parts: Part) -> str:
+    """``mjcf`` (a whole ``<mujoco>`` document) with the parts added: the plugin's ``<extension>`` entry, each
+    file's mesh in ``<asset>`` once, and each part's body at the end of ``<worldbody>``. Sections the document
+    lacks are created."""
+    instances: dict[str, Part] = {}
+    for p in parts:
+        instances.setdefault(p.instance, p)
+    plugin = (
+        f'<extension><plugin plugin="{PLUGIN_NAME}">'
+        + "".join(p.extension for p in instances.values())
+        + "</plugin></extension>"
+    )
+    meshes = "".join(p.asset for p in instances.values())
+    bodies = "".join(p.body for p in parts)
+    opening = re.search(r"<mujoco\b[^>]*>", mjcf)
+    if not opening or "</mujoco>" not in mjcf:
+        from ._errors import OptionError
+
+        raise OptionError("BAD_OPTION", "mjcf: expected a <mujoco> ... </mujoco> document")
+    out = mjcf[: opening.end()] + plugin + mjcf[opening.end() :]
+    out = _add_to_section(out, "asset", meshes)
+    return _add_to_section(out, "worldbody", bodies)
+
+
+def _add_to_section(mjcf: str, section: str, content: str) -> str:
+    closing = mjcf.rfind(f"</{section}>")
+    if closing >= 0:
+        return mjcf[:closing] + content + mjcf[closing:]
+    end = mjcf.rfind("</mujoco>")
+    return mjcf[:end] + f"<{section}>{content}</{section}>" + mjcf[end:]

@@ -1,0 +1,92 @@
+"""A missing, damaged or hostile asset named in the MJCF is a MuJoCo error that names the file and carries the
+voxfmt code (the plugin's init fails with it), and never takes the interpreter down: each model is compiled
+in a child interpreter, which must report the error and exit normally."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import REPO
+
+import voxfmt.mujoco as vm
+
+CHILD = r"""
+import json, sys
+import mujoco, voxfmt.mujoco as vm
+vm.load_plugin()
+results = []
+for path in json.loads(sys.argv[1]):
+    xml = ('<mujoco><extension><plugin plugin="voxfmt.sdf.asset"><instance name="a">'
+           f'<config key="file" value="{path}"/></instance></plugin></extension>'
+           '<asset><mesh name="a"><plugin instance="a"/></mesh></asset>'
+           '<worldbody><body><freejoint/><geom type="sdf" mesh="a"><plugin instance="a"/></geom></body></worldbody>'
+           '</mujoco>')
+    try:
+        model = mujoco.MjModel.from_xml_string(xml)
+        mujoco.MjData(model)
+        results.append([path, None, ""])
+    except Exception as e:
+        results.append([path, type(e).__name__, str(e)])
+print(json.dumps(results))
+"""
+
+
+def compile_in_child(paths: list[str]) -> list[list]:  # type: ignore[type-arg]
+    env = dict(os.environ)
+    child = subprocess.run([sys.executable, "-c", CHILD, json.dumps(paths)], capture_output=True, text=True,
+                           env=env, timeout=240)
+    assert child.returncode == 0, f"the interpreter died ({child.returncode}): {child.stderr[-2000:]}"
+    return json.loads(child.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def bad_files(tmp_path_factory: pytest.TempPathFactory, sphere_asset: Path) -> dict[str, tuple[Path, str]]:
+    folder = tmp_path_factory.mktemp("bad")
+    good = sphere_asset.read_bytes()
+    files = {
+        "missing": (folder / "missing.vox.h5", "FILE_NOT_FOUND"),
+        "not HDF5": (folder / "text.vox.h5", "NOT_HDF5"),
+        "truncated": (folder / "truncated.vox.h5", "NOT_HDF5"),
+        "a folder": (folder, ""),
+    }
+    (folder / "text.vox.h5").write_text("not an asset\n")
+    (folder / "truncated.vox.h5").write_bytes(good[: len(good) // 3])
+    # A byte flipped in the middle of the data: whatever HDF5 or the validation makes of it, an error.
+    flipped = bytearray(good)
+    for offset in range(len(good) // 2, len(good) // 2 + 64):
+        flipped[offset] ^= 0xFF
+    (folder / "flipped.vox.h5").write_bytes(bytes(flipped))
+    files["flipped"] = (folder / "flipped.vox.h5", "")
+    # The fuzzers' regressions: files that crashed or hung HDF5 in the isolated reader's child.
+    for hostile in sorted((REPO / "tests/fuzz/regressions").glob("asset-*.vox.h5")):
+        files[hostile.name] = (hostile, "")
+    return files
+
+
+def test_bad_assets_are_mujoco_errors_with_the_voxfmt_code(bad_files: dict[str, tuple[Path, str]]) -> None:
+    results = compile_in_child([str(path) for path, _ in bad_files.values()])
+    for (name, (path, code)), (_, error, message) in zip(bad_files.items(), results):
+        if name == "flipped" and error is None:
+            continue  # the flip hit bytes nothing reads (padding): the asset is still valid
+        assert error == "ValueError", (name, error, message)
+        assert "voxfmt.sdf.asset" in message and str(path) in message, (name, message)
+        assert code in message, (name, code, message)
+        assert any(c in message for c in ("FILE_NOT_FOUND", "NOT_HDF5", "READ_FAILED", "INVALID_ASSET",
+                                          "MISSING_OBJECT", "WRONG_", "BAD_", "VALUE_OUT_OF_RANGE",
+                                          "FORMAT_NAME_MISMATCH", "VERSION_", "NON_FINITE_VALUE")), message
+
+
+def test_no_file_is_a_clear_error() -> None:
+    (_, error, message), = compile_in_child([""])
+    assert error == "ValueError" and "BAD_OPTION" in message and "'file'" in message
+
+
+def test_a_good_file_after_bad_ones_still_loads(sphere_asset: Path, tmp_path: Path) -> None:
+    results = compile_in_child([str(tmp_path / "missing.vox.h5"), str(sphere_asset)])
+    assert results[0][1] == "ValueError" and results[1][1] is None, results
+    assert vm.MUJOCO_VERSION  # the parent's plugin is loaded too (conftest) and untouched

