@@ -34,6 +34,8 @@ namespace {
 // Set in an isolated read's child: the counter its parent watches.
 std::atomic<uint64_t>* g_progress = nullptr;
 constexpr double kIdleLimitS = 10.0;
+// A read of a local file never sleeps this long without progress (see Watchdog::asleep_s).
+constexpr double kAsleepLimitS = 5.0;
 
 #if !defined(_WIN32)
 // One visitor per structure for both directions (WireWriter with const data, WireReader with data to fill):
@@ -132,22 +134,29 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
     ~Unmap() { ::munmap(p, sizeof(std::atomic<uint64_t>)); }
   } unmap{shared};
   ReadOutcome<Value> read_back;
-  const ChildOutcome outcome = run_isolated(
-      Watchdog{0, kIdleLimitS, counter}, read_back,
-      [&] {
-        g_progress = counter;  // in the child
-        ReadOutcome<Value> r;
-        r.value = read(path, r.issues);
-        return r;
-      },
-      [&](auto& w, auto& r) {
-        visit_issues(w, r.issues);
-        uint8_t present = r.value.has_value();
-        w.pod(present);
-        if (!present) return;
-        if (!r.value) r.value.emplace();  // the parent's side
-        visit(w, *r.value);
-      });
+  auto attempt = [&] {
+    read_back = ReadOutcome<Value>{};
+    return run_isolated(
+        Watchdog{0, kIdleLimitS, counter, kAsleepLimitS}, read_back,
+        [&] {
+          g_progress = counter;  // in the child
+          ReadOutcome<Value> r;
+          r.value = read(path, r.issues);
+          return r;
+        },
+        [&](auto& w, auto& r) {
+          visit_issues(w, r.issues);
+          uint8_t present = r.value.has_value();
+          w.pod(present);
+          if (!present) return;
+          if (!r.value) r.value.emplace();  // the parent's side
+          visit(w, *r.value);
+        });
+  };
+  ChildOutcome outcome = attempt();
+  // A child asleep on a lock inherited from another thread (the process's other libraries start threads: OpenVDB's
+  // log4cplus starts four) says nothing about the file: read it once more. A second sleep is the file's (a FIFO).
+  if (outcome.kind == ChildOutcome::TimedOut && outcome.asleep) outcome = attempt();
   auto refuse = [&](const std::string& why) {
     issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/", why});
     return std::nullopt;
@@ -162,6 +171,9 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
       return refuse("the file is damaged: HDF5 died of signal " + std::to_string(outcome.signal) + " (" +
                     strsignal(outcome.signal) + ") reading it (read in isolation: nothing else was affected)");
     case ChildOutcome::TimedOut:
+      if (outcome.asleep)
+        return refuse("the read made no progress: it waited " + std::to_string(int(kAsleepLimitS)) +
+                      " s twice without reading (not a regular file? read in isolation, stopped)");
       return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
                     " s of its CPU time (read in isolation, stopped)");
     case ChildOutcome::OutOfMemory:

@@ -1,6 +1,7 @@
 // The isolated call's watchdog (voxfmt/detail/isolated_call.h): a child that burns CPU without progress is stopped
 // after its idle CPU time; one that makes no progress because it does not run (a starved or sleeping child) is
-// not taken for a hung one until it has been blocked for kBlockedFactor times as long.
+// not taken for a hung one until it has been blocked for kBlockedFactor times as long; one asleep (on a lock, a pipe)
+// is stopped after the watchdog's asleep_s when that is set.
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -64,6 +65,60 @@ TEST(Isolation, AChildBlockedForLongIsStoppedToo) {
   EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
   EXPECT_GE(seconds_since(start), 0.2 * Watchdog::kBlockedFactor);
   EXPECT_LT(seconds_since(start), 30.0);
+}
+
+
+TEST(Isolation, AChildAsleepWithoutProgressIsStoppedAfterTheAsleepLimit) {
+  // A child forked while another thread held a lock sleeps on it forever: with asleep_s it is stopped after that,
+  // long before the blocked limit (0.2 s x kBlockedFactor), and said to have slept (the isolated read retries it).
+  std::atomic<uint64_t> progress{0};
+  int value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 10.0, &progress, 0.5}, value,
+      [] {
+        std::this_thread::sleep_for(std::chrono::seconds(60));
+        return 0;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
+  EXPECT_TRUE(outcome.asleep);
+  EXPECT_GE(seconds_since(start), 0.5);
+  EXPECT_LT(seconds_since(start), 10.0);
+}
+
+TEST(Isolation, ASpinningChildIsNotSaidToSleep) {
+  std::atomic<uint64_t> progress{0};
+  int value = 0;
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 0.5, &progress, 30.0}, value,
+      [] {
+        volatile uint64_t spin = 0;
+        for (;;) spin = spin + 1;
+        return 0;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
+  EXPECT_FALSE(outcome.asleep);
+}
+
+TEST(Isolation, AChildThatSleepsAfterSendingEverythingStillDelivers) {
+  // Everything arrived, then the child sleeps instead of exiting: it is stopped and what it sent stands.
+  int fds_value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{0, 10.0, nullptr, 0.5}, fds_value,
+      [] { return 7; },
+      [](auto& wire, int& value) {
+        wire.pod(value);
+        if constexpr (std::is_same_v<std::decay_t<decltype(wire)>, WireWriter>) {
+          wire.flush();
+          std::this_thread::sleep_for(std::chrono::seconds(60));
+        }
+      });
+  EXPECT_EQ(outcome.kind, ChildOutcome::Finished);
+  EXPECT_EQ(fds_value, 7);
+  EXPECT_LT(seconds_since(start), 10.0);
 }
 
 }  // namespace

@@ -28,7 +28,7 @@ VOXFMT_BIN = os.environ.get("VOXFMT_BIN", "")
 SAMPLE_WRITER = os.environ.get("VOXFMT_SAMPLE_WRITER", "")
 H5DUMP = os.environ.get("H5DUMP", "/usr/bin/h5dump")
 
-TIMEOUT = 30
+TIMEOUT = 60  # a read that sleeps is retried once after 5 s (isolated_read.cpp); sanitizer builds are slow
 
 
 def _is_exe(p):

@@ -110,15 +110,21 @@ class WireWriter {
 /// A child that neither progresses nor runs (blocked) is stopped after kBlockedFactor times `idle_s` of wall
 /// time. A parse whose work is bounded by what the file declares needs no total limit: one that stops making
 /// progress has hung, whatever the file's size and the machine's load.
+/// `asleep_s` (0: off) stops sooner a child that sleeps (state S: waiting on a lock or a pipe, not starved and not
+/// in disk I/O) without CPU or progress for that long: a parse of a local file never waits like that, but a child
+/// forked while another thread held a lock it needs does (clang 14's ASan allocator has no fork handler).
 struct Watchdog {
   double total_s = 0;
   double idle_s = 0;
   const std::atomic<uint64_t>* progress = nullptr;
+  double asleep_s = 0;
   static constexpr double kBlockedFactor = 12;
 };
 
-/// CPU seconds (user + system) a child process has used so far; negative where it cannot be read.
-inline double child_cpu_seconds(pid_t pid) {
+/// CPU seconds (user + system) a child process has used so far; negative where it cannot be read. `state`, when
+/// given, gets the process's state letter from /proc (R running, S sleeping, D disk wait, ...; 0 if unknown).
+inline double child_cpu_seconds(pid_t pid, char* state = nullptr) {
+  if (state) *state = 0;
   char path[64];
   std::snprintf(path, sizeof path, "/proc/%d/stat", int(pid));
   std::FILE* f = std::fopen(path, "r");
@@ -131,7 +137,10 @@ inline double child_cpu_seconds(pid_t pid) {
   const char* p = std::strrchr(line, ')');
   if (!p) return -1;
   unsigned long long utime = 0, stime = 0;
-  if (std::sscanf(p + 1, " %*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &utime, &stime) != 2) return -1;
+  char letter = 0;
+  if (std::sscanf(p + 1, " %c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &letter, &utime, &stime) != 3)
+    return -1;
+  if (state) *state = letter;
   const long ticks = ::sysconf(_SC_CLK_TCK);
   return ticks > 0 ? double(utime + stime) / double(ticks) : -1;
 }
@@ -148,6 +157,8 @@ class WireReader {
   }
   bool ok() const { return ok_; }
   bool timed_out() const { return timed_out_; }
+  /// Timed out because the child slept without progress for the watchdog's `asleep_s`.
+  bool asleep() const { return asleep_; }
   template <class T>
   void pod(T& value) {
     get(&value, sizeof(T));
@@ -209,13 +220,14 @@ class WireReader {
   double child_cpu() {
     const auto now = Clock::now();
     if (now - cpu_polled_ >= std::chrono::milliseconds(100) || cpu_ < 0) {
-      cpu_ = child_cpu_seconds(child_);
+      cpu_ = child_cpu_seconds(child_, &state_);
       cpu_polled_ = now;
     }
     return cpu_;
   }
   void progressed() {
     last_progress_ = Clock::now();
+    asleep_since_.reset();
     if (watchdog_.idle_s > 0 && child_ > 0) cpu_at_progress_ = child_cpu();
   }
   // Milliseconds left before the watchdog fires (<= 0: it has).
@@ -241,6 +253,19 @@ class WireReader {
         const double idle_cpu = cpu - cpu_at_progress_;
         left = std::min<long long>(left, (long long)((watchdog_.idle_s - idle_cpu) * 1000.0) + 1);
         until(last_progress_, watchdog_.idle_s * Watchdog::kBlockedFactor);
+        // Asleep since when, without CPU: a CPU tick or a progress starts the count again.
+        if (watchdog_.asleep_s > 0) {
+          if (state_ != 'S' || cpu != asleep_cpu_) asleep_since_.reset();
+          if (state_ == 'S' && !asleep_since_) {
+            asleep_since_ = now;
+            asleep_cpu_ = cpu;
+          }
+          if (asleep_since_) {
+            const long long before = left;
+            until(*asleep_since_, watchdog_.asleep_s);
+            if (left <= 0 && before > 0) asleep_ = true;
+          }
+        }
       } else {
         until(last_progress_, watchdog_.idle_s);
       }
@@ -275,6 +300,10 @@ class WireReader {
   Clock::time_point start_, last_progress_;
   double cpu_at_progress_ = -1, cpu_ = -1;
   Clock::time_point cpu_polled_{};
+  char state_ = 0;
+  std::optional<Clock::time_point> asleep_since_;
+  double asleep_cpu_ = -1;
+  bool asleep_ = false;
   uint64_t seen_ = 0;
   bool ok_ = true;
   bool timed_out_ = false;
@@ -285,6 +314,7 @@ struct ChildOutcome {
   enum Kind { Finished, CannotStart, Died, TimedOut, OutOfMemory, Malformed } kind = Finished;
   int signal = 0;      ///< Died: the signal
   std::string detail;  ///< CannotStart: the reason
+  bool asleep = false;  ///< TimedOut: the child slept without progress (Watchdog::asleep_s), it did not spin
   bool ok() const { return kind == Finished; }
 };
 
@@ -330,12 +360,33 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
   ::close(fds[0]);
   if (!r.ok() || out_of_memory) ::kill(child, SIGKILL);
   int status = 0;
-  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  if (r.ok() && watchdog.asleep_s > 0) {
+    // Everything arrived; a child that then sleeps instead of exiting (a lock, as above) is stopped, and what it
+    // sent stands.
+    const auto start = std::chrono::steady_clock::now();
+    for (;;) {
+      const pid_t done = ::waitpid(child, &status, WNOHANG);
+      if (done == child || (done < 0 && errno != EINTR)) break;
+      char state = 0;
+      child_cpu_seconds(child, &state);
+      if (state == 'S' && std::chrono::steady_clock::now() - start >
+                              std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                  std::chrono::duration<double>(watchdog.asleep_s))) {
+        ::kill(child, SIGKILL);
+        while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+        }
+        return outcome;
+      }
+      ::usleep(1000);
+    }
+  } else {
+    while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+    }
   }
   if (out_of_memory) return {ChildOutcome::OutOfMemory, 0, {}};
   if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) return outcome;
   if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
-  if (r.timed_out()) return {ChildOutcome::TimedOut, 0, {}};
+  if (r.timed_out()) return {ChildOutcome::TimedOut, 0, {}, r.asleep()};
   return {ChildOutcome::Malformed, 0, {}};
 }
 
