@@ -67,7 +67,6 @@ TEST(Isolation, AChildBlockedForLongIsStoppedToo) {
   EXPECT_LT(seconds_since(start), 30.0);
 }
 
-
 TEST(Isolation, AChildAsleepWithoutProgressIsStoppedAfterTheAsleepLimit) {
   // A child forked while another thread held a lock sleeps on it forever: with asleep_s it is stopped after that,
   // long before the blocked limit (0.2 s x kBlockedFactor), and said to have slept (the isolated read retries it).
@@ -107,8 +106,7 @@ TEST(Isolation, AChildThatSleepsAfterSendingEverythingStillDelivers) {
   int fds_value = 0;
   const auto start = Clock::now();
   const ChildOutcome outcome = run_isolated(
-      Watchdog{0, 10.0, nullptr, 0.5}, fds_value,
-      [] { return 7; },
+      Watchdog{0, 10.0, nullptr, 0.5}, fds_value, [] { return 7; },
       [](auto& wire, int& value) {
         wire.pod(value);
         if constexpr (std::is_same_v<std::decay_t<decltype(wire)>, WireWriter>) {

@@ -312,8 +312,8 @@ class WireReader {
 // How an isolated call ended.
 struct ChildOutcome {
   enum Kind { Finished, CannotStart, Died, TimedOut, OutOfMemory, Malformed } kind = Finished;
-  int signal = 0;      ///< Died: the signal
-  std::string detail;  ///< CannotStart: the reason
+  int signal = 0;       ///< Died: the signal
+  std::string detail;   ///< CannotStart: the reason
   bool asleep = false;  ///< TimedOut: the child slept without progress (Watchdog::asleep_s), it did not spin
   bool ok() const { return kind == Finished; }
 };
@@ -369,9 +369,9 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
       if (done == child || (done < 0 && errno != EINTR)) break;
       char state = 0;
       child_cpu_seconds(child, &state);
-      if (state == 'S' && std::chrono::steady_clock::now() - start >
-                              std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                  std::chrono::duration<double>(watchdog.asleep_s))) {
+      if (state == 'S' &&
+          std::chrono::steady_clock::now() - start > std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                         std::chrono::duration<double>(watchdog.asleep_s))) {
         ::kill(child, SIGKILL);
         while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
         }
