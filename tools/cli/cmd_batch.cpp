@@ -87,8 +87,20 @@ class Runner {
   nlohmann::json finish_record(const BatchItem& item, const ChildResult& child,
                                const std::vector<std::string>& command);
   BatchProgress::Snapshot snapshot() const;
+  // The stages of run(), in order.
+  void select_inputs();
+  void open_manifest();
+  void plan();
+  bake::Settings bake_settings();
+  void announce(size_t stale_removed) const;
+  bool bake_all(const bake::Settings& settings);
+  void report(bool interrupted) const;
 
   const Options& o_;
+  Shard shard_;
+  std::vector<BatchItem> mine_;  ///< this shard's meshes
+  size_t all_count_ = 0;         ///< every shard's
+  std::string manifest_path_;
   std::unique_ptr<Manifest> manifest_;
   nlohmann::json parameters_;
   std::unique_ptr<BatchProgress> progress_;
@@ -243,38 +255,55 @@ BatchProgress::Snapshot Runner::snapshot() const {
 int Runner::run() {
   start_ = std::chrono::steady_clock::now();
   progress_ = std::make_unique<BatchProgress>(::isatty(STDERR_FILENO) && !o_.json, o_.quiet || o_.json);
-  const Shard shard = parse_shard(o_.shard);
+  shard_ = parse_shard(o_.shard);
+  select_inputs();
+  open_manifest();
+  std::vector<std::string> outputs;
+  for (const BatchItem& item : mine_) outputs.push_back(item.output);
+  outputs.push_back(manifest_path_);
+  const size_t stale = remove_stale_partials(outputs);
+  parameters_ = build_parameters(o_.bake);
+  plan();
+  const bake::Settings settings = bake_settings();
+  announce(stale);
+  const bool interrupted = bake_all(settings);
+  report(interrupted);
+  if (interrupted) return 128 + int(g_interrupted);
+  return counts_.failed ? kExitInvalid : kExitOk;
+}
+
+// This shard's meshes (mine_) among every input's (all_count_).
+void Runner::select_inputs() {
   std::error_code ec;
   fs::create_directories(o_.output_dir, ec);
   if (ec || !fs::is_directory(o_.output_dir))
     throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""));
-
   std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir);
   if (all.empty())
     throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
-  std::vector<BatchItem> mine;
+  all_count_ = all.size();
   for (BatchItem& item : all)
-    if (shard.contains(item.key)) mine.push_back(std::move(item));
+    if (shard_.contains(item.key)) mine_.push_back(std::move(item));
+}
 
-  const std::string manifest_path = !o_.manifest.empty() ? o_.manifest
-                                    : shard.count == 1
-                                        ? (fs::path(o_.output_dir) / "manifest.jsonl").string()
-                                        : (fs::path(o_.output_dir) / ("manifest.shard-" + std::to_string(shard.index) +
-                                                                      "-of-" + std::to_string(shard.count) + ".jsonl"))
-                                              .string();
+// One manifest per shard, so shards running at once never write the same file.
+void Runner::open_manifest() {
+  manifest_path_ = !o_.manifest.empty() ? o_.manifest
+                   : shard_.count == 1  ? (fs::path(o_.output_dir) / "manifest.jsonl").string()
+                                        : (fs::path(o_.output_dir) / ("manifest.shard-" + std::to_string(shard_.index) +
+                                                                     "-of-" + std::to_string(shard_.count) + ".jsonl"))
+                                             .string();
   try {
-    manifest_ = std::make_unique<Manifest>(manifest_path);
+    manifest_ = std::make_unique<Manifest>(manifest_path_);
   } catch (const std::runtime_error& e) {
     throw UsageError(e.what());
   }
-  std::vector<std::string> outputs;
-  for (const BatchItem& item : mine) outputs.push_back(item.output);
-  outputs.push_back(manifest_path);
-  const size_t stale = remove_stale_partials(outputs);
-  parameters_ = build_parameters(o_.bake);
+}
 
-  // Plan: what is up to date is recorded (if the manifest does not say so already) and skipped.
-  for (const BatchItem& item : mine) {
+// What is up to date is recorded (if the manifest does not say so already) and skipped, as is what failed before
+// and would fail again; the rest is todo_, largest first.
+void Runner::plan() {
+  for (const BatchItem& item : mine_) {
     const Result<std::string> hashed = bake::sha256_file(item.input);
     const std::string sha = hashed ? hashed.value() : std::string();  // unreadable: the bake reports it properly
     nlohmann::json record;
@@ -298,7 +327,10 @@ int Runner::run() {
   // Largest first: the long bakes start early and the small ones fill the gaps (shorter makespan).
   std::stable_sort(todo_.begin(), todo_.end(),
                    [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
+}
 
+// Lanes (jobs_) and threads per bake (threads_) from the cores this task may use, and each bake's settings.
+bake::Settings Runner::bake_settings() {
   const unsigned cores = usable_cores();  // what Slurm or taskset gives this task, not the whole node
   jobs_ = o_.jobs ? o_.jobs : cores;
   bake::Settings settings = o_.bake;
@@ -308,21 +340,28 @@ int Runner::run() {
   threads_ = settings.threads;
   // The same limit for the bake's up-front estimate: refused with the figures rather than killed halfway.
   if (o_.max_memory_mib > 0) settings.voxelmap.max_memory_bytes = uint64_t(o_.max_memory_mib) << 20;
+  return settings;
+}
+
+void Runner::announce(size_t stale) const {
+  if (o_.quiet || o_.json) return;
+  std::cerr << "voxfmt batch: " << mine_.size() << " mesh(es)";
+  if (shard_.count > 1)
+    std::cerr << " in shard " << shard_.index << "/" << shard_.count << " (of " << all_count_ << ")";
+  std::cerr << ": " << counts_.up_to_date << " up to date, ";
+  if (counts_.failed_before) std::cerr << counts_.failed_before << " failed before (unchanged), ";
+  std::cerr << todo_.size() << " to bake with -j " << jobs_ << " (" << threads_ << " thread(s) each)";
+  if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
+  std::cerr << "\n";
+}
+
+// Runs todo_ in jobs_ child processes, recording each as it ends. Returns whether a signal stopped the batch.
+bool Runner::bake_all(const bake::Settings& settings) {
   const std::vector<std::string> option_args = bake_option_args(settings);
   const std::string exe = self_executable();
   ChildLimits limits;
   limits.timeout_seconds = o_.timeout;
   limits.max_memory_bytes = o_.max_memory_mib * 1024 * 1024;
-
-  if (!o_.quiet && !o_.json) {
-    std::cerr << "voxfmt batch: " << mine.size() << " mesh(es)";
-    if (shard.count > 1) std::cerr << " in shard " << shard.index << "/" << shard.count << " (of " << all.size() << ")";
-    std::cerr << ": " << counts_.up_to_date << " up to date, ";
-    if (counts_.failed_before) std::cerr << counts_.failed_before << " failed before (unchanged), ";
-    std::cerr << todo_.size() << " to bake with -j " << jobs_ << " (" << threads_ << " thread(s) each)";
-    if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
-    std::cerr << "\n";
-  }
 
   struct sigaction action {};
   action.sa_handler = on_signal;
@@ -330,6 +369,7 @@ int Runner::run() {
   for (int s : {SIGINT, SIGTERM, SIGHUP}) sigaction(s, &action, nullptr);
 
   ChildPool pool;
+  std::error_code ec;
   while ((next_ < todo_.size() || pool.running() > 0) && !g_interrupted) {
     while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
       const BatchItem& item = todo_[next_].item;
@@ -374,12 +414,15 @@ int Runner::run() {
     remove_stale_partials(unfinished);
   }
   progress_->clear();
+  return interrupted;
+}
 
+void Runner::report(bool interrupted) const {
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (o_.json) {
-    std::cout << to_text(nlohmann::json{{"meshes", mine.size()},
-                                        {"meshes_all_shards", all.size()},
-                                        {"shard", {shard.index, shard.count}},
+    std::cout << to_text(nlohmann::json{{"meshes", mine_.size()},
+                                        {"meshes_all_shards", all_count_},
+                                        {"shard", {shard_.index, shard_.count}},
                                         {"built", counts_.built},
                                         {"up_to_date", counts_.up_to_date},
                                         {"failed", counts_.failed},
@@ -390,12 +433,12 @@ int Runner::run() {
                                         {"jobs", jobs_},
                                         {"threads_per_bake", threads_},
                                         {"output_dir", o_.output_dir},
-                                        {"manifest", manifest_path},
+                                        {"manifest", manifest_path_},
                                         {"failures", failures_}})
               << "\n";
   } else {
-    std::cout << "voxfmt batch: " << mine.size() << " mesh(es) in " << o_.output_dir;
-    if (shard.count > 1) std::cout << " (shard " << shard.index << "/" << shard.count << ")";
+    std::cout << "voxfmt batch: " << mine_.size() << " mesh(es) in " << o_.output_dir;
+    if (shard_.count > 1) std::cout << " (shard " << shard_.index << "/" << shard_.count << ")";
     std::cout << ": " << counts_.built << " built, " << counts_.up_to_date << " up to date, " << counts_.failed
               << " failed";
     if (counts_.failed_before)
@@ -408,10 +451,8 @@ int Runner::run() {
       for (const nlohmann::json& f : failures_)
         std::cout << "  " << f["code"].get<std::string>() << ": " << f["message"].get<std::string>() << "\n";
     }
-    std::cout << "manifest: " << manifest_path << "\n";
+    std::cout << "manifest: " << manifest_path_ << "\n";
   }
-  if (interrupted) return 128 + int(g_interrupted);
-  return counts_.failed ? kExitInvalid : kExitOk;
 }
 
 }  // namespace
