@@ -542,15 +542,8 @@ double time_query(const Body& a, nb::handle pose_a, const Body& b, nb::handle po
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() / double(iterations);
 }
 
-}  // namespace
-
-}  // namespace voxfmt::python
-
-NB_MODULE(_voxfmt, m) {
-  using namespace voxfmt::python;
-  namespace runtime = voxfmt::runtime;
-  m.doc() = "Compiled core of the voxfmt package; use the names re-exported by `voxfmt`.";
-
+// voxfmt errors become the voxfmt._errors exception of their code (the translator is global to nanobind).
+void bind_errors() {
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {
     try {
       std::rethrow_exception(p);
@@ -561,7 +554,10 @@ NB_MODULE(_voxfmt, m) {
       PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
     }
   });
+}
 
+// Body: a loaded asset and read-only views of its arrays.
+void bind_body(nb::module_& m) {
   nb::class_<Body>(m, "Body",
                    "A loaded asset: the runtime's collision object (bricked voxelmap, point-sphere tree, mass).\n\n"
                    "Array attributes are read-only NumPy views of the runtime's own memory (no copy), valid as long\n"
@@ -648,7 +644,10 @@ NB_MODULE(_voxfmt, m) {
         return "<voxfmt.Body '" + b.path + "': " + std::to_string(b.object->point_tree().size()) + " points, " +
                std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) + " voxels>";
       });
+}
 
+// QueryStats and Contacts: what a query found and traversed.
+void bind_contacts(nb::module_& m) {
   nb::class_<voxfmt::runtime::QueryStats>(m, "QueryStats", "What a query traversed.")
       .def_ro("nodes_visited", &voxfmt::runtime::QueryStats::nodes_visited, "Sphere-tree nodes popped.")
       .def_ro("points_tested", &voxfmt::runtime::QueryStats::points_tested, "Points whose distance was looked up.")
@@ -718,7 +717,10 @@ NB_MODULE(_voxfmt, m) {
         return "<voxfmt.Contacts: " + std::to_string(c.set.contacts.size()) + " contacts, max depth " +
                std::to_string(deepest_depth(c.set)) + " m>";
       });
+}
 
+// load, contacts, wrench, contacts_batch and the Tracker of a pair.
+void bind_queries(nb::module_& m) {
   m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0,
         nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0) -> Body"),
         "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, ...) when it\n"
@@ -755,6 +757,10 @@ NB_MODULE(_voxfmt, m) {
         std::lock_guard<std::mutex> lock(t.busy);
         t.state.reset();
       });
+}
+
+// The bake, validate and inspect behind the package's Python wrappers; timing hooks.
+void bind_pipeline(nb::module_& m) {
   m.def("_bake", &bake, "mesh"_a, "output"_a, "resolution"_a, "voxel_size"_a, "points"_a, "point_spacing"_a,
         "branching"_a, "margin"_a, "band"_a, "shell_thickness"_a, "unit_scale"_a, "up_axis"_a,
         "self_intersection_check"_a, "seed"_a, "deflate"_a, "threads"_a, "progress"_a.none());
@@ -763,4 +769,18 @@ NB_MODULE(_voxfmt, m) {
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),
         "time_budget_us"_a.none(), "proximity"_a);
   m.def("_library_version", [] { return std::string(VOXFMT_VERSION_STRING); });
+}
+
+}  // namespace
+
+}  // namespace voxfmt::python
+
+NB_MODULE(_voxfmt, m) {
+  using namespace voxfmt::python;
+  m.doc() = "Compiled core of the voxfmt package; use the names re-exported by `voxfmt`.";
+  bind_errors();
+  bind_body(m);
+  bind_contacts(m);
+  bind_queries(m);
+  bind_pipeline(m);
 }
