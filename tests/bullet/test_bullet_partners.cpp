@@ -134,6 +134,18 @@ TEST(Partners, CylinderStandingUp) {
   expect_resting(settle_on(cylinder, t, 0.0, convex_partner(*cylinder, t)), "cylinder");
 }
 
+TEST(Partners, MultiSphereTable) {
+  // Four spheres of 1 m at the corners of a square: their hull (btMultiSphereShape) is a table with a flat 1 m top at
+  // y = 0 and rounded edges. Both directions of the multi-sphere partner: GJK for the bunny's points, the spheres in
+  // its voxelmap.
+  const btVector3 centres[4] = {btVector3(-0.5f, -1, -0.5f), btVector3(0.5f, -1, -0.5f), btVector3(-0.5f, -1, 0.5f),
+                                btVector3(0.5f, -1, 0.5f)};
+  const btScalar radii[4] = {1, 1, 1, 1};
+  auto spheres = std::make_shared<btMultiSphereShape>(centres, radii, 4);
+  const btTransform t = at(btVector3(0, 0, 0));
+  expect_resting(settle_on(spheres, t, 0.0, convex_partner(*spheres, t)), "multi-sphere");
+}
+
 TEST(Partners, ConeUpsideDown) {
   // Apex down, the flat base (radius 1 m) on top at y = 0.
   auto cone = std::make_shared<btConeShape>(1.0f, 0.2f);

@@ -120,8 +120,6 @@ struct Shared {
   }
 };
 
-// A's points against any convex partner, and the partner's extreme points in A's voxelmap (a small or sharp
-// partner can poke between A's points).
 // Runs A's points against a partner's distance function (world coordinates), coherently with the pair's front
 // when there is one (the partner's pose `partner` fixes its function).
 template <class Distance>
@@ -141,120 +139,150 @@ runtime::Pose partner_pose(const btTransform& t) {
   return pose;
 }
 
-void collide_convex(const VpsShape& a, const runtime::Pose& pose_a, const btConvexShape& b, const btTransform& tb,
-                    const runtime::QueryOptions& options, runtime::ContactSet& contacts, runtime::QueryScratch& scratch,
-                    runtime::TraversalFront* front) {
-  const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
-  const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
-  auto world = [&](const btVector3& local) { return Eigen::Vector3d(ob + rb * to_eigen(local)); };
-  const int type = b.getShapeType();
-  if (a.uses_points()) {
-    const runtime::Pose partner = partner_pose(tb);
-    auto run = [&](auto&& distance) {
-      points_against(a, pose_a, partner, distance, options, contacts, scratch, front);
-    };
-    if (type == BOX_SHAPE_PROXYTYPE) {
-      const Eigen::Matrix3f rbf = rb.cast<float>();
-      const Eigen::Vector3f obf = ob.cast<float>();
-      const Eigen::Vector3f half = to_eigen(static_cast<const btBoxShape&>(b).getHalfExtentsWithMargin()).cast<float>();
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return box_distance(rbf, obf, half, x, outward); });
-    } else if (type == SPHERE_SHAPE_PROXYTYPE) {
-      const Eigen::Vector3f centre = ob.cast<float>();
-      const float radius = float(static_cast<const btSphereShape&>(b).getRadius());
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-        return sphere_distance(centre, radius, x, outward);
-      });
-    } else if (type == CAPSULE_SHAPE_PROXYTYPE) {
-      const auto& capsule = static_cast<const btCapsuleShape&>(b);
-      btVector3 tip(0, 0, 0);
-      tip[capsule.getUpAxis()] = capsule.getHalfHeight();
-      const Eigen::Vector3f top = world(tip).cast<float>(), bottom = world(-tip).cast<float>();
-      const float radius = float(capsule.getRadius());
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-        return capsule_distance(bottom, top, radius, x, outward);
-      });
-    } else if (type == CYLINDER_SHAPE_PROXYTYPE) {
-      const auto& cylinder = static_cast<const btCylinderShape&>(b);
-      const int up = cylinder.getUpAxis();
-      const Eigen::Vector3f centre = ob.cast<float>(), axis = rb.col(up).cast<float>();
-      const float radius = float(cylinder.getRadius()), half = float(cylinder.getHalfExtentsWithMargin()[up]);
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-        return cylinder_distance(centre, axis, radius, half, x, outward);
-      });
-    } else if (b.isPolyhedral() && static_cast<const btPolyhedralConvexShape&>(b).getConvexPolyhedron()) {
-      // Hulls with polyhedral features (initializePolyhedralFeatures): exact inside, GJK outside (EPA's
-      // tolerance would make resting contacts jitter).
-      thread_local std::vector<Eigen::Vector4f> planes;
-      planes.clear();
-      const btConvexPolyhedron& polyhedron = *static_cast<const btPolyhedralConvexShape&>(b).getConvexPolyhedron();
-      for (int f = 0; f < polyhedron.m_faces.size(); ++f) {
-        const btScalar* plane = polyhedron.m_faces[f].m_plane;
-        const Eigen::Vector3d n = rb * Eigen::Vector3d(plane[0], plane[1], plane[2]);
-        planes.emplace_back(float(n.x()), float(n.y()), float(n.z()), float(double(plane[3]) - n.dot(ob)));
-      }
-      const float margin = float(b.getMargin());
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
-        float d;
-        if (polyhedron_inside_distance(planes, margin, x, d, outward)) return d;
-        return convex_distance(b, tb, x, outward);
-      });
-    } else {
-      run([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, tb, x, outward); });
-    }
+// A VPS shape (A) against a convex partner (B), both ways: A's points against B's distance function, and B's
+// extreme points (corners, centres, vertices or support points, each with a radius) in A's voxelmap — a small or
+// sharp partner can poke between A's points. One handler per partner kind below does both, so each kind's two
+// halves sit side by side; VpsCollisionAlgorithm::collide picks the handler.
+struct ConvexPair {
+  const VpsShape& a;
+  const runtime::Pose& pose_a;
+  const btTransform& tb;
+  const runtime::QueryOptions& options;
+  runtime::ContactSet& contacts;
+  runtime::QueryScratch& scratch;
+  runtime::TraversalFront* front;
+
+  Eigen::Matrix3d rotation_b() const { return to_eigen(tb.getBasis()); }
+  Eigen::Vector3d origin_b() const { return to_eigen(tb.getOrigin()); }
+  Eigen::Vector3d world(const btVector3& local) const { return origin_b() + rotation_b() * to_eigen(local); }
+  /// A's points against `distance` (x, outward) -> signed distance, when A has points.
+  template <class Distance>
+  void points_against_b(Distance&& distance) const {
+    if (a.uses_points()) points_against(a, pose_a, partner_pose(tb), distance, options, contacts, scratch, front);
   }
-  if (!a.uses_voxelmap()) return;
-  thread_local std::vector<Eigen::Vector3d> points;
-  points.clear();
-  auto in_voxelmap = [&](double radius) {
-    if (!points.empty())
-      runtime::query_points_in_voxelmap(a.object(), pose_a, points.data(), points.size(), radius, options, contacts);
+  /// Points of B, each with `radius`, in A's voxelmap.
+  void in_voxelmap(const Eigen::Vector3d* points, size_t count, double radius) const {
+    if (count) runtime::query_points_in_voxelmap(a.object(), pose_a, points, count, radius, options, contacts);
+  }
+  void in_voxelmap(const std::vector<Eigen::Vector3d>& points, double radius) const {
+    in_voxelmap(points.data(), points.size(), radius);
+  }
+  /// B's support points in 26 directions (margin included), for shapes with neither corners nor a centre.
+  void support_points_in_voxelmap(const btConvexShape& b) const {
+    thread_local std::vector<Eigen::Vector3d> points;
     points.clear();
-  };
-  if (type == BOX_SHAPE_PROXYTYPE) {
-    const btVector3 half = static_cast<const btBoxShape&>(b).getHalfExtentsWithMargin();
-    for (int k = 0; k < 8; ++k)
-      points.push_back(world(
-          btVector3((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(), (k & 4) ? half.z() : -half.z())));
-    in_voxelmap(0.0);
-  } else if (type == SPHERE_SHAPE_PROXYTYPE) {
-    points.push_back(ob);
-    in_voxelmap(double(static_cast<const btSphereShape&>(b).getRadius()));
-  } else if (type == CAPSULE_SHAPE_PROXYTYPE || type == MULTI_SPHERE_SHAPE_PROXYTYPE) {
-    // Spheres along the axis (or the multi-sphere's own), no farther apart than a voxel of A, each with its radius.
-    const double voxel = a.object().voxelmap().voxel_size() * a.scale();
-    if (type == CAPSULE_SHAPE_PROXYTYPE) {
-      const auto& capsule = static_cast<const btCapsuleShape&>(b);
-      btVector3 tip(0, 0, 0);
-      tip[capsule.getUpAxis()] = capsule.getHalfHeight();
-      const int steps = std::clamp(int(std::ceil(2 * double(capsule.getHalfHeight()) / voxel)), 1, 64);
-      for (int k = 0; k <= steps; ++k) points.push_back(world(tip * btScalar(2.0 * k / steps - 1.0)));
-      in_voxelmap(double(capsule.getRadius()));
-    } else {
-      const auto& spheres = static_cast<const btMultiSphereShape&>(b);
-      for (int k = 0; k < spheres.getSphereCount(); ++k) {
-        points.push_back(world(spheres.getSpherePosition(k)));
-        in_voxelmap(double(spheres.getSphereRadius(k)));
-      }
-    }
-  } else if (b.isPolyhedral()) {
-    // Hull vertices; the margin rounds the hull outward.
-    const auto& hull = static_cast<const btPolyhedralConvexShape&>(b);
-    for (int k = 0; k < hull.getNumVertices(); ++k) {
-      btVector3 v;
-      hull.getVertex(k, v);
-      points.push_back(world(v));
-    }
-    in_voxelmap(double(b.getMargin()));
-  } else {
-    // Curved convex shapes (cone, cylinder, ...): support points in 26 directions, margin included.
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
           if (dx == 0 && dy == 0 && dz == 0) continue;
           points.push_back(world(b.localGetSupportingVertex(btVector3(btScalar(dx), btScalar(dy), btScalar(dz)))));
         }
-    in_voxelmap(0.0);
+    in_voxelmap(points, 0.0);
   }
+};
+
+void collide_box(const ConvexPair& pair, const btBoxShape& b) {
+  const btVector3 half = b.getHalfExtentsWithMargin();
+  const Eigen::Matrix3f rbf = pair.rotation_b().cast<float>();
+  const Eigen::Vector3f obf = pair.origin_b().cast<float>(), halff = to_eigen(half).cast<float>();
+  pair.points_against_b(
+      [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return box_distance(rbf, obf, halff, x, outward); });
+  if (!pair.a.uses_voxelmap()) return;
+  thread_local std::vector<Eigen::Vector3d> corners;
+  corners.clear();
+  for (int k = 0; k < 8; ++k)
+    corners.push_back(pair.world(
+        btVector3((k & 1) ? half.x() : -half.x(), (k & 2) ? half.y() : -half.y(), (k & 4) ? half.z() : -half.z())));
+  pair.in_voxelmap(corners, 0.0);
+}
+
+void collide_sphere(const ConvexPair& pair, const btSphereShape& b) {
+  const Eigen::Vector3f centre = pair.origin_b().cast<float>();
+  const float radius = float(b.getRadius());
+  pair.points_against_b(
+      [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return sphere_distance(centre, radius, x, outward); });
+  const Eigen::Vector3d centre_d = pair.origin_b();
+  if (pair.a.uses_voxelmap()) pair.in_voxelmap(&centre_d, 1, double(b.getRadius()));
+}
+
+void collide_capsule(const ConvexPair& pair, const btCapsuleShape& b) {
+  btVector3 tip(0, 0, 0);
+  tip[b.getUpAxis()] = b.getHalfHeight();
+  const Eigen::Vector3f top = pair.world(tip).cast<float>(), bottom = pair.world(-tip).cast<float>();
+  const float radius = float(b.getRadius());
+  pair.points_against_b([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+    return capsule_distance(bottom, top, radius, x, outward);
+  });
+  if (!pair.a.uses_voxelmap()) return;
+  // Spheres along the axis, no farther apart than a voxel of A.
+  const double voxel = pair.a.object().voxelmap().voxel_size() * pair.a.scale();
+  const int steps = std::clamp(int(std::ceil(2 * double(b.getHalfHeight()) / voxel)), 1, 64);
+  thread_local std::vector<Eigen::Vector3d> centres;
+  centres.clear();
+  for (int k = 0; k <= steps; ++k) centres.push_back(pair.world(tip * btScalar(2.0 * k / steps - 1.0)));
+  pair.in_voxelmap(centres, double(b.getRadius()));
+}
+
+void collide_cylinder(const ConvexPair& pair, const btCylinderShape& b) {
+  const int up = b.getUpAxis();
+  const Eigen::Vector3f centre = pair.origin_b().cast<float>(), axis = pair.rotation_b().col(up).cast<float>();
+  const float radius = float(b.getRadius()), half = float(b.getHalfExtentsWithMargin()[up]);
+  pair.points_against_b([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+    return cylinder_distance(centre, axis, radius, half, x, outward);
+  });
+  if (pair.a.uses_voxelmap()) pair.support_points_in_voxelmap(b);
+}
+
+void collide_multi_sphere(const ConvexPair& pair, const btMultiSphereShape& b) {
+  pair.points_against_b(
+      [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, pair.tb, x, outward); });
+  if (!pair.a.uses_voxelmap()) return;
+  for (int k = 0; k < b.getSphereCount(); ++k) {
+    const Eigen::Vector3d centre = pair.world(b.getSpherePosition(k));
+    pair.in_voxelmap(&centre, 1, double(b.getSphereRadius(k)));
+  }
+}
+
+void collide_polyhedron(const ConvexPair& pair, const btPolyhedralConvexShape& b) {
+  if (const btConvexPolyhedron* polyhedron = b.getConvexPolyhedron()) {
+    // Hulls with polyhedral features (initializePolyhedralFeatures): exact inside, GJK outside (EPA's
+    // tolerance would make resting contacts jitter).
+    const Eigen::Matrix3d rb = pair.rotation_b();
+    const Eigen::Vector3d ob = pair.origin_b();
+    thread_local std::vector<Eigen::Vector4f> planes;
+    planes.clear();
+    for (int f = 0; f < polyhedron->m_faces.size(); ++f) {
+      const btScalar* plane = polyhedron->m_faces[f].m_plane;
+      const Eigen::Vector3d n = rb * Eigen::Vector3d(plane[0], plane[1], plane[2]);
+      planes.emplace_back(float(n.x()), float(n.y()), float(n.z()), float(double(plane[3]) - n.dot(ob)));
+    }
+    const float margin = float(b.getMargin());
+    pair.points_against_b([&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+      float d;
+      if (polyhedron_inside_distance(planes, margin, x, d, outward)) return d;
+      return convex_distance(b, pair.tb, x, outward);
+    });
+  } else {
+    pair.points_against_b(
+        [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, pair.tb, x, outward); });
+  }
+  if (!pair.a.uses_voxelmap()) return;
+  // Its vertices; the margin rounds the hull outward.
+  thread_local std::vector<Eigen::Vector3d> vertices;
+  vertices.clear();
+  for (int k = 0; k < b.getNumVertices(); ++k) {
+    btVector3 v;
+    b.getVertex(k, v);
+    vertices.push_back(pair.world(v));
+  }
+  pair.in_voxelmap(vertices, double(b.getMargin()));
+}
+
+// Curved convex shapes without a closed form here (cone, ...): GJK, and support points.
+void collide_curved_convex(const ConvexPair& pair, const btConvexShape& b) {
+  pair.points_against_b(
+      [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, pair.tb, x, outward); });
+  if (pair.a.uses_voxelmap()) pair.support_points_in_voxelmap(b);
 }
 
 // Collects the triangles of a static mesh or terrain, in world coordinates, that overlap A's own box (A's shape
@@ -749,12 +777,33 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
         return cut;
       default:
-        if (b_shape->isConvex()) {
-          collide_convex(a, pose_a, static_cast<const btConvexShape&>(*b_shape), tb, options, contacts, scratch,
-                         state ? &state->a_in_b : nullptr);
-          return cut;
-        }
-        shared_->report_unsupported(b_shape);
+        break;
+    }
+    // Convex partners: each kind's handler does both directions (ConvexPair).
+    const ConvexPair pair{a, pose_a, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr};
+    switch (b_shape->getShapeType()) {
+      case BOX_SHAPE_PROXYTYPE:
+        collide_box(pair, static_cast<const btBoxShape&>(*b_shape));
+        return cut;
+      case SPHERE_SHAPE_PROXYTYPE:
+        collide_sphere(pair, static_cast<const btSphereShape&>(*b_shape));
+        return cut;
+      case CAPSULE_SHAPE_PROXYTYPE:
+        collide_capsule(pair, static_cast<const btCapsuleShape&>(*b_shape));
+        return cut;
+      case CYLINDER_SHAPE_PROXYTYPE:
+        collide_cylinder(pair, static_cast<const btCylinderShape&>(*b_shape));
+        return cut;
+      case MULTI_SPHERE_SHAPE_PROXYTYPE:
+        collide_multi_sphere(pair, static_cast<const btMultiSphereShape&>(*b_shape));
+        return cut;
+      default:
+        if (b_shape->isPolyhedral())
+          collide_polyhedron(pair, static_cast<const btPolyhedralConvexShape&>(*b_shape));
+        else if (b_shape->isConvex())
+          collide_curved_convex(pair, static_cast<const btConvexShape&>(*b_shape));
+        else
+          shared_->report_unsupported(b_shape);
         return cut;
     }
   }
