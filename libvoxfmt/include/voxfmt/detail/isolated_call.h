@@ -244,7 +244,8 @@ class WireReader {
     long long left = std::numeric_limits<long long>::max();
     auto until = [&](Clock::time_point from, double seconds) {
       const auto end = from + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
-      left = std::min<long long>(left, std::chrono::duration_cast<std::chrono::milliseconds>(end - now).count());
+      // Rounded up: the watchdog never fires before its time (a remaining 0.4 ms is 1 ms, not 0).
+      left = std::min<long long>(left, std::chrono::ceil<std::chrono::milliseconds>(end - now).count());
     };
     if (watchdog_.total_s > 0) until(start_, watchdog_.total_s);
     if (watchdog_.idle_s > 0) {
