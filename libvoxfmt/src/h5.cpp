@@ -98,10 +98,80 @@ std::string join_path(const std::string& group_path, const std::string& name) {
   return group_path + "/" + name;
 }
 
+namespace {
+// Length of the UTF-8 sequence starting at s[i] (1-4), or 0 if it is not a valid one (RFC 3629: no overlong
+// forms, no surrogates, nothing above U+10FFFF).
+size_t utf8_sequence(const std::string& s, size_t i) {
+  const auto byte = [&](size_t k) { return i + k < s.size() ? uint8_t(s[i + k]) : uint8_t(0); };
+  const auto tail = [&](size_t k) { return (byte(k) & 0xC0) == 0x80; };
+  const uint8_t b = byte(0);
+  if (b < 0x80) return 1;
+  if (b >= 0xC2 && b <= 0xDF) return tail(1) ? 2 : 0;
+  if (b >= 0xE0 && b <= 0xEF) {
+    const uint8_t lo = b == 0xE0 ? 0xA0 : 0x80, hi = b == 0xED ? 0x9F : 0xBF;
+    return byte(1) >= lo && byte(1) <= hi && tail(2) ? 3 : 0;
+  }
+  if (b >= 0xF0 && b <= 0xF4) {
+    const uint8_t lo = b == 0xF0 ? 0x90 : 0x80, hi = b == 0xF4 ? 0x8F : 0xBF;
+    return byte(1) >= lo && byte(1) <= hi && tail(2) && tail(3) ? 4 : 0;
+  }
+  return 0;
+}
+}  // namespace
+
+bool is_utf8(const std::string& text) {
+  for (size_t i = 0; i < text.size();) {
+    const size_t n = utf8_sequence(text, i);
+    if (n == 0) return false;
+    i += n;
+  }
+  return true;
+}
+
+std::string utf8_escaped(const std::string& text) {
+  if (is_utf8(text)) return text;
+  std::string out;
+  for (size_t i = 0; i < text.size();) {
+    const size_t n = utf8_sequence(text, i);
+    if (n > 0) {
+      out.append(text, i, n);
+      i += n;
+      continue;
+    }
+    char hex[8];
+    std::snprintf(hex, sizeof hex, "\\x%02X", unsigned(uint8_t(text[i])));
+    out += hex;
+    ++i;
+  }
+  return out;
+}
+
+uint64_t Layout::elements() const {
+  uint64_t n = 1;
+  for (uint64_t d : shape) n = d != 0 && n > (uint64_t(1) << 62) / d ? uint64_t(1) << 63 : n * d;
+  return n;
+}
+
+uint64_t Layout::chunk_count() const {
+  if (chunk.empty()) return 0;
+  uint64_t n = 1;
+  for (size_t a = 0; a < shape.size() && a < chunk.size(); ++a) {
+    const uint64_t along = chunk[a] == 0 ? 0 : (shape[a] + chunk[a] - 1) / chunk[a];
+    n = along != 0 && n > (uint64_t(1) << 62) / along ? uint64_t(1) << 63 : n * along;
+  }
+  return n;
+}
+
+uint64_t Layout::chunk_bytes() const {
+  uint64_t n = element_bytes;
+  for (uint64_t c : chunk) n = c != 0 && n > (uint64_t(1) << 62) / c ? uint64_t(1) << 63 : n * c;
+  return chunk.empty() ? 0 : n;
+}
+
 // ---------------------------------------------------------------- Reader
 
 void Reader::report(IssueCode code, const std::string& path, const std::string& message) {
-  issues_.push_back(Issue{code, severity_of(code), path, message});
+  issues_.push_back(Issue{code, severity_of(code), utf8_escaped(path), utf8_escaped(message)});
 }
 
 bool Reader::open() {
@@ -244,7 +314,7 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
                  std::to_string(kMaxStringBytes));
       return std::nullopt;
     }
-    return value;
+    return checked_text(std::move(value), path);
   }
   size_t size = H5Tget_size(type.get());
   if (size == 0 || size > kMaxStringBytes + 1) {
@@ -265,7 +335,15 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
   buffer.resize(std::strlen(buffer.c_str()));
   if (H5Tget_strpad(type.get()) == H5T_STR_SPACEPAD)
     while (!buffer.empty() && buffer.back() == ' ') buffer.pop_back();
-  return buffer;
+  return checked_text(std::move(buffer), path);
+}
+
+std::optional<std::string> Reader::checked_text(std::string bytes, const std::string& path) {
+  // Bytes from the file become text only once they are known to be UTF-8 (spec §1): every consumer, Python's
+  // str among them, can then take them as they are.
+  if (is_utf8(bytes)) return bytes;
+  report(IssueCode::StringNotUtf8, path, "string is not valid UTF-8: '" + utf8_escaped(bytes) + "'");
+  return std::nullopt;
 }
 
 template <class T>
@@ -315,51 +393,58 @@ bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const 
   }
   if (H5Pget_layout(plist.get()) == H5D_CHUNKED && !dims.empty()) {
     std::vector<hsize_t> chunk(dims.size());
-    if (H5Pget_chunk(plist.get(), int(chunk.size()), chunk.data()) != int(dims.size())) {
-      report(IssueCode::ReadFailed, path, "chunk shape does not match the dataset's rank");
-      return false;
-    }
-    uint64_t chunks = 1;
-    for (size_t a = 0; a < dims.size(); ++a) {
-      if (chunk[a] == 0) {
-        report(IssueCode::ReadFailed, path, "chunk shape has a zero extent");
-        return false;
-      }
-      chunks *= (dims[a] + chunk[a] - 1) / chunk[a];
-      if (chunks > kMaxChunks) break;
-    }
-    if (chunks > kMaxChunks) {
-      report(IssueCode::ValueOutOfRange, path,
-             "dataset is split into more than " + std::to_string(kMaxChunks) +
-                 " chunks (the format's limit); its chunks are too small for its size");
+    if (H5Pget_chunk(plist.get(), int(chunk.size()), chunk.data()) != int(dims.size()) ||
+        std::find(chunk.begin(), chunk.end(), hsize_t(0)) != chunk.end()) {
+      report(IssueCode::ReadFailed, path, "chunk shape does not match the dataset's rank, or has a zero extent");
       return false;
     }
   }
   return true;
 }
 
-namespace {
-// A hostile file can declare huge datasets whose chunks were never written (HDF5 reads them as the fill value):
-// the declared size, not the file's, decides what a read allocates. More than half this machine's memory is
-// refused before anything is allocated.
-uint64_t memory_limit_bytes() {
-  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  if (pages <= 0 || page <= 0) return uint64_t(1) << 34;
-  return uint64_t(pages) * uint64_t(page) / 2;
+std::optional<Layout> Reader::layout(hid_t group, const std::string& name) {
+  if (!has_member(group, name)) return std::nullopt;
+  Handle dset(H5Dopen2(group, name.c_str(), H5P_DEFAULT), H5Dclose);
+  if (!dset.valid()) {
+    H5Eclear2(H5E_DEFAULT);
+    return std::nullopt;
+  }
+  Handle type(H5Dget_type(dset.get()), H5Tclose);
+  Handle space(H5Dget_space(dset.get()), H5Sclose);
+  Handle plist(H5Dget_create_plist(dset.get()), H5Pclose);
+  if (!type.valid() || !space.valid() || !plist.valid()) {
+    H5Eclear2(H5E_DEFAULT);
+    return std::nullopt;
+  }
+  Layout layout;
+  layout.element_bytes = H5Tget_size(type.get());
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0 || rank > 32) return std::nullopt;
+  std::vector<hsize_t> dims(static_cast<size_t>(rank)), chunk(static_cast<size_t>(rank));
+  if (rank > 0) H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+  layout.shape.assign(dims.begin(), dims.end());
+  if (H5Pget_layout(plist.get()) == H5D_CHUNKED && rank > 0) {
+    if (H5Pget_chunk(plist.get(), rank, chunk.data()) != rank) return std::nullopt;
+    layout.chunk.assign(chunk.begin(), chunk.end());
+  }
+  return layout;
 }
-// Rows read per H5Dread: large enough to be efficient, small enough that a watchdog sees steady progress.
-constexpr uint64_t kElementsPerPiece = uint64_t(1) << 22;
-}  // namespace
 
 template <class T>
 std::optional<OpenDataset> Reader::open_dataset(hid_t group, const std::string& group_path, const std::string& name,
-                                                const Shape& shape) {
+                                                const Shape& shape, uint64_t chunk_cache_bytes) {
   OpenDataset result;
   result.path = join_path(group_path, name);
   const std::string& path = result.path;
-  std::optional<Handle> opened = open_member(group, group_path, name, false);
-  if (!opened) return std::nullopt;
-  result.handle = std::move(*opened);
+  if (!open_member(group, group_path, name, false)) return std::nullopt;  // reports what is missing or wrong
+  Handle access(H5Pcreate(H5P_DATASET_ACCESS), H5Pclose);
+  if (chunk_cache_bytes > 0)  // slots: a prime well above the chunks it holds (HDF5's advice)
+    H5Pset_chunk_cache(access.get(), 100003, size_t(chunk_cache_bytes), 1.0);
+  result.handle = Handle(H5Dopen2(group, name.c_str(), access.get()), H5Dclose);
+  if (!result.handle.valid()) {
+    report(IssueCode::ReadFailed, path, "cannot open dataset (" + last_hdf5_reason() + ")");
+    return std::nullopt;
+  }
   Handle type(H5Dget_type(result.handle.get()), H5Tclose);
   using Traits = TypeTraits<T>;
   if (!check_type(type.get(), Traits::kClass, sizeof(T), Traits::kSigned, Traits::kName, path)) return std::nullopt;
@@ -374,15 +459,41 @@ std::optional<OpenDataset> Reader::open_dataset(hid_t group, const std::string& 
     report(IssueCode::ValueOutOfRange, path, "dataset has more than 2^31 elements (the format's limit)");
     return std::nullopt;
   }
-  if (count * sizeof(T) > memory_limit_bytes()) {
-    report(
-        IssueCode::ReadFailed, path,
-        "dataset declares " + std::to_string(count * sizeof(T) >> 20) + " MB, more than half of this machine's memory");
-    return std::nullopt;
-  }
   if (!check_storage(result.handle.get(), result.shape, path)) return std::nullopt;
+  if (std::optional<Layout> l = layout(group, name)) result.chunk = l->chunk;
   return result;
 }
+
+namespace {
+// The pieces one read is cut into: boxes aligned to the chunk grid (to rows where there are no chunks), each at
+// most kElementsPerPiece elements (or one chunk, if larger) and kChunksPerPiece chunks. The last dimensions are
+// taken whole while the piece stays within both limits, the next one partly, the ones before one chunk deep.
+std::vector<uint64_t> piece_shape(const std::vector<uint64_t>& extent, const std::vector<uint64_t>& chunk) {
+  const size_t rank = extent.size();
+  const bool chunked = chunk.size() == rank;
+  const std::vector<uint64_t> unit = chunked ? chunk : std::vector<uint64_t>(rank, 1);
+  std::vector<uint64_t> piece(unit);
+  // outer[a]: elements of one unit along every axis before a.
+  std::vector<uint64_t> outer(rank + 1, 1);
+  for (size_t a = 0; a < rank; ++a) outer[a + 1] = outer[a] * unit[a];
+  const uint64_t max_elements = std::max(kElementsPerPiece, outer[rank]);
+  const uint64_t max_chunks = chunked ? kChunksPerPiece : UINT64_MAX;
+  uint64_t inner = 1, chunks = 1;  // elements and chunks of the piece along the axes after a
+  for (size_t a = rank; a-- > 0;) {
+    const uint64_t along = (extent[a] + unit[a] - 1) / unit[a];
+    const uint64_t fit =
+        std::max<uint64_t>(1, std::min(max_elements / (inner * unit[a] * outer[a]), max_chunks / chunks));
+    if (fit < along) {  // this axis is cut; the ones before it take one unit each
+      piece[a] = fit * unit[a];
+      break;
+    }
+    piece[a] = extent[a];
+    inner *= extent[a];
+    chunks *= along;
+  }
+  return piece;
+}
+}  // namespace
 
 template <class T>
 bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* out) {
@@ -394,23 +505,49 @@ bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* 
     }
     return true;
   }
-  uint64_t row_elements = 1;
-  for (size_t a = 1; a < d.shape.size(); ++a) row_elements *= d.shape[a];
-  const uint64_t rows_per_piece = std::max<uint64_t>(1, kElementsPerPiece / std::max<uint64_t>(row_elements, 1));
+  const size_t rank = d.shape.size();
+  std::vector<uint64_t> extent(d.shape);
+  extent[0] = count;  // the rows asked for; the box grid starts at `first`, aligned to the chunk grid
+  std::vector<uint64_t> piece = piece_shape(d.shape, d.chunk);
   Handle file_space(H5Dget_space(d.handle.get()), H5Sclose);
-  std::vector<hsize_t> start(d.shape.size(), 0), extent(d.shape.begin(), d.shape.end());
-  for (uint64_t row = first; row < first + count; row += rows_per_piece) {
-    const uint64_t rows = std::min(rows_per_piece, first + count - row);
-    start[0] = row;
-    extent[0] = rows;
-    Handle memory_space(H5Screate_simple(int(extent.size()), extent.data(), nullptr), H5Sclose);
-    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, extent.data(), nullptr) < 0 ||
-        H5Dread(d.handle.get(), TypeTraits<T>::memory_type(), memory_space.get(), file_space.get(), H5P_DEFAULT,
-                out + (row - first) * row_elements) < 0) {
-      report(IssueCode::ReadFailed, d.path, "cannot read dataset (" + last_hdf5_reason() + ")");
-      return false;
+  std::vector<hsize_t> memory_extent(extent.begin(), extent.end());
+  Handle memory_space(H5Screate_simple(int(rank), memory_extent.data(), nullptr), H5Sclose);
+  // Box corners: along the rows from the chunk boundary at or below `first`, elsewhere from 0.
+  std::vector<uint64_t> corner(rank, 0);
+  const uint64_t row_unit = d.chunk.size() == rank ? d.chunk[0] : 1;
+  const uint64_t row_origin = first / row_unit * row_unit;
+  corner[0] = row_origin;
+  std::vector<hsize_t> file_start(rank), memory_start(rank), size(rank);
+  while (true) {
+    bool empty = false;
+    for (size_t a = 0; a < rank; ++a) {
+      const uint64_t lo = a == 0 ? std::max(corner[0], first) : corner[a];
+      const uint64_t end = a == 0 ? std::min(corner[0] + piece[0], first + count) : std::min(corner[a] + piece[a], d.shape[a]);
+      empty |= end <= lo;
+      file_start[a] = lo;
+      memory_start[a] = a == 0 ? lo - first : lo;
+      size[a] = end > lo ? end - lo : 0;
     }
-    progress();
+    if (!empty) {
+      if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, file_start.data(), nullptr, size.data(), nullptr) < 0 ||
+          H5Sselect_hyperslab(memory_space.get(), H5S_SELECT_SET, memory_start.data(), nullptr, size.data(),
+                              nullptr) < 0 ||
+          H5Dread(d.handle.get(), TypeTraits<T>::memory_type(), memory_space.get(), file_space.get(), H5P_DEFAULT,
+                  out) < 0) {
+        report(IssueCode::ReadFailed, d.path, "cannot read dataset (" + last_hdf5_reason() + ")");
+        return false;
+      }
+      progress();
+    }
+    // The next box: the last axis fastest.
+    size_t a = rank;
+    while (a-- > 0) {
+      corner[a] += piece[a];
+      const uint64_t end = a == 0 ? first + count : d.shape[a];
+      if (corner[a] < end) break;
+      corner[a] = a == 0 ? row_origin : 0;
+    }
+    if (a == size_t(-1)) break;
   }
   return true;
 }
@@ -627,7 +764,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,           \
                                                             const Shape&, std::vector<uint64_t>*);                   \
   template std::optional<OpenDataset> Reader::open_dataset<T>(hid_t, const std::string&, const std::string&,         \
-                                                              const Shape&);                                         \
+                                                              const Shape&, uint64_t);                                       \
   template bool Reader::read_rows<T>(const OpenDataset&, uint64_t, uint64_t, T*);                                    \
   template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*);     \
   template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,           \

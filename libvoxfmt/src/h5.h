@@ -55,11 +55,26 @@ std::string last_hdf5_reason();
 /// and stays below HDF5's 64 KiB limit of a fixed-length attribute in an object header.
 inline constexpr size_t kMaxStringBytes = 60000;
 
-/// Most chunks a dataset may be split into (spec §1): 2^31 voxels in 16^3 chunks is 2^19; this leaves room.
-inline constexpr uint64_t kMaxChunks = uint64_t(1) << 22;
-
 /// Most elements a dataset may hold (spec §1).
 inline constexpr uint64_t kMaxElements = uint64_t(1) << 31;
+
+/// Largest chunk, in bytes before compression (spec 2.1 §1): decoding one chunk is the unit of work between two
+/// progress reports, so it must be small whatever the machine (voxfmt writes 64-128 KiB; h5py at most 1 MiB).
+inline constexpr uint64_t kMaxChunkBytes = uint64_t(1) << 22;
+
+/// Most chunks the datasets of one file may be split into, in all (spec 2.1 §1): a 4096^3 asset has ~30,000, a
+/// 1.x grid of 2^31 voxels in 32^3 chunks 131,072; each costs a lookup in the chunk index.
+inline constexpr uint64_t kMaxChunksPerFile = uint64_t(1) << 18;
+
+/// What one H5Dread may cover (h5.cpp): at most this many elements and this many chunks, so that a watchdog sees
+/// progress after a bounded amount of work and HDF5's per-chunk bookkeeping stays small.
+inline constexpr uint64_t kElementsPerPiece = uint64_t(1) << 22;
+inline constexpr uint64_t kChunksPerPiece = 1024;
+
+/// `text` with every byte that is not part of valid UTF-8 written as \xNN: names and values from a file may
+/// hold anything, and every message a reader makes must be text (Python decodes it).
+std::string utf8_escaped(const std::string& text);
+bool is_utf8(const std::string& text);
 
 /// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
 std::string join_path(const std::string& group_path, const std::string& name);
@@ -111,11 +126,23 @@ struct TypeTraits<double> {
 /// Expected shape: empty = scalar; -1 = any extent (the actual one is returned).
 using Shape = std::vector<int64_t>;
 
+/// What a dataset's metadata say about its storage, read before any of its data is decoded.
+struct Layout {
+  std::vector<uint64_t> shape;
+  std::vector<uint64_t> chunk;  ///< empty: not chunked (contiguous or compact)
+  size_t element_bytes = 0;
+  uint64_t elements() const;
+  /// Chunks of the chunk grid (written or not); 0 when not chunked. Saturates at 2^63.
+  uint64_t chunk_count() const;
+  uint64_t chunk_bytes() const;
+};
+
 /// A dataset opened and checked (dtype, shape, filters, chunk grid, size), ready to be read row by row.
 struct OpenDataset {
   Handle handle;
   std::string path;
   std::vector<uint64_t> shape;
+  std::vector<uint64_t> chunk;  ///< empty: not chunked
   uint64_t elements() const {
     uint64_t n = 1;
     for (uint64_t d : shape) n *= d;
@@ -146,10 +173,15 @@ class Reader {
   std::optional<std::vector<T>> dataset(hid_t group, const std::string& group_path, const std::string& name,
                                         const Shape& shape, std::vector<uint64_t>* shape_out = nullptr);
   /// Opens dataset `name` and checks it before anything is decoded (dtype T, shape, storage, size).
+  /// `chunk_cache_bytes` > 0: HDF5's chunk cache for it (a reader that reads each chunk in several pieces).
   template <class T>
   std::optional<OpenDataset> open_dataset(hid_t group, const std::string& group_path, const std::string& name,
-                                          const Shape& shape);
-  /// Reads rows [first, first + count) along the first dimension into `out` (count x the other extents).
+                                          const Shape& shape, uint64_t chunk_cache_bytes = 0);
+  /// The storage of dataset `name` of `group`, from its metadata alone; nothing (and no finding) when it is
+  /// absent, not a dataset or unreadable: the read itself reports those.
+  std::optional<Layout> layout(hid_t group, const std::string& name);
+  /// Reads rows [first, first + count) along the first dimension into `out` (count x the other extents), in
+  /// pieces of at most kElementsPerPiece elements and kChunksPerPiece chunks, reporting progress after each.
   template <class T>
   bool read_rows(const OpenDataset& dataset, uint64_t first, uint64_t count, T* out);
   /// Called after each piece of a large read: a watchdog in a parent process sees the read move on.
@@ -173,6 +205,8 @@ class Reader {
                                        std::string& path);
   bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name, const std::string& path);
   bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
+  /// `bytes` as text if they are UTF-8, else a STRING_NOT_UTF8 finding at `path`.
+  std::optional<std::string> checked_text(std::string bytes, const std::string& path);
   /// Filters and chunk grid of a dataset, checked before its data is decoded.
   bool check_storage(hid_t dset, const std::vector<uint64_t>& dims, const std::string& path);
 

@@ -157,8 +157,8 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   // A child asleep on a lock inherited from another thread (the process's other libraries start threads: OpenVDB's
   // log4cplus starts four) says nothing about the file: read it once more. A second sleep is the file's (a FIFO).
   if (outcome.kind == ChildOutcome::TimedOut && outcome.asleep) outcome = attempt();
-  auto refuse = [&](const std::string& why) {
-    issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/", why});
+  auto refuse = [&](const std::string& why, IssueCode code = IssueCode::ReadFailed) {
+    issues.push_back(Issue{code, Severity::Error, "/", why});
     return std::nullopt;
   };
   switch (outcome.kind) {
@@ -177,7 +177,7 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
       return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
                     " s of its CPU time (read in isolation, stopped)");
     case ChildOutcome::OutOfMemory:
-      return refuse("not enough memory to read the asset");
+      return refuse("not enough memory to read the asset", IssueCode::OutOfMemory);
     case ChildOutcome::Malformed:
       break;
   }
@@ -191,9 +191,9 @@ void report_read_progress() {
   if (g_progress) g_progress->fetch_add(1, std::memory_order_relaxed);
 }
 
-std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues, ValidationLevel level) {
-  auto read = [level](const std::string& p, std::vector<Issue>& found) {
-    return load_asset_in_process(p, found, level);
+std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& issues, const ReadOptions& options) {
+  auto read = [&options](const std::string& p, std::vector<Issue>& found) {
+    return load_asset_in_process(p, found, options);
   };
 #if defined(_WIN32)
   return read(path, issues);

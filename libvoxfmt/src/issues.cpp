@@ -42,6 +42,8 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::DistanceOutsideBand, "DISTANCE_OUTSIDE_BAND", Severity::Error},
     {IssueCode::EstimateMismatch, "ESTIMATE_MISMATCH", Severity::Error},
     {IssueCode::SignMismatch, "SIGN_MISMATCH", Severity::Error},
+    {IssueCode::StringNotUtf8, "STRING_NOT_UTF8", Severity::Error},
+    {IssueCode::LatticeMismatch, "LATTICE_MISMATCH", Severity::Error},
     {IssueCode::InputNotFound, "INPUT_NOT_FOUND", Severity::Error},
     {IssueCode::UnsupportedFormat, "UNSUPPORTED_FORMAT", Severity::Error},
     {IssueCode::ImportFailed, "IMPORT_FAILED", Severity::Error},

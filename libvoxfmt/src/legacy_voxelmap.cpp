@@ -101,11 +101,12 @@ std::string grid_size_limit(const FormatVersion& version) {
 }
 
 void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const FormatVersion& version,
-                         ValidationLevel level, bool closed_surface, Voxelmap& vm, std::vector<Issue>& findings) {
+                         ValidationLevel level, bool closed_surface, const DenseReadBudget& budget, Voxelmap& vm,
+                         std::vector<Issue>& findings) {
   const int64_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
   const h5::Shape grid = {D, H, W};
-  std::optional<h5::OpenDataset> layers = r.open_dataset<int16_t>(g, p, "layers", grid);
-  std::optional<h5::OpenDataset> distances = r.open_dataset<float>(g, p, "distances", grid);
+  std::optional<h5::OpenDataset> layers = r.open_dataset<int16_t>(g, p, "layers", grid, budget.chunk_cache_bytes);
+  std::optional<h5::OpenDataset> distances = r.open_dataset<float>(g, p, "distances", grid, budget.chunk_cache_bytes);
   if (!layers || !distances) return;
   // Out-of-range geometry is validate_asset's finding; nothing is converted from it.
   if (!(vm.distance_band >= 1 && vm.distance_band <= 32767) ||
@@ -200,6 +201,15 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
             }
         const size_t n = vm.brick_index(bi, bj, bk);
         if (any_stored || (any_inside && any_outside)) {
+          // A vector's capacity reaches twice its size as it grows.
+          if (2 * (vm.value_brick_count() + 1) * Voxelmap::kBrickVoxels * sizeof(int16_t) > budget.value_brick_bytes) {
+            r.report(IssueCode::OutOfMemory, p + "/layers",
+                     "converting this 1.x grid to bricks needs more than the read budget leaves for its value "
+                     "bricks (" + std::to_string(budget.value_brick_bytes >> 20) +
+                         " MiB; a larger budget reads it: --max-memory MiB, max_memory_mib=, "
+                         "ReadOptions::max_memory_bytes)");
+            return;
+          }
           vm.bricks[n] = int32_t(vm.value_brick_count());
           vm.brick_values.insert(vm.brick_values.end(), codes.begin(), codes.end());
         } else {

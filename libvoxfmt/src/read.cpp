@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <set>
 
 #include "h5.h"
@@ -68,7 +69,7 @@ void read_bricks(h5::Reader& r, hid_t g, const std::string& p, Voxelmap& vm) {
 }
 
 void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, ValidationLevel level, bool closed,
-                   Voxelmap& vm, std::vector<Issue>& value_findings) {
+                   const DenseReadBudget& budget, Voxelmap& vm, std::vector<Issue>& value_findings) {
   const std::string p = "/voxelmap";
   if (auto v = r.numeric_attribute<double>(g, p, "origin", {3})) vm.origin = to_vec3(*v);
   if (auto v = r.numeric_attribute<double>(g, p, "voxel_size", {})) vm.voxel_size = (*v)[0];
@@ -93,7 +94,7 @@ void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, Validat
   }
   if (version.major == 1) {
     // Layers and distances per voxel: converted to bricks as they are read, a slab of bricks at a time.
-    read_dense_voxelmap(r, g, p, version, level, closed, vm, value_findings);
+    read_dense_voxelmap(r, g, p, version, level, closed, budget, vm, value_findings);
     report_unknown(r, g, p, {"layers", "distances"},
                    {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness"}, true);
     return;
@@ -227,7 +228,8 @@ bool no_errors_since(const std::vector<Issue>& issues, size_t first) {
 
 }  // namespace
 
-std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues, ValidationLevel level) {
+std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<Issue>& issues,
+                                           const ReadOptions& options) {
   const size_t first = issues.size();
   h5::Reader r(path, issues);
   r.set_progress(report_read_progress);
@@ -235,6 +237,12 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   const hid_t root = r.file();
   Asset asset;
   if (!check_header(r, asset.version)) return std::nullopt;
+  std::error_code size_error;
+  const uint64_t file_bytes = std::filesystem::file_size(path, size_error);
+  const std::optional<DenseReadBudget> budget =
+      check_read_cost(r, asset.version, size_error ? 0 : file_bytes, options);
+  if (!budget) return std::nullopt;
+  const ValidationLevel level = options.level;
 
   check_vocabulary(r, r.string_attribute(root, "/", "units"), "/@units", {"m"});
   check_vocabulary(r, r.string_attribute(root, "/", "frame"), "/@frame", {"right-handed"});
@@ -247,7 +255,8 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   // they join the findings after the structural verdict below.
   std::vector<Issue> value_findings;
   if (auto g = r.group(root, "/", "voxelmap"))
-    read_voxelmap(r, g->get(), asset.version, level, closed_surface(asset.provenance), asset.voxelmap, value_findings);
+    read_voxelmap(r, g->get(), asset.version, level, closed_surface(asset.provenance), *budget, asset.voxelmap,
+                  value_findings);
   if (auto g = r.group(root, "/", "pointshell")) read_point_shell(r, g->get(), asset.point_shell);
   if (auto g = r.group(root, "/", "mass_properties")) read_mass(r, g->get(), asset.mass);
   report_unknown(r, root, "/", {"voxelmap", "pointshell", "mass_properties", "provenance"},
@@ -273,24 +282,16 @@ std::optional<Provenance> load_provenance_in_process(const std::string& path, st
 
 }  // namespace detail
 
-Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings) {
+Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings, const ReadOptions& options) {
   std::vector<Issue> issues;
-  try {
-    std::optional<Asset> asset = detail::load_asset(path, issues, ValidationLevel::Quick);
-    if (asset) {
-      std::vector<Issue> more = validate_asset(*asset);
-      issues.insert(issues.end(), more.begin(), more.end());
-    }
+  std::optional<Asset> asset = detail::read_and_check(path, options, issues);
+  for (const Issue& issue : issues)
+    if (issue.severity == Severity::Error)
+      return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
+  if (warnings)
     for (const Issue& issue : issues)
-      if (issue.severity == Severity::Error)
-        return Error{issue.code, path + ": " + issue.path + ": " + issue.message, path, issue.path};
-    if (warnings)
-      for (const Issue& issue : issues)
-        if (issue.severity == Severity::Warning) warnings->push_back(issue);
-    return std::move(*asset);
-  } catch (const std::bad_alloc&) {
-    return Error{IssueCode::OutOfMemory, path + ": not enough memory to read the asset", path};
-  }
+      if (issue.severity == Severity::Warning) warnings->push_back(issue);
+  return std::move(*asset);
 }
 
 Result<Provenance> read_provenance(const std::string& path) {

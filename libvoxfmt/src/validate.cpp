@@ -120,13 +120,36 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
     c.add(IssueCode::ValueOutOfRange, g + "/bricks",
           "brick " + std::to_string(b) + " holds " + std::to_string(entry) + ": neither a value brick below " +
               std::to_string(value_bricks) + " nor -1 (coarse, outside) or -2 (coarse, inside)");
-    break;
+    return;
   }
+  // Each row of brick_values is one brick's (spec §3.2): a row's estimates belong to its brick's place.
+  std::vector<uint8_t> uses(size_t(value_bricks), 0);
+  for (size_t b = 0; b < vm.bricks.size(); ++b) {
+    const int32_t entry = vm.bricks[b];
+    if (entry < 0) continue;
+    if (uses[size_t(entry)]++ == 0) continue;
+    c.add(IssueCode::ValueOutOfRange, g + "/bricks",
+          "bricks share row " + std::to_string(entry) + " of brick_values (each row is one brick's)");
+    return;
+  }
+  const auto unused = std::find(uses.begin(), uses.end(), uint8_t(0));
+  if (unused != uses.end())
+    c.add(IssueCode::ValueOutOfRange, g + "/brick_values",
+          "row " + std::to_string(unused - uses.begin()) + " belongs to no brick (each row is one brick's)");
+  // No voxel is farther from the surface than the grid's diagonal (the surface lies inside the grid), so no
+  // lattice value may exceed (1 + e1) times it plus e0 (spec §3.3); a huge one would overflow a runtime's sums.
+  const double h = vm.voxel_size;
+  const double diagonal = h * std::sqrt(double(vm.dims[0] - 1) * (vm.dims[0] - 1) +
+                                        double(vm.dims[1] - 1) * (vm.dims[1] - 1) +
+                                        double(vm.dims[2] - 1) * (vm.dims[2] - 1));
+  const double ceiling = (1 + vm.lattice_error[1]) * (diagonal + vm.shell_thickness.value_or(0.0)) +
+                         (vm.lattice_error[0] + 1) * h;
   for (size_t n = 0; n < vm.lattice.size(); ++n) {
     const float v = vm.lattice[n];
-    if (std::isfinite(v) && v >= 0) continue;
+    if (std::isfinite(v) && v >= 0 && !(double(v) > ceiling)) continue;
     c.add(std::isfinite(v) ? IssueCode::ValueOutOfRange : IssueCode::NonFiniteValue, g + "/lattice",
-          "lattice point " + std::to_string(n) + " holds " + fmt(v) + " (a distance must be finite and >= 0)");
+          "lattice point " + std::to_string(n) + " holds " + fmt(v) + " m (a distance must be finite, >= 0 and at " +
+              "most " + fmt(ceiling) + " m, the grid's diagonal with the lattice's error)");
     break;
   }
 }
@@ -495,6 +518,57 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
       }
 }
 
+// Spec §3.3: a lattice value l lies within [u, (1 + e1) u + e0 h] of the exact unsigned distance u, and u is
+// 1-Lipschitz. So where its voxel stores a distance d, u is |d| within half a quantum; and two neighbouring lattice
+// points s apart satisfy l_a <= (1 + e1)(l_b + s) + e0 h. Both hold for any valid lattice and need no mesh; a
+// doubled or scaled lattice breaks the first, a damaged point the second. (That l is the distance itself, only
+// the mesh can tell.) Floats: l may lie one rounding step below u, hence the relative tolerance.
+void check_lattice_semantics(const Voxelmap& vm, Checker& c) {
+  const double h = vm.voxel_size, e0 = vm.lattice_error[0] * h, e1 = vm.lattice_error[1];
+  const double half_quantum = 0.5 * vm.distance_quantum;
+  constexpr double kRounding = 1e-6;
+  const auto l = vm.lattice_dims();
+  auto voxel_of = [&](uint32_t a, uint32_t b, uint32_t k) -> std::array<uint32_t, 3> {
+    return {Voxelmap::lattice_coordinate(a, vm.dims[0]), Voxelmap::lattice_coordinate(b, vm.dims[1]),
+            Voxelmap::lattice_coordinate(k, vm.dims[2])};
+  };
+  auto name = [](uint32_t a, uint32_t b, uint32_t k) {
+    return "lattice point (" + std::to_string(a) + ", " + std::to_string(b) + ", " + std::to_string(k) + ")";
+  };
+  bool stored_reported = false;
+  for (uint32_t k = 0; k < l[2]; ++k)
+    for (uint32_t b = 0; b < l[1]; ++b)
+      for (uint32_t a = 0; a < l[0]; ++a) {
+        const double value = vm.lattice[vm.lattice_index(a, b, k)];
+        const auto v = voxel_of(a, b, k);
+        if (!stored_reported) {
+          const VoxelValue at = vm.voxel(v[0], v[1], v[2]);
+          const double u = std::abs(at.distance);
+          if (at.stored && (value < (u - half_quantum) * (1 - kRounding) ||
+                            value > ((1 + e1) * (u + half_quantum) + e0) * (1 + kRounding))) {
+            c.add(IssueCode::LatticeMismatch, "/voxelmap/lattice",
+                  name(a, b, k) + " holds " + fmt(value) + " m, but its voxel stores the distance " +
+                      fmt(at.distance) + " m (the lattice must hold it within [u, (1 + e1) u + e0 h])");
+            stored_reported = true;
+          }
+        }
+        const uint32_t next[3][3] = {{a + 1, b, k}, {a, b + 1, k}, {a, b, k + 1}};
+        for (int axis = 0; axis < 3; ++axis) {
+          const uint32_t* n = next[axis];
+          if (n[0] >= l[0] || n[1] >= l[1] || n[2] >= l[2]) continue;
+          const auto w = voxel_of(n[0], n[1], n[2]);
+          const double s = h * (double(w[size_t(axis)]) - double(v[size_t(axis)]));
+          const double other = vm.lattice[vm.lattice_index(n[0], n[1], n[2])];
+          const double low = std::min(value, other), high = std::max(value, other);
+          if (high <= ((1 + e1) * (low + s) + e0) * (1 + kRounding)) continue;
+          c.add(IssueCode::LatticeMismatch, "/voxelmap/lattice",
+                name(a, b, k) + " and " + name(n[0], n[1], n[2]) + " hold " + fmt(value) + " and " + fmt(other) +
+                    " m, " + fmt(s) + " m apart: distances cannot differ that much (spec §3.3)");
+          return;
+        }
+      }
+}
+
 // Distance at the voxel nearest to p, if stored there.
 std::optional<double> nearest_distance(const Voxelmap& vm, const Vec3& p) {
   uint32_t index[3];
@@ -585,24 +659,42 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   // Semantic rules need a structurally sound asset (sizes, tree ranges) to index safely.
   if (level == ValidationLevel::Full && !has_errors(issues)) {
     check_voxelmap_semantics(asset.voxelmap, detail::closed_surface(asset.provenance), c);
+    check_lattice_semantics(asset.voxelmap, c);
     check_point_shell_semantics(asset, c);
     check_mass_semantics(asset, c);
   }
   return issues;
 }
 
-std::vector<Issue> validate_file(const std::string& path, ValidationLevel level) {
-  std::vector<Issue> issues;
+namespace detail {
+
+std::optional<Asset> read_and_check(const std::string& path, const ReadOptions& options, std::vector<Issue>& issues) {
   try {
-    std::optional<Asset> asset = detail::load_asset(path, issues, level);
+    std::optional<Asset> asset = load_asset(path, issues, options);
     if (asset) {
-      std::vector<Issue> more = validate_asset(*asset, level);
+      std::vector<Issue> more = validate_asset(*asset, options.level);
       issues.insert(issues.end(), more.begin(), more.end());
     }
+    if (has_errors(issues)) return std::nullopt;
+    return asset;
   } catch (const std::bad_alloc&) {
-    issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/", "not enough memory to read the asset"});
+    issues.push_back(Issue{IssueCode::OutOfMemory, Severity::Error, "/", "not enough memory to read the asset"});
+    return std::nullopt;
   }
+}
+
+}  // namespace detail
+
+std::vector<Issue> validate_file(const std::string& path, const ReadOptions& options) {
+  std::vector<Issue> issues;
+  detail::read_and_check(path, options, issues);
   return issues;
+}
+
+std::vector<Issue> validate_file(const std::string& path, ValidationLevel level) {
+  ReadOptions options;
+  options.level = level;
+  return validate_file(path, options);
 }
 
 }  // namespace voxfmt

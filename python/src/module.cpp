@@ -468,36 +468,52 @@ std::string bake(const std::string& mesh, const std::string& output, uint32_t re
   return bake::to_json(summary->value());
 }
 
-std::vector<std::tuple<std::string, std::string, std::string, std::string>> validate(const std::string& path,
-                                                                                     bool full) {
+// The read's settings from the Python arguments: max_memory_mib None keeps the library's default budget.
+ReadOptions read_options(bool full, const std::optional<int64_t>& max_memory_mib) {
+  ReadOptions options;
+  options.level = full ? ValidationLevel::Full : ValidationLevel::Quick;
+  if (max_memory_mib) {
+    if (*max_memory_mib < 1 || *max_memory_mib > (int64_t(1) << 40))
+      fail(IssueCode::BadOption, "max_memory_mib must be >= 1");
+    options.max_memory_bytes = uint64_t(*max_memory_mib) << 20;
+  }
+  return options;
+}
+
+std::vector<std::tuple<std::string, std::string, std::string, std::string>> validate(
+    const std::string& path, bool full, const std::optional<int64_t>& max_memory_mib) {
+  const ReadOptions options = read_options(full, max_memory_mib);
   std::vector<Issue> issues;
   {
     nb::gil_scoped_release release;
-    issues = validate_file(path, full ? ValidationLevel::Full : ValidationLevel::Quick);
+    issues = validate_file(path, options);
   }
   std::vector<std::tuple<std::string, std::string, std::string, std::string>> out;
   for (const Issue& i : issues) out.emplace_back(code_name(i.code), severity_name(i.severity), i.message, i.path);
   return out;
 }
 
-std::string inspect(const std::string& path) {
+std::string inspect(const std::string& path, const std::optional<int64_t>& max_memory_mib) {
+  const ReadOptions options = read_options(true, max_memory_mib);
   std::vector<Issue> warnings;
   std::optional<Result<Asset>> asset;
   {
     nb::gil_scoped_release release;
-    asset.emplace(read_asset(path, &warnings));
+    asset.emplace(read_asset(path, &warnings, options));
   }
   if (!asset->ok()) throw CodedError(asset->error());
   return inspect_json(path, asset->value(), summarize_asset(path, asset->value()), warnings);
 }
 
-Body load(nb::handle path_object, double density) {
+Body load(nb::handle path_object, double density, const std::optional<int64_t>& max_memory_mib) {
   const std::string path = path_arg(path_object, "path");
   if (!(std::isfinite(density) && density > 0)) fail(IssueCode::BadOption, "density must be a finite number > 0");
+  runtime::LoadOptions options;
+  options.read = read_options(true, max_memory_mib);
   std::optional<Result<std::shared_ptr<const CollisionObject>>> object;
   {
     nb::gil_scoped_release release;
-    object.emplace(CollisionObject::load(path));
+    object.emplace(CollisionObject::load(path, options));
   }
   if (!object->ok()) throw CodedError(object->error());
   if (!object->value()->has_voxelmap() || !object->value()->has_point_shell())
@@ -721,10 +737,13 @@ void bind_contacts(nb::module_& m) {
 
 // load, contacts, wrench, contacts_batch and the Tracker of a pair.
 void bind_queries(nb::module_& m) {
-  m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0,
-        nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0) -> Body"),
-        "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, ...) when it\n"
-        "cannot be read or breaks a quick-level rule of the format.");
+  m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0, "max_memory_mib"_a = nb::none(),
+        nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0, max_memory_mib: int | None = None) "
+                "-> Body"),
+        "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, a validation\n"
+        "code, ...) when it cannot be read or breaks a rule of the format (every rule of validate(level='full')),\n"
+        "voxfmt.InternalError (OUT_OF_MEMORY) when reading it would need more than max_memory_mib (default 768),\n"
+        "decided from the file's metadata before anything is read.");
   m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a = nb::none(),
         "time_budget_us"_a = nb::none(), "proximity"_a = 0.0,
         nb::sig("def contacts(a: Body, pose_a: numpy.typing.ArrayLike, b: Body, pose_b: numpy.typing.ArrayLike, *, "
@@ -764,8 +783,8 @@ void bind_pipeline(nb::module_& m) {
   m.def("_bake", &bake, "mesh"_a, "output"_a, "resolution"_a, "voxel_size"_a, "points"_a, "point_spacing"_a,
         "branching"_a, "margin"_a, "band"_a, "shell_thickness"_a, "unit_scale"_a, "up_axis"_a,
         "self_intersection_check"_a, "seed"_a, "deflate"_a, "threads"_a, "progress"_a.none());
-  m.def("_validate", &validate, "path"_a, "full"_a);
-  m.def("_inspect", &inspect, "path"_a);
+  m.def("_validate", &validate, "path"_a, "full"_a, "max_memory_mib"_a.none());
+  m.def("_inspect", &inspect, "path"_a, "max_memory_mib"_a.none());
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),
         "time_budget_us"_a.none(), "proximity"_a);
   m.def("_library_version", [] { return std::string(VOXFMT_VERSION_STRING); });

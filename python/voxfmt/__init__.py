@@ -79,6 +79,17 @@ def _path(value: Path, what: str) -> str:
         raise OptionError("BAD_OPTION", f"{what}: expected a path, got {type(value).__name__}") from None
 
 
+def _optional_int(name: str, value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        raise OptionError("BAD_OPTION", f"{name}: expected an integer, got a bool")
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise OptionError("BAD_OPTION", f"{name}: expected an integer, got {value!r}") from None
+
+
 def _unsigned(name: str, value: Any) -> int:
     if isinstance(value, bool):
         raise OptionError("BAD_OPTION", f"{name}: expected an integer, got a bool")
@@ -184,20 +195,25 @@ class ValidationReport:
         return self.valid
 
 
-def validate(path: Path, level: Literal["quick", "full"] = "full") -> ValidationReport:
+def validate(
+    path: Path, level: Literal["quick", "full"] = "full", *, max_memory_mib: int | None = None
+) -> ValidationReport:
     """Checks an asset file against the format spec, like ``voxfmt validate --level LEVEL``. Never raises for
-    a bad file: an unreadable one is reported (FILE_NOT_FOUND, NOT_HDF5, ...) in ``issues``."""
+    a bad file: an unreadable one is reported (FILE_NOT_FOUND, NOT_HDF5, ...) in ``issues``, and one whose read
+    would need more than ``max_memory_mib`` (default 768, decided from its metadata before anything is read) as
+    OUT_OF_MEMORY."""
     if level not in ("quick", "full"):
         raise OptionError("BAD_OPTION", f"level must be 'quick' or 'full', not {level!r}")
     p = _path(path, "path")
-    found = _validate(p, level == "full")
+    found = _validate(p, level == "full", _optional_int("max_memory_mib", max_memory_mib))
     return ValidationReport(p, tuple(Issue(*finding) for finding in found))
 
 
-def inspect(path: Path) -> dict[str, Any]:
+def inspect(path: Path, *, max_memory_mib: int | None = None) -> dict[str, Any]:
     """The summary of an asset that ``voxfmt inspect --json`` prints (format, bounds, voxelmap, pointshell,
-    mass_properties, provenance, warnings). Raises AssetError when the file cannot be read."""
-    result: dict[str, Any] = json.loads(_inspect(_path(path, "path")))
+    mass_properties, provenance, warnings). Raises AssetError when the file cannot be read or breaks a rule of
+    the format, InternalError (OUT_OF_MEMORY) when reading it would need more than ``max_memory_mib``."""
+    result: dict[str, Any] = json.loads(_inspect(_path(path, "path"), _optional_int("max_memory_mib", max_memory_mib)))
     return result
 
 

@@ -29,7 +29,7 @@ class Malformed : public ::testing::Test {
     H5Fclose(f);
   }
   void expect_refused(IssueCode code, const std::string& path_fragment) {
-    Result<Asset> r = read_asset(file_);
+    Result<Asset> r = read_asset(file_, nullptr, test::structural_read());
     ASSERT_FALSE(r) << "expected " << code_name(code);
     EXPECT_EQ(code_name(r.error().code), std::string(code_name(code))) << r.error().message;
     EXPECT_NE(r.error().message.find(file_), std::string::npos) << r.error().message;
@@ -62,7 +62,7 @@ TEST_F(Malformed, NotHdf5) {
 
 TEST_F(Malformed, Truncated) {
   std::filesystem::resize_file(file_, std::filesystem::file_size(file_) / 2);
-  Result<Asset> r = read_asset(file_);
+  Result<Asset> r = read_asset(file_, nullptr, test::structural_read());
   ASSERT_FALSE(r);
   EXPECT_TRUE(r.error().code == IssueCode::NotHdf5 || r.error().code == IssueCode::ReadFailed) << r.error().message;
   EXPECT_NE(r.error().message.find(file_), std::string::npos);
@@ -133,7 +133,7 @@ TEST_F(Malformed, NewerMinorVersionIsReadWithAWarning) {
     H5Gclose(g);
   });
   std::vector<Issue> warnings;
-  Result<Asset> r = read_asset(file_, &warnings);
+  Result<Asset> r = read_asset(file_, &warnings, test::structural_read());
   ASSERT_TRUE(r) << r.error().message;
   ASSERT_EQ(warnings.size(), 1u);
   EXPECT_EQ(warnings[0].code, IssueCode::VersionNewerMinor);

@@ -21,7 +21,7 @@ TEST(RoundTrip, EveryFieldSurvivesWriteAndRead) {
   ASSERT_TRUE(written) << written.error().message;
 
   std::vector<Issue> warnings;
-  Result<Asset> read = read_asset(file, &warnings);
+  Result<Asset> read = read_asset(file, &warnings, test::structural_read());
   ASSERT_TRUE(read) << read.error().message;
   EXPECT_TRUE(warnings.empty());
   const Asset& b = read.value();
@@ -75,7 +75,7 @@ TEST(RoundTrip, OptionalFieldsMayBeAbsent) {
   a.provenance.created_utc.clear();
   const std::string file = test::scratch_dir("optional") + "/minimal.vox.h5";
   ASSERT_TRUE(write_asset(file, a, test::structural()));
-  Result<Asset> read = read_asset(file);
+  Result<Asset> read = read_asset(file, nullptr, test::structural_read());
   ASSERT_TRUE(read) << read.error().message;
   EXPECT_FALSE(read.value().voxelmap.margin);
   EXPECT_FALSE(read.value().point_shell.point_spacing);
@@ -90,7 +90,7 @@ TEST(RoundTrip, WriteReplacesAnExistingFileAndLeavesNoTemporary) {
   ASSERT_TRUE(write_asset(file, a, test::structural()));
   a.mass.volume = 0.25;
   ASSERT_TRUE(write_asset(file, a, test::structural()));
-  EXPECT_EQ(read_asset(file).value().mass.volume, 0.25);
+  EXPECT_EQ(read_asset(file, nullptr, test::structural_read()).value().mass.volume, 0.25);
   size_t entries = 0;
   for (auto it = std::filesystem::directory_iterator(dir); it != std::filesystem::directory_iterator(); ++it) ++entries;
   EXPECT_EQ(entries, 1u);
@@ -144,7 +144,7 @@ TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
     // The temporary is flushed and closed by now: it reads back as a whole asset.
     for (const auto& entry : std::filesystem::directory_iterator(dir))
       if (entry.path().string().find(".partial-") != std::string::npos)
-        temporary_was_complete = bool(read_asset(entry.path().string()));
+        temporary_was_complete = bool(read_asset(entry.path().string(), nullptr, test::structural_read()));
     return Error{IssueCode::WriteFailed, "checked and refused"};
   };
   const Status status = write_asset(path, changed, options);
@@ -156,7 +156,7 @@ TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
 
   options.before_commit = [] { return Status::success(); };
   ASSERT_TRUE(write_asset(path, changed, options));
-  const Result<Asset> back = read_asset(path);
+  const Result<Asset> back = read_asset(path, nullptr, test::structural_read());
   ASSERT_TRUE(back);
   EXPECT_EQ(back.value().voxelmap.stored_count(), 0u);  // no value bricks: an empty dataset reads back empty
   EXPECT_EQ(back.value().voxelmap.value_brick_count(), 0u);

@@ -17,6 +17,12 @@ inline WriteOptions structural() {
   options.validation = ValidationLevel::Quick;
   return options;
 }
+/// Read options for the same: the structural rules only.
+inline ReadOptions structural_read() {
+  ReadOptions options;
+  options.level = ValidationLevel::Quick;
+  return options;
+}
 
 /// A fresh scratch directory for one test (removed at process exit is not needed: it lives under the
 /// build tree's temp dir).

@@ -855,7 +855,9 @@ class TestH5pyLegacyFixtureSelfCheck(LegacyVoxelmapChecks, unittest.TestCase):
 
 @ss.requires_writer
 class TestCppToPython(VoxelmapChecks, unittest.TestCase):
-    """The C++ sample writer's file (format 2.0, its voxelmap from voxfmt::make_voxelmap), read with h5py."""
+    """The C++ sample writer's file (format 2.1, its voxelmap from voxfmt::make_voxelmap), read with h5py."""
+
+    format_version = (2, 1)
 
     @classmethod
     def setUpClass(cls):
@@ -886,7 +888,7 @@ class TestCppToPython(VoxelmapChecks, unittest.TestCase):
         self.assertEqual(proc.returncode, 0, describe(proc))
         js = ss.parse_json_stdout(self, proc)
         vm = self.decoded()
-        self.assertEqual(js["format_version"], [2, 0])
+        self.assertEqual(js["format_version"], list(self.format_version))
         got = js["voxelmap"]
         self.assertEqual(got["dims"], list(vm.dims))
         self.assertEqual(got["stored_distances"], vm.stored_count)
@@ -1211,7 +1213,7 @@ class TestLegacyUpgrade(unittest.TestCase):
         want = ss.decode_legacy_voxelmap(old)
         got = ss.decode_voxelmap(new)
         with h5py.File(new, "r") as f:
-            self.assertEqual(f.attrs["format_version"].tolist(), [2, 0])
+            self.assertEqual(f.attrs["format_version"].tolist(), [2, 1])
             self.assertNotIn("layers", f["/voxelmap"])
             self.assertNotIn("distances", f["/voxelmap"])
         self.assertEqual(got.dims, want.dims)

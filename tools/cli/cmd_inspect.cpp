@@ -17,6 +17,7 @@ namespace {
 struct Options {
   std::string file;
   bool json = false;
+  ReadOptions read;
   std::string slice;  // AXIS=INDEX
   std::string png;
   std::string field = "layers";
@@ -156,6 +157,7 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
       "(PLY) or the voxelmap (OpenVDB)");
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print the summary as JSON on stdout");
+  add_read_budget_option(cmd, options->read);
   auto* slice = cmd->add_option("--slice", options->slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
                     ->check(CLI::Validator(
                         [](std::string& text) {
@@ -192,7 +194,7 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
       "  voxfmt inspect bunny.vox.h5 --ply shell.ply --vdb grids.vdb  # point shell and grids for other tools\n");
   cmd->callback([options, &exit_code] {
     std::vector<Issue> warnings;
-    Result<Asset> asset = read_asset(options->file, &warnings);
+    Result<Asset> asset = read_asset(options->file, &warnings, options->read);
     if (!asset) {
       exit_code = report_error("inspect", asset.error());
       return;

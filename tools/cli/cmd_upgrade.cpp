@@ -20,6 +20,7 @@ namespace fs = std::filesystem;
 struct Options {
   std::vector<std::string> inputs;
   std::string output;
+  ReadOptions read;
   bool force = false;
   bool json = false;
   bool quiet = false;
@@ -72,7 +73,7 @@ int run(const Options& o) {
     if (progress) std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << item.input << std::flush;
     nlohmann::json entry = {{"input", item.input}, {"output", item.output}};
     std::vector<Issue> warnings;
-    Result<Asset> asset = read_asset(item.input, &warnings);
+    Result<Asset> asset = read_asset(item.input, &warnings, o.read);
     Status written = Status::success();
     if (asset && asset.value().version.major == kFormatVersion.major && !o.force) {
       ++current;
@@ -138,6 +139,7 @@ void add_upgrade_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--force", o->force, "Rewrite assets that are already of the current format too");
   cmd->add_flag("--json", o->json, "Print a JSON report on stdout");
   cmd->add_flag("-q,--quiet", o->quiet, "Print nothing but errors");
+  add_read_budget_option(cmd, o->read);
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt upgrade old/bunny.vox.h5 -o bunny.vox.h5     # one file\n"

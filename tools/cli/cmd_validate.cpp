@@ -1,4 +1,5 @@
-// `voxfmt validate FILE... [--json]`: check assets against the spec. Exit 0 valid, 1 invalid, 2 unreadable.
+// `voxfmt validate FILE... [--json]`: check assets against the spec. Exit 0 valid, 1 invalid, 2 unreadable or over
+// the read budget.
 #include <algorithm>
 #include <iostream>
 
@@ -14,6 +15,7 @@ struct Options {
   bool json = false;
   std::string level = "full";
   size_t max_issues = 100;
+  ReadOptions read;
 };
 }  // namespace
 
@@ -30,6 +32,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  add_read_budget_option(cmd, options->read);
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt validate bunny.vox.h5                      # the structure (quick)\n"
@@ -39,8 +42,9 @@ void add_validate_command(CLI::App& app, int& exit_code) {
     nlohmann::json report = {{"files", nlohmann::json::array()}};
     int worst = kExitOk;  // the highest exit status of any file's first error
     for (const std::string& file : options->files) {
-      std::vector<Issue> issues =
-          validate_file(file, options->level == "full" ? ValidationLevel::Full : ValidationLevel::Quick);
+      ReadOptions read = options->read;
+      read.level = options->level == "full" ? ValidationLevel::Full : ValidationLevel::Quick;
+      std::vector<Issue> issues = validate_file(file, read);
       const size_t found = issues.size();
       if (issues.size() > options->max_issues) issues.resize(options->max_issues);
       const bool valid = !has_errors(issues);
@@ -54,17 +58,19 @@ void add_validate_command(CLI::App& app, int& exit_code) {
             {{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
         continue;
       }
-      bool unreadable = false;
+      bool unreadable = false, over_budget = false;
       size_t errors = 0, warnings = 0;
       for (const Issue& issue : issues) {
         errors += issue.severity == Severity::Error;
         warnings += issue.severity == Severity::Warning;
         unreadable |= issue.code == IssueCode::FileNotFound;
+        over_budget |= issue.code == IssueCode::OutOfMemory;
       }
       std::cout << file << ": "
-                << (valid        ? "valid"
-                    : unreadable ? "UNREADABLE"
-                                 : "INVALID")
+                << (valid         ? "valid"
+                    : unreadable  ? "UNREADABLE"
+                    : over_budget ? "NOT JUDGED (over the read budget: --max-memory)"
+                                  : "INVALID")
                 << " (" << errors << " error(s), " << warnings << " warning(s))\n";
       if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
       for (const Issue& issue : issues)

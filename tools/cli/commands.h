@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "voxfmt/io.h"
 #include "voxfmt/result.h"
 
 namespace voxfmt::cli {
@@ -14,6 +15,16 @@ enum ExitCode : int { kExitOk = 0, kExitInvalid = 1, kExitUsageOrIo = 2 };
 int exit_status(IssueCode code);
 /// Prints "voxfmt COMMAND: error: CODE: message" on stderr and returns exit_status(error.code).
 int report_error(const char* command, const Error& error);
+
+/// `--max-memory MiB`: the read budget of a command that reads assets (voxfmt/io.h ReadOptions), into `options`.
+inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
+  cmd->add_option_function<uint64_t>(
+         "--max-memory", [&options](uint64_t mib) { options.max_memory_bytes = mib << 20; },
+         "MiB a read may use, decided from the file's metadata before anything is read (beyond: OUT_OF_MEMORY, "
+         "exit 2; default " +
+             std::to_string(ReadOptions::kDefaultReadMemoryBytes >> 20) + ", enough for a 2048^3 asset)")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
+}
 
 void add_build_command(CLI::App& app, int& exit_code);
 void add_batch_command(CLI::App& app, int& exit_code);

@@ -7,8 +7,10 @@ namespace voxfmt::cli {
 
 namespace {
 // Exit 2: the command could not do its work for reasons outside the data (a bad argument, a missing file,
-// a file that cannot be written). Every other code means the input itself is bad: exit 1.
-constexpr IssueCode kUsageOrIo[] = {IssueCode::BadOption, IssueCode::FileNotFound, IssueCode::WriteFailed};
+// a file that cannot be written, memory or a budget too small for it). Every other code means the input itself
+// is bad: exit 1.
+constexpr IssueCode kUsageOrIo[] = {IssueCode::BadOption, IssueCode::FileNotFound, IssueCode::WriteFailed,
+                                    IssueCode::OutOfMemory};
 }  // namespace
 
 int exit_status(IssueCode code) {

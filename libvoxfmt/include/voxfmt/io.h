@@ -31,6 +31,19 @@ struct WriteOptions {
 /// (the earlier file at `path`, if any, stays); a file that cannot be written is WRITE_FAILED.
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
 
+/// How a file is read (read_asset, validate_file): what it may cost and which rules it must pass.
+struct ReadOptions {
+  /// The memory a read may take, in bytes. It is decided from the file's metadata before anything is decoded
+  /// (spec §1, "Limits"): a file that would need more is refused with OUT_OF_MEMORY, the figure in the message,
+  /// whatever the machine has. The default is fixed, not the machine's, so that a file's verdict is the same
+  /// everywhere; it reads every asset up to ~2048^3 (a 4096^3 bake needs ~2.1 GB: raise it).
+  uint64_t max_memory_bytes = kDefaultReadMemoryBytes;
+  /// The rules the file must pass. Full (read_asset's default): every rule `voxfmt validate` checks, so no
+  /// consumer accepts what validate refuses; Quick: structure, ranges and the tree only.
+  ValidationLevel level = ValidationLevel::Full;
+  static constexpr uint64_t kDefaultReadMemoryBytes = uint64_t(768) << 20;
+};
+
 /// Reading a file parses it in a child process by default (POSIX): HDF5 1.10 crashes or hangs on some damaged
 /// files, and the child's death becomes a READ_FAILED error instead of the caller's. Costs a fork and a copy of
 /// the data through a pipe. Turn it off for trusted files, debuggers and fuzzers (in-process crashes are what a
@@ -41,9 +54,11 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
 void set_read_isolation(bool enabled);
 bool read_isolation();
 
-/// Reads and structurally validates an asset. Any error-severity finding fails the read (its message names
-/// the file, the object and the reason); warnings (e.g. a newer minor version) go to `warnings` if given.
-Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr);
+/// Reads an asset and checks it against the rules of `options.level` (by default every rule of `voxfmt validate`).
+/// Any error-severity finding fails the read (its message names the file, the object and the reason); warnings
+/// (e.g. a newer minor version) go to `warnings` if given.
+Result<Asset> read_asset(const std::string& path, std::vector<Issue>* warnings = nullptr,
+                         const ReadOptions& options = {});
 
 /// Reads only the format header and `/provenance` (no grids): a cheap look at where an asset came from, e.g.
 /// to decide whether it is up to date. Fails like read_asset on a file that is not a readable voxfmt asset.

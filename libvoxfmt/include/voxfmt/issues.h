@@ -41,6 +41,8 @@ enum class IssueCode {
   DistanceOutsideBand,
   EstimateMismatch,
   SignMismatch,
+  StringNotUtf8,
+  LatticeMismatch,
   // Errors of the bake, the exports and batch runs (never validation findings).
   InputNotFound,
   UnsupportedFormat,

@@ -74,7 +74,7 @@ size_t PointTree::memory_bytes() const {
 
 voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(const std::string& path,
                                                                              const LoadOptions& options) {
-  voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
+  voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path, nullptr, options.read);
   if (!asset) return asset.error();
   return from_asset(std::move(asset.value()), options);
 }

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "voxfmt/asset.h"
+#include "voxfmt/io.h"
 #include "voxfmt/result.h"
 #include "voxfmt/runtime/sparse_voxelmap.h"
 
@@ -54,11 +55,14 @@ struct PointTree {
 struct LoadOptions {
   bool load_voxelmap = true;     ///< false: a point-shell-only object (a probe that never gets hit)
   bool load_point_shell = true;  ///< false: a voxelmap-only object (static environment)
+  /// How the file is read: its memory budget and the rules it must pass (by default every rule of
+  /// `voxfmt validate`, so no loader accepts what validate refuses).
+  voxfmt::ReadOptions read;
 };
 
 class CollisionObject {
  public:
-  /// Reads and validates (quick level) an asset file, then converts it. Errors name the file and the reason.
+  /// Reads and validates an asset file (options.read), then converts it. Errors name the file and the reason.
   static voxfmt::Result<std::shared_ptr<const CollisionObject>> load(const std::string& path,
                                                                      const LoadOptions& options = {});
   /// Converts an asset already in memory (it must pass quick validation); the rvalue overload takes over its
