@@ -26,6 +26,9 @@ for f in build/Testing/*.vox.h5 out/*.vox.h5 out/library/*.vox.h5; do
   [ -f "$f" ] && [ "$(stat -c %s "$f")" -lt 2000000 ] && cp "$f" "$corpus/asset/" || true
 done
 cp tests/fuzz/regressions/*.vox.h5 "$corpus/asset/" 2>/dev/null || true
+# The 2.x layout and its hostile variants (tests/reads/hostile_files.py: declared sizes, chunking, strings, values).
+/usr/bin/python3 tests/reads/hostile_files.py "$work/hostile" >/dev/null
+for f in "$work"/hostile/*.vox.h5; do [ "$(stat -c %s "$f")" -lt 300000 ] && cp "$f" "$corpus/asset/" || true; done
 for writer in build/bin/write_sphere_asset "$BUILD_DIR/bin/write_sphere_asset"; do
   if [ -x "$writer" ]; then "$writer" "$corpus/asset/sphere.vox.h5" >/dev/null 2>&1 && break; fi
 done
@@ -43,7 +46,8 @@ done
 {
   for word in HDF TREE HEAP GCOL OHDR SNOD voxfmt format_version voxelmap pointshell mass_properties provenance \
     layers distances points normals sphere_centers sphere_radii child_begin child_count level_offsets voxel_size \
-    dims origin distance_band index_order zyx input output status code size; do
+    dims origin distance_band index_order zyx bricks brick_values lattice brick_edge distance_quantum \
+    estimate_quantum lattice_error shell_thickness margin generator build_warnings input output status code size; do
     printf '"%s"\n' "$word"
   done
 } >"$work/asset.dict"

@@ -26,7 +26,10 @@ constexpr uint64_t kLibraryBytes = 16 * kMiB;
 
 std::string mib(uint64_t bytes) {
   char text[32];
-  std::snprintf(text, sizeof text, "%.1f MiB", double(bytes) / double(kMiB));
+  if (bytes < kMiB)
+    std::snprintf(text, sizeof text, "%.1f KiB", double(bytes) / 1024.0);
+  else
+    std::snprintf(text, sizeof text, "%.1f MiB", double(bytes) / double(kMiB));
   return text;
 }
 

@@ -4,48 +4,17 @@ in a child interpreter, which must report the error and exit normally."""
 
 from __future__ import annotations
 
-import json
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from conftest import REPO
+from mujoco_child import compile_in_child
 
 import voxfmt.mujoco as vm
 
 # Every code of spec/issue-codes.md: a refused file names one of them (loaders refuse every error finding).
 SPEC_CODES = re.findall(r"^\| `([A-Z0-9_]+)`", (REPO / "spec/issue-codes.md").read_text(), re.M)
-
-CHILD = r"""
-import json, sys
-import mujoco, voxfmt.mujoco as vm
-vm.load_plugin()
-results = []
-for path in json.loads(sys.argv[1]):
-    xml = ('<mujoco><extension><plugin plugin="voxfmt.sdf.asset"><instance name="a">'
-           f'<config key="file" value="{path}"/></instance></plugin></extension>'
-           '<asset><mesh name="a"><plugin instance="a"/></mesh></asset>'
-           '<worldbody><body><freejoint/><geom type="sdf" mesh="a"><plugin instance="a"/></geom></body></worldbody>'
-           '</mujoco>')
-    try:
-        model = mujoco.MjModel.from_xml_string(xml)
-        mujoco.MjData(model)
-        results.append([path, None, ""])
-    except Exception as e:
-        results.append([path, type(e).__name__, str(e)])
-print(json.dumps(results))
-"""
-
-
-def compile_in_child(paths: list[str]) -> list[list]:  # type: ignore[type-arg]
-    env = dict(os.environ)
-    child = subprocess.run([sys.executable, "-c", CHILD, json.dumps(paths)], capture_output=True, text=True,
-                           env=env, timeout=240)
-    assert child.returncode == 0, f"the interpreter died ({child.returncode}): {child.stderr[-2000:]}"
-    return json.loads(child.stdout.strip().splitlines()[-1])
 
 
 @pytest.fixture(scope="module")

@@ -57,9 +57,9 @@ class MalformedBase(unittest.TestCase):
         self.assertTrue(path in proc.stderr or os.path.basename(path) in proc.stderr,
                         "inspect's error message does not name the file\n" + describe(proc))
 
-    def assert_rejected(self, path, codes, path_contains=None, message_re=None, inspect_must_fail=True):
-        """validate exits 1 with an error issue whose code is one of `codes`; inspect fails (inspect_must_fail), or
-        at least does not crash: full-level (semantic) findings are validate's, and inspect reads such a file."""
+    def assert_rejected(self, path, codes, path_contains=None, message_re=None):
+        """validate exits 1 with an error issue whose code is one of `codes`, and inspect, a loader, refuses the
+        file too (spec §8: every consumer refuses what validate finds an error, full-level rules included)."""
         if isinstance(codes, str):
             codes = (codes,)
         for c in codes:
@@ -78,10 +78,7 @@ class MalformedBase(unittest.TestCase):
         if message_re is not None:
             self.assertTrue(any(re.search(message_re, i["message"]) for i in hits),
                             "no %s issue message matching %r: %s" % (codes, message_re, hits))
-        if inspect_must_fail:
-            self.assert_inspect_fails(path)
-        else:
-            self.assert_not_crashed(ss.run([ss.VOXFMT_BIN, "inspect", path]))
+        self.assert_inspect_fails(path)
         return entry
 
     def assert_not_found_at_quick_level(self, path, code):
@@ -649,7 +646,7 @@ class TestMalformedBricks(MalformedBase):
         path, old = self.with_code("beyond_band", i, j, k, lambda c: 2 * int(round(d[k, j, i] / q)) + 1,
                                    distance_quantum=q)
         self.assertEqual(old % 2, 0, "test bug: the voxel had a stored distance already")
-        self.assert_rejected(path, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "DISTANCE_OUTSIDE_BAND")
 
     def test_band_edge_is_half_a_quantum_beyond_the_band(self):
@@ -663,7 +660,7 @@ class TestMalformedBricks(MalformedBase):
         proc = ss.run([ss.VOXFMT_BIN, "validate", inside, "--json"])
         self.assertEqual(proc.returncode, 0, describe(proc))
         beyond, _ = self.with_code("band_edge_4097", i, j, k, lambda c: 2 * 4097 + 1, distance_quantum=q)
-        self.assert_rejected(beyond, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(beyond, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap")
 
     def test_estimate_code_disagrees_with_the_lattice(self):
         """§3.2: an even code MUST be the lattice's estimate rounded to the nearest step; here 8 steps (half a
@@ -671,7 +668,7 @@ class TestMalformedBricks(MalformedBase):
         path, old = self.with_code("estimate_off", 0, 0, 0, lambda c: c + 2 * 8)
         self.assertEqual(old % 2, 0)
         self.assertGreater(old, 0)
-        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "ESTIMATE_MISMATCH")
 
     def test_estimate_code_one_step_off(self):
@@ -685,7 +682,7 @@ class TestMalformedBricks(MalformedBase):
             with self.subTest(step=step):
                 path, old = self.with_code("estimate_step_%d" % step, 0, 0, 0, lambda c: c + 2 * step)
                 self.assertEqual(old % 2, 0)
-                self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+                self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap")
 
     def test_sign_rule_only_for_closed_surfaces(self):
         """issue-codes.md: SIGN_MISMATCH is checked for closed surfaces only. The flipped centre voxel of
@@ -700,7 +697,7 @@ class TestMalformedBricks(MalformedBase):
         """§3.2: an estimate is never 0 (a 0 code would be an even code of estimate 0)."""
         path, old = self.with_code("estimate_zero", 0, 0, 0, lambda c: 0)
         self.assertEqual(old % 2, 0)
-        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap")
 
     def test_lattice_raised_under_unchanged_codes(self):
         """The lattice point at the grid's far corner (voxel (14, 14, 14)) one voxel higher, lattice_error
@@ -710,7 +707,7 @@ class TestMalformedBricks(MalformedBase):
         lattice[2, 2, 2] += np.float32(self.H)
         path = self.bad("lattice_raised", values={"/voxelmap/lattice": lattice,
                                                   "/voxelmap/lattice_error": np.array([2.0, 0.0])})
-        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "ESTIMATE_MISMATCH", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "ESTIMATE_MISMATCH")
 
     def test_stored_sign_flipped_deep_in_the_band(self):
@@ -721,7 +718,7 @@ class TestMalformedBricks(MalformedBase):
         path, old = self.with_code("stored_sign", i, j, k, lambda c: -(c >> 1) * 2 + 1)
         self.assertEqual(old % 2, 1)
         self.assertLess(old >> 1, 0)
-        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
 
     def test_estimate_sign_flipped_inside(self):
@@ -729,7 +726,7 @@ class TestMalformedBricks(MalformedBase):
         path, old = self.with_code("estimate_sign", 7, 7, 7, lambda c: -c)
         self.assertEqual(old % 2, 0)
         self.assertLess(old, 0)
-        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
 
     def test_coarse_brick_sign_flipped(self):
@@ -739,7 +736,7 @@ class TestMalformedBricks(MalformedBase):
         self.assertGreater(len(inside), 0)
         table[tuple(inside[len(inside) // 2])] = -1
         path = self.bad("coarse_sign", grid=sf.FINE_GRID, values={"/voxelmap/bricks": table})
-        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap", inspect_must_fail=False)
+        self.assert_rejected(path, "SIGN_MISMATCH", path_contains="/voxelmap")
         self.assert_not_found_at_quick_level(path, "SIGN_MISMATCH")
 
     # -- reading ----------------------------------------------------------------------------------------------
@@ -821,8 +818,7 @@ class TestMalformedLegacy(MalformedBase):
         k, j, i = np.argwhere(sf.stored_mask() & (lay == 0))[0]
         lay[k, j, i] = 1
         path = self.bad("layer_mismatch", values={"/voxelmap/layers": lay})
-        self.assert_rejected(path, "LAYER_DISTANCE_MISMATCH", path_contains="/voxelmap/layers",
-                             inspect_must_fail=False)
+        self.assert_rejected(path, "LAYER_DISTANCE_MISMATCH", path_contains="/voxelmap/layers")
 
     def test_layer_outside_band_too_small(self):
         """§3.4 (full): a layer without a stored distance has |v| >= floor(distance_band + 1/2)."""
@@ -830,8 +826,7 @@ class TestMalformedLegacy(MalformedBase):
         k, j, i = np.argwhere(~sf.stored_mask() & (lay == -3))[0]  # outside, just beyond the band
         lay[k, j, i] = -1
         path = self.bad("layer_too_small", values={"/voxelmap/layers": lay})
-        self.assert_rejected(path, "LAYER_OUTSIDE_BAND_TOO_SMALL", path_contains="/voxelmap/layers",
-                             inspect_must_fail=False)
+        self.assert_rejected(path, "LAYER_OUTSIDE_BAND_TOO_SMALL", path_contains="/voxelmap/layers")
 
     def test_corrupt_chunk_fletcher32(self):
         """A flipped byte in a fletcher32-protected chunk of /voxelmap/layers -> READ_FAILED."""
