@@ -522,7 +522,8 @@ bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* 
     bool empty = false;
     for (size_t a = 0; a < rank; ++a) {
       const uint64_t lo = a == 0 ? std::max(corner[0], first) : corner[a];
-      const uint64_t end = a == 0 ? std::min(corner[0] + piece[0], first + count) : std::min(corner[a] + piece[a], d.shape[a]);
+      const uint64_t end =
+          a == 0 ? std::min(corner[0] + piece[0], first + count) : std::min(corner[a] + piece[a], d.shape[a]);
       empty |= end <= lo;
       file_start[a] = lo;
       memory_start[a] = a == 0 ? lo - first : lo;
@@ -530,8 +531,8 @@ bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* 
     }
     if (!empty) {
       if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, file_start.data(), nullptr, size.data(), nullptr) < 0 ||
-          H5Sselect_hyperslab(memory_space.get(), H5S_SELECT_SET, memory_start.data(), nullptr, size.data(),
-                              nullptr) < 0 ||
+          H5Sselect_hyperslab(memory_space.get(), H5S_SELECT_SET, memory_start.data(), nullptr, size.data(), nullptr) <
+              0 ||
           H5Dread(d.handle.get(), TypeTraits<T>::memory_type(), memory_space.get(), file_space.get(), H5P_DEFAULT,
                   out) < 0) {
         report(IssueCode::ReadFailed, d.path, "cannot read dataset (" + last_hdf5_reason() + ")");
@@ -764,7 +765,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   template std::optional<std::vector<T>> Reader::dataset<T>(hid_t, const std::string&, const std::string&,           \
                                                             const Shape&, std::vector<uint64_t>*);                   \
   template std::optional<OpenDataset> Reader::open_dataset<T>(hid_t, const std::string&, const std::string&,         \
-                                                              const Shape&, uint64_t);                                       \
+                                                              const Shape&, uint64_t);                               \
   template bool Reader::read_rows<T>(const OpenDataset&, uint64_t, uint64_t, T*);                                    \
   template bool Writer::numeric_attribute<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*);     \
   template bool Writer::dataset<T>(hid_t, const std::string&, const std::vector<uint64_t>&, const T*, int,           \

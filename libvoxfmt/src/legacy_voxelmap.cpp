@@ -205,7 +205,8 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
           if (2 * (vm.value_brick_count() + 1) * Voxelmap::kBrickVoxels * sizeof(int16_t) > budget.value_brick_bytes) {
             r.report(IssueCode::OutOfMemory, p + "/layers",
                      "converting this 1.x grid to bricks needs more than the read budget leaves for its value "
-                     "bricks (" + std::to_string(budget.value_brick_bytes >> 20) +
+                     "bricks (" +
+                         std::to_string(budget.value_brick_bytes >> 20) +
                          " MiB; a larger budget reads it: --max-memory MiB, max_memory_mib=, "
                          "ReadOptions::max_memory_bytes)");
             return;

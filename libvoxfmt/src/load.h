@@ -7,8 +7,8 @@
 
 #include "h5.h"
 #include "voxfmt/asset.h"
-#include "voxfmt/issues.h"
 #include "voxfmt/io.h"
+#include "voxfmt/issues.h"
 #include "voxfmt/validate.h"
 
 namespace voxfmt::detail {

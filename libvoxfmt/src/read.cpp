@@ -239,8 +239,7 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   if (!check_header(r, asset.version)) return std::nullopt;
   std::error_code size_error;
   const uint64_t file_bytes = std::filesystem::file_size(path, size_error);
-  const std::optional<DenseReadBudget> budget =
-      check_read_cost(r, asset.version, size_error ? 0 : file_bytes, options);
+  const std::optional<DenseReadBudget> budget = check_read_cost(r, asset.version, size_error ? 0 : file_bytes, options);
   if (!budget) return std::nullopt;
   const ValidationLevel level = options.level;
 

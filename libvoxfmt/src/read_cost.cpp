@@ -48,8 +48,8 @@ std::optional<DenseReadBudget> check_read_cost(h5::Reader& r, const FormatVersio
                                                const ReadOptions& options) {
   static const Dataset kBricks[] = {{"bricks", 4, true}, {"brick_values", 2, true}, {"lattice", 4, true}};
   static const Dataset kDense[] = {{"layers", 2, false}, {"distances", 4, false}};
-  static const Dataset kShell[] = {{"points", 8, true},        {"normals", 4, true},    {"sphere_centers", 8, true},
-                                   {"sphere_radii", 8, true},  {"child_begin", 4, true}, {"child_count", 4, true},
+  static const Dataset kShell[] = {{"points", 8, true},       {"normals", 4, true},     {"sphere_centers", 8, true},
+                                   {"sphere_radii", 8, true}, {"child_begin", 4, true}, {"child_count", 4, true},
                                    {"level_offsets", 4, true}};
   uint64_t declared = 0, held = 0, work = 0, chunks = 0, largest_chunk = 0, streamed_cache = 0;
   uint64_t dense_cache = 0, most_chunks = 0;

@@ -139,11 +139,11 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
   // No voxel is farther from the surface than the grid's diagonal (the surface lies inside the grid), so no
   // lattice value may exceed (1 + e1) times it plus e0 (spec §3.3); a huge one would overflow a runtime's sums.
   const double h = vm.voxel_size;
-  const double diagonal = h * std::sqrt(double(vm.dims[0] - 1) * (vm.dims[0] - 1) +
-                                        double(vm.dims[1] - 1) * (vm.dims[1] - 1) +
-                                        double(vm.dims[2] - 1) * (vm.dims[2] - 1));
-  const double ceiling = (1 + vm.lattice_error[1]) * (diagonal + vm.shell_thickness.value_or(0.0)) +
-                         (vm.lattice_error[0] + 1) * h;
+  const double diagonal =
+      h * std::sqrt(double(vm.dims[0] - 1) * (vm.dims[0] - 1) + double(vm.dims[1] - 1) * (vm.dims[1] - 1) +
+                    double(vm.dims[2] - 1) * (vm.dims[2] - 1));
+  const double ceiling =
+      (1 + vm.lattice_error[1]) * (diagonal + vm.shell_thickness.value_or(0.0)) + (vm.lattice_error[0] + 1) * h;
   for (size_t n = 0; n < vm.lattice.size(); ++n) {
     const float v = vm.lattice[n];
     if (std::isfinite(v) && v >= 0 && !(double(v) > ceiling)) continue;
@@ -547,8 +547,8 @@ void check_lattice_semantics(const Voxelmap& vm, Checker& c) {
           if (at.stored && (value < (u - half_quantum) * (1 - kRounding) ||
                             value > ((1 + e1) * (u + half_quantum) + e0) * (1 + kRounding))) {
             c.add(IssueCode::LatticeMismatch, "/voxelmap/lattice",
-                  name(a, b, k) + " holds " + fmt(value) + " m, but its voxel stores the distance " +
-                      fmt(at.distance) + " m (the lattice must hold it within [u, (1 + e1) u + e0 h])");
+                  name(a, b, k) + " holds " + fmt(value) + " m, but its voxel stores the distance " + fmt(at.distance) +
+                      " m (the lattice must hold it within [u, (1 + e1) u + e0 h])");
             stored_reported = true;
           }
         }
