@@ -141,7 +141,7 @@ std::vector<double> lookup_floor_us(const Scenario& s, size_t poses) {
   options.normal_source = NormalSource::DistanceGradient;
   std::vector<Eigen::Vector3f> tested;
   QueryScratch scratch;
-  scratch.tested_points = &tested;
+  scratch.record_tested_points(&tested);
   ContactSet contacts;
   for (size_t i = 0; i < std::min(poses, s.poses.size()); ++i) {
     // Asset poses of both bodies: world_from_shape * shape_from_asset.

@@ -22,6 +22,7 @@
 
 #include "common/hacd_cache.h"
 #include "common/reduced_hull.h"
+#include "core/function_query.h"
 #include "scenes.h"
 #include "voxfmt/atomic_file.h"
 #include "voxfmt/bullet/partners.h"

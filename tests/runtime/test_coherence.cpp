@@ -9,6 +9,7 @@
 #include <iostream>
 
 #include "baked_bunny.h"
+#include "core/function_query.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -62,7 +63,7 @@ Lookups run_trajectory(const CollisionObject& a, const CollisionObject& b, Query
     lookups.fresh += fresh.stats.nodes_visited + fresh.stats.points_tested;
     lookups.coherent += coherent.stats.nodes_visited + coherent.stats.points_tested;
     lookups.contacts += fresh.contacts.size();
-    lookups.unordered += state.a_in_b.ordered ? 0 : 1;
+    lookups.unordered += state.a_in_b.state().ordered ? 0 : 1;
   }
   return lookups;
 }
@@ -186,7 +187,7 @@ TEST(Coherence, QueriesWithABudgetStartAfresh) {
     query_contacts(*bunny.object, pa, *bunny.object, Pose{}, *o, fresh, scratch);
     query_contacts(*bunny.object, pa, *bunny.object, Pose{}, *o, coherent, scratch, state);
     expect_identical(fresh, coherent, 0);
-    EXPECT_EQ(state.a_in_b.valid, o == &full);
+    EXPECT_EQ(state.a_in_b.state().valid, o == &full);
   }
 }
 

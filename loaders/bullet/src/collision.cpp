@@ -33,6 +33,7 @@
 #include <unordered_map>
 
 #include "bt_eigen.h"
+#include "core/function_query.h"
 #include "static_mesh.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"

@@ -5,16 +5,34 @@
 #include <cmath>
 #include <functional>
 
+#include "core/eigen.h"
+#include "core/field.h"
+#include "core/traversal.h"
+
 namespace voxfmt::runtime {
+
+QueryScratch::QueryScratch() : buffers_(std::make_unique<Buffers>()) {}
+QueryScratch::~QueryScratch() = default;
+QueryScratch::QueryScratch(QueryScratch&&) noexcept = default;
+QueryScratch& QueryScratch::operator=(QueryScratch&&) noexcept = default;
+void QueryScratch::record_tested_points(std::vector<Eigen::Vector3f>* into) { buffers_->tested_points = into; }
+
+TraversalFront::TraversalFront() : state_(std::make_unique<State>()) {}
+TraversalFront::~TraversalFront() = default;
+TraversalFront::TraversalFront(TraversalFront&&) noexcept = default;
+TraversalFront& TraversalFront::operator=(TraversalFront&&) noexcept = default;
+void TraversalFront::reset() { state_->reset(); }
+
 namespace {
 
+// A voxelmap as a traversal target: the core's lookups, inlined into the walk.
 struct VoxelmapTarget {
-  const SparseVoxelmap& map;
-  float lower_bound(const Eigen::Vector3f& u) const { return map.distance_lower_bound(u); }
+  core::Field field;
+  float lower_bound(const Eigen::Vector3f& u) const { return core::lower_bound(field, core::to_core(u)); }
   /// A bound costs one voxel, a sample up to eight: test a point's bound before sampling it.
   static constexpr bool kBoundBeforeDistance = true;
   float distance(const Eigen::Vector3f& u, bool& exact) const {
-    const FieldSample s = map.sample(u);
+    const core::Sample s = core::sample(field, core::to_core(u), nullptr);
     exact = s.exact;
     return s.distance;
   }
@@ -59,15 +77,15 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
     contact.exact = exact;
     out.contacts.push_back(contact);
   };
+  const VoxelmapTarget target{field_of(map)};
   const bool allowed = front && detail::coherent_query_allowed(options);
-  if (allowed && front->take_turn(Mf, mf, tree.extent)) {
+  if (allowed && front->state().take_turn(Mf, mf, tree.extent)) {
     // The voxelmap is fixed in its own grid: displacements are measured there too.
-    detail::traverse_coherent(tree, Mf, mf, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, out.stats, scratch,
-                              *front, emit);
+    detail::traverse_coherent(tree, Mf, mf, Mf, mf, radius_scale, proximity, target, out.stats, scratch.buffers(),
+                              front->state(), emit);
   } else {
     if (front && !allowed) front->reset();
-    detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, VoxelmapTarget{map}, options, out.stats, scratch,
-                          emit);
+    detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, target, options, out.stats, scratch.buffers(), emit);
   }
 }
 

@@ -2,10 +2,12 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include "voxfmt/runtime/collision_object.h"
@@ -102,97 +104,46 @@ struct ContactSet {
   }
 };
 
-/// Reusable traversal buffers; keep one per thread to avoid allocations in the loop.
-struct QueryScratch {
-  std::vector<uint32_t> queue;       ///< the level being traversed
-  std::vector<uint32_t> next_queue;  ///< the children it queues
-  /// Hits of the level being traversed, held back until it is known whether the level is the last one.
-  struct Hit {
-    uint32_t node;
-    float distance;
-    bool exact;
-  };
-  std::vector<Hit> level_hits;
-  /// Nodes of the level being traversed that queued children (what a cut level reports as spheres).
-  std::vector<uint32_t> level_parents;
-  /// The same for the last completed level, held while the next one runs (a time budget may end it).
-  std::vector<Hit> done_hits;
-  std::vector<uint32_t> done_parents;
-  /// For benchmarks and tests only (not part of the query's contract): when set, every point whose distance is
-  /// looked up is appended here, in the target's coordinates (a voxelmap's grid), so the cost of the lookups
-  /// alone can be measured.
-  std::vector<Eigen::Vector3f>* tested_points = nullptr;
+/// Reusable traversal buffers; keep one per thread (they are not shared) to avoid allocations in the loop.
+class QueryScratch {
+ public:
+  QueryScratch();
+  ~QueryScratch();
+  QueryScratch(QueryScratch&&) noexcept;
+  QueryScratch& operator=(QueryScratch&&) noexcept;
+  /// Testing hook, for benchmarks and tests (not part of the query's contract): while set, every point whose
+  /// distance a query looks up is appended to `into`, in the target's coordinates (a voxelmap's grid), so the
+  /// cost of the lookups alone can be measured. nullptr stops it.
+  void record_tested_points(std::vector<Eigen::Vector3f>* into);
+
+  struct Buffers;  ///< the traversal's own (core/traversal.h)
+  Buffers& buffers() { return *buffers_; }
+
+ private:
+  std::unique_ptr<Buffers> buffers_;
 };
 
-/// What a traversal leaves for the next one of the same pair, so that a step costs what changed (temporal
-/// coherence): the nodes where it stopped — subtrees it pruned, and the points of the nodes it opened — each with
-/// a lower bound of its distance at an anchor pose (a recent relative pose of the pair). A query at another pose
-/// bounds how far anything of the shell is from where it was at the anchor; an entry whose bound exceeds that
-/// (plus the proximity) cannot be within reach and is not touched. The entries are a min-heap on their bound, so
-/// a query pops only those that may be (the contacts, and what the motion brought close), checks each against
-/// its own displacement and looks up the rest: a body at rest, or rocking about where it was, costs about its
-/// contacts whatever the size of the front. When much of the front would be popped, every entry's bound is
-/// carried to the current pose in one pass, which becomes the anchor. Valid for full traversals (no point
-/// budget, level limit or time budget); a query with one starts the front afresh.
-struct TraversalFront {
-  struct Entry {
-    /// A lower bound (target units) of the distance at the anchor pose of the subtree's spheres' points (a
-    /// subtree: its sphere's bound less its radius) or of the node's own point.
-    float bound;
-    /// The node; in the top bit whether the entry is its point rather than its subtree, in the next whether the
-    /// bound is the point's interpolated distance (which falls faster than a true-distance bound). One word: the
-    /// passes over the front copy entries as two plain words.
-    uint32_t packed;
-    static Entry make(float bound, uint32_t node, bool is_point, bool sampled = false) {
-      return {bound, node | (is_point ? 0x80000000u : 0u) | (sampled ? 0x40000000u : 0u)};
-    }
-    uint32_t node() const { return packed & 0x3fffffffu; }
-    bool is_point() const { return (packed & 0x80000000u) != 0; }
-    bool is_sampled() const { return (packed & 0x40000000u) != 0; }
-  };
-  std::vector<Entry> heap;     ///< a min-heap on bound while `ordered`
-  bool ordered = true;         ///< false while the motion is large: every query makes one pass over the front
-  std::vector<Entry> revisit;  ///< scratch: the entries a query pops
-  Eigen::Matrix3f M = Eigen::Matrix3f::Zero();  ///< the anchor: shell asset -> target frame
-  Eigen::Vector3f m = Eigen::Vector3f::Zero();
-  float radius_scale = 0;    ///< target units per shell asset unit
-  size_t fresh_entries = 0;  ///< entries after the last traversal from the root
-  uint32_t queries = 0;      ///< queries since then
-  size_t last_hits = 0;      ///< points within reach at the last query (popped every query)
-  /// While the pair moves a lot, the front costs more than it saves (a pass over it every query, lookups one
-  /// by one): after `kBusyQueries` such queries in a row the next `skip` queries traverse from the root (batched)
-  /// and keep no front, then try again, skipping twice as long each time it is still busy (up to kMaxSkip).
-  /// Skipping ends early once a step moves the shell less than an eighth of what a busy step moved.
-  uint32_t busy = 0;
-  uint32_t skip = 0;
-  uint32_t next_skip = kFirstSkip;
-  float busy_step = 0;                               ///< the motion of the step that started the skip
-  Eigen::Matrix3f last_M = Eigen::Matrix3f::Zero();  ///< the relative pose of the last query
-  Eigen::Vector3f last_m = Eigen::Vector3f::Zero();
-  static constexpr uint32_t kBusyQueries = 4, kFirstSkip = 8, kMaxSkip = 256;
-  bool valid = false;
-  void reset() {
-    valid = false;
-    heap.clear();
-  }
-  /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt
-  /// after). `extent`: the shell's largest distance from its origin.
-  bool take_turn(const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float extent) {
-    const float step = (mr - last_m).norm() + (Mr - last_M).norm() * extent;
-    last_M = Mr;
-    last_m = mr;
-    if (skip == 0) return true;
-    if (step < busy_step / 8 || --skip == 0) {
-      skip = 0;
-      reset();
-      return step < busy_step / 8;
-    }
-    return false;
-  }
+/// What a pair's last traversal in one direction left for the next one, so that a step costs what changed
+/// (temporal coherence): the nodes where it stopped, with bounds at a recent relative pose. Valid for full
+/// traversals (no point budget, level limit or time budget); a query with one starts afresh.
+class TraversalFront {
+ public:
+  TraversalFront();
+  ~TraversalFront();
+  TraversalFront(TraversalFront&&) noexcept;
+  TraversalFront& operator=(TraversalFront&&) noexcept;
+  /// Forgets the front: the next query starts from the root.
+  void reset();
+
+  struct State;  ///< core/coherent_traversal.h
+  State& state() { return *state_; }
+
+ private:
+  std::unique_ptr<State> state_;
 };
 
-/// Per-pair state for coherent queries: one front per direction. Keep one per pair of objects (a physics
-/// engine's pair, a haptic tool and an object) and drop it when the pair separates for good.
+/// Per-pair state for coherent queries: one front per direction. Keep one per pair of objects (a physics engine's
+/// pair, a haptic tool and an object) and drop it when the pair separates for good.
 struct QueryState {
   TraversalFront a_in_b;  ///< A's points against B's voxelmap (or against an analytic partner)
   TraversalFront b_in_a;  ///< B's points against A's voxelmap
@@ -225,35 +176,4 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
 void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,
                               double radius, const QueryOptions& options, ContactSet& out);
 
-/// One sphere-tree traversal of `shell_object`'s points against a signed distance function given in world
-/// coordinates — for analytic partners (planes, boxes, spheres). `distance(world_point)` returns the signed
-/// distance (negative inside the partner) and writes the partner's outward unit normal. Contacts are
-/// reported with A = `shell_object` (normal: the direction in which it must move).
-template <class SignedDistance>
-void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
-                            const QueryOptions& options, ContactSet& out, QueryScratch& scratch);
-/// The same with a cheaper `lower_bound(world_point)` (never above the signed distance) used to prune
-/// sphere-tree clusters, for partners whose exact distance is expensive far away (triangle meshes). A bound much
-/// cheaper than the distance everywhere says so in its type (`static constexpr bool kBoundBeforeDistance =
-/// true`): inner nodes' points are then tested on their bound before their distance, as against a voxelmap.
-template <class SignedDistance, class LowerBound>
-void query_against_function(const CollisionObject& shell_object, const Pose& pose, SignedDistance&& distance,
-                            LowerBound&& lower_bound, const QueryOptions& options, ContactSet& out,
-                            QueryScratch& scratch);
-/// The same, coherent with the pair's earlier queries (`front`): `partner` is the rigid partner's pose in the
-/// world (its distance function moves with it), so that only their relative motion counts.
-template <class SignedDistance>
-void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
-                            SignedDistance&& distance, const QueryOptions& options, ContactSet& out,
-                            QueryScratch& scratch, TraversalFront& front);
-/// The same with a cheaper `lower_bound` for pruning. Coherence carries its values (and the function's) from
-/// pose to pose as the motion allows, so both must keep the partner's pose fixed between calls: a function
-/// `distance(y)` is not below `lower_bound(x) - |y - x|` for any y.
-template <class SignedDistance, class LowerBound>
-void query_against_function(const CollisionObject& shell_object, const Pose& pose, const Pose& partner,
-                            SignedDistance&& distance, LowerBound&& lower_bound, const QueryOptions& options,
-                            ContactSet& out, QueryScratch& scratch, TraversalFront& front);
-
 }  // namespace voxfmt::runtime
-
-#include "voxfmt/runtime/query_impl.h"

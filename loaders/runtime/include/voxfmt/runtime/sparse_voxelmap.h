@@ -16,6 +16,10 @@
 
 namespace voxfmt::runtime {
 
+namespace core {
+struct Field;
+}
+
 /// What the field says at a point, in voxel units of the map (multiply by voxel_size for metres).
 struct FieldSample {
   float distance = 0.0f;  ///< signed distance estimate, negative inside
@@ -69,20 +73,9 @@ class SparseVoxelmap {
   static constexpr int kBrickVoxels = int(voxfmt::Voxelmap::kBrickVoxels);
 
  private:
-  // Value of voxel (i, j, k) inside the grid, voxel units; `exact` is cleared for an estimate.
-  float voxel_value(int i, int j, int k, bool& exact) const;
-  // The coarse estimate of a voxel of a coarse brick: the lattice interpolated, at least the band's edge, signed.
-  float coarse_value(int i, int j, int k, int32_t entry) const;
-  // The lattice interpolated trilinearly at grid coordinates u (inside the grid), and its gradient if asked.
-  float lattice_at(const Eigen::Vector3f& u, Eigen::Vector3f* gradient) const;
-  // The lowest signed distance a voxel whose value is `value` can have.
-  float value_lower_bound(float value, bool stored) const;
-  float bounds_distance(const Eigen::Vector3f& u) const;
-  /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
-  bool covers(const Eigen::Vector3f& u) const;
-  const int32_t& entry_of(int i, int j, int k) const;
-  // Lattice coordinate (voxels) of lattice index a along axis `axis`.
-  int lattice_coordinate(int a, int axis) const { return std::min(a * kBrickEdge, dims_[axis] - 1); }
+  /// The query core's view of this map (core/field.h): its arrays and the numbers that decode them. The lookups
+  /// themselves live there, shared by this class, the traversal and the CUDA kernels.
+  friend core::Field field_of(const SparseVoxelmap& map);
 
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
   double voxel_size_ = 1.0;

@@ -1,0 +1,235 @@
+// The distance field of a voxelmap (spec §3), read where it is stored: the brick table, the value bricks' 16-bit
+// codes and the lattice, as plain arrays. One definition for the CPU runtime (SparseVoxelmap), its tests and the
+// CUDA kernels (VOXFMT_HD): a lookup near the surface is one table entry and one brick's codes, decoded without
+// a branch; a coarse brick interpolates the lattice.
+#pragma once
+
+#include "hd.h"
+
+namespace voxfmt::runtime::core {
+
+constexpr int kEdge = 8;
+constexpr unsigned kEdgeBits = 3;
+constexpr int kBrickVoxels = kEdge * kEdge * kEdge;
+constexpr int32_t kCoarseInside = -2;
+// The lattice interpolated at a voxel is within the sum over the cell's corners of weight x distance of the exact
+// distance (the distance is 1-Lipschitz); that sum is largest at a brick's centre: 4 sqrt(3) voxels (spec §3.3).
+constexpr float kInterpolationBound = 6.9282032f;
+
+/// A voxelmap as the runtime holds it (voxel units throughout): the arrays and the numbers that decode them.
+struct Field {
+  const int32_t* bricks = nullptr;    ///< brick table: >= 0 a value brick, -1 / -2 coarse outside / inside
+  const int16_t* codes = nullptr;     ///< value bricks, kBrickVoxels codes each
+  const uint16_t* lattice = nullptr;  ///< unsigned distances at the lattice points, in steps of lattice_step
+  int dims[3] = {0, 0, 0};
+  int brick_dims[3] = {0, 0, 0};
+  int lattice_dims[3] = {0, 0, 0};
+  float decode_step[2] = {1, 1};  ///< a code's multiplier by its lowest bit: estimate, stored distance
+  float stored_slack = 0;         ///< how far a decoded stored distance may be from the file's exact one
+  // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack.
+  float estimate_slack = 0;
+  float estimate_offset = 0;
+  float estimate_shrink = 1;
+  float band_edge = 0;  ///< distance_band - 1/2: voxels without a stored distance are at least this far
+  float lattice_step = 1.0f / 16;
+  Vec3 cover_max = make_vec3(-1, -1, -1);  ///< upper end of the grid's voxels
+  Vec3 object_min, object_max;             ///< the object's bounding box, grid coordinates
+};
+
+/// What the field says at a point (voxel units).
+struct Sample {
+  float distance = 0;
+  bool exact = false;  ///< trilinear interpolation of stored distances only
+  bool bound = false;  ///< outside the grid: only a lower bound (the distance to the object's box)
+};
+
+VOXFMT_HD int lattice_coordinate(const Field& f, int a, int axis) { return min_i(a * kEdge, f.dims[axis] - 1); }
+
+VOXFMT_HD int32_t entry_of(const Field& f, int i, int j, int k) {
+  // Voxel indices are never negative: shifts, not signed divisions.
+  return f.bricks[(size_t(unsigned(k) >> kEdgeBits) * unsigned(f.brick_dims[1]) + (unsigned(j) >> kEdgeBits)) *
+                      unsigned(f.brick_dims[0]) +
+                  (unsigned(i) >> kEdgeBits)];
+}
+
+/// The coarse estimate of a voxel of a coarse brick: the lattice interpolated, at least the band's edge, signed.
+VOXFMT_HD float coarse_value(const Field& f, int i, int j, int k, int32_t entry) {
+  // Every voxel lies in one lattice cell: that of its brick, from the brick's first voxel to the next brick's.
+  const int c[3] = {i, j, k};
+  int lower[3];
+  float t[3];
+  for (int a = 0; a < 3; ++a) {
+    lower[a] = c[a] >> kEdgeBits;
+    const int x0 = lower[a] * kEdge, x1 = lattice_coordinate(f, lower[a] + 1, a);
+    t[a] = x1 > x0 ? float(c[a] - x0) / float(x1 - x0) : 0.0f;
+  }
+  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
+  const uint16_t* q = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const float p[8] = {float(q[0]),     float(q[1]),         float(q[row]),         float(q[row + 1]),
+                      float(q[plane]), float(q[plane + 1]), float(q[plane + row]), float(q[plane + row + 1])};
+  const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
+  const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
+  const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);
+  const float magnitude = max_f((y0 + t[2] * (y1 - y0)) * f.lattice_step, f.band_edge);
+  return entry == kCoarseInside ? -magnitude : magnitude;
+}
+
+/// The lattice interpolated trilinearly at grid coordinates u (inside the grid), and its gradient if asked.
+VOXFMT_HD float lattice_at(const Field& f, const Vec3& u, Vec3* gradient) {
+  int lower[3];
+  float t[3], inverse[3];
+  for (int a = 0; a < 3; ++a) {
+    const float c = clamp_f(u[a], 0.0f, float(f.dims[a] - 1));
+    lower[a] = min_i(int(c) >> kEdgeBits, max_i(f.lattice_dims[a] - 2, 0));
+    const int x0 = lattice_coordinate(f, lower[a], a), x1 = lattice_coordinate(f, lower[a] + 1, a);
+    inverse[a] = x1 > x0 ? 1.0f / float(x1 - x0) : 0.0f;
+    t[a] = clamp_f((c - float(x0)) * inverse[a], 0.0f, 1.0f);
+  }
+  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
+  const uint16_t* p = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const float s = f.lattice_step;
+  const float v[8] = {s * p[0],     s * p[1],         s * p[row],         s * p[row + 1],
+                      s * p[plane], s * p[plane + 1], s * p[plane + row], s * p[plane + row + 1]};
+  const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
+  const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
+  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
+  if (gradient) {
+    const float dx0 = v[1] - v[0], dx1 = v[3] - v[2], dx2 = v[5] - v[4], dx3 = v[7] - v[6];
+    const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
+    const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
+    *gradient = make_vec3(gx * inverse[0], gy * inverse[1], (y1 - y0) * inverse[2]);
+  }
+  return y0 + t[2] * (y1 - y0);
+}
+
+/// Value of voxel (i, j, k) inside the grid; `exact` is cleared for an estimate.
+VOXFMT_HD float voxel_value(const Field& f, int i, int j, int k, bool& exact) {
+  const int32_t entry = entry_of(f, i, j, k);
+  if (entry >= 0) {
+    const int local = ((k & (kEdge - 1)) * kEdge + (j & (kEdge - 1))) * kEdge + (i & (kEdge - 1));
+    const int code = f.codes[size_t(entry) * kBrickVoxels + size_t(local)];
+    exact &= (code & 1) != 0;
+    return float(code >> 1) * f.decode_step[code & 1];
+  }
+  exact = false;
+  return coarse_value(f, i, j, k, entry);
+}
+
+/// The lowest signed distance a voxel whose value is `value` can have.
+VOXFMT_HD float value_lower_bound(const Field& f, float value, bool stored) {
+  if (stored) return value - f.stored_slack;
+  // A voxel without a stored distance is at least the band's edge from the surface, and its estimate bounds the
+  // exact distance both ways (spec §3.3).
+  return value > 0 ? max_f(f.band_edge, (value - f.estimate_offset) * f.estimate_shrink - f.estimate_slack)
+                   : value - f.estimate_slack;
+}
+
+/// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
+VOXFMT_HD bool covers(const Field& f, const Vec3& u) {
+  // Bitwise, not short-circuit: one branch for the caller instead of six hard-to-predict ones.
+  return (u.x > -0.5f) & (u.y > -0.5f) & (u.z > -0.5f) & (u.x < f.cover_max.x) & (u.y < f.cover_max.y) &
+         (u.z < f.cover_max.z);
+}
+
+VOXFMT_HD float bounds_distance(const Field& f, const Vec3& u) {
+  const Vec3 outside = make_vec3(max_f(max_f(f.object_min.x - u.x, u.x - f.object_max.x), 0.0f),
+                                 max_f(max_f(f.object_min.y - u.y, u.y - f.object_max.y), 0.0f),
+                                 max_f(max_f(f.object_min.z - u.z, u.z - f.object_max.z), 0.0f));
+  return length(outside);
+}
+
+/// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values (stored
+/// distances, or estimates where none is stored); outside the grid the distance to the object's bounding box.
+/// `gradient`, if given, receives the direction of increasing distance (not normalised; zero where flat).
+VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
+  Sample result;
+  if (!covers(f, u)) {
+    // Outside the grid the object is at least as far as its bounding box (margin voxels are all outside).
+    result.distance = bounds_distance(f, u);
+    result.bound = true;
+    if (gradient) *gradient = u - 0.5f * (f.object_min + f.object_max);
+    return result;
+  }
+  // The cell whose corners surround u, clamped so that all 8 corners exist.
+  int base[3];
+  float t[3];
+  for (int a = 0; a < 3; ++a) {
+    const float c = clamp_f(u[a], 0.0f, float(f.dims[a] - 1));
+    base[a] = min_i(int(c), max_i(f.dims[a] - 2, 0));
+    t[a] = c - float(base[a]);
+  }
+  bool exact = true;
+  float v[8];
+  bool fetched = false;
+  const bool in_one_brick = (base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
+                            (base[2] & (kEdge - 1)) < kEdge - 1 && f.dims[0] > 1 && f.dims[1] > 1 && f.dims[2] > 1;
+  if (in_one_brick) {
+    const int32_t entry = entry_of(f, base[0], base[1], base[2]);
+    if (entry >= 0) {
+      // Near the surface the 8 corners usually lie in one value brick: one table entry and two cache lines.
+      const int local = ((base[2] & (kEdge - 1)) * kEdge + (base[1] & (kEdge - 1))) * kEdge + (base[0] & (kEdge - 1));
+      const int16_t* q = &f.codes[size_t(entry) * kBrickVoxels + size_t(local)];
+      const int offset[8] = {
+          0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
+      int flags = 1;
+      for (int corner = 0; corner < 8; ++corner) {
+        const int value = q[offset[corner]];
+        flags &= value;
+        v[corner] = float(value >> 1) * f.decode_step[value & 1];
+      }
+      exact = flags != 0;
+      fetched = true;
+    } else {
+      // Inside a coarse brick the voxels' values are the lattice's interpolation, which is trilinear across the
+      // whole brick: interpolating the lattice at u directly gives the same field.
+      const float magnitude = lattice_at(f, u, gradient);
+      const bool clamped = magnitude < f.band_edge;
+      const float sign = entry == kCoarseInside ? -1.0f : 1.0f;
+      result.distance = sign * max_f(magnitude, f.band_edge);
+      if (gradient) *gradient = clamped ? make_vec3(0, 0, 0) : sign * *gradient;
+      return result;
+    }
+  }
+  if (!fetched) {
+    for (int corner = 0; corner < 8; ++corner) {
+      const int x = min_i(base[0] + (corner & 1), f.dims[0] - 1),
+                y = min_i(base[1] + ((corner >> 1) & 1), f.dims[1] - 1),
+                z = min_i(base[2] + (corner >> 2), f.dims[2] - 1);
+      v[corner] = voxel_value(f, x, y, z, exact);
+    }
+  }
+  const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
+  const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
+  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
+  result.distance = y0 + t[2] * (y1 - y0);
+  result.exact = exact;
+  if (gradient) {
+    const float dx0 = v[1] - v[0], dx1 = v[3] - v[2], dx2 = v[5] - v[4], dx3 = v[7] - v[6];
+    const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
+    const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
+    *gradient = make_vec3(gx, gy, y1 - y0);
+  }
+  return result;
+}
+
+/// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.
+VOXFMT_HD float lower_bound(const Field& f, const Vec3& u) {
+  // Outside the grid the object is at least as far as its bounding box; inside, the nearest voxel says more.
+  if (!covers(f, u)) return bounds_distance(f, u);
+  // Nearest voxel; covers() keeps every coordinate above -1/2, so truncation rounds.
+  const int i = int(u.x + 0.5f), j = int(u.y + 0.5f), k = int(u.z + 0.5f);
+  bool stored = true;
+  const float value = voxel_value(f, i, j, k, stored);
+  // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
+  return value_lower_bound(f, value, stored) - length(u - make_vec3(float(i), float(j), float(k)));
+}
+
+}  // namespace voxfmt::runtime::core
+
+#if !defined(__CUDACC__)
+namespace voxfmt::runtime {
+class SparseVoxelmap;
+/// The core's view of a runtime voxelmap (sparse_voxelmap.cpp): pointers into it, valid while it lives.
+core::Field field_of(const SparseVoxelmap& map);
+}  // namespace voxfmt::runtime
+#endif

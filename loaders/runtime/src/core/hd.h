@@ -1,0 +1,57 @@
+// The query core's host/device vocabulary: functions marked VOXFMT_HD compile for the CPU (g++, clang) and, under
+// nvcc, for the GPU too, so that the CPU runtime, its tests and the CUDA kernels run one piece of code. Plain
+// structs and math only: no Eigen, no exceptions, no allocation.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#if defined(__CUDACC__)
+#define VOXFMT_HD __host__ __device__ __forceinline__
+#else
+#define VOXFMT_HD [[gnu::always_inline]] inline
+#endif
+
+namespace voxfmt::runtime::core {
+
+struct Vec3 {
+  float x = 0, y = 0, z = 0;
+  VOXFMT_HD float operator[](int a) const { return a == 0 ? x : a == 1 ? y : z; }
+};
+
+VOXFMT_HD Vec3 make_vec3(float x, float y, float z) {
+  Vec3 v;
+  v.x = x;
+  v.y = y;
+  v.z = z;
+  return v;
+}
+VOXFMT_HD Vec3 operator+(const Vec3& a, const Vec3& b) { return make_vec3(a.x + b.x, a.y + b.y, a.z + b.z); }
+VOXFMT_HD Vec3 operator-(const Vec3& a, const Vec3& b) { return make_vec3(a.x - b.x, a.y - b.y, a.z - b.z); }
+VOXFMT_HD Vec3 operator*(float s, const Vec3& a) { return make_vec3(s * a.x, s * a.y, s * a.z); }
+VOXFMT_HD float dot(const Vec3& a, const Vec3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+// As std::min, std::max and std::clamp decide (ties and signed zeros alike), so results match them bit for bit.
+VOXFMT_HD float min_f(float a, float b) { return b < a ? b : a; }
+VOXFMT_HD float max_f(float a, float b) { return a < b ? b : a; }
+VOXFMT_HD float clamp_f(float v, float lo, float hi) { return v < lo ? lo : (hi < v ? hi : v); }
+VOXFMT_HD int min_i(int a, int b) { return b < a ? b : a; }
+VOXFMT_HD int max_i(int a, int b) { return a < b ? b : a; }
+VOXFMT_HD float length(const Vec3& a) {
+#if defined(__CUDA_ARCH__)
+  return sqrtf(dot(a, a));
+#else
+  return __builtin_sqrtf(dot(a, a));
+#endif
+}
+
+/// A rigid map with uniform scale, u = M x + m (row-major M): a shell's asset frame into a target's grid.
+struct Affine {
+  float M[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  Vec3 m;
+  VOXFMT_HD Vec3 apply(const Vec3& x) const {
+    return make_vec3(M[0] * x.x + M[1] * x.y + M[2] * x.z + m.x, M[3] * x.x + M[4] * x.y + M[5] * x.z + m.y,
+                     M[6] * x.x + M[7] * x.y + M[8] * x.z + m.z);
+  }
+};
+
+}  // namespace voxfmt::runtime::core

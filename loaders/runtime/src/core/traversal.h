@@ -1,0 +1,295 @@
+// The point-shell traversal, private to the runtime and the loaders built with it: one breadth-first walk of a
+// sphere tree against a target (a voxelmap, or an analytic partner's distance function), in named stages. A
+// query from scratch walks level by level from the root (LevelTraversal); a coherent one starts from the front
+// the pair's last query left (CoherentTraversal) and descends as the level walk does. Both report the same points,
+// in the same order.
+//
+// A target supplies `lower_bound(u)` (never above the true signed distance), `distance(u, exact)`, both in its
+// units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its distance). The shell is
+// mapped into the target by u = M x + m; its lengths scale by `radius_scale`.
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <chrono>
+#include <limits>
+#include <type_traits>
+#include <vector>
+
+#include "voxfmt/runtime/query.h"
+
+namespace voxfmt::runtime {
+
+/// Traversal buffers (QueryScratch's inside); one per thread.
+struct QueryScratch::Buffers {
+  std::vector<uint32_t> queue;       ///< the level being traversed
+  std::vector<uint32_t> next_queue;  ///< the children it queues
+  /// Hits of the level being traversed, held back until it is known whether the level is the last one.
+  struct Hit {
+    uint32_t node;
+    float distance;
+    bool exact;
+  };
+  std::vector<Hit> level_hits;
+  /// Nodes of the level being traversed that queued children (what a cut level reports as spheres).
+  std::vector<uint32_t> level_parents;
+  /// The same for the last completed level, held while the next one runs (a time budget may end it).
+  std::vector<Hit> done_hits;
+  std::vector<uint32_t> done_parents;
+  /// Testing hook (QueryScratch::record_tested_points): every point whose distance is looked up, in the
+  /// target's coordinates.
+  std::vector<Eigen::Vector3f>* tested_points = nullptr;
+};
+
+namespace detail {
+
+/// How far a query walks and what it reports at the end (QueryOptions, in the traversal's terms).
+struct WalkLimits {
+  uint32_t max_level;
+  size_t point_budget;
+  size_t min_points;
+  bool spheres;  ///< a cut level reports its points' spheres (CutLevel::Spheres)
+  bool timed;
+  std::chrono::steady_clock::time_point deadline;
+  static WalkLimits of(const QueryOptions& o) {
+    const bool timed = o.time_budget_us > 0.0;
+    return {o.max_level,
+            o.point_budget,
+            o.min_points,
+            o.cut_level == CutLevel::Spheres,
+            timed,
+            timed ? std::chrono::steady_clock::now() + std::chrono::nanoseconds(int64_t(o.time_budget_us * 1e3))
+                  : std::chrono::steady_clock::time_point::max()};
+  }
+};
+
+/// The level-by-level walk from the root. Calls emit(node, distance, exact) for every tested point closer than
+/// `proximity` (target units), level by level in node order; a level cut short by a limit reports what
+/// CutLevel says.
+///
+/// A level is processed in batches of kBatch nodes, each in two passes (cull the spheres, then open the
+/// survivors): the lookups of one pass are independent of each other, so their cache misses overlap instead of
+/// being paid one after another. (Software prefetching was tried: it cost more instructions than it saved.)
+template <class Target, class Emit>
+class LevelTraversal {
+ public:
+  using Buffers = QueryScratch::Buffers;
+  using Hit = Buffers::Hit;
+  static constexpr size_t kBatch = 32;
+
+  LevelTraversal(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
+                 float proximity, const Target& target, const WalkLimits& limits, QueryStats& stats, Buffers& b,
+                 Emit& emit)
+      : tree_(tree),
+        nodes_(tree.nodes.data()),
+        points_(tree.points.data()),
+        M_(M),
+        m_(m),
+        radius_scale_(radius_scale),
+        proximity_(proximity),
+        target_(target),
+        limits_(limits),
+        stats_(stats),
+        b_(b),
+        emit_(emit),
+        hold_(limits.spheres || limits.timed) {}
+
+  void run() {
+    if (!start()) return;
+    for (;;) {
+      level_done_ = false;
+      // A level within min_points is tested whatever the limits say (the root level always is).
+      const bool floor_level = level_ == 0 || tested_ + frontier_size_ <= limits_.min_points;
+      for (size_t begin = 0; begin < frontier_size_ && !out_of_time_; begin += kBatch) {
+        if (limits_.timed && !floor_level && clock_expired()) break;
+        const size_t count = std::min(kBatch, frontier_size_ - begin);
+        const size_t survivors = cull(b_.queue.data() + begin, count);
+        open(survivors);
+      }
+      if (out_of_time_) break;
+      level_done_ = true;
+      if (!next_level()) break;
+    }
+    finish();
+  }
+
+ private:
+  bool start() {
+    b_.level_hits.clear();
+    b_.level_parents.clear();
+    b_.done_hits.clear();
+    b_.done_parents.clear();
+    if (tree_.size() == 0) return false;
+    // A level never holds more nodes than the tree: sized once, the queues are filled without capacity checks
+    // (children are written unconditionally and kept by advancing the size: no branch to mispredict).
+    if (b_.queue.size() < tree_.size()) b_.queue.resize(tree_.size());
+    if (b_.next_queue.size() < tree_.size()) b_.next_queue.resize(tree_.size());
+    b_.queue[0] = 0;
+    frontier_size_ = 1;
+    return true;
+  }
+
+  bool clock_expired() {
+    out_of_time_ = std::chrono::steady_clock::now() >= limits_.deadline;
+    return out_of_time_;
+  }
+
+  // Stage 1, cull: every sphere of the batch against the target's lower bound. The sphere holds the node's point
+  // and all its descendants; the distance is 1-Lipschitz, so if even the bound at the centre exceeds the radius
+  // nothing below can be within reach. Returns the survivors, with their bounds, in survivor_/bound_.
+  size_t cull(const uint32_t* batch, size_t count) {
+    for (size_t i = 0; i < count; ++i) centre_[i] = M_ * nodes_[batch[i]].centre + m_;
+    size_t survivors = 0;
+    for (size_t i = 0; i < count; ++i) {
+      const float bound = target_.lower_bound(centre_[i]);
+      survivor_[survivors] = batch[i];
+      bound_[survivors] = bound;
+      survivors += bound <= nodes_[batch[i]].radius * radius_scale_ + proximity_;
+    }
+    stats_.nodes_visited += count;
+    return survivors;
+  }
+
+  // Stage 2, open: each survivor's own point is tested, then its children that the bound, carried from the
+  // parent's centre (or point) to each child's sphere, cannot rule out are queued for the next level.
+  void open(size_t survivors) {
+    for (size_t i = 0; i < survivors; ++i) point_[i] = M_ * points_[survivor_[i]] + m_;
+    for (size_t i = 0; i < survivors; ++i) {
+      const uint32_t node = survivor_[i];
+      const PointTree::Node& parent = nodes_[node];
+      const float point_bound = test_point(node, point_[i], parent.child_count > 0);
+      const size_t queued = next_size_;
+      uint32_t* const out = b_.next_queue.data();
+      for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
+        out[next_size_] = c;
+        next_size_ += std::max(bound_[i] - nodes_[c].reach_from_parent * radius_scale_,
+                               point_bound - nodes_[c].reach_from_parent_point * radius_scale_) <= proximity_;
+      }
+      if (limits_.spheres && next_size_ > queued) b_.level_parents.push_back(node);
+    }
+    tested_ += survivors;
+  }
+
+  // Stage 3, test a point: a leaf's sphere is its point, whose bound stage 1 has just tested; an inner node's
+  // point is tested on its own bound first where a distance costs more. Returns the point's bound (-inf if none).
+  float test_point(uint32_t node, const Eigen::Vector3f& u, bool inner) {
+    if (b_.tested_points) b_.tested_points->push_back(u);
+    float point_bound = -std::numeric_limits<float>::infinity();
+    if (Target::kBoundBeforeDistance && inner) point_bound = target_.lower_bound(u);
+    if (point_bound < proximity_) {
+      bool exact = false;
+      const float d = target_.distance(u, exact);
+      if (d < proximity_) {
+        if (hold_)
+          b_.level_hits.push_back({node, d, exact});
+        else
+          emit_(node, d, exact);
+      }
+    }
+    return point_bound;
+  }
+
+  // Stage 4, carry on: after a complete level, the next one unless it is empty, too deep or over a limit; the
+  // level before is then final (a complete level refines it).
+  bool next_level() {
+    const bool next_in_floor = tested_ + next_size_ <= limits_.min_points;
+    if (next_size_ == 0 ||
+        (!next_in_floor && (level_ + 1 > limits_.max_level || tested_ + next_size_ > limits_.point_budget)))
+      return false;
+    if (limits_.timed && !next_in_floor && clock_expired()) return false;
+    if (limits_.spheres) {
+      emit_points(b_.done_hits);
+      b_.done_hits.swap(b_.level_hits);
+      b_.done_parents.swap(b_.level_parents);
+      b_.level_hits.clear();
+      b_.level_parents.clear();
+    } else if (hold_) {
+      emit_points(b_.level_hits);
+      b_.level_hits.clear();
+    }
+    b_.queue.swap(b_.next_queue);
+    frontier_size_ = next_size_;
+    next_size_ = 0;
+    ++level_;
+    return true;
+  }
+
+  // Stage 5, finish: report what is held. A level the clock interrupted is dropped and the one before is the cut;
+  // a level whose children were queued but not tested is the cut.
+  void finish() {
+    uint32_t completed = level_;
+    if (out_of_time_ && !level_done_) {
+      completed = level_ - 1;
+      if (limits_.spheres) emit_cut(b_.done_hits, b_.done_parents);
+    } else if (limits_.spheres) {
+      emit_points(b_.done_hits);
+      if (next_size_ > 0)
+        emit_cut(b_.level_hits, b_.level_parents);
+      else
+        emit_points(b_.level_hits);
+    } else if (hold_) {
+      emit_points(b_.level_hits);
+    }
+    if (out_of_time_) stats_.time_budget_hit = true;
+    stats_.points_tested += tested_;
+    stats_.deepest_level = std::max(stats_.deepest_level, completed);
+  }
+
+  void emit_points(const std::vector<Hit>& hits) {
+    for (const Hit& hit : hits) emit_(hit.node, hit.distance, hit.exact);
+  }
+
+  // A cut level: its points whose children were never tested report their spheres.
+  void emit_cut(const std::vector<Hit>& hits, const std::vector<uint32_t>& parents) {
+    for (const Hit& hit : hits)
+      if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit_(hit.node, hit.distance, hit.exact);
+    for (const uint32_t node : parents) {
+      bool exact = false;
+      const float radius = nodes_[node].radius * radius_scale_;
+      const float d = target_.distance(M_ * nodes_[node].centre + m_, exact) - radius;
+      if (d < proximity_) emit_(node, d, false);
+    }
+  }
+
+  const PointTree& tree_;
+  const PointTree::Node* nodes_;
+  const Eigen::Vector3f* points_;
+  const Eigen::Matrix3f& M_;
+  const Eigen::Vector3f& m_;
+  float radius_scale_, proximity_;
+  const Target& target_;
+  const WalkLimits& limits_;
+  QueryStats& stats_;
+  Buffers& b_;
+  Emit& emit_;
+  const bool hold_;  // hits are held back until their level completes (a cut level or a time budget)
+  size_t frontier_size_ = 0, next_size_ = 0, tested_ = 0;
+  uint32_t level_ = 0;
+  bool out_of_time_ = false, level_done_ = false;
+  // One batch: sphere centres in the target frame, then the survivors with their bounds and points.
+  Eigen::Vector3f centre_[kBatch], point_[kBatch];
+  float bound_[kBatch];
+  uint32_t survivor_[kBatch];
+};
+
+template <class Target, class Emit>
+void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
+                   float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
+                   QueryScratch::Buffers& buffers, Emit&& emit) {
+  const WalkLimits limits = WalkLimits::of(options);
+  LevelTraversal<Target, std::remove_reference_t<Emit>>(tree, M, m, radius_scale, proximity, target, limits, stats,
+                                                        buffers, emit)
+      .run();
+}
+
+/// Whether a query can use (and keep) a traversal front: full traversals only.
+inline bool coherent_query_allowed(const QueryOptions& options) {
+  return options.point_budget == std::numeric_limits<size_t>::max() &&
+         options.max_level == std::numeric_limits<uint32_t>::max() && options.time_budget_us <= 0.0;
+}
+
+}  // namespace detail
+}  // namespace voxfmt::runtime
+
+#include "coherent_traversal.h"
