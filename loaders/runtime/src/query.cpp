@@ -46,18 +46,18 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   if (!shell.has_point_shell() || !field.has_voxelmap()) return;
   const SparseVoxelmap& map = field.voxelmap();
   const PointTree& tree = shell.point_tree();
-  // shell asset frame -> world -> field asset frame -> field grid (voxel units).
-  const double to_voxels = 1.0 / (field_pose.scale * map.voxel_size());
-  const Eigen::Matrix3d field_rotation_t = field_pose.rotation.transpose();
-  const Eigen::Matrix3d M = to_voxels * field_rotation_t * shell_pose.rotation * shell_pose.scale;
-  const Eigen::Vector3d m = to_voxels * field_rotation_t * (shell_pose.translation - field_pose.translation) -
-                            map.origin() / map.voxel_size();
-  const double metres_per_unit = field_pose.scale * map.voxel_size();
-  const float proximity = float(options.proximity / metres_per_unit);
-  const float radius_scale = float(shell_pose.scale * to_voxels);
+  // shell asset frame -> world -> field asset frame -> field grid (voxel units): the query core's frame.
+  const double origin[3] = {map.origin().x(), map.origin().y(), map.origin().z()};
+  const core::Frame frame =
+      core::frame_of(core::to_core(shell_pose), core::to_core(field_pose), origin, map.voxel_size(), options.proximity);
+  const double metres_per_unit = frame.metres_per_unit;
+  const float proximity = frame.proximity;
+  const float radius_scale = frame.radius_scale;
   const double sign = shell_is_b ? -1.0 : 1.0;
-  const Eigen::Matrix3f Mf = M.cast<float>();
-  const Eigen::Vector3f mf = m.cast<float>();
+  Eigen::Matrix3f Mf;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) Mf(r, c) = frame.to_grid.M[3 * r + c];
+  const Eigen::Vector3f mf = core::to_eigen(frame.to_grid.m);
 
   auto emit = [&](uint32_t node, float d, bool exact) {
     Contact contact;

@@ -7,6 +7,7 @@
 #include <limits>
 #include <vector>
 
+#include "eigen.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -105,6 +106,7 @@ class CoherentTraversal {
         points_(tree.points.data()),
         M_(M),
         m_(m),
+        to_target_(core::to_core(M, m)),
         Mr_(Mr),
         mr_(mr),
         radius_scale_(radius_scale),
@@ -228,7 +230,7 @@ class CoherentTraversal {
     } else {
       float point_bound = -std::numeric_limits<float>::infinity();
       if (Target::kBoundBeforeDistance && nodes_[e.node()].child_count > 0)
-        point_bound = target_.lower_bound(M_ * points_[e.node()] + m_);
+        point_bound = target_.lower_bound(map(points_[e.node()]));
       test_point(e.node(), point_bound);
     }
   }
@@ -242,14 +244,14 @@ class CoherentTraversal {
       const uint32_t node = queue[q];
       const PointTree::Node& n = nodes_[node];
       const float radius = n.radius * radius_scale_;
-      const float sphere_bound = target_.lower_bound(M_ * n.centre + m_);
+      const float sphere_bound = target_.lower_bound(map(n.centre));
       ++stats_.nodes_visited;
       if (sphere_bound > radius + proximity_) {
         record(node, false, sphere_bound - radius);
         continue;
       }
       float point_bound = -std::numeric_limits<float>::infinity();
-      if (Target::kBoundBeforeDistance && n.child_count > 0) point_bound = target_.lower_bound(M_ * points_[node] + m_);
+      if (Target::kBoundBeforeDistance && n.child_count > 0) point_bound = target_.lower_bound(map(points_[node]));
       test_point(node, point_bound);
       for (uint32_t c = n.first_child; c < n.first_child + n.child_count; ++c) {
         const float carried = std::max(sphere_bound - nodes_[c].reach_from_parent * radius_scale_,
@@ -268,7 +270,7 @@ class CoherentTraversal {
     bool sampled = false;
     if (point_bound < proximity_) {
       bool exact = false;
-      bound = target_.distance(M_ * points_[node] + m_, exact);
+      bound = target_.distance(map(points_[node]), exact);
       ++stats_.points_tested;
       if (bound < proximity_) b_.level_hits.push_back({node, bound, exact});
       // Interpolated from estimates (the band's edge and beyond), the distance has no useful slope bound: looked
@@ -315,12 +317,17 @@ class CoherentTraversal {
   }
 
   static bool later(const Entry& a, const Entry& b) { return a.bound > b.bound; }  // a min-heap on bound
+  // Into the target's frame: the query core's map (the device walk's, core/walk.h).
+  Eigen::Vector3f map(const Eigen::Vector3f& x) const { return core::to_eigen(to_target_.apply(core::to_core(x))); }
 
   const PointTree& tree_;
   const PointTree::Node* nodes_;
   const Eigen::Vector3f* points_;
-  const Eigen::Matrix3f &M_, &Mr_;
-  const Eigen::Vector3f &m_, &mr_;
+  const Eigen::Matrix3f& M_;
+  const Eigen::Vector3f& m_;
+  const core::Affine to_target_;
+  const Eigen::Matrix3f& Mr_;
+  const Eigen::Vector3f& mr_;
   float radius_scale_, proximity_;
   const Target& target_;
   QueryStats& stats_;

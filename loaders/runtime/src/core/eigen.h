@@ -3,7 +3,11 @@
 
 #include <Eigen/Core>
 
-#include "hd.h"
+#include <cstddef>
+
+#include "batch.h"
+#include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime::core {
 
@@ -17,6 +21,50 @@ inline Affine to_core(const Eigen::Matrix3f& M, const Eigen::Vector3f& m) {
     for (int c = 0; c < 3; ++c) a.M[3 * r + c] = M(r, c);
   a.m = to_core(m);
   return a;
+}
+
+/// The runtime's tree as the core's plain arrays: the same memory (the layouts are checked here).
+inline Shell shell_of(const PointTree& tree) {
+  static_assert(sizeof(PointTree::Node) == sizeof(Node) &&
+                    offsetof(PointTree::Node, radius) == offsetof(Node, radius) &&
+                    offsetof(PointTree::Node, first_child) == offsetof(Node, first_child) &&
+                    offsetof(PointTree::Node, child_count) == offsetof(Node, child_count) &&
+                    sizeof(Eigen::Vector3f) == sizeof(Vec3),
+                "PointTree::Node and core::Node must share one layout");
+  Shell s;
+  s.nodes = reinterpret_cast<const Node*>(tree.nodes.data());
+  s.points = reinterpret_cast<const Vec3*>(tree.points.data());
+  s.normals = reinterpret_cast<const Vec3*>(tree.normals.data());
+  s.count = uint32_t(tree.size());
+  s.levels = uint32_t(tree.level_count());
+  return s;
+}
+
+/// A loaded asset as the batch reads it: views of the object's own arrays (valid while it lives).
+inline Body body_of(const CollisionObject& object) {
+  Body b;
+  b.has_field = object.has_voxelmap();
+  b.has_shell = object.has_point_shell();
+  if (b.has_field) {
+    b.field = field_of(object.voxelmap());
+    for (int a = 0; a < 3; ++a) b.origin[a] = object.voxelmap().origin()[a];
+    b.voxel_size = object.voxelmap().voxel_size();
+  }
+  if (b.has_shell) b.shell = shell_of(object.point_tree());
+  b.bounding_radius = object.bounding_radius();
+  for (int a = 0; a < 3; ++a) b.center_of_mass[a] = object.center_of_mass()[a];
+  return b;
+}
+
+/// A runtime pose as the core's (row-major, double).
+inline RigidPose to_core(const Pose& pose) {
+  RigidPose p;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) p.R[3 * r + c] = pose.rotation(r, c);
+    p.t[r] = pose.translation[r];
+  }
+  p.scale = pose.scale;
+  return p;
 }
 
 }  // namespace voxfmt::runtime::core

@@ -44,13 +44,23 @@ VOXFMT_HD float length(const Vec3& a) {
 #endif
 }
 
-/// A rigid map with uniform scale, u = M x + m (row-major M): a shell's asset frame into a target's grid.
+VOXFMT_HD double sqrt_d(double v) {
+#if defined(__CUDA_ARCH__)
+  return sqrt(v);
+#else
+  return __builtin_sqrt(v);
+#endif
+}
+
+/// A rigid map with uniform scale, u = M x + m (row-major M): a shell's asset frame into a target's grid. The
+/// sums run in the order Eigen's float matrix-vector product uses (a + (b + c)), so the runtime's Eigen code and
+/// this agree bit for bit (tests/runtime/test_query_core.cpp).
 struct Affine {
   float M[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
   Vec3 m;
   VOXFMT_HD Vec3 apply(const Vec3& x) const {
-    return make_vec3(M[0] * x.x + M[1] * x.y + M[2] * x.z + m.x, M[3] * x.x + M[4] * x.y + M[5] * x.z + m.y,
-                     M[6] * x.x + M[7] * x.y + M[8] * x.z + m.z);
+    return make_vec3(M[0] * x.x + (M[1] * x.y + M[2] * x.z) + m.x, M[3] * x.x + (M[4] * x.y + M[5] * x.z) + m.y,
+                     M[6] * x.x + (M[7] * x.y + M[8] * x.z) + m.z);
   }
 };
 

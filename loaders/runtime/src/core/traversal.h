@@ -17,6 +17,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "eigen.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -84,8 +85,7 @@ class LevelTraversal {
       : tree_(tree),
         nodes_(tree.nodes.data()),
         points_(tree.points.data()),
-        M_(M),
-        m_(m),
+        to_target_(core::to_core(M, m)),
         radius_scale_(radius_scale),
         proximity_(proximity),
         target_(target),
@@ -139,7 +139,7 @@ class LevelTraversal {
   // and all its descendants; the distance is 1-Lipschitz, so if even the bound at the centre exceeds the radius
   // nothing below can be within reach. Returns the survivors, with their bounds, in survivor_/bound_.
   size_t cull(const uint32_t* batch, size_t count) {
-    for (size_t i = 0; i < count; ++i) centre_[i] = M_ * nodes_[batch[i]].centre + m_;
+    for (size_t i = 0; i < count; ++i) centre_[i] = map(nodes_[batch[i]].centre);
     size_t survivors = 0;
     for (size_t i = 0; i < count; ++i) {
       const float bound = target_.lower_bound(centre_[i]);
@@ -154,7 +154,7 @@ class LevelTraversal {
   // Stage 2, open: each survivor's own point is tested, then its children that the bound, carried from the
   // parent's centre (or point) to each child's sphere, cannot rule out are queued for the next level.
   void open(size_t survivors) {
-    for (size_t i = 0; i < survivors; ++i) point_[i] = M_ * points_[survivor_[i]] + m_;
+    for (size_t i = 0; i < survivors; ++i) point_[i] = map(points_[survivor_[i]]);
     for (size_t i = 0; i < survivors; ++i) {
       const uint32_t node = survivor_[i];
       const PointTree::Node& parent = nodes_[node];
@@ -247,16 +247,18 @@ class LevelTraversal {
     for (const uint32_t node : parents) {
       bool exact = false;
       const float radius = nodes_[node].radius * radius_scale_;
-      const float d = target_.distance(M_ * nodes_[node].centre + m_, exact) - radius;
+      const float d = target_.distance(map(nodes_[node].centre), exact) - radius;
       if (d < proximity_) emit_(node, d, false);
     }
   }
 
+  // Into the target's frame: the query core's map (the device walk's, core/walk.h).
+  Eigen::Vector3f map(const Eigen::Vector3f& x) const { return core::to_eigen(to_target_.apply(core::to_core(x))); }
+
   const PointTree& tree_;
   const PointTree::Node* nodes_;
   const Eigen::Vector3f* points_;
-  const Eigen::Matrix3f& M_;
-  const Eigen::Vector3f& m_;
+  const core::Affine to_target_;
   float radius_scale_, proximity_;
   const Target& target_;
   const WalkLimits& limits_;

@@ -1,0 +1,150 @@
+// One environment of a batched contact query, as host/device code: a pair of assets at a pair of poses, queried
+// in the direction the runtime's Auto picks, reduced to what a learning loop needs (contact count, deepest
+// penetration, the penalty wrench on A) and, on request, the contacts in a buffer the caller sized, with the
+// number that did not fit always counted. The CUDA kernel runs one per thread; the CPU runs the same function on
+// its threads, so the two agree by construction.
+#pragma once
+
+#include "walk.h"
+
+namespace voxfmt::runtime::core {
+
+/// One asset as the batch reads it (host or device memory).
+struct Body {
+  Field field;
+  bool has_field = false;
+  Shell shell;
+  bool has_shell = false;
+  double origin[3] = {0, 0, 0};  ///< the field's voxel (0, 0, 0), asset frame
+  double voxel_size = 1;
+  double bounding_radius = 0;            ///< as CollisionObject::bounding_radius
+  double center_of_mass[3] = {0, 0, 0};  ///< asset frame
+};
+
+struct BatchContact {
+  float point[3];   ///< world, on the surface of the object whose point it is
+  float normal[3];  ///< unit; where A must move to separate from B
+  float depth;      ///< metres; negative for proximity points
+  uint32_t point_index;
+  uint32_t point_of_b;  ///< 1: B's point in A's field
+};
+
+struct EnvResult {
+  uint32_t count = 0;           ///< contacts found (written or not)
+  uint32_t overflow = 0;        ///< contacts that did not fit the caller's buffer
+  float max_depth = 0;          ///< metres, 0 without a penetrating contact
+  float force[3] = {0, 0, 0};   ///< newtons on A: sum of stiffness * depth * normal over penetrating contacts
+  float torque[3] = {0, 0, 0};  ///< newton-metres on A about A's centre of mass (world)
+  int32_t error = 0;            ///< nonzero: a tree deeper than the walk takes (the loader refuses those)
+};
+
+VOXFMT_HD void apply_pose(const RigidPose& p, const float x[3], double out[3]) {
+  for (int r = 0; r < 3; ++r)
+    out[r] = p.R[3 * r] * (p.scale * double(x[0])) + p.R[3 * r + 1] * (p.scale * double(x[1])) +
+             p.R[3 * r + 2] * (p.scale * double(x[2])) + p.t[r];
+}
+
+/// The direction QueryDirection::Auto resolves to (query.cpp, resolve_direction): true for B's points in A's
+/// field. Ties of size, point count and position go to A's points (the runtime breaks them by address).
+VOXFMT_HD bool b_points_in_a(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb) {
+  const bool a_in_b = a.has_shell && b.has_field;
+  const bool b_in_a = b.has_shell && a.has_field;
+  if (!a_in_b) return true;
+  if (!b_in_a) return false;
+  const double ra = a.bounding_radius * pa.scale, rb = b.bounding_radius * pb.scale;
+  if (rb < 0.9 * ra) return true;
+  if (ra < 0.9 * rb) return false;
+  if (a.shell.count != b.shell.count) return b.shell.count < a.shell.count;
+  for (int axis = 0; axis < 3; ++axis)
+    if (pa.t[axis] != pb.t[axis]) return pb.t[axis] < pa.t[axis];
+  return false;
+}
+
+/// Adds each contact of one direction to `result` (and `out`, while it has room).
+struct ContactSink {
+  const Shell& shell;
+  const RigidPose& shell_pose;
+  double sign;  ///< +1: A's points (normals as they are); -1: B's points (A must move the other way)
+  double metres_per_unit;
+  double stiffness;
+  double reference[3];  ///< A's centre of mass, world
+  BatchContact* out;
+  uint32_t capacity;
+  uint32_t point_of_b;
+  EnvResult& result;
+  double force[3], torque[3];
+
+  VOXFMT_HD void operator()(uint32_t node, float distance, bool) {
+    const Vec3& x = shell.points[node];
+    const float xs[3] = {x.x, x.y, x.z};
+    double point[3];
+    apply_pose(shell_pose, xs, point);
+    const Vec3& n = shell.normals[node];
+    double normal[3];
+    for (int r = 0; r < 3; ++r)
+      normal[r] = shell_pose.R[3 * r] * n.x + shell_pose.R[3 * r + 1] * n.y + shell_pose.R[3 * r + 2] * n.z;
+    const double length = sqrt_d(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
+    for (int r = 0; r < 3; ++r) normal[r] = length > 0 ? sign * normal[r] / length : 0.0;
+    const double depth = -double(distance) * metres_per_unit;
+    if (depth > 0) {
+      const double f[3] = {stiffness * depth * normal[0], stiffness * depth * normal[1], stiffness * depth * normal[2]};
+      const double r[3] = {point[0] - reference[0], point[1] - reference[1], point[2] - reference[2]};
+      for (int k = 0; k < 3; ++k) force[k] += f[k];
+      torque[0] += r[1] * f[2] - r[2] * f[1];
+      torque[1] += r[2] * f[0] - r[0] * f[2];
+      torque[2] += r[0] * f[1] - r[1] * f[0];
+      if (float(depth) > result.max_depth) result.max_depth = float(depth);
+    }
+    if (result.count < capacity) {
+      BatchContact& c = out[result.count];
+      for (int k = 0; k < 3; ++k) {
+        c.point[k] = float(point[k]);
+        c.normal[k] = float(normal[k]);
+      }
+      c.depth = float(depth);
+      c.point_index = node;
+      c.point_of_b = point_of_b;
+    } else {
+      ++result.overflow;
+    }
+    ++result.count;
+  }
+};
+
+/// The contacts of A at `pa` against B at `pb` (proximity in metres; 0: penetrating points only), reduced into
+/// `result`; the first `capacity` written to `out`.
+VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb, double proximity,
+                            double stiffness, BatchContact* out, uint32_t capacity, EnvResult& result) {
+  result = EnvResult{};
+  // The wrench's reference: A's centre of mass in the world.
+  double reference[3];
+  for (int r = 0; r < 3; ++r)
+    reference[r] = pa.R[3 * r] * (pa.scale * a.center_of_mass[0]) + pa.R[3 * r + 1] * (pa.scale * a.center_of_mass[1]) +
+                   pa.R[3 * r + 2] * (pa.scale * a.center_of_mass[2]) + pa.t[r];
+  const bool b_in_a = b_points_in_a(a, pa, b, pb);
+  const Body& shell_body = b_in_a ? b : a;
+  const Body& field_body = b_in_a ? a : b;
+  const RigidPose& shell_pose = b_in_a ? pb : pa;
+  const RigidPose& field_pose = b_in_a ? pa : pb;
+  if (!shell_body.has_shell || !field_body.has_field) return;
+  const Frame frame = frame_of(shell_pose, field_pose, field_body.origin, field_body.voxel_size, proximity);
+  ContactSink sink{shell_body.shell,
+                   shell_pose,
+                   b_in_a ? -1.0 : 1.0,
+                   frame.metres_per_unit,
+                   stiffness,
+                   {reference[0], reference[1], reference[2]},
+                   out,
+                   capacity,
+                   b_in_a ? 1u : 0u,
+                   result,
+                   {0, 0, 0},
+                   {0, 0, 0}};
+  if (walk(field_body.field, shell_body.shell, frame, sink) < 0) result.error = 1;
+  for (int k = 0; k < 3; ++k) {
+    result.force[k] = float(sink.force[k]);
+    result.torque[k] = float(sink.torque[k]);
+  }
+}
+
+}  // namespace voxfmt::runtime::core

@@ -1,0 +1,54 @@
+// Where a query happens: one object's shell mapped into the other's voxel grid, from the two rigid poses. Host and
+// device (VOXFMT_HD) compute it alike, in double precision, the sums in the order the runtime has always used
+// (left to right, as Eigen's double products), so both look up the same grid coordinates.
+#pragma once
+
+#include "hd.h"
+
+namespace voxfmt::runtime::core {
+
+/// A rigid body-to-world placement with uniform scale: world = R (scale x) + t, R row-major.
+struct RigidPose {
+  double R[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  double t[3] = {0, 0, 0};
+  double scale = 1;
+};
+
+/// The shell's frame in the target's grid: u = to_grid(x) for x in the shell's asset frame, lengths times
+/// radius_scale; a distance d (grid units) is d * metres_per_unit metres.
+struct Frame {
+  Affine to_grid;
+  float radius_scale = 1;
+  float proximity = 0;  ///< the query's proximity in grid units
+  double metres_per_unit = 1;
+};
+
+/// The frame of `shell` (placed by `shell_pose`) in the grid of a field placed by `field_pose`, whose voxel
+/// (0, 0, 0) is at `origin` (its asset frame) and whose voxels are `voxel_size` wide.
+VOXFMT_HD Frame frame_of(const RigidPose& shell_pose, const RigidPose& field_pose, const double origin[3],
+                         double voxel_size, double proximity_m) {
+  Frame f;
+  const double to_voxels = 1.0 / (field_pose.scale * voxel_size);
+  // A = to_voxels * field R^T; M = (A * shell R) * shell scale; m = A (t_shell - t_field) - origin / voxel_size.
+  double A[9];
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) A[3 * r + c] = to_voxels * field_pose.R[3 * c + r];
+  const double d[3] = {shell_pose.t[0] - field_pose.t[0], shell_pose.t[1] - field_pose.t[1],
+                       shell_pose.t[2] - field_pose.t[2]};
+  float* M = f.to_grid.M;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c)
+      M[3 * r + c] =
+          float((A[3 * r] * shell_pose.R[c] + A[3 * r + 1] * shell_pose.R[3 + c] + A[3 * r + 2] * shell_pose.R[6 + c]) *
+                shell_pose.scale);
+  }
+  f.to_grid.m = make_vec3(float(A[0] * d[0] + A[1] * d[1] + A[2] * d[2] - origin[0] / voxel_size),
+                          float(A[3] * d[0] + A[4] * d[1] + A[5] * d[2] - origin[1] / voxel_size),
+                          float(A[6] * d[0] + A[7] * d[1] + A[8] * d[2] - origin[2] / voxel_size));
+  f.metres_per_unit = field_pose.scale * voxel_size;
+  f.proximity = float(proximity_m / f.metres_per_unit);
+  f.radius_scale = float(shell_pose.scale * to_voxels);
+  return f;
+}
+
+}  // namespace voxfmt::runtime::core
