@@ -21,12 +21,15 @@ struct Body {
   double center_of_mass[3] = {0, 0, 0};  ///< asset frame
 };
 
-struct BatchContact {
-  float point[3];   ///< world, on the surface of the object whose point it is
-  float normal[3];  ///< unit; where A must move to separate from B
-  float depth;      ///< metres; negative for proximity points
-  uint32_t point_index;
-  uint32_t point_of_b;  ///< 1: B's point in A's field
+/// Where one environment's contacts go: caller-sized arrays (structure of arrays, as NumPy and PyTorch hold
+/// them), `capacity` contacts at most; null arrays are skipped.
+struct ContactArrays {
+  float* points = nullptr;         ///< capacity x 3: world, on the surface of the object whose point it is
+  float* normals = nullptr;        ///< capacity x 3: unit; where A must move to separate from B
+  float* depths = nullptr;         ///< capacity: metres; negative for proximity points
+  int32_t* point_index = nullptr;  ///< capacity
+  uint8_t* point_of_b = nullptr;   ///< capacity: 1 for B's points in A's field
+  uint32_t capacity = 0;
 };
 
 struct EnvResult {
@@ -68,8 +71,7 @@ struct ContactSink {
   double metres_per_unit;
   double stiffness;
   double reference[3];  ///< A's centre of mass, world
-  BatchContact* out;
-  uint32_t capacity;
+  ContactArrays out;
   uint32_t point_of_b;
   EnvResult& result;
   double force[3], torque[3];
@@ -95,15 +97,15 @@ struct ContactSink {
       torque[2] += r[0] * f[1] - r[1] * f[0];
       if (float(depth) > result.max_depth) result.max_depth = float(depth);
     }
-    if (result.count < capacity) {
-      BatchContact& c = out[result.count];
+    if (result.count < out.capacity) {
+      const uint32_t i = result.count;
       for (int k = 0; k < 3; ++k) {
-        c.point[k] = float(point[k]);
-        c.normal[k] = float(normal[k]);
+        if (out.points) out.points[3 * i + k] = float(point[k]);
+        if (out.normals) out.normals[3 * i + k] = float(normal[k]);
       }
-      c.depth = float(depth);
-      c.point_index = node;
-      c.point_of_b = point_of_b;
+      if (out.depths) out.depths[i] = float(depth);
+      if (out.point_index) out.point_index[i] = int32_t(node);
+      if (out.point_of_b) out.point_of_b[i] = uint8_t(point_of_b);
     } else {
       ++result.overflow;
     }
@@ -112,9 +114,9 @@ struct ContactSink {
 };
 
 /// The contacts of A at `pa` against B at `pb` (proximity in metres; 0: penetrating points only), reduced into
-/// `result`; the first `capacity` written to `out`.
+/// `result`; the first `out.capacity` written to `out`.
 VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb, double proximity,
-                            double stiffness, BatchContact* out, uint32_t capacity, EnvResult& result) {
+                            double stiffness, const ContactArrays& out, EnvResult& result) {
   result = EnvResult{};
   // The wrench's reference: A's centre of mass in the world.
   double reference[3];
@@ -135,7 +137,6 @@ VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, c
                    stiffness,
                    {reference[0], reference[1], reference[2]},
                    out,
-                   capacity,
                    b_in_a ? 1u : 0u,
                    result,
                    {0, 0, 0},
@@ -145,6 +146,69 @@ VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, c
     result.force[k] = float(sink.force[k]);
     result.torque[k] = float(sink.torque[k]);
   }
+}
+
+/// Why an environment has no result (EnvResult::error, the batch's `error` output).
+enum EnvError : int32_t { kEnvOk = 0, kEnvTreeTooDeep = 1, kEnvPairOutOfRange = 6 };  // 2..5: PoseProblem
+
+/// A batch: the assets, the pairs environments may hold (indices into `bodies`), and per environment its pair
+/// (null: pair 0 for all) and the two 4x4 row-major body-to-world matrices.
+template <class T>
+struct BatchInputs {
+  const Body* bodies = nullptr;
+  const uint32_t* pair_a = nullptr;  ///< per pair: A's body
+  const uint32_t* pair_b = nullptr;  ///< per pair: B's body
+  uint32_t pair_count = 0;
+  const int32_t* pair_index = nullptr;  ///< per environment, or null
+  const T* poses_a = nullptr;           ///< environments x 16
+  const T* poses_b = nullptr;
+  size_t environments = 0;
+  double proximity = 0;
+  double stiffness = 1;
+};
+
+/// Per-environment outputs (any may be null but count): the reductions, and `contacts` (its arrays sized
+/// environments x contacts.capacity, environment e's at e x capacity).
+struct BatchOutputs {
+  int32_t* count = nullptr;
+  float* max_depth = nullptr;
+  float* force = nullptr;   ///< environments x 3
+  float* torque = nullptr;  ///< environments x 3
+  int32_t* overflow = nullptr;
+  int32_t* error = nullptr;
+  ContactArrays contacts;
+};
+
+/// Environment `e` of a batch, start to end: the same on a CPU thread and a CUDA thread.
+template <class T>
+VOXFMT_HD void run_environment(const BatchInputs<T>& in, const BatchOutputs& out, size_t e) {
+  EnvResult r;
+  const int32_t pair = in.pair_index ? in.pair_index[e] : 0;
+  RigidPose pa, pb;
+  if (pair < 0 || uint32_t(pair) >= in.pair_count) {
+    r.error = kEnvPairOutOfRange;
+  } else if (const int32_t problem = pose_from_matrix(in.poses_a + 16 * e, pa)) {
+    r.error = problem;
+  } else if (const int32_t problem_b = pose_from_matrix(in.poses_b + 16 * e, pb)) {
+    r.error = problem_b;
+  } else {
+    ContactArrays at = out.contacts;
+    const size_t first = e * size_t(at.capacity);
+    if (at.points) at.points += 3 * first;
+    if (at.normals) at.normals += 3 * first;
+    if (at.depths) at.depths += first;
+    if (at.point_index) at.point_index += first;
+    if (at.point_of_b) at.point_of_b += first;
+    env_contacts(in.bodies[in.pair_a[pair]], pa, in.bodies[in.pair_b[pair]], pb, in.proximity, in.stiffness, at, r);
+  }
+  out.count[e] = int32_t(r.count);
+  if (out.max_depth) out.max_depth[e] = r.max_depth;
+  for (int k = 0; k < 3; ++k) {
+    if (out.force) out.force[3 * e + k] = r.force[k];
+    if (out.torque) out.torque[3 * e + k] = r.torque[k];
+  }
+  if (out.overflow) out.overflow[e] = int32_t(r.overflow);
+  if (out.error) out.error[e] = r.error;
 }
 
 }  // namespace voxfmt::runtime::core

@@ -14,6 +14,38 @@ struct RigidPose {
   double scale = 1;
 };
 
+/// Why a 4x4 matrix is not a rigid placement (spec of the Python API's poses: BAD_POSE), 0 if it is one.
+enum PoseProblem : int32_t {
+  kPoseRigid = 0,
+  kPoseNotFinite = 2,
+  kPoseLastRow = 3,
+  kPoseNotOrthonormal = 4,
+  kPoseReflection = 5
+};
+
+/// Reads a row-major 4x4 matrix (float or double) as a rigid pose, as the Python API's pose check does: finite,
+/// last row 0 0 0 1, |R^T R - I| <= 1e-6 entry by entry, determinant +1.
+template <class T>
+VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
+  for (int i = 0; i < 16; ++i)
+    if (!(double(m[i]) - double(m[i]) == 0.0)) return kPoseNotFinite;
+  if (double(m[12]) != 0.0 || double(m[13]) != 0.0 || double(m[14]) != 0.0 || double(m[15]) != 1.0) return kPoseLastRow;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) pose.R[3 * r + c] = double(m[4 * r + c]);
+    pose.t[r] = double(m[4 * r + 3]);
+  }
+  pose.scale = 1;
+  const double* R = pose.R;
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) {
+      const double dot = R[a] * R[b] + R[3 + a] * R[3 + b] + R[6 + a] * R[6 + b] - (a == b ? 1.0 : 0.0);
+      if (dot > 1e-6 || dot < -1e-6) return kPoseNotOrthonormal;
+    }
+  const double det =
+      R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6]) + R[2] * (R[3] * R[7] - R[4] * R[6]);
+  return det < 0 ? kPoseReflection : kPoseRigid;
+}
+
 /// The shell's frame in the target's grid: u = to_grid(x) for x in the shell's asset frame, lengths times
 /// radius_scale; a distance d (grid units) is d * metres_per_unit metres.
 struct Frame {
