@@ -42,6 +42,8 @@
 #include "voxfmt/validate.h"
 #include "voxfmt/version.h"
 
+#include "common.h"
+
 namespace nb = nanobind;
 using namespace nb::literals;
 
@@ -53,15 +55,6 @@ using runtime::CollisionObject;
 using runtime::ContactSet;
 using runtime::Pose;
 using runtime::QueryOptions;
-
-/// A library error on its way to Python (see the translator in NB_MODULE).
-struct CodedError : std::exception {
-  Error error;
-  explicit CodedError(Error e) : error(std::move(e)) {}
-  const char* what() const noexcept override { return error.message.c_str(); }
-};
-
-[[noreturn]] void fail(IssueCode code, std::string message) { throw CodedError(Error{code, std::move(message)}); }
 
 // ---------------------------------------------------------------------------------------------------------------
 // Arrays in and out.
@@ -91,18 +84,6 @@ std::string shape_text(const InArray& a) {
 }
 
 /// A new C-contiguous NumPy array that owns its memory (allocated once, filled in C++).
-template <class T>
-struct OutArray {
-  T* data = nullptr;
-  nb::ndarray<nb::numpy, T> array;
-  OutArray(std::initializer_list<size_t> shape) {
-    size_t n = 1;
-    for (size_t s : shape) n *= s;
-    data = new T[std::max<size_t>(n, 1)]();
-    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
-    array = nb::ndarray<nb::numpy, T>(data, shape, owner);
-  }
-};
 
 template <class T>
 nb::ndarray<nb::numpy, T> vector_array(const Eigen::Matrix<T, 3, 1>& v) {
@@ -196,12 +177,6 @@ QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<do
 
 // ---------------------------------------------------------------------------------------------------------------
 // Body and Contacts.
-
-struct Body {
-  std::shared_ptr<const CollisionObject> object;
-  double density = 1.0;
-  std::string path;
-};
 
 /// A read-only NumPy view of `count` rows of `Cols` values of T at `data`, kept alive by `owner`.
 template <class T>
@@ -802,4 +777,5 @@ NB_MODULE(_voxfmt, m) {
   bind_contacts(m);
   bind_queries(m);
   bind_pipeline(m);
+  bind_batch(m);
 }

@@ -25,12 +25,15 @@ import numpy.typing as npt
 from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, wrench
 from ._voxfmt import _bake, _contacts_batch, _inspect, _Tracker, _validate
+from .batch import BatchResult, BatchScene, cuda_status
 
 __version__: str = _library_version()
 
 __all__ = [
     "AssetError",
     "Batch",
+    "BatchResult",
+    "BatchScene",
     "Body",
     "Contacts",
     "Error",
@@ -46,6 +49,7 @@ __all__ = [
     "bake",
     "contacts",
     "contacts_batch",
+    "cuda_status",
     "inspect",
     "load",
     "validate",

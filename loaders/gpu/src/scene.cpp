@@ -1,0 +1,125 @@
+// The host side of the CUDA batch: what goes up to the device (each asset's arrays once, the bodies and pair
+// tables), and the launch. No CUDA header here (device.h is plain C++).
+#include "voxfmt/gpu/batch.h"
+
+#include "core/eigen.h"
+#include "device.h"
+
+namespace voxfmt::gpu {
+
+namespace core = runtime::core;
+
+struct Scene::Device {
+  std::vector<void*> allocations;
+  core::Body* bodies = nullptr;
+  uint32_t* pair_a = nullptr;
+  uint32_t* pair_b = nullptr;
+  ~Device() {
+    for (void* p : allocations) device::release(p);
+  }
+  // Uploads `bytes` and keeps the allocation; nullptr on failure.
+  template <class T>
+  T* upload(const T* host, size_t count, std::string& error) {
+    void* p = device::copy_to_device(host, count * sizeof(T), error);
+    if (p) allocations.push_back(p);
+    return static_cast<T*>(p);
+  }
+};
+
+bool available(std::string* why) {
+  const std::string reason = device::unavailable_reason();
+  if (why) *why = reason;
+  return reason.empty();
+}
+
+std::string device_name() { return device::device_name(); }
+
+Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<const runtime::CollisionObject>>& assets,
+                                             const std::vector<Pair>& pairs) {
+  std::string why;
+  if (!available(&why)) return Error{IssueCode::Internal, "no CUDA device for the batch: " + why};
+  if (assets.empty() || pairs.empty()) return Error{IssueCode::BadOption, "a scene needs assets and pairs"};
+  std::vector<uint32_t> pair_a, pair_b;
+  for (const Pair& p : pairs) {
+    if (p[0] >= assets.size() || p[1] >= assets.size())
+      return Error{IssueCode::BadOption, "a pair names an asset the scene does not have"};
+    pair_a.push_back(p[0]);
+    pair_b.push_back(p[1]);
+  }
+  std::shared_ptr<Scene> scene(new Scene);
+  scene->device_ = std::make_unique<Device>();
+  scene->pairs_ = pairs.size();
+  Device& d = *scene->device_;
+  std::vector<core::Body> bodies;
+  std::string error;
+  for (const auto& asset : assets) {
+    if (!asset) return Error{IssueCode::BadOption, "a scene's asset is null"};
+    if (asset->point_tree().level_count() > core::kMaxWalkLevels)
+      return Error{IssueCode::BadOption, "an asset's tree has " + std::to_string(asset->point_tree().level_count()) +
+                                             " levels, more than the device walk's " +
+                                             std::to_string(core::kMaxWalkLevels)};
+    core::Body body = core::body_of(*asset);  // host pointers, replaced by device ones below
+    size_t bytes = 0;
+    if (body.has_field) {
+      const runtime::SparseVoxelmap& map = asset->voxelmap();
+      const size_t bricks = map.brick_count(), codes = map.value_brick_count() * size_t(core::kBrickVoxels);
+      size_t lattice = 1;
+      for (int a = 0; a < 3; ++a) lattice *= size_t(body.field.lattice_dims[a]);
+      body.field.bricks = d.upload(body.field.bricks, bricks, error);
+      body.field.codes = d.upload(body.field.codes, codes, error);
+      body.field.lattice = d.upload(body.field.lattice, lattice, error);
+      bytes += bricks * sizeof(int32_t) + codes * sizeof(int16_t) + lattice * sizeof(uint16_t);
+    }
+    if (body.has_shell) {
+      const size_t n = body.shell.count;
+      body.shell.nodes = d.upload(body.shell.nodes, n, error);
+      body.shell.points = d.upload(body.shell.points, n, error);
+      body.shell.normals = d.upload(body.shell.normals, n, error);
+      bytes += n * (sizeof(core::Node) + 2 * sizeof(core::Vec3));
+    }
+    if (!error.empty()) return Error{IssueCode::OutOfMemory, "cannot upload an asset to the device: " + error};
+    bodies.push_back(body);
+    scene->asset_bytes_.push_back(bytes);
+  }
+  d.bodies = d.upload(bodies.data(), bodies.size(), error);
+  d.pair_a = d.upload(pair_a.data(), pair_a.size(), error);
+  d.pair_b = d.upload(pair_b.data(), pair_b.size(), error);
+  if (!error.empty()) return Error{IssueCode::OutOfMemory, "cannot upload the scene's tables: " + error};
+  return scene;
+}
+
+Scene::~Scene() = default;
+
+size_t Scene::device_bytes() const {
+  size_t total = 0;
+  for (size_t b : asset_bytes_) total += b;
+  return total;
+}
+
+Status Scene::contacts(const Environments& in, const Outputs& out, void* stream) const {
+  if (!out.count) return Error{IssueCode::BadOption, "the batch needs a `count` output"};
+  core::BatchInputs<float> inputs;
+  inputs.bodies = device_->bodies;
+  inputs.pair_a = device_->pair_a;
+  inputs.pair_b = device_->pair_b;
+  inputs.pair_count = uint32_t(pairs_);
+  inputs.pair_index = in.pair;
+  inputs.poses_a = in.poses_a;
+  inputs.poses_b = in.poses_b;
+  inputs.environments = in.count;
+  inputs.proximity = in.proximity;
+  inputs.stiffness = in.stiffness;
+  core::BatchOutputs outputs;
+  outputs.count = out.count;
+  outputs.max_depth = out.max_depth;
+  outputs.force = out.force;
+  outputs.torque = out.torque;
+  outputs.overflow = out.overflow;
+  outputs.error = out.error;
+  outputs.contacts = {out.points, out.normals, out.depths, out.point_index, out.point_of_b, out.max_contacts};
+  const std::string failure = device::launch(inputs, outputs, stream);
+  if (!failure.empty()) return Error{IssueCode::Internal, "the batch's kernel did not start: " + failure};
+  return Status::success();
+}
+
+}  // namespace voxfmt::gpu

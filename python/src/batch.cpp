@@ -1,0 +1,247 @@
+// voxfmt.BatchScene's compiled half: every environment of a batch through the query core's environment
+// (loaders/runtime/src/core/batch.h) — on CPU threads for NumPy arrays, on a CUDA device (loaders/gpu) for CUDA
+// arrays where the package was built with CUDA. One function runs in both places, so the two agree.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <atomic>
+#include <cstdint>
+#include <exception>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common.h"
+#include "core/eigen.h"
+#include "voxfmt/cores.h"
+
+#if defined(VOXFMT_WITH_CUDA)
+#include "voxfmt/gpu/batch.h"
+#endif
+
+namespace voxfmt::python {
+
+namespace {
+
+using namespace nb::literals;
+namespace core = runtime::core;
+
+// The scene's assets and pairs as the core reads them (host memory; the Bodies keep their objects alive).
+struct HostScene {
+  std::vector<core::Body> bodies;
+  std::vector<uint32_t> pair_a, pair_b;
+};
+
+HostScene host_scene(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs) {
+  if (bodies.empty()) fail(IssueCode::BadOption, "a batch scene needs at least one Body");
+  if (pairs.empty()) fail(IssueCode::BadOption, "a batch scene needs at least one pair (a, b)");
+  HostScene scene;
+  for (const Body* b : bodies) {
+    if (b->object->point_tree().level_count() > core::kMaxWalkLevels)
+      fail(IssueCode::BadOption,
+           b->path + ": its tree has more levels than the batch takes (" + std::to_string(core::kMaxWalkLevels) + ")");
+    scene.bodies.push_back(core::body_of(*b->object));
+  }
+  for (const auto& [a, b] : pairs) {
+    if (a < 0 || b < 0 || size_t(a) >= bodies.size() || size_t(b) >= bodies.size())
+      fail(IssueCode::BadOption,
+           "pair (" + std::to_string(a) + ", " + std::to_string(b) + ") names a Body the scene does not have");
+    scene.pair_a.push_back(uint32_t(a));
+    scene.pair_b.push_back(uint32_t(b));
+  }
+  return scene;
+}
+
+template <class T, class... Dims>
+using CpuArray = nb::ndarray<T, nb::device::cpu, nb::c_contig, Dims...>;
+
+// The CPU path: environments on `threads` workers, taken in chunks in turn (they differ in cost).
+template <class T>
+void run_cpu(const HostScene& scene, const CpuArray<const T, nb::shape<-1, 4, 4>>& poses_a,
+             const CpuArray<const T, nb::shape<-1, 4, 4>>& poses_b,
+             const std::optional<CpuArray<const int32_t, nb::ndim<1>>>& pair, double proximity, double stiffness,
+             size_t threads, const core::BatchOutputs& out) {
+  core::BatchInputs<T> in;
+  in.bodies = scene.bodies.data();
+  in.pair_a = scene.pair_a.data();
+  in.pair_b = scene.pair_b.data();
+  in.pair_count = uint32_t(scene.pair_a.size());
+  in.pair_index = pair ? pair->data() : nullptr;
+  in.poses_a = poses_a.data();
+  in.poses_b = poses_b.data();
+  in.environments = poses_a.shape(0);
+  in.proximity = proximity;
+  in.stiffness = stiffness;
+  constexpr size_t kChunk = 16;
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t begin = next.fetch_add(kChunk); begin < in.environments; begin = next.fetch_add(kChunk))
+      for (size_t e = begin; e < std::min(begin + kChunk, in.environments); ++e) core::run_environment(in, out, e);
+  };
+  nb::gil_scoped_release release;
+  std::vector<std::thread> pool;
+  const size_t workers = std::max<size_t>(1, std::min(threads, (in.environments + kChunk - 1) / kChunk));
+  try {
+    for (size_t w = 1; w < workers; ++w) pool.emplace_back(work);
+  } catch (const std::system_error&) {
+    // Fewer threads than asked: those started and this one share the work.
+  }
+  work();
+  for (std::thread& t : pool) t.join();
+}
+
+nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs,
+                   nb::handle poses_a, nb::handle poses_b, nb::handle pair_index, double proximity, double stiffness,
+                   int64_t max_contacts, std::optional<int64_t> threads) {
+  if (!(std::isfinite(proximity) && proximity >= 0)) fail(IssueCode::BadOption, "proximity must be finite and >= 0");
+  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
+  if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
+    fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
+  if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
+  const HostScene scene = host_scene(bodies, pairs);
+  std::optional<CpuArray<const int32_t, nb::ndim<1>>> pair;
+  if (!pair_index.is_none()) {
+    pair.emplace();
+    if (!nb::try_cast(pair_index, *pair, false))
+      fail(IssueCode::BadOption, "pair_index: expected a C-contiguous int32 array of shape (E,)");
+  }
+  // float32 or float64 poses, as given (a GPU batch takes float32: the same values here give the same results).
+  CpuArray<const float, nb::shape<-1, 4, 4>> a32, b32;
+  CpuArray<const double, nb::shape<-1, 4, 4>> a64, b64;
+  const bool f32 = nb::try_cast(poses_a, a32, false) && nb::try_cast(poses_b, b32, false);
+  const bool f64 = !f32 && nb::try_cast(poses_a, a64, false) && nb::try_cast(poses_b, b64, false);
+  if (!f32 && !f64)
+    fail(IssueCode::BadOption,
+         "poses_a and poses_b: expected C-contiguous (E, 4, 4) arrays of one dtype, float32 or float64");
+  const size_t envs = f32 ? a32.shape(0) : a64.shape(0);
+  if ((f32 ? b32.shape(0) : b64.shape(0)) != envs)
+    fail(IssueCode::BadOption, "poses_a and poses_b hold different numbers of environments");
+  if (pair && pair->shape(0) != envs) fail(IssueCode::BadOption, "pair_index must hold one pair per environment");
+  const size_t k = size_t(max_contacts);
+  OutArray<int32_t> count({envs}), overflow({envs}), error({envs});
+  OutArray<float> max_depth({envs}), force({envs, 3}), torque({envs, 3});
+  OutArray<float> points({envs, k, 3}), normals({envs, k, 3}), depths({envs, k});
+  OutArray<int32_t> index({envs, k});
+  OutArray<uint8_t> of_b({envs, k});
+  core::BatchOutputs out;
+  out.count = count.data;
+  out.max_depth = max_depth.data;
+  out.force = force.data;
+  out.torque = torque.data;
+  out.overflow = overflow.data;
+  out.error = error.data;
+  out.contacts = {points.data, normals.data, depths.data, index.data, of_b.data, uint32_t(k)};
+  const size_t workers = threads ? size_t(*threads) : voxfmt::usable_cores();
+  if (f32)
+    run_cpu<float>(scene, a32, b32, pair, proximity, stiffness, workers, out);
+  else
+    run_cpu<double>(scene, a64, b64, pair, proximity, stiffness, workers, out);
+  nb::dict d;
+  d["count"] = count.array;
+  d["max_depth"] = max_depth.array;
+  d["force"] = force.array;
+  d["torque"] = torque.array;
+  d["overflow"] = overflow.array;
+  d["error"] = error.array;
+  if (k > 0) {
+    d["points"] = points.array;
+    d["normals"] = normals.array;
+    d["depths"] = depths.array;
+    d["point_index"] = index.array;
+    d["point_of_b"] = of_b.array;
+  }
+  return d;
+}
+
+#if defined(VOXFMT_WITH_CUDA)
+template <class T, class... Dims>
+using CudaArray = nb::ndarray<T, nb::device::cuda, nb::c_contig, Dims...>;
+
+// Assets on the device, uploaded once; a call queues one kernel on the caller's stream and returns.
+struct DeviceScene {
+  std::shared_ptr<gpu::Scene> scene;
+  std::vector<std::shared_ptr<const runtime::CollisionObject>> keep;
+
+  DeviceScene(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs) {
+    (void)host_scene(bodies, pairs);  // the same checks as the CPU path
+    std::vector<gpu::Scene::Pair> p;
+    for (const auto& [a, b] : pairs) p.push_back({uint32_t(a), uint32_t(b)});
+    for (const Body* b : bodies) keep.push_back(b->object);
+    Result<std::shared_ptr<gpu::Scene>> uploaded = gpu::Scene::upload(keep, p);
+    if (!uploaded) throw CodedError(uploaded.error());
+    scene = uploaded.value();
+  }
+
+  void run(CudaArray<const float, nb::shape<-1, 4, 4>> poses_a, CudaArray<const float, nb::shape<-1, 4, 4>> poses_b,
+           std::optional<CudaArray<const int32_t, nb::ndim<1>>> pair, double proximity, double stiffness,
+           CudaArray<int32_t, nb::ndim<1>> count, CudaArray<float, nb::ndim<1>> max_depth,
+           CudaArray<float, nb::shape<-1, 3>> force, CudaArray<float, nb::shape<-1, 3>> torque,
+           CudaArray<int32_t, nb::ndim<1>> overflow, CudaArray<int32_t, nb::ndim<1>> error, int64_t max_contacts,
+           std::optional<CudaArray<float, nb::ndim<3>>> points, std::optional<CudaArray<float, nb::ndim<3>>> normals,
+           std::optional<CudaArray<float, nb::ndim<2>>> depths, std::optional<CudaArray<int32_t, nb::ndim<2>>> index,
+           std::optional<CudaArray<uint8_t, nb::ndim<2>>> of_b, uintptr_t stream) const {
+    const size_t envs = poses_a.shape(0);
+    if (poses_b.shape(0) != envs || count.shape(0) != envs || max_depth.shape(0) != envs || force.shape(0) != envs ||
+        torque.shape(0) != envs || overflow.shape(0) != envs || error.shape(0) != envs ||
+        (pair && pair->shape(0) != envs))
+      fail(IssueCode::BadOption, "every input and output of a batch holds one row per environment");
+    gpu::Environments in;
+    in.count = envs;
+    in.poses_a = poses_a.data();
+    in.poses_b = poses_b.data();
+    in.pair = pair ? pair->data() : nullptr;
+    in.proximity = proximity;
+    in.stiffness = stiffness;
+    gpu::Outputs out;
+    out.count = count.data();
+    out.max_depth = max_depth.data();
+    out.force = force.data();
+    out.torque = torque.data();
+    out.overflow = overflow.data();
+    out.error = error.data();
+    out.max_contacts = uint32_t(max_contacts);
+    if (max_contacts > 0) {
+      if (!points || !normals || !depths || !index || !of_b)
+        fail(IssueCode::BadOption, "max_contacts > 0 needs every contact output");
+      out.points = points->data();
+      out.normals = normals->data();
+      out.depths = depths->data();
+      out.point_index = index->data();
+      out.point_of_b = of_b->data();
+    }
+    const Status launched = scene->contacts(in, out, reinterpret_cast<void*>(stream));
+    if (!launched) throw CodedError(launched.error());
+  }
+};
+#endif
+
+}  // namespace
+
+void bind_batch(nb::module_& m) {
+  m.def("_batch_cpu", &batch_cpu, "bodies"_a, "pairs"_a, "poses_a"_a, "poses_b"_a, "pair_index"_a.none(), "proximity"_a,
+        "stiffness"_a, "max_contacts"_a, "threads"_a.none());
+#if defined(VOXFMT_WITH_CUDA)
+  m.def("_cuda_status", [] {
+    std::string why;
+    const bool ok = gpu::available(&why);
+    return std::make_pair(ok, ok ? gpu::device_name() : why);
+  });
+  nb::class_<DeviceScene>(m, "_DeviceScene")
+      .def(nb::init<const std::vector<const Body*>&, const std::vector<std::pair<int64_t, int64_t>>&>(), "bodies"_a,
+           "pairs"_a)
+      .def_prop_ro("device_bytes", [](const DeviceScene& s) { return s.scene->device_bytes(); })
+      .def("asset_device_bytes", [](const DeviceScene& s, size_t i) { return s.scene->asset_device_bytes(i); })
+      .def("run", &DeviceScene::run, "poses_a"_a, "poses_b"_a, "pair_index"_a.none(), "proximity"_a, "stiffness"_a,
+           "count"_a, "max_depth"_a, "force"_a, "torque"_a, "overflow"_a, "error"_a, "max_contacts"_a,
+           "points"_a.none(), "normals"_a.none(), "depths"_a.none(), "point_index"_a.none(), "point_of_b"_a.none(),
+           "stream"_a);
+#else
+  m.def("_cuda_status", [] { return std::make_pair(false, std::string("this build of voxfmt has no CUDA support")); });
+#endif
+}
+
+}  // namespace voxfmt::python

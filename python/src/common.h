@@ -1,0 +1,55 @@
+// What the binding's sources share (module.cpp, batch.cpp): the error on its way to Python, output arrays, and
+// the loaded asset a Python Body holds.
+#pragma once
+
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+
+#include <algorithm>
+#include <initializer_list>
+#include <memory>
+#include <string>
+
+#include "voxfmt/result.h"
+#include "voxfmt/runtime/collision_object.h"
+
+namespace voxfmt::python {
+
+namespace nb = nanobind;
+
+/// A library error on its way to Python (see the translator in NB_MODULE).
+struct CodedError : std::exception {
+  Error error;
+  explicit CodedError(Error e) : error(std::move(e)) {}
+  const char* what() const noexcept override { return error.message.c_str(); }
+};
+
+[[noreturn]] inline void fail(IssueCode code, std::string message) {
+  throw CodedError(Error{code, std::move(message)});
+}
+
+/// A NumPy array of `shape` the binding fills (zeroed), owned by Python once returned.
+template <class T>
+struct OutArray {
+  T* data = nullptr;
+  nb::ndarray<nb::numpy, T> array;
+  OutArray(std::initializer_list<size_t> shape) {
+    size_t n = 1;
+    for (size_t s : shape) n *= s;
+    data = new T[std::max<size_t>(n, 1)]();
+    nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
+    array = nb::ndarray<nb::numpy, T>(data, shape, owner);
+  }
+};
+
+/// A loaded asset as Python holds it (voxfmt.Body).
+struct Body {
+  std::shared_ptr<const runtime::CollisionObject> object;
+  double density = 1.0;
+  std::string path;
+};
+
+/// Binds the batched queries of every environment (batch.cpp): the CPU path, and the CUDA one where built.
+void bind_batch(nb::module_& m);
+
+}  // namespace voxfmt::python

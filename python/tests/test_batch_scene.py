@@ -1,0 +1,128 @@
+"""voxfmt.BatchScene: every environment of a batch through the query core's environment, the code the CUDA kernel
+runs. Here on the CPU (CI has no GPU): against contacts_batch() on the same poses, with several assets and pairs,
+shells and 1.x files, a contact buffer that overflows, and environments with bad poses or pairs."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import RADIUS, icosphere, write_off
+
+import voxfmt
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def random_poses(rng: np.random.Generator, k: int, spread: float, body: voxfmt.Body | None = None) -> np.ndarray:
+    """k rotations about the body's centre of mass, which lands within `spread` of the origin."""
+    poses = np.tile(np.eye(4, dtype=np.float32), (k, 1, 1))
+    for i in range(k):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        poses[i, :3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+        centre = np.zeros(3) if body is None else np.asarray(body.center_of_mass)
+        poses[i, :3, 3] = rng.normal(size=3) * spread - poses[i, :3, :3] @ centre
+    return poses
+
+
+def size(body: voxfmt.Body) -> float:
+    lo, hi = body.bounds
+    return float(np.linalg.norm(np.asarray(hi) - np.asarray(lo))) / 2
+
+
+@pytest.fixture(scope="module")
+def bodies(sphere: voxfmt.Body, tmp_path_factory: pytest.TempPathFactory) -> dict[str, voxfmt.Body]:
+    folder = tmp_path_factory.mktemp("batch")
+    # A shell: an open hemisphere baked as a sheet of thickness (spec §3.1, shell mode).
+    v, f = icosphere(3)
+    keep = [i for i, t in enumerate(f) if v[t].mean(axis=0)[2] > 0]
+    write_off(folder / "cap.off", v * RADIUS, f[keep])
+    voxfmt.bake(folder / "cap.off", folder / "cap.vox.h5", resolution=40, points=1500, shell_thickness=0.004,
+                threads=1)
+    # A format 1.1 file, which 2.x readers convert as they read (spec §3.4).
+    sys.path.insert(0, str(REPO / "tests" / "spec"))
+    import spec_fixture  # noqa: E402
+
+    legacy = spec_fixture.write_legacy_fixture_h5py(str(folder / "legacy.vox.h5"), grid=spec_fixture.FINE_GRID)
+    return {"sphere": sphere, "shell": voxfmt.load(folder / "cap.vox.h5"), "legacy": voxfmt.load(legacy)}
+
+
+@pytest.mark.parametrize("pair", [("sphere", "sphere"), ("shell", "sphere"), ("legacy", "shell"),
+                                  ("legacy", "legacy")])
+def test_the_same_contacts_as_contacts_batch(bodies: dict[str, voxfmt.Body], pair: tuple[str, str]) -> None:
+    a, b = bodies[pair[0]], bodies[pair[1]]
+    rng = np.random.default_rng(5)
+    pa = random_poses(rng, 300, 0.0, a)
+    pb = random_poses(rng, 300, 0.5 * min(size(a), size(b)), b)
+    for proximity in (0.0, 0.002):
+        got = voxfmt.BatchScene([a, b]).contacts(pa, pb, stiffness=3e3, proximity=proximity, max_contacts=20000)
+        ref = voxfmt.contacts_batch(a, pa.astype(np.float64), b, pb.astype(np.float64), stiffness=3e3,
+                                    proximity=proximity, with_contacts=True)
+        assert np.array_equal(got.count, ref.count)
+        assert (got.count > 0).sum() > 50, "too few poses touch: the test no longer compares contacts"
+        assert not got.overflow.any() and not got.error.any()
+        np.testing.assert_allclose(got.max_depth, ref.max_depth, rtol=1e-6, atol=1e-9)
+        scale = 1 + np.abs(ref.force).max(axis=1, keepdims=True)
+        np.testing.assert_allclose(got.force / scale, ref.force / scale, atol=1e-5)
+        np.testing.assert_allclose(got.torque / scale, ref.torque / scale, atol=1e-5)
+        for k in np.flatnonzero(got.count)[:60]:
+            n = got.count[k]
+            rows = slice(ref.offsets[k], ref.offsets[k + 1])
+            mine = sorted(zip(got.point_of_b[k, :n].astype(bool), got.point_index[k, :n], got.depths[k, :n]))
+            theirs = sorted(zip(ref.point_of_b[rows], ref.point_index[rows], ref.depths[rows].astype(np.float32)))
+            assert mine == theirs, k
+
+
+def test_pairs_and_pair_index(bodies: dict[str, voxfmt.Body]) -> None:
+    scene = voxfmt.BatchScene([bodies["sphere"], bodies["shell"]], pairs=[(0, 1), (1, 0), (0, 0)])
+    rng = np.random.default_rng(8)
+    pa, pb = random_poses(rng, 90, 0.0), random_poses(rng, 90, 0.05)
+    index = np.arange(90, dtype=np.int32) % 3
+    got = scene.contacts(pa, pb, index, stiffness=10.0)
+    for p, (a, b) in enumerate([("sphere", "shell"), ("shell", "sphere"), ("sphere", "sphere")]):
+        envs = index == p
+        ref = voxfmt.contacts_batch(bodies[a], pa[envs].astype(np.float64), bodies[b], pb[envs].astype(np.float64),
+                                    stiffness=10.0)
+        assert np.array_equal(got.count[envs], ref.count), (a, b)
+
+
+def test_overflow_is_counted_and_the_rest_kept(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    pa = np.tile(np.eye(4, dtype=np.float32), (4, 1, 1))
+    pb = pa.copy()
+    pb[:, 0, 3] = [0.02, 0.04, 0.099, 0.5]  # deep, deep, grazing, apart
+    full = scene.contacts(pa, pb, max_contacts=10000)
+    few = scene.contacts(pa, pb, max_contacts=5)
+    assert np.array_equal(few.count, full.count)
+    assert np.array_equal(few.overflow, np.maximum(full.count - 5, 0))
+    assert full.count[3] == 0 and full.count[0] > 5
+    assert np.array_equal(few.depths, full.depths[:, :5])
+    assert np.array_equal(few.force, full.force)
+
+
+def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    pa = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))
+    pb = pa.copy()
+    pb[1, 0, 0] = 2.0  # scaled: not rigid
+    with pytest.raises(voxfmt.PoseError, match="environment 1"):
+        scene.contacts(pa, pb)
+    unchecked = scene.contacts(pa, pb, check=False)
+    assert unchecked.error.tolist() == [0, 4, 0]
+    with pytest.raises(voxfmt.OptionError, match="pair"):
+        scene.contacts(pa, pa, np.array([0, 3, 0], dtype=np.int32))
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.BatchScene([sphere], pairs=[(0, 2)])
+    with pytest.raises(voxfmt.OptionError):
+        scene.contacts(pa, pb[:2])
+
+
+def test_cuda_status_says_why() -> None:
+    ok, text = voxfmt.cuda_status()
+    assert isinstance(ok, bool) and text  # a device name, or why there is none (CI: no driver)

@@ -1,0 +1,190 @@
+"""Thousands of environments in one call: voxfmt.BatchScene.
+
+A scene holds assets (Bodies) and the pairs an environment may hold; each call takes, per environment, a pair
+index and the two bodies' 4x4 poses, and returns per environment the contact count, the deepest penetration, the
+penalty wrench on A and, on request, the contacts themselves in buffers of a size you choose, with the number that
+did not fit always reported (``overflow``). NumPy poses run on the CPU; CUDA poses (PyTorch, CuPy: anything with
+``__cuda_array_interface__``) run on the GPU, on your stream, without a copy or an allocation when you pass the
+outputs (``out=``), so the call can be captured in a CUDA graph. Both run the same code (the query core's
+environment), so code written for the GPU runs everywhere and gives the same answers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from ._errors import InternalError, OptionError, PoseError
+from ._voxfmt import Body, _batch_cpu, _cuda_status
+
+__all__ = ["BatchScene", "BatchResult", "cuda_status"]
+
+# Why an environment has no result (the `error` output).
+_ENV_ERRORS = {
+    1: "its tree is deeper than the batch takes",
+    2: "a pose has a non-finite entry",
+    3: "a pose's last row is not 0 0 0 1",
+    4: "a pose's rotation part is not orthonormal (|R^T R - I| > 1e-6)",
+    5: "a pose's rotation part has determinant -1 (a reflection)",
+    6: "its pair index names no pair of the scene",
+}
+
+
+def cuda_status() -> tuple[bool, str]:
+    """(True, device name) if this build of voxfmt has CUDA support and a device can be used, else (False, why)."""
+    ok, text = _cuda_status()
+    return bool(ok), str(text)
+
+
+@dataclass
+class BatchResult:
+    """Per-environment results (E environments), as arrays of the poses' kind (NumPy, PyTorch or CuPy) and device.
+    ``force``/``torque`` (E, 3) act on A (torque about A's centre of mass in the world); ``overflow`` counts the
+    contacts beyond ``max_contacts``; ``error`` is 0, or why the environment has no result. With max_contacts = K > 0,
+    environment e's contacts are rows ``[:count[e]]`` (at most K) of ``points[e]``, ``normals[e]`` (K, 3),
+    ``depths[e]``, ``point_index[e]`` and ``point_of_b[e]`` (K,)."""
+
+    count: Any
+    max_depth: Any
+    force: Any
+    torque: Any
+    overflow: Any
+    error: Any
+    points: Any = None
+    normals: Any = None
+    depths: Any = None
+    point_index: Any = None
+    point_of_b: Any = None
+
+
+def _on_cuda(array: Any) -> bool:
+    device = getattr(array, "device", None)
+    return hasattr(array, "__cuda_array_interface__") or getattr(device, "type", None) == "cuda"
+
+
+def _device_index(array: Any) -> int:
+    """The CUDA device a PyTorch tensor or CuPy array lives on (the scene's assets are uploaded per device)."""
+    device = getattr(array, "device", None)
+    index = getattr(device, "index", None)  # torch.device
+    if index is None:
+        index = getattr(device, "id", None)  # cupy.cuda.Device
+    return int(index or 0)
+
+
+def _framework(array: Any) -> Any:
+    """The module that made a CUDA array (torch or cupy): it allocates the outputs and names the stream."""
+    module = type(array).__module__.split(".")[0]
+    if module in ("torch", "cupy"):
+        return __import__(module)
+    raise OptionError("BAD_OPTION", f"CUDA arrays of {module} are not supported: use PyTorch or CuPy, or pass out=")
+
+
+class BatchScene:
+    """Assets and the pairs environments may hold. ``pairs`` are (A, B) indices into ``bodies`` (default: the first
+    body against the second, or against itself when it is the only one); each environment
+    names its pair with ``pair_index`` (default: pair 0 everywhere). The assets go to the current CUDA device once,
+    at the first call with CUDA poses on it, and are shared by every environment there (one scene per device: make
+    the poses' device current, as PyTorch's ``torch.cuda.device`` does, when you use several)."""
+
+    def __init__(self, bodies: Sequence[Body], pairs: Sequence[tuple[int, int]] | None = None) -> None:
+        self.bodies = list(bodies)
+        if pairs is None:  # one body against itself, or the first against the second
+            pairs = [(0, min(1, len(self.bodies) - 1))]
+        self.pairs = [(int(a), int(b)) for a, b in pairs]
+        if not self.bodies or not self.pairs:
+            raise OptionError("BAD_OPTION", "a BatchScene needs bodies and at least one pair")
+        for a, b in self.pairs:
+            if not (0 <= a < len(self.bodies) and 0 <= b < len(self.bodies)):
+                raise OptionError("BAD_OPTION", f"pair ({a}, {b}) names a body the scene does not have")
+        self._device_scenes: dict[int, Any] = {}
+
+    def device_bytes(self, device: int = 0) -> int:
+        """Device memory the assets take on CUDA device `device` (uploading them if not yet there)."""
+        return int(self._device_scene(device).device_bytes)
+
+    def _device_scene(self, device: int) -> Any:
+        scene = self._device_scenes.get(device)
+        if scene is None:
+            from ._voxfmt import _DeviceScene  # type: ignore[attr-defined]
+
+            scene = self._device_scenes[device] = _DeviceScene(self.bodies, self.pairs)
+        return scene
+
+    def contacts(
+        self,
+        poses_a: Any,
+        poses_b: Any,
+        pair_index: Any = None,
+        *,
+        stiffness: float = 1.0,
+        proximity: float = 0.0,
+        max_contacts: int = 0,
+        threads: int | None = None,
+        out: BatchResult | None = None,
+        stream: int | None = None,
+        check: bool = True,
+    ) -> BatchResult:
+        """Contacts of every environment: poses_a, poses_b (E, 4, 4) rigid body-to-world matrices (float32, or
+        float64 on the CPU), pair_index (E,) int32 or None. On CUDA arrays the call is queued on `stream` (default:
+        the framework's current stream) and returns at once; with ``check=True`` it then waits to check the
+        environments' ``error`` (raising PoseError or OptionError); pass check=False (and ``out``) inside a CUDA
+        graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks."""
+        if _on_cuda(poses_a) or _on_cuda(poses_b):
+            result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream)
+        else:
+            if out is not None:
+                raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
+            raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),
+                             None if pair_index is None else np.ascontiguousarray(pair_index, dtype=np.int32),
+                             float(proximity), float(stiffness), int(max_contacts), threads)
+            result = BatchResult(**raw)
+        if check:
+            _raise_for(result.error)
+        return result
+
+    def _contacts_cuda(self, poses_a: Any, poses_b: Any, pair_index: Any, stiffness: float, proximity: float,
+                       max_contacts: int, out: BatchResult | None, stream: int | None) -> BatchResult:
+        ok, why = cuda_status()
+        if not ok:
+            raise InternalError("INTERNAL", f"CUDA poses, but no CUDA device can be used: {why}")
+        device = _device_index(poses_a)
+        envs = int(poses_a.shape[0])
+        k = int(max_contacts)
+        if out is None:
+            fw = _framework(poses_a)
+            if fw.__name__ == "torch":
+                def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                    return fw.empty(shape, dtype=getattr(fw, dtype), device=poses_a.device)
+            else:
+                def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                    return fw.empty(shape, dtype=dtype)
+            out = BatchResult(empty((envs,), "int32"), empty((envs,), "float32"), empty((envs, 3), "float32"),
+                              empty((envs, 3), "float32"), empty((envs,), "int32"), empty((envs,), "int32"))
+            if k > 0:
+                out.points, out.normals = empty((envs, k, 3), "float32"), empty((envs, k, 3), "float32")
+                out.depths, out.point_index = empty((envs, k), "float32"), empty((envs, k), "int32")
+                out.point_of_b = empty((envs, k), "uint8")
+        if stream is None:
+            fw = _framework(poses_a)
+            stream = (fw.cuda.current_stream(poses_a.device).cuda_stream if fw.__name__ == "torch"
+                      else fw.cuda.get_current_stream().ptr)
+        self._device_scene(device).run(
+            poses_a, poses_b, pair_index, float(proximity), float(stiffness), out.count, out.max_depth, out.force,
+            out.torque, out.overflow, out.error, k, out.points, out.normals, out.depths, out.point_index,
+            out.point_of_b, int(stream))
+        return out
+
+
+def _raise_for(error: Any) -> None:
+    worst = int(error.max()) if len(error) else 0  # on a CUDA array this waits for the batch
+    if worst == 0:
+        return
+    codes = sorted({int(e) for e in (error.tolist() if hasattr(error, "tolist") else error)} - {0})
+    first = next(i for i, e in enumerate(error.tolist()) if int(e) != 0)
+    message = f"environment {first}: {_ENV_ERRORS.get(codes[0], 'error ' + str(codes[0]))}"
+    if any(c in (2, 3, 4, 5) for c in codes):
+        raise PoseError("BAD_POSE", message)
+    raise OptionError("BAD_OPTION", message)
+
