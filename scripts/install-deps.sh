@@ -63,3 +63,16 @@ if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py, mujoco; assert
 else
   echo "install-deps: $VENV has the Python tools"
 fi
+
+# A CUDA compiler from PyPI (python/requirements-cuda.txt: nvcc, its runtime headers and static runtime), so that
+# the CUDA batch (loaders/gpu) compiles on every machine, GPU or not: CI builds the kernels it cannot run.
+# VOXFMT_CUDA=OFF skips it (and the CUDA build).
+if [ "${VOXFMT_CUDA:-AUTO}" != OFF ] && ! ls "$VENV"/lib/python3*/site-packages/nvidia/cu13/bin/nvcc >/dev/null 2>&1; then
+  echo "install-deps: adding nvcc to $VENV (python/requirements-cuda.txt; log: .logs/pip-cuda.log) ..."
+  if ! "$VENV/bin/python" -m pip install --disable-pip-version-check -r python/requirements-cuda.txt \
+      >.logs/pip-cuda.log 2>&1; then
+    tail -n 20 .logs/pip-cuda.log >&2
+    echo "install-deps: pip failed; the whole log is .logs/pip-cuda.log" >&2
+    exit 1
+  fi
+fi

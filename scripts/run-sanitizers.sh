@@ -24,7 +24,7 @@ flags="-O2 -gline-tables-only -DNDEBUG"
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang-14 \
   -DCMAKE_CXX_COMPILER=clang++-14 -DCMAKE_C_FLAGS_RELWITHDEBINFO="$flags" -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="$flags" \
   -DVOXFMT_SANITIZE=fuzzer-no-link,address,undefined -DVOXFMT_FUZZ=ON -DVOXFMT_BUILD_TOOLS=$tools \
-  -DVOXFMT_BUILD_EXAMPLES=$tools -DVOXFMT_BUILD_PYTHON=OFF -DVOXFMT_INSTALL=OFF >/dev/null
+  -DVOXFMT_BUILD_EXAMPLES=$tools -DVOXFMT_BUILD_PYTHON=OFF -DVOXFMT_INSTALL=OFF -DVOXFMT_CUDA=OFF >/dev/null
 cmake --build "$BUILD_DIR" -j "${JOBS:-$(nproc)}"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
 # Third-party headers with known reports are suppressed by name, each with its reason (tests/sanitizers/).

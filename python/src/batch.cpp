@@ -13,6 +13,7 @@
 #include <exception>
 #include <string>
 #include <thread>
+#include <type_traits>
 #include <vector>
 
 #include "common.h"
@@ -219,9 +220,60 @@ struct DeviceScene {
 };
 #endif
 
+// A Body's arrays exactly as the query core reads them (core::Body): for a runner that has only the core and CUDA
+// (scripts/gpu-check.sh on a machine without our libraries) to rebuild the same Body there.
+nb::dict export_core(const Body& body) {
+  const core::Body b = core::body_of(*body.object);
+  nb::dict d;
+  auto copy = [](const auto* data, size_t count, std::initializer_list<size_t> shape) {
+    using T = std::remove_cv_t<std::remove_pointer_t<decltype(data)>>;
+    OutArray<T> a(shape);
+    std::copy(data, data + count, a.data);
+    return a.array;
+  };
+  const runtime::SparseVoxelmap& map = body.object->voxelmap();
+  const size_t codes = map.value_brick_count() * size_t(core::kBrickVoxels);
+  size_t lattice = 1;
+  for (int a = 0; a < 3; ++a) lattice *= size_t(b.field.lattice_dims[a]);
+  d["bricks"] = copy(b.field.bricks, map.brick_count(), {map.brick_count()});
+  d["codes"] = copy(b.field.codes, codes, {codes});
+  d["lattice"] = copy(b.field.lattice, lattice, {lattice});
+  const float* field_numbers[] = {&b.field.decode_step[0], &b.field.decode_step[1], &b.field.stored_slack,
+                                  &b.field.estimate_slack, &b.field.estimate_offset, &b.field.estimate_shrink,
+                                  &b.field.band_edge, &b.field.lattice_step, &b.field.cover_max.x,
+                                  &b.field.cover_max.y, &b.field.cover_max.z, &b.field.object_min.x,
+                                  &b.field.object_min.y, &b.field.object_min.z, &b.field.object_max.x,
+                                  &b.field.object_max.y, &b.field.object_max.z};
+  OutArray<float> numbers({std::size(field_numbers)});
+  for (size_t i = 0; i < std::size(field_numbers); ++i) numbers.data[i] = *field_numbers[i];
+  d["field_floats"] = numbers.array;
+  OutArray<int32_t> dims({9});
+  for (int a = 0; a < 3; ++a) {
+    dims.data[a] = b.field.dims[a];
+    dims.data[3 + a] = b.field.brick_dims[a];
+    dims.data[6 + a] = b.field.lattice_dims[a];
+  }
+  d["field_dims"] = dims.array;
+  const size_t n = b.shell.count;
+  d["nodes"] = copy(reinterpret_cast<const uint8_t*>(b.shell.nodes), n * sizeof(core::Node), {n * sizeof(core::Node)});
+  d["points"] = copy(&b.shell.points[0].x, 3 * n, {n, 3});
+  d["normals"] = copy(&b.shell.normals[0].x, 3 * n, {n, 3});
+  OutArray<double> doubles({8});
+  for (int a = 0; a < 3; ++a) {
+    doubles.data[a] = b.origin[a];
+    doubles.data[4 + a] = b.center_of_mass[a];
+  }
+  doubles.data[3] = b.voxel_size;
+  doubles.data[7] = b.bounding_radius;
+  d["body_doubles"] = doubles.array;
+  d["levels"] = b.shell.levels;
+  return d;
+}
+
 }  // namespace
 
 void bind_batch(nb::module_& m) {
+  m.def("_export_core", &export_core, "body"_a);
   m.def("_batch_cpu", &batch_cpu, "bodies"_a, "pairs"_a, "poses_a"_a, "poses_b"_a, "pair_index"_a.none(), "proximity"_a,
         "stiffness"_a, "max_contacts"_a, "threads"_a.none());
 #if defined(VOXFMT_WITH_CUDA)

@@ -1,0 +1,121 @@
+"""The batched contact query on a GPU against the CPU batch, on the same bunny-on-bunny poses (issue 34).
+
+Two halves, because the GPU machines that measure it have CUDA and Python but none of voxfmt's libraries:
+
+  .venv/bin/python bench/gpu_batch.py --prepare out/gpu-input        # here: asset, poses, the CPU's figures
+  bash scripts/gpu-check.sh out/gpu-input                             # there: the kernel, timed (JSON in $OUT)
+  .venv/bin/python bench/gpu_batch.py --report GPU.json --input out/gpu-input \\
+      --json bench/results/gpu-batch-CARD.json --markdown bench/results/gpu-batch-CARD.md
+
+--prepare bakes CGAL's bunny at the seed's settings (0.15 m, resolution 306, 35,000 points), makes the 40,000 poses
+bench/python_peers.py --parts batch makes (B approaches A until they touch, then 0.5 mm short to 1.5 mm in), runs
+them through voxfmt.BatchScene on the CPU (the same code the kernel runs: its results are the reference) and
+through contacts_batch on 2 threads (the CPU batch's figure), and exports the asset's arrays as the query core
+reads them. --report joins the GPU's JSON and the CPU's figures into the committed result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+def prepare(folder: Path, poses: int, seed: int, bunny_mesh: str, threads: int) -> None:
+    import python_peers as peers  # the batch bench's asset and pose generator
+
+    import voxfmt
+    from voxfmt._voxfmt import _export_core
+
+    folder.mkdir(parents=True, exist_ok=True)
+    bunny = peers.baked("bunny00-0.15m", Path(bunny_mesh), 0.15, folder)
+    rng = np.random.default_rng(seed)
+    pa, pb = peers.bunny_poses(bunny.body, poses, rng)
+    pa, pb = pa.astype(np.float32), pb.astype(np.float32)  # what a GPU caller holds
+    stiffness = 2e4
+    scene = voxfmt.BatchScene([bunny.body])
+    start = time.perf_counter()
+    ref = scene.contacts(pa, pb, stiffness=stiffness, threads=threads)
+    scene_rate = poses / (time.perf_counter() - start)
+    start = time.perf_counter()
+    voxfmt.contacts_batch(bunny.body, pa.astype(np.float64), bunny.body, pb.astype(np.float64), stiffness=stiffness,
+                          threads=threads)
+    batch_rate = poses / (time.perf_counter() - start)
+    core = _export_core(bunny.body)
+    np.savez(folder / "gpu-batch-input.npz", poses_a=pa, poses_b=pb, stiffness=stiffness,
+             cpu_count=ref.count, cpu_max_depth=ref.max_depth, cpu_force=ref.force, cpu_torque=ref.torque,
+             **{k: np.asarray(v) for k, v in core.items()})
+    arrays = sum(np.asarray(core[k]).nbytes for k in ("bricks", "codes", "lattice", "nodes", "points", "normals"))
+    cpu = {"poses": poses, "threads": threads, "cpu_poses_per_s": batch_rate, "batch_scene_cpu_poses_per_s": scene_rate,
+           "runtime_arrays_mb": arrays / 1e6, "touching": int((ref.count > 0).sum()),
+           "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load_average": list(os.getloadavg()),
+           "asset": str(folder / "bunny00-0.15m-r306-p35000.vox.h5")}
+    (folder / "cpu.json").write_text(json.dumps(cpu, indent=1))
+    print(json.dumps(cpu, indent=1))
+
+
+def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | None) -> None:
+    gpu = json.loads(gpu_json.read_text())
+    cpu = json.loads((folder / "cpu.json").read_text())
+    result = {
+        "device": gpu["device"],
+        "gpu_poses_per_s": gpu["gpu_poses_per_s"],
+        "cpu_poses_per_s": cpu["cpu_poses_per_s"],
+        "cpu_threads": cpu["threads"],
+        "speedup": gpu["gpu_poses_per_s"] / cpu["cpu_poses_per_s"],
+        "device_memory_mb": gpu["device_memory_mb"],
+        "runtime_memory_mb": cpu["runtime_arrays_mb"],
+        "latency": gpu["latency"],
+        "throughput": gpu["throughput"],
+        "agreement": gpu["agreement"],
+        "cpu": cpu,
+    }
+    if out_json:
+        out_json.write_text(json.dumps(result, indent=1))
+    lines = [f"# GPU batch on {result['device']}", "",
+             f"bunny on bunny, {cpu['poses']:,} poses; CPU batch (contacts_batch, {cpu['threads']} threads, "
+             f"{cpu['machine']}): {result['cpu_poses_per_s']:,.0f} poses/s; GPU: {result['gpu_poses_per_s']:,.0f} "
+             f"poses/s ({result['speedup']:.0f}x). Device memory {result['device_memory_mb']:.1f} MB for the asset "
+             f"(the CPU runtime's arrays: {result['runtime_memory_mb']:.1f} MB). Agreement: "
+             f"{result['agreement']['identical']:,} of {result['agreement']['poses']:,} poses identical.", "",
+             "| environments | p50 µs | p99 µs |", "|--:|--:|--:|"]
+    lines += [f"| {r['envs']:,} | {r['p50_us']:.1f} | {r['p99_us']:.1f} |" for r in result["latency"]]
+    lines += ["", "| environments | poses/s |", "|--:|--:|"]
+    lines += [f"| {r['envs']:,} | {r['poses_per_s']:,.0f} |" for r in result["throughput"]]
+    text = "\n".join(lines) + "\n"
+    if out_md:
+        out_md.write_text(text)
+    print(text)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--prepare", type=Path, help="write the inputs and the CPU's figures into this folder")
+    parser.add_argument("--poses", type=int, default=40000)
+    parser.add_argument("--seed", type=int, default=20261127)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--bunny", default=os.environ.get("VOXFMT_BUNNY", "build/cgal-data/data/meshes/bunny00.off"))
+    parser.add_argument("--report", type=Path, help="the GPU's JSON (scripts/gpu-check.sh) to join with --input")
+    parser.add_argument("--input", type=Path, default=Path("out/gpu-input"))
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--markdown", type=Path)
+    args = parser.parse_args()
+    if args.prepare:
+        prepare(args.prepare, args.poses, args.seed, args.bunny, args.threads)
+    if args.report:
+        report(args.report, args.input, args.json, args.markdown)
+    if not args.prepare and not args.report:
+        parser.error("nothing to do: --prepare FOLDER and/or --report GPU.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,165 @@
+"""The GPU batch measured on a CUDA machine that has only CUDA, Python and CuPy (scripts/gpu-check.sh): the
+standalone runner (standalone.cu + loaders/gpu/src/kernels.cu) over an asset and poses exported where voxfmt is
+built (bench/gpu_batch.py --prepare), against the CPU's results on the same poses.
+
+  python3 scripts/gpu/check.py --input out/gpu-input/gpu-batch-input.npz --library LIB.so --json OUT.json
+  python3 scripts/gpu/check.py --input ... --backend cpu --json OUT.json   # the same flow on voxfmt's CPU path
+
+Reports (JSON): device, poses/s over environments from 1 to 1 M, per-call latency p50/p99 (host clock, launch to
+results) at 1, 64, 1024, 4096 and 16384 environments, device memory of the asset, and agreement with the CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import sys
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+LATENCY_ENVS = [1, 64, 1024, 4096, 16384]
+THROUGHPUT_ENVS = [1, 16, 256, 4096, 16384, 65536, 262144, 1048576]
+
+
+def agreement(ref: dict[str, np.ndarray], got: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Per pose: the same count, deepest penetration within 1e-6 m, wrench within 1e-5 of its size."""
+    count_same = ref["count"] == got["count"]
+    depth_same = np.abs(ref["max_depth"] - got["max_depth"]) <= 1e-6
+    scale = 1 + np.abs(ref["force"]).max(axis=1)
+    force_same = np.abs(ref["force"] - got["force"]).max(axis=1) <= 1e-5 * scale
+    identical = count_same & depth_same & force_same
+    return {"poses": int(len(identical)), "identical": int(identical.sum()), "count_differs": int((~count_same).sum()),
+            "max_depth_err_m": float(np.abs(ref["max_depth"] - got["max_depth"]).max()),
+            "errors": int((got["error"] != 0).sum())}
+
+
+class CudaBackend:
+    """The standalone runner through ctypes, on CuPy arrays."""
+
+    def __init__(self, library: str, data: dict[str, np.ndarray]) -> None:
+        import cupy
+
+        self.cp = cupy
+        self.lib = ctypes.CDLL(library)
+        self.lib.voxfmt_gpu_check_run.restype = ctypes.c_int
+        self.d = {k: cupy.asarray(data[k]) for k in ("bricks", "codes", "lattice", "nodes", "points", "normals")}
+        self.host = {k: np.ascontiguousarray(data[k]) for k in ("field_floats", "field_dims", "body_doubles")}
+        self.count = int(data["points"].shape[0])
+        self.levels = int(data["levels"])
+        self.device = cupy.cuda.runtime.getDeviceProperties(cupy.cuda.runtime.getDevice())["name"].decode()
+        self.device_bytes = int(sum(a.nbytes for a in self.d.values()))
+
+    def upload(self, poses: np.ndarray) -> Any:
+        return self.cp.asarray(poses)
+
+    def run(self, pa: Any, pb: Any, stiffness: float) -> Callable[[], dict[str, np.ndarray]]:
+        cp, n = self.cp, pa.shape[0]
+        out = {"count": cp.empty(n, cp.int32), "max_depth": cp.empty(n, cp.float32), "force": cp.empty((n, 3), cp.float32),
+               "torque": cp.empty((n, 3), cp.float32), "overflow": cp.empty(n, cp.int32), "error": cp.empty(n, cp.int32)}
+        text = ctypes.create_string_buffer(512)
+        ptr = lambda a: ctypes.c_void_p(a.data.ptr)  # noqa: E731
+        hptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+        status = self.lib.voxfmt_gpu_check_run(
+            ptr(self.d["bricks"]), ptr(self.d["codes"]), ptr(self.d["lattice"]), hptr(self.host["field_floats"]),
+            hptr(self.host["field_dims"]), ptr(self.d["nodes"]), ptr(self.d["points"]), ptr(self.d["normals"]),
+            hptr(self.host["body_doubles"]), ctypes.c_uint32(self.count), ctypes.c_uint32(self.levels), ptr(pa), ptr(pb),
+            ctypes.c_size_t(n), ctypes.c_double(0.0), ctypes.c_double(stiffness), ptr(out["count"]),
+            ptr(out["max_depth"]), ptr(out["force"]), ptr(out["torque"]), ptr(out["overflow"]), ptr(out["error"]),
+            ctypes.c_size_t(cp.cuda.get_current_stream().ptr), text, ctypes.c_size_t(512))
+        if status != 0:
+            raise RuntimeError(text.value.decode())
+
+        def fetch() -> dict[str, np.ndarray]:
+            cp.cuda.get_current_stream().synchronize()
+            return {k: cp.asnumpy(v) for k, v in out.items()}
+
+        return fetch
+
+    def sync(self) -> None:
+        self.cp.cuda.get_current_stream().synchronize()
+
+
+class CpuBackend:
+    """voxfmt's CPU path (BatchScene on NumPy): the flow of this script without a GPU, for its own test."""
+
+    def __init__(self, asset: str) -> None:
+        import voxfmt
+
+        self.scene = voxfmt.BatchScene([voxfmt.load(asset)])
+        self.device = "cpu (voxfmt.BatchScene)"
+        self.device_bytes = 0
+
+    def upload(self, poses: np.ndarray) -> np.ndarray:
+        return poses
+
+    def run(self, pa: np.ndarray, pb: np.ndarray, stiffness: float) -> Callable[[], dict[str, np.ndarray]]:
+        r = self.scene.contacts(pa, pb, stiffness=stiffness, check=False)
+        return lambda: {k: getattr(r, k) for k in ("count", "max_depth", "force", "torque", "overflow", "error")}
+
+    def sync(self) -> None:
+        pass
+
+
+def percentiles_us(samples: list[float]) -> tuple[float, float]:
+    s = np.asarray(samples) * 1e6
+    return float(np.percentile(s, 50)), float(np.percentile(s, 99))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--input", required=True, help="bench/gpu_batch.py --prepare's .npz")
+    parser.add_argument("--backend", choices=["cuda", "cpu"], default="cuda")
+    parser.add_argument("--library", help="the standalone runner (cuda backend)")
+    parser.add_argument("--asset", help="the asset file (cpu backend)")
+    parser.add_argument("--max-envs", type=int, default=THROUGHPUT_ENVS[-1])
+    parser.add_argument("--reps", type=int, default=50, help="timed calls per latency size")
+    parser.add_argument("--json", required=True)
+    args = parser.parse_args()
+    data = dict(np.load(args.input))
+    stiffness = float(data["stiffness"])
+    backend = CudaBackend(args.library, data) if args.backend == "cuda" else CpuBackend(args.asset)
+    pa_all, pb_all = data["poses_a"], data["poses_b"]
+    k = len(pa_all)
+
+    # Agreement on every pose of the bench.
+    got = backend.run(backend.upload(pa_all), backend.upload(pb_all), stiffness)()
+    ref = {name: data["cpu_" + name] for name in ("count", "max_depth", "force", "torque")}
+    report: dict[str, Any] = {"device": backend.device, "device_memory_mb": backend.device_bytes / 1e6,
+                              "agreement": agreement(ref, got), "latency": [], "throughput": []}
+    # Latency: host clock from the launch to results in host memory.
+    for envs in [e for e in LATENCY_ENVS if e <= args.max_envs]:
+        pa, pb = backend.upload(pa_all[:envs] if envs <= k else np.resize(pa_all, (envs, 4, 4))), \
+            backend.upload(pb_all[:envs] if envs <= k else np.resize(pb_all, (envs, 4, 4)))
+        samples = []
+        for rep in range(args.reps + 3):
+            start = time.perf_counter()
+            backend.run(pa, pb, stiffness)()
+            if rep >= 3:  # the first calls warm the device and the caches
+                samples.append(time.perf_counter() - start)
+        p50, p99 = percentiles_us(samples)
+        report["latency"].append({"envs": envs, "p50_us": p50, "p99_us": p99})
+        print(f"latency {envs:>7} envs: p50 {p50:9.1f} us  p99 {p99:9.1f} us", flush=True)
+    # Throughput: poses per second at growing batch sizes (the bench's poses, repeated).
+    for envs in [e for e in THROUGHPUT_ENVS if e <= args.max_envs]:
+        pa, pb = backend.upload(np.resize(pa_all, (envs, 4, 4))), backend.upload(np.resize(pb_all, (envs, 4, 4)))
+        backend.run(pa, pb, stiffness)()
+        reps = max(3, min(50, int(2e6 // envs)))
+        start = time.perf_counter()
+        for _ in range(reps):
+            backend.run(pa, pb, stiffness)
+        backend.sync()
+        rate = envs * reps / (time.perf_counter() - start)
+        report["throughput"].append({"envs": envs, "poses_per_s": rate})
+        print(f"throughput {envs:>7} envs: {rate / 1e6:8.2f} M poses/s", flush=True)
+    report["gpu_poses_per_s"] = max(r["poses_per_s"] for r in report["throughput"])
+    with open(args.json, "w") as fh:
+        json.dump(report, fh, indent=1)
+    print(json.dumps(report["agreement"]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,46 @@
+"""The GPU batch's scripts run end to end on the CPU (CI has no GPU): bench/gpu_batch.py --prepare, the device
+check's flow (scripts/gpu/check.py on voxfmt's CPU path, which runs the kernel's code), --report, and the
+parallel-probes example. On a GPU machine scripts/gpu-check.sh runs the same check on the device."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(os.environ.get("VOXFMT_REPO", Path(__file__).resolve().parents[2]))
+MESHES = Path(os.environ.get("VOXFMT_SAMPLE_MESHES", REPO / "build/cgal-data/data/meshes"))
+
+
+def run(*args: str) -> str:
+    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=REPO, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_prepare_check_and_report_agree(tmp_path: Path) -> None:
+    folder = tmp_path / "input"
+    run("bench/gpu_batch.py", "--prepare", str(folder), "--poses", "600", "--bunny", str(MESHES / "bunny00.off"))
+    cpu = json.loads((folder / "cpu.json").read_text())
+    assert cpu["poses"] == 600 and cpu["cpu_poses_per_s"] > 0 and cpu["touching"] > 300
+    run("scripts/gpu/check.py", "--input", str(folder / "gpu-batch-input.npz"), "--backend", "cpu", "--asset",
+        cpu["asset"], "--max-envs", "64", "--reps", "3", "--json", str(tmp_path / "device.json"))
+    device = json.loads((tmp_path / "device.json").read_text())
+    assert device["agreement"] == {"poses": 600, "identical": 600, "count_differs": 0, "max_depth_err_m": 0.0,
+                                   "errors": 0}
+    assert [r["envs"] for r in device["latency"]] == [1, 64]
+    run("bench/gpu_batch.py", "--report", str(tmp_path / "device.json"), "--input", str(folder), "--json",
+        str(tmp_path / "result.json"))
+    result = json.loads((tmp_path / "result.json").read_text())
+    for key in ("device", "gpu_poses_per_s", "cpu_poses_per_s", "device_memory_mb", "latency", "agreement"):
+        assert key in result, key
+
+
+def test_parallel_probes_press_into_the_bunny(tmp_path: Path) -> None:
+    out = run("examples/gpu/parallel_probes.py", "--envs", "128", "--steps", "400", "--device", "cpu", "--bunny",
+              str(MESHES / "bunny00.off"), "--cache", str(tmp_path))
+    touching = int(out.split("touching at the end: ")[1].split(" of ")[0])
+    assert touching > 100, out
+    assert "errors 0" in out, out
