@@ -152,58 +152,83 @@ Wrench HapticRenderer::contact_wrench_at(const Pose& tool_pose) {
   return w;
 }
 
+// The contacts' wrench about the centre of mass `com`, the stiffness of its linearisation and its energy.
+struct HapticRenderer::ContactTerms {
+  Matrix6d stiffness = Matrix6d::Zero();
+  Vector6d wrench = Vector6d::Zero();
+  double energy = 0.0;
+};
+
+// The spring and damper from the tool to the device's pose of it, and whether each is saturated.
+struct HapticRenderer::Coupling {
+  Eigen::Vector3d force, torque;
+  bool force_saturated = false, torque_saturated = false;
+  double energy = 0.0;
+};
+
 const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
-  const HapticParameters& p = parameters_;
   cycle_ = HapticCycle{};
   const Eigen::Vector3d com_asset = tool_->center_of_mass();
   const Eigen::Vector3d com = tool_pose_.apply(com_asset);
-
   const auto start = Clock::now();
   const double cpu_start = thread_cpu_us();
-  gather_contacts(tool_pose_, p.time_budget_us);
+  gather_contacts(tool_pose_, parameters_.time_budget_us);
   cycle_.query_us = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
   cycle_.query_cpu_us = thread_cpu_us() - cpu_start;
-  if (p.time_budget_us > 0) {
-    // The cap follows the queries' own (CPU) time, not the wall clock: a cycle delayed by the kernel or another
-    // process is cut where its budget ran out, but does not move the cap. Over budget: one level shallower (or
-    // the level completed, if deeper). Back one level deeper after 100 cycles in less than half the budget.
-    const PointTree& tree = tool_->point_tree();
-    const uint32_t leaf_level = uint32_t(tree.level_count() - 1);
-    const uint32_t effective = std::min(level_cap_, leaf_level);
-    if (cycle_.query_cpu_us > p.time_budget_us && effective > 0) {
-      // A budgeted traversal that ran out keeps the level it completed; a full-tree (coherent) one runs to the end.
-      level_cap_ = cycle_.time_budget_hit ? std::max(cycle_.levels_completed, effective - 1) : effective - 1;
-      relaxed_cycles_ = 0;
-    } else if (cycle_.query_cpu_us < 0.5 * p.time_budget_us && effective < leaf_level) {
-      if (++relaxed_cycles_ >= 100) {
-        level_cap_ = effective + 1 >= leaf_level ? p.query.max_level : effective + 1;
-        relaxed_cycles_ = 0;
-      }
-    } else {
+  adapt_level_cap();
+  const ContactTerms contact = contact_terms(com);
+  const Coupling coupling = couple(device_pose, dt, com_asset, com);
+  energy_ = kinetic_energy(tool_pose_.rotation) + contact.energy + coupling.energy;
+  integrate(contact, coupling, dt, com_asset, com);
+  return cycle_;
+}
+
+void HapticRenderer::adapt_level_cap() {
+  const HapticParameters& p = parameters_;
+  if (p.time_budget_us <= 0) return;
+  // The cap follows the queries' own (CPU) time, not the wall clock: a cycle delayed by the kernel or another
+  // process is cut where its budget ran out, but does not move the cap. Over budget: one level shallower (or the
+  // level completed, if deeper). Back one level deeper after 100 cycles in less than half the budget.
+  const PointTree& tree = tool_->point_tree();
+  const uint32_t leaf_level = uint32_t(tree.level_count() - 1);
+  const uint32_t effective = std::min(level_cap_, leaf_level);
+  if (cycle_.query_cpu_us > p.time_budget_us && effective > 0) {
+    // A budgeted traversal that ran out keeps the level it completed; a full-tree (coherent) one runs to the end.
+    level_cap_ = cycle_.time_budget_hit ? std::max(cycle_.levels_completed, effective - 1) : effective - 1;
+    relaxed_cycles_ = 0;
+  } else if (cycle_.query_cpu_us < 0.5 * p.time_budget_us && effective < leaf_level) {
+    if (++relaxed_cycles_ >= 100) {
+      level_cap_ = effective + 1 >= leaf_level ? p.query.max_level : effective + 1;
       relaxed_cycles_ = 0;
     }
+  } else {
+    relaxed_cycles_ = 0;
   }
+}
 
-  // --- contact wrench (about the centre of mass) and its stiffness and damping, for the implicit step.
-  Matrix6d contact_stiffness = Matrix6d::Zero();
-  Vector6d contact_wrench = Vector6d::Zero();
-  double contact_energy = 0.0;
+HapticRenderer::ContactTerms HapticRenderer::contact_terms(const Eigen::Vector3d& com) {
+  const HapticParameters& p = parameters_;
+  ContactTerms t;
   for (size_t i = 0; i < contacts_.size(); ++i) {
     const Contact& c = contacts_[i];
     const double weight = weights_[i];
     Vector6d j;  // generalized direction of the point's normal: [n, r x n]
     j.head<3>() = c.normal;
     j.tail<3>() = (c.point - com).cross(c.normal);
-    contact_wrench += (p.contact_stiffness * weight * c.depth) * j;
-    contact_stiffness += weight * j * j.transpose();
-    contact_energy += 0.5 * p.contact_stiffness * weight * c.depth * c.depth;
+    t.wrench += (p.contact_stiffness * weight * c.depth) * j;
+    t.stiffness += weight * j * j.transpose();
+    t.energy += 0.5 * p.contact_stiffness * weight * c.depth * c.depth;
     cycle_.max_penetration = std::max(cycle_.max_penetration, c.depth);
   }
   cycle_.contacts = contacts_.size();
-  cycle_.contact_wrench.force = contact_wrench.head<3>();
-  cycle_.contact_wrench.torque = contact_wrench.tail<3>();
+  cycle_.contact_wrench.force = t.wrench.head<3>();
+  cycle_.contact_wrench.torque = t.wrench.tail<3>();
+  return t;
+}
 
-  // --- coupling: spring from the tool to the device's pose of the tool, damping on relative velocity.
+HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double dt, const Eigen::Vector3d& com_asset,
+                                                const Eigen::Vector3d& com) {
+  const HapticParameters& p = parameters_;
   const Eigen::Vector3d device_com = device_pose.apply(com_asset);
   Eigen::Vector3d device_velocity = Eigen::Vector3d::Zero(), device_angular_velocity = Eigen::Vector3d::Zero();
   if (have_last_device_ && dt > 0) {
@@ -212,56 +237,57 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   }
   last_device_pose_ = device_pose;
   have_last_device_ = true;
-  const Eigen::Vector3d coupling_stretch = device_com - com;
-  const Eigen::Vector3d coupling_twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
-  energy_ = kinetic_energy(tool_pose_.rotation) + contact_energy +
-            0.5 * p.coupling_stiffness * coupling_stretch.squaredNorm() +
-            0.5 * p.coupling_angular_stiffness * coupling_twist.squaredNorm();
-  const Eigen::Vector3d coupling_force = saturate(
-      p.coupling_stiffness * coupling_stretch + p.coupling_damping * (device_velocity - velocity_), p.max_force);
-  const Eigen::Vector3d coupling_torque =
-      saturate(p.coupling_angular_stiffness * coupling_twist +
-                   p.coupling_angular_damping * (device_angular_velocity - angular_velocity_),
-               p.max_torque);
-  cycle_.device_wrench.force = -coupling_force;
-  cycle_.device_wrench.torque = -coupling_torque;
+  const Eigen::Vector3d stretch = device_com - com;
+  const Eigen::Vector3d twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
+  Coupling c;
+  c.energy =
+      0.5 * p.coupling_stiffness * stretch.squaredNorm() + 0.5 * p.coupling_angular_stiffness * twist.squaredNorm();
+  c.force = saturate(p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_), p.max_force);
+  c.torque = saturate(
+      p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_),
+      p.max_torque);
+  c.force_saturated = c.force.norm() >= p.max_force * (1 - 1e-9);
+  c.torque_saturated = c.torque.norm() >= p.max_torque * (1 - 1e-9);
+  cycle_.device_wrench.force = -c.force;
+  cycle_.device_wrench.torque = -c.torque;
+  return c;
+}
 
-  // --- implicit Euler: (M + dt D + dt^2 K) v' = M v + dt (F(x, v) + D v), with K and D the linearised
-  // stiffness and damping of the coupling and the contacts. Unconditionally stable for these linear springs.
+// Implicit Euler: (M + dt D + dt^2 K) v' = M v + dt (F(x, v) + D v), with K and D the linearised stiffness and
+// damping of the coupling and the contacts. Unconditionally stable for these linear springs. Then the pose moves
+// about the centre of mass.
+void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coupling, double dt,
+                               const Eigen::Vector3d& com_asset, const Eigen::Vector3d& com) {
+  const HapticParameters& p = parameters_;
   const Eigen::Matrix3d rot = tool_pose_.rotation;
   Matrix6d mass = Matrix6d::Zero();
   mass.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() * p.tool_mass;
   mass.bottomRightCorner<3, 3>() = rot * inertia_body_ * rot.transpose();
-  Matrix6d damping = p.contact_damping * contact_stiffness;
-  Matrix6d stiffness = p.contact_stiffness * contact_stiffness;
-  const bool force_saturated = coupling_force.norm() >= p.max_force * (1 - 1e-9);
-  const bool torque_saturated = coupling_torque.norm() >= p.max_torque * (1 - 1e-9);
-  if (!force_saturated) {  // a saturated spring no longer stiffens with the stretch
+  Matrix6d damping = p.contact_damping * contact.stiffness;
+  Matrix6d stiffness = p.contact_stiffness * contact.stiffness;
+  if (!coupling.force_saturated) {  // a saturated spring no longer stiffens with the stretch
     damping.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_damping;
     stiffness.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_stiffness;
   }
-  if (!torque_saturated) {
+  if (!coupling.torque_saturated) {
     damping.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_damping;
     stiffness.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_stiffness;
   }
   Vector6d velocity;
   velocity << velocity_, angular_velocity_;
-  Vector6d force = contact_wrench;
-  force.head<3>() += coupling_force;
-  force.tail<3>() += coupling_torque;
+  Vector6d force = contact.wrench;
+  force.head<3>() += coupling.force;
+  force.tail<3>() += coupling.torque;
   // The contact damping is not in `force`, only in the implicit matrix: add its explicit part back so the
   // linearisation is consistent (F_damp(v') = -D_contact v').
-  const Vector6d rhs = mass * velocity + dt * (force + (damping - p.contact_damping * contact_stiffness) * velocity);
+  const Vector6d rhs = mass * velocity + dt * (force + (damping - p.contact_damping * contact.stiffness) * velocity);
   const Matrix6d system = mass + dt * damping + dt * dt * stiffness;
   const Vector6d next = system.ldlt().solve(rhs);
   velocity_ = next.head<3>();
   angular_velocity_ = next.tail<3>();
-
-  // --- advance the pose about the centre of mass.
   const Eigen::Vector3d next_com = com + dt * velocity_;
   tool_pose_.rotation = exp_rotation(dt * angular_velocity_) * rot;
   tool_pose_.translation = next_com - tool_pose_.rotation * (tool_pose_.scale * com_asset);
-  return cycle_;
 }
 
 }  // namespace voxfmt::runtime

@@ -138,6 +138,28 @@ VOXFMT_HD float bounds_distance(const Field& f, const Vec3& u) {
   return length(outside);
 }
 
+/// The 8 corner values of the cell at `base` when they lie in one value brick (one table entry, two cache lines
+/// near the surface): true, and `exact` whether all are stored. False where the cell is not in one brick, or the
+/// brick is coarse (`entry` then says which).
+VOXFMT_HD bool brick_corners(const Field& f, const int base[3], float v[8], bool& exact, int32_t& entry) {
+  const bool in_one_brick = (base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
+                            (base[2] & (kEdge - 1)) < kEdge - 1 && f.dims[0] > 1 && f.dims[1] > 1 && f.dims[2] > 1;
+  entry = in_one_brick ? entry_of(f, base[0], base[1], base[2]) : 0;
+  if (!in_one_brick || entry < 0) return false;
+  const int local = ((base[2] & (kEdge - 1)) * kEdge + (base[1] & (kEdge - 1))) * kEdge + (base[0] & (kEdge - 1));
+  const int16_t* q = &f.codes[size_t(entry) * kBrickVoxels + size_t(local)];
+  const int offset[8] = {
+      0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
+  int flags = 1;
+  for (int corner = 0; corner < 8; ++corner) {
+    const int value = q[offset[corner]];
+    flags &= value;
+    v[corner] = float(value >> 1) * f.decode_step[value & 1];
+  }
+  exact = flags != 0;
+  return true;
+}
+
 /// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values (stored
 /// distances, or estimates where none is stored); outside the grid the distance to the object's bounding box.
 /// `gradient`, if given, receives the direction of increasing distance (not normalised; zero where flat).
@@ -160,26 +182,9 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   }
   bool exact = true;
   float v[8];
-  bool fetched = false;
-  const bool in_one_brick = (base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
-                            (base[2] & (kEdge - 1)) < kEdge - 1 && f.dims[0] > 1 && f.dims[1] > 1 && f.dims[2] > 1;
-  if (in_one_brick) {
-    const int32_t entry = entry_of(f, base[0], base[1], base[2]);
-    if (entry >= 0) {
-      // Near the surface the 8 corners usually lie in one value brick: one table entry and two cache lines.
-      const int local = ((base[2] & (kEdge - 1)) * kEdge + (base[1] & (kEdge - 1))) * kEdge + (base[0] & (kEdge - 1));
-      const int16_t* q = &f.codes[size_t(entry) * kBrickVoxels + size_t(local)];
-      const int offset[8] = {
-          0, 1, kEdge, kEdge + 1, kEdge * kEdge, kEdge * kEdge + 1, kEdge * kEdge + kEdge, kEdge * kEdge + kEdge + 1};
-      int flags = 1;
-      for (int corner = 0; corner < 8; ++corner) {
-        const int value = q[offset[corner]];
-        flags &= value;
-        v[corner] = float(value >> 1) * f.decode_step[value & 1];
-      }
-      exact = flags != 0;
-      fetched = true;
-    } else {
+  int32_t entry = 0;
+  if (!brick_corners(f, base, v, exact, entry)) {
+    if (entry < 0) {
       // Inside a coarse brick the voxels' values are the lattice's interpolation, which is trilinear across the
       // whole brick: interpolating the lattice at u directly gives the same field.
       const float magnitude = lattice_at(f, u, gradient);
@@ -189,9 +194,7 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
       if (gradient) *gradient = clamped ? make_vec3(0, 0, 0) : sign * *gradient;
       return result;
     }
-  }
-  if (!fetched) {
-    for (int corner = 0; corner < 8; ++corner) {
+    for (int corner = 0; corner < 8; ++corner) {  // across bricks: corner by corner
       const int x = min_i(base[0] + (corner & 1), f.dims[0] - 1),
                 y = min_i(base[1] + ((corner >> 1) & 1), f.dims[1] - 1),
                 z = min_i(base[2] + (corner >> 2), f.dims[2] - 1);

@@ -102,7 +102,14 @@ class HapticRenderer {
   const HapticParameters& parameters() const { return parameters_; }
 
  private:
+  struct ContactTerms;
+  struct Coupling;
   void gather_contacts(const Pose& tool_pose, double budget_us);
+  void adapt_level_cap();
+  ContactTerms contact_terms(const Eigen::Vector3d& com);
+  Coupling couple(const Pose& device_pose, double dt, const Eigen::Vector3d& com_asset, const Eigen::Vector3d& com);
+  void integrate(const ContactTerms& contact, const Coupling& coupling, double dt, const Eigen::Vector3d& com_asset,
+                 const Eigen::Vector3d& com);
   double kinetic_energy(const Eigen::Matrix3d& rotation) const;
   struct Object {
     std::shared_ptr<const CollisionObject> object;
