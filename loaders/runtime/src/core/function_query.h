@@ -62,6 +62,27 @@ struct FunctionTarget {
   }
 };
 
+/// What a walk against a partner's function reports: each point as a contact of A (the shell), its normal the
+/// point's own or the partner's outward one (QueryOptions::normal_source).
+template <class SignedDistance>
+auto function_contacts(const PointTree& tree, const Pose& pose, SignedDistance& distance, const QueryOptions& options,
+                       ContactSet& out) {
+  return [&tree, &pose, &distance, &options, &out](uint32_t node, float d, bool exact) {
+    Contact contact;
+    contact.point = pose.apply(tree.points[node].cast<double>());
+    Eigen::Vector3f outward;
+    distance(contact.point.cast<float>(), outward);
+    if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
+      contact.normal = (pose.rotation * tree.normals[node].cast<double>()).normalized();
+    else
+      contact.normal = outward.cast<double>().normalized();
+    contact.depth = -double(d);
+    contact.point_index = node;
+    contact.exact = exact;
+    out.contacts.push_back(contact);
+  };
+}
+
 }  // namespace detail
 
 template <class SignedDistance, class LowerBound>
@@ -74,22 +95,8 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   const Eigen::Vector3f m = pose.translation.cast<float>();
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  const Eigen::Matrix3d rotation = pose.rotation;
   detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats,
-                        scratch.buffers(), [&](uint32_t node, float d, bool exact) {
-                          Contact contact;
-                          contact.point = pose.apply(tree.points[node].cast<double>());
-                          Eigen::Vector3f outward;
-                          distance(contact.point.cast<float>(), outward);
-                          if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
-                            contact.normal = (rotation * tree.normals[node].cast<double>()).normalized();
-                          else
-                            contact.normal = outward.cast<double>().normalized();
-                          contact.depth = -double(d);
-                          contact.point_index = node;
-                          contact.exact = exact;
-                          out.contacts.push_back(contact);
-                        });
+                        scratch.buffers(), detail::function_contacts(tree, pose, distance, options, out));
 }
 
 template <class SignedDistance, class LowerBound>
@@ -113,22 +120,9 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   }
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  const Eigen::Matrix3d rotation = pose.rotation;
   detail::traverse_coherent(tree, M, m, Mr, mr, float(pose.scale), float(options.proximity), target, out.stats,
-                            scratch.buffers(), front.state(), [&](uint32_t node, float d, bool exact) {
-                              Contact contact;
-                              contact.point = pose.apply(tree.points[node].cast<double>());
-                              Eigen::Vector3f outward;
-                              distance(contact.point.cast<float>(), outward);
-                              if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
-                                contact.normal = (rotation * tree.normals[node].cast<double>()).normalized();
-                              else
-                                contact.normal = outward.cast<double>().normalized();
-                              contact.depth = -double(d);
-                              contact.point_index = node;
-                              contact.exact = exact;
-                              out.contacts.push_back(contact);
-                            });
+                            scratch.buffers(), front.state(),
+                            detail::function_contacts(tree, pose, distance, options, out));
 }
 
 template <class SignedDistance>
