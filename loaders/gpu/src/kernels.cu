@@ -14,7 +14,9 @@ __global__ void environments(core::BatchInputs<float> in, core::BatchOutputs out
   if (e < in.environments) core::run_environment(in, out, e);
 }
 
-std::string describe(cudaError_t status) { return std::string(cudaGetErrorName(status)) + ": " + cudaGetErrorString(status); }
+std::string describe(cudaError_t status) {
+  return std::string(cudaGetErrorName(status)) + ": " + cudaGetErrorString(status);
+}
 
 }  // namespace
 
