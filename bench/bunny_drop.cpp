@@ -35,6 +35,7 @@ struct Options {
   std::string mesh = "build/cgal-data/data/meshes/bunny00.off";
   std::string out_dir = "out/bunny_drop";
   std::string hacd_cache;
+  std::string hacd_shipped = BUNNY_DROP_HACD_DATA;  // the repository's decomposition of CGAL's bunny
   double seconds = 2.0;
   double wall_budget = 60.0;  // per run; GImpact bunny-on-bunny can take ~0.1 s a step
   double coarse_points = 800;
@@ -46,6 +47,7 @@ struct BunnyGeometry {
   std::shared_ptr<const voxfmt::runtime::CollisionObject> object;
   std::shared_ptr<VpsMixedShape> frame;  ///< defines the shared frame and the inertia of every method
   std::vector<btVector3> vertices;       // shape frame
+  std::vector<btVector3> mesh_vertices;  // the mesh's own frame: HACD's input, so its cache key is the mesh's
   std::vector<int> indices;
 };
 
@@ -98,8 +100,10 @@ MethodShapes make_shapes(const std::string& method, const BunnyGeometry& bunny, 
     shape->updateBound();
     shapes.dynamic_shape = shapes.static_shape = shape;
   } else if (method == "hacd") {
-    const voxfmt_bench::Hulls hulls =
-        voxfmt_bench::hacd_decomposition(bunny.vertices, bunny.indices, options.hacd_cache, precompute_seconds);
+    voxfmt_bench::Hulls hulls = voxfmt_bench::hacd_decomposition(bunny.mesh_vertices, bunny.indices, options.hacd_cache,
+                                                                 precompute_seconds, options.hacd_shipped);
+    for (auto& hull : hulls)
+      for (btVector3& p : hull) p = bunny.frame->asset_to_shape()(p);
     auto compound = std::make_shared<btCompoundShape>();
     static std::vector<std::shared_ptr<btCollisionShape>> children;  // owned for the program's lifetime
     for (const auto& hull : hulls) {
@@ -218,6 +222,9 @@ int main(int argc, char** argv) {
   app.add_option("--mesh", options.mesh, "the bunny mesh, for GImpact, HACD and the hull")->capture_default_str();
   app.add_option("-o,--out", options.out_dir, "output folder for bunny_drop.csv, .json, .png")->capture_default_str();
   app.add_option("--hacd-cache", options.hacd_cache, "HACD decomposition cache (default: OUT/bunny00.hacd.txt)");
+  app.add_option("--hacd-shipped", options.hacd_shipped,
+                 "a decomposition to use when the cache has none for this mesh and HACD's parameters")
+      ->capture_default_str();
   app.add_option("--seconds", options.seconds, "simulated seconds per run (1 kHz steps)")->capture_default_str();
   app.add_option("--wall-budget", options.wall_budget, "wall-clock seconds after which a run stops early")
       ->capture_default_str();
@@ -249,9 +256,10 @@ int main(int argc, char** argv) {
     }
     const voxfmt::bake::TriangleMesh& mesh = read.value();
     bunny.frame = std::make_shared<VpsMixedShape>(bunny.object);
-    for (const voxfmt::Vec3& v : mesh.vertices)
-      bunny.vertices.push_back(
-          bunny.frame->asset_to_shape()(btVector3(btScalar(v[0]), btScalar(v[1]), btScalar(v[2]))));
+    for (const voxfmt::Vec3& v : mesh.vertices) {
+      bunny.mesh_vertices.emplace_back(btScalar(v[0]), btScalar(v[1]), btScalar(v[2]));
+      bunny.vertices.push_back(bunny.frame->asset_to_shape()(bunny.mesh_vertices.back()));
+    }
     for (const auto& t : mesh.triangles)
       for (uint32_t i : t) bunny.indices.push_back(int(i));
     btTriangleIndexVertexArray triangles(int(bunny.indices.size() / 3), bunny.indices.data(), 3 * sizeof(int),

@@ -5,18 +5,40 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <sstream>
 
 namespace voxfmt_bench {
 namespace {
 
-bool read_hulls(const std::string& path, Hulls& hulls) {
+// HACD's parameters: set in one place, and part of the cache key.
+constexpr double kCompacityWeight = 0.1, kVolumeWeight = 0.0, kConcavity = 100;
+constexpr size_t kClusters = 8, kVerticesPerHull = 100;
+constexpr char kCacheFormat[] = "voxfmt-hacd-cache 1";
+
+std::string parameters() {
+  std::ostringstream text;
+  text << "compacity=" << kCompacityWeight << " volume=" << kVolumeWeight << " clusters=" << kClusters
+       << " vertices_per_hull=" << kVerticesPerHull << " concavity=" << kConcavity
+       << " extra_dist_points=0 neighbours_dist_points=0 faces_points=0";
+  return text.str();
+}
+
+// FNV-1a, 64 bits: a cache key, not a defence against crafted files.
+void fnv1a(uint64_t& h, const std::string& bytes) {
+  for (unsigned char c : bytes) h = (h ^ c) * 1099511628211ull;
+}
+
+bool read_hulls(const std::string& path, const std::string& key, Hulls& hulls) {
   std::ifstream in(path);
   if (!in) return false;
+  std::string header;
+  if (!std::getline(in, header) || header != key) return false;
   size_t count = 0;
   if (!(in >> count) || count == 0 || count > 1000) return false;
   hulls.assign(count, {});
@@ -33,11 +55,11 @@ bool read_hulls(const std::string& path, Hulls& hulls) {
   return true;
 }
 
-void write_hulls(const std::string& path, const Hulls& hulls) {
+void write_hulls(const std::string& path, const std::string& key, const Hulls& hulls) {
   const std::string tmp = path + ".partial";
   {
     std::ofstream out(tmp);
-    out << std::setprecision(9) << hulls.size() << "\n";
+    out << key << "\n" << std::setprecision(9) << hulls.size() << "\n";
     for (const auto& hull : hulls) {
       out << hull.size() << "\n";
       for (const auto& p : hull) out << p.x() << " " << p.y() << " " << p.z() << "\n";
@@ -60,11 +82,31 @@ bool hacd_progress(const char*, double progress, double, size_t) {
 
 }  // namespace
 
+std::string hacd_cache_key(const std::vector<btVector3>& vertices, const std::vector<int>& indices) {
+  uint64_t h = 14695981039346656037ull;
+  char number[32];
+  for (const btVector3& v : vertices)
+    for (int i = 0; i < 3; ++i) {
+      std::snprintf(number, sizeof number, "%.6e ", double(v[i]));
+      fnv1a(h, number);
+    }
+  for (int i : indices) fnv1a(h, std::to_string(i) + " ");
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(h));
+  return std::string(kCacheFormat) + " mesh=" + hex + " vertices=" + std::to_string(vertices.size()) +
+         " triangles=" + std::to_string(indices.size() / 3) + " " + parameters();
+}
+
 Hulls hacd_decomposition(const std::vector<btVector3>& vertices, const std::vector<int>& indices,
-                         const std::string& cache, double& seconds) {
+                         const std::string& cache, double& seconds, const std::string& shipped) {
   Hulls hulls;
   seconds = 0;
-  if (!cache.empty() && read_hulls(cache, hulls)) return hulls;
+  const std::string key = hacd_cache_key(vertices, indices);
+  if (!cache.empty() && read_hulls(cache, key, hulls)) return hulls;
+  if (!shipped.empty() && read_hulls(shipped, key, hulls)) {
+    if (!cache.empty()) write_hulls(cache, key, hulls);
+    return hulls;
+  }
   std::cerr << "HACD: decomposing " << indices.size() / 3 << " triangles (minutes; cached in " << cache << ")\n";
   const auto start = std::chrono::steady_clock::now();
   std::vector<HACD::Vec3<HACD::Real>> points;
@@ -76,11 +118,11 @@ Hulls hacd_decomposition(const std::vector<btVector3>& vertices, const std::vect
   hacd.SetNPoints(points.size());
   hacd.SetTriangles(triangles.data());
   hacd.SetNTriangles(triangles.size());
-  hacd.SetCompacityWeight(0.1);
-  hacd.SetVolumeWeight(0.0);
-  hacd.SetNClusters(8);
-  hacd.SetNVerticesPerCH(100);
-  hacd.SetConcavity(100);
+  hacd.SetCompacityWeight(kCompacityWeight);
+  hacd.SetVolumeWeight(kVolumeWeight);
+  hacd.SetNClusters(kClusters);
+  hacd.SetNVerticesPerCH(kVerticesPerHull);
+  hacd.SetConcavity(kConcavity);
   hacd.SetAddExtraDistPoints(false);
   hacd.SetAddNeighboursDistPoints(false);
   hacd.SetAddFacesPoints(false);
@@ -98,7 +140,7 @@ Hulls hacd_decomposition(const std::vector<btVector3>& vertices, const std::vect
   }
   seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::cerr << "HACD: " << hulls.size() << " hulls in " << std::fixed << std::setprecision(1) << seconds << " s\n";
-  if (!cache.empty()) write_hulls(cache, hulls);
+  if (!cache.empty()) write_hulls(cache, key, hulls);
   return hulls;
 }
 
