@@ -110,91 +110,43 @@ void TriangleSet::add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const 
   normals_.push_back(length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero());
 }
 
-void TriangleSet::clear() {
-  common_normal_.setZero();
-  corners_.clear();
-  normals_.clear();
-  first_.clear();
-  members_.clear();
-  ring_.clear();
+void TriangleGrid::clear() {
+  first.clear();
+  members.clear();
+  ring.clear();
 }
 
-void TriangleSet::build() {
-  first_.clear();
-  members_.clear();
-  if (empty()) return;
-  lo_ = hi_ = corners_[0];
-  float edges = 0;
-  for (size_t t = 0; t < size(); ++t)
-    for (int k = 0; k < 3; ++k) {
-      lo_ = lo_.cwiseMin(corner(t, k));
-      hi_ = hi_.cwiseMax(corner(t, k));
-      edges += (corner(t, (k + 1) % 3) - corner(t, k)).norm();
-    }
-  // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
-  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
-  for (const Eigen::Vector3f& n : normals_) mean += n;
-  common_normal_ = mean.normalized();
-  for (const Eigen::Vector3f& n : normals_)
-    if (!(n.dot(common_normal_) > 0.0f)) {
-      common_normal_.setZero();
-      break;
-    }
-  // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
-  const Eigen::Vector3f extent = hi_ - lo_;
-  cell_ = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
-  for (int a = 0; a < 3; ++a) dims_[a] = std::clamp(int(std::ceil(extent[a] / cell_)), 1, 64);
-  auto cell_of = [&](const Eigen::Vector3f& p) {
-    Eigen::Vector3i c;
-    for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((p[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
-    return c;
-  };
-  auto index = [&](int i, int j, int k) { return size_t((k * dims_[1] + j) * dims_[0] + i); };
-  const size_t cells = size_t(dims_.prod());
-  first_.assign(cells + 1, 0);
-  // Each triangle goes into the cells its bounding box covers (counting sort: count, then place).
-  for (int pass = 0; pass < 2; ++pass) {
-    std::vector<uint32_t> next;
-    if (pass == 1) {
-      for (size_t c = 0; c < cells; ++c) first_[c + 1] += first_[c];
-      members_.resize(first_[cells]);
-      next.assign(first_.begin(), first_.end() - 1);
-    }
-    for (size_t t = 0; t < size(); ++t) {
-      const Eigen::Vector3i c0 = cell_of(corner(t, 0).cwiseMin(corner(t, 1)).cwiseMin(corner(t, 2)));
-      const Eigen::Vector3i c1 = cell_of(corner(t, 0).cwiseMax(corner(t, 1)).cwiseMax(corner(t, 2)));
-      for (int k = c0.z(); k <= c1.z(); ++k)
-        for (int j = c0.y(); j <= c1.y(); ++j)
-          for (int i = c0.x(); i <= c1.x(); ++i) {
-            if (pass == 0)
-              ++first_[index(i, j, k) + 1];
-            else
-              members_[next[index(i, j, k)]++] = uint32_t(t);
-          }
-    }
-  }
-  // Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell
-  // (a step to any of them is one Chebyshev ring).
-  ring_.assign(cells, uint8_t(kEmptyRings));
+Eigen::Vector3i TriangleGrid::cell_of(const Eigen::Vector3f& x) const {
+  Eigen::Vector3i c;
+  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo[a]) / cell)), 0, dims[a] - 1);
+  return c;
+}
+
+// Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell (a
+// step to any of them is one Chebyshev ring).
+void TriangleGrid::fill_rings(int rings) {
+  max_rings = rings;
+  const size_t cells = size_t(dims.prod());
+  ring.assign(cells, uint8_t(rings));
   std::vector<uint32_t> wave, next_wave;
   for (size_t c = 0; c < cells; ++c)
-    if (first_[c + 1] > first_[c]) {
-      ring_[c] = 0;
+    if (first[c + 1] > first[c]) {
+      ring[c] = 0;
       wave.push_back(uint32_t(c));
     }
-  for (int r = 1; r < kEmptyRings && !wave.empty(); ++r) {
+  for (int r = 1; r < rings && !wave.empty(); ++r) {
     next_wave.clear();
     for (const uint32_t c : wave) {
-      const int i = int(c % uint32_t(dims_[0])), j = int(c / uint32_t(dims_[0]) % uint32_t(dims_[1])),
-                k = int(c / uint32_t(dims_[0] * dims_[1]));
+      const int i = int(c % uint32_t(dims.x())), j = int(c / uint32_t(dims.x()) % uint32_t(dims.y())),
+                k = int(c / uint32_t(dims.x() * dims.y()));
       for (int dk = -1; dk <= 1; ++dk)
         for (int dj = -1; dj <= 1; ++dj)
           for (int di = -1; di <= 1; ++di) {
             const int ni = i + di, nj = j + dj, nk = k + dk;
-            if (ni < 0 || nj < 0 || nk < 0 || ni >= dims_[0] || nj >= dims_[1] || nk >= dims_[2]) continue;
-            const size_t n = index(ni, nj, nk);
-            if (ring_[n] > r) {
-              ring_[n] = uint8_t(r);
+            if (ni < 0 || nj < 0 || nk < 0 || ni >= dims.x() || nj >= dims.y() || nk >= dims.z()) continue;
+            const size_t n = cell_index(ni, nj, nk);
+            if (ring[n] > r) {
+              ring[n] = uint8_t(r);
               next_wave.push_back(uint32_t(n));
             }
           }
@@ -203,20 +155,58 @@ void TriangleSet::build() {
   }
 }
 
+Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals) {
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const Eigen::Vector3f& n : normals) mean += n;
+  if (!(mean.squaredNorm() > 0.0f)) return Eigen::Vector3f::Zero();
+  mean.normalize();
+  for (const Eigen::Vector3f& n : normals)
+    if (n.squaredNorm() > 0.0f && !(n.dot(mean) > 0.0f)) return Eigen::Vector3f::Zero();
+  return mean;
+}
+
+void TriangleSet::clear() {
+  common_normal_.setZero();
+  corners_.clear();
+  normals_.clear();
+  grid_.clear();
+}
+
+void TriangleSet::build() {
+  grid_.clear();
+  if (empty()) return;
+  grid_.lo = grid_.hi = corners_[0];
+  float edges = 0;
+  for (size_t t = 0; t < size(); ++t)
+    for (int k = 0; k < 3; ++k) {
+      grid_.lo = grid_.lo.cwiseMin(corner(t, k));
+      grid_.hi = grid_.hi.cwiseMax(corner(t, k));
+      edges += (corner(t, (k + 1) % 3) - corner(t, k)).norm();
+    }
+  // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
+  common_normal_ = common_normal(normals_);
+  // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
+  const Eigen::Vector3f extent = grid_.hi - grid_.lo;
+  grid_.cell = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
+  for (int a = 0; a < 3; ++a) grid_.dims[a] = std::clamp(int(std::ceil(extent[a] / grid_.cell)), 1, 64);
+  grid_.fill(
+      size(), [&](size_t t) -> Eigen::Vector3f { return corner(t, 0).cwiseMin(corner(t, 1)).cwiseMin(corner(t, 2)); },
+      [&](size_t t) -> Eigen::Vector3f { return corner(t, 0).cwiseMax(corner(t, 1)).cwiseMax(corner(t, 2)); },
+      kEmptyRings);
+}
+
 float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
-  if (!first_.empty() && common_normal_.squaredNorm() > 0.0f) {
-    const Eigen::Vector3f off_box = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  if (grid_.built() && common_normal_.squaredNorm() > 0.0f) {
+    const Eigen::Vector3f off_box = x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi);
     // Beyond the box on the side every triangle faces: above a surface that is a graph over that direction,
     // so outside, and no triangle is nearer than the box.
     if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
   }
-  if (!ring_.empty()) {
+  if (!grid_.ring.empty()) {
     // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
     // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away.
-    Eigen::Vector3i c;
-    for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
-    const int ring = ring_[size_t((c.z() * dims_.y() + c.y()) * dims_.x() + c.x())];
-    if (ring > 1) return std::max((x - x.cwiseMax(lo_).cwiseMin(hi_)).norm(), float(ring - 1) * cell_);
+    const int ring = grid_.ring[grid_.cell_index(grid_.cell_of(x))];
+    if (ring > 1) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
@@ -231,44 +221,45 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   const float& best2 = nearest.best2;
   const float& side = nearest.side;
   if (empty()) return std::numeric_limits<float>::infinity();
-  if (first_.empty()) {  // not built: every triangle
+  if (!grid_.built()) {  // not built: every triangle
     for (size_t t = 0; t < size(); ++t) consider(t);
     return side * std::sqrt(best2);
   }
   // Rings of cells around the cell nearest x (x's projection onto the grid's box lies in it; projecting onto a
   // convex set brings no point of the set nearer, so after ring r every unvisited triangle is >= r cells away).
-  Eigen::Vector3i c;
-  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
-  const float box = (x - x.cwiseMax(lo_).cwiseMin(hi_)).norm();
+  const Eigen::Vector3i c = grid_.cell_of(x);
+  const float box = grid_.box_distance(x);
   // The rings before the nearest occupied one hold nothing: the search starts there.
-  const int first_ring = ring_.empty() ? 0 : int(ring_[size_t((c.z() * dims_.y() + c.y()) * dims_.x() + c.x())]);
+  const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);
   if (first_ring >= kEmptyRings) {  // no triangle within the rings the map covers
-    outward = box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(lo_).cwiseMin(hi_)) / box) : Eigen::Vector3f::UnitY();
-    return std::max(box, float(kEmptyRings - 1) * cell_);
+    outward =
+        box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
+    return std::max(box, float(kEmptyRings - 1) * grid_.cell);
   }
   for (int r = first_ring; r <= first_ring + kMaxRings; ++r) {
     for (int k = c.z() - r; k <= c.z() + r; ++k) {
-      if (k < 0 || k >= dims_.z()) continue;
+      if (k < 0 || k >= grid_.dims.z()) continue;
       for (int j = c.y() - r; j <= c.y() + r; ++j) {
-        if (j < 0 || j >= dims_.y()) continue;
+        if (j < 0 || j >= grid_.dims.y()) continue;
         const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
         for (int i = c.x() - r; i <= c.x() + r; i += (face || r == 0) ? 1 : 2 * r) {
-          if (i < 0 || i >= dims_.x()) continue;
-          const size_t cell = size_t((k * dims_.y() + j) * dims_.x() + i);
-          for (uint32_t m = first_[cell]; m < first_[cell + 1]; ++m) consider(members_[m]);
+          if (i < 0 || i >= grid_.dims.x()) continue;
+          const size_t cell = grid_.cell_index(i, j, k);
+          for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) consider(grid_.members[m]);
         }
       }
     }
     // Every unvisited triangle is at least this far (and none is nearer than the set's box: above a floor the
     // triangle straight below settles the search at once).
-    const float reach = std::max(float(r) * cell_, box);
+    const float reach = std::max(float(r) * grid_.cell, box);
     if (best2 <= reach * reach * (1 + 1e-6f)) return side * std::sqrt(best2);
-    if (r > dims_.maxCoeff()) return side * std::sqrt(best2);  // every cell visited: exact
+    if (r > grid_.dims.maxCoeff()) return side * std::sqrt(best2);  // every cell visited: exact
   }
   // Not settled within kMaxRings of the first occupied ring: every triangle is farther than the rings reach and
   // than the box. Such a point counts as outside (a point that deep behind a floor has tunnelled through it).
-  const float bound = std::max(box, float(first_ring + kMaxRings) * cell_);
-  outward = box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(lo_).cwiseMin(hi_)) / box) : Eigen::Vector3f::UnitY();
+  const float bound = std::max(box, float(first_ring + kMaxRings) * grid_.cell);
+  outward =
+      box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
   return bound;
 }
 

@@ -91,97 +91,58 @@ void StaticMeshIndex::index() {
     vertices_.clear();
     return;
   }
-  lo_ = triangles_[0].lo;
-  hi_ = triangles_[0].hi;
+  grid_.lo = triangles_[0].lo;
+  grid_.hi = triangles_[0].hi;
   double edges = 0;
+  std::vector<Eigen::Vector3f> normals;
+  normals.reserve(triangles_.size());
   for (const Triangle& t : triangles_) {
-    lo_ = lo_.cwiseMin(t.lo);
-    hi_ = hi_.cwiseMax(t.hi);
+    grid_.lo = grid_.lo.cwiseMin(t.lo);
+    grid_.hi = grid_.hi.cwiseMax(t.hi);
     edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
+    normals.push_back(t.normal);
   }
-  // One-sided (every proper triangle faces within 90 degrees of the mean normal: a floor, a terrain): beyond the
-  // box on that side is outside. Degenerate triangles lie among their neighbours and do not count.
-  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
-  for (const Triangle& t : triangles_) mean += t.normal;
-  common_normal_ = mean.squaredNorm() > 0.0f ? Eigen::Vector3f(mean.normalized()) : Eigen::Vector3f::Zero();
-  for (const Triangle& t : triangles_)
-    if (t.normal.squaredNorm() > 0.0f && !(t.normal.dot(common_normal_) > 0.0f)) {
-      common_normal_.setZero();
-      break;
-    }
+  // One-sided (a floor, a terrain): beyond the box on that side is outside.
+  common_normal_ = common_normal(normals);
+  size_grid(edges);
+  info_.cells = size_t(grid_.dims.prod());
+  grid_.fill(
+      triangles_.size(), [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].lo; },
+      [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].hi; }, kEmptyRings);
+  index_vertices();
+  sample();
+  info_.vertices = vertices_.size();
+  info_.memory_bytes =
+      triangles_.capacity() * sizeof(Triangle) + vertices_.capacity() * sizeof(Eigen::Vector3f) +
+      (grid_.first.capacity() + grid_.members.capacity() + vertex_first_.capacity() + sample_block_.capacity()) *
+          sizeof(uint32_t) +
+      samples_.capacity() * sizeof(float) + grid_.ring.capacity();
+}
 
-  // Cells about a triangle's size (a few triangles each), coarser where a mesh of very unequal triangles
-  // would need too many cells or put a large triangle into too many.
-  const Eigen::Vector3f extent = hi_ - lo_;
+// Cells about a triangle's size (a few triangles each), coarser where a mesh of very unequal triangles would need
+// too many cells or put a large triangle into too many.
+void StaticMeshIndex::size_grid(double edges) {
+  const Eigen::Vector3f extent = grid_.hi - grid_.lo;
   const size_t n = triangles_.size();
-  cell_ = std::max({float(edges / double(3 * n)), extent.maxCoeff() / 4096.0f, 1e-30f});
+  grid_.cell = std::max({float(edges / double(3 * n)), extent.maxCoeff() / 4096.0f, 1e-30f});
   for (;;) {
-    for (int a = 0; a < 3; ++a) dims_[a] = std::max(1, int(std::ceil(extent[a] / cell_)));
-    const double cells = double(dims_.x()) * double(dims_.y()) * double(dims_.z());
+    for (int a = 0; a < 3; ++a) grid_.dims[a] = std::max(1, int(std::ceil(extent[a] / grid_.cell)));
+    const double cells = double(grid_.dims.x()) * double(grid_.dims.y()) * double(grid_.dims.z());
     double members = 0;
     if (cells <= std::max(64.0 * 64 * 64, 8.0 * double(n))) {
       for (const Triangle& t : triangles_) {
         const Eigen::Vector3i c0 = cell_of(t.lo), c1 = cell_of(t.hi);
         members += double(c1.x() - c0.x() + 1) * double(c1.y() - c0.y() + 1) * double(c1.z() - c0.z() + 1);
       }
-      if (members <= 32.0 * double(n)) break;
+      if (members <= 32.0 * double(n)) return;
     }
-    cell_ *= 1.5f;
+    grid_.cell *= 1.5f;
   }
-  const size_t cells = size_t(dims_.prod());
-  info_.cells = cells;
+}
 
-  // Each triangle goes into the cells its bounding box covers (counting sort: count, then place).
-  first_.assign(cells + 1, 0);
-  for (int pass = 0; pass < 2; ++pass) {
-    std::vector<uint32_t> next;
-    if (pass == 1) {
-      for (size_t c = 0; c < cells; ++c) first_[c + 1] += first_[c];
-      members_.resize(first_[cells]);
-      next.assign(first_.begin(), first_.end() - 1);
-    }
-    for (size_t t = 0; t < n; ++t) {
-      const Eigen::Vector3i c0 = cell_of(triangles_[t].lo), c1 = cell_of(triangles_[t].hi);
-      for (int k = c0.z(); k <= c1.z(); ++k)
-        for (int j = c0.y(); j <= c1.y(); ++j)
-          for (int i = c0.x(); i <= c1.x(); ++i) {
-            if (pass == 0)
-              ++first_[cell_index(i, j, k) + 1];
-            else
-              members_[next[cell_index(i, j, k)]++] = uint32_t(t);
-          }
-    }
-  }
-
-  // Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell.
-  ring_.assign(cells, uint8_t(kEmptyRings));
-  std::vector<uint32_t> wave, next_wave;
-  for (size_t c = 0; c < cells; ++c)
-    if (first_[c + 1] > first_[c]) {
-      ring_[c] = 0;
-      wave.push_back(uint32_t(c));
-    }
-  for (int r = 1; r < kEmptyRings && !wave.empty(); ++r) {
-    next_wave.clear();
-    for (const uint32_t c : wave) {
-      const int i = int(c % uint32_t(dims_.x())), j = int(c / uint32_t(dims_.x()) % uint32_t(dims_.y())),
-                k = int(c / uint32_t(dims_.x() * dims_.y()));
-      for (int dk = -1; dk <= 1; ++dk)
-        for (int dj = -1; dj <= 1; ++dj)
-          for (int di = -1; di <= 1; ++di) {
-            const int ni = i + di, nj = j + dj, nk = k + dk;
-            if (ni < 0 || nj < 0 || nk < 0 || ni >= dims_.x() || nj >= dims_.y() || nk >= dims_.z()) continue;
-            const size_t nc = cell_index(ni, nj, nk);
-            if (ring_[nc] > r) {
-              ring_[nc] = uint8_t(r);
-              next_wave.push_back(uint32_t(nc));
-            }
-          }
-    }
-    wave.swap(next_wave);
-  }
-
-  // Vertices: each once, sorted by cell.
+// Vertices: each once, sorted by cell.
+void StaticMeshIndex::index_vertices() {
+  const size_t cells = size_t(grid_.dims.prod());
   std::vector<std::pair<uint32_t, Eigen::Vector3f>> keyed;
   keyed.reserve(vertices_.size());
   for (const Eigen::Vector3f& v : vertices_) {
@@ -203,19 +164,6 @@ void StaticMeshIndex::index() {
     ++vertex_first_[cell + 1];
   }
   for (size_t c = 0; c < cells; ++c) vertex_first_[c + 1] += vertex_first_[c];
-
-  sample();
-  info_.vertices = vertices_.size();
-  info_.memory_bytes = triangles_.capacity() * sizeof(Triangle) + vertices_.capacity() * sizeof(Eigen::Vector3f) +
-                       (first_.capacity() + members_.capacity() + vertex_first_.capacity() + sample_block_.capacity()) *
-                           sizeof(uint32_t) +
-                       samples_.capacity() * sizeof(float) + ring_.capacity();
-}
-
-Eigen::Vector3i StaticMeshIndex::cell_of(const Eigen::Vector3f& x) const {
-  Eigen::Vector3i c;
-  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo_[a]) / cell_)), 0, dims_[a] - 1);
-  return c;
 }
 
 bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
@@ -233,18 +181,18 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
   }
   for (int r = first_ring;; ++r) {
     // The cells of ring r that may hold a nearer triangle than the nearest so far.
-    for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, dims_.z() - 1); ++k) {
-      for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, dims_.y() - 1); ++j) {
+    for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, grid_.dims.z() - 1); ++k) {
+      for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, grid_.dims.y() - 1); ++j) {
         const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
         const int step = (face || r == 0) ? 1 : 2 * r;
         for (int i = c.x() - r; i <= c.x() + r; i += step) {
-          if (i < 0 || i >= dims_.x()) continue;
-          const Eigen::Vector3f cell_lo = lo_ + cell_ * Eigen::Vector3f(float(i), float(j), float(k));
-          const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(cell_));
+          if (i < 0 || i >= grid_.dims.x()) continue;
+          const Eigen::Vector3f cell_lo = grid_.lo + grid_.cell * Eigen::Vector3f(float(i), float(j), float(k));
+          const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(grid_.cell));
           if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
           const size_t cell = cell_index(i, j, k);
-          for (uint32_t m = first_[cell]; m < first_[cell + 1]; ++m) {
-            const uint32_t id = members_[m];
+          for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) {
+            const uint32_t id = grid_.members[m];
             if (seen[id] == search_id) continue;
             seen[id] = search_id;
             const Triangle& t = triangles_[id];
@@ -258,8 +206,9 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
     // it), so it is at least as far as the block's faces inside the grid, and no nearer than the grid's box.
     float block = std::numeric_limits<float>::infinity();
     for (int a = 0; a < 3; ++a) {
-      if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (lo_[a] + float(c[a] - r) * cell_)));
-      if (c[a] + r + 1 < dims_[a]) block = std::min(block, std::max(0.0f, lo_[a] + float(c[a] + r + 1) * cell_ - x[a]));
+      if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (grid_.lo[a] + float(c[a] - r) * grid_.cell)));
+      if (c[a] + r + 1 < grid_.dims[a])
+        block = std::min(block, std::max(0.0f, grid_.lo[a] + float(c[a] + r + 1) * grid_.cell - x[a]));
     }
     const float reach = std::max(box, block);
     if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
@@ -288,16 +237,16 @@ float StaticMeshIndex::distance(const Eigen::Vector3f& x, float proximity, Eigen
   }
   const float band = base_band() + proximity;
   const Eigen::Vector3i c = cell_of(x);
-  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const Eigen::Vector3f off = x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi);
   const float box = off.norm();
-  const int ring = ring_[cell_index(c.x(), c.y(), c.z())];
+  const int ring = grid_.ring[cell_index(c.x(), c.y(), c.z())];
   auto away = [&] {
     return box > 0.0f ? Eigen::Vector3f(off / box)
                       : (common_normal_.squaredNorm() > 0.0f ? common_normal_ : Eigen::Vector3f::UnitY());
   };
   // No triangle within ring - 1 cells (x's projection onto the box lies in its cell; projecting onto a convex
   // set brings nothing of it nearer) nor nearer than the box.
-  const float bound = std::max(box, float(ring - 1) * cell_);
+  const float bound = std::max(box, float(ring - 1) * grid_.cell);
   if (bound > band) {
     outward = away();
     return bound;
@@ -312,11 +261,11 @@ float StaticMeshIndex::exact_lower_bound(const Eigen::Vector3f& x, float band, f
   if (exact) *exact = false;
   if (triangles_.empty()) return std::numeric_limits<float>::infinity();
   const Eigen::Vector3i c = cell_of(x);
-  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const Eigen::Vector3f off = x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi);
   const float box = off.norm();
-  const int ring = ring_[cell_index(c.x(), c.y(), c.z())];
+  const int ring = grid_.ring[cell_index(c.x(), c.y(), c.z())];
   const bool facing = common_normal_.squaredNorm() > 0.0f && off.dot(common_normal_) > 0.0f;
-  const float bound = std::max(box, float(ring - 1) * cell_);
+  const float bound = std::max(box, float(ring - 1) * grid_.cell);
   if (bound > band) return facing ? bound : bound - 2.0f * band;
   float d, beyond;
   Eigen::Vector3f outward;
@@ -332,41 +281,41 @@ float StaticMeshIndex::lower_bound(const Eigen::Vector3f& x, float proximity) co
   const float band = base_band() + proximity;
   const Eigen::Vector3i c = cell_of(x);
   const size_t cell = cell_index(c.x(), c.y(), c.z());
-  const Eigen::Vector3f off = x - x.cwiseMax(lo_).cwiseMin(hi_);
+  const Eigen::Vector3f off = x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi);
   const float box = off.norm();
   const bool facing = common_normal_.squaredNorm() > 0.0f && off.dot(common_normal_) > 0.0f;
-  const float bound = std::max(box, float(ring_[cell] - 1) * cell_);
+  const float bound = std::max(box, float(grid_.ring[cell] - 1) * grid_.cell);
   if (bound > band) return facing ? bound : bound - 2.0f * band;
   const uint32_t block = sample_block_[cell];
   if (block == kNoSamples) return exact_lower_bound(x, band);
   // The cell's sample s (at its centre): distance() is not below its value less |y - s| wherever it has a
   // contact (within the base band the sample is the exact distance; a sample beyond it may hold a point behind the
   // mesh at most the proximity deeper than the base band, which twice the proximity more covers).
-  const Eigen::Vector3f s = lo_ + cell_ * (c.cast<float>() + Eigen::Vector3f::Constant(0.5f));
+  const Eigen::Vector3f s = grid_.lo + grid_.cell * (c.cast<float>() + Eigen::Vector3f::Constant(0.5f));
   const float value = samples_[size_t(block)] - (x - s).norm() - 2.0f * proximity;
   return facing ? std::max(value, bound) : value;
 }
 
 void StaticMeshIndex::sample() {
-  const size_t cells = ring_.size();
+  const size_t cells = grid_.ring.size();
   sample_block_.assign(cells, kNoSamples);
   uint32_t blocks = 0;
   for (size_t c = 0; c < cells; ++c)
-    if (ring_[c] <= kSampledRings) sample_block_[c] = blocks++;
+    if (grid_.ring[c] <= kSampledRings) sample_block_[c] = blocks++;
   samples_.resize(size_t(blocks));
   const float band = base_band();
   bool have_last = false;
   float last = 0;
   Eigen::Vector3f last_at = Eigen::Vector3f::Zero();
-  for (int k = 0; k < dims_.z(); ++k)
-    for (int j = 0; j < dims_.y(); ++j)
-      for (int i = 0; i < dims_.x(); ++i) {
+  for (int k = 0; k < grid_.dims.z(); ++k)
+    for (int j = 0; j < grid_.dims.y(); ++j)
+      for (int i = 0; i < grid_.dims.x(); ++i) {
         const uint32_t block = sample_block_[cell_index(i, j, k)];
         if (block == kNoSamples) continue;
-        const Eigen::Vector3f corner = lo_ + cell_ * Eigen::Vector3f(float(i), float(j), float(k));
+        const Eigen::Vector3f corner = grid_.lo + grid_.cell * Eigen::Vector3f(float(i), float(j), float(k));
         // The sample before bounds this one's nearest triangle: |its distance| + the step, rounding aside.
-        const Eigen::Vector3f s = corner + Eigen::Vector3f::Constant(0.5f * cell_);
-        const float seed = have_last ? (std::abs(last) + (s - last_at).norm()) * (1 + 1e-4f) + 1e-6f * cell_
+        const Eigen::Vector3f s = corner + Eigen::Vector3f::Constant(0.5f * grid_.cell);
+        const float seed = have_last ? (std::abs(last) + (s - last_at).norm()) * (1 + 1e-4f) + 1e-6f * grid_.cell
                                      : std::numeric_limits<float>::infinity();
         float& value = samples_[size_t(block)];
         value = exact_lower_bound(s, band, seed, &have_last);

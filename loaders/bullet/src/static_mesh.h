@@ -13,6 +13,8 @@
 #include <memory>
 #include <vector>
 
+#include "voxfmt/bullet/partners.h"
+
 namespace voxfmt::bullet {
 
 /// What identifies a mesh shape's triangles cheaply: a shape object freed and another made at its address, or
@@ -50,7 +52,7 @@ class StaticMeshIndex {
   const Info& info() const { return info_; }
   bool empty() const { return triangles_.empty(); }
   /// The band every query gets beyond its proximity: two cells.
-  float base_band() const { return 2.0f * cell_; }
+  float base_band() const { return 2.0f * grid_.cell; }
 
   /// The signed distance at x (shape frame) for a query with `proximity`, as above; `outward` is the mesh's
   /// outward unit normal at the nearest point (away from the mesh beyond the band).
@@ -73,8 +75,10 @@ class StaticMeshIndex {
     Eigen::Vector3f lo, hi;  ///< bounding box: a triangle no nearer than its box is not looked at
   };
   void index();
-  Eigen::Vector3i cell_of(const Eigen::Vector3f& x) const;
-  size_t cell_index(int i, int j, int k) const { return size_t((k * dims_.y() + j) * dims_.x() + i); }
+  void size_grid(double edges);
+  void index_vertices();
+  Eigen::Vector3i cell_of(const Eigen::Vector3f& x) const { return grid_.cell_of(x); }
+  size_t cell_index(int i, int j, int k) const { return grid_.cell_index(i, j, k); }
   /// The exact search (x within the band of some occupied cell): returns false when every triangle is farther
   /// than `band`, with `beyond` a lower bound of the distance not below the band.
   bool search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
@@ -93,13 +97,10 @@ class StaticMeshIndex {
   Info info_;
   std::vector<Triangle> triangles_;
   std::vector<Eigen::Vector3f> vertices_;  ///< sorted by cell: cell c holds vertex_first_[c] .. vertex_first_[c + 1]
-  Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();
-  float cell_ = 1.0f;
-  Eigen::Vector3i dims_ = Eigen::Vector3i::Ones();
+  TriangleGrid grid_;  ///< the triangles binned in cells about a triangle's size, with the rings to them
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
-  std::vector<uint32_t> first_, members_, vertex_first_;
+  std::vector<uint32_t> vertex_first_;
   static constexpr int kEmptyRings = 255;
-  std::vector<uint8_t> ring_;  ///< per cell: Chebyshev rings to the nearest occupied cell (at most kEmptyRings)
   /// Cells within kSampledRings of a triangle: exact_lower_bound(., base_band()) at their centre, in
   /// samples_[sample_block_[c]] (kNoSamples elsewhere). (Eight per cell, at half cells, made queries 7 % faster
   /// and the index 5x slower to build.)
@@ -112,15 +113,15 @@ class StaticMeshIndex {
 template <class Keep, class Visit>
 void StaticMeshIndex::vertices_in_box(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, Keep&& keep,
                                       Visit&& visit) const {
-  if (vertices_.empty() || (lo.array() > hi_.array()).any() || (hi.array() < lo_.array()).any()) return;
+  if (vertices_.empty() || (lo.array() > grid_.hi.array()).any() || (hi.array() < grid_.lo.array()).any()) return;
   const Eigen::Vector3i c0 = cell_of(lo), c1 = cell_of(hi);
   constexpr int kBlock = 4;
-  const float radius = 0.5f * std::sqrt(3.0f) * kBlock * cell_;
+  const float radius = 0.5f * std::sqrt(3.0f) * kBlock * grid_.cell;
   for (int bk = c0.z() / kBlock * kBlock; bk <= c1.z(); bk += kBlock)
     for (int bj = c0.y() / kBlock * kBlock; bj <= c1.y(); bj += kBlock)
       for (int bi = c0.x() / kBlock * kBlock; bi <= c1.x(); bi += kBlock) {
-        const Eigen::Vector3f centre =
-            lo_ + cell_ * (Eigen::Vector3f(float(bi), float(bj), float(bk)) + Eigen::Vector3f::Constant(0.5f * kBlock));
+        const Eigen::Vector3f centre = grid_.lo + grid_.cell * (Eigen::Vector3f(float(bi), float(bj), float(bk)) +
+                                                                Eigen::Vector3f::Constant(0.5f * kBlock));
         if (!keep(centre, radius)) continue;
         const int i0 = std::max(bi, c0.x()), i1 = std::min(bi + kBlock - 1, c1.x());
         for (int k = std::max(bk, c0.z()); k <= std::min(bk + kBlock - 1, c1.z()); ++k)

@@ -9,6 +9,8 @@
 
 #include <Eigen/Core>
 
+#include <cstddef>
+#include <cstdint>
 #include <vector>
 
 namespace voxfmt::bullet {
@@ -33,6 +35,61 @@ bool polyhedron_inside_distance(const std::vector<Eigen::Vector4f>& planes, floa
 /// where GJK gives up (a point on the surface, within GJK's tolerance).
 float convex_distance(const btConvexShape& shape, const btTransform& world_from_shape, const Eigen::Vector3f& x,
                       Eigen::Vector3f& outward);
+
+/// A uniform grid over triangles, shared by the searches for a nearest triangle (TriangleSet, the static mesh
+/// index): cell (i, j, k) lists the triangles whose bounding boxes cover it, members[first[c] .. first[c + 1]),
+/// and holds the ring (Chebyshev distance in cells) of the nearest cell that lists one, at most max_rings: a
+/// search from the cell starts there, and a point in it is at least (ring - 1) cells from every triangle.
+struct TriangleGrid {
+  Eigen::Vector3f lo = Eigen::Vector3f::Zero(), hi = Eigen::Vector3f::Zero();  ///< the triangles' box
+  float cell = 1.0f;
+  Eigen::Vector3i dims = Eigen::Vector3i::Ones();
+  std::vector<uint32_t> first, members;
+  std::vector<uint8_t> ring;
+  int max_rings = 0;
+
+  bool built() const { return !first.empty(); }
+  void clear();
+  Eigen::Vector3i cell_of(const Eigen::Vector3f& x) const;
+  size_t cell_index(int i, int j, int k) const { return size_t((k * dims.y() + j) * dims.x() + i); }
+  size_t cell_index(const Eigen::Vector3i& c) const { return cell_index(c.x(), c.y(), c.z()); }
+  /// Distance from x to the triangles' box (0 inside it).
+  float box_distance(const Eigen::Vector3f& x) const { return (x - x.cwiseMax(lo).cwiseMin(hi)).norm(); }
+  /// With lo, hi, cell and dims set: lists `count` triangles in the cells their boxes (`box_lo(t)`, `box_hi(t)`)
+  /// cover, then the rings up to `max_rings` (at most 255).
+  template <class BoxLo, class BoxHi>
+  void fill(size_t count, BoxLo&& box_lo, BoxHi&& box_hi, int rings) {
+    const size_t cells = size_t(dims.prod());
+    first.assign(cells + 1, 0);
+    std::vector<uint32_t> next;
+    for (int pass = 0; pass < 2; ++pass) {  // a counting sort: count, then place
+      if (pass == 1) {
+        for (size_t c = 0; c < cells; ++c) first[c + 1] += first[c];
+        members.resize(first[cells]);
+        next.assign(first.begin(), first.end() - 1);
+      }
+      for (size_t t = 0; t < count; ++t) {
+        const Eigen::Vector3i c0 = cell_of(box_lo(t)), c1 = cell_of(box_hi(t));
+        for (int k = c0.z(); k <= c1.z(); ++k)
+          for (int j = c0.y(); j <= c1.y(); ++j)
+            for (int i = c0.x(); i <= c1.x(); ++i) {
+              if (pass == 0)
+                ++first[cell_index(i, j, k) + 1];
+              else
+                members[next[cell_index(i, j, k)]++] = uint32_t(t);
+            }
+      }
+    }
+    fill_rings(rings);
+  }
+
+ private:
+  void fill_rings(int rings);
+};
+
+/// The mean of the proper normals if every one of them leans its way (n . mean > 0: a floor, a terrain), else zero.
+/// Degenerate triangles (zero normals) lie among their neighbours and do not count.
+Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals);
 
 /// A set of triangles (a static mesh or terrain near a VPS body), world frame, each oriented counter-clockwise
 /// seen from outside. The distance is to the nearest triangle; its sign is the side of the nearest triangle
@@ -63,17 +120,9 @@ class TriangleSet {
  private:
   std::vector<Eigen::Vector3f> corners_;
   std::vector<Eigen::Vector3f> normals_;
-  // Grid: cell (i, j, k) lists triangles first_[c] .. first_[c + 1] of `members_`.
-  Eigen::Vector3f lo_ = Eigen::Vector3f::Zero(), hi_ = Eigen::Vector3f::Zero();
-  float cell_ = 1.0f;
-  Eigen::Vector3i dims_ = Eigen::Vector3i::Ones();
+  TriangleGrid grid_;
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
-  std::vector<uint32_t> first_, members_;
-  // Per cell: the ring (Chebyshev distance in cells) of the nearest cell that holds a triangle, at most
-  // kEmptyRings. A search from the cell starts there, and a point in it is at least (ring - 1) cells from
-  // every triangle: a lower bound that costs one read.
-  static constexpr int kEmptyRings = 64;
-  std::vector<uint8_t> ring_;
+  static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };
 
 }  // namespace voxfmt::bullet
