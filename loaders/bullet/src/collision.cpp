@@ -415,18 +415,151 @@ struct MeshBound {
   float operator()(const Eigen::Vector3f& x) const { return mesh.lower_bound(rt * (x - t), proximity); }
 };
 
+// The mesh's vertices near A in A's voxelmap, each once: those in A's box (its own frame, grown by the reach) whose
+// bound of A's distance is within reach, found by blocks of cells (a block out of reach is skipped by one bound at
+// its centre). With a cache, the vertices found within a slack are kept, and reused while the relative motion
+// since cannot have used the slack up.
+class MeshVerticesInVoxelmap {
+ public:
+  MeshVerticesInVoxelmap(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta,
+                         const StaticMeshIndex& mesh, const btTransform& tb, const runtime::QueryOptions& options,
+                         runtime::ContactSet& contacts, VertexCache* cache)
+      : a_(a),
+        pose_a_(pose_a),
+        mesh_(mesh),
+        options_(options),
+        contacts_(contacts),
+        cache_(cache),
+        a_from_b_(ta.inverse() * tb),
+        map_(a.object().voxelmap()),
+        grow_(options.proximity + double(a.getMargin())),
+        to_voxels_(1.0 / (pose_a.scale * map_.voxel_size())),
+        reach_(options.proximity * to_voxels_),
+        // Mesh frame -> A's asset frame: asset = R_a^T (tb * x - t_a) / s.
+        to_asset_rotation_(pose_a.rotation.transpose() * to_eigen(tb.getBasis()) / pose_a.scale),
+        to_asset_offset_(pose_a.rotation.transpose() * (to_eigen(tb.getOrigin()) - pose_a.translation) / pose_a.scale),
+        rb_(to_eigen(tb.getBasis())),
+        ob_(to_eigen(tb.getOrigin())) {
+    a.getAabb(btTransform::getIdentity(), a_lo_, a_hi_);
+  }
+
+  void run() {
+    corners().clear();
+    ids().clear();
+    if (!reuse_cache()) scan();
+    in_voxelmap();
+  }
+
+ private:
+  static std::vector<Eigen::Vector3d>& corners() {
+    thread_local std::vector<Eigen::Vector3d> c;
+    return c;
+  }
+  static std::vector<uint32_t>& ids() {
+    thread_local std::vector<uint32_t> i;
+    return i;
+  }
+  double lower_bound(const Eigen::Vector3f& x) const {
+    return double(map_.distance_lower_bound(map_.to_grid(to_asset_rotation_ * x.cast<double>() + to_asset_offset_)));
+  }
+  bool in_a_box(const Eigen::Vector3f& x, double pad) const {
+    const btVector3 q = a_from_b_ * btVector3(x.x(), x.y(), x.z());
+    const btScalar p = btScalar(pad);
+    return q.x() >= a_lo_.x() - p && q.y() >= a_lo_.y() - p && q.z() >= a_lo_.z() - p && q.x() <= a_hi_.x() + p &&
+           q.y() <= a_hi_.y() + p && q.z() <= a_hi_.z() + p;
+  }
+  void take(const Eigen::Vector3f& v, uint32_t id) {
+    if (!in_a_box(v, grow_) || !(lower_bound(v) < reach_)) return;
+    corners().push_back(rb_ * v.cast<double>() + ob_);
+    ids().push_back(id);
+  }
+  // A vertex's contact is numbered by the vertex (its id in the index), not by its place in this test's list,
+  // which holds vertices out of reach too and differs between a kept list and a fresh scan.
+  void in_voxelmap() {
+    const size_t first = contacts_.contacts.size();
+    runtime::query_points_in_voxelmap(a_.object(), pose_a_, corners().data(), corners().size(), 0.0, options_,
+                                      contacts_);
+    for (size_t i = first; i < contacts_.contacts.size(); ++i)
+      contacts_.contacts[i].point_index = ids()[contacts_.contacts[i].point_index];
+  }
+  // The kept vertices, if the motion since the cache's anchor cannot have brought another within reach.
+  bool reuse_cache() {
+    if (!cache_ || !cache_->valid || cache_->to_voxels != to_voxels_) return false;
+    // How far any vertex of the region can have moved relative to A since the anchor: |dR c + dt| + |dR| r.
+    const Eigen::Matrix3d d_rotation = to_eigen(a_from_b_.getBasis()) - cache_->rotation;
+    const double moved = (d_rotation * cache_->centre + to_eigen(a_from_b_.getOrigin()) - cache_->translation).norm() +
+                         d_rotation.norm() * cache_->radius + 1e-6 * cache_->radius;
+    // A vertex left out had a bound of at least `threshold` (or lay beyond the box grown by `pad`); A's distance is
+    // not below a bound less the motion (as the traversal's pruning assumes), so it stays out of reach.
+    if (!(reach_ + moved * to_voxels_ <= cache_->threshold && grow_ + moved <= cache_->pad)) return false;
+    for (const uint32_t id : cache_->vertices) take(mesh_.vertex(id), id);
+    return true;
+  }
+  void scan() {
+    // The slack: 4 voxels of A (a body at rest keeps its vertices for good, one sliding at 1 m/s for a step or two).
+    const double slack = cache_ ? 4.0 / to_voxels_ : 0.0;
+    const double pad = grow_ + slack, threshold = reach_ + slack * to_voxels_;
+    const btTransform b_from_a = a_from_b_.inverse();
+    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
+    for (int k = 0; k < 8; ++k) {
+      const btVector3 corner = b_from_a * btVector3((k & 1) ? a_hi_.x() + btScalar(pad) : a_lo_.x() - btScalar(pad),
+                                                    (k & 2) ? a_hi_.y() + btScalar(pad) : a_lo_.y() - btScalar(pad),
+                                                    (k & 4) ? a_hi_.z() + btScalar(pad) : a_lo_.z() - btScalar(pad));
+      const Eigen::Vector3f c(float(corner.x()), float(corner.y()), float(corner.z()));
+      lo = lo.cwiseMin(c);
+      hi = hi.cwiseMax(c);
+    }
+    if (cache_) cache_->vertices.clear();
+    mesh_.vertices_in_box(
+        lo, hi,
+        [&](const Eigen::Vector3f& centre, float radius) {
+          return in_a_box(centre, double(radius) + pad) &&
+                 lower_bound(centre) <= double(radius) * to_voxels_ + threshold;
+        },
+        [&](const Eigen::Vector3f& v, uint32_t id) {
+          if (!cache_) return take(v, id);
+          if (!in_a_box(v, pad) || !(lower_bound(v) < threshold)) return;
+          cache_->vertices.push_back(id);
+          take(v, id);
+        });
+    if (!cache_) return;
+    cache_->valid = true;
+    cache_->rotation = to_eigen(a_from_b_.getBasis());
+    cache_->translation = to_eigen(a_from_b_.getOrigin());
+    cache_->centre = 0.5 * (lo + hi).cast<double>();
+    cache_->radius = 0.5 * double((hi - lo).norm());
+    cache_->to_voxels = to_voxels_;
+    cache_->threshold = threshold;
+    cache_->pad = pad;
+  }
+
+  const VpsShape& a_;
+  const runtime::Pose& pose_a_;
+  const StaticMeshIndex& mesh_;
+  const runtime::QueryOptions& options_;
+  runtime::ContactSet& contacts_;
+  VertexCache* cache_;
+  const btTransform a_from_b_;
+  const runtime::SparseVoxelmap& map_;
+  const double grow_, to_voxels_, reach_;
+  const Eigen::Matrix3d to_asset_rotation_;
+  const Eigen::Vector3d to_asset_offset_;
+  const Eigen::Matrix3d rb_;
+  const Eigen::Vector3d ob_;
+  btVector3 a_lo_, a_hi_;
+};
+
 // A's points against a static mesh's index (which holds the whole mesh in its shape frame, so nothing is gathered
-// per query), coherently with the pair's front when there is one; and the mesh's vertices near A in A's
-// voxelmap, each once.
+// per query), coherently with the pair's front when there is one; and the mesh's vertices near A in A's voxelmap.
 void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const StaticMeshIndex& mesh,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
                      runtime::QueryScratch& scratch, runtime::TraversalFront* front, VertexCache* cache) {
   if (mesh.empty()) return;
-  // The mesh's frame: x_b = R^T (x - t).
-  const Eigen::Matrix3f rt = to_eigen(tb.getBasis()).transpose().cast<float>();
-  const Eigen::Vector3f t = to_eigen(tb.getOrigin()).cast<float>();
-  const float proximity = float(options.proximity);
   if (a.uses_points()) {
+    // The mesh's frame: x_b = R^T (x - t).
+    const Eigen::Matrix3f rt = to_eigen(tb.getBasis()).transpose().cast<float>();
+    const Eigen::Vector3f t = to_eigen(tb.getOrigin()).cast<float>();
+    const float proximity = float(options.proximity);
     auto distance = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
       Eigen::Vector3f n;
       const float d = mesh.distance(rt * (x - t), proximity, n);
@@ -440,98 +573,7 @@ void collide_indexed(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     else
       runtime::query_against_function(a.object(), pose_a, distance, bound, options, contacts, scratch);
   }
-  if (!a.uses_voxelmap()) return;
-  // The vertices in A's box (its own frame, grown by the reach) whose bound of A's distance is within reach; blocks
-  // of cells out of reach are skipped by one bound at their centre. With a cache, the vertices found within a
-  // slack are kept, and reused while the relative motion since cannot have used the slack up.
-  btVector3 a_lo, a_hi;
-  a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
-  const double grow = options.proximity + double(a.getMargin());
-  const btTransform a_from_b = ta.inverse() * tb;
-  const runtime::SparseVoxelmap& map = a.object().voxelmap();
-  const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
-  const double reach = options.proximity * to_voxels;
-  // Mesh frame -> A's asset frame: asset = R_a^T (tb * x - t_a) / s.
-  const Eigen::Matrix3d to_asset_rotation = pose_a.rotation.transpose() * to_eigen(tb.getBasis()) / pose_a.scale;
-  const Eigen::Vector3d to_asset_offset =
-      pose_a.rotation.transpose() * (to_eigen(tb.getOrigin()) - pose_a.translation) / pose_a.scale;
-  auto lower_bound = [&](const Eigen::Vector3f& x) {
-    return double(map.distance_lower_bound(map.to_grid(to_asset_rotation * x.cast<double>() + to_asset_offset)));
-  };
-  auto in_a_box = [&](const Eigen::Vector3f& x, double pad) {
-    const btVector3 q = a_from_b * btVector3(x.x(), x.y(), x.z());
-    const btScalar p = btScalar(pad);
-    return q.x() >= a_lo.x() - p && q.y() >= a_lo.y() - p && q.z() >= a_lo.z() - p && q.x() <= a_hi.x() + p &&
-           q.y() <= a_hi.y() + p && q.z() <= a_hi.z() + p;
-  };
-  thread_local std::vector<Eigen::Vector3d> corners;
-  thread_local std::vector<uint32_t> ids;
-  corners.clear();
-  ids.clear();
-  const Eigen::Matrix3d rb = to_eigen(tb.getBasis());
-  const Eigen::Vector3d ob = to_eigen(tb.getOrigin());
-  auto take = [&](const Eigen::Vector3f& v, uint32_t id) {
-    if (!in_a_box(v, grow) || !(lower_bound(v) < reach)) return;
-    corners.push_back(rb * v.cast<double>() + ob);
-    ids.push_back(id);
-  };
-  // A vertex's contact is numbered by the vertex (its id in the index), not by its place in this test's list,
-  // which holds vertices out of reach too and differs between a kept list and a fresh scan.
-  auto in_voxelmap = [&] {
-    const size_t first = contacts.contacts.size();
-    runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
-    for (size_t i = first; i < contacts.contacts.size(); ++i)
-      contacts.contacts[i].point_index = ids[contacts.contacts[i].point_index];
-  };
-  if (cache && cache->valid && cache->to_voxels == to_voxels) {
-    // How far any vertex of the region can have moved relative to A since the anchor: |dR c + dt| + |dR| r.
-    const Eigen::Matrix3d d_rotation = to_eigen(a_from_b.getBasis()) - cache->rotation;
-    const double moved = (d_rotation * cache->centre + to_eigen(a_from_b.getOrigin()) - cache->translation).norm() +
-                         d_rotation.norm() * cache->radius + 1e-6 * cache->radius;
-    // A vertex left out had a bound of at least `threshold` (or lay beyond the box grown by `pad`); A's distance
-    // is not below a bound less the motion (as the traversal's pruning assumes), so it stays out of reach.
-    if (reach + moved * to_voxels <= cache->threshold && grow + moved <= cache->pad) {
-      for (const uint32_t id : cache->vertices) take(mesh.vertex(id), id);
-      in_voxelmap();
-      return;
-    }
-  }
-  // The slack: 4 voxels of A (a body at rest keeps its vertices for good, one sliding at 1 m/s for a step or two).
-  const double slack = cache ? 4.0 / to_voxels : 0.0;
-  const double pad = grow + slack, threshold = reach + slack * to_voxels;
-  const btTransform b_from_a = a_from_b.inverse();
-  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
-  for (int k = 0; k < 8; ++k) {
-    const btVector3 corner = b_from_a * btVector3((k & 1) ? a_hi.x() + btScalar(pad) : a_lo.x() - btScalar(pad),
-                                                  (k & 2) ? a_hi.y() + btScalar(pad) : a_lo.y() - btScalar(pad),
-                                                  (k & 4) ? a_hi.z() + btScalar(pad) : a_lo.z() - btScalar(pad));
-    const Eigen::Vector3f c(float(corner.x()), float(corner.y()), float(corner.z()));
-    lo = lo.cwiseMin(c);
-    hi = hi.cwiseMax(c);
-  }
-  if (cache) cache->vertices.clear();
-  mesh.vertices_in_box(
-      lo, hi,
-      [&](const Eigen::Vector3f& centre, float radius) {
-        return in_a_box(centre, double(radius) + pad) && lower_bound(centre) <= double(radius) * to_voxels + threshold;
-      },
-      [&](const Eigen::Vector3f& v, uint32_t id) {
-        if (!cache) return take(v, id);
-        if (!in_a_box(v, pad) || !(lower_bound(v) < threshold)) return;
-        cache->vertices.push_back(id);
-        take(v, id);
-      });
-  if (cache) {
-    cache->valid = true;
-    cache->rotation = to_eigen(a_from_b.getBasis());
-    cache->translation = to_eigen(a_from_b.getOrigin());
-    cache->centre = 0.5 * (lo + hi).cast<double>();
-    cache->radius = 0.5 * double((hi - lo).norm());
-    cache->to_voxels = to_voxels;
-    cache->threshold = threshold;
-    cache->pad = pad;
-  }
-  in_voxelmap();
+  if (a.uses_voxelmap()) MeshVerticesInVoxelmap(a, pose_a, ta, mesh, tb, options, contacts, cache).run();
 }
 
 /// What a pair keeps between its tests: the traversal fronts (CollisionSettings::coherent) and its static mesh's
