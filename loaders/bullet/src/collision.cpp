@@ -618,20 +618,9 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const auto* a_shape = static_cast<const VpsShape*>(a_wrap->getCollisionShape());
     const runtime::Pose pose_a = a_shape->asset_pose(a_wrap->getWorldTransform());
     const CollisionSettings& settings = shared_->settings;
-    runtime::QueryOptions options;
-    options.normal_source = settings.normal_source;
-    options.cut_level = settings.cut_level;
-    options.proximity =
-        std::max({settings.proximity, double(result->m_closestPointDistanceThreshold), a_shape->proximity()});
-    if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
-      options.proximity =
-          std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
-    if (settings.speculative_contacts)
-      options.proximity = std::max(options.proximity, speculative_distance(a_wrap, b_wrap, info.m_timeStep));
-
+    const runtime::QueryOptions options = query_options(*a_shape, a_wrap, b_wrap, info, *result);
     const bool budgeted = settings.step_time_budget_us > 0.0;
     const auto start = budgeted ? std::chrono::steady_clock::now() : std::chrono::steady_clock::time_point{};
-
     thread_local runtime::ContactSet contacts;
     thread_local runtime::QueryScratch scratch;
     contacts.clear();
@@ -643,7 +632,6 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       shared_->step_ns.fetch_add(
           std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count(),
           std::memory_order_relaxed);
-
     if (settings.on_contacts)
       settings.on_contacts(a_wrap->getCollisionObject(), b_wrap->getCollisionObject(), contacts);
     result->setPersistentManifold(manifold_);
@@ -653,40 +641,69 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     counters.points_tested += contacts.stats.points_tested;
     counters.nodes_visited += contacts.stats.nodes_visited;
     if (cut) ++counters.budget_cuts;
-    auto add = [&](const std::vector<runtime::Contact>& set, btPersistentManifold* manifold) {
-      const runtime::ReducedContacts chosen = runtime::reduce_contacts(set, settings.manifold_points);
-      std::array<btVector3, 4> on_b;
-      for (size_t i = 0; i < chosen.size(); ++i) {
-        const runtime::Contact& c = set[chosen.index[i]];
-        // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.
-        on_b[i] = to_bt_vector(c.point_of_b ? c.point : c.point + c.normal * c.depth);
-      }
-      // Points of earlier steps that none of this step's is near (Bullet matches them within its breaking
-      // threshold) are gone: kept, a stale point holds a body where it was (a peg on a hole's rim climbed out).
-      const btScalar near2 = manifold->getContactBreakingThreshold() * manifold->getContactBreakingThreshold();
-      for (int p = manifold->getNumContacts() - 1; p >= 0; --p) {
-        bool matched = false;
-        for (size_t i = 0; i < chosen.size() && !matched; ++i)
-          matched = (manifold->getContactPoint(p).m_positionWorldOnB - on_b[i]).length2() <= near2;
-        if (!matched) manifold->removeContactPoint(p);
-      }
-      for (size_t i = 0; i < chosen.size(); ++i) {
-        const runtime::Contact& c = set[chosen.index[i]];
-        result->addContactPoint(to_bt_vector(c.normal), on_b[i], btScalar(-c.depth));
-      }
-    };
     const size_t regions = owns_manifold_ ? std::clamp<size_t>(settings.contact_regions, 1, kMaxRegions) : 1;
     if (regions == 1) {
-      add(contacts.contacts, manifold_);
+      add_to_manifold(contacts.contacts, manifold_, *result);
       if (owns_manifold_) result->refreshContactPoints();
       return;
     }
-    // Each contact's region: its cell in A's asset frame (cells as wide as A's bounding radius, fixed to A, so a
-    // contact keeps its region from step to step), folded onto the manifolds; each region keeps its own 4 points.
+    add_by_region(contacts.contacts, *a_shape, pose_a, regions, a_wrap, b_wrap, *result);
+  }
+
+ private:
+  // The pair's query: the settings', with the largest proximity any of its parts asks for (the settings, Bullet's
+  // closest-point threshold, either shape's, and the speculative distance of this step).
+  runtime::QueryOptions query_options(const VpsShape& a_shape, const btCollisionObjectWrapper* a_wrap,
+                                      const btCollisionObjectWrapper* b_wrap, const btDispatcherInfo& info,
+                                      const btManifoldResult& result) const {
+    const CollisionSettings& settings = shared_->settings;
+    runtime::QueryOptions options;
+    options.normal_source = settings.normal_source;
+    options.cut_level = settings.cut_level;
+    options.proximity =
+        std::max({settings.proximity, double(result.m_closestPointDistanceThreshold), a_shape.proximity()});
+    if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
+      options.proximity =
+          std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
+    if (settings.speculative_contacts)
+      options.proximity = std::max(options.proximity, speculative_distance(a_wrap, b_wrap, info.m_timeStep));
+    return options;
+  }
+
+  // Up to the settings' manifold points of `set` into `manifold`.
+  void add_to_manifold(const std::vector<runtime::Contact>& set, btPersistentManifold* manifold,
+                       btManifoldResult& result) const {
+    const runtime::ReducedContacts chosen = runtime::reduce_contacts(set, shared_->settings.manifold_points);
+    std::array<btVector3, 4> on_b;
+    for (size_t i = 0; i < chosen.size(); ++i) {
+      const runtime::Contact& c = set[chosen.index[i]];
+      // Bullet: pointOnB + normalOnB * distance = pointOnA, distance < 0 when penetrating.
+      on_b[i] = to_bt_vector(c.point_of_b ? c.point : c.point + c.normal * c.depth);
+    }
+    // Points of earlier steps that none of this step's is near (Bullet matches them within its breaking threshold)
+    // are gone: kept, a stale point holds a body where it was (a peg on a hole's rim climbed out).
+    const btScalar near2 = manifold->getContactBreakingThreshold() * manifold->getContactBreakingThreshold();
+    for (int p = manifold->getNumContacts() - 1; p >= 0; --p) {
+      bool matched = false;
+      for (size_t i = 0; i < chosen.size() && !matched; ++i)
+        matched = (manifold->getContactPoint(p).m_positionWorldOnB - on_b[i]).length2() <= near2;
+      if (!matched) manifold->removeContactPoint(p);
+    }
+    for (size_t i = 0; i < chosen.size(); ++i) {
+      const runtime::Contact& c = set[chosen.index[i]];
+      result.addContactPoint(to_bt_vector(c.normal), on_b[i], btScalar(-c.depth));
+    }
+  }
+
+  // Each contact's region: its cell in A's asset frame (cells as wide as A's bounding radius, fixed to A, so a
+  // contact keeps its region from step to step), folded onto the manifolds; each region keeps its own points.
+  void add_by_region(const std::vector<runtime::Contact>& set, const VpsShape& a_shape, const runtime::Pose& pose_a,
+                     size_t regions, const btCollisionObjectWrapper* a_wrap, const btCollisionObjectWrapper* b_wrap,
+                     btManifoldResult& result) {
     thread_local std::array<std::vector<runtime::Contact>, kMaxRegions> groups;
     for (auto& g : groups) g.clear();
-    const double cell = a_shape->object().bounding_radius() * pose_a.scale;
-    for (const runtime::Contact& c : contacts.contacts) {
+    const double cell = a_shape.object().bounding_radius() * pose_a.scale;
+    for (const runtime::Contact& c : set) {
       const Eigen::Vector3d local = pose_a.rotation.transpose() * (c.point - pose_a.translation) / cell;
       const auto key = [](double x) { return uint64_t(int64_t(std::floor(x))); };
       const uint64_t hash = key(local.x()) * 73856093u ^ key(local.y()) * 19349663u ^ key(local.z()) * 83492791u;
@@ -698,12 +715,13 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         if (groups[k].empty()) continue;
         manifold = m_dispatcher->getNewManifold(a_wrap->getCollisionObject(), b_wrap->getCollisionObject());
       }
-      result->setPersistentManifold(manifold);
-      add(groups[k], manifold);
-      result->refreshContactPoints();
+      result.setPersistentManifold(manifold);
+      add_to_manifold(groups[k], manifold, result);
+      result.refreshContactPoints();
     }
   }
 
+ public:
   /// How far the pair can close in one step: the relative speed of the centres plus each body's spin times its
   /// bounding radius, times the step (0 outside a dynamics step). Points within it become speculative contacts,
   /// which Bullet's solver lets close only that gap: nothing passes through a thin wall in one step.
