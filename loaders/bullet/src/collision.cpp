@@ -758,115 +758,135 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
  private:
+  // Everything a partner kind's handler needs of one pair test.
+  struct PartnerTest {
+    const VpsCollisionAlgorithm& algorithm;
+    const VpsShape& a;
+    const btTransform& ta;
+    const runtime::Pose& pose_a;
+    const btCollisionShape& b;
+    const btTransform& tb;
+    const runtime::QueryOptions& options;
+    runtime::ContactSet& contacts;
+    runtime::QueryScratch& scratch;
+    runtime::QueryState* state;
+    runtime::TraversalFront* front() const { return state ? &state->a_in_b : nullptr; }
+    ConvexPair convex() const { return ConvexPair{a, pose_a, tb, options, contacts, scratch, front()}; }
+  };
+  using PartnerHandler = void (*)(const PartnerTest&);
+
+  // One handler per partner kind that has one (Bullet's shape type), filled once. VPS pairs come before the table
+  // (both bodies are shells), and convex kinds without a handler of their own after it (GJK and EPA).
+  static const std::array<PartnerHandler, MAX_BROADPHASE_COLLISION_TYPES>& partner_handlers() {
+    static const std::array<PartnerHandler, MAX_BROADPHASE_COLLISION_TYPES> table = [] {
+      std::array<PartnerHandler, MAX_BROADPHASE_COLLISION_TYPES> t{};
+      t[STATIC_PLANE_PROXYTYPE] = [](const PartnerTest& p) {
+        if (!p.a.uses_points()) return;
+        const auto& plane = static_cast<const btStaticPlaneShape&>(p.b);
+        const Eigen::Vector3f n = (to_eigen(p.tb.getBasis()) * to_eigen(plane.getPlaneNormal())).cast<float>();
+        const float c = float(plane.getPlaneConstant()) + n.dot(to_eigen(p.tb.getOrigin()).cast<float>());
+        points_against(
+            p.a, p.pose_a, partner_pose(p.tb),
+            [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return plane_distance(n, c, x, outward); },
+            p.options, p.contacts, p.scratch, p.front());
+      };
+      t[TRIANGLE_MESH_SHAPE_PROXYTYPE] = t[SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        const auto& concave = static_cast<const btConcaveShape&>(p.b);
+        if (!p.algorithm.shared_->settings.static_mesh_index)
+          return collide_concave(p.a, p.pose_a, p.ta, concave, p.tb, p.options, p.contacts, p.scratch);
+        collide_indexed(p.a, p.pose_a, p.ta, p.algorithm.mesh_index(concave), p.tb, p.options, p.contacts, p.scratch,
+                        p.front(), p.state ? &p.algorithm.state_->vertices : nullptr);
+      };
+      t[TERRAIN_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_concave(p.a, p.pose_a, p.ta, static_cast<const btConcaveShape&>(p.b), p.tb, p.options, p.contacts,
+                        p.scratch);
+      };
+      t[BOX_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_box(p.convex(), static_cast<const btBoxShape&>(p.b));
+      };
+      t[SPHERE_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_sphere(p.convex(), static_cast<const btSphereShape&>(p.b));
+      };
+      t[CAPSULE_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_capsule(p.convex(), static_cast<const btCapsuleShape&>(p.b));
+      };
+      t[CYLINDER_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_cylinder(p.convex(), static_cast<const btCylinderShape&>(p.b));
+      };
+      t[MULTI_SPHERE_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
+        collide_multi_sphere(p.convex(), static_cast<const btMultiSphereShape&>(p.b));
+      };
+      return t;
+    }();
+    return table;
+  }
+
   /// Returns whether the step time budget cut a shell above its leaves.
   bool collide(const VpsShape& a, const btTransform& ta, const runtime::Pose& pose_a,
                const btCollisionObjectWrapper* b_wrap, runtime::QueryOptions options, runtime::ContactSet& contacts,
                runtime::QueryScratch& scratch, runtime::QueryState* state) const {
-    const btCollisionShape* b_shape = b_wrap->getCollisionShape();
+    const btCollisionShape& b = *b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
     bool cut = false;
-    // A shell's deepest level: its shape's own limit, or else the step budget's cap, which always leaves the
-    // levels within step_budget_min_points.
-    auto max_level = [&](const VpsShape& shell) {
-      options.min_points = 0;
-      if (shell.max_level() != std::numeric_limits<uint32_t>::max() ||
-          shell.point_budget() != std::numeric_limits<size_t>::max())
-        return shell.max_level();
-      const uint32_t cap = shared_->level_cap(shell.object().point_tree());
-      if (cap == std::numeric_limits<uint32_t>::max()) return cap;
-      cut = true;
-      options.min_points = shared_->settings.step_budget_min_points;
-      return cap;
-    };
     options.point_budget = a.point_budget();
-    options.max_level = max_level(a);
-    switch (b_shape->getShapeType()) {
-      case VpsShape::kShapeType: {
-        const auto& b = static_cast<const VpsShape&>(*b_shape);
-        const runtime::Pose pose_b = b.asset_pose(tb);
-        const bool a_in_b = a.uses_points() && b.uses_voxelmap();
-        const bool b_in_a = b.uses_points() && a.uses_voxelmap();
-        runtime::QueryDirection direction = shared_->settings.direction;
-        if (direction == runtime::QueryDirection::Auto)
-          direction = a_in_b && b_in_a
-                          ? runtime::resolve_direction(a.object(), pose_a, b.object(), pose_b, direction)
-                          : (a_in_b ? runtime::QueryDirection::APointsInB : runtime::QueryDirection::BPointsInA);
-        if (a_in_b &&
-            (direction == runtime::QueryDirection::APointsInB || direction == runtime::QueryDirection::Both)) {
-          options.direction = runtime::QueryDirection::APointsInB;
-          options.point_budget = a.point_budget();
-          options.max_level = max_level(a);
-          if (state)
-            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
-          else
-            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
-        }
-        if (b_in_a &&
-            (direction == runtime::QueryDirection::BPointsInA || direction == runtime::QueryDirection::Both)) {
-          options.direction = runtime::QueryDirection::BPointsInA;
-          options.point_budget = b.point_budget();
-          options.max_level = max_level(b);
-          if (state)
-            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
-          else
-            runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
-        }
-        return cut;
-      }
-      case STATIC_PLANE_PROXYTYPE: {
-        if (!a.uses_points()) return cut;
-        const auto& plane = static_cast<const btStaticPlaneShape&>(*b_shape);
-        const Eigen::Vector3f n = (to_eigen(tb.getBasis()) * to_eigen(plane.getPlaneNormal())).cast<float>();
-        const float c = float(plane.getPlaneConstant()) + n.dot(to_eigen(tb.getOrigin()).cast<float>());
-        points_against(
-            a, pose_a, partner_pose(tb),
-            [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return plane_distance(n, c, x, outward); },
-            options, contacts, scratch, state ? &state->a_in_b : nullptr);
-        return cut;
-      }
-      case TRIANGLE_MESH_SHAPE_PROXYTYPE:
-      case SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE:
-        if (shared_->settings.static_mesh_index) {
-          const StaticMeshIndex& mesh = mesh_index(static_cast<const btConcaveShape&>(*b_shape));
-          collide_indexed(a, pose_a, ta, mesh, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr,
-                          state ? &state_->vertices : nullptr);
-          return cut;
-        }
-        collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
-        return cut;
-      case TERRAIN_SHAPE_PROXYTYPE:
-        collide_concave(a, pose_a, ta, static_cast<const btConcaveShape&>(*b_shape), tb, options, contacts, scratch);
-        return cut;
-      default:
-        break;
+    options.max_level = max_level(a, options, cut);
+    if (b.getShapeType() == VpsShape::kShapeType) {
+      collide_vps(a, pose_a, static_cast<const VpsShape&>(b), tb, options, cut, contacts, scratch, state);
+      return cut;
     }
-    // Convex partners: each kind's handler does both directions (ConvexPair).
-    const ConvexPair pair{a, pose_a, tb, options, contacts, scratch, state ? &state->a_in_b : nullptr};
-    switch (b_shape->getShapeType()) {
-      case BOX_SHAPE_PROXYTYPE:
-        collide_box(pair, static_cast<const btBoxShape&>(*b_shape));
-        return cut;
-      case SPHERE_SHAPE_PROXYTYPE:
-        collide_sphere(pair, static_cast<const btSphereShape&>(*b_shape));
-        return cut;
-      case CAPSULE_SHAPE_PROXYTYPE:
-        collide_capsule(pair, static_cast<const btCapsuleShape&>(*b_shape));
-        return cut;
-      case CYLINDER_SHAPE_PROXYTYPE:
-        collide_cylinder(pair, static_cast<const btCylinderShape&>(*b_shape));
-        return cut;
-      case MULTI_SPHERE_SHAPE_PROXYTYPE:
-        collide_multi_sphere(pair, static_cast<const btMultiSphereShape&>(*b_shape));
-        return cut;
-      default:
-        if (b_shape->isPolyhedral())
-          collide_polyhedron(pair, static_cast<const btPolyhedralConvexShape&>(*b_shape));
-        else if (b_shape->isConvex())
-          collide_curved_convex(pair, static_cast<const btConvexShape&>(*b_shape));
-        else
-          shared_->report_unsupported(b_shape);
-        return cut;
-    }
+    const PartnerTest test{*this, a, ta, pose_a, b, tb, options, contacts, scratch, state};
+    const int type = b.getShapeType();
+    if (type >= 0 && type < MAX_BROADPHASE_COLLISION_TYPES && partner_handlers()[size_t(type)])
+      partner_handlers()[size_t(type)](test);
+    else if (b.isPolyhedral())
+      collide_polyhedron(test.convex(), static_cast<const btPolyhedralConvexShape&>(b));
+    else if (b.isConvex())
+      collide_curved_convex(test.convex(), static_cast<const btConvexShape&>(b));
+    else
+      shared_->report_unsupported(&b);
+    return cut;
+  }
+
+  // A shell's deepest level: its shape's own limit, or else the step budget's cap, which always leaves the levels
+  // within step_budget_min_points (then `cut`).
+  uint32_t max_level(const VpsShape& shell, runtime::QueryOptions& options, bool& cut) const {
+    options.min_points = 0;
+    if (shell.max_level() != std::numeric_limits<uint32_t>::max() ||
+        shell.point_budget() != std::numeric_limits<size_t>::max())
+      return shell.max_level();
+    const uint32_t cap = shared_->level_cap(shell.object().point_tree());
+    if (cap == std::numeric_limits<uint32_t>::max()) return cap;
+    cut = true;
+    options.min_points = shared_->settings.step_budget_min_points;
+    return cap;
+  }
+
+  // Two VPS bodies: the direction the settings ask (Auto: the runtime's choice), each way with its shell's limits.
+  void collide_vps(const VpsShape& a, const runtime::Pose& pose_a, const VpsShape& b, const btTransform& tb,
+                   runtime::QueryOptions options, bool& cut, runtime::ContactSet& contacts,
+                   runtime::QueryScratch& scratch, runtime::QueryState* state) const {
+    const runtime::Pose pose_b = b.asset_pose(tb);
+    const bool a_in_b = a.uses_points() && b.uses_voxelmap();
+    const bool b_in_a = b.uses_points() && a.uses_voxelmap();
+    runtime::QueryDirection direction = shared_->settings.direction;
+    if (direction == runtime::QueryDirection::Auto)
+      direction = a_in_b && b_in_a
+                      ? runtime::resolve_direction(a.object(), pose_a, b.object(), pose_b, direction)
+                      : (a_in_b ? runtime::QueryDirection::APointsInB : runtime::QueryDirection::BPointsInA);
+    auto query = [&](runtime::QueryDirection way, const VpsShape& shell) {
+      options.direction = way;
+      options.point_budget = shell.point_budget();
+      options.max_level = max_level(shell, options, cut);
+      if (state)
+        runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
+      else
+        runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch);
+    };
+    const bool both = direction == runtime::QueryDirection::Both;
+    if (a_in_b && (both || direction == runtime::QueryDirection::APointsInB))
+      query(runtime::QueryDirection::APointsInB, a);
+    if (b_in_a && (both || direction == runtime::QueryDirection::BPointsInA))
+      query(runtime::QueryDirection::BPointsInA, b);
   }
 
   static constexpr size_t kMaxRegions = 4;
