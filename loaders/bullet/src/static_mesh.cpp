@@ -166,6 +166,18 @@ void StaticMeshIndex::index_vertices() {
   for (size_t c = 0; c < cells; ++c) vertex_first_[c + 1] += vertex_first_[c];
 }
 
+// A triangle not yet seen after ring r lies in no cell of the block within r rings of c (every cell its box covers
+// lists it), so it is at least as far as the block's faces inside the grid.
+float StaticMeshIndex::unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const {
+  float block = std::numeric_limits<float>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (grid_.lo[a] + float(c[a] - r) * grid_.cell)));
+    if (c[a] + r + 1 < grid_.dims[a])
+      block = std::min(block, std::max(0.0f, grid_.lo[a] + float(c[a] + r + 1) * grid_.cell - x[a]));
+  }
+  return block;
+}
+
 bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
                              float& distance, Eigen::Vector3f& outward, float& beyond, float seed) const {
   detail::NearestTriangle nearest(x);
@@ -202,15 +214,7 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
         }
       }
     }
-    // A triangle not yet seen lies in no cell of the block within r rings of c (every cell its box covers lists
-    // it), so it is at least as far as the block's faces inside the grid, and no nearer than the grid's box.
-    float block = std::numeric_limits<float>::infinity();
-    for (int a = 0; a < 3; ++a) {
-      if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (grid_.lo[a] + float(c[a] - r) * grid_.cell)));
-      if (c[a] + r + 1 < grid_.dims[a])
-        block = std::min(block, std::max(0.0f, grid_.lo[a] + float(c[a] + r + 1) * grid_.cell - x[a]));
-    }
-    const float reach = std::max(box, block);
+    const float reach = std::max(box, unseen_distance(x, c, r));
     if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
       if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
         return search(x, c, first_ring, box, band, distance, outward, beyond);

@@ -79,6 +79,7 @@ class StaticMeshIndex {
   void index_vertices();
   Eigen::Vector3i cell_of(const Eigen::Vector3f& x) const { return grid_.cell_of(x); }
   size_t cell_index(int i, int j, int k) const { return grid_.cell_index(i, j, k); }
+  float unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const;
   /// The exact search (x within the band of some occupied cell): returns false when every triangle is farther
   /// than `band`, with `beyond` a lower bound of the distance not below the band.
   bool search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
