@@ -6,6 +6,7 @@
 #include <oneapi/tbb/parallel_sort.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -25,19 +26,21 @@ constexpr double kEpsilon = std::numeric_limits<double>::epsilon() / 2;  // unit
 // Shewchuk's bound on the rounding error of a 2x2 orientation determinant computed in doubles.
 constexpr double kOrientBound = (3 + 16 * kEpsilon) * kEpsilon;
 
-// Cells are bricks of 8 voxels; their far field is interpolated from lattice points 4 voxels apart.
-constexpr int64_t kCell = 8;
-constexpr int64_t kSpacing = 4;
+// A brick (8 voxels) is interpolated from a lattice 4 voxels apart, where the caps are summed exactly.
+constexpr int64_t kBrick = 8, kSpacing = 4;
 // Caps passing within this many voxels of a cell are always evaluated per voxel. Farther ones join them, the most
 // bound per unit of work first (a strip is one evaluation per voxel, a fan one per edge), until the cell's bound
 // is below the target asked for or the work reaches max(kMaxWork, boundary edges / kMaxWorkShare).
 constexpr double kNearStrip = 4.0;
-constexpr size_t kMaxWork = 64;
-constexpr size_t kMaxWorkShare = 8;
+constexpr size_t kMaxWork = 64, kMaxWorkShare = 8;
 // Tensor-product quadratic interpolation on nodes 0, H, 2H errs by at most 0.0642 H^3 (1 + 1.25 + 1.25^2)
-// times the largest third derivative along an axis (Lebesgue constant 1.25); the third derivatives of a strip's
-// solid angle / 4 pi are the Biot-Savart kernel's second ones, at most 6 / (4 pi r^4) per unit length of its edges.
-constexpr double kInterpolationError = 0.06415 * 3.8125 * kSpacing * kSpacing * kSpacing * 6 / (4 * kPi);
+// times the largest third derivative along an axis (Lebesgue constant 1.25); the third derivatives of a cap's
+// solid angle / 4 pi are the Biot-Savart kernel's second ones, at most 6 / (4 pi r^4) per unit length of its
+// boundary. Errors in the 27 values pass through weights summing in magnitude to at most 1.25^3 < 2.
+constexpr double interpolation_error(double spacing) {
+  return 0.06415 * 3.8125 * spacing * spacing * spacing * 6 / (4 * kPi);
+}
+constexpr double kValueErrorGain = 1.953125;
 
 // atan2 to within 1e-11 (a polynomial on [-tan(pi/8), tan(pi/8)], fitted to 4.2e-12, after the usual octant
 // reduction), about three times as fast as libm's: the strips are the bake's inner loop. Their sums err by at most
@@ -135,8 +138,13 @@ double ray_term(double d) {
   return 8.0 / (3 * d * d * d);
 }
 
-uint64_t lattice_key(int64_t x, int64_t y, int64_t z) {
-  return uint64_t(x / kSpacing) | uint64_t(y / kSpacing) << 21 | uint64_t(z / kSpacing) << 42;
+// Points of a lattice of `spacing` (non-negative multiples of it), 21 bits an axis.
+uint64_t lattice_key(int64_t x, int64_t y, int64_t z, int64_t spacing) {
+  return uint64_t(x / spacing) | uint64_t(y / spacing) << 21 | uint64_t(z / spacing) << 42;
+}
+std::array<int64_t, 3> lattice_point(uint64_t key, int64_t spacing) {
+  return {int64_t(key & 0x1fffff) * spacing, int64_t(key >> 21 & 0x1fffff) * spacing,
+          int64_t(key >> 42 & 0x1fffff) * spacing};
 }
 
 }  // namespace
@@ -177,7 +185,7 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
   for (uint32_t n = 0; n < edges_.size(); ++n) {
     BoundaryEdge& e = edges_[n];
     const auto [it, added] = component_of_root.emplace(find(e.va), uint32_t(components_.size()));
-    if (added) components_.push_back({e.a, e.a, {}, {}, false});
+    if (added) components_.push_back({e.a, e.a, {}, 0.0, {}, {}, {}, false});
     Component& c = components_[it->second];
     e.component = it->second;
     c.edges.push_back(n);
@@ -186,14 +194,31 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
       c.hi[a] = std::max({c.hi[a], e.a[a], e.b[a]});
     }
   }
+  std::unordered_map<uint32_t, uint32_t> corner_of;
   for (Component& c : components_) {  // the fan's apex: the mean of the component's edge midpoints
     Vec3 sum{0, 0, 0};
-    for (uint32_t n : c.edges) sum = sum + (edges_[n].a + edges_[n].b) * 0.5;
+    corner_of.clear();
+    auto corner = [&](uint32_t v, const Vec3& p) {
+      const auto [it, added] = corner_of.emplace(v, uint32_t(c.corners.size()));
+      if (added) c.corners.push_back(p);
+      return it->second;
+    };
+    for (uint32_t n : c.edges) {
+      sum = sum + (edges_[n].a + edges_[n].b) * 0.5;
+      c.sides.push_back({corner(edges_[n].va, edges_[n].a), corner(edges_[n].vb, edges_[n].b)});
+    }
     c.centre = sum * (1.0 / double(c.edges.size()));
+    c.area = 0;
+    for (uint32_t n : c.edges)
+      c.area += std::abs(edges_[n].multiplicity) * length(cross(edges_[n].a - c.centre, edges_[n].b - c.centre)) / 2;
   }
 }
 
+std::atomic<uint64_t> g_evals[8];
+thread_local int g_phase = 0;
+static const bool g_count = getenv("VOXFMT_DEBUG_EVALS") != nullptr;
 double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {
+  if (g_count) g_evals[g_phase].fetch_add(1, std::memory_order_relaxed);
   // An edge parallel to x sweeps no area (its strip's rays overlap it).
   if (e.a[1] == e.b[1] && e.a[2] == e.b[2]) return 0;
   // Solid angle of the triangle (a, b, a + infinity x) (Van Oosterom & Strackee 1983, one vertex at infinity):
@@ -212,25 +237,32 @@ double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {
 }
 
 double BoundaryWinding::fan(const Component& c, const Vec3& q) const {
-  // Solid angles of the triangles (centre, a, b) (Van Oosterom & Strackee 1983).
+  if (g_count) g_evals[g_phase].fetch_add(c.edges.size(), std::memory_order_relaxed);
+  // Solid angles of the triangles (centre, a, b) (Van Oosterom & Strackee 1983); each corner's vector once.
+  static thread_local std::vector<Vec3> corner;
+  static thread_local std::vector<double> corner_length;
+  corner.resize(c.corners.size());
+  corner_length.resize(c.corners.size());
+  for (size_t n = 0; n < c.corners.size(); ++n) {
+    corner[n] = c.corners[n] - q;
+    corner_length[n] = length(corner[n]);
+  }
   const Vec3 o = c.centre - q;
   const double lo = length(o);
   double sum = 0;
-  for (uint32_t n : c.edges) {
-    const BoundaryEdge& e = edges_[n];
-    const Vec3 a = e.a - q, b = e.b - q;
-    const double la = length(a), lb = length(b);
-    const Vec3 ab = cross(a, b);
-    double numerator = dot(o, ab);
+  for (size_t n = 0; n < c.sides.size(); ++n) {
+    const Vec3 &a = corner[c.sides[n][0]], &b = corner[c.sides[n][1]];
+    const double la = corner_length[c.sides[n][0]], lb = corner_length[c.sides[n][1]];
+    double numerator = dot(o, cross(a, b));
     const double denominator = lo * la * lb + dot(o, a) * lb + dot(o, b) * la + dot(a, b) * lo;
-    // Shewchuk's bound for a 3x3 determinant of rounded differences: on or next to the triangle's plane the angle
-    // jumps by 4 pi across it, so the sign comes from the exact, perturbed side (the crossings' test).
-    const double permanent = std::abs(o[0]) * (std::abs(a[1] * b[2]) + std::abs(a[2] * b[1])) +
-                             std::abs(o[1]) * (std::abs(a[2] * b[0]) + std::abs(a[0] * b[2])) +
-                             std::abs(o[2]) * (std::abs(a[0] * b[1]) + std::abs(a[1] * b[0]));
-    if (!(std::abs(numerator) > (7 + 56 * kEpsilon) * kEpsilon * permanent))
+    // Shewchuk's bound for a 3x3 determinant of rounded differences, its permanent at most sqrt(3) |o| |a| |b|: on
+    // or next to the triangle's plane the angle jumps by 4 pi across it, so the sign comes from the exact,
+    // perturbed side (the crossings' test).
+    if (!(std::abs(numerator) > 2e-15 * lo * la * lb)) {
+      const BoundaryEdge& e = edges_[c.edges[n]];
       numerator = side_of_plane(c.centre, e.a, e.b, q) <= 0 ? 0.0 : -0.0;  // numerator = -n . (q - centre)
-    sum += e.multiplicity * fast_atan2(numerator, denominator);
+    }
+    sum += edges_[c.edges[n]].multiplicity * fast_atan2(numerator, denominator);
   }
   return sum / (2 * kPi);
 }
@@ -289,9 +321,9 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
     int64_t first[3], last[3];
     for (int a = 0; a < 3; ++a) {
       const int64_t n = brick_dims[size_t(a)];
-      first[a] = std::clamp<int64_t>(int64_t(std::floor((lo[a] - kNearStrip) / kCell)), 0, n);
-      last[a] =
-          std::isinf(hi[a]) ? n - 1 : std::clamp<int64_t>(int64_t(std::floor((hi[a] + kNearStrip) / kCell)), -1, n - 1);
+      first[a] = std::clamp<int64_t>(int64_t(std::floor((lo[a] - kNearStrip) / kBrick)), 0, n);
+      last[a] = std::isinf(hi[a]) ? n - 1
+                                  : std::clamp<int64_t>(int64_t(std::floor((hi[a] + kNearStrip) / kBrick)), -1, n - 1);
     }
     double count = 0;
     for (int64_t bk = first[2]; bk <= last[2]; ++bk)
@@ -340,34 +372,33 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
     int32_t multiplicity;
     fan_triangle(kFanTriangle + t, a, b, c, multiplicity);
     const int64_t j0 = std::max<int64_t>(0, int64_t(std::ceil(std::min({a[1], b[1], c[1]}))));
-    const int64_t j1 = std::min<int64_t>(B1 * kCell - 1, int64_t(std::floor(std::max({a[1], b[1], c[1]}))));
+    const int64_t j1 = std::min<int64_t>(B1 * kBrick - 1, int64_t(std::floor(std::max({a[1], b[1], c[1]}))));
     const int64_t k0 = std::max<int64_t>(0, int64_t(std::ceil(std::min({a[2], b[2], c[2]}))));
-    const int64_t k1 = std::min<int64_t>(B2 * kCell - 1, int64_t(std::floor(std::max({a[2], b[2], c[2]}))));
-    for (int64_t bk = k0 / kCell; k0 <= k1 && bk <= k1 / kCell; ++bk)
-      for (int64_t bj = j0 / kCell; j0 <= j1 && bj <= j1 / kCell; ++bj) row_fans_.push_back({bk * B1 + bj, t});
+    const int64_t k1 = std::min<int64_t>(B2 * kBrick - 1, int64_t(std::floor(std::max({a[2], b[2], c[2]}))));
+    for (int64_t bk = k0 / kBrick; k0 <= k1 && bk <= k1 / kBrick; ++bk)
+      for (int64_t bj = j0 / kBrick; j0 <= j1 && bj <= j1 / kBrick; ++bj) row_fans_.push_back({bk * B1 + bj, t});
   }
   std::sort(row_fans_.begin(), row_fans_.end());
   if (getenv("VOXFMT_DEBUG_WINDING"))
     fprintf(stderr, "caps: %zu components, %zu fans (%zu edges), %zu strip edges\n", components_.size(), fans_.size(),
             fan_triangles_.size(), strip_edges_.size());
 
-  // The caps at every lattice point of the bricks' cells, once.
+  // The caps' sum at every lattice point of the bricks' cells, once (shared by up to 8 bricks).
   std::vector<uint64_t> keys;
   keys.reserve(bricks.size() * 27);
   for (const int64_t brick : bricks) {
     const int64_t bi = brick % B0, bj = brick / B0 % B1, bk = brick / (B0 * B1);
     for (int n = 0; n < 27; ++n)
-      keys.push_back(lattice_key(bi * kCell + kSpacing * (n % 3), bj * kCell + kSpacing * (n / 3 % 3),
-                                 bk * kCell + kSpacing * (n / 9)));
+      keys.push_back(lattice_key(bi * kBrick + kSpacing * (n % 3), bj * kBrick + kSpacing * (n / 3 % 3),
+                                 bk * kBrick + kSpacing * (n / 9), kSpacing));
   }
   tbb::parallel_sort(keys.begin(), keys.end());
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
   lattice_values_.resize(keys.size());
   tbb::parallel_for(size_t(0), keys.size(), [&](size_t n) {
-    const uint64_t key = keys[n];
-    const Vec3 q{double(key & 0x1fffff) * kSpacing, double(key >> 21 & 0x1fffff) * kSpacing,
-                 double(key >> 42 & 0x1fffff) * kSpacing};
-    lattice_values_[n] = caps(q);
+    g_phase = 1;
+    const auto p = lattice_point(keys[n], kSpacing);
+    lattice_values_[n] = caps(Vec3{double(p[0]), double(p[1]), double(p[2])});
   });
   lattice_keys_ = std::move(keys);
 }
@@ -389,24 +420,48 @@ void BoundaryWinding::fan_triangle(uint32_t name, Vec3& a, Vec3& b, Vec3& c, int
 }
 
 double BoundaryWinding::lattice_value(int64_t x, int64_t y, int64_t z) const {
-  const uint64_t key = lattice_key(x, y, z);
+  const uint64_t key = lattice_key(x, y, z, kSpacing);
   const auto it = std::lower_bound(lattice_keys_.begin(), lattice_keys_.end(), key);
   if (it != lattice_keys_.end() && *it == key) return lattice_values_[size_t(it - lattice_keys_.begin())];
   return caps(Vec3{double(x), double(y), double(z)});  // a brick prepare() was not told about
 }
 
 void BoundaryWinding::prepare_cell(int64_t bi, int64_t bj, int64_t bk, double target, Cell& cell) const {
-  const Vec3 lo{double(bi * kCell), double(bj * kCell), double(bk * kCell)};
-  const Vec3 hi{lo[0] + kCell, lo[1] + kCell, lo[2] + kCell};
-  const Vec3 centre{lo[0] + kCell / 2, lo[1] + kCell / 2, lo[2] + kCell / 2};
-  const double half_diagonal = kCell / 2 * std::sqrt(3.0);
-  cell.lo = lo;
+  g_phase = 4;
+  cell.lo = {double(bi * kBrick), double(bj * kBrick), double(bk * kBrick)};
+  cell.spacing = kSpacing;
+  select_near(double(2 * kSpacing), target, std::max(kMaxWork, edges_.size() / kMaxWorkShare), cell);
+  double values[27];
+  for (int n = 0; n < 27; ++n)
+    values[n] = lattice_value(bi * kBrick + kSpacing * (n % 3), bj * kBrick + kSpacing * (n / 3 % 3),
+                              bk * kBrick + kSpacing * (n / 9));
+  // The lattice's sums round by at most kAtanError / 2 pi per strip or fan triangle.
+  fill_far(values, kAtanError / (2 * kPi) * total_multiplicity_, cell);
+}
+
+void BoundaryWinding::fill_far(const double* values, double value_error, Cell& cell) const {
+  for (int n = 0; n < 27; ++n) {
+    const Vec3 q{cell.lo[0] + cell.spacing * (n % 3), cell.lo[1] + cell.spacing * (n / 3 % 3),
+                 cell.lo[2] + cell.spacing * (n / 9)};
+    double f = values[n];
+    for (uint32_t e : cell.near_edges) f -= strip(edges_[e], q);
+    for (uint32_t c : cell.near_fans) f -= fan(components_[c], q);
+    cell.far[n] = f;
+  }
+  cell.bound += kValueErrorGain * value_error;
+}
+
+void BoundaryWinding::select_near(double size, double target, size_t max_work, Cell& cell) const {
+  const Vec3 lo = cell.lo;
+  const Vec3 hi{lo[0] + size, lo[1] + size, lo[2] + size};
+  const Vec3 centre{lo[0] + size / 2, lo[1] + size / 2, lo[2] + size / 2};
+  const double half_diagonal = size / 2 * std::sqrt(3.0);
+  const double interpolation = interpolation_error(cell.spacing);
   cell.near_edges.clear();
   cell.near_fans.clear();
   cell.bound = 0;
   std::fill(cell.far, cell.far + 27, 0.0);
   if (edges_.empty()) return;
-  const size_t max_work = std::max(kMaxWork, edges_.size() / kMaxWorkShare);
   size_t work = 0;
   constexpr uint32_t kFan = 0x80000000u;  // candidate names: a strip edge, or kFan + a fan
 
@@ -501,19 +556,22 @@ void BoundaryWinding::prepare_cell(int64_t bi, int64_t bj, int64_t bk, double ta
       make_near(kFan + f);
       continue;
     }
-    double term = 0;  // a fan's boundary is its edges: no rays, no junctions
+    // A fan's boundary is its edges (no rays, no junctions); far away, its area bounds it better: the third
+    // derivatives of n.(x - q) / |x - q|^3 are at most 24 / r^5, that is 6 times 4 / r^5.
+    double edge_sum = 0;
     for (uint32_t n : c.edges) {
       const BoundaryEdge& edge = edges_[n];
       Vec3 elo, ehi;
       for (int a = 0; a < 3; ++a) elo[a] = std::min(edge.a[a], edge.b[a]), ehi[a] = std::max(edge.a[a], edge.b[a]);
-      term += std::abs(edge.multiplicity) * segment_term(length(edge.b - edge.a), box_distance(elo, ehi, lo, hi));
+      edge_sum += std::abs(edge.multiplicity) * segment_term(length(edge.b - edge.a), box_distance(elo, ehi, lo, hi));
     }
+    const double term = std::min(edge_sum, 4 * c.area / (d * d * d * d * d));
     add_candidate(kFan + f, term);
   }
   std::make_heap(s.candidates.begin(), s.candidates.end());
 
   for (;;) {
-    if ((open_junctions == 0 && kInterpolationError * (far_sum + junction_sum) <= target) || work >= max_work) break;
+    if ((open_junctions == 0 && interpolation * (far_sum + junction_sum) <= target) || work >= max_work) break;
     while (!s.candidates.empty() && s.near[slot(s.candidates.front().second)]) {
       std::pop_heap(s.candidates.begin(), s.candidates.end());
       s.candidates.pop_back();
@@ -561,30 +619,24 @@ void BoundaryWinding::prepare_cell(int64_t bi, int64_t bj, int64_t bk, double ta
   for (uint32_t f = 0; f < fans_.size(); ++f) s.near[edges_.size() + f] = 0;
   for (uint32_t c : cell.near_fans)
     for (uint32_t n : components_[c].edges) near_multiplicity += std::abs(edges_[n].multiplicity);
-  // Plus the caps' own rounding: the lattice's sums (through interpolation weights summing in magnitude to at most
-  // 1.25^3 < 2) and the near caps'.
-  cell.bound = kInterpolationError * (far_sum + junction_sum) +
-               kAtanError / (2 * kPi) * (2 * total_multiplicity_ + near_multiplicity) + 1e-12;
-
-  if (getenv("VOXFMT_DEBUG_CELLS"))
-    fprintf(stderr, "cell edges %zu fans %zu fan edges %g bound %.3g far %.3g junctions %.3g\n", cell.near_edges.size(),
-            cell.near_fans.size(), near_multiplicity - cell.near_edges.size(), cell.bound,
-            kInterpolationError * far_sum, kInterpolationError * junction_sum);
-  for (int n = 0; n < 27; ++n) {
-    const int64_t x = bi * kCell + kSpacing * (n % 3), y = bj * kCell + kSpacing * (n / 3 % 3),
-                  z = bk * kCell + kSpacing * (n / 9);
-    double f = lattice_value(x, y, z);
-    const Vec3 q{double(x), double(y), double(z)};
-    for (uint32_t e : cell.near_edges) f -= strip(edges_[e], q);
-    for (uint32_t c : cell.near_fans) f -= fan(components_[c], q);
-    cell.far[n] = f;
-  }
+  // Plus the near caps' own rounding.
+  cell.bound = interpolation * (far_sum + junction_sum) + kAtanError / (2 * kPi) * near_multiplicity;
 }
 
+void print_evals() {
+  if (false) {
+  }
+  if (g_count)
+    fprintf(stderr,
+            "evals: lattice exact %lu, lattice cells %lu, lattice points %lu, brick cells %lu, voxels %lu, exact %lu\n",
+            (unsigned long)g_evals[1].load(), (unsigned long)g_evals[2].load(), (unsigned long)g_evals[3].load(),
+            (unsigned long)g_evals[4].load(), (unsigned long)g_evals[5].load(), (unsigned long)g_evals[6].load());
+}
+void set_phase(int p) { g_phase = p; }
 double BoundaryWinding::cell_caps(const Cell& cell, const Vec3& q) const {
   double weight[3][3];
   for (int a = 0; a < 3; ++a) {
-    const double t = (q[a] - cell.lo[a]) / kSpacing;
+    const double t = (q[a] - cell.lo[a]) / cell.spacing;
     weight[a][0] = (t - 1) * (t - 2) / 2;
     weight[a][1] = -t * (t - 2);
     weight[a][2] = t * (t - 1) / 2;

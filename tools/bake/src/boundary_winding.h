@@ -80,6 +80,7 @@ class BoundaryWinding {
   /// below `target` if it can with a bounded amount of work per voxel.
   struct Cell {
     Vec3 lo{};
+    double spacing = 0;  // of its 27 lattice points
     std::vector<uint32_t> near_edges, near_fans;
     double far[27] = {};
     double bound = 0;
@@ -91,12 +92,19 @@ class BoundaryWinding {
  private:
   struct Component {
     Vec3 lo, hi, centre;
+    double area = 0;  // of its fan, unsigned
     std::vector<uint32_t> edges;
+    std::vector<Vec3> corners;                   // its vertices, once each
+    std::vector<std::array<uint32_t, 2>> sides;  // each edge's corners (a, b)
     bool fan = false;
   };
   double strip(const BoundaryEdge& e, const Vec3& q) const;
   double fan(const Component& c, const Vec3& q) const;
   double lattice_value(int64_t x, int64_t y, int64_t z) const;
+  // The caps of a cube of `size` at cell.lo to evaluate exactly, and the bound on interpolating the rest from
+  // points cell.spacing apart; then the values to interpolate, from the caps' sums at those points.
+  void select_near(double size, double target, size_t max_work, Cell& cell) const;
+  void fill_far(const double* values, double value_error, Cell& cell) const;
 
   std::vector<BoundaryEdge> edges_;
   std::vector<Component> components_;

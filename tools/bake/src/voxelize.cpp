@@ -31,6 +31,8 @@
 #include "winding_number.h"
 
 namespace voxfmt::bake {
+void print_evals();
+void set_phase(int);
 
 namespace {
 
@@ -577,7 +579,8 @@ class RowCrossings {
 // voxels lie far from 1/2 and are decided with a loose bound (few caps per voxel); the rest with a tight one, and
 // those it does not separate from 1/2 sum every cap.
 constexpr double kLooseBound = 0.05, kTightBound = 1e-3;
-std::atomic<size_t> g_dbg_evals{0}, g_dbg_exact{0}, g_dbg_near{0}, g_dbg_tight{0};
+std::atomic<size_t> g_dbg_evals{0}, g_dbg_exact{0}, g_dbg_near{0}, g_dbg_tight{0}, g_dbg_bricks{0},
+    g_dbg_tight_bricks{0};
 void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64_t bi, int64_t bj, int64_t bk,
                         const float* distance, float* sign) {
   const BoundaryWinding& boundary = *in.boundary;
@@ -602,11 +605,14 @@ void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64
                 double(bk * kEdge + int64_t(v) / (kEdge * kEdge))};
   };
   BoundaryWinding::Cell cell;
+  g_dbg_bricks++;
   for (const double target : {kLooseBound, kTightBound}) {
+    if (target == kTightBound) g_dbg_tight_bricks++;
     boundary.prepare_cell(bi, bj, bk, target, cell);
     size_t left = 0;
     for (size_t n = 0; n < n_undecided; ++n) {
       const size_t v = undecided[n];
+      set_phase(5);
       const double w = count[v] + boundary.cell_caps(cell, point(v));
       g_dbg_evals++;
       g_dbg_near += cell.near_edges.size() + cell.near_fans.size();
@@ -622,6 +628,7 @@ void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64
   for (size_t n = 0; n < n_undecided; ++n) {
     const size_t v = undecided[n];
     g_dbg_exact++;
+    set_phase(6);
     sign[v] = count[v] + boundary.caps(point(v)) >= 0.5 ? -1.0f : 1.0f;
   }
 }
@@ -1078,9 +1085,10 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   }
 
   if (getenv("VOXFMT_DEBUG_WINDING"))
-    fprintf(stderr, "winding: %zu evals (%zu tight), %zu exact, mean near %.1f, %zu edges\n", g_dbg_evals.load(),
-            g_dbg_tight.load(), g_dbg_exact.load(), double(g_dbg_near.load()) / std::max<size_t>(1, g_dbg_evals.load()),
-            boundary ? boundary->edge_count() : 0);
+    fprintf(stderr, "winding: %zu bricks (%zu tight) %zu evals (%zu tight), %zu exact, mean near %.1f, %zu edges\n",
+            g_dbg_bricks.load(), g_dbg_tight_bricks.load(), g_dbg_evals.load(), g_dbg_tight.load(), g_dbg_exact.load(),
+            double(g_dbg_near.load()) / std::max<size_t>(1, g_dbg_evals.load()), boundary ? boundary->edge_count() : 0);
+  print_evals();
   lap("voxelmap: band");
   // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
   {
