@@ -1,15 +1,11 @@
 #include "boundary_winding.h"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/parallel_sort.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <limits>
 #include <numeric>
 #include <unordered_map>
@@ -214,11 +210,7 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
   }
 }
 
-std::atomic<uint64_t> g_evals[8];
-thread_local int g_phase = 0;
-static const bool g_count = getenv("VOXFMT_DEBUG_EVALS") != nullptr;
 double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {
-  if (g_count) g_evals[g_phase].fetch_add(1, std::memory_order_relaxed);
   // An edge parallel to x sweeps no area (its strip's rays overlap it).
   if (e.a[1] == e.b[1] && e.a[2] == e.b[2]) return 0;
   // Solid angle of the triangle (a, b, a + infinity x) (Van Oosterom & Strackee 1983, one vertex at infinity):
@@ -237,7 +229,6 @@ double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {
 }
 
 double BoundaryWinding::fan(const Component& c, const Vec3& q) const {
-  if (g_count) g_evals[g_phase].fetch_add(c.edges.size(), std::memory_order_relaxed);
   // Solid angles of the triangles (centre, a, b) (Van Oosterom & Strackee 1983); each corner's vector once.
   static thread_local std::vector<Vec3> corner;
   static thread_local std::vector<double> corner_length;
@@ -379,9 +370,6 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
       for (int64_t bj = j0 / kBrick; j0 <= j1 && bj <= j1 / kBrick; ++bj) row_fans_.push_back({bk * B1 + bj, t});
   }
   std::sort(row_fans_.begin(), row_fans_.end());
-  if (getenv("VOXFMT_DEBUG_WINDING"))
-    fprintf(stderr, "caps: %zu components, %zu fans (%zu edges), %zu strip edges\n", components_.size(), fans_.size(),
-            fan_triangles_.size(), strip_edges_.size());
 
   // The caps' sum at every lattice point of the bricks' cells, once (shared by up to 8 bricks).
   std::vector<uint64_t> keys;
@@ -396,7 +384,6 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
   lattice_values_.resize(keys.size());
   tbb::parallel_for(size_t(0), keys.size(), [&](size_t n) {
-    g_phase = 1;
     const auto p = lattice_point(keys[n], kSpacing);
     lattice_values_[n] = caps(Vec3{double(p[0]), double(p[1]), double(p[2])});
   });
@@ -427,7 +414,6 @@ double BoundaryWinding::lattice_value(int64_t x, int64_t y, int64_t z) const {
 }
 
 void BoundaryWinding::prepare_cell(int64_t bi, int64_t bj, int64_t bk, double target, Cell& cell) const {
-  g_phase = 4;
   cell.lo = {double(bi * kBrick), double(bj * kBrick), double(bk * kBrick)};
   cell.spacing = kSpacing;
   select_near(double(2 * kSpacing), target, std::max(kMaxWork, edges_.size() / kMaxWorkShare), cell);
@@ -623,16 +609,6 @@ void BoundaryWinding::select_near(double size, double target, size_t max_work, C
   cell.bound = interpolation * (far_sum + junction_sum) + kAtanError / (2 * kPi) * near_multiplicity;
 }
 
-void print_evals() {
-  if (false) {
-  }
-  if (g_count)
-    fprintf(stderr,
-            "evals: lattice exact %lu, lattice cells %lu, lattice points %lu, brick cells %lu, voxels %lu, exact %lu\n",
-            (unsigned long)g_evals[1].load(), (unsigned long)g_evals[2].load(), (unsigned long)g_evals[3].load(),
-            (unsigned long)g_evals[4].load(), (unsigned long)g_evals[5].load(), (unsigned long)g_evals[6].load());
-}
-void set_phase(int p) { g_phase = p; }
 double BoundaryWinding::cell_caps(const Cell& cell, const Vec3& q) const {
   double weight[3][3];
   for (int a = 0; a < 3; ++a) {

@@ -14,7 +14,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -31,8 +30,6 @@
 #include "winding_number.h"
 
 namespace voxfmt::bake {
-void print_evals();
-void set_phase(int);
 
 namespace {
 
@@ -579,8 +576,6 @@ class RowCrossings {
 // voxels lie far from 1/2 and are decided with a loose bound (few caps per voxel); the rest with a tight one, and
 // those it does not separate from 1/2 sum every cap.
 constexpr double kLooseBound = 0.05, kTightBound = 1e-3;
-std::atomic<size_t> g_dbg_evals{0}, g_dbg_exact{0}, g_dbg_near{0}, g_dbg_tight{0}, g_dbg_bricks{0},
-    g_dbg_tight_bricks{0};
 void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64_t bi, int64_t bj, int64_t bk,
                         const float* distance, float* sign) {
   const BoundaryWinding& boundary = *in.boundary;
@@ -605,18 +600,12 @@ void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64
                 double(bk * kEdge + int64_t(v) / (kEdge * kEdge))};
   };
   BoundaryWinding::Cell cell;
-  g_dbg_bricks++;
   for (const double target : {kLooseBound, kTightBound}) {
-    if (target == kTightBound) g_dbg_tight_bricks++;
     boundary.prepare_cell(bi, bj, bk, target, cell);
     size_t left = 0;
     for (size_t n = 0; n < n_undecided; ++n) {
       const size_t v = undecided[n];
-      set_phase(5);
       const double w = count[v] + boundary.cell_caps(cell, point(v));
-      g_dbg_evals++;
-      g_dbg_near += cell.near_edges.size() + cell.near_fans.size();
-      if (target == kTightBound) g_dbg_tight++;
       if (std::abs(w - 0.5) > cell.bound)
         sign[v] = w >= 0.5 ? -1.0f : 1.0f;
       else
@@ -627,8 +616,6 @@ void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64
   }
   for (size_t n = 0; n < n_undecided; ++n) {
     const size_t v = undecided[n];
-    g_dbg_exact++;
-    set_phase(6);
     sign[v] = count[v] + boundary.caps(point(v)) >= 0.5 ? -1.0f : 1.0f;
   }
 }
@@ -984,7 +971,8 @@ float float_not_below(double value) {
 
 }  // namespace
 
-Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings) {
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
+                        VoxelmapReport* report) {
   auto clock = std::chrono::steady_clock::now();
   auto lap = [&](const char* name) {
     const auto now = std::chrono::steady_clock::now();
@@ -1084,12 +1072,32 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     std::vector<int16_t>().swap(o.codes);
   }
 
-  if (getenv("VOXFMT_DEBUG_WINDING"))
-    fprintf(stderr, "winding: %zu bricks (%zu tight) %zu evals (%zu tight), %zu exact, mean near %.1f, %zu edges\n",
-            g_dbg_bricks.load(), g_dbg_tight_bricks.load(), g_dbg_evals.load(), g_dbg_tight.load(), g_dbg_exact.load(),
-            double(g_dbg_near.load()) / std::max<size_t>(1, g_dbg_evals.load()), boundary ? boundary->edge_count() : 0);
-  print_evals();
   lap("voxelmap: band");
+  if (report && rule == SignRule::Winding) {
+    // Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
+    // band - 1/2 voxels deep) or a coarse brick inside.
+    uint64_t inside = 0, deep = 0;
+    for (size_t n = 0; n < vm.bricks.size(); ++n) {
+      const int32_t entry = vm.bricks[n];
+      if (entry == Voxelmap::kCoarseInside) {
+        inside += kBrickVoxels;
+        deep += kBrickVoxels;
+      }
+      if (entry < 0) continue;
+      const int16_t* codes = vm.brick_values.data() + size_t(entry) * kBrickVoxels;
+      for (size_t v = 0; v < kBrickVoxels; ++v) {
+        if (codes[v] >= 0) continue;  // outside, or past the grid (0)
+        ++inside;
+        deep += !Voxelmap::code_is_stored(codes[v]) || vm.decode(codes[v]) <= -0.5 * g.voxel_size;
+      }
+    }
+    report->inside_centres = inside;
+    report->deep_centres = deep;
+    if (report->stop_if_shallow && deep == 0) {
+      report->stopped = true;
+      return vm;
+    }
+  }
   // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
   {
     const Lattice L = propagate_lattice(g, triangles, lists, r);
