@@ -203,7 +203,9 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
       sum = sum + (edges_[n].a + edges_[n].b) * 0.5;
       c.sides.push_back({corner(edges_[n].va, edges_[n].a), corner(edges_[n].vb, edges_[n].b)});
     }
-    c.centre = sum * (1.0 / double(c.edges.size()));
+    // Off the voxel lines, so that no line runs through the apex or along a spoke (a plane of voxel centres
+    // through a flat loop, a ring of a lathed part, would put the apex on one).
+    c.centre = sum * (1.0 / double(c.edges.size())) + Vec3{0, 1e-3 * std::sqrt(2.0), 1e-3 * std::sqrt(3.0)};
     c.area = 0;
     for (uint32_t n : c.edges)
       c.area += std::abs(edges_[n].multiplicity) * length(cross(edges_[n].a - c.centre, edges_[n].b - c.centre)) / 2;
@@ -217,6 +219,23 @@ double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {
   // numerator a'.(b' x X) = a'_y b'_z - a'_z b'_y.
   const Vec3 a = e.a - q, b = e.b - q;
   const double la = length(a), lb = length(b);
+  if ((a[1] == 0 && a[2] == 0 && a[0] < 0) || (b[1] == 0 && b[2] == 0 && b[0] < 0)) {
+    // q's line runs through an end of the edge behind q: the strip's side ray passes through q, where its angle
+    // winds (the neighbouring strip's winds back). Its limit along the perturbed line: the numerator and the
+    // denominator to first (and, where that vanishes, second) order in e, q moved by (0, e, e^2).
+    const bool at_a = a[1] == 0 && a[2] == 0;
+    const Vec3& o = at_a ? a : b;  // the end q's line runs through
+    const Vec3& f = at_a ? b : a;  // the other end
+    const double lf = at_a ? lb : la;
+    const double sign = at_a ? 1 : -1;  // the numerator a_y b_z - a_z b_y changes sign with the roles
+    const double n1 = -sign * f[2], n2 = sign * f[1];
+    const double d1 = -f[1], d2 = -f[2] + (lf + f[0]) / (2 * std::abs(o[0]));
+    // A vanishing first order keeps the second's sign: on the -x side it decides between the +-pi branches.
+    const double angle = d1 != 0   ? std::atan2(n1 != 0 ? n1 : std::copysign(0.0, n2), d1)
+                         : n1 != 0 ? std::atan2(n1, 0.0)
+                                   : std::atan2(n2, d2);
+    return e.multiplicity * angle / (2 * kPi);
+  }
   const double l = a[1] * b[2], r = a[2] * b[1];
   double numerator = l - r;
   const double denominator = la * lb + dot(a, b) + b[0] * la + a[0] * lb;

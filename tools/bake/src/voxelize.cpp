@@ -586,6 +586,8 @@ void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64
     const int64_t i = bi * kEdge + int64_t(v) % kEdge, j = bj * kEdge + int64_t(v) / kEdge % kEdge,
                   k = bk * kEdge + int64_t(v) / (kEdge * kEdge);
     count[v] = crossings.count(v / kEdge, i);
+    // The object stays within its surface's box, as beyond the band: a plane separates such a voxel from the
+    // surface (one sheet then covers at most a hemisphere of it, though stacked open sheets can add up past 1/2).
     if (!inside_box(in.mesh_box, voxel_point(in.g, double(i), double(j), double(k)))) {
       sign[v] = 1.0f;
     } else if (boundary.closed()) {
