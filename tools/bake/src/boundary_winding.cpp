@@ -22,8 +22,14 @@ constexpr double kEpsilon = std::numeric_limits<double>::epsilon() / 2;  // unit
 // Shewchuk's bound on the rounding error of a 2x2 orientation determinant computed in doubles.
 constexpr double kOrientBound = (3 + 16 * kEpsilon) * kEpsilon;
 
-// A brick (8 voxels) is interpolated from a lattice 4 voxels apart, where the caps are summed exactly.
+// A brick (8 voxels) is interpolated from a lattice 4 voxels apart; each of its points from its block (32 voxels,
+// points 16 apart, where the caps are summed exactly) within kBlockTarget, evaluating the caps near the block
+// (at most max(kBlockWork, boundary edges / kBlockWorkShare) evaluations a point), or exactly where the caps
+// crowd the block too much for that.
 constexpr int64_t kBrick = 8, kSpacing = 4;
+constexpr int64_t kBlock = 32, kBlockSpacing = 16;
+constexpr double kBlockTarget = 1e-4;
+constexpr size_t kBlockWork = 256, kBlockWorkShare = 2;
 // Caps passing within this many voxels of a cell are always evaluated per voxel. Farther ones join them, the most
 // bound per unit of work first (a strip is one evaluation per voxel, a fan one per edge), until the cell's bound
 // is below the target asked for or the work reaches max(kMaxWork, boundary edges / kMaxWorkShare).
@@ -323,6 +329,7 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
   row_fans_.clear();
   lattice_keys_.clear();
   lattice_values_.clear();
+  lattice_errors_.clear();
   if (edges_.empty()) return;
   const int64_t B0 = brick_dims[0], B1 = brick_dims[1], B2 = brick_dims[2];
   // Bricks that need signs within a box of voxels grown by kNearStrip: where a cap there costs an evaluation per
@@ -401,10 +408,57 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
   }
   tbb::parallel_sort(keys.begin(), keys.end());
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
-  lattice_values_.resize(keys.size());
-  tbb::parallel_for(size_t(0), keys.size(), [&](size_t n) {
+  // Each point from its block's cell (kBlock voxels, points kBlockSpacing apart, summed exactly), where the block
+  // can bound its far caps below kBlockTarget; at low resolutions, where caps crowd every block, exactly.
+  std::vector<std::pair<uint64_t, uint32_t>> by_block(keys.size());  // (block, point)
+  for (size_t n = 0; n < keys.size(); ++n) {
     const auto p = lattice_point(keys[n], kSpacing);
-    lattice_values_[n] = caps(Vec3{double(p[0]), double(p[1]), double(p[2])});
+    by_block[n] = {lattice_key(p[0] / kBlock * kBlock, p[1] / kBlock * kBlock, p[2] / kBlock * kBlock, kBlock),
+                   uint32_t(n)};
+  }
+  tbb::parallel_sort(by_block.begin(), by_block.end());
+  std::vector<size_t> block_first;
+  for (size_t n = 0; n < by_block.size(); ++n)
+    if (n == 0 || by_block[n].first != by_block[n - 1].first) block_first.push_back(n);
+  block_first.push_back(by_block.size());
+  std::vector<uint64_t> coarse;
+  for (size_t b = 0; b + 1 < block_first.size(); ++b) {
+    const auto lo = lattice_point(by_block[block_first[b]].first, kBlock);
+    for (int n = 0; n < 27; ++n)
+      coarse.push_back(lattice_key(lo[0] + kBlockSpacing * (n % 3), lo[1] + kBlockSpacing * (n / 3 % 3),
+                                   lo[2] + kBlockSpacing * (n / 9), kBlockSpacing));
+  }
+  tbb::parallel_sort(coarse.begin(), coarse.end());
+  coarse.erase(std::unique(coarse.begin(), coarse.end()), coarse.end());
+  std::vector<double> coarse_values(coarse.size());
+  tbb::parallel_for(size_t(0), coarse.size(), [&](size_t n) {
+    const auto p = lattice_point(coarse[n], kBlockSpacing);
+    coarse_values[n] = caps(Vec3{double(p[0]), double(p[1]), double(p[2])});
+  });
+  lattice_values_.resize(keys.size());
+  lattice_errors_.resize(keys.size());
+  const double rounding = kAtanError / (2 * kPi) * total_multiplicity_;  // of a sum over every cap
+  tbb::parallel_for(size_t(0), block_first.size() - 1, [&](size_t b) {
+    const auto lo = lattice_point(by_block[block_first[b]].first, kBlock);
+    Cell block;
+    block.lo = {double(lo[0]), double(lo[1]), double(lo[2])};
+    block.spacing = double(kBlockSpacing);
+    select_near(double(kBlock), kBlockTarget / 2, std::max(kBlockWork, edges_.size() / kBlockWorkShare), block);
+    double values[27];
+    for (int n = 0; n < 27; ++n) {
+      const uint64_t key = lattice_key(lo[0] + kBlockSpacing * (n % 3), lo[1] + kBlockSpacing * (n / 3 % 3),
+                                       lo[2] + kBlockSpacing * (n / 9), kBlockSpacing);
+      values[n] = coarse_values[size_t(std::lower_bound(coarse.begin(), coarse.end(), key) - coarse.begin())];
+    }
+    fill_far(values, rounding, block);
+    const bool interpolate = block.bound <= kBlockTarget;
+    for (size_t n = block_first[b]; n < block_first[b + 1]; ++n) {
+      const uint32_t point = by_block[n].second;
+      const auto p = lattice_point(keys[point], kSpacing);
+      const Vec3 q{double(p[0]), double(p[1]), double(p[2])};
+      lattice_values_[point] = interpolate ? cell_caps(block, q) : caps(q);
+      lattice_errors_[point] = interpolate ? block.bound : rounding;
+    }
   });
   lattice_keys_ = std::move(keys);
 }
@@ -425,23 +479,29 @@ void BoundaryWinding::fan_triangle(uint32_t name, Vec3& a, Vec3& b, Vec3& c, int
   multiplicity = e.multiplicity;
 }
 
-double BoundaryWinding::lattice_value(int64_t x, int64_t y, int64_t z) const {
+double BoundaryWinding::lattice_value(int64_t x, int64_t y, int64_t z, double& error) const {
   const uint64_t key = lattice_key(x, y, z, kSpacing);
   const auto it = std::lower_bound(lattice_keys_.begin(), lattice_keys_.end(), key);
-  if (it != lattice_keys_.end() && *it == key) return lattice_values_[size_t(it - lattice_keys_.begin())];
-  return caps(Vec3{double(x), double(y), double(z)});  // a brick prepare() was not told about
+  if (it != lattice_keys_.end() && *it == key) {
+    error = lattice_errors_[size_t(it - lattice_keys_.begin())];
+    return lattice_values_[size_t(it - lattice_keys_.begin())];
+  }
+  error = kAtanError / (2 * kPi) * total_multiplicity_;  // a brick prepare() was not told about
+  return caps(Vec3{double(x), double(y), double(z)});
 }
 
 void BoundaryWinding::prepare_cell(int64_t bi, int64_t bj, int64_t bk, double target, Cell& cell) const {
   cell.lo = {double(bi * kBrick), double(bj * kBrick), double(bk * kBrick)};
   cell.spacing = kSpacing;
   select_near(double(2 * kSpacing), target, std::max(kMaxWork, edges_.size() / kMaxWorkShare), cell);
-  double values[27];
-  for (int n = 0; n < 27; ++n)
+  double values[27], error = 0;
+  for (int n = 0; n < 27; ++n) {
+    double e;
     values[n] = lattice_value(bi * kBrick + kSpacing * (n % 3), bj * kBrick + kSpacing * (n / 3 % 3),
-                              bk * kBrick + kSpacing * (n / 9));
-  // The lattice's sums round by at most kAtanError / 2 pi per strip or fan triangle.
-  fill_far(values, kAtanError / (2 * kPi) * total_multiplicity_, cell);
+                              bk * kBrick + kSpacing * (n / 9), e);
+    error = std::max(error, e);
+  }
+  fill_far(values, error, cell);
 }
 
 void BoundaryWinding::fill_far(const double* values, double value_error, Cell& cell) const {

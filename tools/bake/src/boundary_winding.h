@@ -100,7 +100,7 @@ class BoundaryWinding {
   };
   double strip(const BoundaryEdge& e, const Vec3& q) const;
   double fan(const Component& c, const Vec3& q) const;
-  double lattice_value(int64_t x, int64_t y, int64_t z) const;
+  double lattice_value(int64_t x, int64_t y, int64_t z, double& error) const;
   // The caps of a cube of `size` at cell.lo to evaluate exactly, and the bound on interpolating the rest from
   // points cell.spacing apart; then the values to interpolate, from the caps' sums at those points.
   void select_near(double size, double target, size_t max_work, Cell& cell) const;
@@ -115,7 +115,7 @@ class BoundaryWinding {
   std::array<int64_t, 3> brick_dims_{};
   double total_multiplicity_ = 0;
   std::vector<uint64_t> lattice_keys_;  // ascending
-  std::vector<double> lattice_values_;
+  std::vector<double> lattice_values_, lattice_errors_;
 };
 
 }  // namespace voxfmt::bake
