@@ -51,12 +51,10 @@ constexpr double kAtanError = 1e-11;
 inline double fast_atan2(double y, double x) {
   const double ax = std::abs(x), ay = std::abs(y);
   const double hi = std::max(ax, ay), lo = std::min(ax, ay);
-  double t = hi > 0 ? lo / hi : 0.0;
-  double offset = 0;
-  if (t > 0.41421356237309503) {  // tan(pi/8): atan(t) = pi/4 + atan((t - 1) / (t + 1))
-    t = (t - 1) / (t + 1);
-    offset = kPi / 4;
-  }
+  // Past tan(pi/8), atan(lo / hi) = pi/4 + atan((lo - hi) / (lo + hi)): one division either way.
+  const bool upper = lo > 0.41421356237309503 * hi;
+  const double t = upper ? (lo - hi) / (lo + hi) : hi > 0 ? lo / hi : 0.0;
+  const double offset = upper ? kPi / 4 : 0.0;
   const double u = t * t;
   double r = 0.0455126675776084;
   r = r * u - 0.08368926998702557;
