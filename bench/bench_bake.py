@@ -15,6 +15,18 @@ voxel size and band, alone in its own process (build/bin/bake-floor). A table, `
 `--png FILE` (log-log: time and peak memory against the resolution, bake and floor).
 
   python3 bench/bench_bake.py --scaling [--quick] [--json F] [--png F] [--resolutions 128,256,...]
+
+--broken: broken meshes against clean ones. bench/make_shelf.py writes the same bookshelf twice, about 10,000
+triangles each: broken (open borders, ~150 components, ~14,000 self-intersecting face pairs, non-manifold: the bake
+decides its inside by the winding number) and clean (closed and apart: the pseudonormal sign). For each resolution
+(128 ... 1024, or --resolutions) and mesh, one bake with /usr/bin/time (wall time, peak RSS) and its stages, the
+band's time per stored distance, and the floor: OpenVDB's meshToLevelSet of the same mesh alone (build/bin/bake-floor).
+OpenVDB's signs are wrong on the open mesh (its flood fill leaks through the holes); its time is still the floor for
+the distances. `--extra-mesh M` (repeatable) adds a mesh, e.g. one of CGAL's broken samples in
+build/cgal-data/data/meshes (elk.off, mech-holes-shark.off, polygon_mesh.off, mask_cone.off, three_peaks.off,
+b9_mesh.off, mpi.off).
+
+  python3 bench/bench_bake.py --broken [--resolutions 128,256] [--json F] [--extra-mesh M ...] [--bin DIR]
 """
 import argparse
 import json
@@ -98,13 +110,13 @@ def scaling_run(args, resolution, tmp):
     run["valid"] = r.returncode == 0
     if not run["valid"]:
         run["validate_output"] = r.stdout.strip()[-400:]
-    r = subprocess.run([os.path.join(BIN, "asset-check"), asset, args.mesh, "--samples", str(args.samples)],
+    r = subprocess.run([os.path.join(args.bin, "asset-check"), asset, args.mesh, "--samples", str(args.samples)],
                        capture_output=True, text=True)
     if r.returncode == 0:
         run.update(json.loads(r.stdout))
     else:
         run["asset_check_error"] = r.stderr.strip()[-400:]
-    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(BIN, "bake-floor"), args.mesh, "--resolution",
+    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(args.bin, "bake-floor"), args.mesh, "--resolution",
                                             str(resolution), "--band", "3"])
     if r.returncode == 0:
         floor = json.loads(r.stdout)
@@ -150,8 +162,8 @@ def plot(runs, path):
 
 def scaling_bench(args):
     for tool in ("asset-check", "bake-floor"):
-        if not os.path.exists(os.path.join(BIN, tool)):
-            sys.exit(f"bench_bake: {os.path.join(BIN, tool)} not found; build first (bash scripts/build.sh)")
+        if not os.path.exists(os.path.join(args.bin, tool)):
+            sys.exit(f"bench_bake: {os.path.join(args.bin, tool)} not found; build first (bash scripts/build.sh)")
     resolutions = ([int(x) for x in args.resolutions.split(",")] if args.resolutions
                    else QUICK if args.quick else FULL)
     runs = []
@@ -186,15 +198,85 @@ def scaling_bench(args):
     return 1 if failed else 0
 
 
+def broken_run(args, mesh, resolution, tmp):
+    """One bake of `mesh` at `resolution` and the floor beside it."""
+    asset = os.path.join(tmp, "broken.vox.h5")
+    run = {"mesh": os.path.basename(mesh), "resolution": resolution}
+    r, run["bake_s"], run["peak_rss_mb"] = timed([args.voxfmt, "build", mesh, "-o", asset, "--json", "--resolution",
+                                                   str(resolution), "--points", str(args.points)])
+    if r.returncode != 0:
+        run["error"] = (r.stdout.strip() or r.stderr.strip())[-400:]
+        return run
+    report = json.loads(r.stdout)
+    run["stages_s"] = report["timings_s"]
+    run["stored_distances"] = report["voxelmap"]["stored_distances"]
+    run["warnings"] = [w["code"] for w in report["warnings"]]
+    run["band_us_per_stored"] = 1e6 * report["timings_s"].get("voxelmap: band", float("nan")) / max(
+        1, run["stored_distances"])
+    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(args.bin, "bake-floor"), mesh, "--resolution",
+                                            str(resolution), "--band", "3"])
+    if r.returncode == 0:
+        floor = json.loads(r.stdout)
+        run["floor_s"] = floor["seconds"]
+        run["floor_active_voxels"] = floor["active_voxels"]
+    os.remove(asset)
+    return run
+
+
+def broken_bench(args):
+    if not os.path.exists(os.path.join(args.bin, "bake-floor")):
+        sys.exit(f"bench_bake: {os.path.join(args.bin, 'bake-floor')} not found; build first (bash scripts/build.sh)")
+    resolutions = [int(x) for x in args.resolutions.split(",")] if args.resolutions else [128, 256, 512, 1024]
+    runs = []
+    with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
+        meshes = []
+        for kind in ("clean", "broken"):
+            path = os.path.join(tmp, f"shelf-{kind}.off")
+            subprocess.run([sys.executable, os.path.join(ROOT, "bench", "make_shelf.py"), kind, path], check=True,
+                           capture_output=True)
+            meshes.append(path)
+        meshes += args.extra_meshes
+        print(f"bench_bake --broken: {', '.join(os.path.basename(m) for m in meshes)}, {os.cpu_count()} cores "
+              f"(OpenVDB's signs are wrong on open meshes; its time is the floor for the distances)", file=sys.stderr)
+        print(f"{'mesh':<22}{'res':>5} {'bake s':>8} {'band s':>8} {'stored':>11} {'band us/d':>10} {'peak MB':>8} "
+              f"{'floor s':>8} {'floor MB':>9}  stages", file=sys.stderr)
+        for resolution in resolutions:
+            for mesh in meshes:
+                run = broken_run(args, mesh, resolution, tmp)
+                runs.append(run)
+                if "error" in run:
+                    print(f"{run['mesh']:<22}{resolution:>5} failed: {run['error']}", file=sys.stderr)
+                    continue
+                st = run["stages_s"]
+                print(f"{run['mesh']:<22}{resolution:>5} {run['bake_s']:>8.2f} {st.get('voxelmap: band', 0):>8.2f} "
+                      f"{run['stored_distances']:>11,} {run['band_us_per_stored']:>10.3f} {run['peak_rss_mb']:>8.0f} "
+                      f"{run.get('floor_s', float('nan')):>8.2f} {run.get('floor_peak_rss_mb', float('nan')):>9.0f}  "
+                      + " ".join(f"{k.replace('voxelmap: ', '')}={v:.2f}" for k, v in st.items()
+                                 if k in ("repair", "voxelmap: band", "voxelmap: lattice", "point shell", "write")),
+                      file=sys.stderr)
+    result = {"cores": os.cpu_count(), "command": " ".join(["python3", "bench/bench_bake.py", *sys.argv[1:]]),
+              "note": "OpenVDB's signs are wrong on open meshes; its time is the floor for the distances",
+              "runs": runs}
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=2)
+            f.write("\n")
+    return 1 if any("error" in r for r in runs) else 0
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--voxfmt", default=os.path.join(BIN, "voxfmt"))
+    parser.add_argument("--bin", default=BIN, help="where voxfmt, bake-floor and asset-check are (build/bin)")
+    parser.add_argument("--voxfmt", default=None, help="the voxfmt to time (default: BIN/voxfmt)")
     parser.add_argument("--mesh", default=os.path.join(ROOT, "build", "cgal-data", "data", "meshes", "bunny00.off"))
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--scaling", action="store_true", help="measure how the cost grows with the resolution")
+    parser.add_argument("--broken", action="store_true", help="broken meshes against clean ones (make_shelf.py)")
+    parser.add_argument("--extra-mesh", dest="extra_meshes", action="append", default=[],
+                        help="--broken: also bake this mesh (repeatable)")
     parser.add_argument("--quick", action="store_true", help="--scaling up to resolution 512 only")
-    parser.add_argument("--resolutions", help="--scaling at these resolutions (comma-separated)")
-    parser.add_argument("--points", type=int, default=35000, help="--scaling: points of the point shell")
+    parser.add_argument("--resolutions", help="--scaling, --broken at these resolutions (comma-separated)")
+    parser.add_argument("--points", type=int, default=35000, help="--scaling, --broken: points of the point shell")
     parser.add_argument("--samples", type=int, default=20000, help="--scaling: voxels sampled for the accuracy")
     parser.add_argument("--tmp", default=None, help="--scaling: folder for the assets (default: the system's)")
     parser.add_argument("--png", help="--scaling: write a log-log plot here")
@@ -202,8 +284,13 @@ def main():
                         help="print JSON instead of a table (--scaling: write it to this file)")
     parser.add_argument("build_options", nargs="*", default=["--resolution", "306", "--points", "35000"])
     args = parser.parse_args()
+    args.voxfmt = args.voxfmt or os.path.join(args.bin, "voxfmt")
     if not os.path.exists(args.voxfmt):
         sys.exit(f"bench_bake: {args.voxfmt} not found; build first (bash scripts/build.sh)")
+    if args.broken:
+        if args.json is True:
+            sys.exit("bench_bake: --broken --json needs a file name")
+        sys.exit(broken_bench(args))
     if args.scaling:
         if args.json is True:
             sys.exit("bench_bake: --scaling --json needs a file name")

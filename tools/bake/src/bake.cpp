@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <memory>
 
 #include "stages.h"
@@ -25,10 +26,36 @@
 #include "voxfmt/atomic_file.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
+#include "winding_number.h"
 
 namespace voxfmt::bake {
 
 namespace {
+
+// Of the largest triangles (up to 64), the share with the winding number's inside right behind them (>= 1/2 a
+// millionth of the surface's size behind the centre, by the exact sum): near 1 for closed parts however thin,
+// near 0 for an open sheet, which closes around nothing.
+double share_with_inside_behind(const TriangleMesh& mesh) {
+  std::vector<std::pair<double, size_t>> by_area(mesh.triangles.size());
+  for (size_t f = 0; f < mesh.triangles.size(); ++f) {
+    const auto& t = mesh.triangles[f];
+    by_area[f] = {-length(cross(mesh.vertices[t[1]] - mesh.vertices[t[0]], mesh.vertices[t[2]] - mesh.vertices[t[0]])),
+                  f};
+  }
+  const size_t n = std::min<size_t>(64, by_area.size());
+  std::partial_sort(by_area.begin(), by_area.begin() + ptrdiff_t(n), by_area.end());
+  const auto [lo, hi] = bounding_box(mesh);
+  const double step = 1e-6 * length(hi - lo);
+  const WindingNumber winding(mesh);
+  size_t inside = 0;
+  for (size_t m = 0; m < n; ++m) {
+    const auto& t = mesh.triangles[by_area[m].second];
+    const Vec3 &a = mesh.vertices[t[0]], &b = mesh.vertices[t[1]], &c = mesh.vertices[t[2]];
+    const Vec3 behind = (a + b + c) * (1.0 / 3) - normalized(cross(b - a, c - a)) * step;
+    inside += winding.evaluate(behind, std::numeric_limits<double>::infinity()) >= 0.5;
+  }
+  return n ? double(inside) / double(n) : 0.0;
+}
 
 // Share of a typical bake done when a stage starts (CGAL's bunny at resolution 306: repair 11 %, voxelmap and
 // point shell 60 %, assemble 2 %, verify + write 26 %), so a progress bar moves at an even pace.
@@ -216,6 +243,9 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   PointShell shell;
   double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
   std::vector<StageTiming> voxelmap_stages;
+  // A winding bake in which no voxel is more than half a voxel inside stops after its band: it becomes a shell.
+  VoxelmapReport voxelmap_report;
+  voxelmap_report.stop_if_shallow = winding_inside && shell_thickness == 0;
   auto timed = [](double& seconds, auto&& work) {
     const auto t0 = std::chrono::steady_clock::now();
     work();
@@ -232,7 +262,8 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
     }
   });
   try {
-    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
+    timed(voxelmap_seconds,
+          [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &voxelmap_report); });
   } catch (...) {
     tasks.wait();
     throw;
@@ -241,18 +272,33 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   if (shell_error) std::rethrow_exception(shell_error);
 
   stage("assemble");
-  // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or a part
+  // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or parts
   // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent. Such a
-  // surface is baked again as a shell two voxels thick, and the asset says so.
+  // surface is baked again as a shell two voxels thick, and the asset says so, with what to do about it.
   const bool encloses_nothing =
-      shell_thickness == 0 && (closed_but_flat || (winding_inside && voxelmap.layer_range().second < 1));
+      shell_thickness == 0 &&
+      (closed_but_flat || (winding_inside && (voxelmap_report.stopped || voxelmap.layer_range().second < 1)));
   if (encloses_nothing) {
     shell_thickness = 2 * voxelmap.voxel_size;
-    char text[160];
-    std::snprintf(text, sizeof text,
-                  "the surface encloses no volume at this resolution (an open or flat sheet, or thinner than a voxel):"
-                  " baked as a shell %.6g m (2 voxels) thick",
-                  shell_thickness);
+    char text[480];
+    // Thin parts (an inside behind the surface, all of it within half a voxel) or a sheet (no inside at all).
+    const uint64_t inside = voxelmap_report.inside_centres;
+    if (inside > 0 || (winding_inside && share_with_inside_behind(mesh) >= 0.5)) {
+      char centres[96] = "no voxel centre lies inside it";
+      if (inside > 0)
+        std::snprintf(centres, sizeof centres, "%llu voxel centres lie inside it, none more than half a voxel deep",
+                      static_cast<unsigned long long>(inside));
+      std::snprintf(text, sizeof text,
+                    "the surface's parts are thinner than a voxel (%s): its inside vanishes at this resolution. "
+                    "Baked as a shell %.6g m (2 voxels) thick; pass --shell-thickness with the parts' real "
+                    "thickness, or use voxels smaller than them (--voxel-size, --resolution)",
+                    centres, shell_thickness);
+    } else {
+      std::snprintf(text, sizeof text,
+                    "the surface encloses no volume at this resolution (an open or flat sheet): baked as a shell "
+                    "%.6g m (2 voxels) thick; --shell-thickness sets another thickness",
+                    shell_thickness);
+    }
     report.repair.warnings.push_back({"SHELL_MODE", text});
     voxelmap_options.shell_thickness = shell_thickness;
     voxelmap_stages.clear();

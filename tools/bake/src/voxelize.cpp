@@ -19,9 +19,11 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <tuple>
 #include <unordered_map>
 
+#include "boundary_winding.h"
 #include "closest_triangle.h"
 #include "stages.h"
 #include "vec3_math.h"
@@ -235,18 +237,25 @@ struct IndexTriangle {
   int64_t lo[3], hi[3];  // voxels within r of the triangle's bounding box, clipped to the grid
 };
 
-std::vector<IndexTriangle> index_triangles(const TriangleMesh& mesh, const GridGeometry& g, double r) {
+// The vertices in index space. Every use takes them from here, so that the corners two triangles share are the
+// same numbers (the winding rule's exact predicates rely on it).
+std::vector<Vec3> index_vertices(const TriangleMesh& mesh, const GridGeometry& g) {
+  std::vector<Vec3> out(mesh.vertices.size());
+  tbb::parallel_for(size_t(0), out.size(), [&](size_t v) {
+    out[v] = {(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size, (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
+              (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
+  });
+  return out;
+}
+
+std::vector<IndexTriangle> index_triangles(const TriangleMesh& mesh, const std::vector<Vec3>& vertices,
+                                           const GridGeometry& g, double r) {
   std::vector<IndexTriangle> triangles(mesh.triangles.size());
   tbb::parallel_for(size_t(0), triangles.size(), [&](size_t f) {
-    auto to_index = [&](uint32_t v) {
-      return Vec3{(mesh.vertices[v][0] - g.origin[0]) / g.voxel_size,
-                  (mesh.vertices[v][1] - g.origin[1]) / g.voxel_size,
-                  (mesh.vertices[v][2] - g.origin[2]) / g.voxel_size};
-    };
     IndexTriangle& t = triangles[f];
-    t.a = to_index(mesh.triangles[f][0]);
-    t.b = to_index(mesh.triangles[f][1]);
-    t.c = to_index(mesh.triangles[f][2]);
+    t.a = vertices[mesh.triangles[f][0]];
+    t.b = vertices[mesh.triangles[f][1]];
+    t.c = vertices[mesh.triangles[f][2]];
     t.normal = normalized(cross(t.b - t.a, t.c - t.a));
     const Vec3* corner[3] = {&t.a, &t.b, &t.c};
     for (int e = 0; e < 3; ++e) {
@@ -363,7 +372,8 @@ struct BrickRowsInput {
   const std::vector<IndexTriangle>& triangles;
   const BrickLists& lists;
   const Pseudonormals& pn;
-  const WindingNumber* winding;  // SignRule::Winding only
+  const WindingNumber* winding;     // SignRule::Winding only: beyond the band
+  const BoundaryWinding* boundary;  // SignRule::Winding only: exact sides in the band
   SignRule rule;
   double r;           // voxels: distances are computed within this reach of the surface
   double band;        // voxels: and stored within the band
@@ -377,19 +387,25 @@ constexpr uint64_t kNoKey = ~uint64_t(0);
 // triangle within r: a key (squared distance as float bits, triangle) whose smallest value is the nearest triangle,
 // ties to the lower index, whatever order the triangles come in. Each triangle's voxel rows are clipped once for the
 // whole row of bricks (a small triangle reaches several bricks of it), then its voxels go to their bricks.
+// Every triangle that the candidate bricks lists.bricks[first, end) of a row list, once each, ascending.
+std::vector<uint32_t> row_triangles(const BrickRowsInput& in, int64_t first, int64_t end) {
+  std::vector<uint32_t> triangles;
+  for (int64_t slot = first; slot < end; ++slot)
+    triangles.insert(triangles.end(), in.lists.members.begin() + int64_t(in.lists.first[size_t(slot)]),
+                     in.lists.members.begin() + int64_t(in.lists.first[size_t(slot) + 1]));
+  std::sort(triangles.begin(), triangles.end());
+  triangles.erase(std::unique(triangles.begin(), triangles.end()), triangles.end());
+  return triangles;
+}
+
 void row_nearest_keys(const BrickRowsInput& in, int64_t first, int64_t end, int64_t bj, int64_t bk,
-                      std::vector<uint64_t>& keys, std::vector<int32_t>& slot_of_brick) {
+                      const std::vector<uint32_t>& triangles, std::vector<uint64_t>& keys,
+                      std::vector<int32_t>& slot_of_brick) {
   const GridGeometry& g = in.g;
   keys.assign(size_t(end - first) * kBrickVoxels, kNoKey);
   slot_of_brick.assign(size_t(g.bricks[0]), -1);
-  std::vector<uint32_t> triangles;
-  for (int64_t slot = first; slot < end; ++slot) {
+  for (int64_t slot = first; slot < end; ++slot)
     slot_of_brick[size_t(in.lists.bricks[size_t(slot)] % g.bricks[0])] = int32_t(slot - first);
-    triangles.insert(triangles.end(), in.lists.members.begin() + int64_t(in.lists.first[size_t(slot)]),
-                     in.lists.members.begin() + int64_t(in.lists.first[size_t(slot) + 1]));
-  }
-  std::sort(triangles.begin(), triangles.end());
-  triangles.erase(std::unique(triangles.begin(), triangles.end()), triangles.end());
   const int64_t j0 = bj * kEdge, k0 = bk * kEdge;
   const int64_t j1 = std::min<int64_t>(j0 + kEdge, g.dims[1]), k1 = std::min<int64_t>(k0 + kEdge, g.dims[2]);
   const double r2 = in.r * in.r;
@@ -470,13 +486,140 @@ bool inside_box(const Bounds& box, const Vec3& p) {
   return true;
 }
 
-// Inside by the winding number (>= 1/2; `refine`: decided exactly near 1/2, as in the band). Outside the surface's
-// bounding box a plane separates the point from the whole surface, which then covers at most a hemisphere of
-// directions: never inside, whatever the approximation says.
-bool winding_inside(const BrickRowsInput& in, const Vec3& p, bool refine) {
-  if (!inside_box(in.mesh_box, p)) return false;
-  const double w = (*in.winding)(p);
-  return refine ? in.winding->inside(p, w) : w >= 0.5;
+// Winding rule: the surface's crossings of the 64 voxel lines {(x, j, k)} of a row of bricks, in x order, and for
+// voxels asked in increasing x along each line, the signed count of the crossings before them (BoundaryWinding's
+// I). Every triangle crossing one of these lines lists a brick of the row: the voxel nearest the crossing is within
+// half a voxel of it.
+class RowCrossings {
+ public:
+  RowCrossings(const BrickRowsInput& in, const std::vector<uint32_t>& triangles, int64_t bj, int64_t bk)
+      : in_(in), j0_(bj * kEdge), k0_(bk * kEdge) {
+    const int64_t j1 = std::min<int64_t>(j0_ + kEdge, in.g.dims[1]), k1 = std::min<int64_t>(k0_ + kEdge, in.g.dims[2]);
+    for (const uint32_t f : triangles) {
+      const IndexTriangle& t = in.triangles[f];
+      const double ylo = std::min({t.a[1], t.b[1], t.c[1]}), yhi = std::max({t.a[1], t.b[1], t.c[1]});
+      const double zlo = std::min({t.a[2], t.b[2], t.c[2]}), zhi = std::max({t.a[2], t.b[2], t.c[2]});
+      for (int64_t k = std::max<int64_t>(k0_, int64_t(std::ceil(zlo))); k < k1 && double(k) <= zhi; ++k)
+        for (int64_t j = std::max<int64_t>(j0_, int64_t(std::ceil(ylo))); j < j1 && double(j) <= yhi; ++j) {
+          LineCrossing c;
+          if (!BoundaryWinding::line_crossing(t.a, t.b, t.c, double(j), double(k), c)) continue;
+          c.triangle = f;
+          lines_[size_t((k - k0_) * kEdge + (j - j0_))].push_back(c);
+        }
+    }
+    // The fans that cap small boundary components are crossed like the surface.
+    std::vector<uint32_t> fans;
+    in.boundary->row_fan_triangles(bj, bk, fans);
+    for (const uint32_t name : fans) {
+      Vec3 a, b, c;
+      int32_t multiplicity;
+      in.boundary->fan_triangle(name, a, b, c, multiplicity);
+      const double ylo = std::min({a[1], b[1], c[1]}), yhi = std::max({a[1], b[1], c[1]});
+      const double zlo = std::min({a[2], b[2], c[2]}), zhi = std::max({a[2], b[2], c[2]});
+      for (int64_t k = std::max<int64_t>(k0_, int64_t(std::ceil(zlo))); k < k1 && double(k) <= zhi; ++k)
+        for (int64_t j = std::max<int64_t>(j0_, int64_t(std::ceil(ylo))); j < j1 && double(j) <= yhi; ++j) {
+          LineCrossing crossing;
+          if (!BoundaryWinding::line_crossing(a, b, c, double(j), double(k), crossing)) continue;
+          crossing.triangle = name;
+          crossing.step *= multiplicity;
+          lines_[size_t((k - k0_) * kEdge + (j - j0_))].push_back(crossing);
+        }
+    }
+    for (auto& line : lines_)
+      std::sort(line.begin(), line.end(), [](const LineCrossing& x, const LineCrossing& y) {
+        return x.x - x.slack != y.x - y.slack ? x.x - x.slack < y.x - y.slack : x.triangle < y.triangle;
+      });
+  }
+  // The count at voxel (i, j0 + line % 8, k0 + line / 8); i must not decrease from one call to the next on a line.
+  int32_t count(size_t line, int64_t i) {
+    const std::vector<LineCrossing>& crossings = lines_[line];
+    const double x = double(i);
+    while (next_[line] < crossings.size() && crossings[next_[line]].x - crossings[next_[line]].slack <= x)
+      pending_[line].push_back(uint32_t(next_[line]++));
+    int32_t uncertain = 0;
+    auto& pending = pending_[line];
+    for (size_t n = 0; n < pending.size();) {
+      const LineCrossing& c = crossings[pending[n]];
+      if (c.x + c.slack < x) {  // before the voxel, certainly
+        before_[line] += c.step;
+        pending[n] = pending.back();
+        pending.pop_back();
+        continue;
+      }
+      // Within rounding of the voxel centre (or a triangle nearly parallel to the line): the exact side test.
+      const Vec3 p{x, double(j0_ + int64_t(line) % kEdge), double(k0_ + int64_t(line) / kEdge)};
+      Vec3 a, b, d;
+      if (c.triangle >= BoundaryWinding::kFanTriangle) {
+        int32_t multiplicity;
+        in_.boundary->fan_triangle(c.triangle, a, b, d, multiplicity);
+      } else {
+        const IndexTriangle& t = in_.triangles[c.triangle];
+        a = t.a, b = t.b, d = t.c;
+      }
+      if (BoundaryWinding::past_plane(a, b, d, p)) uncertain += c.step;
+      ++n;
+    }
+    return before_[line] + uncertain;
+  }
+
+ private:
+  const BrickRowsInput& in_;
+  int64_t j0_, k0_;
+  std::vector<LineCrossing> lines_[kEdge * kEdge];
+  size_t next_[kEdge * kEdge] = {};
+  int32_t before_[kEdge * kEdge] = {};
+  std::vector<uint32_t> pending_[kEdge * kEdge];
+};
+
+// Winding rule, a brick with voxels within r of the surface: the exact side of 1/2 of each such voxel's winding
+// number (BoundaryWinding): the row's crossing count plus the boundary's caps, the far caps interpolated. Most
+// voxels lie far from 1/2 and are decided with a loose bound (few caps per voxel); the rest with a tight one, and
+// those it does not separate from 1/2 sum every cap.
+constexpr double kLooseBound = 0.05, kTightBound = 1e-3;
+void winding_band_signs(const BrickRowsInput& in, RowCrossings& crossings, int64_t bi, int64_t bj, int64_t bk,
+                        const float* distance, float* sign) {
+  const BoundaryWinding& boundary = *in.boundary;
+  int32_t count[kBrickVoxels];
+  size_t undecided[kBrickVoxels], n_undecided = 0;
+  for (size_t v = 0; v < kBrickVoxels; ++v) {
+    if (std::isinf(distance[v]) || std::isnan(distance[v])) continue;
+    const int64_t i = bi * kEdge + int64_t(v) % kEdge, j = bj * kEdge + int64_t(v) / kEdge % kEdge,
+                  k = bk * kEdge + int64_t(v) / (kEdge * kEdge);
+    count[v] = crossings.count(v / kEdge, i);
+    // The object stays within its surface's box, as beyond the band: a plane separates such a voxel from the
+    // surface (one sheet then covers at most a hemisphere of it, though stacked open sheets can add up past 1/2).
+    if (!inside_box(in.mesh_box, voxel_point(in.g, double(i), double(j), double(k)))) {
+      sign[v] = 1.0f;
+    } else if (boundary.closed()) {
+      sign[v] = count[v] >= 1 ? -1.0f : 1.0f;  // an integer
+    } else {
+      undecided[n_undecided++] = v;
+    }
+  }
+  if (n_undecided == 0) return;
+  auto point = [&](size_t v) {
+    return Vec3{double(bi * kEdge + int64_t(v) % kEdge), double(bj * kEdge + int64_t(v) / kEdge % kEdge),
+                double(bk * kEdge + int64_t(v) / (kEdge * kEdge))};
+  };
+  BoundaryWinding::Cell cell;
+  for (const double target : {kLooseBound, kTightBound}) {
+    boundary.prepare_cell(bi, bj, bk, target, cell);
+    size_t left = 0;
+    for (size_t n = 0; n < n_undecided; ++n) {
+      const size_t v = undecided[n];
+      const double w = count[v] + boundary.cell_caps(cell, point(v));
+      if (std::abs(w - 0.5) > cell.bound)
+        sign[v] = w >= 0.5 ? -1.0f : 1.0f;
+      else
+        undecided[left++] = v;
+    }
+    n_undecided = left;
+    if (n_undecided == 0) return;
+  }
+  for (size_t n = 0; n < n_undecided; ++n) {
+    const size_t v = undecided[n];
+    sign[v] = count[v] + boundary.caps(point(v)) >= 0.5 ? -1.0f : 1.0f;
+  }
 }
 
 // The sign (+1 outside, -1 inside) of a brick none of whose voxels lies within r of the surface: all of them are
@@ -654,7 +797,10 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
   };
   std::vector<uint64_t> keys;
   std::vector<int32_t> slot_of_brick;
-  if (end > first) row_nearest_keys(in, first, end, bj, bk, keys, slot_of_brick);
+  const std::vector<uint32_t> triangles = row_triangles(in, first, end);
+  if (end > first) row_nearest_keys(in, first, end, bj, bk, triangles, keys, slot_of_brick);
+  std::optional<RowCrossings> crossings;
+  if (in.rule == SignRule::Winding && end > first) crossings.emplace(in, triangles, bj, bk);
   int64_t next = 0;  // the first brick of the row not yet decided
   for (int64_t slot = first; slot <= end; ++slot) {
     const int64_t bi = slot < end ? in.lists.bricks[size_t(slot)] % BW : BW;
@@ -662,6 +808,7 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
     if (slot == end) break;
     next = bi + 1;
     brick_band(in, keys.data() + size_t(slot - first) * kBrickVoxels, bi, bj, bk, distance, near_sign);
+    if (in.rule == SignRule::Winding) winding_band_signs(in, *crossings, bi, bj, bk, distance, near_sign);
     for (size_t v = 0; v < kBrickVoxels; ++v) {
       float& row_sign = carried[v / kEdge];
       if (std::isinf(distance[v])) {
@@ -671,18 +818,12 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
       } else {
         switch (in.rule) {
           case SignRule::Closed:
+          case SignRule::Winding:  // near_sign holds winding_band_signs' answer
             sign[v] = near_sign[v];
             break;
           case SignRule::Shell:
             sign[v] = distance[v] < in.half_shell ? -1.0f : 1.0f;
             break;
-          case SignRule::Winding: {
-            const Vec3 p =
-                voxel_point(g, double(bi * kEdge + int64_t(v) % kEdge), double(bj * kEdge + int64_t(v) / kEdge % kEdge),
-                            double(bk * kEdge + int64_t(v) / (kEdge * kEdge)));
-            sign[v] = winding_inside(in, p, true) ? -1.0f : 1.0f;
-            break;
-          }
         }
         row_sign = sign[v];
       }
@@ -832,7 +973,8 @@ float float_not_below(double value) {
 
 }  // namespace
 
-Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings) {
+Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
+                        VoxelmapReport* report) {
   auto clock = std::chrono::steady_clock::now();
   auto lap = [&](const char* name) {
     const auto now = std::chrono::steady_clock::now();
@@ -867,14 +1009,31 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
 
   // Distances are computed half a voxel past the band, so that the band's edge is exact.
   const double r = options.distance_band + half_shell + 0.5;
-  const std::vector<IndexTriangle> triangles = index_triangles(mesh, g, r);
+  std::vector<Vec3> vertices = index_vertices(mesh, g);
+  const std::vector<IndexTriangle> triangles = index_triangles(mesh, vertices, g, r);
   const BrickLists lists = bin_triangles(triangles, g, r);
   const Pseudonormals pn = pseudonormals(mesh);
   std::unique_ptr<WindingNumber> winding;
+  std::unique_ptr<BoundaryWinding> boundary;
   const SignRule rule = shell ? SignRule::Shell : options.winding_number_sign ? SignRule::Winding : SignRule::Closed;
-  if (rule == SignRule::Winding) winding = std::make_unique<WindingNumber>(mesh);
-  const BrickRowsInput in{
-      mesh, g, triangles, lists, pn, winding.get(), rule, r, options.distance_band, half_shell, bounding_box(mesh)};
+  if (rule == SignRule::Winding) {
+    winding = std::make_unique<WindingNumber>(mesh);
+    boundary = std::make_unique<BoundaryWinding>(mesh.triangles, vertices);
+    boundary->prepare(lists.bricks, g.bricks);
+  }
+  std::vector<Vec3>().swap(vertices);
+  const BrickRowsInput in{mesh,
+                          g,
+                          triangles,
+                          lists,
+                          pn,
+                          winding.get(),
+                          boundary.get(),
+                          rule,
+                          r,
+                          options.distance_band,
+                          half_shell,
+                          bounding_box(mesh)};
 
   // Rows of bricks in parallel. Under the closed and shell rules a row without candidate bricks is outside; the
   // winding rule decides every brick within the surface's bounding box.
@@ -916,6 +1075,31 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   }
 
   lap("voxelmap: band");
+  if (report && rule == SignRule::Winding) {
+    // Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
+    // band - 1/2 voxels deep) or a coarse brick inside.
+    uint64_t inside = 0, deep = 0;
+    for (size_t n = 0; n < vm.bricks.size(); ++n) {
+      const int32_t entry = vm.bricks[n];
+      if (entry == Voxelmap::kCoarseInside) {
+        inside += kBrickVoxels;
+        deep += kBrickVoxels;
+      }
+      if (entry < 0) continue;
+      const int16_t* codes = vm.brick_values.data() + size_t(entry) * kBrickVoxels;
+      for (size_t v = 0; v < kBrickVoxels; ++v) {
+        if (codes[v] >= 0) continue;  // outside, or past the grid (0)
+        ++inside;
+        deep += !Voxelmap::code_is_stored(codes[v]) || vm.decode(codes[v]) <= -0.5 * g.voxel_size;
+      }
+    }
+    report->inside_centres = inside;
+    report->deep_centres = deep;
+    if (report->stop_if_shallow && deep == 0) {
+      report->stopped = true;
+      return vm;
+    }
+  }
   // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
   {
     const Lattice L = propagate_lattice(g, triangles, lists, r);

@@ -126,15 +126,4 @@ double WindingNumber::evaluate(const Vec3& point, double beta) const {
   return impl_->evaluate(0, point, beta);
 }
 
-bool WindingNumber::inside(const Vec3& point, double approximate) const {
-  // The fast value's error reaches a few hundredths where many distant parts add up; nearer 1/2 than 0.1 it is
-  // evaluated again with a far field 4x farther (~16x more accurate), and within 0.003 of 1/2 exactly. Open
-  // meshes with holes put many band voxels near 1/2, so each step is kept as cheap as its purpose allows
-  // (CGAL's polygon_mesh.off: 0.6 s -> 2.1 s of voxelmap on one thread; a rigorous error bound cost 8 s).
-  if (std::abs(approximate - 0.5) >= 0.1) return approximate >= 0.5;
-  const double closer = evaluate(point, 8.0);
-  if (std::abs(closer - 0.5) >= 0.003) return closer >= 0.5;
-  return evaluate(point, std::numeric_limits<double>::infinity()) >= 0.5;
-}
-
 }  // namespace voxfmt::bake

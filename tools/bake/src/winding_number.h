@@ -1,6 +1,7 @@
 // Generalized winding number of a triangle soup (Jacobson et al. 2013), evaluated fast with a bounding volume
 // hierarchy and the far-field dipole approximation of Barill et al. 2018. Defines inside (>= 1/2) for open,
-// non-manifold or self-intersecting surfaces, where ray or flood-fill rules leak.
+// non-manifold or self-intersecting surfaces, where ray or flood-fill rules leak. The bake uses it beyond the
+// distance band, where the value varies slowly; band voxels are decided exactly by BoundaryWinding.
 #pragma once
 
 #include <memory>
@@ -21,9 +22,6 @@ class WindingNumber {
   /// The winding number with the dipole approximation only for clusters farther than `beta` radii (its error
   /// falls roughly as 1/beta^2); beta = infinity sums every triangle's exact solid angle.
   double evaluate(const Vec3& point, double beta) const;
-  /// Inside (winding number >= 1/2). `approximate` is operator()'s value at `point`; within 0.1 of 1/2 the
-  /// value is evaluated again with a stricter far field (beta 8), and within 0.003 of 1/2 exactly.
-  bool inside(const Vec3& point, double approximate) const;
 
  private:
   struct Impl;
