@@ -238,12 +238,12 @@ nb::dict export_core(const Body& body) {
   d["bricks"] = copy(b.field.bricks, map.brick_count(), {map.brick_count()});
   d["codes"] = copy(b.field.codes, codes, {codes});
   d["lattice"] = copy(b.field.lattice, lattice, {lattice});
-  const float* field_numbers[] = {&b.field.decode_step[0], &b.field.decode_step[1], &b.field.stored_slack,
+  const float* field_numbers[] = {&b.field.decode_step[0], &b.field.decode_step[1],  &b.field.stored_slack,
                                   &b.field.estimate_slack, &b.field.estimate_offset, &b.field.estimate_shrink,
-                                  &b.field.band_edge, &b.field.lattice_step, &b.field.cover_max.x,
-                                  &b.field.cover_max.y, &b.field.cover_max.z, &b.field.object_min.x,
-                                  &b.field.object_min.y, &b.field.object_min.z, &b.field.object_max.x,
-                                  &b.field.object_max.y, &b.field.object_max.z};
+                                  &b.field.band_edge,      &b.field.lattice_step,    &b.field.cover_max.x,
+                                  &b.field.cover_max.y,    &b.field.cover_max.z,     &b.field.object_min.x,
+                                  &b.field.object_min.y,   &b.field.object_min.z,    &b.field.object_max.x,
+                                  &b.field.object_max.y,   &b.field.object_max.z};
   OutArray<float> numbers({std::size(field_numbers)});
   for (size_t i = 0; i < std::size(field_numbers); ++i) numbers.data[i] = *field_numbers[i];
   d["field_floats"] = numbers.array;
