@@ -66,7 +66,7 @@ fi
 
 # A CUDA compiler from PyPI (python/requirements-cuda.txt: nvcc, its runtime headers and static runtime), so that
 # the CUDA batch (loaders/gpu) compiles on every machine, GPU or not: CI builds the kernels it cannot run.
-# VOXFMT_CUDA=OFF skips it (and the CUDA build).
+# VOXFMT_CUDA=OFF skips it (CMake then finds no CUDA compiler and builds no CUDA part).
 if [ "${VOXFMT_CUDA:-AUTO}" != OFF ] && ! ls "$VENV"/lib/python3*/site-packages/nvidia/cu13/bin/nvcc >/dev/null 2>&1; then
   echo "install-deps: adding nvcc to $VENV (python/requirements-cuda.txt; log: .logs/pip-cuda.log) ..."
   if ! "$VENV/bin/python" -m pip install --disable-pip-version-check -r python/requirements-cuda.txt \
