@@ -2,7 +2,7 @@
 # Opt-in test: the README's Slurm job array (section `voxfmt batch`) on a real single-node Slurm cluster, with
 # faults. Installs Debian's slurm-wlm and munge if missing (root), starts munged (if none runs), slurmctld and
 # slurmd on private ports with a private slurm.conf (SLURM_CONF; /etc/slurm is not touched), makes 9 meshes
-# (8 of CGAL's samples and one slow one: 27 tiled copies of CGAL's elk), submits the README's job script with
+# (8 of CGAL's samples and one slow one: copies of CGAL's elk turned about one axis, all through each other), submits the README's job script with
 # only sizes and paths replaced (3 shards into one output folder), kills the task of the slow mesh mid-bake and
 # requeues it, then checks the assets, the manifests and that nothing was baked twice. Everything it started is
 # stopped at exit. Safe to run again; a run left over (daemons, jobs) is stopped first.
@@ -26,7 +26,7 @@ WORK=${VOXFMT_SLURM_DIR:-/tmp/voxfmt-slurm-test}
 PORT=${VOXFMT_SLURM_PORT:-16817}
 ARRAY_TIMEOUT=${VOXFMT_SLURM_TIMEOUT:-300}
 FAULTS=${VOXFMT_SLURM_FAULTS:-kill requeue}
-FAULT_AFTER_MS=2000  # into the slow mesh's bake
+FAULT_AFTER_MS=1500  # into the slow mesh's bake (about 5 s on one core)
 SHARDS=3
 PY=/usr/bin/python3
 
@@ -269,11 +269,14 @@ mkdir -p "$SHARED/bin"
 cp "$VOXFMT" "$SHARED/bin/voxfmt"
 info "voxfmt: $VOXFMT ($("$VOXFMT" --version 2>/dev/null || echo "no --version")), copied to $SHARED/bin"
 VOXFMT=$SHARED/bin/voxfmt
-# The slow mesh: 27 copies of the elk in a 3x3x3 grid (one resolution-128 grid over all of them: several seconds
-# of bake, where each CGAL sample takes about one). Its name is chosen so that it hashes (FNV-1a 64, the README's
-# sharding) into the shard of $BIG, so that its task has finished a mesh before the fault.
-read -r SLOW VICTIM < <("$PY" - "$SOURCE/$TILED_FROM" "$MESHES" "$BIG" "$SHARDS" <<'EOF'
-import sys
+# The slow mesh: copies of the elk turned about its vertical axis, each through all the others (hundreds of thousands
+# of self-intersecting face pairs: the repair and the band take seconds on one core, where each CGAL sample takes a
+# fraction of one; tiled copies that do not touch became too fast to interrupt once broken meshes baked quickly).
+# As many copies as keep it smaller than $BIG (baked first in their shard, largest first). Its name is chosen so
+# that it hashes (FNV-1a 64, the README's sharding) into the shard of $BIG, so its task has finished a mesh before
+# the fault.
+read -r SLOW VICTIM COPIES < <("$PY" - "$SOURCE/$TILED_FROM" "$MESHES" "$BIG" "$SHARDS" <<'EOF'
+import math, os, sys
 source, folder, big, shards = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 
 def shard(name):
@@ -295,16 +298,32 @@ for _ in range(nf):
     k = int(words[at])
     faces.append([int(x) for x in words[at + 1:at + 1 + k]])
     at += 1 + k
-step = [1.25 * (max(v[a] for v in vertices) - min(v[a] for v in vertices)) for a in range(3)]
-name = next(n for n in (f'elk-27x-{k}.off' for k in range(100)) if shard(n) == shard(big))
+centre = [sum(v[a] for v in vertices) / nv for a in range(3)]
+
+def copy(i, n):  # copy i of n: vertices turned by 2 pi i / n about the vertical axis through the centre
+    c, s = math.cos(2 * math.pi * i / n), math.sin(2 * math.pi * i / n)
+    lines = []
+    for x, y, z in vertices:
+        x, z = x - centre[0], z - centre[2]
+        lines.append(f'{c * x - s * z:.5g} {y:.5g} {s * x + c * z:.5g}\n')
+    return lines
+
+def text(n):
+    out = [f'OFF\n{n * nv} {n * nf} 0\n']
+    for i in range(n):
+        out += copy(i, n)
+    for i in range(n):
+        out += [f'{len(f)} ' + ' '.join(str(v + i * nv) for v in f) + '\n' for f in faces]
+    return ''.join(out)
+
+limit = os.path.getsize(f'{folder}/{big}')
+n = 8
+while len(text(n + 4)) < limit:
+    n += 4
+name = next(m for m in (f'elk-turned-{k}.off' for k in range(100)) if shard(m) == shard(big))
 with open(f'{folder}/{name}', 'w') as out:
-    out.write(f'OFF\n{27 * nv} {27 * nf} 0\n')
-    for i in range(27):
-        offset = (i % 3 * step[0], i // 3 % 3 * step[1], i // 9 * step[2])
-        out.writelines(f'{x + offset[0]:.6g} {y + offset[1]:.6g} {z + offset[2]:.6g}\n' for x, y, z in vertices)
-    for i in range(27):
-        out.writelines(f'{len(f)} ' + ' '.join(str(v + i * nv) for v in f) + '\n' for f in faces)
-print(name, shard(name))
+    out.write(text(n))
+print(name, shard(name), n)
 EOF
 ) || true
 [ -n "$SLOW" ] || fail "could not make the slow mesh"
@@ -312,7 +331,7 @@ EOF
   fail "$BIG must be larger than $SLOW (baked first in their shard)"
 MESH_NAMES=$(cd "$MESHES" && ls)
 info "$(wc -l <<<"$MESH_NAMES") meshes: $(tr '\n' ' ' <<<"$MESH_NAMES")"
-info "slow mesh: $SLOW ($(stat -c %s "$MESHES/$SLOW") bytes, 27 elks), in the shard of $BIG"
+info "slow mesh: $SLOW ($(stat -c %s "$MESHES/$SLOW") bytes, $COPIES elks through each other), in the shard of $BIG"
 
 # --- 4. the README's job script -----------------------------------------------------------------------------------
 step "job script: the README's Slurm job array, sizes and paths replaced"
