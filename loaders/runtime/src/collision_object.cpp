@@ -76,7 +76,8 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::load(con
                                                                              const LoadOptions& options) {
   voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path, nullptr, options.read);
   if (!asset) return asset.error();
-  return from_asset(std::move(asset.value()), options);
+  // read_asset has checked the file against options.read.level, which includes the quick rules: not again.
+  return from_checked_asset(std::move(asset.value()), options);
 }
 
 voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_asset(const voxfmt::Asset& asset,
@@ -90,6 +91,11 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_ass
   for (const voxfmt::Issue& issue : issues)
     if (issue.severity == voxfmt::Severity::Error)
       return voxfmt::Error{issue.code, "asset is not valid: " + issue.path + ": " + issue.message};
+  return from_checked_asset(std::move(asset), options);
+}
+
+voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_checked_asset(voxfmt::Asset&& asset,
+                                                                                           const LoadOptions& options) {
   if (!options.load_voxelmap && !options.load_point_shell)
     return voxfmt::Error{voxfmt::IssueCode::ReadFailed, "LoadOptions asks for neither voxelmap nor point shell"};
 

@@ -97,6 +97,10 @@ class CollisionObject {
   size_t memory_bytes() const { return voxelmap_.memory_bytes() + tree_.memory_bytes(); }
 
  private:
+  /// Converts an asset that has passed at least quick validation (each load validates once).
+  static voxfmt::Result<std::shared_ptr<const CollisionObject>> from_checked_asset(voxfmt::Asset&& asset,
+                                                                                   const LoadOptions& options);
+
   SparseVoxelmap voxelmap_;
   PointTree tree_;
   double volume_ = 0.0;
