@@ -401,25 +401,7 @@ struct ProgressBridge {
   }
 };
 
-std::string bake(const std::string& mesh, const std::string& output, uint32_t resolution, double voxel_size,
-                 uint32_t points, double point_spacing, double branching, uint32_t margin, double band,
-                 double shell_thickness, double unit_scale, const std::string& up_axis, bool self_intersection_check,
-                 uint64_t seed, int deflate, uint32_t threads, nb::object progress) {
-  bake::Settings s;
-  s.voxelmap.resolution = resolution;
-  s.voxelmap.voxel_size = voxel_size;
-  s.point_shell.points = points;
-  s.point_shell.point_spacing = point_spacing;
-  s.point_shell.branching = branching;
-  s.voxelmap.margin = margin;
-  s.voxelmap.distance_band = band;
-  s.voxelmap.shell_thickness = shell_thickness;
-  s.import.unit_scale = unit_scale;
-  s.up_axis = up_axis;
-  s.check_self_intersections = self_intersection_check;
-  s.point_shell.seed = seed;
-  s.deflate = deflate;
-  s.threads = threads;
+std::string bake(const std::string& mesh, const std::string& output, const bake::Settings& s, nb::object progress) {
   ProgressBridge bridge{progress, std::nullopt};
   bake::ProgressCallback callback;
   if (!progress.is_none()) callback = [&bridge](std::string_view stage, double f) { bridge(stage, f); };
@@ -753,11 +735,42 @@ void bind_queries(nb::module_& m) {
       });
 }
 
+// bake::Settings by the names of `voxfmt build`'s options (dashes as underscores), defaults and all: the defaults
+// live in bake::Settings alone, which the CLI's options and bake()'s keywords both read.
+template <typename T>
+void bake_setting(nb::class_<bake::Settings>& cls, std::vector<std::string>& names, const char* name,
+                  T& (*field)(bake::Settings&)) {
+  cls.def_prop_rw(
+      name, [field](bake::Settings& s) { return field(s); }, [field](bake::Settings& s, T value) { field(s) = value; });
+  names.emplace_back(name);
+}
+
+void bind_bake_settings(nb::module_& m) {
+  using S = bake::Settings;
+  nb::class_<S> cls(m, "_BakeSettings");
+  cls.def(nb::init<>());
+  std::vector<std::string> names;
+  bake_setting<uint32_t>(cls, names, "resolution", [](S& s) -> uint32_t& { return s.voxelmap.resolution; });
+  bake_setting<double>(cls, names, "voxel_size", [](S& s) -> double& { return s.voxelmap.voxel_size; });
+  bake_setting<uint32_t>(cls, names, "points", [](S& s) -> uint32_t& { return s.point_shell.points; });
+  bake_setting<double>(cls, names, "point_spacing", [](S& s) -> double& { return s.point_shell.point_spacing; });
+  bake_setting<double>(cls, names, "branching", [](S& s) -> double& { return s.point_shell.branching; });
+  bake_setting<uint32_t>(cls, names, "margin", [](S& s) -> uint32_t& { return s.voxelmap.margin; });
+  bake_setting<double>(cls, names, "band", [](S& s) -> double& { return s.voxelmap.distance_band; });
+  bake_setting<double>(cls, names, "shell_thickness", [](S& s) -> double& { return s.voxelmap.shell_thickness; });
+  bake_setting<double>(cls, names, "unit_scale", [](S& s) -> double& { return s.import.unit_scale; });
+  bake_setting<std::string>(cls, names, "up_axis", [](S& s) -> std::string& { return s.up_axis; });
+  bake_setting<bool>(cls, names, "self_intersection_check", [](S& s) -> bool& { return s.check_self_intersections; });
+  bake_setting<uint64_t>(cls, names, "seed", [](S& s) -> uint64_t& { return s.point_shell.seed; });
+  bake_setting<int>(cls, names, "deflate", [](S& s) -> int& { return s.deflate; });
+  bake_setting<unsigned>(cls, names, "threads", [](S& s) -> unsigned& { return s.threads; });
+  cls.attr("names") = nb::cast(names);
+}
+
 // The bake, validate and inspect behind the package's Python wrappers; timing hooks.
 void bind_pipeline(nb::module_& m) {
-  m.def("_bake", &bake, "mesh"_a, "output"_a, "resolution"_a, "voxel_size"_a, "points"_a, "point_spacing"_a,
-        "branching"_a, "margin"_a, "band"_a, "shell_thickness"_a, "unit_scale"_a, "up_axis"_a,
-        "self_intersection_check"_a, "seed"_a, "deflate"_a, "threads"_a, "progress"_a.none());
+  bind_bake_settings(m);
+  m.def("_bake", &bake, "mesh"_a, "output"_a, "settings"_a, "progress"_a.none());
   m.def("_validate", &validate, "path"_a, "full"_a, "max_memory_mib"_a.none());
   m.def("_inspect", &inspect, "path"_a, "max_memory_mib"_a.none());
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),

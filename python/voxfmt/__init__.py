@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, wrench
-from ._voxfmt import _bake, _contacts_batch, _inspect, _Tracker, _validate
+from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
 
 __version__: str = _library_version()
@@ -58,21 +58,9 @@ __all__ = [
 
 Path = str | os.PathLike[str]
 
-# The options of `voxfmt build`, as keywords of bake() (dashes become underscores), with their defaults.
-_BAKE_DEFAULTS: dict[str, Any] = {
-    "voxel_size": 0.0,
-    "point_spacing": 0.0,
-    "branching": 6.5,
-    "margin": 4,
-    "band": 3.0,
-    "shell_thickness": 0.0,
-    "unit_scale": 1.0,
-    "up_axis": "+Y",
-    "self_intersection_check": True,
-    "seed": 24301,
-    "deflate": 4,
-    "threads": 0,
-}
+# The options of `voxfmt build` as keywords of bake() (dashes become underscores), with their defaults: those of
+# bake::Settings, read from the extension (the CLI's options read the same struct).
+_BAKE_DEFAULTS: dict[str, Any] = {name: getattr(_BakeSettings(), name) for name in _BakeSettings.names}
 _UNSIGNED_BITS = {"resolution": 32, "points": 32, "margin": 32, "seed": 64, "threads": 32, "deflate": 31}
 
 
@@ -112,12 +100,28 @@ def _real(name: str, value: Any) -> float:
     return float(value)
 
 
+def _bake_setting(name: str, value: Any) -> Any:
+    """A bake option checked against its default's type (ranges are checked by the bake, as for the CLI)."""
+    default = _BAKE_DEFAULTS[name]
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise OptionError("BAD_OPTION", f"{name}: expected a bool")
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise OptionError("BAD_OPTION", f"{name}: expected a string such as {default!r}, got {value!r}")
+        return value
+    if isinstance(default, int):
+        return _unsigned(name, value)
+    return _real(name, value)
+
+
 def bake(
     mesh_path: Path,
     out_path: Path,
     *,
-    resolution: int = 128,
-    points: int = 10000,
+    resolution: int = _BAKE_DEFAULTS["resolution"],
+    points: int = _BAKE_DEFAULTS["points"],
     progress: Callable[[str, float], object] | None = None,
     **options: Any,
 ) -> dict[str, Any]:
@@ -141,30 +145,10 @@ def bake(
         )
     if progress is not None and not callable(progress):
         raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
-    o = {**_BAKE_DEFAULTS, **options}
-    if not isinstance(o["up_axis"], str):
-        raise OptionError("BAD_OPTION", f"up_axis: expected a string such as '+Y', got {o['up_axis']!r}")
-    if not isinstance(o["self_intersection_check"], bool):
-        raise OptionError("BAD_OPTION", "self_intersection_check: expected a bool")
-    summary = _bake(
-        _path(mesh_path, "mesh_path"),
-        _path(out_path, "out_path"),
-        _unsigned("resolution", resolution),
-        _real("voxel_size", o["voxel_size"]),
-        _unsigned("points", points),
-        _real("point_spacing", o["point_spacing"]),
-        _real("branching", o["branching"]),
-        _unsigned("margin", o["margin"]),
-        _real("band", o["band"]),
-        _real("shell_thickness", o["shell_thickness"]),
-        _real("unit_scale", o["unit_scale"]),
-        o["up_axis"],
-        o["self_intersection_check"],
-        _unsigned("seed", o["seed"]),
-        _unsigned("deflate", o["deflate"]),
-        _unsigned("threads", o["threads"]),
-        progress,
-    )
+    settings = _BakeSettings()
+    for name, value in {"resolution": resolution, "points": points, **options}.items():
+        setattr(settings, name, _bake_setting(name, value))
+    summary = _bake(_path(mesh_path, "mesh_path"), _path(out_path, "out_path"), settings, progress)
     result: dict[str, Any] = json.loads(summary)
     return result
 
