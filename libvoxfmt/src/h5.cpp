@@ -10,8 +10,6 @@
 #include <functional>
 #include <new>
 #include <sstream>
-#include <system_error>
-#include <thread>
 
 #include <unistd.h>
 
@@ -701,15 +699,7 @@ bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector
       compressed[c].resize(size);
     }
   };
-  const unsigned threads = std::min(8u, usable_cores());
-  std::vector<std::thread> pool;
-  try {
-    for (unsigned t = 1; t < threads; ++t) pool.emplace_back(worker);
-  } catch (const std::system_error&) {
-    // Fewer threads than hoped: the ones started and this one share the work.
-  }
-  worker();
-  for (std::thread& t : pool) t.join();
+  run_workers(std::min(8u, usable_cores()), [&](unsigned) { worker(); });
   if (failed) return false;
   for (size_t c = 0; c < chunk_count; ++c) {
     if (compressed[c].empty()) continue;

@@ -7,8 +7,6 @@
 #include <new>
 #include <optional>
 #include <sstream>
-#include <system_error>
-#include <thread>
 
 #include "load.h"
 #include "voxfmt/cores.h"
@@ -473,20 +471,10 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
   // A share of the bricks per thread; each thread's findings are its bricks' in order, so the merged list is too.
   const unsigned threads = std::max(1u, std::min<unsigned>(usable_cores(), unsigned(bricks.size() / 256 + 1)));
   std::vector<std::vector<Issue>> found(threads);
-  std::vector<std::thread> pool;
-  auto run = [&](unsigned t) {
+  run_workers(threads, [&](unsigned t) {
     VoxelmapRules(vm, closed_surface)
         .check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t]);
-  };
-  for (unsigned t = 1; t < threads; ++t) {
-    try {
-      pool.emplace_back(run, t);
-    } catch (const std::system_error&) {
-      run(t);  // no thread to be had: this one does that share too
-    }
-  }
-  run(0);
-  for (std::thread& t : pool) t.join();
+  });
   std::vector<IssueCode> reported;
   for (const auto& issues : found)
     for (const Issue& issue : issues) {

@@ -12,7 +12,6 @@
 #include <cstdint>
 #include <exception>
 #include <string>
-#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -84,15 +83,8 @@ void run_cpu(const HostScene& scene, const CpuArray<const T, nb::shape<-1, 4, 4>
       for (size_t e = begin; e < std::min(begin + kChunk, in.environments); ++e) core::run_environment(in, out, e);
   };
   nb::gil_scoped_release release;
-  std::vector<std::thread> pool;
   const size_t workers = std::max<size_t>(1, std::min(threads, (in.environments + kChunk - 1) / kChunk));
-  try {
-    for (size_t w = 1; w < workers; ++w) pool.emplace_back(work);
-  } catch (const std::system_error&) {
-    // Fewer threads than asked: those started and this one share the work.
-  }
-  work();
-  for (std::thread& t : pool) t.join();
+  voxfmt::run_workers(unsigned(workers), [&](unsigned) { work(); });
 }
 
 nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs,

@@ -27,7 +27,6 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <tuple>
 #include <utility>
 #include <vector>
@@ -335,10 +334,7 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   };
   {
     nb::gil_scoped_release release;
-    std::vector<std::thread> pool;
-    for (size_t w = 1; w < workers; ++w) pool.emplace_back(work, w);
-    work(0);
-    for (std::thread& t : pool) t.join();
+    voxfmt::run_workers(unsigned(workers), work);
   }
   for (const std::exception_ptr& e : errors)
     if (e) std::rethrow_exception(e);

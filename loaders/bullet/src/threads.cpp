@@ -8,6 +8,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <system_error>
 #include <thread>
 
 namespace voxfmt::bullet {
@@ -70,9 +71,14 @@ struct ThreadPoolScheduler::Pool {
   std::atomic<int64_t> next{0};
   btScalar sum = 0;
 
+  // A worker that cannot be started (a process at its thread limit) is not an error, as for voxfmt::run_workers:
+  // the pool runs with those started (getNumThreads says how many) and the calling thread.
   void start(int count) {
     std::lock_guard<std::mutex> lock(mutex);
-    for (int k = 0; k < count; ++k) workers.emplace_back([this, seen = generation] { worker(seen); });
+    try {
+      for (int k = 0; k < count; ++k) workers.emplace_back([this, seen = generation] { worker(seen); });
+    } catch (const std::system_error&) {
+    }
   }
 
   void join() {
