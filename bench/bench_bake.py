@@ -50,6 +50,16 @@ def timed(command):
     return r, float(wall), float(kb) / 1024
 
 
+def add_floor(args, mesh, resolution, run):
+    """OpenVDB's narrow band on the same mesh and grid (bake-floor): its time, active voxels and peak memory."""
+    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(args.bin, "bake-floor"), mesh, "--resolution",
+                                            str(resolution), "--band", "3"])
+    if r.returncode == 0:
+        floor = json.loads(r.stdout)
+        run["floor_s"] = floor["seconds"]
+        run["floor_active_voxels"] = floor["active_voxels"]
+
+
 def stages_bench(args):
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -116,12 +126,7 @@ def scaling_run(args, resolution, tmp):
         run.update(json.loads(r.stdout))
     else:
         run["asset_check_error"] = r.stderr.strip()[-400:]
-    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(args.bin, "bake-floor"), args.mesh, "--resolution",
-                                            str(resolution), "--band", "3"])
-    if r.returncode == 0:
-        floor = json.loads(r.stdout)
-        run["floor_s"] = floor["seconds"]
-        run["floor_active_voxels"] = floor["active_voxels"]
+    add_floor(args, args.mesh, resolution, run)
     os.remove(asset)
     return run
 
@@ -213,12 +218,7 @@ def broken_run(args, mesh, resolution, tmp):
     run["warnings"] = [w["code"] for w in report["warnings"]]
     run["band_us_per_stored"] = 1e6 * report["timings_s"].get("voxelmap: band", float("nan")) / max(
         1, run["stored_distances"])
-    r, _, run["floor_peak_rss_mb"] = timed([os.path.join(args.bin, "bake-floor"), mesh, "--resolution",
-                                            str(resolution), "--band", "3"])
-    if r.returncode == 0:
-        floor = json.loads(r.stdout)
-        run["floor_s"] = floor["seconds"]
-        run["floor_active_voxels"] = floor["active_voxels"]
+    add_floor(args, mesh, resolution, run)
     os.remove(asset)
     return run
 
