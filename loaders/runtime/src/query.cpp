@@ -2,7 +2,6 @@
 
 #include <Eigen/Geometry>
 
-#include <algorithm>
 #include <cmath>
 #include <functional>
 
@@ -31,15 +30,8 @@ struct VoxelmapTarget {
   core::Field field;
   float lower_bound(const Eigen::Vector3f& u) const { return core::lower_bound(field, core::to_core(u)); }
   void lower_bounds(const Eigen::Vector3f* u, size_t n, float* out) const {
-    constexpr size_t kMost = 64;  // the traversal's batches are smaller
-    core::Vec3 at[kMost];
-    int32_t entry[kMost];
-    int voxel[3 * kMost];
-    for (size_t begin = 0; begin < n; begin += kMost) {
-      const int count = int(std::min(kMost, n - begin));
-      for (int p = 0; p < count; ++p) at[p] = core::to_core(u[begin + size_t(p)]);
-      core::lower_bounds(field, at, count, out + begin, entry, voxel);
-    }
+    core::lower_bounds(
+        field, n, [u](size_t p) { return core::to_core(u[p]); }, out);
   }
   /// A bound costs one voxel, a sample up to eight: test a point's bound before sampling it.
   static constexpr bool kBoundBeforeDistance = true;

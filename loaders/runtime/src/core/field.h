@@ -228,52 +228,58 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   return result;
 }
 
+/// The voxel nearest `u`, a point that covers() (every coordinate above -1/2, so truncation rounds).
+VOXFMT_HD void nearest_voxel(const Vec3& u, int v[3]) {
+  v[0] = int(u.x + 0.5f), v[1] = int(u.y + 0.5f), v[2] = int(u.z + 0.5f);
+}
+
+/// lower_bound at a covered `u` from its nearest voxel `v`, whose brick table entry is `entry`.
+VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3], int32_t entry) {
+  bool stored = true;
+  const float value = entry_value(f, v[0], v[1], v[2], entry, stored);
+  // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
+  return value_lower_bound(f, value, stored) - length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
+}
+
 /// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.
 VOXFMT_HD float lower_bound(const Field& f, const Vec3& u) {
   // Outside the grid the object is at least as far as its bounding box; inside, the nearest voxel says more.
   if (!covers(f, u)) return bounds_distance(f, u);
-  // Nearest voxel; covers() keeps every coordinate above -1/2, so truncation rounds.
-  const int i = int(u.x + 0.5f), j = int(u.y + 0.5f), k = int(u.z + 0.5f);
-  bool stored = true;
-  const float value = voxel_value(f, i, j, k, stored);
-  // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
-  return value_lower_bound(f, value, stored) - length(u - make_vec3(float(i), float(j), float(k)));
+  int v[3];
+  nearest_voxel(u, v);
+  return nearest_voxel_bound(f, u, v, entry_of(f, v[0], v[1], v[2]));
 }
 
 #if !defined(__CUDACC__)
-/// lower_bound at n points, the same values, for the CPU: first every point's brick table entry is fetched, then
-/// every value brick's code, then the bounds are computed. A lookup is two dependent cache misses (the table, then
-/// the codes); in three passes over a batch the misses of its points overlap instead of queueing one by one.
-inline void lower_bounds(const Field& f, const Vec3* u, int n, float* out, int32_t* scratch_entry, int* scratch_ijk) {
-  for (int p = 0; p < n; ++p) {
-    int* ijk = scratch_ijk + 3 * p;
-    if (!covers(f, u[p])) {
-      ijk[0] = -1;
-      continue;
+/// lower_bound at n points, the same values, for the CPU: `point(p)` gives point p. Taken in batches of 64: first
+/// every point's brick table entry is fetched, then every value brick's code, then the bounds are computed. A
+/// lookup is two dependent cache misses (the table, then the codes); this way the misses of a batch overlap
+/// instead of queueing one by one.
+template <class Point>
+void lower_bounds(const Field& f, size_t n, const Point& point, float* out) {
+  constexpr size_t kBatch = 64;
+  Vec3 u[kBatch];
+  int v[kBatch][3];
+  int32_t entry[kBatch];
+  bool covered[kBatch];
+  for (size_t begin = 0; begin < n; begin += kBatch) {
+    const size_t count = n - begin < kBatch ? n - begin : kBatch;
+    for (size_t p = 0; p < count; ++p) {
+      u[p] = point(begin + p);
+      covered[p] = covers(f, u[p]);
+      if (!covered[p]) continue;
+      nearest_voxel(u[p], v[p]);
+      __builtin_prefetch(table_slot(f, v[p][0], v[p][1], v[p][2]));
     }
-    ijk[0] = int(u[p].x + 0.5f), ijk[1] = int(u[p].y + 0.5f), ijk[2] = int(u[p].z + 0.5f);
-    __builtin_prefetch(table_slot(f, ijk[0], ijk[1], ijk[2]));
-  }
-  for (int p = 0; p < n; ++p) {
-    const int* ijk = scratch_ijk + 3 * p;
-    if (ijk[0] < 0) continue;
-    const int32_t entry = entry_of(f, ijk[0], ijk[1], ijk[2]);
-    scratch_entry[p] = entry;
-    if (entry >= 0) __builtin_prefetch(code_of(f, ijk[0], ijk[1], ijk[2], entry));
-  }
-  for (int p = 0; p < n; ++p) {
-    const int* ijk = scratch_ijk + 3 * p;
-    if (ijk[0] < 0) {
-      out[p] = bounds_distance(f, u[p]);
-      continue;
+    for (size_t p = 0; p < count; ++p) {
+      if (!covered[p]) continue;
+      entry[p] = entry_of(f, v[p][0], v[p][1], v[p][2]);
+      if (entry[p] >= 0) __builtin_prefetch(code_of(f, v[p][0], v[p][1], v[p][2], entry[p]));
     }
-    bool stored = true;
-    const float value = entry_value(f, ijk[0], ijk[1], ijk[2], scratch_entry[p], stored);
-    out[p] =
-        value_lower_bound(f, value, stored) - length(u[p] - make_vec3(float(ijk[0]), float(ijk[1]), float(ijk[2])));
+    for (size_t p = 0; p < count; ++p)
+      out[begin + p] = covered[p] ? nearest_voxel_bound(f, u[p], v[p], entry[p]) : bounds_distance(f, u[p]);
   }
 }
-
 #endif
 
 }  // namespace voxfmt::runtime::core
