@@ -317,12 +317,12 @@ def text(n):
     return ''.join(out)
 
 limit = os.path.getsize(f'{folder}/{big}')
-n = 8
-while len(text(n + 4)) < limit:
-    n += 4
+n, kept = 8, text(8)
+while len(bigger := text(n + 4)) < limit:
+    n, kept = n + 4, bigger
 name = next(m for m in (f'elk-turned-{k}.off' for k in range(100)) if shard(m) == shard(big))
 with open(f'{folder}/{name}', 'w') as out:
-    out.write(text(n))
+    out.write(kept)
 print(name, shard(name), n)
 EOF
 ) || true
