@@ -88,6 +88,12 @@ for target in $TARGETS; do
     grep -E "^(stat::|INFO: (seed|Loaded)|#[0-9]+[[:space:]]+(DONE|INITED))|ERROR|SUMMARY|Test unit written" | tail -15) || status=1
   if [ -n "$(ls -A "$findings")" ]; then
     echo "run-fuzzers: findings in $findings"
+    # The run's output above keeps only libFuzzer's summary: each finding again, with what the target printed.
+    for finding in "$findings"/*; do
+      echo "run-fuzzers: $target on ${finding##*/}:"
+      (cd "$work/run/$target" && VOXFMT_READ_ISOLATION=1 timeout 120 "$OLDPWD/$BUILD_DIR/bin/$target" "$OLDPWD/$finding" 2>&1 |
+        grep -vE "^(INFO|Running|Executed)" | tail -40) || true
+    done
     status=1
   fi
 done

@@ -1114,6 +1114,52 @@ TEST(Bake, PartsThinnerThanAVoxelSaySoAndBakeAsAShell) {
   EXPECT_EQ(full_errors(asset), std::vector<std::string>());
 }
 
+TEST(Bake, SliverTetrahedraGetConsistentSigns) {
+  // A closed tetrahedron whose apex lies a sliver above its base (a fuzzer's glTF): at the knife edge the two faces'
+  // normals cancel, and a voxel straight above the edge took the edge's sign (inside) where the tilted face, nearer
+  // by less than a float tells, says outside: SIGN_MISMATCH at the band's edge (the nearest triangle's distance was
+  // a float). Thinner slivers turned every way also flipped rows beyond the band.
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> gauss;
+  const std::string path = (std::filesystem::temp_directory_path() / "voxfmt-sliver.off").string();
+  for (const double apex : {1e-1, 1e-3, 1e-5, 1e-6, 1e-7, 1e-9, 1e-11, 1e-13})
+    for (int turn = 0; turn < 4; ++turn) {
+      // A random rotation (a unit quaternion); the first of each thickness is the fuzzer's axis-aligned one.
+      double q[4] = {1, 0, 0, 0};
+      if (turn > 0) {
+        for (double& c : q) c = gauss(rng);
+        const double n = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        for (double& c : q) c /= n;
+      }
+      auto turned = [&](const Vec3& v) {
+        const double w = q[0], x = q[1], y = q[2], z = q[3];
+        return Vec3{(1 - 2 * (y * y + z * z)) * v[0] + 2 * (x * y - w * z) * v[1] + 2 * (x * z + w * y) * v[2],
+                    2 * (x * y + w * z) * v[0] + (1 - 2 * (x * x + z * z)) * v[1] + 2 * (y * z - w * x) * v[2],
+                    2 * (x * z - w * y) * v[0] + 2 * (y * z + w * x) * v[1] + (1 - 2 * (x * x + y * y)) * v[2]};
+      };
+      const Vec3 corners[4] = {turned({0, 0, 0}), turned({1, 0, 0}), turned({0, apex, 0}), turned({0, 0, 1})};
+      {
+        std::ofstream off(path);
+        off.precision(17);
+        off << "OFF\n4 4 0\n";
+        for (const Vec3& v : corners) off << v[0] << " " << v[1] << " " << v[2] << "\n";
+        off << "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+      }
+      Settings options;
+      options.voxelmap.resolution = 24;
+      options.point_shell.points = 300;
+      const Result<Baked> baked = bake_mesh(path, options);
+      if (!baked) {
+        // Refusing a part with no inside is a fair answer; refusing its own output is not.
+        EXPECT_NE(baked.error().code, IssueCode::InvalidAsset)
+            << "apex " << apex << ", turn " << turn << ": " << baked.error().message;
+        continue;
+      }
+      EXPECT_EQ(full_errors(baked.value().asset), std::vector<std::string>()) << "apex " << apex << ", turn " << turn;
+    }
+  std::filesystem::remove(path);
+}
+
 TEST(Bake, ShellThicknessOnAClosedMeshGivesAreaTimesThickness) {
   Settings options;
   options.voxelmap.resolution = 64;

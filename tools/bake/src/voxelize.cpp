@@ -381,12 +381,16 @@ struct BrickRowsInput {
   Bounds mesh_box;    // asset frame
 };
 
-constexpr uint64_t kNoKey = ~uint64_t(0);
+// A voxel's nearest triangle so far: its squared distance (voxels^2) and index, ties to the lower index. Double,
+// not float: a sliver's two faces can lie nearer to each other than a float tells at the band's distances, and
+// the side comes from the nearer one.
+struct NearestKey {
+  double d2 = std::numeric_limits<double>::infinity();
+  uint32_t triangle = ~uint32_t(0);
+  bool found() const { return triangle != ~uint32_t(0); }
+  bool operator<(const NearestKey& other) const { return d2 != other.d2 ? d2 < other.d2 : triangle < other.triangle; }
+};
 
-// For every voxel of the candidate bricks lists.bricks[first, end) of the row of bricks (bj, bk), the nearest
-// triangle within r: a key (squared distance as float bits, triangle) whose smallest value is the nearest triangle,
-// ties to the lower index, whatever order the triangles come in. Each triangle's voxel rows are clipped once for the
-// whole row of bricks (a small triangle reaches several bricks of it), then its voxels go to their bricks.
 // Every triangle that the candidate bricks lists.bricks[first, end) of a row list, once each, ascending.
 std::vector<uint32_t> row_triangles(const BrickRowsInput& in, int64_t first, int64_t end) {
   std::vector<uint32_t> triangles;
@@ -400,11 +404,14 @@ std::vector<uint32_t> row_triangles(const BrickRowsInput& in, int64_t first, int
 
 constexpr double kSmallTriangle = 1.0;  // voxels: the bounding sphere's radius below which its bound is tried
 
+// For every voxel of the candidate bricks lists.bricks[first, end) of the row of bricks (bj, bk), the nearest
+// triangle within r, whatever order the triangles come in. Each triangle's voxel rows are clipped once for the
+// whole row of bricks (a small triangle reaches several bricks of it), then its voxels go to their bricks.
 void row_nearest_keys(const BrickRowsInput& in, int64_t first, int64_t end, int64_t bj, int64_t bk,
-                      const std::vector<uint32_t>& triangles, std::vector<uint64_t>& keys,
+                      const std::vector<uint32_t>& triangles, std::vector<NearestKey>& keys,
                       std::vector<int32_t>& slot_of_brick) {
   const GridGeometry& g = in.g;
-  keys.assign(size_t(end - first) * kBrickVoxels, kNoKey);
+  keys.assign(size_t(end - first) * kBrickVoxels, NearestKey{});
   slot_of_brick.assign(size_t(g.bricks[0]), -1);
   for (int64_t slot = first; slot < end; ++slot)
     slot_of_brick[size_t(in.lists.bricks[size_t(slot)] % g.bricks[0])] = int32_t(slot - first);
@@ -438,25 +445,20 @@ void row_nearest_keys(const BrickRowsInput& in, int64_t first, int64_t end, int6
             i = (i / kEdge + 1) * kEdge - 1;
             continue;
           }
-          uint64_t& nearest = keys[size_t(slot) * kBrickVoxels + row + size_t(i % kEdge)];
+          NearestKey& nearest = keys[size_t(slot) * kBrickVoxels + row + size_t(i % kEdge)];
           const double plane = plane_at_0 + t.normal[0] * double(i);
-          if (nearest != kNoKey) {
-            float known;
-            const uint32_t known_bits = uint32_t(nearest >> 32);
-            std::memcpy(&known, &known_bits, sizeof known);
+          if (nearest.found()) {
             double bound = std::abs(plane);
             if (small)
               bound = std::max(bound, std::sqrt(across2 + (double(i) - centre[0]) * (double(i) - centre[0])) - radius);
-            if (float(bound * bound) > known) continue;  // strictly farther: cannot win even a tie
+            // Strictly farther, past the bound's rounding: cannot win even a tie.
+            if (bound * bound > nearest.d2 * (1 + 1e-12)) continue;
           }
           const Vec3 p{double(i), double(j), double(k)};
           Feature feature;
           const double d2 = distance2(p, closest_on_triangle(p, t.a, t.b, t.c, feature));
           if (!(d2 < r2)) continue;
-          uint32_t bits;
-          const float d2f = float(d2);
-          std::memcpy(&bits, &d2f, sizeof bits);
-          nearest = std::min(nearest, uint64_t(bits) << 32 | f);
+          nearest = std::min(nearest, NearestKey{d2, f});
         }
       }
   }
@@ -465,7 +467,7 @@ void row_nearest_keys(const BrickRowsInput& in, int64_t first, int64_t end, int6
 // From a brick's keys: the unsigned distance (voxels) of every voxel within r of the surface (kFar beyond,
 // kPastGrid past the grid), and for those within r the sign of the nearest feature's angle-weighted pseudonormal
 // (exact for a closed, oriented surface; Baerentzen & Aanaes 2005).
-void brick_band(const BrickRowsInput& in, const uint64_t* key, int64_t bi, int64_t bj, int64_t bk, float* distance,
+void brick_band(const BrickRowsInput& in, const NearestKey* key, int64_t bi, int64_t bj, int64_t bk, float* distance,
                 float* pseudonormal_sign) {
   const int64_t i0 = bi * kEdge, j0 = bj * kEdge, k0 = bk * kEdge;
   const int64_t i1 = std::min<int64_t>(i0 + kEdge, in.g.dims[0]), j1 = std::min<int64_t>(j0 + kEdge, in.g.dims[1]),
@@ -478,11 +480,11 @@ void brick_band(const BrickRowsInput& in, const uint64_t* key, int64_t bi, int64
       distance[v] = kPastGrid;
       continue;
     }
-    if (key[v] == kNoKey) {
+    if (!key[v].found()) {
       distance[v] = kFar;
       continue;
     }
-    const size_t f = size_t(key[v] & 0xffffffffu);
+    const size_t f = key[v].triangle;
     const IndexTriangle& t = in.triangles[f];
     const Vec3 p{double(i), double(j), double(k)};
     Feature feature;
@@ -811,7 +813,7 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
       out.codes.push_back(in_grid ? int16_t(sign[v] < 0 ? -2 : 2) : int16_t(0));
     }
   };
-  std::vector<uint64_t> keys;
+  std::vector<NearestKey> keys;
   std::vector<int32_t> slot_of_brick;
   const std::vector<uint32_t> triangles = row_triangles(in, first, end);
   if (end > first) row_nearest_keys(in, first, end, bj, bk, triangles, keys, slot_of_brick);
