@@ -22,12 +22,12 @@
 #include <iostream>
 #include <sstream>
 
-#include "voxfmt/atomic_file.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/threads.h"
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/detail/cores.h"
 
 namespace {
 

@@ -23,9 +23,8 @@
 #include <thread>
 
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/exports/raster_image.h"
+#include "voxfmt/exports/exports.h"
 #include "voxfmt/runtime/haptics.h"
-#include "voxfmt/runtime/realtime_loop.h"
 
 namespace {
 

@@ -17,11 +17,10 @@
 #include <map>
 #include <sstream>
 
-#include "voxfmt/atomic_file.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
-#include "voxfmt/exports/raster_image.h"
+#include "voxfmt/exports/exports.h"
 
 namespace {
 
@@ -349,8 +348,9 @@ int main(int argc, char** argv) {
     json << "\n  ]\n}\n";
     std::cout << "simulated " << seconds << " s in " << std::setprecision(1) << wall << " s wall\n";
     if (!json_path.empty()) {
-      if (const voxfmt::Status written = voxfmt::write_file_atomically(json_path, json.str()); !written)
-        throw std::runtime_error(written.error().describe());
+      std::ofstream out(json_path);
+      out << json.str();
+      if (!out.flush()) throw std::runtime_error("cannot write " + json_path);
       std::cout << "wrote " << json_path << "\n";
     }
 

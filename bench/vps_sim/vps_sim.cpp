@@ -24,10 +24,10 @@
 #include "common/reduced_hull.h"
 #include "core/function_query.h"
 #include "scenes.h"
-#include "voxfmt/atomic_file.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
+#include "voxfmt/detail/atomic_file.h"
 
 namespace vps_sim {
 namespace {

@@ -1,4 +1,4 @@
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 
 #include <fcntl.h>
 #include <unistd.h>

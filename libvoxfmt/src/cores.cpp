@@ -1,4 +1,4 @@
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 
 #include <algorithm>
 #include <thread>

@@ -13,7 +13,7 @@
 
 #include <unistd.h>
 
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 
 namespace voxfmt::h5 {
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt::h5 {
 

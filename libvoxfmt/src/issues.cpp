@@ -1,4 +1,4 @@
-#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt {
 

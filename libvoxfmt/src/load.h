@@ -8,8 +8,7 @@
 #include "h5.h"
 #include "voxfmt/asset.h"
 #include "voxfmt/io.h"
-#include "voxfmt/issues.h"
-#include "voxfmt/validate.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt::detail {
 

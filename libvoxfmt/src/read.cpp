@@ -10,7 +10,6 @@
 #include "h5.h"
 #include "load.h"
 #include "voxfmt/io.h"
-#include "voxfmt/validate.h"
 
 namespace voxfmt {
 namespace detail {

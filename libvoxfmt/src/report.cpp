@@ -1,4 +1,4 @@
-#include "voxfmt/report.h"
+#include "voxfmt/detail/report.h"
 
 #include <nlohmann/json.hpp>
 

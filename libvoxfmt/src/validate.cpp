@@ -1,4 +1,4 @@
-#include "voxfmt/validate.h"
+#include "voxfmt/io.h"
 
 #include <nlohmann/json.hpp>
 
@@ -9,7 +9,7 @@
 #include <sstream>
 
 #include "load.h"
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 
 namespace voxfmt {
 

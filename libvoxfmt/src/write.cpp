@@ -10,9 +10,8 @@
 #include <optional>
 
 #include "h5.h"
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/io.h"
-#include "voxfmt/validate.h"
 
 namespace voxfmt {
 

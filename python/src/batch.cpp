@@ -17,7 +17,7 @@
 
 #include "common.h"
 #include "core/eigen.h"
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 
 #if defined(VOXFMT_WITH_CUDA)
 #include "voxfmt/gpu/batch.h"

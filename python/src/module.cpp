@@ -32,13 +32,11 @@
 #include <vector>
 
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
+#include "voxfmt/detail/report.h"
 #include "voxfmt/io.h"
-#include "voxfmt/report.h"
 #include "voxfmt/runtime/collision_object.h"
-#include "voxfmt/runtime/forces.h"
 #include "voxfmt/runtime/query.h"
-#include "voxfmt/validate.h"
 #include "voxfmt/version.h"
 
 #include "common.h"

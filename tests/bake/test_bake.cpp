@@ -13,7 +13,7 @@
 #include "exact_surface.h"
 #include "stages.h"
 #include "vec3_math.h"
-#include "voxfmt/validate.h"
+#include "voxfmt/io.h"
 #include "winding_number.h"
 
 namespace voxfmt::bake {

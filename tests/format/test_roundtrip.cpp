@@ -8,7 +8,6 @@
 #include "analytic_sphere.h"
 #include "test_support.h"
 #include "voxfmt/io.h"
-#include "voxfmt/validate.h"
 
 namespace voxfmt {
 namespace {

@@ -8,7 +8,7 @@
 #include <thread>
 #include <vector>
 
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 
 TEST(Workers, EveryShareRunsOnceOnItsOwnThreadSideBySide) {
   for (unsigned workers : {1u, 2u, 3u, 8u}) {

@@ -9,7 +9,6 @@
 #include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
 #include "voxfmt/runtime/query.h"
-#include "voxfmt/validate.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::string path = voxfmt::fuzz::write_input_file(data, size, "-asset.vox.h5");

@@ -11,7 +11,7 @@
 
 #include "fuzz_input_file.h"
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/validate.h"
+#include "voxfmt/io.h"
 
 #ifndef VOXFMT_FUZZ_MESH_EXTENSION
 #error "define VOXFMT_FUZZ_MESH_EXTENSION, e.g. \".obj\""

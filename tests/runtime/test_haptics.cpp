@@ -11,7 +11,6 @@
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/haptics.h"
-#include "voxfmt/runtime/realtime_loop.h"
 
 namespace voxfmt::runtime {
 namespace {

@@ -15,7 +15,6 @@
 #include "baked_bunny.h"
 #include "core/batch.h"
 #include "core/eigen.h"
-#include "voxfmt/runtime/forces.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

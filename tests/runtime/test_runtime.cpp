@@ -12,7 +12,6 @@
 #include "baked_bunny.h"
 #include "exact_surface.h"
 #include "voxfmt/runtime/collision_object.h"
-#include "voxfmt/runtime/forces.h"
 #include "voxfmt/runtime/haptics.h"
 #include "voxfmt/runtime/query.h"
 

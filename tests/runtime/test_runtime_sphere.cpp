@@ -9,7 +9,6 @@
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/collision_object.h"
-#include "voxfmt/runtime/forces.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

@@ -10,9 +10,8 @@
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/collision_object.h"
-#include "voxfmt/runtime/forces.h"
+#include "voxfmt/runtime/haptics.h"
 #include "voxfmt/runtime/query.h"
-#include "voxfmt/runtime/realtime_loop.h"
 
 namespace voxfmt::runtime {
 namespace {

@@ -13,8 +13,8 @@
 #include <set>
 #include <stdexcept>
 
-#include "voxfmt/atomic_file.h"
-#include "voxfmt/issues.h"
+#include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt::cli {
 

@@ -37,7 +37,7 @@
 #include "commands.h"
 #include "json_report.h"
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/cores.h"
+#include "voxfmt/detail/cores.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 

@@ -6,9 +6,9 @@
 
 #include "commands.h"
 #include "json_report.h"
+#include "voxfmt/detail/report.h"
 #include "voxfmt/exports/exports.h"
 #include "voxfmt/io.h"
-#include "voxfmt/report.h"
 
 namespace voxfmt::cli {
 

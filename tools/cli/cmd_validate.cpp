@@ -5,7 +5,7 @@
 
 #include "commands.h"
 #include "json_report.h"
-#include "voxfmt/validate.h"
+#include "voxfmt/io.h"
 
 namespace voxfmt::cli {
 

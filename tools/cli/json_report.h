@@ -5,7 +5,7 @@
 
 #include <vector>
 
-#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt::cli {
 

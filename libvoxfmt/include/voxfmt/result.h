@@ -3,13 +3,94 @@
 // except the Bullet shapes' constructors (documented there).
 #pragma once
 
+#include <optional>
 #include <string>
 #include <utility>
 #include <variant>
-
-#include "voxfmt/issues.h"
+#include <vector>
 
 namespace voxfmt {
+
+// ---- Codes of findings and errors. Codes and severities are the stable contract of spec/issue-codes.md: validation
+// findings, and the errors of every library call (reading, writing, baking, exporting, batch runs).
+enum class IssueCode {
+  FileNotFound,
+  NotHdf5,
+  ReadFailed,
+  WriteFailed,
+  FormatNameMismatch,
+  VersionUnsupported,
+  VersionNewerMinor,
+  MissingObject,
+  WrongKind,
+  WrongDtype,
+  WrongShape,
+  BadAttributeValue,
+  ValueOutOfRange,
+  NonFiniteValue,
+  ChildRangeInvalid,
+  LevelOffsetsInvalid,
+  TreeNotBreadthFirst,
+  InvalidJson,
+  BadSha256,
+  NormalNotUnit,
+  UnknownObject,
+  LayerDistanceMismatch,
+  LayerOutsideBandTooSmall,
+  LayerStepTooLarge,
+  DistanceJump,
+  NormalNotInward,
+  SphereNotEnclosing,
+  InertiaNotPositiveDefinite,
+  CenterOfMassOutsideBounds,
+  DistanceOutsideBand,
+  EstimateMismatch,
+  SignMismatch,
+  StringNotUtf8,
+  LatticeMismatch,
+  // Errors of the bake, the exports and batch runs (never validation findings).
+  InputNotFound,
+  UnsupportedFormat,
+  ImportFailed,
+  RepairFailed,
+  EmptyScene,
+  NonFiniteCoordinates,
+  ZeroVolume,
+  GridTooLarge,
+  ScaleOutOfRange,
+  InvalidAsset,
+  OutOfMemory,
+  BadOption,
+  BadPose,
+  Timeout,
+  Crashed,
+  Internal,
+};
+
+enum class Severity { Error, Warning, Info };
+
+/// UPPER_SNAKE name of a code, as written in spec/issue-codes.md.
+const char* code_name(IssueCode code);
+/// The code of an UPPER_SNAKE name (as found in manifests and JSON reports), if it is one.
+std::optional<IssueCode> code_from_name(const std::string& name);
+const char* severity_name(Severity severity);
+/// The severity a code always has.
+Severity severity_of(IssueCode code);
+
+struct Issue {
+  IssueCode code;
+  Severity severity;
+  std::string path;  ///< HDF5 object path the finding concerns ("/" for the file itself)
+  std::string message;
+};
+
+inline bool has_errors(const std::vector<Issue>& issues) {
+  for (const Issue& issue : issues)
+    if (issue.severity == Severity::Error) return true;
+  return false;
+}
+
+// ---- The error model.
 
 /// What went wrong. `message` is a complete sentence for a person (it names the file and the reason);
 /// `code` is for programs (stable, spec/issue-codes.md); `file` and `object` locate it for tools.

@@ -37,7 +37,7 @@
 #include "static_mesh.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
-#include "voxfmt/runtime/contact_reduction.h"
+#include "voxfmt/runtime/detail/contact_reduction.h"
 
 namespace voxfmt::bullet {
 namespace {

@@ -6,7 +6,6 @@
 #include <cmath>
 
 #include "voxfmt/io.h"
-#include "voxfmt/validate.h"
 
 namespace voxfmt::runtime {
 namespace {

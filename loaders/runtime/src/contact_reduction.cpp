@@ -1,4 +1,4 @@
-#include "voxfmt/runtime/contact_reduction.h"
+#include "voxfmt/runtime/detail/contact_reduction.h"
 
 #include <Eigen/Geometry>
 

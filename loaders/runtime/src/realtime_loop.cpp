@@ -1,4 +1,4 @@
-#include "voxfmt/runtime/realtime_loop.h"
+#include "voxfmt/runtime/haptics.h"
 
 #include <algorithm>
 

@@ -1,4 +1,4 @@
-#include "voxfmt/runtime/sparse_voxelmap.h"
+#include "voxfmt/runtime/collision_object.h"
 
 #include <algorithm>
 #include <cmath>

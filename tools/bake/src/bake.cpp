@@ -23,7 +23,7 @@
 
 #include "stages.h"
 #include "vec3_math.h"
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 #include "winding_number.h"

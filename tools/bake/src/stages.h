@@ -13,7 +13,7 @@
 
 #include "voxfmt/asset.h"
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt::bake {
 

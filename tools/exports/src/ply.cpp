@@ -2,7 +2,7 @@
 #include <cstring>
 #include <string>
 
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/exports/exports.h"
 
 namespace voxfmt::exports {

@@ -1,6 +1,6 @@
-#include "voxfmt/exports/raster_image.h"
+#include "voxfmt/exports/exports.h"
 
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 
 #include <png.h>
 

@@ -8,8 +8,6 @@
 #include <limits>
 #include <vector>
 
-#include "voxfmt/exports/raster_image.h"
-
 namespace voxfmt::exports {
 
 namespace {

@@ -1,5 +1,5 @@
 // The voxelmap as OpenVDB grids, for tools that read .vdb (Houdini, Blender, vdb_view, OpenVDB's own tools).
-#include "voxfmt/atomic_file.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/exports/exports.h"
 
 #include <openvdb/openvdb.h>

@@ -4,6 +4,8 @@
 
 #include <Eigen/Core>
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -12,9 +14,102 @@
 #include "voxfmt/asset.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
-#include "voxfmt/runtime/sparse_voxelmap.h"
 
 namespace voxfmt::runtime {
+
+// ---- The runtime's view of an asset's voxelmap (spec §3): the file's own arrays, read as they are. Value bricks
+// (8x8x8 voxels near the surface) hold a 16-bit code per voxel — a stored distance in fixed point, or the coarse
+// estimate of a voxel without one, the lowest bit saying which — so a lookup near the surface is one brick-table
+// entry and one cache line, decoded without a branch. Every other brick is one table entry whose voxels are
+// interpolated from the lattice of unsigned distances at the brick corners. Memory follows the surface.
+
+namespace core {
+struct Field;
+}
+
+/// What the field says at a point, in voxel units of the map (multiply by voxel_size for metres).
+struct FieldSample {
+  float distance = 0.0f;  ///< signed distance estimate, negative inside
+  bool exact = false;     ///< true: trilinear interpolation of stored distances; false: estimates or bounds
+  bool bound = false;     ///< only a lower bound: outside the grid (the distance to the object's bounding box)
+};
+
+class SparseVoxelmap {
+ public:
+  SparseVoxelmap() = default;
+  /// Takes over the voxelmap's arrays (validated asset). `bounds_min/max` is the object's bounding box (asset
+  /// frame); points outside the grid get their distance bound from it.
+  static SparseVoxelmap from_voxelmap(voxfmt::Voxelmap voxelmap, const voxfmt::Vec3& bounds_min,
+                                      const voxfmt::Vec3& bounds_max);
+
+  /// Grid coordinates (voxel centres at integers) of a point given in the asset frame.
+  Eigen::Vector3f to_grid(const Eigen::Vector3d& asset_point) const {
+    return ((asset_point - origin_) / voxel_size_).cast<float>();
+  }
+  /// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values
+  /// (stored distances, or estimates where none is stored). Outside the grid: the distance to the object's
+  /// bounding box. If `gradient` is given it receives the direction of increasing distance (grid axes = asset
+  /// axes, not normalised; zero where the field is flat).
+  FieldSample sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient = nullptr) const;
+  /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
+  float distance_lower_bound(const Eigen::Vector3f& u) const;
+
+  /// Layer of voxel (i, j, k): floor(-d + 1/2) of its value d in voxels (spec §3), for tests and inspection.
+  int layer_at(int i, int j, int k) const;
+  /// Stored distance of voxel (i, j, k) in voxel units, or NaN where the asset stores none.
+  float stored_distance_at(int i, int j, int k) const;
+  /// Value of voxel (i, j, k) in voxel units: its stored distance or its estimate.
+  float value_at(int i, int j, int k) const;
+
+  double voxel_size() const { return voxel_size_; }
+  const Eigen::Vector3d& origin() const { return origin_; }
+  const std::array<int, 3>& dims() const { return dims_; }
+  bool empty() const { return bricks_.empty(); }
+  /// Heap bytes held (what the map costs in RAM).
+  size_t memory_bytes() const;
+  size_t brick_count() const { return bricks_.size(); }
+  /// Bricks with a code per voxel (those near the surface); the others are read from the lattice.
+  size_t value_brick_count() const { return codes_.size() / kBrickVoxels; }
+  /// How far an estimate m (voxels; a voxel without a stored distance) may be from the exact distance u:
+  /// u <= m + estimate_slack() and u >= (m - estimate_offset()) / (1 + estimate_relative()) - estimate_slack().
+  float estimate_slack() const { return estimate_slack_; }
+  float estimate_offset() const { return estimate_offset_; }
+  float estimate_relative() const { return 1.0f / estimate_shrink_ - 1.0f; }
+
+  static constexpr int kBrickEdge = int(voxfmt::Voxelmap::kBrickEdge);
+  static constexpr int kBrickVoxels = int(voxfmt::Voxelmap::kBrickVoxels);
+
+ private:
+  /// The query core's view of this map (core/field.h): its arrays and the numbers that decode them. The lookups
+  /// themselves live there, shared by this class, the traversal and the CUDA kernels.
+  friend core::Field field_of(const SparseVoxelmap& map);
+
+  Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
+  double voxel_size_ = 1.0;
+  std::array<int, 3> dims_{};
+  std::array<int, 3> brick_dims_{};
+  std::array<int, 3> lattice_dims_{};
+  float decode_step_[2] = {1.0f, 1.0f};  ///< a code's multiplier by its lowest bit: estimate, stored distance
+  float stored_slack_ = 0.0f;            ///< how far a decoded stored distance may be from the file's exact one
+  // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack, with
+  // slack the interpolation's reach (4 sqrt(3)) and half an estimate step, offset the lattice's absolute error and
+  // shrink 1 / (1 + its relative error).
+  float estimate_slack_ = 0.0f;
+  float estimate_offset_ = 0.0f;
+  float estimate_shrink_ = 1.0f;
+  float band_edge_ = 0.0f;  ///< distance_band - 1/2: voxels without a stored distance are at least this far
+  Eigen::Vector3f cover_max_ = -Eigen::Vector3f::Ones();  ///< upper end of the grid's voxels, grid coordinates
+  Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
+  Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
+  std::vector<int32_t> bricks_;  ///< the brick table (>= 0: value brick; -1 / -2: coarse outside / inside)
+  std::vector<int16_t> codes_;   ///< value bricks, 512 codes each
+  /// Unsigned distances at the lattice points in steps of lattice_step_ voxels (16 bits: half a float's memory; the
+  /// far field needs no more, and the step's half is in estimate_slack_).
+  std::vector<uint16_t> lattice_;
+  float lattice_step_ = 1.0f / 16;
+};
+
+// ---- The loaded object.
 
 /// The point-sphere tree of spec §4 in single precision, breadth-first: node n is point n, its children are
 /// [nodes[n].first_child, nodes[n].first_child + nodes[n].child_count), level l is

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "voxfmt/asset.h"
-#include "voxfmt/issues.h"
+#include "voxfmt/result.h"
 
 namespace voxfmt {
 
