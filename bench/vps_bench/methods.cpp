@@ -76,7 +76,7 @@ class BulletMethod : public Method {
     vps_->settings().coherent = coherent;
     // A detection benchmark: a cut level's points stand for their spheres, so vps-coarse finds every contact
     // the full tree finds (dynamics use the level's points, CollisionSettings::cut_level).
-    vps_->settings().cut_level = cut_level;
+    vps_->settings().query.cut_level = cut_level;
     btGImpactCollisionAlgorithm::registerAlgorithm(dispatcher_.get());
     a_.setCollisionShape(a_shape_.get());
     b_.setCollisionShape(b_shape_.get());

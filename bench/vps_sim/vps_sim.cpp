@@ -265,8 +265,8 @@ RunResult run(const Scene& scene, const std::string& method, const Options& opti
   voxfmt::bullet::CollisionSettings settings;
   if (method == "vps-budget") settings.step_time_budget_us = budget_us;
 
-  if (options.cut_level == "points") settings.cut_level = voxfmt::runtime::CutLevel::Points;
-  if (options.cut_level == "spheres") settings.cut_level = voxfmt::runtime::CutLevel::Spheres;
+  if (options.cut_level == "points") settings.query.cut_level = voxfmt::runtime::CutLevel::Points;
+  if (options.cut_level == "spheres") settings.query.cut_level = voxfmt::runtime::CutLevel::Spheres;
   voxfmt::bullet::World world(settings, factory.is_vps());
   btGImpactCollisionAlgorithm::registerAlgorithm(&world.dispatcher());
   world.dynamics().setGravity(btVector3(0, btScalar(-kGravity), 0));

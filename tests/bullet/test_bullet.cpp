@@ -129,7 +129,7 @@ DropOutcome coarse_bunny_drop(runtime::CutLevel cut_level, uint32_t max_level, d
                               bool coherent = true) {
   const Bunny& bunny = Bunny::get();
   CollisionSettings settings;
-  settings.cut_level = cut_level;
+  settings.query.cut_level = cut_level;
   settings.step_time_budget_us = step_budget_us;
   settings.coherent = coherent;
   World world(settings);

@@ -657,11 +657,9 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
                                       const btCollisionObjectWrapper* b_wrap, const btDispatcherInfo& info,
                                       const btManifoldResult& result) const {
     const CollisionSettings& settings = shared_->settings;
-    runtime::QueryOptions options;
-    options.normal_source = settings.normal_source;
-    options.cut_level = settings.cut_level;
+    runtime::QueryOptions options = settings.query;
     options.proximity =
-        std::max({settings.proximity, double(result.m_closestPointDistanceThreshold), a_shape.proximity()});
+        std::max({settings.query.proximity, double(result.m_closestPointDistanceThreshold), a_shape.proximity()});
     if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
       options.proximity =
           std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
@@ -828,8 +826,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const btCollisionShape& b = *b_wrap->getCollisionShape();
     const btTransform& tb = b_wrap->getWorldTransform();
     bool cut = false;
-    options.point_budget = a.point_budget();
-    options.max_level = max_level(a, options, cut);
+    limit_to(a, options, cut);
     if (b.getShapeType() == VpsShape::kShapeType) {
       collide_vps(a, pose_a, static_cast<const VpsShape&>(b), tb, options, cut, contacts, scratch, state);
       return cut;
@@ -847,18 +844,22 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     return cut;
   }
 
-  // A shell's deepest level: its shape's own limit, or else the step budget's cap, which always leaves the levels
-  // within step_budget_min_points (then `cut`).
-  uint32_t max_level(const VpsShape& shell, runtime::QueryOptions& options, bool& cut) const {
-    options.min_points = 0;
-    if (shell.max_level() != std::numeric_limits<uint32_t>::max() ||
-        shell.point_budget() != std::numeric_limits<size_t>::max())
-      return shell.max_level();
-    const uint32_t cap = shared_->level_cap(shell.object().point_tree());
-    if (cap == std::numeric_limits<uint32_t>::max()) return cap;
-    cut = true;
-    options.min_points = shared_->settings.step_budget_min_points;
-    return cap;
+  // A shell's limits: the settings' query's, and on top its shape's own or else the step budget's level cap, which
+  // always leaves the levels within step_budget_min_points (then `cut`). The tighter limit wins.
+  void limit_to(const VpsShape& shell, runtime::QueryOptions& options, bool& cut) const {
+    const runtime::QueryOptions& query = shared_->settings.query;
+    options.point_budget = std::min(query.point_budget, shell.point_budget());
+    options.min_points = query.min_points;
+    uint32_t level = shell.max_level();
+    if (shell.max_level() == std::numeric_limits<uint32_t>::max() &&
+        shell.point_budget() == std::numeric_limits<size_t>::max()) {
+      level = shared_->level_cap(shell.object().point_tree());
+      if (level != std::numeric_limits<uint32_t>::max()) {
+        cut = true;
+        options.min_points = std::max(options.min_points, shared_->settings.step_budget_min_points);
+      }
+    }
+    options.max_level = std::min(query.max_level, level);
   }
 
   // Two VPS bodies: the direction the settings ask (Auto: the runtime's choice), each way with its shell's limits.
@@ -868,15 +869,14 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const runtime::Pose pose_b = b.asset_pose(tb);
     const bool a_in_b = a.uses_points() && b.uses_voxelmap();
     const bool b_in_a = b.uses_points() && a.uses_voxelmap();
-    runtime::QueryDirection direction = shared_->settings.direction;
+    runtime::QueryDirection direction = shared_->settings.query.direction;
     if (direction == runtime::QueryDirection::Auto)
       direction = a_in_b && b_in_a
                       ? runtime::resolve_direction(a.object(), pose_a, b.object(), pose_b, direction)
                       : (a_in_b ? runtime::QueryDirection::APointsInB : runtime::QueryDirection::BPointsInA);
     auto query = [&](runtime::QueryDirection way, const VpsShape& shell) {
       options.direction = way;
-      options.point_budget = shell.point_budget();
-      options.max_level = max_level(shell, options, cut);
+      limit_to(shell, options, cut);
       if (state)
         runtime::query_contacts(a.object(), pose_a, b.object(), pose_b, options, contacts, scratch, *state);
       else
@@ -973,6 +973,13 @@ class Registration : public VpsCollisionRegistration {
 };
 
 }  // namespace
+
+runtime::QueryOptions physics_query_defaults() {
+  runtime::QueryOptions query;
+  query.normal_source = runtime::NormalSource::DistanceGradient;
+  query.cut_level = runtime::CutLevel::Points;
+  return query;
+}
 
 std::unique_ptr<VpsCollisionRegistration> register_vps_collision(btCollisionDispatcher& dispatcher,
                                                                  const CollisionSettings& settings) {

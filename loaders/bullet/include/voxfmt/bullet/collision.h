@@ -27,27 +27,36 @@
 
 namespace voxfmt::bullet {
 
+/// The query a pair test runs unless CollisionSettings::query says otherwise: the runtime's defaults but for two,
+/// each for a physics engine's sake. Normals from the partner's distance gradient (the true separating direction:
+/// the solver pushes along the partner's surface normal, where a point's own normal would push sideways on a slope
+/// of the partner); the classical VPS normals stay the runtime's default for haptic forces and the batched query,
+/// which carry no gradient. A cut level reports the level's own points with their true depths, not spheres
+/// (CollisionSettings::query, cut_level).
+runtime::QueryOptions physics_query_defaults();
+
 struct CollisionSettings {
-  /// Which object's points go against which voxelmap in a VPS-VPS pair (Auto: the smaller object's points).
-  runtime::QueryDirection direction = runtime::QueryDirection::Auto;
-  /// Contact normals: the partner's distance gradient (default; the true separating direction) or the
-  /// points' own normals (classical VPS).
-  runtime::NormalSource normal_source = runtime::NormalSource::DistanceGradient;
-  /// Points closer than this (metres) become speculative contacts with positive distance, so the solver
-  /// slows an approaching body before it penetrates. 0 = penetrating points only.
-  double proximity = 0.0;
+  /// The query of every pair test (runtime::QueryOptions), held whole rather than copied field by field:
+  /// - direction: which object's points go against which voxelmap in a VPS-VPS pair (Auto: the smaller object's).
+  /// - normal_source: DistanceGradient here (physics_query_defaults says why), PointShell for classical VPS.
+  /// - proximity: points closer than this (metres) become speculative contacts with positive distance, so the
+  ///   solver slows an approaching body before it penetrates. 0 = penetrating points only. A pair uses the largest
+  ///   of this, Bullet's closest-point threshold, either shape's own and the speculative distance of the step.
+  /// - cut_level: what the last level of a shell cut above its leaves (VpsShape::set_max_level, set_point_budget,
+  ///   the step budget, or max_level / point_budget here) reports. Points (default here): the level's own surface
+  ///   points, with their true depths: a coarse body rests a little deeper between its points but never deeper
+  ///   than its surface is. Spheres: each point stands for its sphere, up to two sphere radii deeper than the
+  ///   surface; the solver turns that extra depth into energy (a coarse bunny dropped on a bunny was thrown off at
+  ///   51 m/s), so use it for detection, not for dynamics.
+  /// - max_level, point_budget, time_budget_us, min_points: limits of every shell's traversal; a shape's own
+  ///   limits (VpsShape::set_max_level, set_point_budget) and the step budget apply on top (the tighter wins).
+  runtime::QueryOptions query = physics_query_defaults();
   /// Speculative contacts against tunnelling: during a dynamics step, points as close as the pair can come in
   /// that step (relative speed plus spin times radius, times the step) become contacts with a positive
   /// distance, which Bullet's solver lets close only that gap. A body at 10 m/s at 1 kHz stays in front of a
-  /// 2-voxel wall. Off: only `proximity` applies, and a fast body can pass through a wall thinner than its
+  /// 2-voxel wall. Off: only `query.proximity` applies, and a fast body can pass through a wall thinner than its
   /// motion in one step.
   bool speculative_contacts = true;
-  /// What the last level of a shape cut above its leaves (VpsShape::set_max_level, set_point_budget) reports.
-  /// Points (default): the level's own surface points, with their true depths: a coarse body rests a little
-  /// deeper between its points but never deeper than its surface is. Spheres: each point stands for its sphere,
-  /// up to two sphere radii deeper than the surface; the solver turns that extra depth into energy (a coarse
-  /// bunny dropped on a bunny was thrown off at 51 m/s), so use it for detection, not for dynamics.
-  runtime::CutLevel cut_level = runtime::CutLevel::Points;
   /// Contacts handed to Bullet's persistent manifold per pair, region and step (at most 4, Bullet keeps 4).
   size_t manifold_points = 4;
   /// Contact regions per pair (1-4), each with a persistent manifold of its own: a pair touching in several
@@ -59,7 +68,7 @@ struct CollisionSettings {
   /// Time budget of one step's VPS pair tests together, microseconds (0 = none): a frame rate the narrow phase
   /// keeps whatever piles up. It moves a level cap shared by every shell, as a haptic loop's does: after a step
   /// whose pair tests took longer, every shell is tested one tree level less deep; after 50 steps under half the
-  /// budget, one level deeper again, up to the leaves. A cap reports its level as `cut_level` says (Points, the
+  /// budget, one level deeper again, up to the leaves. A cap reports its level as `query.cut_level` says (Points, the
   /// default: the level's own points at their true depths, so a cut body never reports a contact deeper than its
   /// surface and a moving cap never adds depth the surface does not have), and holds for many steps, so a body
   /// rests on a fixed set of points. Within the budget the pairs are full and coherent; a step may overrun by what
