@@ -1091,13 +1091,8 @@ TEST(Bake, PartsThinnerThanAVoxelSaySoAndBakeAsAShell) {
   TriangleMesh shelf;
   for (int i = 0; i < 4; ++i) append_box(shelf, {0.3 * i, 0.5, 0.15}, {0.0005, 0.5, 0.15});
   for (int j = 0; j < 4; ++j) append_box(shelf, {0.45, 0.02 + 0.3 * j, 0.15}, {0.47, 0.0005, 0.14});
-  const std::string path = (std::filesystem::temp_directory_path() / "voxfmt-thin-shelf.off").string();
-  {
-    std::ofstream off(path);
-    off << "OFF\n" << shelf.vertices.size() << " " << shelf.triangles.size() << " 0\n";
-    for (const Vec3& v : shelf.vertices) off << v[0] << " " << v[1] << " " << v[2] << "\n";
-    for (const auto& t : shelf.triangles) off << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
-  }
+  const std::string path =
+      write_off((std::filesystem::temp_directory_path() / "voxfmt-thin-shelf.off").string(), shelf);
   Settings options;
   options.voxelmap.resolution = 128;
   options.point_shell.points = 2000;
@@ -1137,14 +1132,10 @@ TEST(Bake, SliverTetrahedraGetConsistentSigns) {
                     2 * (x * y + w * z) * v[0] + (1 - 2 * (x * x + z * z)) * v[1] + 2 * (y * z - w * x) * v[2],
                     2 * (x * z - w * y) * v[0] + 2 * (y * z + w * x) * v[1] + (1 - 2 * (x * x + y * y)) * v[2]};
       };
-      const Vec3 corners[4] = {turned({0, 0, 0}), turned({1, 0, 0}), turned({0, apex, 0}), turned({0, 0, 1})};
-      {
-        std::ofstream off(path);
-        off.precision(17);
-        off << "OFF\n4 4 0\n";
-        for (const Vec3& v : corners) off << v[0] << " " << v[1] << " " << v[2] << "\n";
-        off << "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
-      }
+      TriangleMesh sliver;
+      sliver.vertices = {turned({0, 0, 0}), turned({1, 0, 0}), turned({0, apex, 0}), turned({0, 0, 1})};
+      sliver.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+      write_off(path, sliver);
       Settings options;
       options.voxelmap.resolution = 24;
       options.point_shell.points = 300;

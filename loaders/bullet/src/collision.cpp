@@ -659,7 +659,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     const CollisionSettings& settings = shared_->settings;
     runtime::QueryOptions options = settings.query;
     options.proximity =
-        std::max({settings.query.proximity, double(result.m_closestPointDistanceThreshold), a_shape.proximity()});
+        std::max({options.proximity, double(result.m_closestPointDistanceThreshold), a_shape.proximity()});
     if (b_wrap->getCollisionShape()->getShapeType() == VpsShape::kShapeType)
       options.proximity =
           std::max(options.proximity, static_cast<const VpsShape*>(b_wrap->getCollisionShape())->proximity());
