@@ -48,10 +48,10 @@ TEST(BulletSphere, RestsOnAStaticVpsSphereWithoutSinking) {
 }
 
 TEST(BulletSphere, TheSettingsQueryLimitsEveryShellAndItsDefaultsAreForPhysics) {
-  // The physics defaults differ from the runtime's in the two ways physics_query_defaults says, and nowhere else.
+  // The physics defaults differ from the runtime's in the one way physics_query_defaults says, and nowhere else.
   const runtime::QueryOptions runtime_defaults, physics = CollisionSettings{}.query;
-  EXPECT_EQ(runtime_defaults.normal_source, runtime::NormalSource::PointShell);
-  EXPECT_EQ(physics.normal_source, runtime::NormalSource::DistanceGradient);
+  EXPECT_EQ(runtime_defaults.normal_source, runtime::NormalSource::DistanceGradient);
+  EXPECT_EQ(physics.normal_source, runtime_defaults.normal_source);
   EXPECT_EQ(physics.cut_level, runtime::CutLevel::Points);
   EXPECT_EQ(physics.direction, runtime_defaults.direction);
   EXPECT_EQ(physics.max_level, runtime_defaults.max_level);

@@ -66,13 +66,16 @@ TEST(QueryCore, BatchEnvironmentFindsTheRuntimesContactsAndWrench) {
     // Half of the poses overlap deeply (coarse bricks and estimates), half graze (the band).
     const Pose pa = random_pose(rng, 0.0), pb = random_pose(rng, k % 2 ? 0.05 : 0.14);
     for (const double proximity : {0.0, 0.003}) {
+      // Both normal sources, in turn: the core computes the runtime's normals and the wrench they give.
+      const bool gradient = (k + int(proximity > 0)) % 2 == 0;
       QueryOptions options;
       options.proximity = proximity;
+      options.normal_source = gradient ? NormalSource::DistanceGradient : NormalSource::PointShell;
       ContactSet set;
       query_contacts(object, pa, object, pb, options, set, scratch);
       const Wrench w = penalty_wrench(set, pa.apply(object.center_of_mass()), 2e4);
       core::EnvResult r;
-      core::env_contacts(body, core::to_core(pa), body, core::to_core(pb), proximity, 2e4, buffer, r);
+      core::env_contacts(body, core::to_core(pa), body, core::to_core(pb), proximity, 2e4, gradient, buffer, r);
       ASSERT_EQ(r.error, 0);
       ASSERT_EQ(r.count, set.contacts.size()) << "pose " << k;
       ASSERT_EQ(r.overflow, 0u);
@@ -123,7 +126,7 @@ TEST(QueryCore, AFullBufferCountsWhatDidNotFit) {
     core::ContactArrays out;
     out.depths = depths.data();
     out.capacity = capacity;
-    core::env_contacts(body, here, body, near, 0.0, 1.0, out, r);
+    core::env_contacts(body, here, body, near, 0.0, 1.0, true, out, r);
   };
   std::vector<float> all_depths, few_depths;
   core::EnvResult all, capped;

@@ -976,7 +976,6 @@ class Registration : public VpsCollisionRegistration {
 
 runtime::QueryOptions physics_query_defaults() {
   runtime::QueryOptions query;
-  query.normal_source = runtime::NormalSource::DistanceGradient;
   query.cut_level = runtime::CutLevel::Points;
   return query;
 }

@@ -63,25 +63,25 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
     for (int c = 0; c < 3; ++c) Mf(r, c) = frame.to_grid.M[3 * r + c];
   const Eigen::Vector3f mf = core::to_eigen(frame.to_grid.m);
 
+  // Normals as the batched core computes them (one definition: core::contact_normal).
+  const core::Field core_field = field_of(map);
+  const core::Shell core_shell = core::shell_of(tree);
+  const core::RigidPose core_shell_pose = core::to_core(shell_pose), core_field_pose = core::to_core(field_pose);
+  const bool gradient_normals = options.normal_source == NormalSource::DistanceGradient;
   auto emit = [&](uint32_t node, float d, bool exact) {
     Contact contact;
     contact.point = shell_pose.apply(tree.points[node].cast<double>());
-    Eigen::Vector3d normal = Eigen::Vector3d::Zero();
-    if (options.normal_source == NormalSource::DistanceGradient) {
-      Eigen::Vector3f gradient;
-      map.sample(Mf * tree.points[node] + mf, &gradient);
-      if (gradient.squaredNorm() > 0.0f) normal = field_pose.rotation * gradient.cast<double>().normalized();
-    }
-    if (normal.squaredNorm() == 0.0)  // classical VPS, or a flat field
-      normal = (shell_pose.rotation * tree.normals[node].cast<double>()).normalized();
-    contact.normal = sign * normal;
+    double normal[3];
+    core::contact_normal(core_field, frame, core_field_pose, core_shell, core_shell_pose, node, gradient_normals,
+                         normal);
+    contact.normal = sign * Eigen::Vector3d(normal[0], normal[1], normal[2]);
     contact.depth = -double(d) * metres_per_unit;
     contact.point_index = node;
     contact.point_of_b = shell_is_b;
     contact.exact = exact;
     out.contacts.push_back(contact);
   };
-  const VoxelmapTarget target{field_of(map)};
+  const VoxelmapTarget target{core_field};
   const bool allowed = front && detail::coherent_query_allowed(options);
   if (allowed && front->state().take_turn(Mf, mf, tree.extent)) {
     // The voxelmap is fixed in its own grid: displacements are measured there too.

@@ -63,10 +63,39 @@ VOXFMT_HD bool b_points_in_a(const Body& a, const RigidPose& pa, const Body& b, 
   return false;
 }
 
+/// A contact's normal (world, unit, before the direction's sign): the partner field's gradient at the point,
+/// rotated by the field's pose (NormalSource::DistanceGradient; the runtime's query computes the same, in the same
+/// order), or, where the field is flat or `gradient` is false, the point's own normal (NormalSource::PointShell).
+VOXFMT_HD void contact_normal(const Field& field, const Frame& frame, const RigidPose& field_pose, const Shell& shell,
+                              const RigidPose& shell_pose, uint32_t node, bool gradient, double normal[3]) {
+  if (gradient) {
+    Vec3 g = make_vec3(0, 0, 0);
+    sample(field, frame.to_grid.apply(shell.points[node]), &g);
+    if (g.x * g.x + g.y * g.y + g.z * g.z > 0.0f) {
+      const double gd[3] = {double(g.x), double(g.y), double(g.z)};
+      const double length = sqrt_d(gd[0] * gd[0] + gd[1] * gd[1] + gd[2] * gd[2]);
+      const double unit[3] = {gd[0] / length, gd[1] / length, gd[2] / length};
+      for (int r = 0; r < 3; ++r)
+        normal[r] =
+            field_pose.R[3 * r] * unit[0] + field_pose.R[3 * r + 1] * unit[1] + field_pose.R[3 * r + 2] * unit[2];
+      return;
+    }
+  }
+  const Vec3& n = shell.normals[node];
+  for (int r = 0; r < 3; ++r)
+    normal[r] = shell_pose.R[3 * r] * n.x + shell_pose.R[3 * r + 1] * n.y + shell_pose.R[3 * r + 2] * n.z;
+  const double length = sqrt_d(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
+  for (int r = 0; r < 3; ++r) normal[r] = length > 0 ? normal[r] / length : 0.0;
+}
+
 /// Adds each contact of one direction to `result` (and `out`, while it has room).
 struct ContactSink {
   const Shell& shell;
   const RigidPose& shell_pose;
+  const Field& field;
+  const Frame& frame;
+  const RigidPose& field_pose;
+  bool gradient_normals;
   double sign;  ///< +1: A's points (normals as they are); -1: B's points (A must move the other way)
   double metres_per_unit;
   double stiffness;
@@ -81,12 +110,9 @@ struct ContactSink {
     const float xs[3] = {x.x, x.y, x.z};
     double point[3];
     apply_pose(shell_pose, xs, point);
-    const Vec3& n = shell.normals[node];
     double normal[3];
-    for (int r = 0; r < 3; ++r)
-      normal[r] = shell_pose.R[3 * r] * n.x + shell_pose.R[3 * r + 1] * n.y + shell_pose.R[3 * r + 2] * n.z;
-    const double length = sqrt_d(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
-    for (int r = 0; r < 3; ++r) normal[r] = length > 0 ? sign * normal[r] / length : 0.0;
+    contact_normal(field, frame, field_pose, shell, shell_pose, node, gradient_normals, normal);
+    for (int r = 0; r < 3; ++r) normal[r] *= sign;
     const double depth = -double(distance) * metres_per_unit;
     if (depth > 0) {
       const double f[3] = {stiffness * depth * normal[0], stiffness * depth * normal[1], stiffness * depth * normal[2]};
@@ -114,9 +140,9 @@ struct ContactSink {
 };
 
 /// The contacts of A at `pa` against B at `pb` (proximity in metres; 0: penetrating points only), reduced into
-/// `result`; the first `out.capacity` written to `out`.
+/// `result`; the first `out.capacity` written to `out`. Normals as contact_normal says (`gradient_normals`).
 VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb, double proximity,
-                            double stiffness, const ContactArrays& out, EnvResult& result) {
+                            double stiffness, bool gradient_normals, const ContactArrays& out, EnvResult& result) {
   result = EnvResult{};
   // The wrench's reference: A's centre of mass in the world.
   double reference[3];
@@ -132,6 +158,10 @@ VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, c
   const Frame frame = frame_of(shell_pose, field_pose, field_body.origin, field_body.voxel_size, proximity);
   ContactSink sink{shell_body.shell,
                    shell_pose,
+                   field_body.field,
+                   frame,
+                   field_pose,
+                   gradient_normals,
                    b_in_a ? -1.0 : 1.0,
                    frame.metres_per_unit,
                    stiffness,
@@ -165,6 +195,9 @@ struct BatchInputs {
   size_t environments = 0;
   double proximity = 0;
   double stiffness = 1;
+  /// Normals from the partner's distance gradient (the runtime's default, QueryOptions::normal_source), else the
+  /// points' own.
+  bool gradient_normals = true;
 };
 
 /// Per-environment outputs (any may be null but count): the reductions, and `contacts` (its arrays sized
@@ -199,7 +232,8 @@ VOXFMT_HD void run_environment(const BatchInputs<T>& in, const BatchOutputs& out
     if (at.depths) at.depths += first;
     if (at.point_index) at.point_index += first;
     if (at.point_of_b) at.point_of_b += first;
-    env_contacts(in.bodies[in.pair_a[pair]], pa, in.bodies[in.pair_b[pair]], pb, in.proximity, in.stiffness, at, r);
+    env_contacts(in.bodies[in.pair_a[pair]], pa, in.bodies[in.pair_b[pair]], pb, in.proximity, in.stiffness,
+                 in.gradient_normals, at, r);
   }
   out.count[e] = int32_t(r.count);
   if (out.max_depth) out.max_depth[e] = r.max_depth;

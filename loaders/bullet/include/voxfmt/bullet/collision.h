@@ -27,18 +27,17 @@
 
 namespace voxfmt::bullet {
 
-/// The query a pair test runs unless CollisionSettings::query says otherwise: the runtime's defaults but for two,
-/// each for a physics engine's sake. Normals from the partner's distance gradient (the true separating direction:
-/// the solver pushes along the partner's surface normal, where a point's own normal would push sideways on a slope
-/// of the partner); the classical VPS normals stay the runtime's default for haptic forces and the batched query,
-/// which carry no gradient. A cut level reports the level's own points with their true depths, not spheres
-/// (CollisionSettings::query, cut_level).
+/// The query a pair test runs unless CollisionSettings::query says otherwise: the runtime's defaults but for one,
+/// for a physics engine's sake: a cut level reports the level's own points with their true depths, not spheres
+/// (CollisionSettings::query, cut_level). Normals are the runtime's default, the partner's distance gradient
+/// (runtime::NormalSource says why).
 runtime::QueryOptions physics_query_defaults();
 
 struct CollisionSettings {
   /// The query of every pair test (runtime::QueryOptions), held whole rather than copied field by field:
   /// - direction: which object's points go against which voxelmap in a VPS-VPS pair (Auto: the smaller object's).
-  /// - normal_source: DistanceGradient here (physics_query_defaults says why), PointShell for classical VPS.
+  /// - normal_source: DistanceGradient (the runtime's default; runtime::NormalSource says why), PointShell for
+  ///   classical VPS.
   /// - proximity: points closer than this (metres) become speculative contacts with positive distance, so the
   ///   solver slows an approaching body before it penetrates. 0 = penetrating points only. A pair uses the largest
   ///   of this, Bullet's closest-point threshold, either shape's own and the speculative distance of the step.

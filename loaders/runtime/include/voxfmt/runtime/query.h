@@ -34,7 +34,11 @@ enum class QueryDirection {
                ///< fewer points, then the lower position: the same choice whichever object is A
 };
 
-/// Where a contact's normal comes from.
+/// Where a contact's normal comes from. DistanceGradient is the default everywhere (the runtime's query, the
+/// Bullet pair tests, the batched query on CPU and GPU): the partner's field gradient is its surface normal, the
+/// direction that separates the pair, where a point's own normal pushes sideways on a slope of the partner and
+/// flips across a thin part. Flat fields fall back to the point's normal. PointShell is classical VPS: the
+/// haptic renderer uses it (its forces sum the tool's own normals, as the paper's).
 enum class NormalSource {
   PointShell,        ///< the point's own inward normal (classical VPS)
   DistanceGradient,  ///< gradient of the other object's distance field (the true separating direction)
@@ -55,7 +59,7 @@ enum class CutLevel {
 
 struct QueryOptions {
   QueryDirection direction = QueryDirection::Auto;
-  NormalSource normal_source = NormalSource::PointShell;
+  NormalSource normal_source = NormalSource::DistanceGradient;
   /// Also report points that are outside the other object but closer than this (metres); their depth is
   /// negative. 0 reports penetrating points only.
   double proximity = 0.0;
