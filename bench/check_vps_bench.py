@@ -33,8 +33,8 @@ fields = ("p50_us", "p90_us", "p99_us", "p999_us", "max_us", "cold_p50_us", "con
 voxel = 0.14 / 306  # the tori's voxel, at resolution 306 over 0.14 m
 for scenario in report["scenarios"]:
     methods = {m["name"]: m for m in scenario["methods"]}
-    check(set(methods) == {"vps-fine", "vps-coarse", "vps-fine-prox", "vps-fine-baked-floor", "gimpact", "hacd", "hull",
-                           "fcl"}, f"{scenario['name']}: methods {sorted(methods)}")
+    check(set(methods) == {"vps-fine", "vps-fine-scalar", "vps-coarse", "vps-fine-prox", "vps-fine-baked-floor",
+                           "gimpact", "hacd", "hull", "fcl"}, f"{scenario['name']}: methods {sorted(methods)}")
     for name, m in methods.items():
         if "unavailable" in m:
             check(name == "hacd" or (name == "vps-fine-baked-floor" and scenario["name"] != "bunny-static-mesh"),
@@ -44,6 +44,10 @@ for scenario in report["scenarios"]:
             check(field in m, f"{scenario['name']}/{name}: no {field}")
         check(m["p50_us"] > 0 and m["p50_us"] <= m["p99_us"] <= m["max_us"], f"{scenario['name']}/{name}: percentiles")
     fine, coarse = methods["vps-fine"], methods["vps-coarse"]
+    # The scalar lower-bound kernel and the SIMD one the runtime picks prune alike: the same work, the same contacts.
+    scalar = methods["vps-fine-scalar"]
+    for field in ("contacts_mean", "nodes_visited_mean", "points_tested_mean", "touching_share"):
+        check(scalar[field] == fine[field], f"{scenario['name']}: vps-fine-scalar {field} {scalar[field]} != {fine[field]}")
     if scenario["name"] in ("tori-stacked", "tori-linked"):
         check(fine["touching_share"] == 1.0, f"{scenario['name']}: vps-fine misses contact on some poses")
         check(fine["depth_err_max_m"] <= 0.1 * voxel,

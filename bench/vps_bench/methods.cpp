@@ -14,6 +14,7 @@
 
 #include "../common/hacd_cache.h"
 #include "../common/reduced_hull.h"
+#include "core/field_simd.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
@@ -228,6 +229,26 @@ std::unique_ptr<Method> vps_method(const std::string& name, const Scenario& s, c
   return std::make_unique<BulletMethod>(a, b, vps_note(*a) + (coherent ? ", coherent" : ""), coherent);
 }
 
+/// vps-fine with the scalar lower-bound kernel (the runtime picks AVX2 where the CPU has it): the SIMD kernel's
+/// gain, measured on the same poses (with --interleave, query by query).
+class ScalarLookups : public Method {
+ public:
+  explicit ScalarLookups(std::unique_ptr<Method> inner) : inner_(std::move(inner)) {}
+  void query(const PosePair& pose) override {
+    namespace core = voxfmt::runtime::core;
+    const core::SimdKernel chosen = core::simd_kernel();
+    core::use_simd_kernel(core::SimdKernel::Scalar);
+    inner_->query(pose);
+    core::use_simd_kernel(chosen);
+  }
+  QueryOutcome outcome() override { return inner_->outcome(); }
+  std::string note() const override { return inner_->note() + ", scalar lookups"; }
+  void keep_state(bool keep) override { inner_->keep_state(keep); }
+
+ private:
+  std::unique_ptr<Method> inner_;
+};
+
 /// bunny-static-mesh's floor baked offline (baked_floor) as a voxelmap-only VPS shape; the bunny's points go
 /// into it.
 std::unique_ptr<Method> baked_floor_method(const Scenario& s, const MethodSettings& settings, std::string& why) {
@@ -334,8 +355,9 @@ std::shared_ptr<fcl::CollisionGeometryd> fcl_geometry(const Body& body) {
 }  // namespace
 
 const std::vector<std::string>& method_names() {
-  static const std::vector<std::string> names = {"vps-fine", "vps-coarse", "vps-fine-prox", "vps-fine-baked-floor",
-                                                 "gimpact",  "hacd",       "hull",          "fcl"};
+  static const std::vector<std::string> names = {
+      "vps-fine", "vps-fine-scalar", "vps-coarse", "vps-fine-prox", "vps-fine-baked-floor", "gimpact", "hacd", "hull",
+      "fcl"};
   return names;
 }
 
@@ -432,6 +454,7 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
   if (name == "vps-fine" || name == "vps-coarse" || name == "vps-fine-prox" || name == "vps-fine-coherent")
     return vps_method(name, s, settings);
   if (name == "vps-fine-baked-floor") return baked_floor_method(s, settings, why);
+  if (name == "vps-fine-scalar") return std::make_unique<ScalarLookups>(vps_method("vps-fine", s, settings));
   if (name == "gimpact") {
     auto a = gimpact_of(*s.a, settings.margin);
     auto b = b_dynamic ? (s.b == s.a ? a : gimpact_of(*s.b, settings.margin)) : static_partner(*s.b, settings.margin);
@@ -473,7 +496,7 @@ std::unique_ptr<Method> make_method(const std::string& name, const Scenario& s, 
   }
   std::string known;
   for (const auto& n : trajectory_method_names()) known += " " + n;
-  known += " vps-coarse vps-fine-prox";
+  known += " vps-coarse vps-fine-prox vps-fine-scalar";
   throw std::runtime_error("unknown method '" + name + "' (known:" + known + ")");
 }
 

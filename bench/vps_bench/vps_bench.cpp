@@ -22,6 +22,7 @@
 #include <optional>
 #include <sstream>
 
+#include "core/field_simd.h"
 #include "methods.h"
 #include "scenarios.h"
 #include "voxfmt/runtime/query.h"
@@ -53,6 +54,7 @@ struct Options {
   bool pose_sets = true;           ///< run the pose sets
   size_t trajectory_steps = 1000;  ///< per trajectory
   double floor_voxel = 0;          ///< vps-fine-baked-floor's voxel, metres (0: the bunny's; --quick: 2 mm)
+  bool interleave = false;         ///< pose sets: the methods take turns query by query
 };
 
 // ------------------------------------------------------------------------------------------------ figures
@@ -88,6 +90,42 @@ double elapsed_us(Clock::time_point start) {
   return std::chrono::duration<double, std::micro>(Clock::now() - start).count();
 }
 
+// Pass 0 of every method's timing: each pose's outcome recorded (later passes only time).
+void time_query(Method& method, const PosePair& pose, bool record, MethodFigures& f) {
+  const auto t0 = Clock::now();
+  method.query(pose);
+  f.warm_us.push_back(elapsed_us(t0));
+  const QueryOutcome outcome = method.outcome();
+  if (record) f.per_pose.push_back(outcome);
+}
+
+void time_cold(Method& method, const Scenario& scenario, const Options& options, MethodFigures& f);
+
+/// Every method on every pose in turn (--interleave): the methods see the machine's noise alike, so their
+/// ratios hold even where the absolute times drift between runs. No budget: every method gets `reps` queries.
+std::vector<MethodFigures> measure_interleaved(const std::vector<Method*>& methods, const Scenario& scenario,
+                                               const Options& options) {
+  std::vector<MethodFigures> figures(methods.size());
+  const auto& poses = scenario.poses;
+  for (Method* method : methods)
+    for (size_t i = 0; i < std::min<size_t>(10, poses.size()); ++i) {
+      method->query(poses[i]);
+      method->outcome();
+    }
+  for (size_t pass = 0; figures[0].warm_us.size() < options.reps || pass == 0; ++pass)
+    for (size_t i = 0; i < poses.size(); ++i)
+      for (size_t k = 0; k < methods.size(); ++k) {
+        // The order alternates so that no method always runs on caches another one warmed.
+        const size_t m = (i + pass) % 2 ? methods.size() - 1 - k : k;
+        time_query(*methods[m], poses[i], pass == 0, figures[m]);
+      }
+  for (size_t m = 0; m < methods.size(); ++m) {
+    figures[m].poses_measured = figures[m].per_pose.size();
+    time_cold(*methods[m], scenario, options, figures[m]);
+  }
+  return figures;
+}
+
 MethodFigures measure(Method& method, const Scenario& scenario, const Options& options) {
   MethodFigures f;
   const auto& poses = scenario.poses;
@@ -100,11 +138,7 @@ MethodFigures measure(Method& method, const Scenario& scenario, const Options& o
   // Pass 0 records each pose's outcome; later passes only time.
   for (size_t pass = 0; f.warm_us.size() < options.reps || pass == 0; ++pass) {
     for (size_t i = 0; i < poses.size(); ++i) {
-      const auto t0 = Clock::now();
-      method.query(poses[i]);
-      f.warm_us.push_back(elapsed_us(t0));
-      const QueryOutcome outcome = method.outcome();
-      if (pass == 0) f.per_pose.push_back(outcome);
+      time_query(method, poses[i], pass == 0, f);
       // A slow method stops at the budget, but measures at least 20 poses.
       if (over_budget() && f.warm_us.size() >= std::min<size_t>(20, poses.size())) {
         f.budget_hit = f.warm_us.size() < options.reps;
@@ -114,6 +148,13 @@ MethodFigures measure(Method& method, const Scenario& scenario, const Options& o
     if (over_budget()) break;
   }
   f.poses_measured = f.per_pose.size();
+  time_cold(method, scenario, options, f);
+  return f;
+}
+
+// The first poses again, each with the caches evicted.
+void time_cold(Method& method, const Scenario& scenario, const Options& options, MethodFigures& f) {
+  const auto& poses = scenario.poses;
   const size_t cold = std::min(options.cold, f.poses_measured);
   const auto cold_start = Clock::now();
   for (size_t i = 0; i < cold; ++i) {
@@ -126,7 +167,6 @@ MethodFigures measure(Method& method, const Scenario& scenario, const Options& o
     method.outcome();
   }
   f.note = method.note();
-  return f;
 }
 
 volatile float g_lookup_sink = 0;  // the lookups' sum goes here, so the compiler keeps them
@@ -330,6 +370,9 @@ int main(int argc, char** argv) {
                "vps-fine (from scratch each step) beside vps-fine-coherent");
   app.add_flag("!--no-pose-sets", options.pose_sets, "skip the pose sets (with --trajectories: trajectories only)");
   app.add_option("--steps", options.trajectory_steps, "steps per trajectory")->capture_default_str();
+  app.add_flag("--interleave", options.interleave,
+               "pose sets: the methods take turns query by query (same poses, same moments: ratios that hold on a "
+               "noisy machine); every method gets all --reps, no --budget");
   app.add_option("--floor-voxel", options.floor_voxel,
                  "voxel of the floor vps-fine-baked-floor bakes, metres (default: the bunny's; --quick: 0.002)");
   CLI11_PARSE(app, argc, argv);
@@ -384,12 +427,16 @@ int main(int argc, char** argv) {
     json << "{\n  \"machine\": " << machine_json() << ",\n  \"settings\": {\"poses\": " << options.poses
          << ", \"reps\": " << options.reps << ", \"cold\": " << options.cold << ", \"budget_s\": " << options.budget_s
          << ", \"margin_m\": " << options.margin << ", \"quick\": " << (options.quick ? "true" : "false")
+         << ", \"interleave\": " << (options.interleave ? "true" : "false") << ", \"lookup_kernel\": \""
+         << voxfmt::runtime::core::simd_kernel_name(voxfmt::runtime::core::simd_kernel()) << "\""
          << "},\n  \"scenarios\": [";
     const std::vector<std::string> pose_set_methods = methods_given ? options.methods : method_names();
     for (size_t si = 0; si < options.scenarios.size() && options.pose_sets; ++si) {
       const Scenario scenario = make_scenario(options.scenarios[si], scenario_settings);
       std::cerr << "scenario " << scenario.name << ": " << scenario.poses.size() << " poses\n";
       std::vector<MethodFigures> results;
+      std::vector<std::unique_ptr<Method>> interleaved;
+      std::vector<size_t> interleaved_at;
       for (const std::string& name : pose_set_methods) {
         std::string why;
         std::unique_ptr<Method> method = make_method(name, scenario, method_settings, why);
@@ -400,11 +447,28 @@ int main(int argc, char** argv) {
           results.push_back(f);
           continue;
         }
+        if (options.interleave) {
+          interleaved_at.push_back(results.size());
+          results.emplace_back().name = name;
+          interleaved.push_back(std::move(method));
+          continue;
+        }
         std::cerr << "  " << name << "…" << std::flush;
         MethodFigures f = measure(*method, scenario, options);
         f.name = name;
         std::cerr << " p50 " << fixed(quantile(f.warm_us, 0.5), 1) << " µs\n";
         results.push_back(std::move(f));
+      }
+      if (!interleaved.empty()) {
+        std::vector<Method*> turns;
+        for (const auto& m : interleaved) turns.push_back(m.get());
+        std::cerr << "  " << turns.size() << " methods interleaved…" << std::flush;
+        std::vector<MethodFigures> figures = measure_interleaved(turns, scenario, options);
+        for (size_t k = 0; k < figures.size(); ++k) {
+          figures[k].name = results[interleaved_at[k]].name;
+          results[interleaved_at[k]] = std::move(figures[k]);
+        }
+        std::cerr << " done\n";
       }
       const MethodFigures* fine = nullptr;
       for (const auto& r : results)

@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <random>
 #include <tuple>
@@ -15,6 +16,7 @@
 #include "baked_bunny.h"
 #include "core/batch.h"
 #include "core/eigen.h"
+#include "core/field_simd.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -49,6 +51,48 @@ Pose random_pose(std::mt19937& rng, double spread) {
 
 // One contact as (which point, its distance's bits): what the walk and the runtime must agree on.
 using Key = std::tuple<bool, uint32_t, float>;
+
+TEST(QueryCore, EveryLowerBoundKernelGivesTheScalarBoundsBitForBit) {
+  // Points everywhere a traversal looks: outside the grid, in coarse bricks (inside and outside the object), in
+  // value bricks, on brick faces and at the grid's last bricks, in batches of every length.
+  const BakedBunny& bunny = BakedBunny::get();
+  const core::Field field = field_of(bunny.object->voxelmap());
+  ASSERT_TRUE(field.gather_safe);
+  std::mt19937 rng(17);
+  std::vector<core::Vec3> points;
+  for (int t = 0; t < 200000; ++t) {
+    float c[3];
+    for (int a = 0; a < 3; ++a)
+      c[a] = std::uniform_real_distribution<float>(-0.1f * float(field.dims[a]), 1.1f * float(field.dims[a]))(rng);
+    core::Vec3 u = core::make_vec3(c[0], c[1], c[2]);
+    if (t % 4 == 0) u = core::make_vec3(std::round(u.x), std::round(u.y), std::round(u.z));  // voxel centres
+    points.push_back(u);
+  }
+  // Near the surface: the shell's own points in its grid.
+  const PointTree& tree = bunny.object->point_tree();
+  const SparseVoxelmap& map = bunny.object->voxelmap();
+  for (size_t n = 0; n < tree.size(); ++n) points.push_back(core::to_core(map.to_grid(tree.points[n].cast<double>())));
+  std::vector<float> scalar(points.size()), vector(points.size());
+  for (const size_t batch : {size_t(1), size_t(7), size_t(8), size_t(31), size_t(64), points.size()}) {
+    for (size_t begin = 0; begin < points.size(); begin += batch) {
+      const size_t n = std::min(batch, points.size() - begin);
+      ASSERT_TRUE(core::lower_bounds_with(core::SimdKernel::Scalar, field, &points[begin], n, &scalar[begin]));
+      if (!core::lower_bounds_with(core::SimdKernel::Avx2, field, &points[begin], n, &vector[begin]))
+        GTEST_SKIP() << "this CPU has no AVX2: only the scalar kernel runs here";
+    }
+    for (size_t p = 0; p < points.size(); ++p) {
+      ASSERT_EQ(std::memcmp(&scalar[p], &vector[p], sizeof(float)), 0)
+          << "point " << p << " (" << points[p].x << ", " << points[p].y << ", " << points[p].z << "): scalar "
+          << scalar[p] << ", avx2 " << vector[p];
+    }
+  }
+  // The scalar batch is core::lower_bound point by point.
+  for (size_t p = 0; p < points.size(); p += 97) ASSERT_EQ(scalar[p], core::lower_bound(field, points[p])) << p;
+  // A field built by hand (no padding) never takes the vector kernel.
+  core::Field unpadded = field;
+  unpadded.gather_safe = false;
+  EXPECT_FALSE(core::lower_bounds_with(core::SimdKernel::Avx2, unpadded, points.data(), 8, vector.data()));
+}
 
 TEST(QueryCore, BatchEnvironmentFindsTheRuntimesContactsAndWrench) {
   const BakedBunny& bunny = BakedBunny::get();

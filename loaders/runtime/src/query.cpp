@@ -7,6 +7,7 @@
 
 #include "core/eigen.h"
 #include "core/field.h"
+#include "core/field_simd.h"
 #include "core/traversal.h"
 
 namespace voxfmt::runtime {
@@ -30,8 +31,7 @@ struct VoxelmapTarget {
   core::Field field;
   float lower_bound(const Eigen::Vector3f& u) const { return core::lower_bound(field, core::to_core(u)); }
   void lower_bounds(const Eigen::Vector3f* u, size_t n, float* out) const {
-    core::lower_bounds(
-        field, n, [u](size_t p) { return core::to_core(u[p]); }, out);
+    core::lower_bounds_dispatched(field, reinterpret_cast<const core::Vec3*>(u), n, out);
   }
   /// A bound costs one voxel, a sample up to eight: test a point's bound before sampling it.
   static constexpr bool kBoundBeforeDistance = true;

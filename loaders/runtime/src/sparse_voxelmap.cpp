@@ -6,6 +6,7 @@
 
 #include "core/eigen.h"
 #include "core/field.h"
+#include "core/field_simd.h"
 
 namespace voxfmt::runtime {
 
@@ -46,8 +47,12 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
   for (size_t n = 0; n < vm.lattice.size(); ++n)
     map.lattice_[n] = uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)));
   std::vector<float>().swap(vm.lattice);
+  // Vector gathers read 16-bit arrays as 32-bit words (field_simd.h): one element more, outside the counts.
+  map.codes_.resize(map.codes_.size() + core::kGatherPadding, 0);
+  map.lattice_.resize(map.lattice_.size() + core::kGatherPadding, 0);
   map.bricks_.shrink_to_fit();
   map.codes_.shrink_to_fit();
+  map.lattice_.shrink_to_fit();
   return map;
 }
 
@@ -61,6 +66,8 @@ core::Field field_of(const SparseVoxelmap& map) {
   f.bricks = map.bricks_.data();
   f.codes = map.codes_.data();
   f.lattice = map.lattice_.data();
+  f.gather_safe = !map.lattice_.empty() && map.codes_.size() < (size_t(1) << 31) &&
+                  map.lattice_.size() < (size_t(1) << 31) && map.bricks_.size() < (size_t(1) << 31);
   for (int a = 0; a < 3; ++a) {
     f.dims[a] = map.dims_[size_t(a)];
     f.brick_dims[a] = map.brick_dims_[size_t(a)];

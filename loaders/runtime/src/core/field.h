@@ -21,6 +21,9 @@ struct Field {
   const int32_t* bricks = nullptr;    ///< brick table: >= 0 a value brick, -1 / -2 coarse outside / inside
   const int16_t* codes = nullptr;     ///< value bricks, kBrickVoxels codes each
   const uint16_t* lattice = nullptr;  ///< unsigned distances at the lattice points, in steps of lattice_step
+  /// codes and lattice hold kGatherPadding elements more and their indices fit 31 bits (field_simd.h): vector
+  /// gathers may read them. A runtime voxelmap's field is; one built by hand is not.
+  bool gather_safe = false;
   int dims[3] = {0, 0, 0};
   int brick_dims[3] = {0, 0, 0};
   int lattice_dims[3] = {0, 0, 0};
