@@ -88,10 +88,10 @@ class BulletMethod : public Method {
     // A static mesh is indexed as a world indexes it when the mesh is added, before any query is timed.
     if (a_shape_->getShapeType() == voxfmt::bullet::VpsShape::kShapeType &&
         b_shape_->getShapeType() == TRIANGLE_MESH_SHAPE_PROXYTYPE && vps_->settings().static_mesh_index) {
-      const voxfmt::bullet::StaticMeshInfo info = vps_->prepare_static_mesh(*b_shape_);
+      const voxfmt::bullet::StaticMeshInfo mesh = vps_->prepare_static_mesh(*b_shape_);
       std::ostringstream index;
-      index << std::setprecision(3) << "; mesh index " << double(info.memory_bytes) / 1e6 << " MB, built in "
-            << info.build_seconds * 1e3 << " ms";
+      index << std::setprecision(3) << "; mesh index " << double(mesh.memory_bytes) / 1e6 << " MB, built in "
+            << mesh.build_seconds * 1e3 << " ms";
       note_ += index.str();
     }
   }

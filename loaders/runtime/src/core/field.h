@@ -11,6 +11,7 @@ namespace voxfmt::runtime::core {
 constexpr int kEdge = 8;
 constexpr unsigned kEdgeBits = 3;
 constexpr int kBrickVoxels = kEdge * kEdge * kEdge;
+constexpr int32_t kCoarseOutside = -1;
 constexpr int32_t kCoarseInside = -2;
 // The lattice interpolated at a voxel is within the sum over the cell's corners of weight x distance of the exact
 // distance (the distance is 1-Lipschitz); that sum is largest at a brick's centre: 4 sqrt(3) voxels (spec §3.3).
@@ -236,12 +237,46 @@ VOXFMT_HD void nearest_voxel(const Vec3& u, int v[3]) {
   v[0] = int(u.x + 0.5f), v[1] = int(u.y + 0.5f), v[2] = int(u.z + 0.5f);
 }
 
+/// What lattice value `l` (voxels, as the runtime holds it) says of its lattice point: the surface is at least
+/// this far (spec §3.3: l >= u >= (l - e0) / (1 + e1) before the runtime's rounding to half a step, less a
+/// margin for this float arithmetic).
+VOXFMT_HD float lattice_point_bound(const Field& f, float l) {
+  return (l - 0.5f * f.lattice_step - f.estimate_offset) * f.estimate_shrink - (1e-3f + 1e-6f * l);
+}
+
+/// A lower bound at `u`, outside the object, from the 8 lattice points of the cell of voxel `v`: the best of
+/// each point's own bound less u's distance to it. Near a lattice point this is far tighter than the
+/// interpolated estimate, which must allow for interpolation anywhere in the cell (4 sqrt(3) voxels).
+VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v[3]) {
+  int lower[3];
+  float x0[3], x1[3];
+  for (int a = 0; a < 3; ++a) {
+    lower[a] = v[a] >> kEdgeBits;
+    x0[a] = float(lower[a] * kEdge);
+    x1[a] = float(lattice_coordinate(f, lower[a] + 1, a));
+  }
+  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
+  const uint16_t* q = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const size_t offset[8] = {0, 1, row, row + 1, plane, plane + 1, plane + row, plane + row + 1};
+  float best = -__builtin_huge_valf();
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 corner = make_vec3(c & 1 ? x1[0] : x0[0], c & 2 ? x1[1] : x0[1], c & 4 ? x1[2] : x0[2]);
+    best = max_f(best, lattice_point_bound(f, float(q[offset[c]]) * f.lattice_step) - length(u - corner));
+  }
+  return best;
+}
+
 /// lower_bound at a covered `u` from its nearest voxel `v`, whose brick table entry is `entry`.
 VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3], int32_t entry) {
   bool stored = true;
   const float value = entry_value(f, v[0], v[1], v[2], entry, stored);
   // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
-  return value_lower_bound(f, value, stored) - length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
+  const float offset = length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
+  const float bound = value_lower_bound(f, value, stored) - offset;
+  // A coarse outside voxel is at least the band's edge from the surface: nearer than that, u is outside too, and
+  // the cell's lattice points bound its distance directly.
+  if (entry == kCoarseOutside && offset < f.band_edge) return max_f(bound, lattice_corners_bound(f, u, v));
+  return bound;
 }
 
 /// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.
