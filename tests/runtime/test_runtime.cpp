@@ -117,9 +117,9 @@ TEST(SparseVoxelmap, LowerBoundNeverExceedsExactDistance) {
 }
 
 TEST(SparseVoxelmap, LatticePointBoundsNeverExceedTheExactDistanceAndTightenFarBounds) {
-  // Near the lattice points of coarse bricks outside the object, the bound also comes from the points themselves
-  // (core::lattice_corners_bound): never above the exact distance, and tighter than the interpolated estimate's,
-  // which allows for interpolation anywhere in the cell.
+  // Near the lattice points of coarse bricks outside the object and of value bricks, where a voxel holds an
+  // estimate, the bound also comes from the points themselves (core::lattice_corners_bound): never above the exact
+  // distance, and tighter than the interpolated estimate's, which allows for interpolation anywhere in the cell.
   const Bunny& bunny = Bunny::get();
   const SparseVoxelmap& map = bunny.object->voxelmap();
   const core::Field f = field_of(map);
@@ -128,9 +128,11 @@ TEST(SparseVoxelmap, LatticePointBoundsNeverExceedTheExactDistanceAndTightenFarB
   std::uniform_int_distribution<int> brick(0, f.brick_dims[0] * f.brick_dims[1] * f.brick_dims[2] - 1);
   size_t tested = 0, tighter = 0, violations = 0;
   double gain = 0, least_gap = 1e30;
-  for (int attempt = 0; attempt < 20000 && tested < 3000; ++attempt) {
+  size_t in_value_bricks = 0;
+  for (int attempt = 0; attempt < 40000 && tested < 6000; ++attempt) {
     const int b = brick(rng);
-    if (f.bricks[b] != core::kCoarseOutside) continue;
+    // Coarse bricks outside, and value bricks (whose voxels beyond the band hold estimates): not the inside.
+    if (f.bricks[b] == core::kCoarseInside) continue;
     const int bi = b % f.brick_dims[0], bj = (b / f.brick_dims[0]) % f.brick_dims[1],
               bk = b / (f.brick_dims[0] * f.brick_dims[1]);
     const core::Vec3 u = core::make_vec3(float(core::lattice_coordinate(f, bi, 0)) + jitter(rng),
@@ -149,15 +151,17 @@ TEST(SparseVoxelmap, LatticePointBoundsNeverExceedTheExactDistanceAndTightenFarB
     if (double(bound) * map.voxel_size() > exact + 1e-9) ++violations;
     least_gap = std::min(least_gap, exact / map.voxel_size() - double(bound));
     tighter += bound > estimate;
+    in_value_bricks += f.bricks[b] >= 0;
     gain += double(bound) - double(estimate);
     ++tested;
   }
   EXPECT_EQ(violations, 0u);
   EXPECT_GT(tested, 1000u);
+  EXPECT_GT(in_value_bricks, 300u);
   EXPECT_GT(tighter, tested / 2) << "the lattice points' bounds should win near the lattice points";
-  std::cout << "lattice point bounds: " << tested << " points, tighter at " << tighter << ", by "
-            << gain / double(tested) << " voxels on average; the exact distance at least " << least_gap
-            << " voxel above it\n";
+  std::cout << "lattice point bounds: " << tested << " points (" << in_value_bricks << " in value bricks), tighter at "
+            << tighter << ", by " << gain / double(tested) << " voxels on average; the exact distance at least "
+            << least_gap << " voxel above it\n";
 }
 
 TEST(SparseVoxelmap, SampleMatchesExactDistanceNearTheSurface) {

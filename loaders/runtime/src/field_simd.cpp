@@ -38,55 +38,67 @@ VOXFMT_AVX2 inline __m256i gather16(const void* base, __m256i index, __m256i mas
   return _mm256_mask_i32gather_epi32(_mm256_setzero_si256(), static_cast<const int*>(base), index, mask, 2);
 }
 
-// coarse_value for 8 voxels of coarse bricks (entry -1 or -2): the lattice interpolated in each voxel's cell; and
-// into `corners`, lattice_corners_bound at the points `x`.
-VOXFMT_AVX2 __m256 coarse_values8(const Field& f, const __m256 x[3], const __m256i v[3], __m256i entry, __m256i mask,
-                                  __m256& corners) {
+// The lattice cells of 8 voxels (the cell of each voxel's brick): its 8 points' values (in lattice steps), the
+// voxel's interpolation weights, and the cell's voxel coordinates. Lanes outside `mask` are not read.
+struct Cell8 {
+  __m256 p[8];
+  __m256 t[3];
+  __m256 x0[3], x1[3];
+};
+
+VOXFMT_AVX2 void lattice_cells8(const Field& f, const __m256i v[3], __m256i mask, Cell8& cell) {
   __m256i lower[3];
-  __m256 t[3], x0f[3], x1f[3];
   for (int a = 0; a < 3; ++a) {
     lower[a] = _mm256_srli_epi32(v[a], kEdgeBits);
     const __m256i x0 = _mm256_slli_epi32(lower[a], kEdgeBits);
     const __m256i x1 = _mm256_min_epi32(_mm256_slli_epi32(_mm256_add_epi32(lower[a], _mm256_set1_epi32(1)), kEdgeBits),
                                         _mm256_set1_epi32(f.dims[a] - 1));
-    const __m256i span = _mm256_sub_epi32(x1, x0);
-    const __m256 ratio = _mm256_div_ps(_mm256_cvtepi32_ps(_mm256_sub_epi32(v[a], x0)), _mm256_cvtepi32_ps(span));
-    t[a] = _mm256_and_ps(ratio, _mm256_castsi256_ps(_mm256_cmpgt_epi32(x1, x0)));
-    x0f[a] = _mm256_cvtepi32_ps(x0);
-    x1f[a] = _mm256_cvtepi32_ps(x1);
+    const __m256 ratio =
+        _mm256_div_ps(_mm256_cvtepi32_ps(_mm256_sub_epi32(v[a], x0)), _mm256_cvtepi32_ps(_mm256_sub_epi32(x1, x0)));
+    cell.t[a] = _mm256_and_ps(ratio, _mm256_castsi256_ps(_mm256_cmpgt_epi32(x1, x0)));
+    cell.x0[a] = _mm256_cvtepi32_ps(x0);
+    cell.x1[a] = _mm256_cvtepi32_ps(x1);
   }
   const int row = f.lattice_dims[0], plane = row * f.lattice_dims[1];
   const __m256i q = _mm256_add_epi32(_mm256_add_epi32(_mm256_mullo_epi32(lower[2], _mm256_set1_epi32(plane)),
                                                       _mm256_mullo_epi32(lower[1], _mm256_set1_epi32(row))),
                                      lower[0]);
   const int offset[8] = {0, 1, row, row + 1, plane, plane + 1, plane + row, plane + row + 1};
-  __m256 p[8];
   for (int c = 0; c < 8; ++c) {
     const __m256i word = gather16(f.lattice, _mm256_add_epi32(q, _mm256_set1_epi32(offset[c])), mask);
-    p[c] = _mm256_cvtepi32_ps(_mm256_and_si256(word, _mm256_set1_epi32(0xffff)));
+    cell.p[c] = _mm256_cvtepi32_ps(_mm256_and_si256(word, _mm256_set1_epi32(0xffff)));
   }
-  // lattice_corners_bound: each lattice point's bound (lattice_point_bound) less the distance to it.
+}
+
+// coarse_value for 8 voxels of coarse bricks (entry -1 or -2): the lattice interpolated in each voxel's cell.
+VOXFMT_AVX2 __m256 coarse_values8(const Field& f, const Cell8& cell, __m256i entry) {
+  const __m256* p = cell.p;
+  const __m256 x00 = lerp8(p[0], p[1], cell.t[0]), x10 = lerp8(p[2], p[3], cell.t[0]);
+  const __m256 x01 = lerp8(p[4], p[5], cell.t[0]), x11 = lerp8(p[6], p[7], cell.t[0]);
+  const __m256 y0 = lerp8(x00, x10, cell.t[1]), y1 = lerp8(x01, x11, cell.t[1]);
+  const __m256 magnitude =
+      max_f8(_mm256_mul_ps(lerp8(y0, y1, cell.t[2]), _mm256_set1_ps(f.lattice_step)), _mm256_set1_ps(f.band_edge));
+  const __m256 inside = _mm256_castsi256_ps(_mm256_cmpeq_epi32(entry, _mm256_set1_epi32(kCoarseInside)));
+  return _mm256_blendv_ps(magnitude, _mm256_xor_ps(magnitude, _mm256_set1_ps(-0.0f)), inside);
+}
+
+// lattice_corners_bound at the points `x`: each lattice point's bound (lattice_point_bound) less the distance to it.
+VOXFMT_AVX2 __m256 corners_bound8(const Field& f, const Cell8& cell, const __m256 x[3]) {
   const __m256 step = _mm256_set1_ps(f.lattice_step);
-  corners = _mm256_set1_ps(-__builtin_huge_valf());
+  __m256 best = _mm256_set1_ps(-__builtin_huge_valf());
   for (int c = 0; c < 8; ++c) {
-    const __m256 l = _mm256_mul_ps(p[c], step);
+    const __m256 l = _mm256_mul_ps(cell.p[c], step);
     const __m256 own = _mm256_sub_ps(
         _mm256_mul_ps(
             _mm256_sub_ps(_mm256_sub_ps(l, _mm256_set1_ps(0.5f * f.lattice_step)), _mm256_set1_ps(f.estimate_offset)),
             _mm256_set1_ps(f.estimate_shrink)),
         _mm256_add_ps(_mm256_set1_ps(1e-3f), _mm256_mul_ps(_mm256_set1_ps(1e-6f), l)));
-    const __m256 reach =
-        length8(_mm256_sub_ps(x[0], c & 1 ? x1f[0] : x0f[0]), _mm256_sub_ps(x[1], c & 2 ? x1f[1] : x0f[1]),
-                _mm256_sub_ps(x[2], c & 4 ? x1f[2] : x0f[2]));
-    corners = max_f8(corners, _mm256_sub_ps(own, reach));
+    const __m256 reach = length8(_mm256_sub_ps(x[0], c & 1 ? cell.x1[0] : cell.x0[0]),
+                                 _mm256_sub_ps(x[1], c & 2 ? cell.x1[1] : cell.x0[1]),
+                                 _mm256_sub_ps(x[2], c & 4 ? cell.x1[2] : cell.x0[2]));
+    best = max_f8(best, _mm256_sub_ps(own, reach));
   }
-  const __m256 x00 = lerp8(p[0], p[1], t[0]), x10 = lerp8(p[2], p[3], t[0]);
-  const __m256 x01 = lerp8(p[4], p[5], t[0]), x11 = lerp8(p[6], p[7], t[0]);
-  const __m256 y0 = lerp8(x00, x10, t[1]), y1 = lerp8(x01, x11, t[1]);
-  const __m256 magnitude =
-      max_f8(_mm256_mul_ps(lerp8(y0, y1, t[2]), _mm256_set1_ps(f.lattice_step)), _mm256_set1_ps(f.band_edge));
-  const __m256 inside = _mm256_castsi256_ps(_mm256_cmpeq_epi32(entry, _mm256_set1_epi32(kCoarseInside)));
-  return _mm256_blendv_ps(magnitude, _mm256_xor_ps(magnitude, _mm256_set1_ps(-0.0f)), inside);
+  return best;
 }
 
 // Eight points of a batch between the passes of lower_bounds_avx2.
@@ -165,7 +177,12 @@ VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
   const __m256i covered_i = _mm256_castps_si256(l.covered);
   const __m256i in_value = _mm256_and_si256(covered_i, _mm256_cmpgt_epi32(l.entry, _mm256_set1_epi32(-1)));
   const __m256i in_coarse = _mm256_andnot_si256(in_value, covered_i);
-  __m256 value = _mm256_setzero_ps(), corners = _mm256_setzero_ps();
+  const __m256 band_edge = _mm256_set1_ps(f.band_edge);
+  const __m256 offset =
+      length8(_mm256_sub_ps(l.x[0], _mm256_cvtepi32_ps(l.v[0])), _mm256_sub_ps(l.x[1], _mm256_cvtepi32_ps(l.v[1])),
+              _mm256_sub_ps(l.x[2], _mm256_cvtepi32_ps(l.v[2])));
+  const __m256 near = _mm256_cmp_ps(offset, band_edge, _CMP_LT_OQ);
+  __m256 value = _mm256_setzero_ps();
   __m256i stored = _mm256_setzero_si256();
   if (_mm256_movemask_epi8(in_value) != 0) {
     const __m256i code = _mm256_srai_epi32(_mm256_slli_epi32(gather16(f.codes, code_index8(l), in_value), 16), 16);
@@ -175,28 +192,31 @@ VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
                                          _mm256_castsi256_ps(stored));
     value = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srai_epi32(code, 1)), step);
   }
+  // Where the lattice cell is read: coarse voxels, and positive estimates near enough for their lattice points
+  // to bound u (nearest_voxel_bound). A coarse outside voxel's value is positive.
+  const __m256 positive_estimate_lanes = _mm256_and_ps(_mm256_castsi256_ps(_mm256_andnot_si256(stored, in_value)),
+                                                       _mm256_cmp_ps(value, _mm256_setzero_ps(), _CMP_GT_OQ));
+  const __m256 coarse_outside =
+      _mm256_castsi256_ps(_mm256_and_si256(in_coarse, _mm256_cmpeq_epi32(l.entry, _mm256_set1_epi32(kCoarseOutside))));
+  const __m256 use_corners = _mm256_and_ps(_mm256_or_ps(positive_estimate_lanes, coarse_outside), near);
+  const __m256i cell_lanes = _mm256_or_si256(in_coarse, _mm256_castps_si256(use_corners));
+  Cell8 cell;
+  if (_mm256_movemask_epi8(cell_lanes) != 0) lattice_cells8(f, l.v, cell_lanes, cell);
   if (_mm256_movemask_epi8(in_coarse) != 0)
-    value = _mm256_blendv_ps(coarse_values8(f, l.x, l.v, l.entry, in_coarse, corners), value,
-                             _mm256_castsi256_ps(in_value));
+    value = _mm256_blendv_ps(coarse_values8(f, cell, l.entry), value, _mm256_castsi256_ps(in_value));
   // value_lower_bound.
   const __m256 estimate_slack = _mm256_set1_ps(f.estimate_slack);
-  const __m256 positive_estimate = max_f8(
-      _mm256_set1_ps(f.band_edge), _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(value, _mm256_set1_ps(f.estimate_offset)),
-                                                               _mm256_set1_ps(f.estimate_shrink)),
-                                                 estimate_slack));
+  const __m256 positive_estimate =
+      max_f8(band_edge, _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(value, _mm256_set1_ps(f.estimate_offset)),
+                                                    _mm256_set1_ps(f.estimate_shrink)),
+                                      estimate_slack));
   const __m256 estimate = _mm256_blendv_ps(_mm256_sub_ps(value, estimate_slack), positive_estimate,
                                            _mm256_cmp_ps(value, _mm256_setzero_ps(), _CMP_GT_OQ));
   const __m256 bound =
       _mm256_blendv_ps(estimate, _mm256_sub_ps(value, _mm256_set1_ps(f.stored_slack)), _mm256_castsi256_ps(stored));
-  const __m256 offset =
-      length8(_mm256_sub_ps(l.x[0], _mm256_cvtepi32_ps(l.v[0])), _mm256_sub_ps(l.x[1], _mm256_cvtepi32_ps(l.v[1])),
-              _mm256_sub_ps(l.x[2], _mm256_cvtepi32_ps(l.v[2])));
   __m256 inside = _mm256_sub_ps(bound, offset);
-  // Coarse outside voxels nearer than the band's edge: the lattice points' own bounds too (nearest_voxel_bound).
-  const __m256 use_corners = _mm256_and_ps(
-      _mm256_castsi256_ps(_mm256_and_si256(in_coarse, _mm256_cmpeq_epi32(l.entry, _mm256_set1_epi32(kCoarseOutside)))),
-      _mm256_cmp_ps(offset, _mm256_set1_ps(f.band_edge), _CMP_LT_OQ));
-  inside = _mm256_blendv_ps(inside, max_f8(inside, corners), use_corners);
+  if (_mm256_movemask_ps(use_corners) != 0)
+    inside = _mm256_blendv_ps(inside, max_f8(inside, corners_bound8(f, cell, l.x)), use_corners);
   _mm256_storeu_ps(out, _mm256_blendv_ps(box_distance, inside, l.covered));
 }
 

@@ -273,9 +273,10 @@ VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3
   // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
   const float offset = length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
   const float bound = value_lower_bound(f, value, stored) - offset;
-  // A coarse outside voxel is at least the band's edge from the surface: nearer than that, u is outside too, and
-  // the cell's lattice points bound its distance directly.
-  if (entry == kCoarseOutside && offset < f.band_edge) return max_f(bound, lattice_corners_bound(f, u, v));
+  // A voxel without a stored distance is at least the band's edge from the surface: where its value says outside
+  // and u is nearer to it than that, u is outside too, and the lattice points of the voxel's cell bound u's
+  // distance directly.
+  if (!stored && value > 0 && offset < f.band_edge) return max_f(bound, lattice_corners_bound(f, u, v));
   return bound;
 }
 
