@@ -13,10 +13,7 @@ namespace voxfmt::runtime::core {
 
 namespace {
 
-void lower_bounds_scalar(const Field& f, const Vec3* u, size_t n, float* out) {
-  lower_bounds(
-      f, n, [u](size_t p) { return u[p]; }, out);
-}
+void lower_bounds_scalar(const Field& f, const Vec3* u, size_t n, float* out) { lower_bounds(f, u, n, out); }
 
 #if defined(VOXFMT_HAVE_AVX2_KERNEL)
 // AVX2 without FMA: every product and sum rounds as the scalar code's does.
@@ -254,21 +251,6 @@ VOXFMT_AVX2 void lower_bounds_avx2(const Field& f, const Vec3* u, size_t n, floa
 }
 #endif
 
-SimdKernel detect() {
-#if defined(VOXFMT_HAVE_AVX2_KERNEL)
-  const char* setting = std::getenv("VOXFMT_SIMD");
-  if (setting && std::strcmp(setting, "off") == 0) return SimdKernel::Scalar;
-  __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx2")) return SimdKernel::Avx2;
-#endif
-  return SimdKernel::Scalar;
-}
-
-std::atomic<int>& chosen_kernel() {
-  static std::atomic<int> kernel{int(detect())};
-  return kernel;
-}
-
 bool supported(SimdKernel kernel) {
 #if defined(VOXFMT_HAVE_AVX2_KERNEL)
   __builtin_cpu_init();
@@ -276,6 +258,17 @@ bool supported(SimdKernel kernel) {
 #else
   return kernel == SimdKernel::Scalar;
 #endif
+}
+
+SimdKernel detect() {
+  const char* setting = std::getenv("VOXFMT_SIMD");
+  if (setting && std::strcmp(setting, "off") == 0) return SimdKernel::Scalar;
+  return supported(SimdKernel::Avx2) ? SimdKernel::Avx2 : SimdKernel::Scalar;
+}
+
+std::atomic<int>& chosen_kernel() {
+  static std::atomic<int> kernel{int(detect())};
+  return kernel;
 }
 
 }  // namespace

@@ -59,6 +59,15 @@ VOXFMT_HD const int32_t* table_slot(const Field& f, int i, int j, int k) {
 
 VOXFMT_HD int32_t entry_of(const Field& f, int i, int j, int k) { return *table_slot(f, i, j, k); }
 
+/// The 8 lattice values (in lattice steps) of the cell whose first lattice point is `lower`, x fastest, then y,
+/// then z: what interpolating the lattice and bounding by its points read.
+VOXFMT_HD void cell_values(const Field& f, const int lower[3], float p[8]) {
+  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
+  const uint16_t* q = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
+  const size_t offset[8] = {0, 1, row, row + 1, plane, plane + 1, plane + row, plane + row + 1};
+  for (int c = 0; c < 8; ++c) p[c] = float(q[offset[c]]);
+}
+
 /// The coarse estimate of a voxel of a coarse brick: the lattice interpolated, at least the band's edge, signed.
 VOXFMT_HD float coarse_value(const Field& f, int i, int j, int k, int32_t entry) {
   // Every voxel lies in one lattice cell: that of its brick, from the brick's first voxel to the next brick's.
@@ -70,10 +79,8 @@ VOXFMT_HD float coarse_value(const Field& f, int i, int j, int k, int32_t entry)
     const int x0 = lower[a] * kEdge, x1 = lattice_coordinate(f, lower[a] + 1, a);
     t[a] = x1 > x0 ? float(c[a] - x0) / float(x1 - x0) : 0.0f;
   }
-  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
-  const uint16_t* q = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const float p[8] = {float(q[0]),     float(q[1]),         float(q[row]),         float(q[row + 1]),
-                      float(q[plane]), float(q[plane + 1]), float(q[plane + row]), float(q[plane + row + 1])};
+  float p[8];
+  cell_values(f, lower, p);
   const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
   const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
   const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);
@@ -92,11 +99,9 @@ VOXFMT_HD float lattice_at(const Field& f, const Vec3& u, Vec3* gradient) {
     inverse[a] = x1 > x0 ? 1.0f / float(x1 - x0) : 0.0f;
     t[a] = clamp_f((c - float(x0)) * inverse[a], 0.0f, 1.0f);
   }
-  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
-  const uint16_t* p = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const float s = f.lattice_step;
-  const float v[8] = {s * p[0],     s * p[1],         s * p[row],         s * p[row + 1],
-                      s * p[plane], s * p[plane + 1], s * p[plane + row], s * p[plane + row + 1]};
+  float v[8];
+  cell_values(f, lower, v);
+  for (int c = 0; c < 8; ++c) v[c] *= f.lattice_step;
   const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
   const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
   const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
@@ -255,13 +260,12 @@ VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v
     x0[a] = float(lower[a] * kEdge);
     x1[a] = float(lattice_coordinate(f, lower[a] + 1, a));
   }
-  const size_t row = size_t(f.lattice_dims[0]), plane = row * size_t(f.lattice_dims[1]);
-  const uint16_t* q = &f.lattice[size_t(lower[2]) * plane + size_t(lower[1]) * row + size_t(lower[0])];
-  const size_t offset[8] = {0, 1, row, row + 1, plane, plane + 1, plane + row, plane + row + 1};
+  float p[8];
+  cell_values(f, lower, p);
   float best = -__builtin_huge_valf();
   for (int c = 0; c < 8; ++c) {
     const Vec3 corner = make_vec3(c & 1 ? x1[0] : x0[0], c & 2 ? x1[1] : x0[1], c & 4 ? x1[2] : x0[2]);
-    best = max_f(best, lattice_point_bound(f, float(q[offset[c]]) * f.lattice_step) - length(u - corner));
+    best = max_f(best, lattice_point_bound(f, p[c] * f.lattice_step) - length(u - corner));
   }
   return best;
 }
@@ -290,21 +294,19 @@ VOXFMT_HD float lower_bound(const Field& f, const Vec3& u) {
 }
 
 #if !defined(__CUDACC__)
-/// lower_bound at n points, the same values, for the CPU: `point(p)` gives point p. Taken in batches of 64: first
-/// every point's brick table entry is fetched, then every value brick's code, then the bounds are computed. A
+/// lower_bound at the n `points`, the same values, for the CPU (the scalar kernel of field_simd.h). In batches of 64:
+/// first every point's brick table entry is fetched, then every value brick's code, then the bounds are computed. A
 /// lookup is two dependent cache misses (the table, then the codes); this way the misses of a batch overlap
 /// instead of queueing one by one.
-template <class Point>
-void lower_bounds(const Field& f, size_t n, const Point& point, float* out) {
+inline void lower_bounds(const Field& f, const Vec3* points, size_t n, float* out) {
   constexpr size_t kBatch = 64;
-  Vec3 u[kBatch];
   int v[kBatch][3];
   int32_t entry[kBatch];
   bool covered[kBatch];
   for (size_t begin = 0; begin < n; begin += kBatch) {
     const size_t count = n - begin < kBatch ? n - begin : kBatch;
+    const Vec3* u = points + begin;
     for (size_t p = 0; p < count; ++p) {
-      u[p] = point(begin + p);
       covered[p] = covers(f, u[p]);
       if (!covered[p]) continue;
       nearest_voxel(u[p], v[p]);
