@@ -10,6 +10,8 @@
 #include <random>
 
 #include "baked_bunny.h"
+#include "core/batch.h"
+#include "core/eigen.h"
 #include "core/field.h"
 #include "exact_surface.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -372,6 +374,55 @@ TEST(Query, ContactDepthsAndGradientNormalsMatchExactDistances) {
   // Normals: 90 % within 10 degrees; at creases the gradient of the exact distance itself jumps.
   EXPECT_LE(depth_errors.back(), 0.15);
   EXPECT_LE(angle_p90, 10.0);
+}
+
+TEST(Query, GradientNormalsComeFromTheContactPointsOwnSample) {
+  // A contact's gradient normal is taken from its distance sample (the same corners) instead of a second sample:
+  // every contact's normal must be the one a fresh sample at its point gives, bit for bit — from scratch, with a
+  // cut level (whose spheres are sampled at their centres: their points' normals are sampled anew) and coherent
+  // (whose hits are sorted before they are reported).
+  namespace core = voxfmt::runtime::core;
+  const Bunny& bunny = Bunny::get();
+  const CollisionObject& object = *bunny.object;
+  const Pose pb;
+  const core::Field field = field_of(object.voxelmap());
+  const core::Shell shell = core::shell_of(object.point_tree());
+  const double origin[3] = {object.voxelmap().origin().x(), object.voxelmap().origin().y(),
+                            object.voxelmap().origin().z()};
+  QueryOptions full;
+  full.direction = QueryDirection::APointsInB;
+  full.normal_source = NormalSource::DistanceGradient;
+  QueryOptions cut = full;
+  cut.max_level = 3;
+  cut.cut_level = CutLevel::Spheres;
+  size_t checked = 0, from_spheres = 0;
+  QueryState state;
+  QueryScratch scratch;
+  for (int step = 0; step < 12; ++step) {
+    Pose pa = make_pose(30.0 + 2.0 * step, Eigen::Vector3d(1, 2, 0.5), Eigen::Vector3d::Zero());
+    const Eigen::Vector3d e = Eigen::Vector3d(0.2, 1, 0.1).normalized();
+    pa.translation = translation_for_gap(bunny, pa.rotation, e, -1.5 * bunny.h) * e;
+    const core::Frame frame =
+        core::frame_of(core::to_core(pa), core::to_core(pb), origin, object.voxelmap().voxel_size(), 0.0);
+    ContactSet sets[3];
+    query_contacts(object, pa, object, pb, full, sets[0], scratch);
+    query_contacts(object, pa, object, pb, cut, sets[1], scratch);
+    query_contacts(object, pa, object, pb, full, sets[2], scratch, state);
+    for (const ContactSet& set : sets)
+      for (const Contact& contact : set.contacts) {
+        double normal[3];
+        core::contact_normal(field, frame, core::to_core(pb), shell, core::to_core(pa), contact.point_index, true,
+                             nullptr, normal);
+        ASSERT_EQ(contact.normal.x(), normal[0]) << "point " << contact.point_index;
+        ASSERT_EQ(contact.normal.y(), normal[1]);
+        ASSERT_EQ(contact.normal.z(), normal[2]);
+        ++checked;
+      }
+    from_spheres += sets[1].contacts.size();
+    ASSERT_EQ(sets[0].contacts.size(), sets[2].contacts.size());
+  }
+  EXPECT_GT(checked, 200u);
+  EXPECT_GT(from_spheres, 20u);
 }
 
 TEST(Query, DeepContactsFollowTheLayers) {

@@ -35,10 +35,16 @@ struct VoxelmapTarget {
   }
   /// A bound costs one voxel, a sample up to eight: test a point's bound before sampling it.
   static constexpr bool kBoundBeforeDistance = true;
-  float distance(const Eigen::Vector3f& u, bool& exact) const {
-    const core::Sample s = core::sample(field, core::to_core(u), nullptr);
-    exact = s.exact;
-    return s.distance;
+  /// Whether a sample computes the gradient too (gradient normals: the contact's normal then needs no second
+  /// sample at the same point).
+  bool gradients = false;
+  void sample(const Eigen::Vector3f& u, QueryScratch::Buffers::Hit& hit) const {
+    core::Vec3 g = core::make_vec3(0, 0, 0);
+    const core::Sample s = core::sample(field, core::to_core(u), gradients ? &g : nullptr);
+    hit.distance = s.distance;
+    hit.exact = s.exact;
+    hit.has_gradient = gradients;
+    hit.gradient = core::to_eigen(g);
   }
 };
 
@@ -68,20 +74,21 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   const core::Shell core_shell = core::shell_of(tree);
   const core::RigidPose core_shell_pose = core::to_core(shell_pose), core_field_pose = core::to_core(field_pose);
   const bool gradient_normals = options.normal_source == NormalSource::DistanceGradient;
-  auto emit = [&](uint32_t node, float d, bool exact) {
+  auto emit = [&](const QueryScratch::Buffers::Hit& hit) {
     Contact contact;
-    contact.point = shell_pose.apply(tree.points[node].cast<double>());
+    contact.point = shell_pose.apply(tree.points[hit.node].cast<double>());
     double normal[3];
-    core::contact_normal(core_field, frame, core_field_pose, core_shell, core_shell_pose, node, gradient_normals,
-                         normal);
+    const core::Vec3 gradient = core::to_core(hit.gradient);
+    core::contact_normal(core_field, frame, core_field_pose, core_shell, core_shell_pose, hit.node, gradient_normals,
+                         hit.has_gradient ? &gradient : nullptr, normal);
     contact.normal = sign * Eigen::Vector3d(normal[0], normal[1], normal[2]);
-    contact.depth = -double(d) * metres_per_unit;
-    contact.point_index = node;
+    contact.depth = -double(hit.distance) * metres_per_unit;
+    contact.point_index = hit.node;
     contact.point_of_b = shell_is_b;
-    contact.exact = exact;
+    contact.exact = hit.exact;
     out.contacts.push_back(contact);
   };
-  const VoxelmapTarget target{core_field};
+  const VoxelmapTarget target{core_field, gradient_normals};
   const bool allowed = front && detail::coherent_query_allowed(options);
   if (allowed && front->state().take_turn(Mf, mf, tree.extent)) {
     // The voxelmap is fixed in its own grid: displacements are measured there too.

@@ -63,29 +63,42 @@ VOXFMT_HD bool b_points_in_a(const Body& a, const RigidPose& pa, const Body& b, 
   return false;
 }
 
-/// A contact's normal (world, unit, before the direction's sign): the partner field's gradient at the point,
-/// rotated by the field's pose (NormalSource::DistanceGradient; the runtime's query computes the same, in the same
-/// order), or, where the field is flat or `gradient` is false, the point's own normal (NormalSource::PointShell).
-VOXFMT_HD void contact_normal(const Field& field, const Frame& frame, const RigidPose& field_pose, const Shell& shell,
-                              const RigidPose& shell_pose, uint32_t node, bool gradient, double normal[3]) {
-  if (gradient) {
-    Vec3 g = make_vec3(0, 0, 0);
-    sample(field, frame.to_grid.apply(shell.points[node]), &g);
-    if (g.x * g.x + g.y * g.y + g.z * g.z > 0.0f) {
-      const double gd[3] = {double(g.x), double(g.y), double(g.z)};
-      const double length = sqrt_d(gd[0] * gd[0] + gd[1] * gd[1] + gd[2] * gd[2]);
-      const double unit[3] = {gd[0] / length, gd[1] / length, gd[2] / length};
-      for (int r = 0; r < 3; ++r)
-        normal[r] =
-            field_pose.R[3 * r] * unit[0] + field_pose.R[3 * r + 1] * unit[1] + field_pose.R[3 * r + 2] * unit[2];
-      return;
-    }
-  }
+/// A contact's normal from the partner field's gradient `g` at the point (grid frame), rotated by the field's pose
+/// (NormalSource::DistanceGradient): false, with nothing written, where the field is flat there.
+VOXFMT_HD bool gradient_normal(const Vec3& g, const RigidPose& field_pose, double normal[3]) {
+  if (!(g.x * g.x + g.y * g.y + g.z * g.z > 0.0f)) return false;
+  const double gd[3] = {double(g.x), double(g.y), double(g.z)};
+  const double length = sqrt_d(gd[0] * gd[0] + gd[1] * gd[1] + gd[2] * gd[2]);
+  const double unit[3] = {gd[0] / length, gd[1] / length, gd[2] / length};
+  for (int r = 0; r < 3; ++r)
+    normal[r] = field_pose.R[3 * r] * unit[0] + field_pose.R[3 * r + 1] * unit[1] + field_pose.R[3 * r + 2] * unit[2];
+  return true;
+}
+
+/// A contact's normal from the point's own (NormalSource::PointShell), rotated by the shell's pose.
+VOXFMT_HD void point_normal(const Shell& shell, const RigidPose& shell_pose, uint32_t node, double normal[3]) {
   const Vec3& n = shell.normals[node];
   for (int r = 0; r < 3; ++r)
     normal[r] = shell_pose.R[3 * r] * n.x + shell_pose.R[3 * r + 1] * n.y + shell_pose.R[3 * r + 2] * n.z;
   const double length = sqrt_d(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]);
   for (int r = 0; r < 3; ++r) normal[r] = length > 0 ? normal[r] / length : 0.0;
+}
+
+/// A contact's normal (world, unit, before the direction's sign): gradient_normal of the field's gradient at the
+/// point — `sampled` where the caller has it from the point's distance sample, else sampled here — or, where the
+/// field is flat or `gradient` is false, point_normal. The runtime's query computes the same, in the same order.
+VOXFMT_HD void contact_normal(const Field& field, const Frame& frame, const RigidPose& field_pose, const Shell& shell,
+                              const RigidPose& shell_pose, uint32_t node, bool gradient, const Vec3* sampled,
+                              double normal[3]) {
+  if (gradient) {
+    Vec3 g = make_vec3(0, 0, 0);
+    if (sampled)
+      g = *sampled;
+    else
+      sample(field, frame.to_grid.apply(shell.points[node]), &g);
+    if (gradient_normal(g, field_pose, normal)) return;
+  }
+  point_normal(shell, shell_pose, node, normal);
 }
 
 /// Adds each contact of one direction to `result` (and `out`, while it has room).
@@ -105,13 +118,14 @@ struct ContactSink {
   EnvResult& result;
   double force[3], torque[3];
 
-  VOXFMT_HD void operator()(uint32_t node, float distance, bool) {
+  /// `gradient`: the field's at the point, from its distance sample (contact_normal).
+  VOXFMT_HD void operator()(uint32_t node, float distance, bool, const Vec3* gradient) {
     const Vec3& x = shell.points[node];
     const float xs[3] = {x.x, x.y, x.z};
     double point[3];
     apply_pose(shell_pose, xs, point);
     double normal[3];
-    contact_normal(field, frame, field_pose, shell, shell_pose, node, gradient_normals, normal);
+    contact_normal(field, frame, field_pose, shell, shell_pose, node, gradient_normals, gradient, normal);
     for (int r = 0; r < 3; ++r) normal[r] *= sign;
     const double depth = -double(distance) * metres_per_unit;
     if (depth > 0) {

@@ -269,10 +269,11 @@ class CoherentTraversal {
     float bound = point_bound;
     bool sampled = false;
     if (point_bound < proximity_) {
-      bool exact = false;
-      bound = target_.distance(map(points_[node]), exact);
+      const Hit hit = sample_hit(target_, node, map(points_[node]));
+      const bool exact = hit.exact;
+      bound = hit.distance;
       ++stats_.points_tested;
-      if (bound < proximity_) b_.level_hits.push_back({node, bound, exact});
+      if (bound < proximity_) b_.level_hits.push_back(hit);
       // Interpolated from estimates (the band's edge and beyond), the distance has no useful slope bound: looked
       // up again at the next query.
       sampled = true;
@@ -310,7 +311,7 @@ class CoherentTraversal {
   void report() {
     std::vector<Hit>& hits = b_.level_hits;
     std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) { return a.node < b.node; });
-    for (const Hit& hit : hits) emit_(hit.node, hit.distance, hit.exact);
+    for (const Hit& hit : hits) report_hit(emit_, hit);
     uint32_t deepest = 0;
     for (size_t l = 0; l + 1 < tree_.level_offsets.size(); ++l) deepest = uint32_t(l);
     stats_.deepest_level = std::max(stats_.deepest_level, deepest);

@@ -32,6 +32,10 @@ struct QueryScratch::Buffers {
     uint32_t node;
     float distance;
     bool exact;
+    /// The target's distance gradient at the point, where it gives one with the distance (a voxelmap computing
+    /// gradient normals): the contact's normal then needs no second sample.
+    bool has_gradient = false;
+    Eigen::Vector3f gradient = Eigen::Vector3f::Zero();
   };
   std::vector<Hit> level_hits;
   /// Nodes of the level being traversed that queued children (what a cut level reports as spheres).
@@ -54,6 +58,35 @@ template <class Target>
 struct BatchedBounds<Target, std::void_t<decltype(std::declval<const Target&>().lower_bounds(
                                  std::declval<const Eigen::Vector3f*>(), size_t(0), std::declval<float*>()))>>
     : std::true_type {};
+
+/// Whether a target samples a point into a Hit (`sample(u, hit)`: distance, exactness and, where it computes one,
+/// the gradient) rather than only `distance(u, exact)`.
+template <class Target, class = void>
+struct SamplesHits : std::false_type {};
+template <class Target>
+struct SamplesHits<Target, std::void_t<decltype(std::declval<const Target&>().sample(
+                               std::declval<const Eigen::Vector3f&>(), std::declval<QueryScratch::Buffers::Hit&>()))>>
+    : std::true_type {};
+
+/// The distance of `node`'s point, at u in the target's frame, as a hit.
+template <class Target>
+QueryScratch::Buffers::Hit sample_hit(const Target& target, uint32_t node, const Eigen::Vector3f& u) {
+  QueryScratch::Buffers::Hit hit{node, 0.0f, false};
+  if constexpr (SamplesHits<Target>::value)
+    target.sample(u, hit);
+  else
+    hit.distance = target.distance(u, hit.exact);
+  return hit;
+}
+
+/// Reports a hit to an emitter that takes one (and so its gradient), or (node, distance, exact).
+template <class Emit>
+void report_hit(Emit& emit, const QueryScratch::Buffers::Hit& hit) {
+  if constexpr (std::is_invocable_v<Emit&, const QueryScratch::Buffers::Hit&>)
+    emit(hit);
+  else
+    emit(hit.node, hit.distance, hit.exact);
+}
 
 /// How far a query walks and what it reports at the end (QueryOptions, in the traversal's terms).
 struct WalkLimits {
@@ -217,13 +250,12 @@ class LevelTraversal {
   void test_point(uint32_t node, const Eigen::Vector3f& u, float point_bound) {
     if (b_.tested_points) b_.tested_points->push_back(u);
     if (point_bound < proximity_) {
-      bool exact = false;
-      const float d = target_.distance(u, exact);
-      if (d < proximity_) {
+      const Hit hit = sample_hit(target_, node, u);
+      if (hit.distance < proximity_) {
         if (hold_)
-          b_.level_hits.push_back({node, d, exact});
+          b_.level_hits.push_back(hit);
         else
-          emit_(node, d, exact);
+          report_hit(emit_, hit);
       }
     }
   }
@@ -275,18 +307,17 @@ class LevelTraversal {
   }
 
   void emit_points(const std::vector<Hit>& hits) {
-    for (const Hit& hit : hits) emit_(hit.node, hit.distance, hit.exact);
+    for (const Hit& hit : hits) report_hit(emit_, hit);
   }
 
   // A cut level: its points whose children were never tested report their spheres.
   void emit_cut(const std::vector<Hit>& hits, const std::vector<uint32_t>& parents) {
     for (const Hit& hit : hits)
-      if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit_(hit.node, hit.distance, hit.exact);
+      if (!std::binary_search(parents.begin(), parents.end(), hit.node)) report_hit(emit_, hit);
     for (const uint32_t node : parents) {
-      bool exact = false;
       const float radius = nodes_[node].radius * radius_scale_;
-      const float d = target_.distance(map(nodes_[node].centre), exact) - radius;
-      if (d < proximity_) emit_(node, d, false);
+      const float d = sample_hit(target_, node, map(nodes_[node].centre)).distance - radius;
+      if (d < proximity_) report_hit(emit_, Hit{node, d, false});
     }
   }
 

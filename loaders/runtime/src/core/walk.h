@@ -35,8 +35,8 @@ constexpr uint32_t kMaxWalkLevels = 48;
 
 VOXFMT_HD Vec3 centre_of(const Node& n) { return make_vec3(n.centre[0], n.centre[1], n.centre[2]); }
 
-/// Walks `shell` in the grid of `field` (`frame`), calling emit(node, distance, exact) for every point nearer than
-/// frame.proximity (grid units). Returns the nodes visited, or -1 for a tree deeper than kMaxWalkLevels.
+/// Walks `shell` in the grid of `field` (`frame`), calling emit(node, distance, exact, &gradient) for every point
+/// nearer than frame.proximity (grid units). Returns the nodes visited, or -1 for a tree deeper than kMaxWalkLevels.
 template <class Emit>
 VOXFMT_HD int walk(const Field& field, const Shell& shell, const Frame& frame, Emit& emit) {
   // A node is examined when the bounds its parent carried (from the parent's centre and point) do not rule it
@@ -70,8 +70,10 @@ VOXFMT_HD int walk(const Field& field, const Shell& shell, const Frame& frame, E
     float point_bound = -infinity;
     if (n.child_count > 0) point_bound = lower_bound(field, u);
     if (point_bound < proximity) {
-      const Sample s = sample(field, u, nullptr);
-      if (s.distance < proximity) emit(node, s.distance, s.exact);
+      // The gradient comes with the distance's corners: a contact's normal needs no second sample.
+      Vec3 gradient = make_vec3(0, 0, 0);
+      const Sample s = sample(field, u, &gradient);
+      if (s.distance < proximity) emit(node, s.distance, s.exact, &gradient);
     }
     if (n.child_count == 0) continue;
     if (top > int(kMaxWalkLevels)) return -1;
