@@ -68,24 +68,34 @@ VOXFMT_HD void cell_values(const Field& f, const int lower[3], float p[8]) {
   for (int c = 0; c < 8; ++c) p[c] = float(q[offset[c]]);
 }
 
-/// The coarse estimate of a voxel of a coarse brick: the lattice interpolated, at least the band's edge, signed.
-VOXFMT_HD float coarse_value(const Field& f, int i, int j, int k, int32_t entry) {
-  // Every voxel lies in one lattice cell: that of its brick, from the brick's first voxel to the next brick's.
+/// The lattice cell voxel (i, j, k) lies in: that of its brick, from the brick's first voxel to the next brick's.
+VOXFMT_HD void cell_of(int i, int j, int k, int lower[3]) {
+  lower[0] = i >> kEdgeBits, lower[1] = j >> kEdgeBits, lower[2] = k >> kEdgeBits;
+}
+
+/// The coarse estimate of a voxel of a coarse brick from its cell's lattice values `p` (cell_values of cell_of):
+/// the lattice interpolated, at least the band's edge, signed.
+VOXFMT_HD float coarse_value_in(const Field& f, int i, int j, int k, int32_t entry, const float p[8]) {
   const int c[3] = {i, j, k};
-  int lower[3];
   float t[3];
   for (int a = 0; a < 3; ++a) {
-    lower[a] = c[a] >> kEdgeBits;
-    const int x0 = lower[a] * kEdge, x1 = lattice_coordinate(f, lower[a] + 1, a);
+    const int x0 = (c[a] >> kEdgeBits) * kEdge, x1 = lattice_coordinate(f, (c[a] >> kEdgeBits) + 1, a);
     t[a] = x1 > x0 ? float(c[a] - x0) / float(x1 - x0) : 0.0f;
   }
-  float p[8];
-  cell_values(f, lower, p);
   const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
   const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
   const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);
   const float magnitude = max_f((y0 + t[2] * (y1 - y0)) * f.lattice_step, f.band_edge);
   return entry == kCoarseInside ? -magnitude : magnitude;
+}
+
+/// The coarse estimate of a voxel of a coarse brick.
+VOXFMT_HD float coarse_value(const Field& f, int i, int j, int k, int32_t entry) {
+  int lower[3];
+  cell_of(i, j, k, lower);
+  float p[8];
+  cell_values(f, lower, p);
+  return coarse_value_in(f, i, j, k, entry, p);
 }
 
 /// The lattice interpolated trilinearly at grid coordinates u (inside the grid), and its gradient if asked.
@@ -249,19 +259,16 @@ VOXFMT_HD float lattice_point_bound(const Field& f, float l) {
   return (l - 0.5f * f.lattice_step - f.estimate_offset) * f.estimate_shrink - (1e-3f + 1e-6f * l);
 }
 
-/// A lower bound at `u`, outside the object, from the 8 lattice points of the cell of voxel `v`: the best of
-/// each point's own bound less u's distance to it. Near a lattice point this is far tighter than the
-/// interpolated estimate, which must allow for interpolation anywhere in the cell (4 sqrt(3) voxels).
-VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v[3]) {
-  int lower[3];
+/// A lower bound at `u`, outside the object, from the 8 lattice points of the cell of voxel `v`, whose lattice
+/// values are `p`: the best of each point's own bound less u's distance to it. Near a lattice point this is far
+/// tighter than the interpolated estimate, which must allow for interpolation anywhere in the cell (4 sqrt(3)
+/// voxels).
+VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v[3], const float p[8]) {
   float x0[3], x1[3];
   for (int a = 0; a < 3; ++a) {
-    lower[a] = v[a] >> kEdgeBits;
-    x0[a] = float(lower[a] * kEdge);
-    x1[a] = float(lattice_coordinate(f, lower[a] + 1, a));
+    x0[a] = float((v[a] >> kEdgeBits) * kEdge);
+    x1[a] = float(lattice_coordinate(f, (v[a] >> kEdgeBits) + 1, a));
   }
-  float p[8];
-  cell_values(f, lower, p);
   float best = -__builtin_huge_valf();
   for (int c = 0; c < 8; ++c) {
     const Vec3 corner = make_vec3(c & 1 ? x1[0] : x0[0], c & 2 ? x1[1] : x0[1], c & 4 ? x1[2] : x0[2]);
@@ -272,16 +279,27 @@ VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v
 
 /// lower_bound at a covered `u` from its nearest voxel `v`, whose brick table entry is `entry`.
 VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3], int32_t entry) {
-  bool stored = true;
-  const float value = entry_value(f, v[0], v[1], v[2], entry, stored);
+  // A coarse voxel's value and the lattice-point bounds read the same cell: once.
+  int lower[3];
+  cell_of(v[0], v[1], v[2], lower);
+  float p[8];
+  bool stored = entry >= 0;
+  float value;
+  if (stored) {
+    value = entry_value(f, v[0], v[1], v[2], entry, stored);
+  } else {
+    cell_values(f, lower, p);
+    value = coarse_value_in(f, v[0], v[1], v[2], entry, p);
+  }
   // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
   const float offset = length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
   const float bound = value_lower_bound(f, value, stored) - offset;
   // A voxel without a stored distance is at least the band's edge from the surface: where its value says outside
   // and u is nearer to it than that, u is outside too, and the lattice points of the voxel's cell bound u's
   // distance directly.
-  if (!stored && value > 0 && offset < f.band_edge) return max_f(bound, lattice_corners_bound(f, u, v));
-  return bound;
+  if (stored || !(value > 0 && offset < f.band_edge)) return bound;
+  if (entry >= 0) cell_values(f, lower, p);
+  return max_f(bound, lattice_corners_bound(f, u, v, p));
 }
 
 /// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.
