@@ -4,9 +4,11 @@
 // the pair's last query left (CoherentTraversal) and descends as the level walk does. Both report the same points,
 // in the same order.
 //
-// A target supplies `lower_bound(u)` (never above the true signed distance), `distance(u, exact)`, both in its
-// units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its distance). The shell is
-// mapped into the target by u = M x + m; its lengths scale by `radius_scale`.
+// A target supplies `lower_bound(u)` (never above the true signed distance), `distance(u, exact)` or
+// `sample(u, hit)` (the distance with, where it computes one, its gradient: a contact's normal then needs no second
+// sample), all in its units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its
+// distance). The shell is mapped into the target by u = M x + m; its lengths scale by `radius_scale`. The emitter
+// takes a hit, or (node, distance, exact).
 #pragma once
 
 #include <Eigen/Geometry>
