@@ -61,6 +61,16 @@ struct BatchedBounds<Target, std::void_t<decltype(std::declval<const Target&>().
                                  std::declval<const Eigen::Vector3f*>(), size_t(0), std::declval<float*>()))>>
     : std::true_type {};
 
+/// lower_bound at the n points `u` into `out`: in one batch where the target looks them up so.
+template <class Target>
+void bounds_at(const Target& target, const Eigen::Vector3f* u, size_t n, float* out) {
+  if constexpr (BatchedBounds<Target>::value) {
+    target.lower_bounds(u, n, out);
+  } else {
+    for (size_t i = 0; i < n; ++i) out[i] = target.lower_bound(u[i]);
+  }
+}
+
 /// Whether a target samples a point into a Hit (`sample(u, hit)`: distance, exactness and, where it computes one,
 /// the gradient) rather than only `distance(u, exact)`.
 template <class Target, class = void>
@@ -188,11 +198,7 @@ class LevelTraversal {
   size_t cull(const uint32_t* batch, size_t count) {
     for (size_t i = 0; i < count; ++i) centre_[i] = map(nodes_[batch[i]].centre);
     float bounds[kBatch];
-    if constexpr (BatchedBounds<Target>::value) {
-      target_.lower_bounds(centre_, count, bounds);
-    } else {
-      for (size_t i = 0; i < count; ++i) bounds[i] = target_.lower_bound(centre_[i]);
-    }
+    bounds_at(target_, centre_, count, bounds);
     size_t survivors = 0;
     for (size_t i = 0; i < count; ++i) {
       const float bound = bounds[i];
@@ -240,11 +246,7 @@ class LevelTraversal {
         inner_slot[inner++] = uint32_t(i);
       }
     }
-    if constexpr (BatchedBounds<Target>::value) {
-      target_.lower_bounds(inner_point, inner, inner_bound);
-    } else {
-      for (size_t n = 0; n < inner; ++n) inner_bound[n] = target_.lower_bound(inner_point[n]);
-    }
+    bounds_at(target_, inner_point, inner, inner_bound);
     for (size_t n = 0; n < inner; ++n) point_bound[inner_slot[n]] = inner_bound[n];
   }
 
