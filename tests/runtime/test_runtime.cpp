@@ -395,7 +395,7 @@ TEST(Query, GradientNormalsComeFromTheContactPointsOwnSample) {
   QueryOptions cut = full;
   cut.max_level = 3;
   cut.cut_level = CutLevel::Spheres;
-  size_t checked = 0, from_spheres = 0;
+  size_t checked = 0, cut_contacts = 0;
   QueryState state;
   QueryScratch scratch;
   for (int step = 0; step < 12; ++step) {
@@ -418,11 +418,11 @@ TEST(Query, GradientNormalsComeFromTheContactPointsOwnSample) {
         ASSERT_EQ(contact.normal.z(), normal[2]);
         ++checked;
       }
-    from_spheres += sets[1].contacts.size();
+    cut_contacts += sets[1].contacts.size();
     ASSERT_EQ(sets[0].contacts.size(), sets[2].contacts.size());
   }
   EXPECT_GT(checked, 200u);
-  EXPECT_GT(from_spheres, 20u);
+  EXPECT_GT(cut_contacts, 20u);
 }
 
 TEST(Query, DeepContactsFollowTheLayers) {
