@@ -311,7 +311,7 @@ class CoherentTraversal {
   void report() {
     std::vector<Hit>& hits = b_.level_hits;
     std::sort(hits.begin(), hits.end(), [](const Hit& a, const Hit& b) { return a.node < b.node; });
-    for (const Hit& hit : hits) report_hit(emit_, hit);
+    for (const Hit& hit : hits) emit_(hit);
     uint32_t deepest = 0;
     for (size_t l = 0; l + 1 < tree_.level_offsets.size(); ++l) deepest = uint32_t(l);
     stats_.deepest_level = std::max(stats_.deepest_level, deepest);

@@ -259,15 +259,15 @@ VOXFMT_HD float lattice_point_bound(const Field& f, float l) {
   return (l - 0.5f * f.lattice_step - f.estimate_offset) * f.estimate_shrink - (1e-3f + 1e-6f * l);
 }
 
-/// A lower bound at `u`, outside the object, from the 8 lattice points of the cell of voxel `v`, whose lattice
-/// values are `p`: the best of each point's own bound less u's distance to it. Near a lattice point this is far
-/// tighter than the interpolated estimate, which must allow for interpolation anywhere in the cell (4 sqrt(3)
-/// voxels).
-VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int v[3], const float p[8]) {
+/// A lower bound at `u`, outside the object, from the 8 lattice points of lattice cell `lower` (cell_of), whose
+/// values are `p` (cell_values): the best of each point's own bound less u's distance to it. Near a lattice point
+/// this is far tighter than the interpolated estimate, which must allow for interpolation anywhere in the cell
+/// (4 sqrt(3) voxels).
+VOXFMT_HD float lattice_corners_bound(const Field& f, const Vec3& u, const int lower[3], const float p[8]) {
   float x0[3], x1[3];
   for (int a = 0; a < 3; ++a) {
-    x0[a] = float((v[a] >> kEdgeBits) * kEdge);
-    x1[a] = float(lattice_coordinate(f, (v[a] >> kEdgeBits) + 1, a));
+    x0[a] = float(lower[a] * kEdge);
+    x1[a] = float(lattice_coordinate(f, lower[a] + 1, a));
   }
   float best = -__builtin_huge_valf();
   for (int c = 0; c < 8; ++c) {
@@ -299,7 +299,7 @@ VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3
   // distance directly.
   if (stored || !(value > 0 && offset < f.band_edge)) return bound;
   if (entry >= 0) cell_values(f, lower, p);
-  return max_f(bound, lattice_corners_bound(f, u, v, p));
+  return max_f(bound, lattice_corners_bound(f, u, lower, p));
 }
 
 /// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.

@@ -55,10 +55,12 @@ struct FunctionTarget {
   LowerBound& bound;
   float lower_bound(const Eigen::Vector3f& u) const { return bound(u); }
   static constexpr bool kBoundBeforeDistance = CheapBound<std::remove_cv_t<LowerBound>>::value;
-  float distance(const Eigen::Vector3f& u, bool& exact) const {
+  /// The function's value; its normal is evaluated again where a contact is made (function_contacts), at the
+  /// contact's world point.
+  void sample(const Eigen::Vector3f& u, QueryScratch::Buffers::Hit& hit) const {
     Eigen::Vector3f normal;
-    exact = true;
-    return function(u, normal);
+    hit.distance = function(u, normal);
+    hit.exact = true;
   }
 };
 
@@ -67,7 +69,8 @@ struct FunctionTarget {
 template <class SignedDistance>
 auto function_contacts(const PointTree& tree, const Pose& pose, SignedDistance& distance, const QueryOptions& options,
                        ContactSet& out) {
-  return [&tree, &pose, &distance, &options, &out](uint32_t node, float d, bool exact) {
+  return [&tree, &pose, &distance, &options, &out](const QueryScratch::Buffers::Hit& hit) {
+    const uint32_t node = hit.node;
     Contact contact;
     contact.point = pose.apply(tree.points[node].cast<double>());
     Eigen::Vector3f outward;
@@ -76,9 +79,9 @@ auto function_contacts(const PointTree& tree, const Pose& pose, SignedDistance& 
       contact.normal = (pose.rotation * tree.normals[node].cast<double>()).normalized();
     else
       contact.normal = outward.cast<double>().normalized();
-    contact.depth = -double(d);
+    contact.depth = -double(hit.distance);
     contact.point_index = node;
-    contact.exact = exact;
+    contact.exact = hit.exact;
     out.contacts.push_back(contact);
   };
 }

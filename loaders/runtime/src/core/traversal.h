@@ -4,11 +4,11 @@
 // the pair's last query left (CoherentTraversal) and descends as the level walk does. Both report the same points,
 // in the same order.
 //
-// A target supplies `lower_bound(u)` (never above the true signed distance), `distance(u, exact)` or
-// `sample(u, hit)` (the distance with, where it computes one, its gradient: a contact's normal then needs no second
-// sample), all in its units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its
+// A target supplies `lower_bound(u)` (never above the true signed distance), `sample(u, hit)` (the distance, whether
+// it is exact and, where the target computes one with it, its gradient: a contact's normal then needs no second
+// sample), both in its units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its
 // distance). The shell is mapped into the target by u = M x + m; its lengths scale by `radius_scale`. The emitter
-// takes a hit, or (node, distance, exact).
+// takes each reported hit.
 #pragma once
 
 #include <Eigen/Geometry>
@@ -71,33 +71,12 @@ void bounds_at(const Target& target, const Eigen::Vector3f* u, size_t n, float* 
   }
 }
 
-/// Whether a target samples a point into a Hit (`sample(u, hit)`: distance, exactness and, where it computes one,
-/// the gradient) rather than only `distance(u, exact)`.
-template <class Target, class = void>
-struct SamplesHits : std::false_type {};
-template <class Target>
-struct SamplesHits<Target, std::void_t<decltype(std::declval<const Target&>().sample(
-                               std::declval<const Eigen::Vector3f&>(), std::declval<QueryScratch::Buffers::Hit&>()))>>
-    : std::true_type {};
-
 /// The distance of `node`'s point, at u in the target's frame, as a hit.
 template <class Target>
 QueryScratch::Buffers::Hit sample_hit(const Target& target, uint32_t node, const Eigen::Vector3f& u) {
   QueryScratch::Buffers::Hit hit{node, 0.0f, false};
-  if constexpr (SamplesHits<Target>::value)
-    target.sample(u, hit);
-  else
-    hit.distance = target.distance(u, hit.exact);
+  target.sample(u, hit);
   return hit;
-}
-
-/// Reports a hit to an emitter that takes one (and so its gradient), or (node, distance, exact).
-template <class Emit>
-void report_hit(Emit& emit, const QueryScratch::Buffers::Hit& hit) {
-  if constexpr (std::is_invocable_v<Emit&, const QueryScratch::Buffers::Hit&>)
-    emit(hit);
-  else
-    emit(hit.node, hit.distance, hit.exact);
 }
 
 /// How far a query walks and what it reports at the end (QueryOptions, in the traversal's terms).
@@ -120,9 +99,8 @@ struct WalkLimits {
   }
 };
 
-/// The level-by-level walk from the root. Calls emit(node, distance, exact) for every tested point closer than
-/// `proximity` (target units), level by level in node order; a level cut short by a limit reports what
-/// CutLevel says.
+/// The level-by-level walk from the root. Calls emit(hit) for every tested point closer than `proximity` (target
+/// units), level by level in node order; a level cut short by a limit reports what CutLevel says.
 ///
 /// A level is processed in batches of kBatch nodes, each in two passes (cull the spheres, then open the
 /// survivors): the lookups of one pass are independent of each other, so their cache misses overlap instead of
@@ -259,7 +237,7 @@ class LevelTraversal {
         if (hold_)
           b_.level_hits.push_back(hit);
         else
-          report_hit(emit_, hit);
+          emit_(hit);
       }
     }
   }
@@ -311,17 +289,17 @@ class LevelTraversal {
   }
 
   void emit_points(const std::vector<Hit>& hits) {
-    for (const Hit& hit : hits) report_hit(emit_, hit);
+    for (const Hit& hit : hits) emit_(hit);
   }
 
   // A cut level: its points whose children were never tested report their spheres.
   void emit_cut(const std::vector<Hit>& hits, const std::vector<uint32_t>& parents) {
     for (const Hit& hit : hits)
-      if (!std::binary_search(parents.begin(), parents.end(), hit.node)) report_hit(emit_, hit);
+      if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit_(hit);
     for (const uint32_t node : parents) {
       const float radius = nodes_[node].radius * radius_scale_;
       const float d = sample_hit(target_, node, map(nodes_[node].centre)).distance - radius;
-      if (d < proximity_) report_hit(emit_, Hit{node, d, false});
+      if (d < proximity_) emit_(Hit{node, d, false});
     }
   }
 
