@@ -51,5 +51,7 @@ struct Body {
 
 /// Binds the batched queries of every environment (batch.cpp): the CPU path, and the CUDA one where built.
 void bind_batch(nb::module_& m);
+/// Binds the engine layouts of a loaded asset (engines.cpp): Newton's texture SDF, NanoVDB grids.
+void bind_engines(nb::module_& m);
 
 }  // namespace voxfmt::python

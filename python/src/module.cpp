@@ -456,6 +456,28 @@ std::string inspect(const std::string& path, const std::optional<int64_t>& max_m
   return inspect_json(path, asset->value(), summarize_asset(path, asset->value()), warnings);
 }
 
+/// A mesh as the bake's import reads it (no repair): (vertices (V, 3) float64 metres, triangles (T, 3) uint32).
+std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, uint32_t>> read_mesh(nb::handle path_object,
+                                                                                         double unit_scale) {
+  const std::string path = path_arg(path_object, "path");
+  bake::ImportSettings settings;
+  settings.unit_scale = unit_scale;
+  std::optional<Result<bake::TriangleMesh>> mesh;
+  {
+    nb::gil_scoped_release release;
+    mesh.emplace(bake::read_mesh(path, settings));
+  }
+  if (!mesh->ok()) throw CodedError(mesh->error());
+  const bake::TriangleMesh& m = mesh->value();
+  OutArray<double> vertices({m.vertices.size(), 3});
+  for (size_t v = 0; v < m.vertices.size(); ++v)
+    for (size_t a = 0; a < 3; ++a) vertices.data[3 * v + a] = m.vertices[v][a];
+  OutArray<uint32_t> triangles({m.triangles.size(), 3});
+  for (size_t t = 0; t < m.triangles.size(); ++t)
+    for (size_t a = 0; a < 3; ++a) triangles.data[3 * t + a] = m.triangles[t][a];
+  return {vertices.array, triangles.array};
+}
+
 Body load(nb::handle path_object, double density, const std::optional<int64_t>& max_memory_mib) {
   const std::string path = path_arg(path_object, "path");
   if (!(std::isfinite(density) && density > 0)) fail(IssueCode::BadOption, "density must be a finite number > 0");
@@ -596,6 +618,12 @@ void bind_body(nb::module_& m) {
           "(min (3,), max (3,)) bounding box in the asset frame, metres.", nb::rv_policy::automatic)
       .def_prop_ro(
           "path", [](const Body& b) { return b.path; }, "The file it was loaded from.")
+      .def_prop_ro(
+          "build_parameters", [](const Body& b) { return b.object->provenance().build_parameters_json; },
+          "The bake's options that shaped the data, as the asset records them (a JSON object, text).")
+      .def_prop_ro(
+          "source_file", [](const Body& b) { return b.object->provenance().source_file; },
+          "File name of the mesh the asset was baked from (no folder; empty if none).")
       .def_prop_ro(
           "memory_bytes", [](const Body& b) { return b.object->memory_bytes(); },
           "Heap bytes of the runtime structures.")
@@ -770,6 +798,12 @@ void bind_pipeline(nb::module_& m) {
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),
         "time_budget_us"_a.none(), "proximity"_a);
   m.def("_library_version", [] { return std::string(VOXFMT_VERSION_STRING); });
+  m.def("read_mesh", &read_mesh, "path"_a, nb::kw_only(), "unit_scale"_a = 1.0,
+        nb::sig("def read_mesh(path: str | os.PathLike[str], *, unit_scale: float = 1.0) -> "
+                "tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.uint32]]"),
+        "A mesh file as `voxfmt build` imports it (any format assimp reads, all meshes of a scene merged with their\n"
+        "node transforms, coordinates times unit_scale; no repair): (vertices (V, 3) float64 metres, triangles\n"
+        "(T, 3) uint32). With an asset's recorded unit_scale it is the surface in the asset's frame.");
 }
 
 }  // namespace
@@ -785,4 +819,5 @@ NB_MODULE(_voxfmt, m) {
   bind_queries(m);
   bind_pipeline(m);
   bind_batch(m);
+  bind_engines(m);
 }

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
-from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, wrench
+from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
 from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
 
@@ -52,6 +52,7 @@ __all__ = [
     "cuda_status",
     "inspect",
     "load",
+    "read_mesh",
     "validate",
     "wrench",
 ]

@@ -101,6 +101,7 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_che
   auto object = std::make_shared<CollisionObject>();
   object->bounds_min_ = to_double(asset.bounds_min);
   object->bounds_max_ = to_double(asset.bounds_max);
+  object->distance_band_ = asset.voxelmap.distance_band;
   if (options.load_voxelmap)
     object->voxelmap_ = SparseVoxelmap::from_voxelmap(std::move(asset.voxelmap), asset.bounds_min, asset.bounds_max);
   if (options.load_point_shell) object->tree_ = make_tree(asset.point_shell);
@@ -127,6 +128,7 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_che
   }
   object->bounding_radius_ = std::sqrt(radius2);
   object->point_spacing_ = asset.point_shell.point_spacing.value_or(0.0);
+  object->provenance_ = std::move(asset.provenance);
   return std::shared_ptr<const CollisionObject>(std::move(object));
 }
 

@@ -191,6 +191,10 @@ class CollisionObject {
 
   /// Heap bytes of the runtime structures.
   size_t memory_bytes() const { return voxelmap_.memory_bytes() + tree_.memory_bytes(); }
+  /// Who made the asset, from what and how (spec §6): what exports of it record.
+  const voxfmt::Provenance& provenance() const { return provenance_; }
+  /// Half-width of the band of stored distances, voxels (spec §3.2).
+  double distance_band() const { return distance_band_; }
 
  private:
   /// Converts an asset that has passed at least quick validation (each load validates once).
@@ -208,6 +212,8 @@ class CollisionObject {
   Eigen::Vector3d bounds_max_ = Eigen::Vector3d::Zero();
   double bounding_radius_ = 0.0;
   double point_spacing_ = 0.0;
+  voxfmt::Provenance provenance_;
+  double distance_band_ = 0.0;
 };
 
 }  // namespace voxfmt::runtime

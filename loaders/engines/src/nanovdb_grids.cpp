@@ -1,0 +1,234 @@
+// NanoVDB grids from the runtime's field, with NanoVDB's own header-only builder (no OpenVDB library, so the Python
+// package builds them too): the level set's leaves are bricks of the asset, its tiles signed from the brick table.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <sstream>
+
+#define NANOVDB_USE_ZIP
+#include <nanovdb/NanoVDB.h>
+#include <nanovdb/util/GridBuilder.h>
+#include <nanovdb/util/GridChecksum.h>
+#include <nanovdb/util/IO.h>
+#include <zlib.h>
+
+#include "field_samples.h"
+#include "voxfmt/engines/layouts.h"
+#include "voxfmt/version.h"
+
+#include <nlohmann/json.hpp>
+
+namespace voxfmt::engines {
+
+namespace {
+
+using detail::FieldSamples;
+namespace core = runtime::core;
+constexpr int kEdge = core::kEdge;
+
+/// The grid's blind data: the metadata JSON, as NanoVDB's tools and Warp's feature arrays see it (bytes).
+void attach_metadata(nanovdb::GridHandle<>& handle, const std::string& json) {
+  if (json.empty()) return;
+  nanovdb::GridData* data = reinterpret_cast<nanovdb::GridData*>(handle.data());
+  auto* meta = const_cast<nanovdb::GridBlindMetaData*>(data->blindMetaData(0));
+  meta->mElementCount = json.size();
+  meta->mFlags = 0;
+  meta->mSemantic = nanovdb::GridBlindDataSemantic::Unknown;
+  meta->mDataClass = nanovdb::GridBlindDataClass::Unknown;
+  meta->mDataType = nanovdb::GridType::Unknown;
+  std::memset(meta->mName, 0, sizeof(meta->mName));
+  std::strncpy(meta->mName, "voxfmt", sizeof(meta->mName) - 1);
+  std::memcpy(const_cast<char*>(meta->getBlindData<char>()), json.data(), json.size());
+}
+
+/// A grid as NanoVDB's ZIP codec stores it (its compressed size, then one zlib stream), at zlib's fastest level:
+/// NanoVDB's own writer uses zlib's default level, 3-4 times slower for a file a few percent smaller.
+uint64_t write_zip(std::ostream& os, const nanovdb::GridHandle<>& handle) {
+  uLongf size = compressBound(uLong(handle.size()));
+  std::vector<Bytef> packed(size);
+  if (compress2(packed.data(), &size, handle.data(), uLong(handle.size()), Z_BEST_SPEED) != Z_OK)
+    throw std::runtime_error("zlib could not compress a grid");
+  const uint64_t bytes = size;
+  os.write(reinterpret_cast<const char*>(&bytes), sizeof(bytes));
+  os.write(reinterpret_cast<const char*>(packed.data()), std::streamsize(bytes));
+  return sizeof(bytes) + bytes;
+}
+
+/// Whether a brick without codes holds a voxel nearer than `width` (voxels): its smallest value is at least the
+/// smallest of its lattice corners' (the interpolation is a convex combination) and the band's edge.
+bool coarse_brick_reaches(const FieldSamples& field, int a, int b, int c, float width) {
+  const core::Field& f = field.field();
+  const int lower[3] = {a, b, c};
+  float p[8];
+  core::cell_values(f, lower, p);
+  float least = p[0];
+  for (float v : p) least = std::min(least, v);
+  return std::max(least * f.lattice_step, f.band_edge) < width;
+}
+
+/// Tiles take the sign of the brick they cover (tiles of upper nodes and the root: of the brick nearest their
+/// middle), instead of NanoVDB's flood fill from the leaves, which an open mesh's holes would mislead.
+void sign_tiles(nanovdb::NanoGrid<float>& grid, const FieldSamples& field, float width) {
+  auto sign_at = [&](const nanovdb::Coord& origin, int extent) {
+    int brick[3];
+    for (int a = 0; a < 3; ++a) {
+      const int mid = std::clamp(origin[a] + extent / 2, 0, field.dims(a) - 1);
+      brick[a] = mid / kEdge;
+    }
+    return field.brick(brick[0], brick[1], brick[2]) == core::kCoarseInside ? -width : width;
+  };
+  auto& tree = grid.tree();
+  auto* lower = tree.getFirstNode<1>();
+  for (uint32_t n = 0; n < tree.nodeCount(1); ++n) {
+    auto* data = lower[n].data();
+    for (uint32_t t = 0; t < 4096; ++t) {
+      if (data->mChildMask.isOn(t)) continue;
+      const nanovdb::Coord local(int((t >> 8) & 15) * 8, int((t >> 4) & 15) * 8, int(t & 15) * 8);
+      data->setValue(t, sign_at(lower[n].origin() + local, 8));
+    }
+  }
+  auto* upper = tree.getFirstNode<2>();
+  for (uint32_t n = 0; n < tree.nodeCount(2); ++n) {
+    auto* data = upper[n].data();
+    for (uint32_t t = 0; t < 32768; ++t) {
+      if (data->mChildMask.isOn(t)) continue;
+      const nanovdb::Coord local(int((t >> 10) & 31) * 128, int((t >> 5) & 31) * 128, int(t & 31) * 128);
+      data->setValue(t, sign_at(upper[n].origin() + local, 128));
+    }
+  }
+}
+
+nanovdb::GridHandle<> distance_grid(const runtime::CollisionObject& object, const FieldSamples& field, float width,
+                                    NanoVdbGrids& info) {
+  const std::string metadata = grid_metadata_json(object, "distance", info.width);
+  const runtime::SparseVoxelmap& map = object.voxelmap();
+  const double h = map.voxel_size();
+  nanovdb::GridBuilder<float> builder(float(width * h), nanovdb::GridClass::LevelSet, metadata.size());
+  auto access = builder.getAccessor();
+  const core::Field& f = field.field();
+  for (int c = 0; c < f.brick_dims[2]; ++c)
+    for (int b = 0; b < f.brick_dims[1]; ++b)
+      for (int a = 0; a < f.brick_dims[0]; ++a) {
+        if (field.brick(a, b, c) < 0 && !coarse_brick_reaches(field, a, b, c, width)) continue;
+        ++info.distance_leaves;
+        float values[core::kBrickVoxels];
+        field.brick_values(a, b, c, values);
+        for (int z = 0, n = 0; z < kEdge; ++z)
+          for (int y = 0; y < kEdge; ++y)
+            for (int x = 0; x < kEdge; ++x, ++n) {
+              const float v = std::clamp(values[n], -width, width);
+              access.setValue(nanovdb::Coord(a * kEdge + x, b * kEdge + y, c * kEdge + z), float(double(v) * h));
+            }
+      }
+  info.distance_active_voxels = info.distance_leaves * 512;
+  const nanovdb::Vec3d origin(map.origin().x(), map.origin().y(), map.origin().z());
+  nanovdb::GridHandle<> handle = builder.getHandle<>(h, origin, "distance");
+  auto* grid = handle.grid<float>();
+  // Tiles are inactive: changing their values leaves the statistics (of active values) as the builder made them.
+  sign_tiles(*grid, field, float(width * h));
+  attach_metadata(handle, metadata);
+  return handle;
+}
+
+nanovdb::GridHandle<> coarse_grid(const runtime::CollisionObject& object, const FieldSamples& field,
+                                  NanoVdbGrids& info) {
+  const std::string metadata = grid_metadata_json(object, "coarse", info.width);
+  const runtime::SparseVoxelmap& map = object.voxelmap();
+  const double h = map.voxel_size();
+  const core::Field& f = field.field();
+  float largest = 0;
+  const size_t points = size_t(f.lattice_dims[0]) * size_t(f.lattice_dims[1]) * size_t(f.lattice_dims[2]);
+  for (size_t n = 0; n < points; ++n) largest = std::max(largest, float(f.lattice[n]) * f.lattice_step);
+  nanovdb::GridBuilder<float> builder(float(largest * h), nanovdb::GridClass::Unknown, metadata.size());
+  auto access = builder.getAccessor();
+  // The engines' coarse grids have a point at every brick corner up to the grid's last voxel, rounded up.
+  int count[3];
+  for (int a = 0; a < 3; ++a) count[a] = std::max(1, (f.dims[a] - 1 + kEdge - 1) / kEdge) + 1;
+  for (int c = 0; c < count[2]; ++c)
+    for (int b = 0; b < count[1]; ++b)
+      for (int a = 0; a < count[0]; ++a)
+        access.setValue(nanovdb::Coord(a, b, c), float(double(field.coarse_corner(a, b, c)) * h));
+  info.coarse_voxels = uint64_t(count[0]) * uint64_t(count[1]) * uint64_t(count[2]);
+  const nanovdb::Vec3d origin(map.origin().x(), map.origin().y(), map.origin().z());
+  nanovdb::GridHandle<> handle = builder.getHandle<>(h * kEdge, origin, "coarse");
+  attach_metadata(handle, metadata);
+  return handle;
+}
+
+}  // namespace
+
+std::string grid_metadata_json(const runtime::CollisionObject& object, const std::string& grid, double width) {
+  const Provenance& p = object.provenance();
+  nlohmann::json parameters = nlohmann::json::parse(p.build_parameters_json, nullptr, false);
+  if (parameters.is_discarded()) parameters = p.build_parameters_json;
+  const double h = object.voxelmap().voxel_size();
+  nlohmann::json meta = {
+      {"format", "voxfmt"},
+      {"grid", grid},
+      {"meaning", grid == "distance"
+                      ? "signed distance to the surface, negative inside, clamped to +-level_set_width"
+                      : "signed distance at every 8th voxel (brick corners), the far field between them"},
+      {"units", "m"},
+      {"voxel_size", grid == "distance" ? h : 8 * h},
+      {"asset_voxel_size", h},
+      {"distance_band_voxels", object.distance_band()},
+      {"level_set_width", width},
+      {"exporter", std::string("voxfmt ") + VOXFMT_VERSION_STRING},
+      {"generator", p.generator + " " + p.generator_version},
+      {"source_file", p.source_file},
+      {"source_sha256", p.source_sha256},
+      {"created_utc", p.created_utc},
+      {"build_parameters", parameters},
+  };
+  std::string json = meta.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  // Padded with spaces to NanoVDB's 32-byte alignment: the blind data ends the grid, and the next grid of a file
+  // (or of a buffer that Warp reads) must start aligned.
+  json.resize((json.size() + NANOVDB_DATA_ALIGNMENT - 1) / NANOVDB_DATA_ALIGNMENT * NANOVDB_DATA_ALIGNMENT, ' ');
+  return json;
+}
+
+Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const NanoVdbOptions& options) {
+  if (!object.has_voxelmap())
+    return Error{IssueCode::InvalidAsset, "nanovdb_grids: the object has no voxelmap (loaded point shell only)"};
+  const runtime::SparseVoxelmap& map = object.voxelmap();
+  const FieldSamples field(field_of(map));
+  // The band the asset stores completely: every voxel nearer than this has its exact distance.
+  const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
+  if (!std::isfinite(width) || width > 32767)
+    return Error{IssueCode::BadOption, "nanovdb_grids: the level set's width must be a finite number of voxels up to "
+                                       "32767, got " + std::to_string(options.width_voxels)};
+  NanoVdbGrids info;
+  info.width = width * map.voxel_size();
+  std::vector<nanovdb::GridHandle<>> handles;
+  try {
+    handles.push_back(distance_grid(object, field, float(width), info));
+    handles.push_back(coarse_grid(object, field, info));
+    // NanoVDB's writer, step by step, so that the first grid can say that another follows: Warp's load_next_grid()
+    // reads the next grid where grid_count says there is one. Each grid keeps index 0, as NanoVDB 32.4's tools (and
+    // any reader of one grid alone) expect of a grid that starts its buffer.
+    const auto codec = options.compress ? nanovdb::io::Codec::ZIP : nanovdb::io::Codec::NONE;
+    nanovdb::io::Segment segment(codec);
+    for (const auto& handle : handles) segment.add(handle);
+    for (size_t n = 0; n < handles.size(); ++n) {
+      auto* grid = reinterpret_cast<nanovdb::NanoGrid<float>*>(handles[n].data());
+      grid->data()->mGridCount = n == 0 ? uint32_t(handles.size()) : 1u;
+      nanovdb::updateChecksum(*grid);
+      info.uncompressed_bytes += handles[n].size();
+    }
+    std::ostringstream file(std::string(segment.memUsage(), '\0'), std::ios::binary | std::ios::ate);
+    for (size_t n = 0; n < handles.size(); ++n)
+      segment.meta[n].fileSize = options.compress ? write_zip(file, handles[n])
+                                                  : nanovdb::io::Internal::write(file, handles[n], codec);
+    file.seekp(0);
+    segment.write(file);
+    if (!file) return Error{IssueCode::Internal, "nanovdb_grids: NanoVDB could not write the grids"};
+    info.file = std::move(file).str();
+  } catch (const std::bad_alloc&) {
+    return Error{IssueCode::OutOfMemory, "nanovdb_grids: out of memory building the grids"};
+  } catch (const std::exception& e) {
+    return Error{IssueCode::Internal, std::string("nanovdb_grids: NanoVDB failed: ") + e.what()};
+  }
+  return info;
+}
+
+}  // namespace voxfmt::engines

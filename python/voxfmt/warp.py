@@ -1,0 +1,106 @@
+"""voxfmt assets as NVIDIA Warp volumes: the asset's distance field as NanoVDB grids, built in memory from the runtime's
+own field (no file, no GPU needed), on any Warp device.
+
+    import warp as wp, voxfmt.warp
+    distance, coarse = voxfmt.warp.volumes("bunny.vox.h5", device="cuda:0")
+    # in a kernel: voxfmt.warp.sample_distance(distance.id, coarse.id, width, x) for any world point x
+
+Two grids, float32, metres, in the asset's frame (index (i, j, k) at the asset's voxel centre):
+
+- ``distance``: a narrow-band level set whose leaves are the asset's bricks near the surface. Exact (the asset's
+  stored distances) within ``width`` of the surface, clamped to ``+-width`` beyond it; its tiles are signed from the
+  asset's own inside/outside (so open meshes keep their signs). ``width`` is the band the asset stores completely:
+  ``distance_band - 1/2`` voxels (2.5 voxels for ``voxfmt build``'s default band), or a width you give.
+- ``coarse``: one signed distance every 8 voxels (the asset's lattice), whose trilinear interpolation is the
+  runtime's estimate between bricks: the far field, where the level set is clamped.
+
+``voxfmt export ASSET --nvdb OUT.nvdb`` writes the same grids to a file (``wp.Volume.load_from_nvdb`` reads it).
+Needs ``warp-lang`` (``pip install 'voxfmt[warp]'``); tested with the version in :data:`WARP_VERSION`.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from . import _voxfmt
+from ._errors import OptionError
+
+WARP_VERSION = "1.19.0"
+"""The warp-lang release this module is tested with. It uses Warp's public volume API only (NanoVDB 32.x grids), so
+other 1.x releases from 1.19 on are accepted."""
+
+
+def _import_warp() -> Any:
+    """warp, if an accepted release is installed; ImportError naming what to install otherwise."""
+    try:
+        import warp
+    except ImportError as error:
+        raise ImportError(
+            f"voxfmt.warp needs NVIDIA Warp (warp-lang {WARP_VERSION}): pip install 'voxfmt[warp]'"
+        ) from error
+    major, minor = (int(part) for part in warp.__version__.split(".")[:2])
+    if major != 1 or minor < 19:
+        raise ImportError(
+            f"voxfmt.warp needs warp-lang >= 1.19, < 2 (tested: {WARP_VERSION}); found {warp.__version__}: "
+            "pip install 'voxfmt[warp]'"
+        )
+    return warp
+
+
+wp = _import_warp()
+
+
+def _body(asset: Any) -> Any:
+    """A loaded asset: a voxfmt.Body as it is, a path loaded (and judged: a damaged asset raises its code)."""
+    if isinstance(asset, _voxfmt.Body):
+        return asset
+    if isinstance(asset, (str, os.PathLike)):
+        return _voxfmt.load(asset)
+    raise OptionError("BAD_OPTION", f"asset: expected a path or a voxfmt.Body, got {type(asset).__name__}")
+
+
+def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tuple[bytes, dict[str, Any]]:
+    """The asset's grids as the bytes of one ``.nvdb`` file (``distance``, then ``coarse``), and what they hold
+    (``level_set_width`` in metres, leaf and voxel counts, ``uncompressed_bytes``).
+
+    ``asset`` is a path (loaded and validated as :func:`voxfmt.load` does) or a :class:`voxfmt.Body`. ``width`` is the
+    level set's half-width in voxels (default: the asset's complete band, ``distance_band - 1/2``); ``compress``
+    uses NanoVDB's ZIP codec.
+    """
+    if width is not None and (isinstance(width, bool) or not isinstance(width, (int, float)) or not 0.5 <= width <= 32767):
+        raise OptionError("BAD_OPTION", f"width: expected a number of voxels in [0.5, 32767], got {width!r}")
+    body = _body(asset)
+    data, info = _voxfmt._nanovdb(body, float(width or 0.0), bool(compress))
+    return data, dict(info)
+
+
+def volumes(asset: Any, device: Any = None, *, width: float | None = None) -> tuple[Any, Any]:
+    """The asset's ``distance`` and ``coarse`` grids as two ``wp.Volume`` on ``device`` (default: Warp's default
+    device). Arguments as :func:`nvdb`. The level set's width in metres is ``distance.voxfmt_width``."""
+    data, info = nvdb(asset, width=width, compress=False)
+    distance = wp.Volume.load_from_nvdb(data, device=device)
+    coarse = distance.load_next_grid()
+    distance.voxfmt_width = info["level_set_width"]
+    coarse.voxfmt_width = info["level_set_width"]
+    return distance, coarse
+
+
+def volume(asset: Any, device: Any = None, *, grid: str = "distance", width: float | None = None) -> Any:
+    """One of the asset's grids as a ``wp.Volume`` (``grid``: ``"distance"``, the narrow-band level set, or
+    ``"coarse"``, the far field); see :func:`volumes`."""
+    if grid not in ("distance", "coarse"):
+        raise OptionError("BAD_OPTION", f"grid: expected 'distance' or 'coarse', got {grid!r}")
+    distance, coarse = volumes(asset, device, width=width)
+    return distance if grid == "distance" else coarse  # the coarse volume keeps the buffer they share alive
+
+
+@wp.func
+def sample_distance(distance: wp.uint64, coarse: wp.uint64, width: float, x: wp.vec3) -> float:
+    """Signed distance (metres, negative inside) at world point ``x``: the level set where it is not clamped, else
+    the coarse grid's estimate (never nearer than ``width``, which the level set says the surface is not)."""
+    d = wp.volume_sample_f(distance, wp.volume_world_to_index(distance, x), wp.Volume.LINEAR)
+    if wp.abs(d) < width * 0.999:
+        return d
+    c = wp.volume_sample_f(coarse, wp.volume_world_to_index(coarse, x), wp.Volume.LINEAR)
+    return wp.sign(d) * wp.max(wp.abs(c), width)
