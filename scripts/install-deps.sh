@@ -65,6 +65,23 @@ else
   echo "install-deps: $VENV has the Python tools"
 fi
 
+# Newton and Warp for voxfmt.newton and voxfmt.warp (python/requirements-newton.txt) in a second environment,
+# .venv-newton/: Newton's MuJoCo Warp solver needs another MuJoCo release than .venv's plugin. Their tests and examples
+# run on the CPU device. VOXFMT_NEWTON=OFF skips it (the tests that need it are then not configured).
+NEWTON_PIN=$(sed -n 's/^newton\[sim\]==//p' python/requirements-newton.txt)
+if [ "${VOXFMT_NEWTON:-ON}" != OFF ] && ! .venv-newton/bin/python -c \
+    "import newton, warp, mujoco_warp, pytest, h5py; assert newton.__version__ == '$NEWTON_PIN'" >/dev/null 2>&1; then
+  echo "install-deps: setting up .venv-newton with python/requirements-newton.txt (log: .logs/pip-newton.log) ..."
+  mkdir -p .logs
+  if ! { /usr/bin/python3 -m venv .venv-newton &&
+    .venv-newton/bin/python -m pip install --disable-pip-version-check -r python/requirements-newton.txt; } \
+    >.logs/pip-newton.log 2>&1; then
+    tail -n 20 .logs/pip-newton.log >&2
+    echo "install-deps: pip failed; the whole log is .logs/pip-newton.log" >&2
+    exit 1
+  fi
+fi
+
 # A CUDA compiler from PyPI (python/requirements-cuda.txt: nvcc, its runtime headers and static runtime), so that
 # the CUDA batch (loaders/gpu) compiles on every machine, GPU or not: CI builds the kernels it cannot run.
 # VOXFMT_CUDA=OFF skips it (CMake then finds no CUDA compiler and builds no CUDA part).

@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 start=$SECONDS
 # The main job needs no CUDA compiler (install-deps skips its download; scripts/run-tests.sh adds it).
-VOXFMT_CUDA=OFF TARGETS="voxfmt_cli bunny_drop" bash scripts/build.sh  # the rest (tests, benchmarks): scripts/run-tests.sh
+VOXFMT_CUDA=OFF VOXFMT_NEWTON=OFF TARGETS="voxfmt_cli bunny_drop" bash scripts/build.sh  # the rest (tests, benchmarks): scripts/run-tests.sh
 BUILD=${BUILD_DIR:-build}
 BIN=$BUILD/bin
 OUT=${OUT_DIR:-out}

@@ -1,0 +1,122 @@
+"""voxfmt.newton: the asset's texture SDF read by Newton's own sampler against the runtime's field, a Newton scene
+whose contacts come from the asset's SDF (an SDF moved outward moves the rest height by as much), the CPU finalize,
+the version check and the refusals. CPU device; Newton's kernels are compiled once into WARP_CACHE_PATH."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+import voxfmt
+import voxfmt.newton as vn
+from conftest import MESHES
+
+newton = vn.newton
+from newton._src.geometry.sdf_texture import TextureSDFData, texture_sample_sdf  # noqa: E402  (Newton's sampler)
+
+
+@wp.kernel
+def _sample(sdf: TextureSDFData, points: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = texture_sample_sdf(sdf, points[i])
+
+
+def test_newtons_sampler_reads_the_runtimes_field_within_one_quantum(assets: dict[str, Path]) -> None:
+    body = voxfmt.load(assets["bunny"])
+    layout = vn.texture_layout(body)
+    sdf = vn.sdf(body, device="cpu")
+    lo, hi = body.bounds
+    points = np.random.default_rng(5).uniform(lo, hi, size=(50000, 3))
+    out = wp.zeros(len(points), dtype=float, device="cpu")
+    wp.launch(_sample, dim=len(points), inputs=[sdf.texture_data, wp.array(points.astype(np.float32), dtype=wp.vec3,
+                                                                            device="cpu"), out], device="cpu")
+    w, d = out.numpy(), body.signed_distance(points)
+    h = body.voxel_size
+    quantum = layout["value_range"] / 65535
+    assert quantum < 1e-3 * h
+    near = np.abs(d) < h
+    assert near.sum() > 500
+    assert np.abs(w[near] - d[near]).max() < quantum  # and float rounding of metres
+    # Elsewhere the coarse grid stands in only where it is within the asset's estimate quantum, 1/16 voxel.
+    assert np.abs(w - d).max() < h / 16 + quantum
+    assert layout["value_bricks"] > 0 and layout["texels"].dtype == np.uint16
+
+
+def offset(layout: dict, metres: float) -> dict:
+    """The same field moved outward by `metres` (every value less by as much)."""
+    moved = dict(layout)
+    moved["coarse"] = layout["coarse"] - np.float32(metres)
+    moved["value_min"] = layout["value_min"] - metres
+    return moved
+
+
+def rest_height(assets: dict[str, Path], shift: float) -> float:
+    """Where the sphere asset comes to rest on the static cube asset (XPBD, 1 ms steps), both with their SDFs
+    moved outward by `shift`."""
+    builder = newton.ModelBuilder()
+    cfg = newton.ModelBuilder.ShapeConfig(gap=0.01, margin=0.0, mu=1.0)
+    for name, body in (("cube", -1), ("sphere", builder.add_body(xform=wp.transform((0, 0, 0.27), wp.quat_identity())))):
+        asset = voxfmt.load(assets[name])
+        vertices, triangles = voxfmt.read_mesh(MESHES / f"{name}.off", unit_scale=0.2 if name == "cube" else 0.1)
+        data, _, _ = vn._texture_sdf_data(offset(vn.texture_layout(asset), shift), "uint16", wp.get_device("cpu"))
+        mesh = newton.Mesh(vertices.astype(np.float32), triangles.reshape(-1),
+                           sdf=newton.SDF.create_from_data(texture_data=data))
+        builder.add_shape_mesh(body, mesh=mesh, cfg=cfg)
+    model = vn.finalize(builder, "cpu")
+    assert model._shape_sdf_index.numpy().tolist() == [0, 1]
+    pipeline = newton.CollisionPipeline(model)
+    contacts = pipeline.contacts()
+    solver = newton.solvers.SolverXPBD(model, iterations=10)
+    s0, s1, control = model.state(), model.state(), model.control()
+    for _ in range(400):
+        s0.clear_forces()
+        pipeline.collide(s0, contacts)
+        solver.step(s0, s1, control, contacts, 0.001)
+        s0, s1 = s1, s0
+    assert np.linalg.norm(s0.body_qd.numpy()[0][:3]) < 1e-3  # at rest
+    return float(s0.body_q.numpy()[0][2])
+
+
+def test_the_contacts_come_from_the_assets_sdf(assets: dict[str, Path]) -> None:
+    plain = rest_height(assets, 0.0)
+    assert plain == pytest.approx(0.2 + 0.05, abs=1e-3)  # the sphere (r 5 cm) on the cube's top (20 cm)
+    moved = rest_height(assets, 0.005)
+    assert moved - plain == pytest.approx(0.005, abs=5e-4)
+
+
+def test_add_shape_reads_the_mesh_as_the_bake_did(assets: dict[str, Path]) -> None:
+    builder = newton.ModelBuilder()
+    shape = vn.add_shape(builder, -1, assets["sphere"], MESHES / "sphere.off")  # unit_scale 0.1 from the asset
+    mesh = builder.shape_source[shape]
+    assert np.abs(mesh.vertices).max() == pytest.approx(0.05, rel=1e-6)
+    assert mesh.sdf is not None and mesh.sdf.texture_data is not None
+    body = voxfmt.load(assets["sphere"])
+    vertices, triangles = voxfmt.read_mesh(MESHES / "sphere.off", unit_scale=0.1)
+    assert len(vn.mesh(body, (vertices, triangles)).vertices) == len(vertices)
+    with pytest.raises(voxfmt.OptionError):
+        vn.mesh(body, 3.0)
+    with pytest.raises(voxfmt.OptionError):
+        vn.texture_layout(body, texture_format="half")
+
+
+def test_a_damaged_asset_is_refused_with_its_code(assets: dict[str, Path], tmp_path: Path) -> None:
+    import h5py
+
+    damaged = tmp_path / "damaged.vox.h5"
+    damaged.write_bytes(assets["cube"].read_bytes())
+    with h5py.File(damaged, "r+") as f:
+        lattice = f["voxelmap/lattice"][()]
+        lattice *= 3  # a lattice off by a factor
+        f["voxelmap/lattice"][...] = lattice
+    with pytest.raises(voxfmt.AssetError) as error:
+        vn.sdf(damaged, device="cpu")
+    assert error.value.code == "ESTIMATE_MISMATCH"  # the estimates no longer follow the lattice
+
+
+def test_the_supported_versions_are_checked(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(newton, "__version__", "9.9.9")
+    with pytest.raises(ImportError, match=r"voxfmt\[newton\]"):
+        vn._import_newton()

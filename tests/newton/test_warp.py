@@ -1,0 +1,111 @@
+"""voxfmt.warp: the asset's NanoVDB grids in Warp volumes (CPU device) against the runtime's own field, the file of
+`voxfmt export` the same grids, and the refusals."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+import voxfmt
+import voxfmt.warp
+
+
+@wp.kernel
+def _sample(volume: wp.uint64, points: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = wp.volume_sample_f(volume, wp.volume_world_to_index(volume, points[i]), wp.Volume.LINEAR)
+
+
+@wp.kernel
+def _sample_both(distance: wp.uint64, coarse: wp.uint64, width: float, points: wp.array(dtype=wp.vec3),
+                 out: wp.array(dtype=float)):
+    i = wp.tid()
+    out[i] = voxfmt.warp.sample_distance(distance, coarse, width, points[i])
+
+
+def sample(volume: wp.Volume, points: np.ndarray) -> np.ndarray:
+    out = wp.zeros(len(points), dtype=float, device="cpu")
+    wp.launch(_sample, dim=len(points), inputs=[volume.id, wp.array(points.astype(np.float32), dtype=wp.vec3,
+                                                                     device="cpu"), out], device="cpu")
+    return out.numpy()
+
+
+def random_points(body: voxfmt.Body, n: int, seed: int = 1) -> np.ndarray:
+    lo, hi = body.bounds
+    return np.random.default_rng(seed).uniform(lo, hi, size=(n, 3))
+
+
+def test_the_level_set_is_the_runtimes_distance_near_the_surface(assets: dict[str, Path]) -> None:
+    body = voxfmt.load(assets["bunny"])
+    distance, coarse = voxfmt.warp.volumes(body, "cpu")
+    h = body.voxel_size
+    width = distance.voxfmt_width
+    assert width == pytest.approx(2.5 * h)  # voxfmt build's band of 3: 2.5 voxels stored completely
+    assert np.allclose(distance.get_voxel_size(), h) and np.allclose(coarse.get_voxel_size(), 8 * h)
+    points = random_points(body, 100000)
+    d = body.signed_distance(points)
+    w = sample(distance, points)
+    near = np.abs(d) < h  # every corner of their cells is stored and within the width
+    assert near.sum() > 1000
+    assert np.abs(w[near] - d[near]).max() < 1e-6  # metres
+    # Everywhere: the sign (tiles signed from the asset), and the clamp at the width.
+    assert np.all(np.sign(w[np.abs(d) > h]) == np.sign(d[np.abs(d) > h]))
+    assert np.abs(w).max() <= width * (1 + 1e-6)
+
+
+def test_the_far_field_comes_from_the_coarse_grid_within_the_estimate_bound(assets: dict[str, Path]) -> None:
+    body = voxfmt.load(assets["bunny"])
+    distance, coarse = voxfmt.warp.volumes(body, "cpu")
+    points = random_points(body, 50000, seed=2)
+    out = wp.zeros(len(points), dtype=float, device="cpu")
+    wp.launch(_sample_both, dim=len(points),
+              inputs=[distance.id, coarse.id, distance.voxfmt_width,
+                      wp.array(points.astype(np.float32), dtype=wp.vec3, device="cpu"), out], device="cpu")
+    w, d = out.numpy(), body.signed_distance(points)
+    h = body.voxel_size
+    near = np.abs(d) < h
+    assert np.abs(w[near] - d[near]).max() < 1e-6
+    # Beyond the band both are estimates from the same lattice: within the spec's interpolation bound (4 sqrt(3)
+    # voxels), and far closer on average.
+    far = np.abs(d) > 3 * h
+    error = np.abs(w[far] - d[far]) / h
+    assert error.max() < 4 * np.sqrt(3)
+    assert error.mean() < 0.1
+    assert np.all(np.sign(w) == np.sign(d))
+
+
+def test_the_exported_file_holds_the_same_grids(assets: dict[str, Path], tmp_path: Path) -> None:
+    body = voxfmt.load(assets["bunny"])
+    out = tmp_path / "bunny.nvdb"
+    r = subprocess.run([os.environ["VOXFMT_BIN"], "export", str(assets["bunny"]), "--nvdb", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    from_file = wp.Volume.load_from_nvdb(out.read_bytes(), device="cpu")
+    in_memory, _ = voxfmt.warp.volumes(body, "cpu")
+    points = random_points(body, 20000, seed=3)
+    assert np.array_equal(sample(from_file, points), sample(in_memory, points))
+    info = from_file.get_grid_info()
+    assert (info.name, info.grid_index, info.grid_count) == ("distance", 0, 2)
+    assert from_file.load_next_grid().get_grid_info().name == "coarse"
+    data, summary = voxfmt.warp.nvdb(assets["bunny"])
+    assert data[:8] == b"NanoVDB0" and summary["distance_leaves"] > 0
+
+
+def test_one_grid_at_a_time_and_the_refusals(assets: dict[str, Path], tmp_path: Path) -> None:
+    coarse = voxfmt.warp.volume(assets["cube"], "cpu", grid="coarse")
+    assert coarse.get_grid_info().name == "coarse"
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.warp.volume(assets["cube"], "cpu", grid="fine")
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.warp.nvdb(assets["cube"], width=0.1)
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.warp.nvdb(42)
+    missing = tmp_path / "none.vox.h5"
+    with pytest.raises(voxfmt.Error) as error:
+        voxfmt.warp.volumes(missing)
+    assert error.value.code == "FILE_NOT_FOUND"
