@@ -11,8 +11,9 @@ Two grids, float32, metres, in the asset's frame (index (i, j, k) at the asset's
   stored distances) within ``width`` of the surface, clamped to ``+-width`` beyond it; its tiles are signed from the
   asset's own inside/outside (so open meshes keep their signs). ``width`` is the band the asset stores completely:
   ``distance_band - 1/2`` voxels (2.5 voxels for ``voxfmt build``'s default band), or a width you give.
-- ``coarse``: one signed distance every 8 voxels (the asset's lattice), whose trilinear interpolation is the
-  runtime's estimate between bricks: the far field, where the level set is clamped.
+- ``coarse``: one unsigned distance every 8 voxels (the asset's lattice), whose trilinear interpolation is the
+  runtime's estimate between bricks: the far field's magnitude where the level set is clamped, whose sign the level
+  set's tiles carry (:func:`sample_distance` combines them as the runtime does).
 
 ``voxfmt export ASSET --nvdb OUT.nvdb`` writes the same grids to a file (``wp.Volume.load_from_nvdb`` reads it).
 Needs ``warp-lang`` (``pip install 'voxfmt[warp]'``); tested with the version in :data:`WARP_VERSION`.
@@ -98,9 +99,10 @@ def volume(asset: Any, device: Any = None, *, grid: str = "distance", width: flo
 @wp.func
 def sample_distance(distance: wp.uint64, coarse: wp.uint64, width: float, x: wp.vec3) -> float:
     """Signed distance (metres, negative inside) at world point ``x``: the level set where it is not clamped, else
-    the coarse grid's estimate (never nearer than ``width``, which the level set says the surface is not)."""
+    the coarse grid's estimate, at least ``width`` (the level set says the surface is no nearer), with the level
+    set's sign: the runtime's own rule for voxels without a stored distance."""
     d = wp.volume_sample_f(distance, wp.volume_world_to_index(distance, x), wp.Volume.LINEAR)
     if wp.abs(d) < width * 0.999:
         return d
     c = wp.volume_sample_f(coarse, wp.volume_world_to_index(coarse, x), wp.Volume.LINEAR)
-    return wp.sign(d) * wp.max(wp.abs(c), width)
+    return wp.sign(d) * wp.max(c, width)

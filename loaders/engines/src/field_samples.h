@@ -61,7 +61,11 @@ class FieldSamples {
   /// without codes around it are. Where the corner lies past the grid's last voxel along an axis, the lattice's
   /// last cell is extended linearly, so that interpolating the corners of a brick without codes over 8 voxels gives
   /// the runtime's interpolation over the shorter last cell.
-  float coarse_corner(int a, int b, int c) const {
+  float coarse_corner(int a, int b, int c) const { return corner_sign(a, b, c) * lattice_corner(a, b, c); }
+
+  /// The lattice's unsigned distance (voxels) at the corner of bricks (8a, 8b, 8c), extended linearly past the
+  /// grid's last voxel as coarse_corner is.
+  float lattice_corner(int a, int b, int c) const {
     const int corner[3] = {a, b, c};
     int index[3][2];
     float weight[3][2];
@@ -85,8 +89,7 @@ class FieldSamples {
       const float w = weight[0][n & 1] * weight[1][(n >> 1) & 1] * weight[2][n >> 2];
       if (w != 0) unsigned_value += w * float(f_.lattice[size_t(ic) * plane + size_t(ib) * row + size_t(ia)]);
     }
-    unsigned_value *= f_.lattice_step;
-    return corner_sign(a, b, c) * unsigned_value;
+    return unsigned_value * f_.lattice_step;
   }
 
  private:

@@ -147,7 +147,7 @@ nanovdb::GridHandle<> coarse_grid(const runtime::CollisionObject& object, const 
   for (int c = 0; c < count[2]; ++c)
     for (int b = 0; b < count[1]; ++b)
       for (int a = 0; a < count[0]; ++a)
-        access.setValue(nanovdb::Coord(a, b, c), float(double(field.coarse_corner(a, b, c)) * h));
+        access.setValue(nanovdb::Coord(a, b, c), float(double(field.lattice_corner(a, b, c)) * h));
   info.coarse_voxels = uint64_t(count[0]) * uint64_t(count[1]) * uint64_t(count[2]);
   const nanovdb::Vec3d origin(map.origin().x(), map.origin().y(), map.origin().z());
   nanovdb::GridHandle<> handle = builder.getHandle<>(h * kEdge, origin, "coarse");
@@ -167,7 +167,8 @@ std::string grid_metadata_json(const runtime::CollisionObject& object, const std
       {"grid", grid},
       {"meaning", grid == "distance"
                       ? "signed distance to the surface, negative inside, clamped to +-level_set_width"
-                      : "signed distance at every 8th voxel (brick corners), the far field between them"},
+                      : "unsigned distance at every 8th voxel (brick corners): beyond the level set's width, "
+                        "the distance is this interpolated, at least the width, with the level set's sign"},
       {"units", "m"},
       {"voxel_size", grid == "distance" ? h : 8 * h},
       {"asset_voxel_size", h},

@@ -93,7 +93,9 @@ struct NanoVdbGrids {
 ///   leaves, every voxel active, values the runtime's clamped to +-width; elsewhere tiles of -width inside and
 ///   +width outside (the signs of the asset's brick table, not a flood fill, so open meshes keep theirs);
 /// - "coarse", class Unknown, voxel size 8 * voxel_size, index (a, b, c) at the lattice point of voxel (8a, 8b, 8c):
-///   the signed distance the runtime interpolates in bricks without codes (every point active).
+///   the asset's lattice, unsigned distances (every point active). Beyond the level set's width the runtime's
+///   value is this grid interpolated, at least the band's edge, with the sign the level set's tiles carry: one
+///   coarse grid cannot hold that sign itself where the inside changes without a surface (across a hole's cap).
 /// Each grid carries, as its blind data named "voxfmt", a JSON object: the grid's meaning, units (metres), the
 /// asset's provenance (source file and SHA-256, generator, build parameters, time), voxel size, band and width
 /// (grid_metadata_json). INVALID_ASSET for an object without a voxelmap.
