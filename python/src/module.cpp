@@ -625,6 +625,14 @@ void bind_body(nb::module_& m) {
           "source_file", [](const Body& b) { return b.object->provenance().source_file; },
           "File name of the mesh the asset was baked from (no folder; empty if none).")
       .def_prop_ro(
+          "build_warnings",
+          [](const Body& b) {
+            std::vector<std::tuple<std::string, std::string>> out;
+            for (const auto& w : b.object->provenance().build_warnings) out.emplace_back(w.code, w.message);
+            return out;
+          },
+          "The bake's warnings the asset records, as (code, message) pairs (e.g. SHELL_MODE, OPEN_BORDER).")
+      .def_prop_ro(
           "memory_bytes", [](const Body& b) { return b.object->memory_bytes(); },
           "Heap bytes of the runtime structures.")
       .def("signed_distance", &signed_distance, "points"_a,
