@@ -458,7 +458,7 @@ std::string inspect(const std::string& path, const std::optional<int64_t>& max_m
 
 /// A mesh as the bake's import reads it (no repair): (vertices (V, 3) float64 metres, triangles (T, 3) uint32).
 std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, uint32_t>> read_mesh(nb::handle path_object,
-                                                                                         double unit_scale) {
+                                                                                       double unit_scale) {
   const std::string path = path_arg(path_object, "path");
   bake::ImportSettings settings;
   settings.unit_scale = unit_scale;

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import _voxfmt
+from ._asset import as_body
 from ._errors import OptionError
 
 NEWTON_VERSION = "1.8.0"
@@ -57,14 +58,6 @@ newton, wp = _import_newton()
 TEXTURE_FORMATS = ("uint16", "uint8", "float32")
 
 
-def _body(asset: Any) -> Any:
-    if isinstance(asset, _voxfmt.Body):
-        return asset
-    if isinstance(asset, (str, os.PathLike)):
-        return _voxfmt.load(asset)
-    raise OptionError("BAD_OPTION", f"asset: expected a path or a voxfmt.Body, got {type(asset).__name__}")
-
-
 def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_tolerance: float | None = None) -> dict:
     """The asset's texture SDF as NumPy arrays, [z][y][x] (x fastest), metres, in the asset's frame:
 
@@ -83,7 +76,7 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
     if texture_format not in TEXTURE_FORMATS:
         raise OptionError("BAD_OPTION", f"texture_format: expected one of {TEXTURE_FORMATS}, got {texture_format!r}")
     tolerance = -1.0 if coarse_tolerance is None else float(coarse_tolerance)
-    return dict(_voxfmt._texture_sdf(_body(asset), texture_format, tolerance))
+    return dict(_voxfmt._texture_sdf(as_body(asset), texture_format, tolerance))
 
 
 def sdf(asset: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:
@@ -105,7 +98,7 @@ def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: An
     """A ``newton.Mesh`` of the asset's surface carrying the asset's SDF. ``surface`` is the mesh the asset was baked
     from: a file (read as ``voxfmt build`` reads it, scaled by the asset's recorded ``unit_scale``), a
     ``(vertices (V, 3), triangles (T, 3))`` pair in the asset's frame, or a ``newton.Mesh`` (its SDF replaced)."""
-    body = _body(asset)
+    body = as_body(asset)
     if isinstance(surface, newton.Mesh):
         vertices, triangles = surface.vertices, surface.indices
     elif isinstance(surface, (str, os.PathLike)):

@@ -21,10 +21,10 @@ Needs ``warp-lang`` (``pip install 'voxfmt[warp]'``); tested with the version in
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 from . import _voxfmt
+from ._asset import as_body
 from ._errors import OptionError
 
 WARP_VERSION = "1.19.0"
@@ -52,15 +52,6 @@ def _import_warp() -> Any:
 wp = _import_warp()
 
 
-def _body(asset: Any) -> Any:
-    """A loaded asset: a voxfmt.Body as it is, a path loaded (and judged: a damaged asset raises its code)."""
-    if isinstance(asset, _voxfmt.Body):
-        return asset
-    if isinstance(asset, (str, os.PathLike)):
-        return _voxfmt.load(asset)
-    raise OptionError("BAD_OPTION", f"asset: expected a path or a voxfmt.Body, got {type(asset).__name__}")
-
-
 def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tuple[bytes, dict[str, Any]]:
     """The asset's grids as the bytes of one ``.nvdb`` file (``distance``, then ``coarse``), and what they hold
     (``level_set_width`` in metres, leaf and voxel counts, ``uncompressed_bytes``).
@@ -71,7 +62,7 @@ def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tu
     """
     if width is not None and (isinstance(width, bool) or not isinstance(width, (int, float)) or not 0.5 <= width <= 32767):
         raise OptionError("BAD_OPTION", f"width: expected a number of voxels in [0.5, 32767], got {width!r}")
-    body = _body(asset)
+    body = as_body(asset)
     data, info = _voxfmt._nanovdb(body, float(width or 0.0), bool(compress))
     return data, dict(info)
 

@@ -94,7 +94,8 @@ void expect_level_set_is_the_runtimes(const CollisionObject& o, const NanoVdbGri
     bool within = true;
     for (int c = 0; c < 8; ++c) {
       bool stored;
-      const float v = runtime_value(o, int(u.x()) + (c & 1), int(u.y()) + ((c >> 1) & 1), int(u.z()) + (c >> 2), stored);
+      const float v =
+          runtime_value(o, int(u.x()) + (c & 1), int(u.y()) + ((c >> 1) & 1), int(u.z()) + (c >> 2), stored);
       within &= std::abs(v) < width;
     }
     if (!within) continue;
@@ -281,8 +282,10 @@ TEST(TextureSdf, EveryFormatAndTheSlotsAddressTheirBricks) {
     std::sort(used.begin(), used.end());
     EXPECT_EQ(std::unique(used.begin(), used.end()), used.end());
     const double step = format == TextureFormat::Uint8 ? 255 : 65535;
-    if (format != TextureFormat::Float32) EXPECT_LE(t->max_quantisation_error, 0.5 * t->value_range / step * 1.001);
-    else EXPECT_LT(t->max_quantisation_error, 1e-7);
+    if (format != TextureFormat::Float32)
+      EXPECT_LE(t->max_quantisation_error, 0.5 * t->value_range / step * 1.001);
+    else
+      EXPECT_LT(t->max_quantisation_error, 1e-7);
   }
 }
 

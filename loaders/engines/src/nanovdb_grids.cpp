@@ -196,8 +196,10 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
   // The band the asset stores completely: every voxel nearer than this has its exact distance.
   const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
   if (!std::isfinite(width) || width > 32767)
-    return Error{IssueCode::BadOption, "nanovdb_grids: the level set's width must be a finite number of voxels up to "
-                                       "32767, got " + std::to_string(options.width_voxels)};
+    return Error{IssueCode::BadOption,
+                 "nanovdb_grids: the level set's width must be a finite number of voxels up to "
+                 "32767, got " +
+                     std::to_string(options.width_voxels)};
   NanoVdbGrids info;
   info.width = width * map.voxel_size();
   std::vector<nanovdb::GridHandle<>> handles;
@@ -218,8 +220,8 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
     }
     std::ostringstream file(std::string(segment.memUsage(), '\0'), std::ios::binary | std::ios::ate);
     for (size_t n = 0; n < handles.size(); ++n)
-      segment.meta[n].fileSize = options.compress ? write_zip(file, handles[n])
-                                                  : nanovdb::io::Internal::write(file, handles[n], codec);
+      segment.meta[n].fileSize =
+          options.compress ? write_zip(file, handles[n]) : nanovdb::io::Internal::write(file, handles[n], codec);
     file.seekp(0);
     segment.write(file);
     if (!file) return Error{IssueCode::Internal, "nanovdb_grids: NanoVDB could not write the grids"};

@@ -55,8 +55,8 @@ bool coarse_by_construction(const FieldSamples& field, int a, int b, int c) {
 
 /// The largest difference, over a brick's samples inside the grid, between the runtime's value and the coarse
 /// grid's trilinear interpolation (voxels): the error the engine would make reading the brick from the coarse grid.
-float coarse_error(const FieldSamples& field, const std::vector<float>& coarse, const std::array<int, 3>& bricks,
-                   int a, int b, int c) {
+float coarse_error(const FieldSamples& field, const std::vector<float>& coarse, const std::array<int, 3>& bricks, int a,
+                   int b, int c) {
   const size_t row = size_t(bricks[0]) + 1, plane = row * (size_t(bricks[1]) + 1);
   const float* q = &coarse[size_t(c) * plane + size_t(b) * row + size_t(a)];
   const float v[8] = {q[0], q[1], q[row], q[row + 1], q[plane], q[plane + 1], q[plane + row], q[plane + row + 1]};
@@ -172,9 +172,9 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
                 const float v = float(metres);
                 std::memcpy(&out.texels[texel * 4], &v, 4);
               } else {
-                const double code = std::clamp(
-                    std::nearbyint((metres - double(out.value_min)) / double(out.value_range) * codes), 0.0,
-                    double(codes));
+                const double code =
+                    std::clamp(std::nearbyint((metres - double(out.value_min)) / double(out.value_range) * codes), 0.0,
+                               double(codes));
                 if (codes == 65535u) {
                   const uint16_t v = uint16_t(code);
                   std::memcpy(&out.texels[texel * 2], &v, 2);

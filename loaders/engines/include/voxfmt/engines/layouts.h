@@ -38,8 +38,8 @@ struct TextureSdfOptions {
 };
 
 struct TextureSdf {
-  static constexpr int kCells = 8;     ///< cells per brick along an axis
-  static constexpr int kSamples = 9;   ///< samples per brick along an axis (the apron repeats the next brick's first)
+  static constexpr int kCells = 8;    ///< cells per brick along an axis
+  static constexpr int kSamples = 9;  ///< samples per brick along an axis (the apron repeats the next brick's first)
   static constexpr uint32_t kEmpty = 0xFFFFFFFFu;  ///< a brick read from the coarse grid
 
   std::array<double, 3> lower{};  ///< sample (0, 0, 0): the asset's voxel (0, 0, 0), metres
@@ -84,7 +84,7 @@ struct NanoVdbGrids {
   std::string file;  ///< the two grids as one .nvdb file's bytes ("distance", then "coarse")
   double width = 0;  ///< the level set's half-width, metres (its background)
   uint64_t distance_leaves = 0, distance_active_voxels = 0;
-  uint64_t coarse_voxels = 0;      ///< samples of the "coarse" grid: the lattice, one every 8 voxels
+  uint64_t coarse_voxels = 0;       ///< samples of the "coarse" grid: the lattice, one every 8 voxels
   uint64_t uncompressed_bytes = 0;  ///< the grids' size in memory (what a loaded wp.Volume holds)
 };
 
