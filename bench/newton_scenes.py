@@ -2,7 +2,7 @@
 """Newton (NVIDIA Warp) with voxfmt's SDFs against Newton with convex hulls, on the same scenes, initial states,
 solvers and time step, in one process and one run: on the CPU device here (no GPU needed), and on a GPU unchanged.
 
-    WARP_CACHE_PATH=build/warp-cache PYTHONPATH=build/python .venv-newton/bin/python bench/newton_scenes.py \\
+    WARP_CACHE_PATH=.cache/warp PYTHONPATH=build/python .venv-newton/bin/python bench/newton_scenes.py \\
         --json F.json --markdown F.md [--quick] [--device cpu|cuda:0] [--scenes a,b] [--solvers xpbd,mujoco]
 
 Methods (the same bodies, masses and shape settings but for the colliding geometry):

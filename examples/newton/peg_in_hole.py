@@ -4,7 +4,7 @@ its axis, in Newton with voxfmt assets as the meshes' SDFs: it slides down the c
 hulls (--hull) the block's hull fills the hole and the peg stays on top. Runs on the CPU (--device cpu, the default)
 or a GPU; XPBD or the MuJoCo Warp solver (--solver).
 
-    WARP_CACHE_PATH=build/warp-cache PYTHONPATH=build/python .venv-newton/bin/python examples/newton/peg_in_hole.py \\
+    WARP_CACHE_PATH=.cache/warp PYTHONPATH=build/python .venv-newton/bin/python examples/newton/peg_in_hole.py \\
         [--clearance 0.2] [--hull] [--solver xpbd|mujoco] [--device cpu]
 
 The meshes are made by examples/mujoco/shapes.py and baked on first use into --out.
