@@ -2,8 +2,6 @@
 // what the C++ library built (moved, not copied), and the .nvdb file's bytes.
 #include <nanobind/stl/string.h>
 
-#include <cstring>
-
 #include <utility>
 #include <vector>
 
@@ -14,12 +12,13 @@ namespace voxfmt::python {
 
 namespace {
 
-/// A NumPy array over a vector's memory, the vector moved into the array's owner.
-template <class T>
-nb::ndarray<nb::numpy, T> owned(std::vector<T>&& values, std::initializer_list<size_t> shape) {
-  auto* held = new std::vector<T>(std::move(values));
-  nb::capsule owner(held, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
-  return nb::ndarray<nb::numpy, T>(held->data(), shape, owner);
+/// A NumPy array of T over a vector's memory (of T, or bytes holding T: operator new aligns them for any T), the
+/// vector moved into the array's owner.
+template <class T, class Stored = T>
+nb::ndarray<nb::numpy, T> owned(std::vector<Stored>&& values, std::initializer_list<size_t> shape) {
+  auto* held = new std::vector<Stored>(std::move(values));
+  nb::capsule owner(held, [](void* p) noexcept { delete static_cast<std::vector<Stored>*>(p); });
+  return nb::ndarray<nb::numpy, T>(reinterpret_cast<T*>(held->data()), shape, owner);
 }
 
 engines::TextureFormat texture_format(const std::string& name) {
@@ -43,19 +42,14 @@ nb::dict texture_sdf(const Body& body, const std::string& format, double coarse_
   const size_t side = size_t(t.texture_side);
   nb::dict out;
   // Arrays [z][y][x], x fastest, as the C++ layout holds them.
-  out["coarse"] = owned(std::move(t.coarse), {bz + 1, by + 1, bx + 1});
-  out["slots"] = owned(std::move(t.slots), {bz, by, bx});
-  if (t.format == engines::TextureFormat::Float32) {
-    std::vector<float> texels(side * side * side);
-    std::memcpy(texels.data(), t.texels.data(), t.texels.size());
-    out["texels"] = owned(std::move(texels), {side, side, side});
-  } else if (t.format == engines::TextureFormat::Uint16) {
-    std::vector<uint16_t> texels(side * side * side);
-    std::memcpy(texels.data(), t.texels.data(), t.texels.size());
-    out["texels"] = owned(std::move(texels), {side, side, side});
-  } else {
-    out["texels"] = owned(std::move(t.texels), {side, side, side});
-  }
+  out["coarse"] = owned<float>(std::move(t.coarse), {bz + 1, by + 1, bx + 1});
+  out["slots"] = owned<uint32_t>(std::move(t.slots), {bz, by, bx});
+  if (t.format == engines::TextureFormat::Float32)
+    out["texels"] = owned<float>(std::move(t.texels), {side, side, side});
+  else if (t.format == engines::TextureFormat::Uint16)
+    out["texels"] = owned<uint16_t>(std::move(t.texels), {side, side, side});
+  else
+    out["texels"] = owned<uint8_t>(std::move(t.texels), {side, side, side});
   out["lower"] = nb::make_tuple(t.lower[0], t.lower[1], t.lower[2]);
   out["cell"] = t.cell;
   out["bricks"] = nb::make_tuple(t.bricks[0], t.bricks[1], t.bricks[2]);

@@ -128,6 +128,16 @@ TEST(NanoVdbGrids, AWiderLevelSetTakesTheBricksItReaches) {
   expect_level_set_is_the_runtimes(bunny(), grids.value());
 }
 
+TEST(NanoVdbGrids, AWidthThatIsNoNumberOfVoxelsIsRefused) {
+  for (double width : {-1.0, std::nan(""), 40000.0}) {
+    NanoVdbOptions options;
+    options.width_voxels = width;
+    const Result<NanoVdbGrids> grids = nanovdb_grids(bunny(), options);
+    ASSERT_FALSE(grids) << width;
+    EXPECT_EQ(grids.error().code, IssueCode::BadOption);
+  }
+}
+
 TEST(NanoVdbGrids, OpenAndShellAssetsKeepTheirSigns) {
   // CGAL's open_cube.off lacks a face (the winding number closes it); a sheet becomes a shell.
   for (const char* mesh : {"open_cube.off", "cube-ouvert.off", "blade.off"}) {

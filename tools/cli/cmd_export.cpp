@@ -8,7 +8,6 @@
 #include "json_report.h"
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/engines/layouts.h"
-#include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
 
 namespace voxfmt::cli {
@@ -27,14 +26,14 @@ struct Options {
 int run_export(const Options& o) {
   using clock = std::chrono::steady_clock;
   const auto start = clock::now();
-  std::vector<Issue> warnings;
-  Result<Asset> asset = read_asset(o.file, &warnings, o.read);
-  if (!asset) return report_error("export", asset.error());
-  const auto read = clock::now();
+  // A typo in the output costs no read of a large asset.
+  if (const Status writable = check_output_path(o.nvdb); !writable) return report_error("export", writable.error());
   runtime::LoadOptions load;
   load.load_point_shell = false;
-  auto object = runtime::CollisionObject::from_asset(std::move(asset.value()), load);
+  load.read = o.read;  // every rule of validate --level full, judged once by the read
+  auto object = runtime::CollisionObject::load(o.file, load);
   if (!object) return report_error("export", object.error());
+  const auto read = clock::now();
   engines::NanoVdbOptions options;
   options.width_voxels = o.width;
   options.compress = !o.uncompressed;

@@ -47,6 +47,15 @@ class FieldSamples {
           out[n] = value(a * core::kEdge + x, b * core::kEdge + y, c * core::kEdge + z);
   }
 
+  /// The least lattice value (voxels) at the corners of brick (a, b, c): the interpolation inside is a convex
+  /// combination of them, so no voxel of a brick without codes has a value below it (or the band's edge).
+  float least_corner(int a, int b, int c) const {
+    const int lower[3] = {a, b, c};
+    float p[8];
+    core::cell_values(f_, lower, p);
+    return *std::min_element(p, p + 8) * f_.lattice_step;
+  }
+
   bool in_grid(int i, int j, int k) const {
     return i >= 0 && j >= 0 && k >= 0 && i < f_.dims[0] && j < f_.dims[1] && k < f_.dims[2];
   }

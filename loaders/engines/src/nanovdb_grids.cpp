@@ -2,7 +2,6 @@
 // package builds them too): the level set's leaves are bricks of the asset, its tiles signed from the brick table.
 #include <algorithm>
 #include <atomic>
-#include <cmath>
 #include <cstring>
 #include <exception>
 #include <sstream>
@@ -96,20 +95,15 @@ uint64_t write_zip(std::ostream& os, const nanovdb::GridHandle<>& handle) {
   return sizeof(bytes) + bytes;
 }
 
-/// Whether a brick without codes holds a voxel nearer than `width` (voxels): its smallest value is at least the
-/// smallest of its lattice corners' (the interpolation is a convex combination) and the band's edge.
+/// Whether a brick without codes holds a voxel nearer than `width` (voxels): none is below its least lattice
+/// corner, nor the band's edge.
 bool coarse_brick_reaches(const FieldSamples& field, int a, int b, int c, float width) {
-  const core::Field& f = field.field();
-  const int lower[3] = {a, b, c};
-  float p[8];
-  core::cell_values(f, lower, p);
-  float least = p[0];
-  for (float v : p) least = std::min(least, v);
-  return std::max(least * f.lattice_step, f.band_edge) < width;
+  return std::max(field.least_corner(a, b, c), field.field().band_edge) < width;
 }
 
-/// Tiles take the sign of the brick they cover (tiles of upper nodes and the root: of the brick nearest their
-/// middle), instead of NanoVDB's flood fill from the leaves, which an open mesh's holes would mislead.
+/// Tiles take the sign of the brick they cover (a tile of an upper node, 128 voxels a side: of the brick nearest its
+/// middle), instead of NanoVDB's flood fill from the leaves, which an open mesh's holes would mislead. The root has
+/// no tiles: past the upper nodes is the background, +width (outside the grid, outside the object).
 void sign_tiles(nanovdb::NanoGrid<float>& grid, const FieldSamples& field, float width) {
   auto sign_at = [&](const nanovdb::Coord& origin, int extent) {
     int brick[3];
@@ -237,13 +231,13 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
     return Error{IssueCode::InvalidAsset, "nanovdb_grids: the object has no voxelmap (loaded point shell only)"};
   const runtime::SparseVoxelmap& map = object.voxelmap();
   const FieldSamples field(field_of(map));
-  // The band the asset stores completely: every voxel nearer than this has its exact distance.
-  const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
-  if (!std::isfinite(width) || width > 32767)
+  if (!(options.width_voxels >= 0 && options.width_voxels <= 32767))  // NaN fails too
     return Error{IssueCode::BadOption,
-                 "nanovdb_grids: the level set's width must be a finite number of voxels up to "
-                 "32767, got " +
+                 "nanovdb_grids: the level set's width must be 0 (the default) or a number of "
+                 "voxels up to 32767, got " +
                      std::to_string(options.width_voxels)};
+  // By default the band the asset stores completely: every voxel nearer than this has its exact distance.
+  const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
   NanoVdbGrids info;
   info.width = width * map.voxel_size();
   std::vector<nanovdb::GridHandle<>> handles;

@@ -61,8 +61,6 @@ struct TextureSdf {
   size_t coarse_stored = 0;  ///< coarse bricks stored because the coarse grid would not reproduce them
   /// Largest difference between a stored sample's decoded value and the runtime's (metres): the quantisation.
   double max_quantisation_error = 0;
-
-  size_t bytes() const { return coarse.size() * sizeof(float) + slots.size() * sizeof(uint32_t) + texels.size(); }
 };
 
 /// The texture SDF of a loaded asset's voxelmap. INVALID_ASSET for an object without one; OUT_OF_MEMORY when the
@@ -72,10 +70,10 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
 // ---- NanoVDB grids (Warp's volumes)
 
 struct NanoVdbOptions {
-  /// Half-width of the "distance" level set, voxels: values are clamped to +-width, and every brick with a voxel
-  /// nearer than that is a leaf; 0 = the band the asset stores completely, distance_band - 1/2 (2.5 voxels from
-  /// `voxfmt build`'s default band): the leaves are then the asset's value bricks, and every voxel within the width
-  /// holds its exact distance.
+  /// Half-width of the "distance" level set, voxels (up to 32767; negative: BAD_OPTION): values are clamped to
+  /// +-width, and every brick with a voxel nearer than that is a leaf; 0 = the band the asset stores completely,
+  /// distance_band - 1/2 (2.5 voxels from `voxfmt build`'s default band): the leaves are then the asset's value bricks,
+  /// and every voxel within the width holds its exact distance.
   double width_voxels = 0;
   bool compress = true;  ///< ZIP codec (Warp and NanoVDB's tools read it); off: uncompressed
 };
