@@ -7,6 +7,9 @@
    root, with BIN (the build's bin folder) and MESHES (CGAL's sample meshes) in the environment. Blocks tagged
    `python test` run with --python, from the repository root, with PYTHONPATH=--pythonpath (the build's
    python/ folder, where the package voxfmt is assembled). A block fails on a non-zero exit.
+3. The table of the bake's stages in docs/cli.md (between `<!-- bake-stages -->` markers) must list the stages of
+   `kBakeStages` (tools/bake/include/voxfmt/bake/bake.h), the one list the bake's timings and progress use: the
+   same names, in the same order, each within the same stage, with the same progress share.
 
 Only blocks that take seconds are tagged: the rest of the docs is plain `sh`, `python`, `cpp`, ...
 
@@ -189,6 +192,35 @@ def run_blocks(blocks: list[Block], args: argparse.Namespace) -> list[str]:
     return errors
 
 
+STAGE_ROW = re.compile(r'\{BakeStage::(\w+), "([^"]+)", BakeStage::(\w+), ([-0-9.]+)\}')
+
+
+def check_stage_table() -> list[str]:
+    header = ROOT / "tools/bake/include/voxfmt/bake/bake.h"
+    rows = STAGE_ROW.findall(header.read_text())
+    if not rows:
+        return [f"{header.relative_to(ROOT)}: no kBakeStages rows found"]
+    name_of = {enum: name for enum, name, _, _ in rows}
+    expected = []
+    for enum, name, within, share in rows:
+        start = float(share)
+        expected.append((name, "" if within == enum else name_of[within],
+                         f"{round(start * 100)} %" if start >= 0 else ""))
+    doc = ROOT / "docs/cli.md"
+    text = doc.read_text()
+    match = re.search(r"<!-- bake-stages -->(.*?)<!-- /bake-stages -->", text, re.S)
+    if not match:
+        return [f"{doc.relative_to(ROOT)}: no table between <!-- bake-stages --> markers"]
+    documented = []
+    for line in match.group(1).splitlines():
+        cells = [c.strip().strip("`") for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0] not in ("stage", "") and not set(cells[0]) <= set("-: "):
+            documented.append(tuple(cells))
+    if documented != expected:
+        return [f"{doc.relative_to(ROOT)}: the bake-stages table {documented} is not kBakeStages {expected}"]
+    return []
+
+
 def default_python() -> str:
     venv = ROOT / ".venv" / "bin" / "python"  # scripts/install-deps.sh; the build's Python_EXECUTABLE
     return str(venv) if venv.exists() else sys.executable
@@ -209,7 +241,7 @@ def main() -> int:
     args = parser.parse_args()
 
     files = doc_files()
-    errors = check_links(files)
+    errors = check_links(files) + check_stage_table()
     if not args.links_only:
         blocks = [b for f in files for b in split(f)[1]]
         errors += run_blocks(blocks, args)

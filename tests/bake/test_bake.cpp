@@ -461,6 +461,41 @@ TEST(Bake, SameInputSameDatasets) {
   EXPECT_EQ(a.mass.inertia, b.mass.inertia);
 }
 
+// Every timing and every progress report names a stage of kBakeStages, in the list's order; each stage of the whole
+// bake is announced once with its share, rising to "done" at 1; sub-stages fit within the stage they are part of.
+TEST(Bake, TimingsAndProgressFollowTheStageList) {
+  Settings options;
+  options.voxelmap.resolution = 48;
+  options.point_shell.points = 2000;
+  std::vector<std::pair<std::string, double>> reported;
+  const std::string out = (std::filesystem::temp_directory_path() / "voxfmt_stage_list.vox.h5").string();
+  const Result<Summary> summary = bake_to_file(kMeshes + "/bunny00.off", out, options,
+                                               [&](std::string_view stage, double fraction) {
+                                                 reported.emplace_back(std::string(stage), fraction);
+                                               });
+  std::filesystem::remove(out);
+  ASSERT_TRUE(summary) << summary.error().describe();
+  std::vector<std::pair<std::string, double>> expected;
+  for (const BakeStageInfo& info : kBakeStages)
+    if (info.progress_start >= 0) expected.emplace_back(info.name, info.progress_start);
+  expected.emplace_back("done", 1.0);
+  EXPECT_EQ(reported, expected);
+  std::vector<std::string> names;
+  for (const StageTiming& t : summary->timings) names.push_back(t.stage);
+  std::vector<std::string> all;
+  for (const BakeStageInfo& info : kBakeStages) all.push_back(info.name);
+  EXPECT_EQ(names, all);  // a closed mesh runs every stage once
+  auto seconds = [&](BakeStage stage) {
+    for (const StageTiming& t : summary->timings)
+      if (t.stage == stage_name(stage)) return t.seconds;
+    return -1.0;
+  };
+  for (const BakeStageInfo& info : kBakeStages) {
+    EXPECT_GE(seconds(info.stage), 0) << info.name;
+    if (info.within != info.stage) EXPECT_LE(seconds(info.stage), seconds(info.within) + 1e-3) << info.name;
+  }
+}
+
 TEST(Bake, PointsAreEvenlySpread) {
   // Poisson-disk: no two points closer than the sampling radius; far more even than uniform random.
   RepairReport report;

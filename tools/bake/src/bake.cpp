@@ -11,6 +11,7 @@
 #include <sys/resource.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <ctime>
@@ -20,6 +21,7 @@
 #include <iterator>
 #include <limits>
 #include <memory>
+#include <type_traits>
 
 #include "stages.h"
 #include "vec3_math.h"
@@ -57,17 +59,6 @@ double share_with_inside_behind(const TriangleMesh& mesh) {
   return n ? double(inside) / double(n) : 0.0;
 }
 
-// Share of a typical bake done when a stage starts (CGAL's bunny at resolution 306: repair 11 %, voxelmap and
-// point shell 60 %, assemble 2 %, verify + write 26 %), so a progress bar moves at an even pace.
-double stage_start_fraction(std::string_view stage) {
-  if (stage == "import") return 0.0;
-  if (stage == "repair") return 0.01;
-  if (stage == "voxelmap + point shell") return 0.12;
-  if (stage == "assemble") return 0.72;
-  if (stage == "verify + write") return 0.74;
-  return 1.0;
-}
-
 uint64_t peak_memory_bytes() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
@@ -92,6 +83,231 @@ Result<T> guarded(const std::string& mesh_path, Work&& work) {
   } catch (const std::exception& e) {  // library failures (CGAL preconditions, TBB) still get a clean error
     return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
   }
+}
+
+// Times a bake's stages (kBakeStages) and tells the progress callback as each stage of the whole bake starts.
+// Stages that run side by side set their own times (distinct slots: no race); timings() lists them in the
+// list's order, whatever order they ran in.
+class StageTimes {
+ public:
+  explicit StageTimes(const ProgressCallback& progress) : progress_(progress) {}
+
+  /// Runs `work` as `stage`: announced (where the stage reports progress), its wall time recorded.
+  template <class Work>
+  auto run(BakeStage stage, Work&& work) {
+    const BakeStageInfo& info = stage_info(stage);
+    if (progress_ && info.progress_start >= 0) progress_(info.name, info.progress_start);
+    const auto start = std::chrono::steady_clock::now();
+    if constexpr (std::is_void_v<std::invoke_result_t<Work>>) {
+      work();
+      set(stage, seconds_since(start));
+    } else {
+      auto result = work();
+      set(stage, seconds_since(start));
+      return result;
+    }
+  }
+  void set(BakeStage stage, double seconds) {
+    seconds_[size_t(stage)] = seconds;
+    timed_[size_t(stage)] = true;
+  }
+  /// Times a stage measured itself (the voxelmap's sub-stages), by name.
+  void set(const std::vector<StageTiming>& timings) {
+    for (const StageTiming& t : timings)
+      for (const BakeStageInfo& info : kBakeStages)
+        if (t.stage == info.name) set(info.stage, t.seconds);
+  }
+  std::vector<StageTiming> timings() const {
+    std::vector<StageTiming> out;
+    for (const BakeStageInfo& info : kBakeStages)
+      if (timed_[size_t(info.stage)]) out.push_back({info.name, seconds_[size_t(info.stage)]});
+    return out;
+  }
+
+ private:
+  static constexpr size_t kCount = std::size(kBakeStages);
+  const ProgressCallback& progress_;
+  std::array<double, kCount> seconds_{};
+  std::array<bool, kCount> timed_{};
+};
+
+bool encloses_volume(const MassProperties& mass, const TriangleMesh& mesh) {
+  const auto [lo, hi] = bounding_box(mesh);
+  const double diagonal = length(hi - lo);
+  return mass.volume > 1e-9 * diagonal * diagonal * diagonal;
+}
+
+// How the bake takes the surface's inside, decided from the repair's report before any voxel exists.
+struct InsidePlan {
+  bool winding = false;          ///< inside = winding number >= 1/2: open, misoriented or self-intersecting
+  double shell_thickness = 0;    ///< > 0: a shell of this thickness (asked for, or chosen after the voxelmap)
+  bool closed_but_flat = false;  ///< a closed, double-sided sheet: baked as a shell once the grid exists
+  MassProperties mass;           ///< a closed, oriented surface's, by the divergence theorem
+};
+
+// A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
+// winding number is >= 1/2, and the mass properties are integrated over that inside, on the voxelmap.
+InsidePlan plan_inside(const TriangleMesh& mesh, const RepairReport& r, double shell_thickness) {
+  InsidePlan plan;
+  plan.winding = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
+  plan.shell_thickness = shell_thickness;
+  if (!plan.winding && shell_thickness == 0) {
+    plan.mass = compute_mass_properties(mesh);
+    plan.closed_but_flat = !encloses_volume(plan.mass, mesh);
+  }
+  return plan;
+}
+
+struct Geometry {
+  Voxelmap voxelmap;
+  PointShell shell;
+  VoxelmapReport voxelmap_report;
+};
+
+// A shell's points lie on its two sheets: half as many on each.
+PointShell sample_shell(const TriangleMesh& mesh, PointShellSettings settings, double thickness) {
+  if (thickness > 0 && settings.point_spacing == 0) settings.points = std::max<uint32_t>(1, settings.points / 2);
+  PointShell sampled = sample_point_shell(mesh, settings);
+  if (thickness > 0) offset_to_shell_sheets(sampled, thickness / 2);
+  return sampled;
+}
+
+// The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run beside the
+// voxelmap's parallel work, each stage timed by its own wall time.
+Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan,
+                        StageTimes& times) {
+  Geometry g;
+  VoxelmapSettings voxelmap_options = options.voxelmap;
+  voxelmap_options.winding_number_sign = plan.winding;
+  // A winding bake in which no voxel is more than half a voxel inside stops after its band: it becomes a shell.
+  g.voxelmap_report.stop_if_shallow = plan.winding && plan.shell_thickness == 0;
+  tbb::task_group tasks;
+  std::exception_ptr shell_error;
+  tasks.run([&] {
+    try {
+      g.shell = times.run(BakeStage::PointShell,
+                          [&] { return sample_shell(mesh, options.point_shell, plan.shell_thickness); });
+      times.run(BakeStage::SphereTree, [&] { build_sphere_tree(g.shell, options.point_shell.branching); });
+    } catch (...) {
+      shell_error = std::current_exception();
+    }
+  });
+  std::vector<StageTiming> voxelmap_stages;
+  try {
+    g.voxelmap = times.run(BakeStage::Voxelmap, [&] {
+      return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report);
+    });
+  } catch (...) {
+    tasks.wait();
+    throw;
+  }
+  tasks.wait();
+  if (shell_error) std::rethrow_exception(shell_error);
+  times.set(voxelmap_stages);
+  return g;
+}
+
+// No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or parts thinner
+// than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
+bool encloses_nothing(const InsidePlan& plan, const Geometry& g) {
+  return plan.shell_thickness == 0 &&
+         (plan.closed_but_flat ||
+          (plan.winding && (g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1)));
+}
+
+// Why a surface that encloses nothing is baked as a shell two voxels thick, and what to do about it: thin parts
+// (an inside behind the surface, all of it within half a voxel) or a sheet (no inside at all).
+BuildWarning shell_mode_warning(const TriangleMesh& mesh, const InsidePlan& plan, const Geometry& g) {
+  const double thickness = 2 * g.voxelmap.voxel_size;
+  const uint64_t inside = g.voxelmap_report.inside_centres;
+  char text[480];
+  if (inside > 0 || (plan.winding && share_with_inside_behind(mesh) >= 0.5)) {
+    char centres[96] = "no voxel centre lies inside it";
+    if (inside > 0)
+      std::snprintf(centres, sizeof centres, "%llu voxel centres lie inside it, none more than half a voxel deep",
+                    static_cast<unsigned long long>(inside));
+    std::snprintf(text, sizeof text,
+                  "the surface's parts are thinner than a voxel (%s): its inside vanishes at this resolution. "
+                  "Baked as a shell %.6g m (2 voxels) thick; pass --shell-thickness with the parts' real "
+                  "thickness, or use voxels smaller than them (--voxel-size, --resolution)",
+                  centres, thickness);
+  } else {
+    std::snprintf(text, sizeof text,
+                  "the surface encloses no volume at this resolution (an open or flat sheet): baked as a shell "
+                  "%.6g m (2 voxels) thick; --shell-thickness sets another thickness",
+                  thickness);
+  }
+  return {"SHELL_MODE", text};
+}
+
+// The voxelmap, point shell and tree again, as a shell of `thickness` (one after the other: the bake is nearly
+// done, and a shell's voxelmap is quick).
+void rebuild_as_shell(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, Geometry& g,
+                      StageTimes& times) {
+  const double thickness = plan.shell_thickness;
+  VoxelmapSettings voxelmap_options = options.voxelmap;
+  voxelmap_options.winding_number_sign = plan.winding;
+  voxelmap_options.shell_thickness = thickness;
+  std::vector<StageTiming> voxelmap_stages;
+  g.voxelmap = times.run(BakeStage::Voxelmap, [&] { return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
+  times.set(voxelmap_stages);
+  g.shell = times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options.point_shell, thickness); });
+  times.run(BakeStage::SphereTree, [&] { build_sphere_tree(g.shell, options.point_shell.branching); });
+}
+
+MassProperties mass_properties(const std::string& mesh_path, const TriangleMesh& mesh, const InsidePlan& plan,
+                               const Voxelmap& voxelmap) {
+  auto check_volume = [&](const MassProperties& mass, const char* what) {
+    if (!encloses_volume(mass, mesh))
+      throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume (" + what + ")");
+  };
+  if (plan.shell_thickness > 0) {
+    const MassProperties mass = shell_mass_properties(mesh, plan.shell_thickness);
+    check_volume(mass, "a surface of zero area");
+    return mass;
+  }
+  if (!plan.winding) return plan.mass;
+  MassProperties mass = voxelmap_mass_properties(voxelmap);
+  check_volume(mass, "an open sheet");
+  // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can put
+  // the centre a fraction of a voxel past a flat side.
+  const auto [lo, hi] = bounding_box(mesh);
+  for (int a = 0; a < 3; ++a) mass.center_of_mass[a] = std::clamp(mass.center_of_mass[a], lo[a], hi[a]);
+  return mass;
+}
+
+Provenance provenance_of(const std::string& mesh_path, const Settings& options,
+                         const std::vector<BuildWarning>& warnings) {
+  Provenance p;
+  p.generator = "voxfmt build";
+  p.generator_version = VOXFMT_VERSION_STRING;
+  p.source_file = std::filesystem::path(mesh_path).filename().string();
+  Result<std::string> sha = sha256_file(mesh_path);
+  if (!sha) throw BakeError(sha.error().code, sha.error().message);
+  p.source_sha256 = sha.value();
+  p.build_parameters_json = build_parameters_json(options);
+  p.dependency_versions = dependency_versions();
+  p.build_warnings = warnings;
+  p.created_utc = utc_now();
+  return p;
+}
+
+Asset assemble(const std::string& mesh_path, const TriangleMesh& mesh, const Settings& options,
+               const InsidePlan& plan, Geometry geometry, const std::vector<BuildWarning>& warnings) {
+  Asset asset;
+  asset.mass = mass_properties(mesh_path, mesh, plan, geometry.voxelmap);
+  asset.up_axis = options.up_axis;
+  const auto [lo, hi] = bounding_box(mesh);
+  asset.bounds_min = lo;
+  asset.bounds_max = hi;
+  for (int a = 0; a < 3 && plan.shell_thickness > 0; ++a) {  // a shell's surface is its sheets, around the mesh
+    asset.bounds_min[a] -= plan.shell_thickness / 2;
+    asset.bounds_max[a] += plan.shell_thickness / 2;
+  }
+  asset.voxelmap = std::move(geometry.voxelmap);
+  asset.point_shell = std::move(geometry.shell);
+  asset.provenance = provenance_of(mesh_path, options, warnings);
+  return asset;
 }
 
 Summary summarize(const std::string& mesh_path, const Asset& asset, const BuildReport& report) {
@@ -188,161 +404,28 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
   std::unique_ptr<tbb::global_control> thread_limit;
   if (options.threads > 0)
     thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.threads);
-  auto clock = std::chrono::steady_clock::now();
-  auto stage = [&](const std::string& name) {
-    const auto now = std::chrono::steady_clock::now();
-    if (!report.timings.empty()) report.timings.back().seconds = std::chrono::duration<double>(now - clock).count();
-    clock = now;
-    if (name.empty()) return;
-    report.timings.push_back({name, 0});
-    if (progress) progress(name, stage_start_fraction(name));
-  };
-
-  stage("import");
-  const TriangleMesh raw = import_mesh(mesh_path, options.import);
-  report.input_vertices = raw.vertices.size();
-  report.input_triangles = raw.triangles.size();
-
-  stage("repair");
-  const TriangleMesh mesh =
-      repair_mesh(raw, report.repair, options.check_self_intersections, options.import.time_limit_s);
-  const auto [lo, hi] = bounding_box(mesh);
-  const double diagonal = length(hi - lo);
-  // A closed, oriented surface encloses what the divergence theorem integrates; otherwise inside is where the
-  // winding number is >= 1/2, and the mass properties are integrated over that inside, on the voxelmap.
-  const RepairReport& r = report.repair;
-  const bool winding_inside = !r.closed || !r.consistently_oriented || r.self_intersecting_pairs > 0;
-  MassProperties mass;
-  auto encloses_volume = [&] { return mass.volume > 1e-9 * diagonal * diagonal * diagonal; };
-  auto check_volume = [&](const char* what) {
-    if (!encloses_volume())
-      throw BakeError(IssueCode::ZeroVolume, mesh_path + ": the surface encloses no volume (" + what + ")");
-  };
-  // Shell mode, asked for or chosen below when the surface encloses nothing: a solid shell around the surface.
-  double shell_thickness = options.voxelmap.shell_thickness;
-  bool closed_but_flat = false;
-  if (!winding_inside && shell_thickness == 0) {
-    mass = compute_mass_properties(mesh);
-    closed_but_flat = !encloses_volume();  // a closed, double-sided sheet: baked as a shell below
-  }
-  auto sample_shell = [&](double thickness) {  // a shell's points lie on its two sheets: half as many each
-    PointShellSettings settings = options.point_shell;
-    if (thickness > 0 && settings.point_spacing == 0) settings.points = std::max<uint32_t>(1, settings.points / 2);
-    PointShell sampled = sample_point_shell(mesh, settings);
-    if (thickness > 0) offset_to_shell_sheets(sampled, thickness / 2);
-    return sampled;
-  };
-
-  // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run
-  // beside the voxelmap's parallel work. Stage times are each task's own wall time.
-  stage("voxelmap + point shell");
-  VoxelmapSettings voxelmap_options = options.voxelmap;
-  voxelmap_options.winding_number_sign = winding_inside;
-  if (closed_but_flat) voxelmap_options.shell_thickness = shell_thickness = 0;  // decided after the grid exists
-  Voxelmap voxelmap;
-  PointShell shell;
-  double voxelmap_seconds = 0, shell_seconds = 0, tree_seconds = 0;
-  std::vector<StageTiming> voxelmap_stages;
-  // A winding bake in which no voxel is more than half a voxel inside stops after its band: it becomes a shell.
-  VoxelmapReport voxelmap_report;
-  voxelmap_report.stop_if_shallow = winding_inside && shell_thickness == 0;
-  auto timed = [](double& seconds, auto&& work) {
-    const auto t0 = std::chrono::steady_clock::now();
-    work();
-    seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  };
-  tbb::task_group tasks;
-  std::exception_ptr shell_error;
-  tasks.run([&] {
-    try {
-      timed(shell_seconds, [&] { shell = sample_shell(shell_thickness); });
-      timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
-    } catch (...) {
-      shell_error = std::current_exception();
-    }
+  StageTimes times(progress);
+  TriangleMesh mesh = times.run(BakeStage::Import, [&] { return import_mesh(mesh_path, options.import); });
+  report.input_vertices = mesh.vertices.size();
+  report.input_triangles = mesh.triangles.size();
+  InsidePlan plan;
+  mesh = times.run(BakeStage::Repair, [&] {  // the imported soup is freed as the repaired mesh replaces it
+    TriangleMesh repaired =
+        repair_mesh(mesh, report.repair, options.check_self_intersections, options.import.time_limit_s);
+    plan = plan_inside(repaired, report.repair, options.voxelmap.shell_thickness);
+    return repaired;
   });
-  try {
-    timed(voxelmap_seconds,
-          [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &voxelmap_report); });
-  } catch (...) {
-    tasks.wait();
-    throw;
-  }
-  tasks.wait();
-  if (shell_error) std::rethrow_exception(shell_error);
-
-  stage("assemble");
-  // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or parts
-  // thinner than a voxel; the fractional voxels along it are not a volume the voxelmap can represent. Such a
-  // surface is baked again as a shell two voxels thick, and the asset says so, with what to do about it.
-  const bool encloses_nothing =
-      shell_thickness == 0 &&
-      (closed_but_flat || (winding_inside && (voxelmap_report.stopped || voxelmap.layer_range().second < 1)));
-  if (encloses_nothing) {
-    shell_thickness = 2 * voxelmap.voxel_size;
-    char text[480];
-    // Thin parts (an inside behind the surface, all of it within half a voxel) or a sheet (no inside at all).
-    const uint64_t inside = voxelmap_report.inside_centres;
-    if (inside > 0 || (winding_inside && share_with_inside_behind(mesh) >= 0.5)) {
-      char centres[96] = "no voxel centre lies inside it";
-      if (inside > 0)
-        std::snprintf(centres, sizeof centres, "%llu voxel centres lie inside it, none more than half a voxel deep",
-                      static_cast<unsigned long long>(inside));
-      std::snprintf(text, sizeof text,
-                    "the surface's parts are thinner than a voxel (%s): its inside vanishes at this resolution. "
-                    "Baked as a shell %.6g m (2 voxels) thick; pass --shell-thickness with the parts' real "
-                    "thickness, or use voxels smaller than them (--voxel-size, --resolution)",
-                    centres, shell_thickness);
-    } else {
-      std::snprintf(text, sizeof text,
-                    "the surface encloses no volume at this resolution (an open or flat sheet): baked as a shell "
-                    "%.6g m (2 voxels) thick; --shell-thickness sets another thickness",
-                    shell_thickness);
+  Geometry geometry =
+      times.run(BakeStage::VoxelmapAndPointShell, [&] { return build_geometry(mesh, options, plan, times); });
+  Asset asset = times.run(BakeStage::Assemble, [&] {
+    if (encloses_nothing(plan, geometry)) {
+      report.repair.warnings.push_back(shell_mode_warning(mesh, plan, geometry));
+      plan.shell_thickness = 2 * geometry.voxelmap.voxel_size;
+      rebuild_as_shell(mesh, options, plan, geometry, times);
     }
-    report.repair.warnings.push_back({"SHELL_MODE", text});
-    voxelmap_options.shell_thickness = shell_thickness;
-    voxelmap_stages.clear();
-    timed(voxelmap_seconds, [&] { voxelmap = build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
-    timed(shell_seconds, [&] { shell = sample_shell(shell_thickness); });
-    timed(tree_seconds, [&] { build_sphere_tree(shell, options.point_shell.branching); });
-  }
-  if (shell_thickness > 0) {
-    mass = shell_mass_properties(mesh, shell_thickness);
-    check_volume("a surface of zero area");
-  } else if (winding_inside) {
-    mass = voxelmap_mass_properties(voxelmap);
-    check_volume("an open sheet");
-    // The inside closes the surface, so it lies within the surface's bounds; the voxels' partial fractions can
-    // put the centre a fraction of a voxel past a flat side.
-    for (int a = 0; a < 3; ++a) mass.center_of_mass[a] = std::clamp(mass.center_of_mass[a], lo[a], hi[a]);
-  }
-  report.timings.insert(
-      report.timings.end() - 2,
-      {{"voxelmap", voxelmap_seconds}, {"point shell", shell_seconds}, {"sphere tree", tree_seconds}});
-  report.timings.insert(report.timings.end() - 2, voxelmap_stages.begin(), voxelmap_stages.end());
-  Asset asset;
-  asset.up_axis = options.up_axis;
-  asset.bounds_min = lo;
-  asset.bounds_max = hi;
-  for (int a = 0; a < 3 && shell_thickness > 0; ++a) {  // a shell's surface is its sheets, around the mesh
-    asset.bounds_min[a] -= shell_thickness / 2;
-    asset.bounds_max[a] += shell_thickness / 2;
-  }
-  asset.voxelmap = std::move(voxelmap);
-  asset.point_shell = std::move(shell);
-  asset.mass = mass;
-  Provenance& p = asset.provenance;
-  p.generator = "voxfmt build";
-  p.generator_version = VOXFMT_VERSION_STRING;
-  p.source_file = std::filesystem::path(mesh_path).filename().string();
-  Result<std::string> sha = sha256_file(mesh_path);
-  if (!sha) throw BakeError(sha.error().code, sha.error().message);
-  p.source_sha256 = sha.value();
-  p.build_parameters_json = build_parameters_json(options);
-  p.dependency_versions = dependency_versions();
-  p.build_warnings = report.repair.warnings;
-  p.created_utc = utc_now();
-  stage("");
+    return assemble(mesh_path, mesh, options, plan, std::move(geometry), report.repair.warnings);
+  });
+  report.timings = times.timings();
   return asset;
 }
 
@@ -398,7 +481,8 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
   if (Status usable = check_output_path(output_path); !usable) return usable.error();  // before a long bake
   Result<Baked> baked = bake_mesh(mesh_path, settings, progress);
   if (!baked) return baked.error();
-  if (progress) progress("verify + write", stage_start_fraction("verify + write"));
+  const BakeStageInfo& write = stage_info(BakeStage::Write);
+  if (progress) progress(write.name, write.progress_start);
   const auto write_start = std::chrono::steady_clock::now();
   WriteOptions write_options;  // validation: Full, beside the write
   write_options.deflate_level = settings.deflate;
@@ -411,7 +495,7 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
     return error;
   }
   Summary summary = std::move(baked->summary);
-  summary.timings.push_back({"write", seconds_since(write_start)});
+  summary.timings.push_back({write.name, seconds_since(write_start)});
   summary.output = output_path;
   std::error_code ec;
   summary.file_size_bytes = std::filesystem::file_size(output_path, ec);

@@ -994,9 +994,9 @@ float float_not_below(double value) {
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
                         VoxelmapReport* report) {
   auto clock = std::chrono::steady_clock::now();
-  auto lap = [&](const char* name) {
+  auto lap = [&](BakeStage stage) {
     const auto now = std::chrono::steady_clock::now();
-    if (timings) timings->push_back({name, std::chrono::duration<double>(now - clock).count()});
+    if (timings) timings->push_back({stage_name(stage), std::chrono::duration<double>(now - clock).count()});
     clock = now;
   };
   if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
@@ -1092,7 +1092,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     std::vector<int16_t>().swap(o.codes);
   }
 
-  lap("voxelmap: band");
+  lap(BakeStage::VoxelmapBand);
   if (report && rule == SignRule::Winding) {
     // Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
     // band - 1/2 voxels deep) or a coarse brick inside.
@@ -1130,7 +1130,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
       vm.lattice[n] = float_not_below((shell ? std::abs(u - half_shell) : u) * g.voxel_size);
     });
   }
-  lap("voxelmap: lattice");
+  lap(BakeStage::VoxelmapLattice);
   // Within kExactReach of the surface, or within kFarSlack beyond it (spec §3.3), but for rounding: squared distances
   // compared as floats (2^-24 relative) and values kept as floats.
   vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
@@ -1141,7 +1141,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
                          vm.brick_values.data() + size_t(entry) * kBrickVoxels);
   });
-  lap("voxelmap: estimates");
+  lap(BakeStage::VoxelmapEstimates);
   return vm;
 }
 

@@ -74,8 +74,60 @@ struct Settings {
   int deflate = 4;                       ///< gzip level 0..9 of the voxel grids in the file
 };
 
+/// The stages of a bake, in the order they run (kBakeStages describes each).
+enum class BakeStage : uint8_t {
+  Import,
+  Repair,
+  VoxelmapAndPointShell,
+  Voxelmap,
+  VoxelmapBand,
+  VoxelmapLattice,
+  VoxelmapEstimates,
+  PointShell,
+  SphereTree,
+  Assemble,
+  Write,
+};
+
+/// One stage: its name is the key of its time in Summary::timings (`voxfmt build --json`'s and the manifest's
+/// `timings_s`), what a ProgressCallback is told, and its row in docs/cli.md (scripts/check-docs.py compares the
+/// two). This list is the one place a stage's name is written.
+struct BakeStageInfo {
+  BakeStage stage;
+  const char* name;
+  BakeStage within;       ///< the stage whose time includes this one's (itself for a stage of the whole bake)
+  double progress_start;  ///< share of a typical bake done when it starts; < 0: not reported as progress
+};
+
+/// The progress shares are CGAL's bunny at resolution 306: repair 11 %, voxelmap and point shell 60 %, assemble
+/// 2 %, write (with its check) 26 %, so that a progress bar moves at an even pace.
+inline constexpr BakeStageInfo kBakeStages[] = {
+    {BakeStage::Import, "import", BakeStage::Import, 0.0},
+    {BakeStage::Repair, "repair", BakeStage::Repair, 0.01},
+    {BakeStage::VoxelmapAndPointShell, "voxelmap + point shell", BakeStage::VoxelmapAndPointShell, 0.12},
+    {BakeStage::Voxelmap, "voxelmap", BakeStage::VoxelmapAndPointShell, -1},
+    {BakeStage::VoxelmapBand, "voxelmap: band", BakeStage::Voxelmap, -1},
+    {BakeStage::VoxelmapLattice, "voxelmap: lattice", BakeStage::Voxelmap, -1},
+    {BakeStage::VoxelmapEstimates, "voxelmap: estimates", BakeStage::Voxelmap, -1},
+    {BakeStage::PointShell, "point shell", BakeStage::VoxelmapAndPointShell, -1},
+    {BakeStage::SphereTree, "sphere tree", BakeStage::VoxelmapAndPointShell, -1},
+    {BakeStage::Assemble, "assemble", BakeStage::Assemble, 0.72},
+    {BakeStage::Write, "write", BakeStage::Write, 0.74},
+};
+
+static_assert(
+    [] {
+      for (size_t i = 0; i < sizeof kBakeStages / sizeof kBakeStages[0]; ++i)
+        if (size_t(kBakeStages[i].stage) != i) return false;
+      return true;
+    }(),
+    "kBakeStages lists the stages in BakeStage's order");
+
+constexpr const BakeStageInfo& stage_info(BakeStage stage) { return kBakeStages[size_t(stage)]; }
+constexpr const char* stage_name(BakeStage stage) { return stage_info(stage).name; }
+
 struct StageTiming {
-  std::string stage;  ///< "import", "repair", "voxelmap", "point shell", "sphere tree", "assemble", "write"
+  std::string stage;  ///< a name of kBakeStages
   double seconds = 0;
 };
 
@@ -100,8 +152,8 @@ struct Summary {
   std::vector<BuildWarning> warnings;
 };
 
-/// The bake's stages as they start, with the share of the whole bake done so far (0..1, by the typical cost
-/// of each stage), for progress bars.
+/// The bake's stages as they start (the names of kBakeStages with a progress share), with the share of the whole
+/// bake done so far (0..1, by the typical cost of each stage), for progress bars; then "done" at 1.
 using ProgressCallback = std::function<void(std::string_view stage, double fraction)>;
 
 struct Baked {
