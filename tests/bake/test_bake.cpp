@@ -469,10 +469,9 @@ TEST(Bake, TimingsAndProgressFollowTheStageList) {
   options.point_shell.points = 2000;
   std::vector<std::pair<std::string, double>> reported;
   const std::string out = (std::filesystem::temp_directory_path() / "voxfmt_stage_list.vox.h5").string();
-  const Result<Summary> summary = bake_to_file(kMeshes + "/bunny00.off", out, options,
-                                               [&](std::string_view stage, double fraction) {
-                                                 reported.emplace_back(std::string(stage), fraction);
-                                               });
+  const Result<Summary> summary = bake_to_file(
+      kMeshes + "/bunny00.off", out, options,
+      [&](std::string_view stage, double fraction) { reported.emplace_back(std::string(stage), fraction); });
   std::filesystem::remove(out);
   ASSERT_TRUE(summary) << summary.error().describe();
   std::vector<std::pair<std::string, double>> expected;

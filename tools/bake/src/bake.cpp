@@ -174,8 +174,7 @@ PointShell sample_shell(const TriangleMesh& mesh, PointShellSettings settings, d
 
 // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run beside the
 // voxelmap's parallel work, each stage timed by its own wall time.
-Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan,
-                        StageTimes& times) {
+Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, StageTimes& times) {
   Geometry g;
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = plan.winding;
@@ -211,8 +210,7 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
 // than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
 bool encloses_nothing(const InsidePlan& plan, const Geometry& g) {
   return plan.shell_thickness == 0 &&
-         (plan.closed_but_flat ||
-          (plan.winding && (g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1)));
+         (plan.closed_but_flat || (plan.winding && (g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1)));
 }
 
 // Why a surface that encloses nothing is baked as a shell two voxels thick, and what to do about it: thin parts
@@ -292,8 +290,8 @@ Provenance provenance_of(const std::string& mesh_path, const Settings& options,
   return p;
 }
 
-Asset assemble(const std::string& mesh_path, const TriangleMesh& mesh, const Settings& options,
-               const InsidePlan& plan, Geometry geometry, const std::vector<BuildWarning>& warnings) {
+Asset assemble(const std::string& mesh_path, const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan,
+               Geometry geometry, const std::vector<BuildWarning>& warnings) {
   Asset asset;
   asset.mass = mass_properties(mesh_path, mesh, plan, geometry.voxelmap);
   asset.up_axis = options.up_axis;
