@@ -989,6 +989,131 @@ float float_not_below(double value) {
   return f;
 }
 
+// The grid a bake fills, checked against the settings' limits and the memory it would take. Shell mode: the object
+// is every point within half the thickness of the surface; the grid's margin grows by that much so that the shell's
+// outer sheets keep the margin's outer voxels around them.
+struct GridPlan {
+  GridGeometry g;
+  uint32_t margin = 0;
+  double half_shell = 0;  ///< voxels; 0 unless a shell
+};
+
+GridPlan plan_voxelmap_grid(const TriangleMesh& mesh, const VoxelmapSettings& options) {
+  if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
+  GridPlan plan{plan_grid(mesh, options), options.margin, 0.0};
+  const bool shell = options.shell_thickness > 0;
+  if (shell && !std::isfinite(options.shell_thickness))
+    throw BakeError(IssueCode::BadOption, "shell thickness must be a finite number > 0");
+  plan.half_shell = shell ? 0.5 * options.shell_thickness / plan.g.voxel_size : 0.0;
+  if (plan.half_shell > 1e4) throw BakeError(IssueCode::BadOption, "shell thickness is more than 20,000 voxels");
+  if (shell) {
+    VoxelmapSettings grid_options = options;
+    grid_options.margin += uint32_t(std::ceil(plan.half_shell));
+    grid_options.voxel_size = plan.g.voxel_size;  // the same voxels, more of them
+    plan.g = plan_grid(mesh, grid_options);
+    plan.margin = grid_options.margin;
+  }
+  check_memory(mesh, plan.g, options);
+  return plan;
+}
+
+// The rows of bricks to bake, as (row, first slot, end slot) into lists.bricks. Under the closed and shell rules a
+// row without candidate bricks is outside; the winding rule decides every brick within the surface's bounding box.
+std::vector<std::array<int64_t, 3>> brick_rows(const BrickLists& lists, const GridGeometry& g, SignRule rule) {
+  std::vector<std::array<int64_t, 3>> rows;
+  for (size_t slot = 0; slot < lists.bricks.size();) {
+    const int64_t row = lists.bricks[slot] / g.bricks[0];
+    size_t end = slot;
+    while (end < lists.bricks.size() && lists.bricks[end] / g.bricks[0] == row) ++end;
+    rows.push_back({row, int64_t(slot), int64_t(end)});
+    slot = end;
+  }
+  if (rule != SignRule::Winding) return rows;
+  std::vector<std::array<int64_t, 3>> all;
+  size_t n = 0;
+  for (int64_t row = 0; row < g.bricks[1] * g.bricks[2]; ++row) {
+    if (n < rows.size() && rows[n][0] == row) {
+      all.push_back(rows[n++]);
+    } else {
+      const int64_t first = n < rows.size() ? rows[n][1] : int64_t(lists.bricks.size());
+      all.push_back({row, first, first});
+    }
+  }
+  return all;
+}
+
+// The band: every row of bricks in parallel, then their value bricks gathered into the voxelmap in row order.
+void bake_band(const BrickRowsInput& in, Voxelmap& vm) {
+  const GridGeometry& g = in.g;
+  const std::vector<std::array<int64_t, 3>> rows = brick_rows(in.lists, g, in.rule);
+  vm.bricks.assign(size_t(g.brick_count()), Voxelmap::kCoarseOutside);
+  std::vector<RowOutput> outputs(rows.size());
+  tbb::parallel_for(size_t(0), rows.size(), [&](size_t n) {
+    const int64_t row = rows[n][0];
+    bake_brick_row(in, vm, row % g.bricks[1], row / g.bricks[1], rows[n][1], rows[n][2], vm.bricks, outputs[n]);
+  });
+  size_t value_bricks = 0;
+  for (const RowOutput& o : outputs) value_bricks += o.bricks.size();
+  vm.brick_values.reserve(value_bricks * kBrickVoxels);
+  for (RowOutput& o : outputs) {
+    for (size_t n = 0; n < o.bricks.size(); ++n) vm.bricks[size_t(o.bricks[n])] = int32_t(vm.value_brick_count() + n);
+    vm.brick_values.insert(vm.brick_values.end(), o.codes.begin(), o.codes.end());
+    std::vector<int64_t>().swap(o.bricks);
+    std::vector<int16_t>().swap(o.codes);
+  }
+}
+
+// Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
+// band - 1/2 voxels deep) or a coarse brick inside.
+void count_inside(const Voxelmap& vm, VoxelmapReport& report) {
+  uint64_t inside = 0, deep = 0;
+  for (size_t n = 0; n < vm.bricks.size(); ++n) {
+    const int32_t entry = vm.bricks[n];
+    if (entry == Voxelmap::kCoarseInside) {
+      inside += kBrickVoxels;
+      deep += kBrickVoxels;
+    }
+    if (entry < 0) continue;
+    const int16_t* codes = vm.brick_values.data() + size_t(entry) * kBrickVoxels;
+    for (size_t v = 0; v < kBrickVoxels; ++v) {
+      if (codes[v] >= 0) continue;  // outside, or past the grid (0)
+      ++inside;
+      deep += !Voxelmap::code_is_stored(codes[v]) || vm.decode(codes[v]) <= -0.5 * vm.voxel_size;
+    }
+  }
+  report.inside_centres = inside;
+  report.deep_centres = deep;
+}
+
+// The lattice's values (metres; a shell's distance to its sheets) and their error bounds: within kExactReach of the
+// surface, or within kFarSlack beyond it (spec §3.3), but for rounding: squared distances compared as floats
+// (2^-24 relative) and values kept as floats.
+void fill_lattice(const BrickRowsInput& in, Voxelmap& vm) {
+  const GridGeometry& g = in.g;
+  const Lattice L = propagate_lattice(g, in.triangles, in.lists, in.r);
+  const bool shell = in.rule == SignRule::Shell;
+  vm.lattice.resize(L.keys.size());
+  tbb::parallel_for(size_t(0), L.keys.size(), [&](size_t n) {
+    float d2;
+    const uint32_t bits = uint32_t(L.keys[n] >> 32);
+    std::memcpy(&d2, &bits, sizeof d2);
+    const double u = L.keys[n] == kNoTriangle ? 1e9 : std::sqrt(double(d2));
+    vm.lattice[n] = float_not_below((shell ? std::abs(u - in.half_shell) : u) * g.voxel_size);
+  });
+  vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
+}
+
+// fill_estimates (libvoxfmt), brick by brick in parallel: the value bricks' voxels without a stored distance.
+void estimate_beyond_band(Voxelmap& vm) {
+  const auto bd = vm.brick_dims();
+  tbb::parallel_for(size_t(0), vm.bricks.size(), [&](size_t n) {
+    const int32_t entry = vm.bricks[n];
+    if (entry < 0) return;
+    fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
+                         vm.brick_values.data() + size_t(entry) * kBrickVoxels);
+  });
+}
+
 }  // namespace
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
@@ -999,34 +1124,20 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     if (timings) timings->push_back({stage_name(stage), std::chrono::duration<double>(now - clock).count()});
     clock = now;
   };
-  if (!(options.distance_band >= 1)) throw BakeError(IssueCode::BadOption, "distance band must be >= 1 voxel");
-  GridGeometry g = plan_grid(mesh, options);
-  // Shell mode: the object is every point within half the thickness of the surface; the grid's margin grows
-  // by that much so that the shell's outer sheets keep the margin's outer voxels around them.
+  const GridPlan plan = plan_voxelmap_grid(mesh, options);
+  const GridGeometry& g = plan.g;
   const bool shell = options.shell_thickness > 0;
-  if (shell && !std::isfinite(options.shell_thickness))
-    throw BakeError(IssueCode::BadOption, "shell thickness must be a finite number > 0");
-  const double half_shell = shell ? 0.5 * options.shell_thickness / g.voxel_size : 0.0;  // voxels
-  if (half_shell > 1e4) throw BakeError(IssueCode::BadOption, "shell thickness is more than 20,000 voxels");
-  VoxelmapSettings grid_options = options;
-  if (shell) {
-    grid_options.margin += uint32_t(std::ceil(half_shell));
-    grid_options.voxel_size = g.voxel_size;  // the same voxels, more of them
-    g = plan_grid(mesh, grid_options);
-  }
-  check_memory(mesh, g, options);
-
   Voxelmap vm;
   vm.origin = g.origin;
   vm.voxel_size = g.voxel_size;
   vm.dims = g.dims;
   vm.distance_band = options.distance_band;
-  vm.margin = grid_options.margin;
+  vm.margin = plan.margin;
   if (shell) vm.shell_thickness = options.shell_thickness;
   vm.choose_quanta();
 
   // Distances are computed half a voxel past the band, so that the band's edge is exact.
-  const double r = options.distance_band + half_shell + 0.5;
+  const double r = options.distance_band + plan.half_shell + 0.5;
   std::vector<Vec3> vertices = index_vertices(mesh, g);
   const std::vector<IndexTriangle> triangles = index_triangles(mesh, vertices, g, r);
   const BrickLists lists = bin_triangles(triangles, g, r);
@@ -1050,97 +1161,20 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
                           rule,
                           r,
                           options.distance_band,
-                          half_shell,
+                          plan.half_shell,
                           bounding_box(mesh)};
-
-  // Rows of bricks in parallel. Under the closed and shell rules a row without candidate bricks is outside; the
-  // winding rule decides every brick within the surface's bounding box.
-  std::vector<std::array<int64_t, 3>> rows;  // (row, first slot, end slot)
-  for (size_t slot = 0; slot < lists.bricks.size();) {
-    const int64_t row = lists.bricks[slot] / g.bricks[0];
-    size_t end = slot;
-    while (end < lists.bricks.size() && lists.bricks[end] / g.bricks[0] == row) ++end;
-    rows.push_back({row, int64_t(slot), int64_t(end)});
-    slot = end;
-  }
-  if (rule == SignRule::Winding) {
-    std::vector<std::array<int64_t, 3>> all;
-    size_t n = 0;
-    for (int64_t row = 0; row < g.bricks[1] * g.bricks[2]; ++row) {
-      if (n < rows.size() && rows[n][0] == row) {
-        all.push_back(rows[n++]);
-      } else {
-        const int64_t first = n < rows.size() ? rows[n][1] : int64_t(lists.bricks.size());
-        all.push_back({row, first, first});
-      }
-    }
-    rows.swap(all);
-  }
-  vm.bricks.assign(size_t(g.brick_count()), Voxelmap::kCoarseOutside);
-  std::vector<RowOutput> outputs(rows.size());
-  tbb::parallel_for(size_t(0), rows.size(), [&](size_t n) {
-    const int64_t row = rows[n][0];
-    bake_brick_row(in, vm, row % g.bricks[1], row / g.bricks[1], rows[n][1], rows[n][2], vm.bricks, outputs[n]);
-  });
-  size_t value_bricks = 0;
-  for (const RowOutput& o : outputs) value_bricks += o.bricks.size();
-  vm.brick_values.reserve(value_bricks * kBrickVoxels);
-  for (RowOutput& o : outputs) {
-    for (size_t n = 0; n < o.bricks.size(); ++n) vm.bricks[size_t(o.bricks[n])] = int32_t(vm.value_brick_count() + n);
-    vm.brick_values.insert(vm.brick_values.end(), o.codes.begin(), o.codes.end());
-    std::vector<int64_t>().swap(o.bricks);
-    std::vector<int16_t>().swap(o.codes);
-  }
-
+  bake_band(in, vm);
   lap(BakeStage::VoxelmapBand);
   if (report && rule == SignRule::Winding) {
-    // Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
-    // band - 1/2 voxels deep) or a coarse brick inside.
-    uint64_t inside = 0, deep = 0;
-    for (size_t n = 0; n < vm.bricks.size(); ++n) {
-      const int32_t entry = vm.bricks[n];
-      if (entry == Voxelmap::kCoarseInside) {
-        inside += kBrickVoxels;
-        deep += kBrickVoxels;
-      }
-      if (entry < 0) continue;
-      const int16_t* codes = vm.brick_values.data() + size_t(entry) * kBrickVoxels;
-      for (size_t v = 0; v < kBrickVoxels; ++v) {
-        if (codes[v] >= 0) continue;  // outside, or past the grid (0)
-        ++inside;
-        deep += !Voxelmap::code_is_stored(codes[v]) || vm.decode(codes[v]) <= -0.5 * g.voxel_size;
-      }
-    }
-    report->inside_centres = inside;
-    report->deep_centres = deep;
-    if (report->stop_if_shallow && deep == 0) {
+    count_inside(vm, *report);
+    if (report->stop_if_shallow && report->deep_centres == 0) {
       report->stopped = true;
       return vm;
     }
   }
-  // The lattice, and from it the estimates of the value bricks' voxels without a stored distance.
-  {
-    const Lattice L = propagate_lattice(g, triangles, lists, r);
-    vm.lattice.resize(L.keys.size());
-    tbb::parallel_for(size_t(0), L.keys.size(), [&](size_t n) {
-      float d2;
-      const uint32_t bits = uint32_t(L.keys[n] >> 32);
-      std::memcpy(&d2, &bits, sizeof d2);
-      const double u = L.keys[n] == kNoTriangle ? 1e9 : std::sqrt(double(d2));
-      vm.lattice[n] = float_not_below((shell ? std::abs(u - half_shell) : u) * g.voxel_size);
-    });
-  }
+  fill_lattice(in, vm);
   lap(BakeStage::VoxelmapLattice);
-  // Within kExactReach of the surface, or within kFarSlack beyond it (spec §3.3), but for rounding: squared distances
-  // compared as floats (2^-24 relative) and values kept as floats.
-  vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
-  tbb::parallel_for(size_t(0), vm.bricks.size(), [&](size_t n) {
-    const int32_t entry = vm.bricks[n];
-    if (entry < 0) return;
-    const auto bd = vm.brick_dims();
-    fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
-                         vm.brick_values.data() + size_t(entry) * kBrickVoxels);
-  });
+  estimate_beyond_band(vm);
   lap(BakeStage::VoxelmapEstimates);
   return vm;
 }
