@@ -785,6 +785,51 @@ struct RowOutput {
   std::vector<int16_t> codes;
 };
 
+// The signs of a brick with band voxels: a band voxel's by the rule (the closed surface's pseudonormal or the winding
+// number, both in `near_sign`; a shell's by its distance to the sheets), carried along each voxel row (`carried`,
+// the row's sign at the last voxel reached) to the voxels beyond the band and past the grid. The winding rule
+// decides the voxels beyond its band afterwards (winding_signs_beyond_band).
+void band_brick_signs(const BrickRowsInput& in, const float* distance, const float* near_sign, float* carried,
+                      float* sign) {
+  for (size_t v = 0; v < kBrickVoxels; ++v) {
+    float& row_sign = carried[v / kEdge];
+    if (std::isinf(distance[v])) {
+      sign[v] = row_sign;
+    } else if (std::isnan(distance[v])) {
+      sign[v] = in.rule == SignRule::Shell ? 1.0f : row_sign;  // Winding: decided after
+    } else {
+      sign[v] = in.rule == SignRule::Shell ? (distance[v] < in.half_shell ? -1.0f : 1.0f) : near_sign[v];
+      row_sign = sign[v];
+    }
+  }
+}
+
+struct BrickSides {
+  bool stored = false, inside = false, outside = false;
+};
+
+// A brick's codes: the distances within the band stored, every other voxel in the grid an estimate's sign (its value
+// comes from the lattice), 0 past the grid; and which kinds it has.
+BrickSides encode_brick(const BrickRowsInput& in, const Voxelmap& vm, const float* distance, const float* sign,
+                        int16_t* codes) {
+  BrickSides sides;
+  for (size_t v = 0; v < kBrickVoxels; ++v) {
+    codes[v] = 0;
+    if (std::isinf(distance[v])) continue;
+    (sign[v] < 0 ? sides.inside : sides.outside) = true;
+    if (!std::isnan(distance[v])) {
+      const double d = in.rule == SignRule::Shell ? double(distance[v]) - in.half_shell : sign[v] * double(distance[v]);
+      if (std::abs(d) <= in.band) {
+        codes[v] = vm.encode_stored(d * in.g.voxel_size);
+        sides.stored = true;
+        continue;
+      }
+    }
+    codes[v] = int16_t(sign[v] < 0 ? -2 : 2);
+  }
+  return sides;
+}
+
 // Bakes the row of bricks (bj, bk) whose candidate bricks (those listing triangles) are lists.bricks[first, end):
 // value bricks are coded into `out`; coarse bricks inside the object are marked in `table` (which starts as all
 // coarse, outside).
@@ -827,49 +872,16 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
     next = bi + 1;
     brick_band(in, keys.data() + size_t(slot - first) * kBrickVoxels, bi, bj, bk, distance, near_sign);
     if (in.rule == SignRule::Winding) winding_band_signs(in, *crossings, bi, bj, bk, distance, near_sign);
-    for (size_t v = 0; v < kBrickVoxels; ++v) {
-      float& row_sign = carried[v / kEdge];
-      if (std::isinf(distance[v])) {
-        sign[v] = row_sign;
-      } else if (std::isnan(distance[v])) {
-        sign[v] = in.rule == SignRule::Shell ? 1.0f : row_sign;  // Winding: decided below
-      } else {
-        switch (in.rule) {
-          case SignRule::Closed:
-          case SignRule::Winding:  // near_sign holds winding_band_signs' answer
-            sign[v] = near_sign[v];
-            break;
-          case SignRule::Shell:
-            sign[v] = distance[v] < in.half_shell ? -1.0f : 1.0f;
-            break;
-        }
-        row_sign = sign[v];
-      }
-    }
+    band_brick_signs(in, distance, near_sign, carried, sign);
     if (in.rule == SignRule::Winding) winding_signs_beyond_band(in, bi, bj, bk, distance, sign);
-    // A value brick stores the distances within the band; a brick without any, all on one side, is coarse.
-    bool any_stored = false, any_inside = false, any_outside = false;
     int16_t codes[kBrickVoxels];
-    for (size_t v = 0; v < kBrickVoxels; ++v) {
-      codes[v] = 0;
-      if (std::isinf(distance[v])) continue;
-      (sign[v] < 0 ? any_inside : any_outside) = true;
-      if (!std::isnan(distance[v])) {
-        const double d =
-            in.rule == SignRule::Shell ? double(distance[v]) - in.half_shell : sign[v] * double(distance[v]);
-        if (std::abs(d) <= in.band) {
-          codes[v] = vm.encode_stored(d * g.voxel_size);
-          any_stored = true;
-          continue;
-        }
-      }
-      codes[v] = int16_t(sign[v] < 0 ? -2 : 2);  // the estimate's sign; its value comes from the lattice
-    }
-    if (any_stored || (any_inside && any_outside)) {
+    const BrickSides sides = encode_brick(in, vm, distance, sign, codes);
+    // A value brick stores the distances within the band; a brick without any, all on one side, is coarse.
+    if (sides.stored || (sides.inside && sides.outside)) {
       out.bricks.push_back((bk * g.bricks[1] + bj) * BW + bi);
       out.codes.insert(out.codes.end(), codes, codes + kBrickVoxels);
     } else {
-      set_coarse(bi, any_inside ? -1.0f : 1.0f);
+      set_coarse(bi, sides.inside ? -1.0f : 1.0f);
     }
     if (in.rule == SignRule::Winding)  // the next coarse brick decides by itself
       std::fill(carried, carried + kEdge * kEdge, 1.0f);
@@ -903,21 +915,16 @@ uint64_t distance_key(const IndexTriangle& t, const Vec3& p, uint32_t f) {
   return uint64_t(bits) << 32 | f;
 }
 
-Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, const BrickLists& lists,
-                          double r) {
-  std::vector<std::array<Vec3, 3>> corners(triangles.size());
-  for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
-  const ClosestTriangle hierarchy(corners);
-  std::vector<std::array<Vec3, 3>>().swap(corners);
-  Lattice L;
-  for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
-  L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
-  auto coordinate = [&](int64_t a, int axis) { return double(std::min<int64_t>(a * kEdge, g.dims[size_t(axis)] - 1)); };
-  auto point = [&](int64_t a, int64_t b, int64_t c) {
-    return Vec3{coordinate(a, 0), coordinate(b, 1), coordinate(c, 2)};
-  };
-  // Each lattice point is a voxel of one brick (the last brick along an axis holds the grid's last voxel): that
-  // brick's list has every triangle within r of the point.
+// A lattice point (a, b, c) in voxel coordinates: a brick corner, the last one along an axis clamped to the grid.
+Vec3 lattice_point(const GridGeometry& g, int64_t a, int64_t b, int64_t c) {
+  auto coordinate = [&](int64_t n, int axis) { return double(std::min<int64_t>(n * kEdge, g.dims[size_t(axis)] - 1)); };
+  return Vec3{coordinate(a, 0), coordinate(b, 1), coordinate(c, 2)};
+}
+
+// Each lattice point is a voxel of one brick (the last brick along an axis holds the grid's last voxel): that
+// brick's list has every triangle within r of the point, and so its nearest if that is within r.
+void lattice_near_surface(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, const BrickLists& lists,
+                          Lattice& L) {
   tbb::parallel_for(size_t(0), lists.bricks.size(), [&](size_t slot) {
     const int64_t brick = lists.bricks[slot];
     const int64_t bi = brick % g.bricks[0], bj = brick / g.bricks[0] % g.bricks[1],
@@ -925,38 +932,41 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
     for (int64_t c = bk; c <= (bk + 1 == g.bricks[2] ? bk + 1 : bk); ++c)
       for (int64_t b = bj; b <= (bj + 1 == g.bricks[1] ? bj + 1 : bj); ++b)
         for (int64_t a = bi; a <= (bi + 1 == g.bricks[0] ? bi + 1 : bi); ++a) {
-          const Vec3 p = point(a, b, c);
+          const Vec3 p = lattice_point(g, a, b, c);
           uint64_t best = kNoTriangle;
           for (uint64_t m = lists.first[slot]; m < lists.first[slot + 1]; ++m)
             best = std::min(best, distance_key(triangles[lists.members[m]], p, lists.members[m]));
           L.keys[L.index(a, b, c)] = best;
         }
   });
-  // Sweeps along one axis, both ways, every line in parallel.
-  auto sweep = [&](int axis) {
-    const int64_t n = L.dims[size_t(axis)];
-    const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
-    const int64_t lines_u = L.dims[size_t(u_axis)], lines_v = L.dims[size_t(v_axis)];
-    tbb::parallel_for(int64_t(0), lines_u * lines_v, [&](int64_t line) {
-      int64_t at[3];
-      at[u_axis] = line % lines_u;
-      at[v_axis] = line / lines_u;
-      auto visit = [&](int64_t s, int64_t from) {
-        at[axis] = from;
-        const uint64_t neighbour = L.keys[L.index(at[0], at[1], at[2])];
-        at[axis] = s;
-        uint64_t& own = L.keys[L.index(at[0], at[1], at[2])];
-        if (neighbour == kNoTriangle || uint32_t(neighbour) == uint32_t(own)) return;
-        const uint32_t f = uint32_t(neighbour);
-        own = std::min(own, distance_key(triangles[f], point(at[0], at[1], at[2]), f));
-      };
-      for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
-      for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
-    });
-  };
-  for (int axis = 0; axis < 3; ++axis) sweep(axis);
-  // Every point beyond r now has an upper bound, the distance to a real triangle: the hierarchy searches only
-  // within it for the nearest one.
+}
+
+// Carries nearest triangles along one axis, both ways, every line in parallel.
+void sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, int axis, Lattice& L) {
+  const int64_t n = L.dims[size_t(axis)];
+  const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
+  const int64_t lines_u = L.dims[size_t(u_axis)], lines_v = L.dims[size_t(v_axis)];
+  tbb::parallel_for(int64_t(0), lines_u * lines_v, [&](int64_t line) {
+    int64_t at[3];
+    at[u_axis] = line % lines_u;
+    at[v_axis] = line / lines_u;
+    auto visit = [&](int64_t s, int64_t from) {
+      at[axis] = from;
+      const uint64_t neighbour = L.keys[L.index(at[0], at[1], at[2])];
+      at[axis] = s;
+      uint64_t& own = L.keys[L.index(at[0], at[1], at[2])];
+      if (neighbour == kNoTriangle || uint32_t(neighbour) == uint32_t(own)) return;
+      const uint32_t f = uint32_t(neighbour);
+      own = std::min(own, distance_key(triangles[f], lattice_point(g, at[0], at[1], at[2]), f));
+    };
+    for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
+    for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
+  });
+}
+
+// Every point beyond r has an upper bound after the sweeps, the distance to a real triangle: the hierarchy searches
+// only within it for the nearest one.
+void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hierarchy, double r, Lattice& L) {
   const double r2 = r * r;
   tbb::parallel_for(int64_t(0), L.dims[2], [&](int64_t c) {
     for (int64_t b = 0; b < L.dims[1]; ++b)
@@ -970,9 +980,9 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
         // A search with slack finds a distance d within (1 + slack) of the exact one: if d is beyond
         // kExactReach (1 + slack), the point is beyond kExactReach and may keep it; otherwise it is searched exactly.
         const double reach2 = kExactReach * kExactReach * (1 + kFarSlack) * (1 + kFarSlack);
-        auto [d2, f] = hierarchy.nearest(point(a, b, c), bound2, uint32_t(key), bound2 > reach2 ? kFarSlack : 0.0);
-        if (bound2 > reach2 && d2 <= reach2)
-          std::tie(d2, f) = hierarchy.nearest(point(a, b, c), d2 * (1 + 1e-9), f, 0.0);
+        const Vec3 p = lattice_point(g, a, b, c);
+        auto [d2, f] = hierarchy.nearest(p, bound2, uint32_t(key), bound2 > reach2 ? kFarSlack : 0.0);
+        if (bound2 > reach2 && d2 <= reach2) std::tie(d2, f) = hierarchy.nearest(p, d2 * (1 + 1e-9), f, 0.0);
         if (!(d2 < bound2)) continue;
         const float nearest = float(d2);
         uint32_t nearest_bits;
@@ -980,6 +990,20 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
         key = std::min(key, uint64_t(nearest_bits) << 32 | f);
       }
   });
+}
+
+Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, const BrickLists& lists,
+                          double r) {
+  Lattice L;
+  for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
+  L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
+  lattice_near_surface(g, triangles, lists, L);
+  for (int axis = 0; axis < 3; ++axis) sweep_lattice(g, triangles, axis, L);
+  std::vector<std::array<Vec3, 3>> corners(triangles.size());
+  for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
+  const ClosestTriangle hierarchy(corners);
+  std::vector<std::array<Vec3, 3>>().swap(corners);
+  search_lattice_beyond_band(g, hierarchy, r, L);
   return L;
 }
 
