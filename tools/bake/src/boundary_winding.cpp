@@ -514,107 +514,139 @@ void BoundaryWinding::fill_far(const double* values, double value_error, Cell& c
   cell.bound += kValueErrorGain * value_error;
 }
 
-void BoundaryWinding::select_near(double size, double target, size_t max_work, Cell& cell) const {
-  const Vec3 lo = cell.lo;
-  const Vec3 hi{lo[0] + size, lo[1] + size, lo[2] + size};
-  const Vec3 centre{lo[0] + size / 2, lo[1] + size / 2, lo[2] + size / 2};
-  const double half_diagonal = size / 2 * std::sqrt(3.0);
-  const double interpolation = interpolation_error(cell.spacing);
-  cell.near_edges.clear();
-  cell.near_fans.clear();
-  cell.bound = 0;
-  std::fill(cell.far, cell.far + 27, 0.0);
-  if (edges_.empty()) return;
-  size_t work = 0;
-  constexpr uint32_t kFan = 0x80000000u;  // candidate names: a strip edge, or kFan + a fan
+// select_near's choice for one cell: the caps far from it are interpolated within a bound, the near ones evaluated;
+// caps move from far to near, largest share of the bound per unit of work first, until the bound meets the target
+// or the work its limit. A far cap's share: a fan's, its edges' (or its area's); a strip's, its edge's — the rays
+// of the strips cancel along the chain except at junctions, the vertices where far strips meet near ones, which
+// add the far strips' net multiplicity there times their ray's term.
+class BoundaryWinding::NearSelection {
+ public:
+  NearSelection(const BoundaryWinding& w, double size, Cell& cell)
+      : w_(w),
+        cell_(cell),
+        s_(scratch()),
+        lo_(cell.lo),
+        hi_{lo_[0] + size, lo_[1] + size, lo_[2] + size},
+        centre_{lo_[0] + size / 2, lo_[1] + size / 2, lo_[2] + size / 2},
+        half_diagonal_(size / 2 * std::sqrt(3.0)),
+        interpolation_(interpolation_error(cell.spacing)) {
+    const size_t caps = w.edges_.size() + w.components_.size();
+    if (s_.term.size() != caps) {
+      s_.term.assign(caps, 0.0);
+      s_.near.assign(caps, 0);
+    }
+    if (s_.net.size() != w.vertex_first_.size()) {
+      s_.net.assign(w.vertex_first_.size(), 0);
+      s_.ray.assign(w.vertex_first_.size(), 0.0);
+    }
+    s_.candidates.clear();
+    s_.junctions.clear();
+  }
 
-  // Scratch, per thread: each far cap's share of the bound (a fan: its edges; a strip: its edge, as the rays of
-  // the strips cancel along the chain except at junctions, the vertices where far strips meet near ones), whether
-  // it is near, and the far strips' net multiplicity at each junction (minus the near ones' there).
+  void add_strips();
+  void add_fans();
+  void grow(double target, size_t max_work);
+  /// The bound, from scratch (the running sums subtract), with the near caps' own rounding; the scratch is reset
+  /// for the next cell.
+  double finish();
+
+ private:
+  static constexpr uint32_t kFan = 0x80000000u;  // candidate names: a strip edge, or kFan + a fan
+  // Per thread: each far cap's share of the bound (strip edges, then fans), whether it is near, the far strips'
+  // net multiplicity at each junction (minus the near ones' there) and its ray's term, as max-heaps.
   struct Scratch {
-    std::vector<double> term;  // strip edges, then fans
+    std::vector<double> term;
     std::vector<uint8_t> near;
     std::vector<int32_t> net;
-    std::vector<double> ray;  // ray_term of a touched vertex
+    std::vector<double> ray;
     std::vector<uint32_t> touched;
-    std::vector<std::pair<double, uint32_t>> candidates, junctions;  // max-heaps
+    std::vector<std::pair<double, uint32_t>> candidates, junctions;
   };
-  static thread_local Scratch s;
-  auto slot = [&](uint32_t name) { return name >= kFan ? edges_.size() + (name - kFan) : size_t(name); };
-  if (s.term.size() != edges_.size() + components_.size()) {
-    s.term.assign(edges_.size() + components_.size(), 0.0);
-    s.near.assign(edges_.size() + components_.size(), 0);
+  static Scratch& scratch() {
+    static thread_local Scratch s;
+    return s;
   }
-  if (s.net.size() != vertex_first_.size()) {
-    s.net.assign(vertex_first_.size(), 0);
-    s.ray.assign(vertex_first_.size(), 0.0);
-  }
-  s.candidates.clear();
-  s.junctions.clear();
-
-  double far_sum = 0, junction_sum = 0;  // junction_sum: the finite terms; open_junctions: the infinite ones
-  int64_t open_junctions = 0;
-  auto junction_term = [&](uint32_t v) { return s.net[v] == 0 ? 0.0 : std::abs(s.net[v]) * s.ray[v]; };
-  auto add_junction = [&](uint32_t v, int sign) {
+  size_t slot(uint32_t name) const { return name >= kFan ? w_.edges_.size() + (name - kFan) : size_t(name); }
+  double junction_term(uint32_t v) const { return s_.net[v] == 0 ? 0.0 : std::abs(s_.net[v]) * s_.ray[v]; }
+  void add_junction(uint32_t v, int sign) {
     const double term = junction_term(v);
     if (std::isinf(term))
-      open_junctions += sign;
+      open_junctions_ += sign;
     else
-      junction_sum += sign * term;
-  };
-  auto touch = [&](uint32_t v, const Vec3& p, int32_t change) {
-    if (s.net[v] == 0 && s.ray[v] == 0) {
-      Vec3 ray_hi = p;
-      ray_hi[0] = std::numeric_limits<double>::infinity();
-      s.ray[v] = ray_term(box_distance(p, ray_hi, lo, hi));
-      s.touched.push_back(v);
-    }
-    add_junction(v, -1);
-    s.net[v] += change;
-    add_junction(v, 1);
-    if (s.net[v] != 0) {
-      s.junctions.push_back({junction_term(v), v});
-      std::push_heap(s.junctions.begin(), s.junctions.end());
-    }
-  };
-  auto make_near = [&](uint32_t name) {
-    s.near[slot(name)] = 1;
-    far_sum -= s.term[slot(name)];
-    s.term[slot(name)] = 0;
-    if (name >= kFan) {
-      cell.near_fans.push_back(fans_[name - kFan]);
-      work += components_[fans_[name - kFan]].edges.size();
-      return;
-    }
-    cell.near_edges.push_back(name);
-    ++work;
-    const BoundaryEdge& edge = edges_[name];
-    touch(edge.va, edge.a, -edge.multiplicity);
-    touch(edge.vb, edge.b, edge.multiplicity);
-  };
-  auto add_candidate = [&](uint32_t name, double term) {  // ranked by term per unit of work
-    s.term[slot(name)] = term;
-    s.candidates.push_back({name >= kFan ? term / double(components_[fans_[name - kFan]].edges.size()) : term, name});
-    far_sum += term;
-  };
+      junction_sum_ += sign * term;
+  }
+  void touch(uint32_t v, const Vec3& p, int32_t change);
+  void make_near(uint32_t name);
+  void add_candidate(uint32_t name, double term) {  // ranked by term per unit of work
+    s_.term[slot(name)] = term;
+    s_.candidates.push_back(
+        {name >= kFan ? term / double(w_.components_[w_.fans_[name - kFan]].edges.size()) : term, name});
+    far_sum_ += term;
+  }
 
-  for (const uint32_t e : strip_edges_) {
-    const BoundaryEdge& edge = edges_[e];
+  const BoundaryWinding& w_;
+  Cell& cell_;
+  Scratch& s_;
+  const Vec3 lo_, hi_, centre_;
+  const double half_diagonal_, interpolation_;
+  size_t work_ = 0;
+  double far_sum_ = 0, junction_sum_ = 0;  // junction_sum_: the finite terms; open_junctions_: the infinite ones
+  int64_t open_junctions_ = 0;
+};
+
+void BoundaryWinding::NearSelection::touch(uint32_t v, const Vec3& p, int32_t change) {
+  if (s_.net[v] == 0 && s_.ray[v] == 0) {
+    Vec3 ray_hi = p;
+    ray_hi[0] = std::numeric_limits<double>::infinity();
+    s_.ray[v] = ray_term(box_distance(p, ray_hi, lo_, hi_));
+    s_.touched.push_back(v);
+  }
+  add_junction(v, -1);
+  s_.net[v] += change;
+  add_junction(v, 1);
+  if (s_.net[v] != 0) {
+    s_.junctions.push_back({junction_term(v), v});
+    std::push_heap(s_.junctions.begin(), s_.junctions.end());
+  }
+}
+
+void BoundaryWinding::NearSelection::make_near(uint32_t name) {
+  s_.near[slot(name)] = 1;
+  far_sum_ -= s_.term[slot(name)];
+  s_.term[slot(name)] = 0;
+  if (name >= kFan) {
+    cell_.near_fans.push_back(w_.fans_[name - kFan]);
+    work_ += w_.components_[w_.fans_[name - kFan]].edges.size();
+    return;
+  }
+  cell_.near_edges.push_back(name);
+  ++work_;
+  const BoundaryEdge& edge = w_.edges_[name];
+  touch(edge.va, edge.a, -edge.multiplicity);
+  touch(edge.vb, edge.b, edge.multiplicity);
+}
+
+void BoundaryWinding::NearSelection::add_strips() {
+  for (const uint32_t e : w_.strip_edges_) {
+    const BoundaryEdge& edge = w_.edges_[e];
     Vec3 elo, ehi;
     for (int a = 0; a < 3; ++a) elo[a] = std::min(edge.a[a], edge.b[a]), ehi[a] = std::max(edge.a[a], edge.b[a]);
     Vec3 strip_hi = ehi;
     strip_hi[0] = std::numeric_limits<double>::infinity();
-    if (box_distance(elo, strip_hi, lo, hi) < kNearStrip) {
+    if (box_distance(elo, strip_hi, lo_, hi_) < kNearStrip) {
       make_near(e);
       continue;
     }
     const double d =
-        std::max(box_distance(elo, ehi, lo, hi), point_segment_distance(centre, edge.a, edge.b) - half_diagonal);
+        std::max(box_distance(elo, ehi, lo_, hi_), point_segment_distance(centre_, edge.a, edge.b) - half_diagonal_);
     add_candidate(e, std::abs(edge.multiplicity) * segment_term(length(edge.b - edge.a), d));
   }
-  for (uint32_t f = 0; f < fans_.size(); ++f) {
-    const Component& c = components_[fans_[f]];
-    const double d = box_distance(c.lo, c.hi, lo, hi);  // the fan lies in its edges' box
+}
+
+void BoundaryWinding::NearSelection::add_fans() {
+  for (uint32_t f = 0; f < w_.fans_.size(); ++f) {
+    const Component& c = w_.components_[w_.fans_[f]];
+    const double d = box_distance(c.lo, c.hi, lo_, hi_);  // the fan lies in its edges' box
     if (d < kNearStrip) {
       make_near(kFan + f);
       continue;
@@ -623,67 +655,82 @@ void BoundaryWinding::select_near(double size, double target, size_t max_work, C
     // derivatives of n.(x - q) / |x - q|^3 are at most 24 / r^5, that is 6 times 4 / r^5.
     double edge_sum = 0;
     for (uint32_t n : c.edges) {
-      const BoundaryEdge& edge = edges_[n];
+      const BoundaryEdge& edge = w_.edges_[n];
       Vec3 elo, ehi;
       for (int a = 0; a < 3; ++a) elo[a] = std::min(edge.a[a], edge.b[a]), ehi[a] = std::max(edge.a[a], edge.b[a]);
-      edge_sum += std::abs(edge.multiplicity) * segment_term(length(edge.b - edge.a), box_distance(elo, ehi, lo, hi));
+      edge_sum += std::abs(edge.multiplicity) * segment_term(length(edge.b - edge.a), box_distance(elo, ehi, lo_, hi_));
     }
-    const double term = std::min(edge_sum, 4 * c.area / (d * d * d * d * d));
-    add_candidate(kFan + f, term);
+    add_candidate(kFan + f, std::min(edge_sum, 4 * c.area / (d * d * d * d * d)));
   }
-  std::make_heap(s.candidates.begin(), s.candidates.end());
+  std::make_heap(s_.candidates.begin(), s_.candidates.end());
+}
 
+void BoundaryWinding::NearSelection::grow(double target, size_t max_work) {
   for (;;) {
-    if ((open_junctions == 0 && interpolation * (far_sum + junction_sum) <= target) || work >= max_work) break;
-    while (!s.candidates.empty() && s.near[slot(s.candidates.front().second)]) {
-      std::pop_heap(s.candidates.begin(), s.candidates.end());
-      s.candidates.pop_back();
+    if ((open_junctions_ == 0 && interpolation_ * (far_sum_ + junction_sum_) <= target) || work_ >= max_work) return;
+    while (!s_.candidates.empty() && s_.near[slot(s_.candidates.front().second)]) {
+      std::pop_heap(s_.candidates.begin(), s_.candidates.end());
+      s_.candidates.pop_back();
     }
     // Heap entries go stale as multiplicities change: the current term decides.
-    while (!s.junctions.empty() && s.junctions.front().first != junction_term(s.junctions.front().second)) {
-      std::pop_heap(s.junctions.begin(), s.junctions.end());
-      s.junctions.pop_back();
+    while (!s_.junctions.empty() && s_.junctions.front().first != junction_term(s_.junctions.front().second)) {
+      std::pop_heap(s_.junctions.begin(), s_.junctions.end());
+      s_.junctions.pop_back();
     }
-    const double candidate_top = s.candidates.empty() ? 0 : s.candidates.front().first;
-    const double junction_top = s.junctions.empty() ? 0 : s.junctions.front().first;
-    if (candidate_top == 0 && junction_top == 0) break;
+    const double candidate_top = s_.candidates.empty() ? 0 : s_.candidates.front().first;
+    const double junction_top = s_.junctions.empty() ? 0 : s_.junctions.front().first;
+    if (candidate_top == 0 && junction_top == 0) return;
     if (candidate_top >= junction_top) {
-      make_near(s.candidates.front().second);
-    } else {
-      // The ray leaving this vertex passes close: the far strips meeting there join the near ones.
-      const uint32_t v = s.junctions.front().second;
-      bool moved = false;
-      for (uint32_t n = vertex_first_[v]; n < vertex_first_[v + 1]; ++n)
-        if (!s.near[vertex_edges_[n]]) {
-          make_near(vertex_edges_[n]);
-          moved = true;
-        }
-      if (!moved) break;  // cannot happen: a vertex with net multiplicity has a far strip
+      make_near(s_.candidates.front().second);
+      continue;
     }
+    // The ray leaving this vertex passes close: the far strips meeting there join the near ones.
+    const uint32_t v = s_.junctions.front().second;
+    bool moved = false;
+    for (uint32_t n = w_.vertex_first_[v]; n < w_.vertex_first_[v + 1]; ++n)
+      if (!s_.near[w_.vertex_edges_[n]]) {
+        make_near(w_.vertex_edges_[n]);
+        moved = true;
+      }
+    if (!moved) return;  // cannot happen: a vertex with net multiplicity has a far strip
   }
-  // The bound from scratch (the running sums subtract), and the scratch reset for the next cell.
-  far_sum = 0;
-  for (const auto& c : s.candidates) {
-    if (!s.near[slot(c.second)]) far_sum += s.term[slot(c.second)];
-    s.term[slot(c.second)] = 0;
+}
+
+double BoundaryWinding::NearSelection::finish() {
+  double far_sum = 0;
+  for (const auto& c : s_.candidates) {
+    if (!s_.near[slot(c.second)]) far_sum += s_.term[slot(c.second)];
+    s_.term[slot(c.second)] = 0;
   }
-  junction_sum = 0;
-  for (uint32_t v : s.touched) {
+  double junction_sum = 0;
+  for (uint32_t v : s_.touched) {
     junction_sum += junction_term(v);
-    s.net[v] = 0;
-    s.ray[v] = 0;
+    s_.net[v] = 0;
+    s_.ray[v] = 0;
   }
-  s.touched.clear();
+  s_.touched.clear();
   double near_multiplicity = 0;
-  for (uint32_t e : cell.near_edges) {
-    s.near[e] = 0;
-    near_multiplicity += std::abs(edges_[e].multiplicity);
+  for (uint32_t e : cell_.near_edges) {
+    s_.near[e] = 0;
+    near_multiplicity += std::abs(w_.edges_[e].multiplicity);
   }
-  for (uint32_t f = 0; f < fans_.size(); ++f) s.near[edges_.size() + f] = 0;
-  for (uint32_t c : cell.near_fans)
-    for (uint32_t n : components_[c].edges) near_multiplicity += std::abs(edges_[n].multiplicity);
-  // Plus the near caps' own rounding.
-  cell.bound = interpolation * (far_sum + junction_sum) + kAtanError / (2 * kPi) * near_multiplicity;
+  for (uint32_t f = 0; f < w_.fans_.size(); ++f) s_.near[w_.edges_.size() + f] = 0;
+  for (uint32_t c : cell_.near_fans)
+    for (uint32_t n : w_.components_[c].edges) near_multiplicity += std::abs(w_.edges_[n].multiplicity);
+  return interpolation_ * (far_sum + junction_sum) + kAtanError / (2 * kPi) * near_multiplicity;
+}
+
+void BoundaryWinding::select_near(double size, double target, size_t max_work, Cell& cell) const {
+  cell.near_edges.clear();
+  cell.near_fans.clear();
+  cell.bound = 0;
+  std::fill(cell.far, cell.far + 27, 0.0);
+  if (edges_.empty()) return;
+  NearSelection selection(*this, size, cell);
+  selection.add_strips();
+  selection.add_fans();
+  selection.grow(target, max_work);
+  cell.bound = selection.finish();
 }
 
 double BoundaryWinding::cell_caps(const Cell& cell, const Vec3& q) const {

@@ -104,6 +104,7 @@ class BoundaryWinding {
   // The caps of a cube of `size` at cell.lo to evaluate exactly, and the bound on interpolating the rest from
   // points cell.spacing apart; then the values to interpolate, from the caps' sums at those points.
   void select_near(double size, double target, size_t max_work, Cell& cell) const;
+  class NearSelection;  // select_near's greedy choice, for one cell
   void fill_far(const double* values, double value_error, Cell& cell) const;
 
   std::vector<BoundaryEdge> edges_;
