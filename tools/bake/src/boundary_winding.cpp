@@ -329,13 +329,20 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
   lattice_values_.clear();
   lattice_errors_.clear();
   if (edges_.empty()) return;
-  const int64_t B0 = brick_dims[0], B1 = brick_dims[1], B2 = brick_dims[2];
+  choose_caps(bricks, choice);
+  index_strip_vertices();
+  bin_fan_triangles();
+  prepare_lattice(bricks);
+}
+
+void BoundaryWinding::choose_caps(const std::vector<int64_t>& bricks, Caps choice) {
+  const int64_t B0 = brick_dims_[0], B1 = brick_dims_[1];
   // Bricks that need signs within a box of voxels grown by kNearStrip: where a cap there costs an evaluation per
   // voxel (the box may run to +infinity in x).
   auto bricks_near = [&](const Vec3& lo, const Vec3& hi) {
     int64_t first[3], last[3];
     for (int a = 0; a < 3; ++a) {
-      const int64_t n = brick_dims[size_t(a)];
+      const int64_t n = brick_dims_[size_t(a)];
       first[a] = std::clamp<int64_t>(int64_t(std::floor((lo[a] - kNearStrip) / kBrick)), 0, n);
       last[a] = std::isinf(hi[a]) ? n - 1
                                   : std::clamp<int64_t>(int64_t(std::floor((hi[a] + kNearStrip) / kBrick)), -1, n - 1);
@@ -369,7 +376,9 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
       strip_edges_.insert(strip_edges_.end(), component.edges.begin(), component.edges.end());
     }
   }
-  // The strip edges at each vertex, for the junctions of prepare_cell.
+}
+
+void BoundaryWinding::index_strip_vertices() {  // for the junctions of select_near
   uint32_t vertices = 0;
   for (const BoundaryEdge& e : edges_) vertices = std::max({vertices, e.va + 1, e.vb + 1});
   vertex_first_.assign(vertices + 1, 0);
@@ -381,7 +390,11 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
     vertex_edges_[fill[edges_[n].va]++] = n;
     vertex_edges_[fill[edges_[n].vb]++] = n;
   }
-  // Each fan triangle under the rows of bricks whose voxel lines its projection may cover.
+}
+
+// Each fan triangle under the rows of bricks whose voxel lines its projection may cover.
+void BoundaryWinding::bin_fan_triangles() {
+  const int64_t B1 = brick_dims_[1], B2 = brick_dims_[2];
   for (uint32_t t = 0; t < fan_triangles_.size(); ++t) {
     Vec3 a, b, c;
     int32_t multiplicity;
@@ -394,38 +407,65 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
       for (int64_t bj = j0 / kBrick; j0 <= j1 && bj <= j1 / kBrick; ++bj) row_fans_.push_back({bk * B1 + bj, t});
   }
   std::sort(row_fans_.begin(), row_fans_.end());
+}
 
-  // The caps' sum at every lattice point of the bricks' cells, once (shared by up to 8 bricks).
+namespace {
+
+// Keys of the lattice points of the bricks' cells (kSpacing apart, 27 a brick, shared by up to 8), ascending, once.
+std::vector<uint64_t> brick_lattice_keys(const std::vector<int64_t>& bricks, const std::array<int64_t, 3>& dims) {
   std::vector<uint64_t> keys;
   keys.reserve(bricks.size() * 27);
   for (const int64_t brick : bricks) {
-    const int64_t bi = brick % B0, bj = brick / B0 % B1, bk = brick / (B0 * B1);
+    const int64_t bi = brick % dims[0], bj = brick / dims[0] % dims[1], bk = brick / (dims[0] * dims[1]);
     for (int n = 0; n < 27; ++n)
       keys.push_back(lattice_key(bi * kBrick + kSpacing * (n % 3), bj * kBrick + kSpacing * (n / 3 % 3),
                                  bk * kBrick + kSpacing * (n / 9), kSpacing));
   }
   tbb::parallel_sort(keys.begin(), keys.end());
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
-  // Each point from its block's cell (kBlock voxels, points kBlockSpacing apart, summed exactly), where the block
-  // can bound its far caps below kBlockTarget; at low resolutions, where caps crowd every block, exactly.
-  std::vector<std::pair<uint64_t, uint32_t>> by_block(keys.size());  // (block, point)
+  return keys;
+}
+
+// The lattice points grouped by the block (kBlock voxels) they lie in: (block key, point) sorted, and where each
+// block's run begins (plus the end).
+struct PointsByBlock {
+  std::vector<std::pair<uint64_t, uint32_t>> points;
+  std::vector<size_t> first;
+  std::array<int64_t, 3> block_lo(size_t b) const { return lattice_point(points[first[b]].first, kBlock); }
+};
+
+PointsByBlock points_by_block(const std::vector<uint64_t>& keys) {
+  PointsByBlock blocks;
+  blocks.points.resize(keys.size());
   for (size_t n = 0; n < keys.size(); ++n) {
     const auto p = lattice_point(keys[n], kSpacing);
-    by_block[n] = {lattice_key(p[0] / kBlock * kBlock, p[1] / kBlock * kBlock, p[2] / kBlock * kBlock, kBlock),
-                   uint32_t(n)};
+    blocks.points[n] = {lattice_key(p[0] / kBlock * kBlock, p[1] / kBlock * kBlock, p[2] / kBlock * kBlock, kBlock),
+                        uint32_t(n)};
   }
-  tbb::parallel_sort(by_block.begin(), by_block.end());
-  std::vector<size_t> block_first;
-  for (size_t n = 0; n < by_block.size(); ++n)
-    if (n == 0 || by_block[n].first != by_block[n - 1].first) block_first.push_back(n);
-  block_first.push_back(by_block.size());
+  tbb::parallel_sort(blocks.points.begin(), blocks.points.end());
+  for (size_t n = 0; n < blocks.points.size(); ++n)
+    if (n == 0 || blocks.points[n].first != blocks.points[n - 1].first) blocks.first.push_back(n);
+  blocks.first.push_back(blocks.points.size());
+  return blocks;
+}
+
+// The 27 points (kBlockSpacing apart) of a block's cell whose lower corner is `lo`.
+uint64_t block_point_key(const std::array<int64_t, 3>& lo, int n) {
+  return lattice_key(lo[0] + kBlockSpacing * (n % 3), lo[1] + kBlockSpacing * (n / 3 % 3),
+                     lo[2] + kBlockSpacing * (n / 9), kBlockSpacing);
+}
+
+}  // namespace
+
+// The caps' sum at every lattice point of the bricks' cells. Each point from its block's cell (kBlock voxels, points
+// kBlockSpacing apart, summed exactly), where the block can bound its far caps below kBlockTarget; at low
+// resolutions, where caps crowd every block, exactly.
+void BoundaryWinding::prepare_lattice(const std::vector<int64_t>& bricks) {
+  std::vector<uint64_t> keys = brick_lattice_keys(bricks, brick_dims_);
+  const PointsByBlock blocks = points_by_block(keys);
   std::vector<uint64_t> coarse;
-  for (size_t b = 0; b + 1 < block_first.size(); ++b) {
-    const auto lo = lattice_point(by_block[block_first[b]].first, kBlock);
-    for (int n = 0; n < 27; ++n)
-      coarse.push_back(lattice_key(lo[0] + kBlockSpacing * (n % 3), lo[1] + kBlockSpacing * (n / 3 % 3),
-                                   lo[2] + kBlockSpacing * (n / 9), kBlockSpacing));
-  }
+  for (size_t b = 0; b + 1 < blocks.first.size(); ++b)
+    for (int n = 0; n < 27; ++n) coarse.push_back(block_point_key(blocks.block_lo(b), n));
   tbb::parallel_sort(coarse.begin(), coarse.end());
   coarse.erase(std::unique(coarse.begin(), coarse.end()), coarse.end());
   std::vector<double> coarse_values(coarse.size());
@@ -436,22 +476,20 @@ void BoundaryWinding::prepare(const std::vector<int64_t>& bricks, const std::arr
   lattice_values_.resize(keys.size());
   lattice_errors_.resize(keys.size());
   const double rounding = kAtanError / (2 * kPi) * total_multiplicity_;  // of a sum over every cap
-  tbb::parallel_for(size_t(0), block_first.size() - 1, [&](size_t b) {
-    const auto lo = lattice_point(by_block[block_first[b]].first, kBlock);
+  tbb::parallel_for(size_t(0), blocks.first.size() - 1, [&](size_t b) {
+    const auto lo = blocks.block_lo(b);
     Cell block;
     block.lo = {double(lo[0]), double(lo[1]), double(lo[2])};
     block.spacing = double(kBlockSpacing);
     select_near(double(kBlock), kBlockTarget / 2, std::max(kBlockWork, edges_.size() / kBlockWorkShare), block);
     double values[27];
-    for (int n = 0; n < 27; ++n) {
-      const uint64_t key = lattice_key(lo[0] + kBlockSpacing * (n % 3), lo[1] + kBlockSpacing * (n / 3 % 3),
-                                       lo[2] + kBlockSpacing * (n / 9), kBlockSpacing);
-      values[n] = coarse_values[size_t(std::lower_bound(coarse.begin(), coarse.end(), key) - coarse.begin())];
-    }
+    for (int n = 0; n < 27; ++n)
+      values[n] = coarse_values[size_t(std::lower_bound(coarse.begin(), coarse.end(), block_point_key(lo, n)) -
+                                       coarse.begin())];
     fill_far(values, rounding, block);
     const bool interpolate = block.bound <= kBlockTarget;
-    for (size_t n = block_first[b]; n < block_first[b + 1]; ++n) {
-      const uint32_t point = by_block[n].second;
+    for (size_t n = blocks.first[b]; n < blocks.first[b + 1]; ++n) {
+      const uint32_t point = blocks.points[n].second;
       const auto p = lattice_point(keys[point], kSpacing);
       const Vec3 q{double(p[0]), double(p[1]), double(p[2])};
       lattice_values_[point] = interpolate ? cell_caps(block, q) : caps(q);

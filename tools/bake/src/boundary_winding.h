@@ -104,6 +104,12 @@ class BoundaryWinding {
   // The caps of a cube of `size` at cell.lo to evaluate exactly, and the bound on interpolating the rest from
   // points cell.spacing apart; then the values to interpolate, from the caps' sums at those points.
   void select_near(double size, double target, size_t max_work, Cell& cell) const;
+  // prepare()'s steps: strips or a fan for each boundary component (the cheaper for `bricks`), the strip edges at
+  // each vertex, the fan triangles by row of bricks, the caps' sums at the bricks' lattice points.
+  void choose_caps(const std::vector<int64_t>& bricks, Caps choice);
+  void index_strip_vertices();
+  void bin_fan_triangles();
+  void prepare_lattice(const std::vector<int64_t>& bricks);
   class NearSelection;  // select_near's greedy choice, for one cell
   void fill_far(const double* values, double value_error, Cell& cell) const;
 
