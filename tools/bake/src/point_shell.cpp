@@ -170,21 +170,52 @@ void median_split(std::vector<uint32_t>& ids, size_t begin, size_t end, size_t g
   median_split(ids, mid, end, groups - left_groups, pos, out);
 }
 
-}  // namespace
-
-void build_sphere_tree(PointShell& shell, double branching) {
-  if (!(branching >= 2)) throw BakeError(IssueCode::BadOption, "branching must be >= 2");
-  const size_t n = shell.points.size();
-  std::vector<Node> nodes(n);
-  for (uint32_t i = 0; i < n; ++i) {
-    nodes[i].point = i;
-    nodes[i].mass_sum = shell.points[i];
-    nodes[i].mass_count = 1;
+// One level's clusters become parents: each cluster's member closest to the cluster's centre of mass becomes the
+// parent (it moves up a level), the others its children. A promoted parent's previous children would then sit two
+// levels below it, so they are adopted by the sibling closest to them: every node's children stay on the level right
+// below it and every point appears once. Returns the parents, the next level up.
+std::vector<uint32_t> promote_parents(const std::vector<uint32_t>& level,
+                                      const std::vector<std::pair<size_t, size_t>>& clusters,
+                                      const std::vector<Vec3>& centre_of, std::vector<Node>& nodes) {
+  std::vector<uint32_t> parents;
+  for (auto [begin, end] : clusters) {
+    Vec3 sum{};
+    double count = 0;
+    for (size_t i = begin; i < end; ++i) {
+      const Node& m = nodes[level[i]];
+      for (int a = 0; a < 3; ++a) sum[a] += m.mass_sum[a];
+      count += m.mass_count;
+    }
+    const Vec3 com = {sum[0] / count, sum[1] / count, sum[2] / count};
+    size_t best = begin;
+    for (size_t i = begin + 1; i < end; ++i)
+      if (distance2(centre_of[level[i]], com) < distance2(centre_of[level[best]], com)) best = i;
+    const uint32_t parent = level[best];
+    std::vector<uint32_t> orphans = std::move(nodes[parent].children);
+    nodes[parent].children.clear();
+    for (size_t i = begin; i < end; ++i)
+      if (i != best) nodes[parent].children.push_back(level[i]);
+    if (!orphans.empty()) {
+      Vec3 orphan_centre{};
+      for (uint32_t o : orphans)
+        for (int a = 0; a < 3; ++a) orphan_centre[a] += centre_of[o][a] / double(orphans.size());
+      uint32_t adopter = nodes[parent].children.front();
+      for (uint32_t c : nodes[parent].children)
+        if (distance2(centre_of[c], orphan_centre) < distance2(centre_of[adopter], orphan_centre)) adopter = c;
+      auto& kids = nodes[adopter].children;
+      kids.insert(kids.end(), orphans.begin(), orphans.end());
+    }
+    nodes[parent].mass_sum = sum;
+    nodes[parent].mass_count = count;
+    parents.push_back(parent);
   }
-  // Bottom-up: cluster the current level; each cluster's member closest to the cluster's centre of mass
-  // becomes the parent (it moves up a level), the others its children. A promoted parent's previous children
-  // would then sit two levels below it, so they are adopted by the sibling closest to them: every node's
-  // children stay on the level right below it and every point appears once.
+  return parents;
+}
+
+// Bottom-up: each level is clustered by median splits and its clusters promote their parents, until one is left.
+// Returns the root.
+uint32_t cluster_bottom_up(const PointShell& shell, double branching, std::vector<Node>& nodes) {
+  const size_t n = shell.points.size();
   std::vector<uint32_t> level(n);
   std::iota(level.begin(), level.end(), 0u);
   std::vector<Vec3> centre_of(n);
@@ -195,43 +226,16 @@ void build_sphere_tree(PointShell& shell, double branching) {
         std::clamp<size_t>(size_t(std::llround(double(level.size()) / branching)), 1, level.size() / 2);
     std::vector<std::pair<size_t, size_t>> clusters;
     median_split(level, 0, level.size(), groups, centre_of, clusters);
-    std::vector<uint32_t> parents;
-    for (auto [begin, end] : clusters) {
-      Vec3 sum{};
-      double count = 0;
-      for (size_t i = begin; i < end; ++i) {
-        const Node& m = nodes[level[i]];
-        for (int a = 0; a < 3; ++a) sum[a] += m.mass_sum[a];
-        count += m.mass_count;
-      }
-      const Vec3 com = {sum[0] / count, sum[1] / count, sum[2] / count};
-      size_t best = begin;
-      for (size_t i = begin + 1; i < end; ++i)
-        if (distance2(centre_of[level[i]], com) < distance2(centre_of[level[best]], com)) best = i;
-      const uint32_t parent = level[best];
-      std::vector<uint32_t> orphans = std::move(nodes[parent].children);
-      nodes[parent].children.clear();
-      for (size_t i = begin; i < end; ++i)
-        if (i != best) nodes[parent].children.push_back(level[i]);
-      if (!orphans.empty()) {
-        Vec3 orphan_centre{};
-        for (uint32_t o : orphans)
-          for (int a = 0; a < 3; ++a) orphan_centre[a] += centre_of[o][a] / double(orphans.size());
-        uint32_t adopter = nodes[parent].children.front();
-        for (uint32_t c : nodes[parent].children)
-          if (distance2(centre_of[c], orphan_centre) < distance2(centre_of[adopter], orphan_centre)) adopter = c;
-        auto& kids = nodes[adopter].children;
-        kids.insert(kids.end(), orphans.begin(), orphans.end());
-      }
-      nodes[parent].mass_sum = sum;
-      nodes[parent].mass_count = count;
-      parents.push_back(parent);
-    }
-    level = std::move(parents);
+    level = promote_parents(level, clusters, centre_of, nodes);
   }
-  const uint32_t root = level.front();
+  return level.front();
+}
 
-  // Breadth-first numbering: node order = point order in the file.
+// Breadth-first numbering from the root: node order = point order in the file. Fills the shell's points, normals,
+// children and level offsets in that order (spheres left to bound_spheres).
+PointShell number_breadth_first(const PointShell& shell, double branching, const std::vector<Node>& nodes,
+                                uint32_t root) {
+  const size_t n = shell.points.size();
   std::vector<uint32_t> order{root};
   std::vector<uint32_t> level_offsets{0, 1};
   for (size_t head = 0; head < order.size();) {
@@ -243,7 +247,6 @@ void build_sphere_tree(PointShell& shell, double branching) {
   if (order.size() != n) throw BakeError(IssueCode::Internal, "point-sphere tree lost points");
   std::vector<uint32_t> new_index(n);
   for (uint32_t i = 0; i < n; ++i) new_index[order[i]] = i;
-
   PointShell out;
   out.point_spacing = shell.point_spacing;
   out.branching = branching;
@@ -263,9 +266,13 @@ void build_sphere_tree(PointShell& shell, double branching) {
       out.child_count[i] = uint32_t(node.children.size());
     }
   }
-  // Spheres bottom-up (reverse breadth-first): the minimal sphere around the node's point and its children's
-  // spheres encloses every descendant point.
-  for (size_t i = n; i-- > 0;) {
+  return out;
+}
+
+// Spheres bottom-up (reverse breadth-first): the minimal sphere around the node's point and its children's spheres
+// encloses every descendant point.
+void bound_spheres(PointShell& out) {
+  for (size_t i = out.points.size(); i-- > 0;) {
     std::vector<MinSphere::Sphere> spheres;
     spheres.emplace_back(SphereTraits::Point(out.points[i][0], out.points[i][1], out.points[i][2]), 0.0);
     for (uint32_t c = out.child_begin[i]; c < out.child_begin[i] + out.child_count[i]; ++c)
@@ -283,6 +290,21 @@ void build_sphere_tree(PointShell& shell, double branching) {
     }
     out.sphere_radii[i] = radius * (1 + 1e-12);
   }
+}
+
+}  // namespace
+
+void build_sphere_tree(PointShell& shell, double branching) {
+  if (!(branching >= 2)) throw BakeError(IssueCode::BadOption, "branching must be >= 2");
+  std::vector<Node> nodes(shell.points.size());
+  for (uint32_t i = 0; i < nodes.size(); ++i) {
+    nodes[i].point = i;
+    nodes[i].mass_sum = shell.points[i];
+    nodes[i].mass_count = 1;
+  }
+  const uint32_t root = cluster_bottom_up(shell, branching, nodes);
+  PointShell out = number_breadth_first(shell, branching, nodes, root);
+  bound_spheres(out);
   shell = std::move(out);
 }
 
