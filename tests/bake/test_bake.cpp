@@ -461,6 +461,26 @@ TEST(Bake, SameInputSameDatasets) {
   EXPECT_EQ(a.mass.inertia, b.mass.inertia);
 }
 
+// An open surface's mass properties are summed over the voxelmap in parallel: in the same order on any number of
+// threads, so that a bake repeats bit for bit.
+TEST(Bake, WindingMassIsTheSameOnAnyNumberOfThreads) {
+  Settings options;
+  options.voxelmap.resolution = 96;
+  options.point_shell.points = 500;
+  std::vector<MassProperties> masses;
+  for (unsigned threads : {1u, 2u, 3u}) {
+    options.threads = threads;
+    BuildReport report;
+    masses.push_back(build_asset(kMeshes + "/horizons.off", options, report).mass);
+    ASSERT_FALSE(report.repair.closed);
+  }
+  for (size_t n = 1; n < masses.size(); ++n) {
+    EXPECT_EQ(masses[n].volume, masses[0].volume);
+    EXPECT_EQ(masses[n].center_of_mass, masses[0].center_of_mass);
+    EXPECT_EQ(masses[n].inertia, masses[0].inertia);
+  }
+}
+
 // Every timing and every progress report names a stage of kBakeStages, in the list's order; each stage of the whole
 // bake is announced once with its share, rising to "done" at 1; sub-stages fit within the stage they are part of.
 TEST(Bake, TimingsAndProgressFollowTheStageList) {

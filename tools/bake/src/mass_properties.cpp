@@ -70,6 +70,64 @@ MassProperties compute_mass_properties(const TriangleMesh& mesh) {
   return from_moments(sum, ref);
 }
 
+namespace {
+
+// A box of whole voxels inside (a coarse brick), `first` its least voxel, `count` voxels along each axis: its sums
+// of 1, x and x^2 along each axis multiply. Voxel units, about `centre`.
+void add_inside_box(const uint32_t first[3], const uint32_t count[3], const Vec3& centre, Moments& m) {
+  double s0[3], s1[3], s2[3];
+  for (int a = 0; a < 3; ++a) {
+    s0[a] = count[a];
+    s1[a] = s2[a] = 0;
+    for (uint32_t l = 0; l < count[a]; ++l) {
+      const double x = double(first[a] + l) - centre[size_t(a)];
+      s1[a] += x;
+      s2[a] += x * x;
+    }
+  }
+  const double volume = s0[0] * s0[1] * s0[2];
+  m.volume += volume;
+  for (int a = 0; a < 3; ++a) {
+    const double others = volume / s0[a];
+    m.first[a] += s1[a] * others;
+    for (int b = 0; b < 3; ++b) m.second[a][b] += a == b ? s2[a] * others : s1[a] * s1[b] * (volume / (s0[a] * s0[b]));
+    m.second[a][a] += volume / 12.0;  // the voxels' own extent: the integral of x^2 over a unit cube
+  }
+}
+
+// A value brick's voxels, each with its inside fraction: a plane at distance d from its centre cuts off 1/2 - d/h
+// of it (exact for axis-aligned planes); whole voxels away from the surface.
+void add_value_brick(const Voxelmap& vm, const int16_t* codes, const uint32_t first[3], const uint32_t count[3],
+                     const Vec3& centre, Moments& m) {
+  const double h = vm.voxel_size;
+  for (uint32_t lk = 0; lk < count[2]; ++lk)
+    for (uint32_t lj = 0; lj < count[1]; ++lj)
+      for (uint32_t li = 0; li < count[0]; ++li) {
+        const int16_t code = codes[Voxelmap::local_index(li, lj, lk)];
+        const double d = vm.decode(code);
+        const double w = Voxelmap::code_is_stored(code) ? std::clamp(0.5 - d / h, 0.0, 1.0) : (d < 0 ? 1.0 : 0.0);
+        if (w == 0) continue;
+        const double x[3] = {first[0] + li - centre[0], first[1] + lj - centre[1], first[2] + lk - centre[2]};
+        m.volume += w;
+        for (int a = 0; a < 3; ++a) {
+          m.first[a] += w * x[a];
+          for (int b = 0; b < 3; ++b) m.second[a][b] += w * x[a] * x[b];
+          m.second[a][a] += w / 12.0;
+        }
+      }
+}
+
+Moments merged(Moments a, const Moments& b) {
+  a.volume += b.volume;
+  for (int i = 0; i < 3; ++i) {
+    a.first[i] += b.first[i];
+    for (int j = 0; j < 3; ++j) a.second[i][j] += b.second[i][j];
+  }
+  return a;
+}
+
+}  // namespace
+
 MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
   const uint32_t W = vm.dims[0], H = vm.dims[1], D = vm.dims[2];
   const double h = vm.voxel_size;
@@ -77,8 +135,9 @@ MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
   const Vec3 centre = {(W - 1) / 2.0, (H - 1) / 2.0, (D - 1) / 2.0};
   const auto bd = vm.brick_dims();
   constexpr uint32_t E = Voxelmap::kBrickEdge;
-  Moments sum = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, vm.bricks.size()), Moments{},
+  // Deterministic: the same sums in the same order on any number of threads, so a bake repeats bit for bit.
+  Moments sum = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<size_t>(0, vm.bricks.size(), 1024), Moments{},
       [&](const tbb::blocked_range<size_t>& r, Moments m) {
         for (size_t n = r.begin(); n < r.end(); ++n) {
           const int32_t entry = vm.bricks[n];
@@ -87,59 +146,15 @@ MassProperties voxelmap_mass_properties(const Voxelmap& vm) {
                                      uint32_t(n / (size_t(bd[0]) * bd[1])) * E};
           uint32_t count[3];
           for (int a = 0; a < 3; ++a) count[a] = std::min(E, vm.dims[size_t(a)] - first[a]);
-          if (entry == Voxelmap::kCoarseInside) {
-            // A whole box of voxels: its sums of 1, x and x^2 along each axis multiply.
-            double s0[3], s1[3], s2[3];
-            for (int a = 0; a < 3; ++a) {
-              s0[a] = count[a];
-              s1[a] = s2[a] = 0;
-              for (uint32_t l = 0; l < count[a]; ++l) {
-                const double x = double(first[a] + l) - centre[size_t(a)];
-                s1[a] += x;
-                s2[a] += x * x;
-              }
-            }
-            const double volume = s0[0] * s0[1] * s0[2];
-            m.volume += volume;
-            for (int a = 0; a < 3; ++a) {
-              const double others = volume / s0[a];
-              m.first[a] += s1[a] * others;
-              for (int b = 0; b < 3; ++b)
-                m.second[a][b] += a == b ? s2[a] * others : s1[a] * s1[b] * (volume / (s0[a] * s0[b]));
-              m.second[a][a] += volume / 12.0;  // the voxels' own extent: the integral of x^2 over a unit cube
-            }
-            continue;
-          }
-          const int16_t* codes = vm.brick_values.data() + size_t(entry) * Voxelmap::kBrickVoxels;
-          for (uint32_t lk = 0; lk < count[2]; ++lk)
-            for (uint32_t lj = 0; lj < count[1]; ++lj)
-              for (uint32_t li = 0; li < count[0]; ++li) {
-                const int16_t code = codes[Voxelmap::local_index(li, lj, lk)];
-                const double d = vm.decode(code);
-                // Inside fraction of the voxel: a plane at distance d from its centre cuts off 1/2 - d/h of it
-                // (exact for axis-aligned planes); whole voxels away from the surface.
-                const double w =
-                    Voxelmap::code_is_stored(code) ? std::clamp(0.5 - d / h, 0.0, 1.0) : (d < 0 ? 1.0 : 0.0);
-                if (w == 0) continue;
-                const double x[3] = {first[0] + li - centre[0], first[1] + lj - centre[1], first[2] + lk - centre[2]};
-                m.volume += w;
-                for (int a = 0; a < 3; ++a) {
-                  m.first[a] += w * x[a];
-                  for (int b = 0; b < 3; ++b) m.second[a][b] += w * x[a] * x[b];
-                  m.second[a][a] += w / 12.0;
-                }
-              }
+          if (entry == Voxelmap::kCoarseInside)
+            add_inside_box(first, count, centre, m);
+          else
+            add_value_brick(vm, vm.brick_values.data() + size_t(entry) * Voxelmap::kBrickVoxels, first, count, centre,
+                            m);
         }
         return m;
       },
-      [](Moments a, const Moments& b) {
-        a.volume += b.volume;
-        for (int i = 0; i < 3; ++i) {
-          a.first[i] += b.first[i];
-          for (int j = 0; j < 3; ++j) a.second[i][j] += b.second[i][j];
-        }
-        return a;
-      });
+      merged);
   const double h3 = h * h * h;
   sum.volume *= h3;
   for (int a = 0; a < 3; ++a) {
