@@ -209,16 +209,8 @@ Soup repair_soup_isolated(const TriangleMesh& mesh, double time_limit_s) {
 }
 #endif
 
-}  // namespace
-
-TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections,
-                         double time_limit_s) {
-#if !defined(_WIN32)
-  Soup soup = read_isolation() ? repair_soup_isolated(mesh, time_limit_s) : repair_soup(mesh);
-#else
-  Soup soup = repair_soup(mesh);
-#endif
-  if (soup.failed) throw BakeError(soup.code, soup.message);
+// The repaired soup as a CGAL surface mesh (the soup's own checks reported; its points freed).
+SurfaceMesh soup_to_mesh(Soup& soup, RepairReport& report) {
   report.merged_vertices = soup.merged_vertices;
   report.removed_faces = soup.removed_faces;
   if (report.removed_faces)
@@ -240,42 +232,39 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
     triangles.push_back({size_t(t[0]), size_t(t[1]), size_t(t[2])});
   }
   std::vector<Vec3>().swap(soup.points);
-
   SurfaceMesh sm;
   PMP::polygon_soup_to_polygon_mesh(points, triangles, sm);
-  // The orientation below assumes every face made it into the mesh; refuse rather than let CGAL read past the
+  // The orientation after assumes every face made it into the mesh; refuse rather than let CGAL read past the
   // end of its own per-component arrays.
   if (sm.number_of_faces() != triangles.size())
     throw BakeError(IssueCode::Internal, "repair: " + std::to_string(triangles.size() - sm.number_of_faces()) +
                                              " face(s) could not be joined into a mesh after orientation");
+  return sm;
+}
 
+// The mesh's defects as the report's counts and warnings: borders, components, self-intersections.
+void check_mesh(SurfaceMesh& sm, bool check_self_intersections, RepairReport& report) {
   for (auto h : sm.halfedges()) report.border_edges += sm.is_border(h);
   report.closed = report.border_edges == 0;
   if (!report.closed)
     warn(report, "OPEN_BORDER", std::to_string(report.border_edges) + " border edge(s): the surface has holes");
-
   auto component_map = sm.add_property_map<SurfaceMesh::Face_index, std::size_t>("f:component").first;
   report.components = PMP::connected_components(sm, component_map);
   if (report.components > 1)
     warn(report, "MULTIPLE_COMPONENTS", std::to_string(report.components) + " connected components");
-
-  if (!check_self_intersections)
+  if (!check_self_intersections) {
     warn(report, "SELF_INTERSECTION_CHECK_SKIPPED",
          "self-intersections were not checked; the sign assumes there are none");
-  if (check_self_intersections) {
-    std::vector<std::pair<SurfaceMesh::Face_index, SurfaceMesh::Face_index>> pairs;
-    PMP::self_intersections<CGAL::Parallel_if_available_tag>(sm.faces(), sm, std::back_inserter(pairs));
-    report.self_intersecting_pairs = pairs.size();
-    if (!pairs.empty())
-      warn(report, "SELF_INTERSECTIONS", std::to_string(pairs.size()) + " pair(s) of self-intersecting faces");
+    return;
   }
+  std::vector<std::pair<SurfaceMesh::Face_index, SurfaceMesh::Face_index>> pairs;
+  PMP::self_intersections<CGAL::Parallel_if_available_tag>(sm.faces(), sm, std::back_inserter(pairs));
+  report.self_intersecting_pairs = pairs.size();
+  if (!pairs.empty())
+    warn(report, "SELF_INTERSECTIONS", std::to_string(pairs.size()) + " pair(s) of self-intersecting faces");
+}
 
-  // Outward orientation: nested closed components bound a volume correctly; open ones go by signed volume.
-  if (report.closed && report.consistently_oriented && report.self_intersecting_pairs == 0)
-    PMP::orient_to_bound_a_volume(sm);
-  else if (signed_volume(sm) < 0)
-    PMP::reverse_face_orientations(sm);
-
+TriangleMesh mesh_to_triangles(const SurfaceMesh& sm) {
   TriangleMesh out;
   out.vertices.reserve(sm.number_of_vertices());
   for (auto v : sm.vertices()) {
@@ -290,6 +279,26 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
     out.triangles.push_back(t);
   }
   return out;
+}
+
+}  // namespace
+
+TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool check_self_intersections,
+                         double time_limit_s) {
+#if !defined(_WIN32)
+  Soup soup = read_isolation() ? repair_soup_isolated(mesh, time_limit_s) : repair_soup(mesh);
+#else
+  Soup soup = repair_soup(mesh);
+#endif
+  if (soup.failed) throw BakeError(soup.code, soup.message);
+  SurfaceMesh sm = soup_to_mesh(soup, report);
+  check_mesh(sm, check_self_intersections, report);
+  // Outward orientation: nested closed components bound a volume correctly; open ones go by signed volume.
+  if (report.closed && report.consistently_oriented && report.self_intersecting_pairs == 0)
+    PMP::orient_to_bound_a_volume(sm);
+  else if (signed_volume(sm) < 0)
+    PMP::reverse_face_orientations(sm);
+  return mesh_to_triangles(sm);
 }
 
 }  // namespace voxfmt::bake
