@@ -173,8 +173,13 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
             [](const BoundaryEdge& x, const BoundaryEdge& y) { return x.va != y.va ? x.va < y.va : x.vb < y.vb; });
   for (const BoundaryEdge& e : edges_) total_multiplicity_ += std::abs(e.multiplicity);
 
-  // Components: edges sharing a vertex. Each is a closed chain (every vertex balanced), so it can be capped alone.
-  std::vector<uint32_t> parent(vertices.size());
+  group_components(vertices.size());
+  for (Component& c : components_) place_fan(c);
+}
+
+// Components: edges sharing a vertex. Each is a closed chain (every vertex balanced), so it can be capped alone.
+void BoundaryWinding::group_components(size_t vertex_count) {
+  std::vector<uint32_t> parent(vertex_count);
   std::iota(parent.begin(), parent.end(), 0u);
   auto find = [&](uint32_t v) {
     while (parent[v] != v) v = parent[v] = parent[parent[v]];
@@ -194,26 +199,27 @@ BoundaryWinding::BoundaryWinding(const std::vector<std::array<uint32_t, 3>>& tri
       c.hi[a] = std::max({c.hi[a], e.a[a], e.b[a]});
     }
   }
+}
+
+// A component's fan: its corners and sides, its apex (the mean of its edge midpoints) and its area.
+void BoundaryWinding::place_fan(Component& c) const {
   std::unordered_map<uint32_t, uint32_t> corner_of;
-  for (Component& c : components_) {  // the fan's apex: the mean of the component's edge midpoints
-    Vec3 sum{0, 0, 0};
-    corner_of.clear();
-    auto corner = [&](uint32_t v, const Vec3& p) {
-      const auto [it, added] = corner_of.emplace(v, uint32_t(c.corners.size()));
-      if (added) c.corners.push_back(p);
-      return it->second;
-    };
-    for (uint32_t n : c.edges) {
-      sum = sum + (edges_[n].a + edges_[n].b) * 0.5;
-      c.sides.push_back({corner(edges_[n].va, edges_[n].a), corner(edges_[n].vb, edges_[n].b)});
-    }
-    // Off the voxel lines, so that no line runs through the apex or along a spoke (a plane of voxel centres
-    // through a flat loop, a ring of a lathed part, would put the apex on one).
-    c.centre = sum * (1.0 / double(c.edges.size())) + Vec3{0, 1e-3 * std::sqrt(2.0), 1e-3 * std::sqrt(3.0)};
-    c.area = 0;
-    for (uint32_t n : c.edges)
-      c.area += std::abs(edges_[n].multiplicity) * length(cross(edges_[n].a - c.centre, edges_[n].b - c.centre)) / 2;
+  Vec3 sum{0, 0, 0};
+  auto corner = [&](uint32_t v, const Vec3& p) {
+    const auto [it, added] = corner_of.emplace(v, uint32_t(c.corners.size()));
+    if (added) c.corners.push_back(p);
+    return it->second;
+  };
+  for (uint32_t n : c.edges) {
+    sum = sum + (edges_[n].a + edges_[n].b) * 0.5;
+    c.sides.push_back({corner(edges_[n].va, edges_[n].a), corner(edges_[n].vb, edges_[n].b)});
   }
+  // Off the voxel lines, so that no line runs through the apex or along a spoke (a plane of voxel centres
+  // through a flat loop, a ring of a lathed part, would put the apex on one).
+  c.centre = sum * (1.0 / double(c.edges.size())) + Vec3{0, 1e-3 * std::sqrt(2.0), 1e-3 * std::sqrt(3.0)};
+  c.area = 0;
+  for (uint32_t n : c.edges)
+    c.area += std::abs(edges_[n].multiplicity) * length(cross(edges_[n].a - c.centre, edges_[n].b - c.centre)) / 2;
 }
 
 double BoundaryWinding::strip(const BoundaryEdge& e, const Vec3& q) const {

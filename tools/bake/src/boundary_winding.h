@@ -98,6 +98,8 @@ class BoundaryWinding {
     std::vector<std::array<uint32_t, 2>> sides;  // each edge's corners (a, b)
     bool fan = false;
   };
+  void group_components(size_t vertex_count);
+  void place_fan(Component& c) const;
   double strip(const BoundaryEdge& e, const Vec3& q) const;
   double fan(const Component& c, const Vec3& q) const;
   double lattice_value(int64_t x, int64_t y, int64_t z, double& error) const;
