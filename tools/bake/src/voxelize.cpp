@@ -707,26 +707,20 @@ bool winding_brick_signs(const BrickRowsInput& in, int64_t bi, int64_t bj, int64
 // the winding number closes) or there are none, the winding number decides, interpolated from the brick's points
 // 4 voxels apart (as 1.x producers did): every corner of such a voxel's cell lies within 2 sqrt(3) < r of it, on its
 // side of the surface, where the winding number varies smoothly.
-void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, const float* distance,
-                               float* sign) {
-  constexpr int E = int(kEdge);
-  int component[kBrickVoxels];
-  std::fill(component, component + kBrickVoxels, -1);
-  std::vector<int> members;
-  members.reserve(kBrickVoxels);
-  // The winding number at the brick's points (0, 4, 8)^3 (clamped to the grid), evaluated when first needed.
-  double lattice[27];
-  bool lattice_known = false;
-  const int64_t first[3] = {bi * kEdge, bj * kEdge, bk * kEdge};
-  auto coordinate = [&](int a, int step) {
-    return double(std::min<int64_t>(first[a] + 4 * step, in.g.dims[size_t(a)] - 1));
-  };
-  auto interpolated_winding = [&](int v) {
-    if (!lattice_known) {
+// The winding number inside a brick interpolated from its points (0, 4, 8)^3 (clamped to the grid), evaluated when
+// first needed.
+class BrickWinding {
+ public:
+  BrickWinding(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk)
+      : in_(in), first_{bi * kEdge, bj * kEdge, bk * kEdge} {}
+
+  double at(int v) {
+    constexpr int E = int(kEdge);
+    if (!known_) {
       for (int n = 0; n < 27; ++n)
-        lattice[n] =
-            (*in.winding)(voxel_point(in.g, coordinate(0, n % 3), coordinate(1, n / 3 % 3), coordinate(2, n / 9)));
-      lattice_known = true;
+        lattice_[n] =
+            (*in_.winding)(voxel_point(in_.g, coordinate(0, n % 3), coordinate(1, n / 3 % 3), coordinate(2, n / 9)));
+      known_ = true;
     }
     const int l[3] = {v % E, v / E % E, v / (E * E)};
     int cell[3];
@@ -734,47 +728,80 @@ void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj,
     for (int a = 0; a < 3; ++a) {
       cell[a] = l[a] / 4;
       const double x0 = coordinate(a, cell[a]), x1 = coordinate(a, cell[a] + 1);
-      t[a] = x1 > x0 ? (double(first[a] + l[a]) - x0) / (x1 - x0) : 0.0;
+      t[a] = x1 > x0 ? (double(first_[a] + l[a]) - x0) / (x1 - x0) : 0.0;
     }
     double w = 0;
     for (int c = 0; c < 8; ++c) {
       const int da = c & 1, db = (c >> 1) & 1, dc = c >> 2;
-      w += lattice[(cell[2] + dc) * 9 + (cell[1] + db) * 3 + cell[0] + da] * (da ? t[0] : 1 - t[0]) *
+      w += lattice_[(cell[2] + dc) * 9 + (cell[1] + db) * 3 + cell[0] + da] * (da ? t[0] : 1 - t[0]) *
            (db ? t[1] : 1 - t[1]) * (dc ? t[2] : 1 - t[2]);
     }
     return w;
-  };
+  }
+  Vec3 voxel(int v) const {
+    constexpr int E = int(kEdge);
+    return voxel_point(in_.g, double(first_[0] + v % E), double(first_[1] + v / E % E),
+                       double(first_[2] + v / (E * E)));
+  }
+
+ private:
+  double coordinate(int a, int step) const {
+    return double(std::min<int64_t>(first_[a] + 4 * step, in_.g.dims[size_t(a)] - 1));
+  }
+  const BrickRowsInput& in_;
+  const int64_t first_[3];
+  double lattice_[27] = {};
+  bool known_ = false;
+};
+
+// The voxels beyond the band reachable from `start` through such voxels (appended to `members`, marked in
+// `component`), and the sides of the band voxels they touch.
+void flood_beyond_band(const float* distance, const float* sign, int start, int* component, std::vector<int>& members,
+                       bool& seen_inside, bool& seen_outside) {
+  constexpr int E = int(kEdge);
+  members.clear();
+  members.push_back(start);
+  component[start] = start;
+  for (size_t next = 0; next < members.size(); ++next) {
+    const int v = members[next];
+    const int li = v % E, lj = v / E % E, lk = v / (E * E);
+    const int steps[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    for (const auto& s : steps) {
+      const int ni = li + s[0], nj = lj + s[1], nk = lk + s[2];
+      if (ni < 0 || nj < 0 || nk < 0 || ni >= E || nj >= E || nk >= E) continue;
+      const int n = (nk * E + nj) * E + ni;
+      if (std::isinf(distance[n])) continue;  // past the grid
+      if (!std::isnan(distance[n])) {
+        (sign[n] < 0 ? seen_inside : seen_outside) = true;
+      } else if (component[n] < 0) {
+        component[n] = start;
+        members.push_back(n);
+      }
+    }
+  }
+}
+
+// Winding rule: signs of a brick's voxels farther than r from the surface. Each takes the sign of the band voxels
+// it reaches through such voxels (the surface cannot pass between them); where those disagree (across a hole, which
+// the winding number closes) or there are none, the winding number decides, interpolated from the brick's points
+// 4 voxels apart (as 1.x producers did): every corner of such a voxel's cell lies within 2 sqrt(3) < r of it, on its
+// side of the surface, where the winding number varies smoothly.
+void winding_signs_beyond_band(const BrickRowsInput& in, int64_t bi, int64_t bj, int64_t bk, const float* distance,
+                               float* sign) {
+  int component[kBrickVoxels];
+  std::fill(component, component + kBrickVoxels, -1);
+  std::vector<int> members;
+  members.reserve(kBrickVoxels);
+  BrickWinding winding(in, bi, bj, bk);
   for (int start = 0; start < int(kBrickVoxels); ++start) {
     if (!std::isnan(distance[start]) || component[start] >= 0) continue;
     bool seen_inside = false, seen_outside = false;
-    members.clear();
-    members.push_back(start);
-    component[start] = start;
-    for (size_t next = 0; next < members.size(); ++next) {
-      const int v = members[next];
-      const int li = v % E, lj = v / E % E, lk = v / (E * E);
-      const int steps[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-      for (const auto& s : steps) {
-        const int ni = li + s[0], nj = lj + s[1], nk = lk + s[2];
-        if (ni < 0 || nj < 0 || nk < 0 || ni >= E || nj >= E || nk >= E) continue;
-        const int n = (nk * E + nj) * E + ni;
-        if (std::isinf(distance[n])) continue;  // past the grid
-        if (!std::isnan(distance[n])) {
-          (sign[n] < 0 ? seen_inside : seen_outside) = true;
-        } else if (component[n] < 0) {
-          component[n] = start;
-          members.push_back(n);
-        }
-      }
-    }
+    flood_beyond_band(distance, sign, start, component, members, seen_inside, seen_outside);
     for (int v : members) {
-      if (seen_inside != seen_outside) {
+      if (seen_inside != seen_outside)
         sign[v] = seen_inside ? -1.0f : 1.0f;
-      } else {
-        const Vec3 p =
-            voxel_point(in.g, double(first[0] + v % E), double(first[1] + v / E % E), double(first[2] + v / (E * E)));
-        sign[v] = interpolated_winding(v) >= 0.5 && inside_box(in.mesh_box, p) ? -1.0f : 1.0f;
-      }
+      else
+        sign[v] = winding.at(v) >= 0.5 && inside_box(in.mesh_box, winding.voxel(v)) ? -1.0f : 1.0f;
     }
   }
 }
@@ -1041,6 +1068,19 @@ GridPlan plan_voxelmap_grid(const TriangleMesh& mesh, const VoxelmapSettings& op
   return plan;
 }
 
+// The voxelmap's geometry and quanta, its arrays empty.
+Voxelmap empty_voxelmap(const GridPlan& plan, const VoxelmapSettings& options) {
+  Voxelmap vm;
+  vm.origin = plan.g.origin;
+  vm.voxel_size = plan.g.voxel_size;
+  vm.dims = plan.g.dims;
+  vm.distance_band = options.distance_band;
+  vm.margin = plan.margin;
+  if (options.shell_thickness > 0) vm.shell_thickness = options.shell_thickness;
+  vm.choose_quanta();
+  return vm;
+}
+
 // The rows of bricks to bake, as (row, first slot, end slot) into lists.bricks. Under the closed and shell rules a
 // row without candidate bricks is outside; the winding rule decides every brick within the surface's bounding box.
 std::vector<std::array<int64_t, 3>> brick_rows(const BrickLists& lists, const GridGeometry& g, SignRule rule) {
@@ -1151,14 +1191,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   const GridPlan plan = plan_voxelmap_grid(mesh, options);
   const GridGeometry& g = plan.g;
   const bool shell = options.shell_thickness > 0;
-  Voxelmap vm;
-  vm.origin = g.origin;
-  vm.voxel_size = g.voxel_size;
-  vm.dims = g.dims;
-  vm.distance_band = options.distance_band;
-  vm.margin = plan.margin;
-  if (shell) vm.shell_thickness = options.shell_thickness;
-  vm.choose_quanta();
+  Voxelmap vm = empty_voxelmap(plan, options);
 
   // Distances are computed half a voxel past the band, so that the band's edge is exact.
   const double r = options.distance_band + plan.half_shell + 0.5;
