@@ -511,7 +511,9 @@ TEST(Bake, TimingsAndProgressFollowTheStageList) {
   };
   for (const BakeStageInfo& info : kBakeStages) {
     EXPECT_GE(seconds(info.stage), 0) << info.name;
-    if (info.within != info.stage) EXPECT_LE(seconds(info.stage), seconds(info.within) + 1e-3) << info.name;
+    if (info.within != info.stage) {
+      EXPECT_LE(seconds(info.stage), seconds(info.within) + 1e-3) << info.name;
+    }
   }
 }
 

@@ -62,6 +62,125 @@ Result<SliceSpec> parse_slice(const std::string& text) {
   return spec;
 }
 
+namespace {
+
+// A slice's voxels, read as one block: columns fastest; rows go up.
+struct SliceVoxels {
+  int64_t columns = 0, rows = 0;
+  std::vector<float> distances;
+  std::vector<int16_t> layers;
+  size_t at(int64_t col, int64_t row) const { return size_t(row * columns + col); }
+};
+
+SliceVoxels read_slice(const Voxelmap& vm, const SliceSpec& spec, int col_axis, int row_axis) {
+  SliceVoxels s;
+  s.columns = vm.dims[size_t(col_axis)];
+  s.rows = vm.dims[size_t(row_axis)];
+  std::array<uint32_t, 3> first{0, 0, 0}, size = vm.dims;
+  first[size_t(spec.axis)] = uint32_t(spec.index);
+  size[size_t(spec.axis)] = 1;
+  s.distances.resize(size_t(s.columns * s.rows));
+  s.layers.resize(s.distances.size());
+  // The block is x fastest, then y, then z; the slice's columns and rows are two of those in that order.
+  vm.read_block(first, size, s.distances.data(), s.layers.data());
+  return s;
+}
+
+// The colour scale over the whole grid (so slices compare): inside 0..deepest layer, outside 0..farthest layer,
+// each half of the scale to its own end; distances over the band.
+struct SliceScale {
+  bool distances = false;
+  double depth_in = 1, depth_out = 1;
+  SliceScale(const Voxelmap& vm, bool show_distances) : distances(show_distances) {
+    const auto [lowest, highest] = vm.layer_range();
+    const double band_depth = vm.distance_band * vm.voxel_size;
+    depth_in = distances ? band_depth : double(std::max(1, highest));
+    depth_out = distances ? band_depth : double(std::max(1, -lowest));
+  }
+  double operator()(double depth) const { return depth >= 0 ? depth / depth_in : depth / depth_out; }  // -1..1
+  // Penetration depth (inside > 0) of voxel `v`, NaN where the distance field has no value.
+  double depth(const SliceVoxels& s, size_t v) const {
+    if (!distances) return s.layers[v];
+    return std::isnan(s.distances[v]) ? std::numeric_limits<double>::quiet_NaN() : -double(s.distances[v]);
+  }
+};
+
+struct MapPlace {
+  int x, y, zoom, width, height;
+};
+
+// The surface: where the stored distance, interpolated bilinearly between voxel centres, changes sign. Each crossing
+// marks the pixel of the pair closer to zero (a 1-pixel line). Returns whether there is one.
+bool draw_surface(const SliceVoxels& s, const MapPlace& map, RasterImage& image) {
+  const int map_w = map.width, map_h = map.height, zoom = map.zoom;
+  std::vector<double> field(size_t(map_w) * size_t(map_h), std::numeric_limits<double>::quiet_NaN());
+  for (int py = 0; py < map_h; ++py)
+    for (int px = 0; px < map_w; ++px) {
+      const double u = (px + 0.5) / zoom - 0.5, w = (map_h - py - 0.5) / zoom - 0.5;  // voxel coordinates
+      const int64_t c0 = std::clamp<int64_t>(int64_t(std::floor(u)), 0, s.columns - 1);
+      const int64_t r0 = std::clamp<int64_t>(int64_t(std::floor(w)), 0, s.rows - 1);
+      const int64_t c1 = std::min<int64_t>(c0 + 1, s.columns - 1), r1 = std::min<int64_t>(r0 + 1, s.rows - 1);
+      const double fu = std::clamp(u - double(c0), 0.0, 1.0), fw = std::clamp(w - double(r0), 0.0, 1.0);
+      const float d00 = s.distances[s.at(c0, r0)], d10 = s.distances[s.at(c1, r0)];
+      const float d01 = s.distances[s.at(c0, r1)], d11 = s.distances[s.at(c1, r1)];
+      if (std::isnan(d00) || std::isnan(d10) || std::isnan(d01) || std::isnan(d11)) continue;
+      field[size_t(py) * size_t(map_w) + size_t(px)] =
+          (1 - fw) * ((1 - fu) * d00 + fu * d10) + fw * ((1 - fu) * d01 + fu * d11);
+    }
+  bool any = false;
+  for (int py = 0; py < map_h; ++py)
+    for (int px = 0; px < map_w; ++px) {
+      const double a = field[size_t(py) * size_t(map_w) + size_t(px)];
+      if (std::isnan(a)) continue;
+      for (const auto& [nx, ny] : {std::pair{px + 1, py}, std::pair{px, py + 1}}) {
+        if (nx >= map_w || ny >= map_h) continue;
+        const double b = field[size_t(ny) * size_t(map_w) + size_t(nx)];
+        if (std::isnan(b) || (a < 0) == (b < 0)) continue;
+        any = true;
+        if (std::abs(a) <= std::abs(b))
+          image.set(map.x + px, map.y + py, kContour);
+        else
+          image.set(map.x + nx, map.y + ny, kContour);
+      }
+    }
+  return any;
+}
+
+// The legend at (x, y): a colour bar from +max (top, inside) to -max (bottom, outside) with ticks, then the
+// swatches, within `height`.
+void draw_legend(const SliceScale& scale, int x, int y, int height, RasterImage& image) {
+  const int bar_w = 20;
+  const int swatch_h = scale.distances ? 72 : 48;
+  const int bar_top = y + RasterImage::text_height(2) * 2 + 14, bar_h = std::max(60, height - (bar_top - y) - swatch_h);
+  image.text(x, y, scale.distances ? "DISTANCE (M)" : "LAYER", 2, kInk);
+  image.text(x, y + RasterImage::text_height(2) + 6, scale.distances ? "(INSIDE < 0)" : "(INSIDE > 0)", 2, kInk);
+  for (int row = 0; row < bar_h; ++row)
+    image.fill_rect(x, bar_top + row, bar_w, 1, diverging(1.0 - 2.0 * (row + 0.5) / bar_h));
+  const bool integers = !scale.distances;
+  for (const double end : {scale.depth_in, -scale.depth_out}) {  // the inside half, then the outside half
+    const double step = tick_step(std::abs(end), 3, integers);
+    const int64_t ticks = int64_t(std::floor(std::abs(end) / step + 1e-9));
+    for (int64_t tick = end > 0 ? 0 : 1; tick <= ticks; ++tick) {
+      const double v = (end > 0 ? 1 : -1) * double(tick) * step;
+      const int tick_y = bar_top + int(std::lround((1.0 - scale(v)) / 2.0 * (bar_h - 1)));
+      image.fill_rect(x, tick_y, bar_w, 1, kInk);  // across the bar: a stub beside a label reads as a minus
+      // The label shows the stored quantity: the layer, or the signed distance d = -depth.
+      const std::string label = number_label(scale.distances ? -v : v, integers);
+      image.text(x + bar_w + 6, tick_y - RasterImage::text_height(2) / 2, label, 2, kInk);
+    }
+  }
+  int swatch_y = bar_top + bar_h + 12;
+  image.fill_rect(x, swatch_y + 6, bar_w, 2, kContour);
+  image.text(x + bar_w + 8, swatch_y, "SURFACE", 2, kInk);
+  if (scale.distances) {
+    swatch_y += 24;
+    image.fill_rect(x, swatch_y, bar_w, 14, kNotStored);
+    image.text(x + bar_w + 8, swatch_y, "NOT STORED", 2, kInk);
+  }
+}
+
+}  // namespace
+
 Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, const std::string& path) {
   const Voxelmap& vm = asset.voxelmap;
   const uint32_t n = vm.dims[size_t(spec.axis)];
@@ -73,123 +192,34 @@ Result<SliceInfo> write_slice_png(const Asset& asset, const SliceSpec& spec, con
                                            " voxels)"};
   // Columns and rows of the slice: z -> (x, y), y -> (x, z), x -> (y, z); rows go up.
   const int col_axis = spec.axis == 0 ? 1 : 0, row_axis = spec.axis == 2 ? 1 : 2;
+  const SliceVoxels slice = read_slice(vm, spec, col_axis, row_axis);
+  const SliceScale scale(vm, spec.distances);
   SliceInfo info;
-  info.columns = vm.dims[size_t(col_axis)];
-  info.rows = vm.dims[size_t(row_axis)];
-  const int zoom = spec.zoom > 0 ? spec.zoom : std::clamp(900 / int(std::max(info.columns, info.rows)), 1, 16);
-  info.zoom = zoom;
-  // The slice's voxels, read as one block: columns fastest.
-  std::array<uint32_t, 3> first{0, 0, 0}, size = vm.dims;
-  first[size_t(spec.axis)] = uint32_t(spec.index);
-  size[size_t(spec.axis)] = 1;
-  std::vector<float> distances(size_t(info.columns) * info.rows);
-  std::vector<int16_t> layers(distances.size());
-  vm.read_block(first, size, distances.data(), layers.data());
-  // The block is x fastest, then y, then z; the slice's columns and rows are two of those in that order.
-  auto voxel = [&](int64_t col, int64_t row) { return size_t(row * info.columns + col); };
-
-  // Colour scale over the whole grid (so slices compare): inside 0..deepest layer, outside 0..farthest layer,
-  // each half of the scale to its own end; distances over the band.
-  const auto [lowest, highest] = vm.layer_range();
-  const int max_inside = std::max(1, highest), max_outside = std::max(1, -lowest);
-  const double band_depth = vm.distance_band * vm.voxel_size;
-  const double depth_in = spec.distances ? band_depth : double(max_inside);
-  const double depth_out = spec.distances ? band_depth : double(max_outside);
-  auto scale = [&](double depth) { return depth >= 0 ? depth / depth_in : depth / depth_out; };  // -1..1
-  // Penetration depth (inside > 0) of a voxel, NaN where the distance field has no value.
-  auto depth = [&](size_t v) -> double {
-    if (!spec.distances) return layers[v];
-    return std::isnan(distances[v]) ? std::numeric_limits<double>::quiet_NaN() : -double(distances[v]);
-  };
-
-  const int map_w = int(info.columns) * zoom, map_h = int(info.rows) * zoom;
-  const int margin = 10, title_h = RasterImage::text_height(2), map_x = margin, map_y = margin + title_h + 8;
-  const int content_h = std::max(map_h, kSliceMinMapHeight);
-  info.width = map_w + kSliceExtraWidth;
+  info.columns = uint32_t(slice.columns);
+  info.rows = uint32_t(slice.rows);
+  info.zoom = spec.zoom > 0 ? spec.zoom : std::clamp(900 / int(std::max(info.columns, info.rows)), 1, 16);
+  const int margin = 10, title_h = RasterImage::text_height(2);
+  const MapPlace map{margin, margin + title_h + 8, info.zoom, int(info.columns) * info.zoom,
+                     int(info.rows) * info.zoom};
+  const int content_h = std::max(map.height, kSliceMinMapHeight);
+  info.width = map.width + kSliceExtraWidth;
   info.height = content_h + kSliceExtraHeight;
   RasterImage image(info.width, info.height, kBackground);
-
-  for (int64_t row = 0; row < info.rows; ++row)
-    for (int64_t col = 0; col < info.columns; ++col) {
-      const double value = depth(voxel(col, row));
+  for (int64_t row = 0; row < slice.rows; ++row)
+    for (int64_t col = 0; col < slice.columns; ++col) {
+      const double value = scale.depth(slice, slice.at(col, row));
       const Rgb colour = std::isnan(value) ? kNotStored : diverging(scale(value));
-      image.fill_rect(map_x + int(col) * zoom, map_y + int(info.rows - 1 - row) * zoom, zoom, zoom, colour);
+      image.fill_rect(map.x + int(col) * map.zoom, map.y + int(slice.rows - 1 - row) * map.zoom, map.zoom, map.zoom,
+                      colour);
     }
-
-  // The surface: where the stored distance, interpolated bilinearly between voxel centres, changes sign. Each
-  // crossing marks the pixel of the pair closer to zero (a 1-pixel line).
-  std::vector<double> field(size_t(map_w) * size_t(map_h), std::numeric_limits<double>::quiet_NaN());
-  for (int py = 0; py < map_h; ++py)
-    for (int px = 0; px < map_w; ++px) {
-      const double u = (px + 0.5) / zoom - 0.5, w = (map_h - py - 0.5) / zoom - 0.5;  // voxel coordinates
-      const int64_t c0 = std::clamp<int64_t>(int64_t(std::floor(u)), 0, info.columns - 1);
-      const int64_t r0 = std::clamp<int64_t>(int64_t(std::floor(w)), 0, info.rows - 1);
-      const int64_t c1 = std::min<int64_t>(c0 + 1, info.columns - 1), r1 = std::min<int64_t>(r0 + 1, info.rows - 1);
-      const double fu = std::clamp(u - double(c0), 0.0, 1.0), fw = std::clamp(w - double(r0), 0.0, 1.0);
-      const float d00 = distances[voxel(c0, r0)], d10 = distances[voxel(c1, r0)];
-      const float d01 = distances[voxel(c0, r1)], d11 = distances[voxel(c1, r1)];
-      if (std::isnan(d00) || std::isnan(d10) || std::isnan(d01) || std::isnan(d11)) continue;
-      field[size_t(py) * size_t(map_w) + size_t(px)] =
-          (1 - fw) * ((1 - fu) * d00 + fu * d10) + fw * ((1 - fu) * d01 + fu * d11);
-    }
-  for (int py = 0; py < map_h; ++py)
-    for (int px = 0; px < map_w; ++px) {
-      const double a = field[size_t(py) * size_t(map_w) + size_t(px)];
-      if (std::isnan(a)) continue;
-      for (const auto& [nx, ny] : {std::pair{px + 1, py}, std::pair{px, py + 1}}) {
-        if (nx >= map_w || ny >= map_h) continue;
-        const double b = field[size_t(ny) * size_t(map_w) + size_t(nx)];
-        if (std::isnan(b) || (a < 0) == (b < 0)) continue;
-        info.has_surface = true;
-        if (std::abs(a) <= std::abs(b))
-          image.set(map_x + px, map_y + py, kContour);
-        else
-          image.set(map_x + nx, map_y + ny, kContour);
-      }
-    }
-
-  // Title.
+  info.has_surface = draw_surface(slice, map, image);
   char title[160];
   const double position = vm.origin[size_t(spec.axis)] + vm.voxel_size * double(spec.index);
   std::snprintf(title, sizeof title, "%s = %lld OF 0..%u (%.4g M), %s RIGHT, %s UP", kAxisNames[spec.axis],
                 static_cast<long long>(spec.index), n - 1, position, kAxisNames[col_axis], kAxisNames[row_axis]);
   const int title_scale = RasterImage::text_width(title, 2) <= info.width - 2 * margin ? 2 : 1;
-  image.text(map_x, margin + (title_scale == 1 ? 4 : 0), title, title_scale, kInk);
-
-  // Legend: a colour bar from +max (top, inside) to -max (bottom, outside) with ticks, then the swatches.
-  const int legend_x = map_x + map_w + 2 * margin, bar_w = 20;
-  const int swatch_h = spec.distances ? 72 : 48;
-  const int bar_top = map_y + RasterImage::text_height(2) * 2 + 14,
-            bar_h = std::max(60, content_h - (bar_top - map_y) - swatch_h);
-  image.text(legend_x, map_y, spec.distances ? "DISTANCE (M)" : "LAYER", 2, kInk);
-  image.text(legend_x, map_y + RasterImage::text_height(2) + 6, spec.distances ? "(INSIDE < 0)" : "(INSIDE > 0)", 2,
-             kInk);
-  for (int y = 0; y < bar_h; ++y) {
-    const double t = 1.0 - 2.0 * (y + 0.5) / bar_h;
-    image.fill_rect(legend_x, bar_top + y, bar_w, 1, diverging(t));
-  }
-  const bool integers = !spec.distances;
-  for (const double end : {depth_in, -depth_out}) {  // the inside half, then the outside half
-    const double step = tick_step(std::abs(end), 3, integers);
-    const int64_t ticks = int64_t(std::floor(std::abs(end) / step + 1e-9));
-    for (int64_t tick = end > 0 ? 0 : 1; tick <= ticks; ++tick) {
-      const double v = (end > 0 ? 1 : -1) * double(tick) * step;
-      const int y = bar_top + int(std::lround((1.0 - scale(v)) / 2.0 * (bar_h - 1)));
-      image.fill_rect(legend_x, y, bar_w, 1, kInk);  // across the bar: a stub beside a label reads as a minus
-      // The label shows the stored quantity: the layer, or the signed distance d = -depth.
-      const std::string label = number_label(spec.distances ? -v : v, integers);
-      image.text(legend_x + bar_w + 6, y - RasterImage::text_height(2) / 2, label, 2, kInk);
-    }
-  }
-  int swatch_y = bar_top + bar_h + 12;
-  image.fill_rect(legend_x, swatch_y + 6, bar_w, 2, kContour);
-  image.text(legend_x + bar_w + 8, swatch_y, "SURFACE", 2, kInk);
-  if (spec.distances) {
-    swatch_y += 24;
-    image.fill_rect(legend_x, swatch_y, bar_w, 14, kNotStored);
-    image.text(legend_x + bar_w + 8, swatch_y, "NOT STORED", 2, kInk);
-  }
-
+  image.text(map.x, margin + (title_scale == 1 ? 4 : 0), title, title_scale, kInk);
+  draw_legend(scale, map.x + map.width + 2 * margin, map.y, content_h, image);
   const Status written = image.write_png(path);
   if (!written) return written.error();
   return info;
