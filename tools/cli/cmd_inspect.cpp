@@ -147,6 +147,60 @@ void print_export(const nlohmann::json& e) {
               << e["normals"].get<std::string>() << " normals (binary PLY)\n";
 }
 
+// The options that write a picture or another format of the asset.
+void add_export_options(CLI::App* cmd, Options& options) {
+  auto* slice = cmd->add_option("--slice", options.slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
+                    ->check(CLI::Validator(
+                        [](std::string& text) {
+                          const Result<exports::SliceSpec> spec = exports::parse_slice(text);
+                          return spec ? std::string() : spec.error().message;
+                        },
+                        "AXIS=INDEX"));
+  auto* png = cmd->add_option("--png", options.png,
+                              "Write the --slice picture here (PNG: colour map inside red / outside blue, surface "
+                              "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)");
+  slice->needs(png);
+  png->needs(slice);
+  cmd->add_option("--field", options.field, "What the slice colours: layers (every voxel) or distances (the band)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"layers", "distances"}))
+      ->needs(slice);
+  cmd->add_option("--zoom", options.zoom,
+                  "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
+      ->check(CLI::Range(1, 64))
+      ->needs(slice);
+  auto* ply = cmd->add_option("--ply", options.ply,
+                              "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)");
+  cmd->add_option("--level", options.level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
+      ->check(CLI::NonNegativeNumber)
+      ->needs(ply);
+  cmd->add_flag("--inward-normals", options.inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
+  cmd->add_option("--vdb", options.vdb,
+                  "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
+                  "\"layers\" (int32), for Houdini, Blender or vdb_view");
+}
+
+int run(const Options& options) {
+  std::vector<Issue> warnings;
+  Result<Asset> asset = read_asset(options.file, &warnings, options.read);
+  if (!asset) return report_error("inspect", asset.error());
+  Result<nlohmann::json> written = write_exports(options, asset.value());
+  if (!written) return report_error("inspect", written.error());  // a slice or level outside, an unwritable file
+  const nlohmann::json& exports = written.value();
+  if (!exports.empty() && !options.json) {
+    for (const nlohmann::json& e : exports) print_export(e);
+    return kExitOk;
+  }
+  const AssetSummary summary = summarize_asset(options.file, asset.value());
+  nlohmann::json out = nlohmann::json::parse(inspect_json(options.file, asset.value(), summary, warnings));
+  if (!exports.empty()) out["exports"] = exports;
+  if (options.json)
+    std::cout << to_text(out) << "\n";
+  else
+    print_text(options.file, asset.value(), summary, warnings);
+  return kExitOk;
+}
+
 }  // namespace
 
 void add_inspect_command(CLI::App& app, int& exit_code) {
@@ -158,66 +212,13 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_flag("--json", options->json, "Print the summary as JSON on stdout");
   add_read_budget_option(cmd, options->read);
-  auto* slice = cmd->add_option("--slice", options->slice, "Voxelmap slice to draw: AXIS=INDEX, e.g. z=40")
-                    ->check(CLI::Validator(
-                        [](std::string& text) {
-                          const Result<exports::SliceSpec> spec = exports::parse_slice(text);
-                          return spec ? std::string() : spec.error().message;
-                        },
-                        "AXIS=INDEX"));
-  auto* png = cmd->add_option("--png", options->png,
-                              "Write the --slice picture here (PNG: colour map inside red / outside blue, surface "
-                              "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)");
-  slice->needs(png);
-  png->needs(slice);
-  cmd->add_option("--field", options->field, "What the slice colours: layers (every voxel) or distances (the band)")
-      ->capture_default_str()
-      ->check(CLI::IsMember({"layers", "distances"}))
-      ->needs(slice);
-  cmd->add_option("--zoom", options->zoom,
-                  "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
-      ->check(CLI::Range(1, 64))
-      ->needs(slice);
-  auto* ply = cmd->add_option("--ply", options->ply,
-                              "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)");
-  cmd->add_option("--level", options->level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
-      ->check(CLI::NonNegativeNumber)
-      ->needs(ply);
-  cmd->add_flag("--inward-normals", options->inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
-  cmd->add_option("--vdb", options->vdb,
-                  "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
-                  "\"layers\" (int32), for Houdini, Blender or vdb_view");
+  add_export_options(cmd, *options);
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt inspect bunny.vox.h5                                  # what the asset holds\n"
       "  voxfmt inspect bunny.vox.h5 --slice z=150 --png slice.png    # a picture of the voxelmap\n"
       "  voxfmt inspect bunny.vox.h5 --ply shell.ply --vdb grids.vdb  # point shell and grids for other tools\n");
-  cmd->callback([options, &exit_code] {
-    std::vector<Issue> warnings;
-    Result<Asset> asset = read_asset(options->file, &warnings, options->read);
-    if (!asset) {
-      exit_code = report_error("inspect", asset.error());
-      return;
-    }
-    Result<nlohmann::json> written = write_exports(*options, asset.value());
-    if (!written) {  // a slice or level outside the asset, or a file that cannot be written
-      exit_code = report_error("inspect", written.error());
-      return;
-    }
-    const nlohmann::json& exports = written.value();
-    exit_code = kExitOk;
-    if (!exports.empty() && !options->json) {
-      for (const nlohmann::json& e : exports) print_export(e);
-      return;
-    }
-    const AssetSummary summary = summarize_asset(options->file, asset.value());
-    nlohmann::json out = nlohmann::json::parse(inspect_json(options->file, asset.value(), summary, warnings));
-    if (!exports.empty()) out["exports"] = exports;
-    if (options->json)
-      std::cout << to_text(out) << "\n";
-    else
-      print_text(options->file, asset.value(), summary, warnings);
-  });
+  cmd->callback([options, &exit_code] { exit_code = run(*options); });
 }
 
 }  // namespace voxfmt::cli

@@ -60,70 +60,80 @@ Result<std::vector<Item>> plan(const Options& o) {
   return items;
 }
 
+// Counts of a run, and the exit status of its worst failure.
+struct Tally {
+  size_t upgraded = 0, current = 0, failed = 0;
+  int worst = kExitOk;
+};
+
+// One file: read, and rewritten in the current format unless it is already (or --force). Its entry in the JSON
+// report; the line a person reads.
+nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Tally& tally) {
+  nlohmann::json entry = {{"input", item.input}, {"output", item.output}};
+  std::vector<Issue> warnings;
+  Result<Asset> asset = read_asset(item.input, &warnings, o.read);
+  Status written = Status::success();
+  if (asset && asset.value().version.major == kFormatVersion.major && !o.force) {
+    ++tally.current;
+    entry["status"] = "current";
+    entry["format_version"] = {asset.value().version.major, asset.value().version.minor};
+  } else if (asset) {
+    const FormatVersion from = asset.value().version;
+    std::error_code ec;
+    if (fs::path(item.output).has_parent_path()) fs::create_directories(fs::path(item.output).parent_path(), ec);
+    written = write_asset(item.output, asset.value());
+    if (written) {
+      ++tally.upgraded;
+      entry["status"] = "upgraded";
+      entry["from"] = {from.major, from.minor};
+      entry["bytes_before"] = fs::file_size(item.input, ec);
+      entry["bytes_after"] = fs::file_size(item.output, ec);
+      if (!o.json && !o.quiet) {
+        if (progress) std::cerr << "\r\033[K";
+        std::cout << item.input << " (" << from.major << "." << from.minor << ", " << std::fixed << std::setprecision(1)
+                  << double(fs::file_size(item.input, ec)) / 1e6 << " MB) -> " << item.output << " ("
+                  << kFormatVersion.major << "." << kFormatVersion.minor << ", "
+                  << double(fs::file_size(item.output, ec)) / 1e6 << " MB)\n";
+      }
+    }
+  }
+  const Error* error = !asset ? &asset.error() : !written ? &written.error() : nullptr;
+  if (error) {
+    ++tally.failed;
+    tally.worst = std::max(tally.worst, exit_status(error->code));
+    entry["status"] = "failed";
+    entry["error"] = {{"code", code_name(error->code)}, {"message", error->message}};
+    if (!o.json) {
+      if (progress) std::cerr << "\r\033[K";
+      std::cerr << "voxfmt upgrade: error: " << code_name(error->code) << ": " << error->message << "\n";
+    }
+  }
+  return entry;
+}
+
 int run(const Options& o) {
   const Result<std::vector<Item>> planned = plan(o);
   if (!planned) return report_error("upgrade", planned.error());
   const std::vector<Item>& items = planned.value();
   const bool progress = !o.quiet && !o.json && isatty(STDERR_FILENO) && items.size() > 1;
   nlohmann::json report = {{"files", nlohmann::json::array()}};
-  size_t upgraded = 0, current = 0, failed = 0;
-  int worst = kExitOk;
+  Tally tally;
   for (size_t n = 0; n < items.size(); ++n) {
-    const Item& item = items[n];
-    if (progress) std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << item.input << std::flush;
-    nlohmann::json entry = {{"input", item.input}, {"output", item.output}};
-    std::vector<Issue> warnings;
-    Result<Asset> asset = read_asset(item.input, &warnings, o.read);
-    Status written = Status::success();
-    if (asset && asset.value().version.major == kFormatVersion.major && !o.force) {
-      ++current;
-      entry["status"] = "current";
-      entry["format_version"] = {asset.value().version.major, asset.value().version.minor};
-    } else if (asset) {
-      const FormatVersion from = asset.value().version;
-      std::error_code ec;
-      if (fs::path(item.output).has_parent_path()) fs::create_directories(fs::path(item.output).parent_path(), ec);
-      written = write_asset(item.output, asset.value());
-      if (written) {
-        ++upgraded;
-        entry["status"] = "upgraded";
-        entry["from"] = {from.major, from.minor};
-        entry["bytes_before"] = fs::file_size(item.input, ec);
-        entry["bytes_after"] = fs::file_size(item.output, ec);
-        if (!o.json && !o.quiet) {
-          if (progress) std::cerr << "\r\033[K";
-          std::cout << item.input << " (" << from.major << "." << from.minor << ", " << std::fixed
-                    << std::setprecision(1) << double(fs::file_size(item.input, ec)) / 1e6 << " MB) -> " << item.output
-                    << " (" << kFormatVersion.major << "." << kFormatVersion.minor << ", "
-                    << double(fs::file_size(item.output, ec)) / 1e6 << " MB)\n";
-        }
-      }
-    }
-    const Error* error = !asset ? &asset.error() : !written ? &written.error() : nullptr;
-    if (error) {
-      ++failed;
-      worst = std::max(worst, exit_status(error->code));
-      entry["status"] = "failed";
-      entry["error"] = {{"code", code_name(error->code)}, {"message", error->message}};
-      if (!o.json) {
-        if (progress) std::cerr << "\r\033[K";
-        std::cerr << "voxfmt upgrade: error: " << code_name(error->code) << ": " << error->message << "\n";
-      }
-    }
-    report["files"].push_back(entry);
+    if (progress) std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << items[n].input << std::flush;
+    report["files"].push_back(upgrade_one(o, items[n], progress, tally));
   }
   if (progress) std::cerr << "\r\033[K" << std::flush;
-  report["upgraded"] = upgraded;
-  report["current"] = current;
-  report["failed"] = failed;
+  report["upgraded"] = tally.upgraded;
+  report["current"] = tally.current;
+  report["failed"] = tally.failed;
   if (o.json) {
     std::cout << to_text(report) << "\n";
   } else if (!o.quiet) {
-    std::cout << upgraded << " upgraded to format " << kFormatVersion.major << "." << kFormatVersion.minor << ", "
-              << current << " already current" << (o.force ? "" : " (left alone; --force rewrites them)") << ", "
-              << failed << " failed\n";
+    std::cout << tally.upgraded << " upgraded to format " << kFormatVersion.major << "." << kFormatVersion.minor << ", "
+              << tally.current << " already current" << (o.force ? "" : " (left alone; --force rewrites them)") << ", "
+              << tally.failed << " failed\n";
   }
-  return worst;
+  return tally.worst;
 }
 
 }  // namespace

@@ -17,6 +17,52 @@ struct Options {
   size_t max_issues = 100;
   ReadOptions read;
 };
+// One file's findings as a person reads them.
+void print_findings(const std::string& file, const std::vector<Issue>& issues, size_t found) {
+  bool unreadable = false, over_budget = false;
+  size_t errors = 0, warnings = 0;
+  for (const Issue& issue : issues) {
+    errors += issue.severity == Severity::Error;
+    warnings += issue.severity == Severity::Warning;
+    unreadable |= issue.code == IssueCode::FileNotFound;
+    over_budget |= issue.code == IssueCode::OutOfMemory;
+  }
+  std::cout << file << ": "
+            << (!has_errors(issues) ? "valid"
+                : unreadable        ? "UNREADABLE"
+                : over_budget       ? "NOT JUDGED (over the read budget: --max-memory)"
+                                    : "INVALID")
+            << " (" << errors << " error(s), " << warnings << " warning(s))\n";
+  if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
+  for (const Issue& issue : issues)
+    std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "
+              << issue.message << "\n";
+}
+
+int run(const Options& options) {
+  nlohmann::json report = {{"files", nlohmann::json::array()}};
+  int worst = kExitOk;  // the highest exit status of any file's first error
+  for (const std::string& file : options.files) {
+    ReadOptions read = options.read;
+    read.level = options.level == "full" ? ValidationLevel::Full : ValidationLevel::Quick;
+    std::vector<Issue> issues = validate_file(file, read);
+    const size_t found = issues.size();
+    if (issues.size() > options.max_issues) issues.resize(options.max_issues);
+    for (const Issue& issue : issues)
+      if (issue.severity == Severity::Error) {
+        worst = std::max(worst, exit_status(issue.code));
+        break;
+      }
+    if (options.json)
+      report["files"].push_back(
+          {{"file", file}, {"valid", !has_errors(issues)}, {"issues", issues_json(issues)}, {"issues_found", found}});
+    else
+      print_findings(file, issues, found);
+  }
+  if (options.json) std::cout << to_text(report) << "\n";
+  return worst;
+}
+
 }  // namespace
 
 void add_validate_command(CLI::App& app, int& exit_code) {
@@ -38,48 +84,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
       "  voxfmt validate bunny.vox.h5                      # the structure (quick)\n"
       "  voxfmt validate --level full assets/*.vox.h5      # every rule of the spec, every voxel\n"
       "  voxfmt validate --json bunny.vox.h5 | jq '.files[].issues'  # findings for a script\n");
-  cmd->callback([options, &exit_code] {
-    nlohmann::json report = {{"files", nlohmann::json::array()}};
-    int worst = kExitOk;  // the highest exit status of any file's first error
-    for (const std::string& file : options->files) {
-      ReadOptions read = options->read;
-      read.level = options->level == "full" ? ValidationLevel::Full : ValidationLevel::Quick;
-      std::vector<Issue> issues = validate_file(file, read);
-      const size_t found = issues.size();
-      if (issues.size() > options->max_issues) issues.resize(options->max_issues);
-      const bool valid = !has_errors(issues);
-      for (const Issue& issue : issues)
-        if (issue.severity == Severity::Error) {
-          worst = std::max(worst, exit_status(issue.code));
-          break;
-        }
-      if (options->json) {
-        report["files"].push_back(
-            {{"file", file}, {"valid", valid}, {"issues", issues_json(issues)}, {"issues_found", found}});
-        continue;
-      }
-      bool unreadable = false, over_budget = false;
-      size_t errors = 0, warnings = 0;
-      for (const Issue& issue : issues) {
-        errors += issue.severity == Severity::Error;
-        warnings += issue.severity == Severity::Warning;
-        unreadable |= issue.code == IssueCode::FileNotFound;
-        over_budget |= issue.code == IssueCode::OutOfMemory;
-      }
-      std::cout << file << ": "
-                << (valid         ? "valid"
-                    : unreadable  ? "UNREADABLE"
-                    : over_budget ? "NOT JUDGED (over the read budget: --max-memory)"
-                                  : "INVALID")
-                << " (" << errors << " error(s), " << warnings << " warning(s))\n";
-      if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
-      for (const Issue& issue : issues)
-        std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << issue.path << ": "
-                  << issue.message << "\n";
-    }
-    if (options->json) std::cout << to_text(report) << "\n";
-    exit_code = worst;
-  });
+  cmd->callback([options, &exit_code] { exit_code = run(*options); });
 }
 
 }  // namespace voxfmt::cli
