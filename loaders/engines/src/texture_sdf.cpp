@@ -70,6 +70,83 @@ float coarse_error(const FieldSamples& field, const std::vector<float>& coarse, 
   return worst;
 }
 
+// The coarse grid at the brick corners, in voxels.
+std::vector<float> coarse_grid(const FieldSamples& field, const std::array<int, 3>& nb) {
+  std::vector<float> coarse(size_t(nb[0] + 1) * size_t(nb[1] + 1) * size_t(nb[2] + 1));
+  size_t n = 0;
+  for (int c = 0; c <= nb[2]; ++c)
+    for (int b = 0; b <= nb[1]; ++b)
+      for (int a = 0; a <= nb[0]; ++a) coarse[n++] = field.coarse_corner(a, b, c);
+  return coarse;
+}
+
+// Which bricks are stored, and the range of their samples (voxels) that the quantisation spans: those with codes;
+// then those without whose coarse interpolation is off by more than the tolerance. Their samples are computed again
+// when packed: kept, they would take 4 bytes a sample, twice the uint16 texture.
+struct StoredBricks {
+  std::vector<uint8_t> stored;
+  float lo = std::numeric_limits<float>::max(), hi = -std::numeric_limits<float>::max();
+};
+
+StoredBricks choose_bricks(const FieldSamples& field, double tolerance, TextureSdf& out) {
+  const auto& nb = out.bricks;
+  StoredBricks chosen;
+  chosen.stored.assign(size_t(nb[0]) * size_t(nb[1]) * size_t(nb[2]), 0);
+  std::vector<float> samples(kBrickSamples);
+  auto store = [&](int a, int b, int c, int n) {
+    chosen.stored[size_t(n)] = 1;
+    brick_samples(field, a, b, c, samples.data());
+    for (float s : samples) chosen.lo = std::min(chosen.lo, s), chosen.hi = std::max(chosen.hi, s);
+  };
+  for (int c = 0, n = 0; c < nb[2]; ++c)
+    for (int b = 0; b < nb[1]; ++b)
+      for (int a = 0; a < nb[0]; ++a, ++n)
+        if (field.brick(a, b, c) >= 0) {
+          store(a, b, c, n);
+          ++out.value_bricks;
+        }
+  for (int c = 0, n = 0; c < nb[2]; ++c)
+    for (int b = 0; b < nb[1]; ++b)
+      for (int a = 0; a < nb[0]; ++a, ++n)
+        if (!chosen.stored[size_t(n)] && !coarse_by_construction(field, a, b, c) &&
+            coarse_error(field, out.coarse, nb, a, b, c) > tolerance) {
+          store(a, b, c, n);
+          ++out.coarse_stored;
+        }
+  return chosen;
+}
+
+// A brick's samples (voxels) into its block (bx, by, bz) of the texture, quantised to `codes` levels over the
+// texture's range (0: float32); the largest quantisation error kept.
+void pack_brick(const float* samples, uint32_t bx, uint32_t by, uint32_t bz, uint32_t codes, double h,
+                TextureSdf& out) {
+  const size_t side = size_t(out.texture_side);
+  int s = 0;
+  for (int z = 0; z < kSamples; ++z)
+    for (int y = 0; y < kSamples; ++y)
+      for (int x = 0; x < kSamples; ++x, ++s) {
+        const size_t texel = ((size_t(bz) * kSamples + size_t(z)) * side + size_t(by) * kSamples + size_t(y)) * side +
+                             size_t(bx) * kSamples + size_t(x);
+        const double metres = double(samples[s]) * h;
+        double decoded = float(metres);
+        if (codes == 0) {
+          const float v = float(metres);
+          std::memcpy(&out.texels[texel * 4], &v, 4);
+        } else {
+          const double code = std::clamp(
+              std::nearbyint((metres - double(out.value_min)) / double(out.value_range) * codes), 0.0, double(codes));
+          if (codes == 65535u) {
+            const uint16_t v = uint16_t(code);
+            std::memcpy(&out.texels[texel * 2], &v, 2);
+          } else {
+            out.texels[texel] = uint8_t(code);
+          }
+          decoded = double(out.value_min) + double(out.value_range) * (code / codes);
+        }
+        out.max_quantisation_error = std::max(out.max_quantisation_error, std::abs(decoded - metres));
+      }
+}
+
 }  // namespace
 
 Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const TextureSdfOptions& options) {
@@ -86,49 +163,11 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
     out.bricks[size_t(a)] = std::max(1, (map.dims()[size_t(a)] - 1 + kCells - 1) / kCells);
   }
   const auto& nb = out.bricks;
-
-  // The coarse grid, in voxels until the end.
-  out.coarse.resize(size_t(nb[0] + 1) * size_t(nb[1] + 1) * size_t(nb[2] + 1));
-  {
-    size_t n = 0;
-    for (int c = 0; c <= nb[2]; ++c)
-      for (int b = 0; b <= nb[1]; ++b)
-        for (int a = 0; a <= nb[0]; ++a) out.coarse[n++] = field.coarse_corner(a, b, c);
-  }
-
-  // Which bricks are stored: those with codes; then those without whose coarse interpolation is off by more than
-  // the tolerance. Their samples set the quantisation's range here and are computed again when packed: kept, they
-  // would take 4 bytes a sample, twice the uint16 texture.
-  const size_t brick_count = size_t(nb[0]) * size_t(nb[1]) * size_t(nb[2]);
-  std::vector<uint8_t> stored(brick_count, 0);
-  std::vector<float> samples(kBrickSamples);
-  float lo = std::numeric_limits<float>::max(), hi = -std::numeric_limits<float>::max();
-  auto include_range = [&](int a, int b, int c) {
-    brick_samples(field, a, b, c, samples.data());
-    for (float s : samples) lo = std::min(lo, s), hi = std::max(hi, s);
-  };
-  for (int c = 0, n = 0; c < nb[2]; ++c)
-    for (int b = 0; b < nb[1]; ++b)
-      for (int a = 0; a < nb[0]; ++a, ++n)
-        if (field.brick(a, b, c) >= 0) {
-          stored[size_t(n)] = 1;
-          ++out.value_bricks;
-          include_range(a, b, c);
-        }
-  const uint32_t codes = max_code(options.format);
-  double tolerance = options.coarse_tolerance_voxels;
-  if (tolerance < 0) tolerance = field.field().decode_step[0];
-  for (int c = 0, n = 0; c < nb[2]; ++c)
-    for (int b = 0; b < nb[1]; ++b)
-      for (int a = 0; a < nb[0]; ++a, ++n)
-        if (!stored[size_t(n)] && !coarse_by_construction(field, a, b, c) &&
-            coarse_error(field, out.coarse, nb, a, b, c) > tolerance) {
-          stored[size_t(n)] = 1;
-          ++out.coarse_stored;
-          include_range(a, b, c);
-        }
+  out.coarse = coarse_grid(field, nb);
+  const double tolerance =
+      options.coarse_tolerance_voxels < 0 ? field.field().decode_step[0] : options.coarse_tolerance_voxels;
+  const StoredBricks chosen = choose_bricks(field, tolerance, out);
   const size_t blocks = out.value_bricks + out.coarse_stored;
-
   // The packed texture: block m at (m % k, m / k % k, m / k^2), k blocks a side.
   int k = 0;
   while (size_t(k) * size_t(k) * size_t(k) < blocks) ++k;
@@ -137,49 +176,26 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
                                              " bricks need more than 1024 blocks along a side of the texture"};
   out.blocks_per_side = k;
   out.texture_side = std::max(1, k * kSamples);
+  const uint32_t codes = max_code(options.format);
   if (codes != 0 && blocks > 0) {
-    out.value_min = lo * float(h);
-    out.value_range = std::max((hi - lo) * float(h), std::numeric_limits<float>::min());
+    out.value_min = chosen.lo * float(h);
+    out.value_range = std::max((chosen.hi - chosen.lo) * float(h), std::numeric_limits<float>::min());
   }
-  const size_t side = size_t(out.texture_side), bytes = texel_bytes(options.format);
-  out.texels.assign(side * side * side * bytes, 0);
-  out.slots.assign(brick_count, TextureSdf::kEmpty);
+  const size_t side = size_t(out.texture_side);
+  out.texels.assign(side * side * side * texel_bytes(options.format), 0);
+  out.slots.assign(chosen.stored.size(), TextureSdf::kEmpty);
+  std::vector<float> samples(kBrickSamples);
   size_t m = 0;
   for (int c = 0, n = 0; c < nb[2]; ++c)
     for (int b = 0; b < nb[1]; ++b)
       for (int a = 0; a < nb[0]; ++a, ++n) {
-        if (!stored[size_t(n)]) continue;
+        if (!chosen.stored[size_t(n)]) continue;
         const uint32_t bx = uint32_t(m % size_t(k)), by = uint32_t(m / size_t(k) % size_t(k)),
                        bz = uint32_t(m / (size_t(k) * size_t(k)));
         ++m;
         out.slots[size_t(n)] = (bz << 20) | (by << 10) | bx;
         brick_samples(field, a, b, c, samples.data());
-        int s = 0;
-        for (int z = 0; z < kSamples; ++z)
-          for (int y = 0; y < kSamples; ++y)
-            for (int x = 0; x < kSamples; ++x, ++s) {
-              const size_t texel =
-                  ((size_t(bz) * kSamples + size_t(z)) * side + size_t(by) * kSamples + size_t(y)) * side +
-                  size_t(bx) * kSamples + size_t(x);
-              const double metres = double(samples[size_t(s)]) * h;
-              double decoded = float(metres);
-              if (codes == 0) {
-                const float v = float(metres);
-                std::memcpy(&out.texels[texel * 4], &v, 4);
-              } else {
-                const double code =
-                    std::clamp(std::nearbyint((metres - double(out.value_min)) / double(out.value_range) * codes), 0.0,
-                               double(codes));
-                if (codes == 65535u) {
-                  const uint16_t v = uint16_t(code);
-                  std::memcpy(&out.texels[texel * 2], &v, 2);
-                } else {
-                  out.texels[texel] = uint8_t(code);
-                }
-                decoded = double(out.value_min) + double(out.value_range) * (code / codes);
-              }
-              out.max_quantisation_error = std::max(out.max_quantisation_error, std::abs(decoded - metres));
-            }
+        pack_brick(samples.data(), bx, by, bz, codes, h, out);
       }
   for (float& v : out.coarse) v *= float(h);
   return out;
