@@ -41,56 +41,46 @@ voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::load(const std::st
   return field;
 }
 
-voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt::Asset asset) {
+void AssetField::set_geometry(const voxfmt::Asset& asset) {
   const voxfmt::Voxelmap& vm = asset.voxelmap;
-  if (vm.bricks.empty() || vm.dims[0] < 2 || vm.dims[1] < 2 || vm.dims[2] < 2)
-    return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
-                         "the asset has no voxelmap of at least 2 voxels a side: MuJoCo needs its distance field");
-  std::shared_ptr<AssetField> field(new AssetField);
-  AssetField& f = *field;
-  f.voxel_size_ = vm.voxel_size;
-  f.inverse_voxel_size_ = 1.0 / vm.voxel_size;
-  f.origin_ = to_eigen(vm.origin);
+  voxel_size_ = vm.voxel_size;
+  inverse_voxel_size_ = 1.0 / vm.voxel_size;
+  origin_ = to_eigen(vm.origin);
   const auto bd = vm.brick_dims();
   for (int a = 0; a < 3; ++a) {
-    f.dims_[a] = int(vm.dims[size_t(a)]);
-    f.brick_dims_[a] = int(bd[size_t(a)]);
-    f.lattice_dims_[a] = f.brick_dims_[a] + 1;
-    f.grid_max_[a] = float(f.dims_[a] - 1);
+    dims_[a] = int(vm.dims[size_t(a)]);
+    brick_dims_[a] = int(bd[size_t(a)]);
+    lattice_dims_[a] = brick_dims_[a] + 1;
+    grid_max_[a] = float(dims_[a] - 1);
   }
-  f.band_edge_ = float(vm.distance_band - 0.5);
-  f.table_ = vm.bricks;
+  band_edge_ = float(vm.distance_band - 0.5);
+  table_ = vm.bricks;
   // The lattice in the runtime's 16-bit steps (1/16 voxel, coarser only where the largest distance needs it),
   // so that the lattice cells agree with the runtime's values of the coarse voxels the blocks hold.
   float largest = 0;
   for (float v : vm.lattice) largest = std::max(largest, v);
   const float step = float(std::max(1.0 / 16, double(largest) / vm.voxel_size / 65000.0));
   const double to_steps = 1.0 / (vm.voxel_size * double(step));
-  f.lattice_.resize(vm.lattice.size());
+  lattice_.resize(vm.lattice.size());
   for (size_t n = 0; n < vm.lattice.size(); ++n)
-    f.lattice_[n] = float(uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)))) * step;
-  f.bounds_min_ = to_eigen(asset.bounds_min);
-  f.bounds_max_ = to_eigen(asset.bounds_max);
-  f.centre_ = 0.5 * (f.bounds_min_ + f.bounds_max_);
-  f.volume_ = asset.mass.volume;
-  f.center_of_mass_ = to_eigen(asset.mass.center_of_mass);
+    lattice_[n] = float(uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)))) * step;
+  bounds_min_ = to_eigen(asset.bounds_min);
+  bounds_max_ = to_eigen(asset.bounds_max);
+  centre_ = 0.5 * (bounds_min_ + bounds_max_);
+  volume_ = asset.mass.volume;
+  center_of_mass_ = to_eigen(asset.mass.center_of_mass);
+}
 
-  // The runtime decodes the voxels (and validates the asset); its map is only needed while the blocks are made.
-  voxfmt::runtime::LoadOptions options;
-  options.load_point_shell = false;
-  auto object = voxfmt::runtime::CollisionObject::from_asset(std::move(asset), options);
-  if (!object) return object.error();
-  const voxfmt::runtime::SparseVoxelmap& map = object.value()->voxelmap();
-
-  // A block for every value brick, and for every coarse brick with a value brick among its + neighbours (its
-  // cells along that face reach into the value brick's voxels).
-  const int bx = f.brick_dims_[0], by = f.brick_dims_[1], bz = f.brick_dims_[2];
+// A block for every value brick, and for every coarse brick with a value brick among its + neighbours (its cells
+// along that face reach into the value brick's voxels).
+void AssetField::fill_blocks(const voxfmt::runtime::SparseVoxelmap& map) {
+  const int bx = brick_dims_[0], by = brick_dims_[1], bz = brick_dims_[2];
   auto brick = [&](int i, int j, int k) { return (size_t(k) * size_t(by) + size_t(j)) * size_t(bx) + size_t(i); };
-  std::vector<char> blocked(f.table_.size(), 0);
+  std::vector<char> blocked(table_.size(), 0);
   for (int k = 0; k < bz; ++k)
     for (int j = 0; j < by; ++j)
       for (int i = 0; i < bx; ++i) {
-        if (f.table_[brick(i, j, k)] < 0) continue;
+        if (table_[brick(i, j, k)] < 0) continue;
         for (int d = 0; d < 8; ++d) {
           const int ni = i - (d & 1), nj = j - ((d >> 1) & 1), nk = k - (d >> 2);
           if (ni >= 0 && nj >= 0 && nk >= 0) blocked[brick(ni, nj, nk)] = 1;
@@ -98,23 +88,38 @@ voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt:
       }
   size_t count = 0;
   for (char b : blocked) count += size_t(b);
-  f.blocks_.resize(count * size_t(kBlockValues));
+  blocks_.resize(count * size_t(kBlockValues));
   size_t next = 0;
   for (int k = 0; k < bz; ++k)
     for (int j = 0; j < by; ++j)
       for (int i = 0; i < bx; ++i) {
         const size_t b = brick(i, j, k);
         if (!blocked[b]) continue;  // keeps the coarse brick's kFarOutside / kFarInside
-        float* out = &f.blocks_[next];
+        float* out = &blocks_[next];
         for (int z = 0; z < kBlockEdge; ++z)
           for (int y = 0; y < kBlockEdge; ++y)
             for (int x = 0; x < kBlockEdge; ++x)
-              *out++ = map.value_at(std::min(i * kEdge + x, f.dims_[0] - 1), std::min(j * kEdge + y, f.dims_[1] - 1),
-                                    std::min(k * kEdge + z, f.dims_[2] - 1));
-        f.table_[b] = int32_t(next);
+              *out++ = map.value_at(std::min(i * kEdge + x, dims_[0] - 1), std::min(j * kEdge + y, dims_[1] - 1),
+                                    std::min(k * kEdge + z, dims_[2] - 1));
+        table_[b] = int32_t(next);
         next += size_t(kBlockValues);
       }
-  f.blocks_.shrink_to_fit();
+  blocks_.shrink_to_fit();
+}
+
+voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt::Asset asset) {
+  const voxfmt::Voxelmap& vm = asset.voxelmap;
+  if (vm.bricks.empty() || vm.dims[0] < 2 || vm.dims[1] < 2 || vm.dims[2] < 2)
+    return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
+                         "the asset has no voxelmap of at least 2 voxels a side: MuJoCo needs its distance field");
+  std::shared_ptr<AssetField> field(new AssetField);
+  field->set_geometry(asset);
+  // The runtime decodes the voxels (and validates the asset); its map is only needed while the blocks are made.
+  voxfmt::runtime::LoadOptions options;
+  options.load_point_shell = false;
+  auto object = voxfmt::runtime::CollisionObject::from_asset(std::move(asset), options);
+  if (!object) return object.error();
+  field->fill_blocks(object.value()->voxelmap());
   return std::shared_ptr<const AssetField>(std::move(field));
 }
 

@@ -17,6 +17,10 @@
 #include "voxfmt/asset.h"
 #include "voxfmt/result.h"
 
+namespace voxfmt::runtime {
+class SparseVoxelmap;
+}
+
 namespace voxfmt::mujoco {
 
 class AssetField {
@@ -63,6 +67,9 @@ class AssetField {
   // The field (voxel units) and its gradient (voxel units per voxel) at grid coordinates inside the box of
   // voxel centres.
   float lookup(const Eigen::Vector3f& u, Eigen::Vector3f& gradient) const;
+  // from_asset's steps: the grid's geometry and the quantised lattice; the blocks from the runtime's decoded map.
+  void set_geometry(const voxfmt::Asset& asset);
+  void fill_blocks(const voxfmt::runtime::SparseVoxelmap& map);
 
   double voxel_size_ = 1.0;
   double inverse_voxel_size_ = 1.0;
