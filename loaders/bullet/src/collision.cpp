@@ -327,6 +327,31 @@ class TriangleCollector : public btTriangleCallback {
   btVector3 a_lo_, a_hi_;
 };
 
+// The triangles' corners that may be within `proximity` of A (a cheap lower bound of A's distance rules out the
+// rest), whole triangles first: one lookup at the centroid with the triangle's radius settles most of them.
+void corners_within_reach(const runtime::CollisionObject& a, const runtime::Pose& pose_a, const TriangleSet& triangles,
+                          double proximity, std::vector<Eigen::Vector3d>& corners) {
+  corners.clear();
+  const runtime::SparseVoxelmap& map = a.voxelmap();
+  const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
+  const double reach = proximity * to_voxels;
+  auto lower_bound = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3d asset = pose_a.rotation.transpose() * (p - pose_a.translation) / pose_a.scale;
+    return double(map.distance_lower_bound(map.to_grid(asset)));
+  };
+  for (size_t t = 0; t < triangles.size(); ++t) {
+    const Eigen::Vector3d c0 = triangles.corner(t, 0).cast<double>(), c1 = triangles.corner(t, 1).cast<double>(),
+                          c2 = triangles.corner(t, 2).cast<double>();
+    const Eigen::Vector3d centroid = (c0 + c1 + c2) / 3.0;
+    const double radius = std::sqrt(std::max({(c0 - centroid).squaredNorm(), (c1 - centroid).squaredNorm(),
+                                              (c2 - centroid).squaredNorm()})) *
+                          to_voxels;
+    if (lower_bound(centroid) > radius + reach) continue;
+    for (const Eigen::Vector3d* p : {&c0, &c1, &c2})
+      if (lower_bound(*p) < reach) corners.push_back(*p);
+  }
+}
+
 // A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
 // signed by the triangles' sides; and those triangles' corners in A's voxelmap.
 void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
@@ -366,27 +391,7 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
         [&](const Eigen::Vector3f& x) { return triangles.lower_bound(x); }, options, contacts, scratch);
   if (a.uses_voxelmap()) {
     thread_local std::vector<Eigen::Vector3d> corners;
-    corners.clear();
-    // Only corners that may be within reach of A (a cheap lower bound of A's distance rules out the rest),
-    // whole triangles first: one lookup at the centroid with the triangle's radius settles most of them.
-    const runtime::SparseVoxelmap& map = a.object().voxelmap();
-    const double to_voxels = 1.0 / (pose_a.scale * map.voxel_size());
-    const double reach = options.proximity * to_voxels;
-    auto lower_bound = [&](const Eigen::Vector3d& p) {
-      const Eigen::Vector3d asset = pose_a.rotation.transpose() * (p - pose_a.translation) / pose_a.scale;
-      return double(map.distance_lower_bound(map.to_grid(asset)));
-    };
-    for (size_t t = 0; t < triangles.size(); ++t) {
-      const Eigen::Vector3d c0 = triangles.corner(t, 0).cast<double>(), c1 = triangles.corner(t, 1).cast<double>(),
-                            c2 = triangles.corner(t, 2).cast<double>();
-      const Eigen::Vector3d centroid = (c0 + c1 + c2) / 3.0;
-      const double radius = std::sqrt(std::max({(c0 - centroid).squaredNorm(), (c1 - centroid).squaredNorm(),
-                                                (c2 - centroid).squaredNorm()})) *
-                            to_voxels;
-      if (lower_bound(centroid) > radius + reach) continue;
-      for (const Eigen::Vector3d* p : {&c0, &c1, &c2})
-        if (lower_bound(*p) < reach) corners.push_back(*p);
-    }
+    corners_within_reach(a.object(), pose_a, triangles, options.proximity, corners);
     runtime::query_points_in_voxelmap(a.object(), pose_a, corners.data(), corners.size(), 0.0, options, contacts);
   }
 }
