@@ -1,6 +1,6 @@
-// voxfmt.BatchScene's compiled half: every environment of a batch through the query core's environment
-// (loaders/runtime/src/core/batch.h) — on CPU threads for NumPy arrays, on a CUDA device (loaders/gpu) for CUDA
-// arrays where the package was built with CUDA. One function runs in both places, so the two agree.
+// voxfmt.BatchScene's compiled half: every environment of a batch on CPU threads for NumPy arrays (runtime::BatchScene,
+// the runtime's query), on a CUDA device (gpu::Scene, the query core's environment: the same pruning and lookups)
+// for CUDA arrays where the package was built with CUDA. Both answer with the same arrays.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
@@ -30,72 +30,36 @@ namespace {
 using namespace nb::literals;
 namespace core = runtime::core;
 
-// The scene's assets and pairs as the core reads them (host memory; the Bodies keep their objects alive).
-struct HostScene {
-  std::vector<core::Body> bodies;
-  std::vector<uint32_t> pair_a, pair_b;
-};
-
-HostScene host_scene(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs) {
+// A scene's objects and pairs, checked: BAD_OPTION for an empty scene or a pair naming a Body it does not have.
+runtime::BatchScene scene_of(const std::vector<const Body*>& bodies,
+                             const std::vector<std::pair<int64_t, int64_t>>& pairs) {
   if (bodies.empty()) fail(IssueCode::BadOption, "a batch scene needs at least one Body");
   if (pairs.empty()) fail(IssueCode::BadOption, "a batch scene needs at least one pair (a, b)");
-  HostScene scene;
-  for (const Body* b : bodies) {
-    if (b->object->point_tree().level_count() > core::kMaxWalkLevels)
-      fail(IssueCode::BadOption,
-           b->path + ": its tree has more levels than the batch takes (" + std::to_string(core::kMaxWalkLevels) + ")");
-    scene.bodies.push_back(core::body_of(*b->object));
-  }
+  std::vector<std::shared_ptr<const runtime::CollisionObject>> objects;
+  for (const Body* b : bodies) objects.push_back(b->object);
+  std::vector<runtime::BatchScene::Pair> checked;
   for (const auto& [a, b] : pairs) {
     if (a < 0 || b < 0 || size_t(a) >= bodies.size() || size_t(b) >= bodies.size())
       fail(IssueCode::BadOption,
            "pair (" + std::to_string(a) + ", " + std::to_string(b) + ") names a Body the scene does not have");
-    scene.pair_a.push_back(uint32_t(a));
-    scene.pair_b.push_back(uint32_t(b));
+    checked.push_back({uint32_t(a), uint32_t(b)});
   }
-  return scene;
+  Result<runtime::BatchScene> scene = runtime::BatchScene::create(std::move(objects), std::move(checked));
+  if (!scene) throw CodedError(scene.error());
+  return std::move(scene.value());
 }
 
 template <class T, class... Dims>
 using CpuArray = nb::ndarray<T, nb::device::cpu, nb::c_contig, Dims...>;
 
-// The CPU path: environments on `threads` workers, taken in chunks in turn (they differ in cost).
-template <class T>
-void run_cpu(const HostScene& scene, const CpuArray<const T, nb::shape<-1, 4, 4>>& poses_a,
-             const CpuArray<const T, nb::shape<-1, 4, 4>>& poses_b,
-             const std::optional<CpuArray<const int32_t, nb::ndim<1>>>& pair, double proximity, double stiffness,
-             size_t threads, const core::BatchOutputs& out) {
-  core::BatchInputs<T> in;
-  in.bodies = scene.bodies.data();
-  in.pair_a = scene.pair_a.data();
-  in.pair_b = scene.pair_b.data();
-  in.pair_count = uint32_t(scene.pair_a.size());
-  in.pair_index = pair ? pair->data() : nullptr;
-  in.poses_a = poses_a.data();
-  in.poses_b = poses_b.data();
-  in.environments = poses_a.shape(0);
-  in.proximity = proximity;
-  in.stiffness = stiffness;
-  constexpr size_t kChunk = 16;
-  std::atomic<size_t> next{0};
-  auto work = [&] {
-    for (size_t begin = next.fetch_add(kChunk); begin < in.environments; begin = next.fetch_add(kChunk))
-      for (size_t e = begin; e < std::min(begin + kChunk, in.environments); ++e) core::run_environment(in, out, e);
-  };
-  nb::gil_scoped_release release;
-  const size_t workers = std::max<size_t>(1, std::min(threads, (in.environments + kChunk - 1) / kChunk));
-  voxfmt::run_workers(unsigned(workers), [&](unsigned) { work(); });
-}
-
+// The CPU path: runtime::BatchScene on `threads` workers, the GIL released.
 nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs,
                    nb::handle poses_a, nb::handle poses_b, nb::handle pair_index, double proximity, double stiffness,
                    int64_t max_contacts, std::optional<int64_t> threads) {
-  if (!(std::isfinite(proximity) && proximity >= 0)) fail(IssueCode::BadOption, "proximity must be finite and >= 0");
-  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
     fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
-  const HostScene scene = host_scene(bodies, pairs);
+  const runtime::BatchScene scene = scene_of(bodies, pairs);
   std::optional<CpuArray<const int32_t, nb::ndim<1>>> pair;
   if (!pair_index.is_none()) {
     pair.emplace();
@@ -114,25 +78,29 @@ nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std
   if ((f32 ? b32.shape(0) : b64.shape(0)) != envs)
     fail(IssueCode::BadOption, "poses_a and poses_b hold different numbers of environments");
   if (pair && pair->shape(0) != envs) fail(IssueCode::BadOption, "pair_index must hold one pair per environment");
+  runtime::BatchEnvironments in;
+  in.count = envs;
+  in.poses_a = f32 ? a32.data() : nullptr;
+  in.poses_b = f32 ? b32.data() : nullptr;
+  in.poses_a_f64 = f64 ? a64.data() : nullptr;
+  in.poses_b_f64 = f64 ? b64.data() : nullptr;
+  in.pair = pair ? pair->data() : nullptr;
+  in.proximity = proximity;
+  in.stiffness = stiffness;
   const size_t k = size_t(max_contacts);
   OutArray<int32_t> count({envs}), overflow({envs}), error({envs});
   OutArray<float> max_depth({envs}), force({envs, 3}), torque({envs, 3});
   OutArray<float> points({envs, k, 3}), normals({envs, k, 3}), depths({envs, k});
   OutArray<int32_t> index({envs, k});
   OutArray<uint8_t> of_b({envs, k});
-  core::BatchOutputs out;
-  out.count = count.data;
-  out.max_depth = max_depth.data;
-  out.force = force.data;
-  out.torque = torque.data;
-  out.overflow = overflow.data;
-  out.error = error.data;
-  out.contacts = {points.data, normals.data, depths.data, index.data, of_b.data, uint32_t(k)};
-  const size_t workers = threads ? size_t(*threads) : voxfmt::usable_cores();
-  if (f32)
-    run_cpu<float>(scene, a32, b32, pair, proximity, stiffness, workers, out);
-  else
-    run_cpu<double>(scene, a64, b64, pair, proximity, stiffness, workers, out);
+  const runtime::BatchOutputs out{count.data,  max_depth.data, force.data,   torque.data, overflow.data, error.data,
+                                  uint32_t(k), points.data,    normals.data, depths.data, index.data,    of_b.data};
+  Status done = Status::success();
+  {
+    nb::gil_scoped_release release;
+    done = scene.contacts(in, out, threads ? unsigned(*threads) : 0u);
+  }
+  if (!done) throw CodedError(done.error());
   nb::dict d;
   d["count"] = count.array;
   d["max_depth"] = max_depth.array;
@@ -160,7 +128,11 @@ struct DeviceScene {
   std::vector<std::shared_ptr<const runtime::CollisionObject>> keep;
 
   DeviceScene(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs) {
-    (void)host_scene(bodies, pairs);  // the same checks as the CPU path
+    (void)scene_of(bodies, pairs);  // the same checks as the CPU path, and the walk's depth
+    for (const Body* b : bodies)
+      if (b->object->point_tree().level_count() > core::kMaxWalkLevels)
+        fail(IssueCode::BadOption, b->path + ": its tree has more levels than the batch takes (" +
+                                       std::to_string(core::kMaxWalkLevels) + ")");
     std::vector<gpu::Scene::Pair> p;
     for (const auto& [a, b] : pairs) p.push_back({uint32_t(a), uint32_t(b)});
     for (const Body* b : bodies) keep.push_back(b->object);

@@ -4,12 +4,14 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <memory>
 #include <vector>
 
+#include "voxfmt/result.h"
 #include "voxfmt/runtime/collision_object.h"
 
 namespace voxfmt::runtime {
@@ -200,5 +202,60 @@ inline Wrench penalty_wrench(const ContactSet& contacts, const Eigen::Vector3d& 
   }
   return w;
 }
+
+// ---- Batches: thousands of environments, each a pair of objects at a pair of poses, in one call on worker threads.
+
+/// E environments: row-major arrays in host memory, as gpu::Environments on a CUDA device.
+struct BatchEnvironments {
+  size_t count = 0;
+  const float* poses_a = nullptr;       ///< E x 4 x 4 body-to-world matrices of A (rigid: else error 2..5), or:
+  const float* poses_b = nullptr;       ///< E x 4 x 4 of B
+  const double* poses_a_f64 = nullptr;  ///< the same in double (either both float or both double)
+  const double* poses_b_f64 = nullptr;
+  const int32_t* pair = nullptr;  ///< E indices into the scene's pairs, or nullptr: pair 0 for every one
+  double proximity = 0.0;         ///< metres: also report points outside but nearer than this (negative depth)
+  double stiffness = 1.0;         ///< N/m of the penalty wrench
+};
+
+/// Per-environment outputs the caller sized (only `count` is required; null arrays are skipped), as gpu::Outputs.
+/// Contacts: E x `max_contacts` (points and normals E x max_contacts x 3); those that did not fit are counted in
+/// `overflow`, never dropped silently.
+struct BatchOutputs {
+  int32_t* count = nullptr;     ///< E: contacts found
+  float* max_depth = nullptr;   ///< E: metres, 0 without penetration
+  float* force = nullptr;       ///< E x 3: on A, sum of stiffness * depth * normal over penetrating contacts
+  float* torque = nullptr;      ///< E x 3: on A, about A's centre of mass in the world
+  int32_t* overflow = nullptr;  ///< E: contacts found beyond max_contacts
+  int32_t* error = nullptr;     ///< E: 0, or why the environment has no result (2..5 bad pose, 6 pair out of range)
+  uint32_t max_contacts = 0;
+  float* points = nullptr;
+  float* normals = nullptr;
+  float* depths = nullptr;
+  int32_t* point_index = nullptr;
+  uint8_t* point_of_b = nullptr;
+};
+
+/// The objects environments may hold and the pairs (A, B) they may be, for batched queries on the CPU: the twin of
+/// gpu::Scene (the same environments and outputs), so that a learning loop's code runs on either. Each environment
+/// is query_contacts in the direction Auto picks, normals from the distance gradient, reduced to its count, deepest
+/// penetration and penalty wrench, its contacts in the order query_contacts gives them.
+class BatchScene {
+ public:
+  using Pair = std::array<uint32_t, 2>;  ///< (A, B): indices into the scene's objects
+  /// BAD_OPTION without objects or pairs, for a null object or a pair naming an object the scene does not have.
+  static Result<BatchScene> create(std::vector<std::shared_ptr<const CollisionObject>> objects,
+                                   std::vector<Pair> pairs);
+  size_t object_count() const { return objects_.size(); }
+  size_t pair_count() const { return pairs_.size(); }
+
+  /// Every environment on `threads` workers (0: every usable core), taken in chunks in turn. BAD_OPTION (nothing
+  /// written) without a `count` output, without poses for a non-empty batch, or for a proximity or stiffness that
+  /// is negative or not finite; a bad environment is its `error`, the others are still answered.
+  Status contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads = 0) const;
+
+ private:
+  std::vector<std::shared_ptr<const CollisionObject>> objects_;
+  std::vector<Pair> pairs_;
+};
 
 }  // namespace voxfmt::runtime
