@@ -104,24 +104,15 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
 
 QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b,
                                  const Pose& pose_b, QueryDirection requested) {
-  const bool a_in_b = a.has_point_shell() && b.has_voxelmap();
-  const bool b_in_a = b.has_point_shell() && a.has_voxelmap();
   if (requested != QueryDirection::Auto) return requested;
-  if (!a_in_b) return QueryDirection::BPointsInA;
-  if (!b_in_a) return QueryDirection::APointsInB;
-  // The smaller object's points sample the contact region of the larger one densely. For similar sizes one
-  // direction keeps the cost down; which one must not depend on the order the pair comes in (a physics engine
-  // hands it either way): fewer points, then the lower position, then the object's address decide.
-  const double ra = a.bounding_radius() * pose_a.scale, rb = b.bounding_radius() * pose_b.scale;
-  if (rb < 0.9 * ra) return QueryDirection::BPointsInA;
-  if (ra < 0.9 * rb) return QueryDirection::APointsInB;
-  const size_t na = a.point_tree().size(), nb = b.point_tree().size();
-  if (na != nb) return nb < na ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
-  for (int axis = 0; axis < 3; ++axis)
-    if (pose_a.translation[axis] != pose_b.translation[axis])
-      return pose_b.translation[axis] < pose_a.translation[axis] ? QueryDirection::BPointsInA
-                                                                 : QueryDirection::APointsInB;
-  return std::less<const CollisionObject*>()(&b, &a) ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
+  const double ta[3] = {pose_a.translation[0], pose_a.translation[1], pose_a.translation[2]};
+  const double tb[3] = {pose_b.translation[0], pose_b.translation[1], pose_b.translation[2]};
+  const int choice =
+      core::auto_direction(a.has_point_shell() && b.has_voxelmap(), b.has_point_shell() && a.has_voxelmap(),
+                           a.bounding_radius() * pose_a.scale, b.bounding_radius() * pose_b.scale,
+                           a.point_tree().size(), b.point_tree().size(), ta, tb);
+  const bool b_points = choice != 0 ? choice > 0 : std::less<const CollisionObject*>()(&b, &a);
+  return b_points ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
 }
 
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,

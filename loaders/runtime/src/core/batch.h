@@ -47,20 +47,11 @@ VOXFMT_HD void apply_pose(const RigidPose& p, const float x[3], double out[3]) {
              p.R[3 * r + 2] * (p.scale * double(x[2])) + p.t[r];
 }
 
-/// The direction QueryDirection::Auto resolves to (query.cpp, resolve_direction): true for B's points in A's
-/// field. Ties of size, point count and position go to A's points (the runtime breaks them by address).
+/// The direction QueryDirection::Auto resolves to (auto_direction): true for B's points in A's field. Ties of size,
+/// point count and position go to A's points (the runtime breaks them by address).
 VOXFMT_HD bool b_points_in_a(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb) {
-  const bool a_in_b = a.has_shell && b.has_field;
-  const bool b_in_a = b.has_shell && a.has_field;
-  if (!a_in_b) return true;
-  if (!b_in_a) return false;
-  const double ra = a.bounding_radius * pa.scale, rb = b.bounding_radius * pb.scale;
-  if (rb < 0.9 * ra) return true;
-  if (ra < 0.9 * rb) return false;
-  if (a.shell.count != b.shell.count) return b.shell.count < a.shell.count;
-  for (int axis = 0; axis < 3; ++axis)
-    if (pa.t[axis] != pb.t[axis]) return pb.t[axis] < pa.t[axis];
-  return false;
+  return auto_direction(a.has_shell && b.has_field, b.has_shell && a.has_field, a.bounding_radius * pa.scale,
+                        b.bounding_radius * pb.scale, a.shell.count, b.shell.count, pa.t, pb.t) > 0;
 }
 
 /// A contact's normal from the partner field's gradient `g` at the point (grid frame), rotated by the field's pose

@@ -46,6 +46,23 @@ VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
   return det < 0 ? kPoseReflection : kPoseRigid;
 }
 
+/// QueryDirection::Auto's rule, for the runtime and the batch alike: +1 for B's points in A's field, -1 for A's
+/// points in B's, 0 for a tie of size, point count and position (the runtime breaks it by the objects' addresses,
+/// the batch gives it to A's points). The smaller object's points sample the contact region of the larger one
+/// densely; for similar sizes (within 10 %) the choice must not depend on the order the pair comes in (a physics
+/// engine hands it either way): fewer points, then the lower position decide. `ra`, `rb`: bounding radii, scaled.
+VOXFMT_HD int auto_direction(bool a_points_in_b, bool b_points_in_a, double ra, double rb, uint64_t points_a,
+                             uint64_t points_b, const double ta[3], const double tb[3]) {
+  if (!a_points_in_b) return 1;
+  if (!b_points_in_a) return -1;
+  if (rb < 0.9 * ra) return 1;
+  if (ra < 0.9 * rb) return -1;
+  if (points_a != points_b) return points_b < points_a ? 1 : -1;
+  for (int axis = 0; axis < 3; ++axis)
+    if (ta[axis] != tb[axis]) return tb[axis] < ta[axis] ? 1 : -1;
+  return 0;
+}
+
 /// The shell's frame in the target's grid: u = to_grid(x) for x in the shell's asset frame, lengths times
 /// radius_scale; a distance d (grid units) is d * metres_per_unit metres.
 struct Frame {
