@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "eigen.h"
+#include "prune.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -246,7 +247,7 @@ class CoherentTraversal {
       const float radius = n.radius * radius_scale_;
       const float sphere_bound = target_.lower_bound(map(n.centre));
       ++stats_.nodes_visited;
-      if (sphere_bound > radius + proximity_) {
+      if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
         record(node, false, sphere_bound - radius);
         continue;
       }
@@ -254,8 +255,8 @@ class CoherentTraversal {
       if (Target::kBoundBeforeDistance && n.child_count > 0) point_bound = target_.lower_bound(map(points_[node]));
       test_point(node, point_bound);
       for (uint32_t c = n.first_child; c < n.first_child + n.child_count; ++c) {
-        const float carried = std::max(sphere_bound - nodes_[c].reach_from_parent * radius_scale_,
-                                       point_bound - nodes_[c].reach_from_parent_point * radius_scale_);
+        const float carried = core::carried_bound(sphere_bound, point_bound, nodes_[c].reach_from_parent,
+                                                  nodes_[c].reach_from_parent_point, radius_scale_);
         if (carried > proximity_)
           record(c, false, carried);
         else

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "eigen.h"
+#include "prune.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
@@ -182,7 +183,7 @@ class LevelTraversal {
       const float bound = bounds[i];
       survivor_[survivors] = batch[i];
       bound_[survivors] = bound;
-      survivors += bound <= nodes_[batch[i]].radius * radius_scale_ + proximity_;
+      survivors += core::sphere_in_reach(bound, nodes_[batch[i]].radius, radius_scale_, proximity_);
     }
     stats_.nodes_visited += count;
     return survivors;
@@ -202,8 +203,8 @@ class LevelTraversal {
       uint32_t* const out = b_.next_queue.data();
       for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
         out[next_size_] = c;
-        next_size_ += std::max(bound_[i] - nodes_[c].reach_from_parent * radius_scale_,
-                               point_bound[i] - nodes_[c].reach_from_parent_point * radius_scale_) <= proximity_;
+        next_size_ += core::carried_bound(bound_[i], point_bound[i], nodes_[c].reach_from_parent,
+                                          nodes_[c].reach_from_parent_point, radius_scale_) <= proximity_;
       }
       if (limits_.spheres && next_size_ > queued) b_.level_parents.push_back(node);
     }

@@ -7,6 +7,7 @@
 
 #include "field.h"
 #include "frame.h"
+#include "prune.h"
 
 namespace voxfmt::runtime::core {
 
@@ -59,12 +60,12 @@ VOXFMT_HD int walk(const Field& field, const Shell& shell, const Frame& frame, E
     }
     const uint32_t node = range.next++;
     const Node& n = shell.nodes[node];
-    if (max_f(range.bound - n.reach_from_parent * scale, range.point_bound - n.reach_from_parent_point * scale) >
+    if (carried_bound(range.bound, range.point_bound, n.reach_from_parent, n.reach_from_parent_point, scale) >
         proximity)
       continue;
     ++visited;
     const float bound = lower_bound(field, frame.to_grid.apply(centre_of(n)));
-    if (!(bound <= n.radius * scale + proximity)) continue;
+    if (!sphere_in_reach(bound, n.radius, scale, proximity)) continue;
     const Vec3 u = frame.to_grid.apply(shell.points[node]);
     // An inner node's point is tested on its own bound before its distance (one voxel against up to eight).
     float point_bound = -infinity;
