@@ -25,7 +25,7 @@
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
-#include "voxfmt/bullet/threads.h"
+#include "voxfmt/bullet/world.h"
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/cores.h"
 

@@ -19,7 +19,7 @@
 #include "analytic_sphere.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
-#include "voxfmt/bullet/threads.h"
+#include "voxfmt/bullet/world.h"
 
 namespace voxfmt::bullet {
 namespace {

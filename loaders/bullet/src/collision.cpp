@@ -35,6 +35,7 @@
 #include "bt_eigen.h"
 #include "core/function_query.h"
 #include "static_mesh.h"
+#include "triangle_set.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/runtime/detail/contact_reduction.h"

@@ -1,6 +1,7 @@
 #include "voxfmt/bullet/partners.h"
 
 #include "triangle_distance.h"
+#include "triangle_set.h"
 
 #include <BulletCollision/NarrowPhaseCollision/btGjkEpa2.h>
 

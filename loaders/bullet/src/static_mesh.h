@@ -13,6 +13,7 @@
 #include <memory>
 #include <vector>
 
+#include "triangle_set.h"
 #include "voxfmt/bullet/partners.h"
 
 namespace voxfmt::bullet {

@@ -1,4 +1,4 @@
-#include "voxfmt/bullet/threads.h"
+#include "voxfmt/bullet/world.h"
 
 #include <BulletCollision/BroadphaseCollision/btDispatcher.h>
 #include <BulletCollision/BroadphaseCollision/btOverlappingPairCache.h>

@@ -149,7 +149,7 @@ struct StaticMeshInfo {
 };
 
 /// Thread safety: the algorithm's only shared mutable state is these atomic counters, and its scratch memory is
-/// per thread, so a multi-threaded dispatcher (btCollisionDispatcherMt, voxfmt/bullet/threads.h) may run any
+/// per thread, so a multi-threaded dispatcher (btCollisionDispatcherMt, voxfmt/bullet/world.h) may run any
 /// pairs at once, many bodies sharing one CollisionObject. Change the settings between steps only: every pair
 /// test reads them.
 class VpsCollisionRegistration {
