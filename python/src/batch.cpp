@@ -169,9 +169,18 @@ struct DeviceScene {
     out.overflow = overflow.data();
     out.error = error.data();
     out.max_contacts = uint32_t(max_contacts);
+    if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
+      fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
     if (max_contacts > 0) {
       if (!points || !normals || !depths || !index || !of_b)
         fail(IssueCode::BadOption, "max_contacts > 0 needs every contact output");
+      // The kernel writes envs x max_contacts rows: a shorter buffer would be written past its end.
+      const size_t k = size_t(max_contacts);
+      const bool fits = points->shape(0) == envs && points->shape(1) == k && points->shape(2) == 3 &&
+                        normals->shape(0) == envs && normals->shape(1) == k && normals->shape(2) == 3 &&
+                        depths->shape(0) == envs && depths->shape(1) == k && index->shape(0) == envs &&
+                        index->shape(1) == k && of_b->shape(0) == envs && of_b->shape(1) == k;
+      if (!fits) fail(IssueCode::BadOption, "the contact outputs must be (E, max_contacts[, 3]) arrays");
       out.points = points->data();
       out.normals = normals->data();
       out.depths = depths->data();
@@ -251,9 +260,12 @@ void bind_batch(nb::module_& m) {
            "pairs"_a)
       .def_prop_ro("device_bytes", [](const DeviceScene& s) { return s.scene->device_bytes(); })
       .def("asset_device_bytes", [](const DeviceScene& s, size_t i) { return s.scene->asset_device_bytes(i); })
-      .def("run", &DeviceScene::run, "poses_a"_a, "poses_b"_a, "pair_index"_a.none(), "proximity"_a, "stiffness"_a,
-           "count"_a, "max_depth"_a, "force"_a, "torque"_a, "overflow"_a, "error"_a, "max_contacts"_a,
-           "points"_a.none(), "normals"_a.none(), "depths"_a.none(), "point_index"_a.none(), "point_of_b"_a.none(),
+      // noconvert: the kernel reads and writes the caller's arrays, never a converted copy of them.
+      .def("run", &DeviceScene::run, "poses_a"_a.noconvert(), "poses_b"_a.noconvert(),
+           "pair_index"_a.noconvert().none(), "proximity"_a, "stiffness"_a, "count"_a.noconvert(),
+           "max_depth"_a.noconvert(), "force"_a.noconvert(), "torque"_a.noconvert(), "overflow"_a.noconvert(),
+           "error"_a.noconvert(), "max_contacts"_a, "points"_a.noconvert().none(), "normals"_a.noconvert().none(),
+           "depths"_a.noconvert().none(), "point_index"_a.noconvert().none(), "point_of_b"_a.noconvert().none(),
            "stream"_a);
 #else
   m.def("_cuda_status", [] { return std::make_pair(false, std::string("this build of voxfmt has no CUDA support")); });

@@ -126,3 +126,64 @@ def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
 def test_cuda_status_says_why() -> None:
     ok, text = voxfmt.cuda_status()
     assert isinstance(ok, bool) and text  # a device name, or why there is none (CI: no driver)
+
+
+class FakeCudaArray:
+    """What a CUDA array shows of itself (__cuda_array_interface__ v3), for the checks that run before any device is
+    touched: they need no GPU."""
+
+    def __init__(self, shape: tuple[int, ...], dtype: str, strides: tuple[int, ...] | None = None) -> None:
+        self.shape = shape
+        self.__cuda_array_interface__ = {"shape": shape, "typestr": np.dtype(dtype).str, "data": (0, False),
+                                         "version": 3, "strides": strides}
+
+
+def cuda_outputs(envs: int, k: int = 0, **replace: FakeCudaArray) -> voxfmt.BatchResult:
+    arrays = {"count": FakeCudaArray((envs,), "int32"), "max_depth": FakeCudaArray((envs,), "float32"),
+              "force": FakeCudaArray((envs, 3), "float32"), "torque": FakeCudaArray((envs, 3), "float32"),
+              "overflow": FakeCudaArray((envs,), "int32"), "error": FakeCudaArray((envs,), "int32")}
+    if k:
+        arrays |= {"points": FakeCudaArray((envs, k, 3), "float32"), "normals": FakeCudaArray((envs, k, 3), "float32"),
+                   "depths": FakeCudaArray((envs, k), "float32"), "point_index": FakeCudaArray((envs, k), "int32"),
+                   "point_of_b": FakeCudaArray((envs, k), "uint8")}
+    arrays |= replace
+    return voxfmt.BatchResult(**arrays)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"count": FakeCudaArray((8,), "int64")}, "out.count: expected int32, got int64"),
+    ({"force": FakeCudaArray((8, 4), "float32")}, r"out.force: expected shape \(8, 3\), got \(8, 4\)"),
+    ({"torque": FakeCudaArray((8, 3), "float32", strides=(4, 32))}, "out.torque: not C-contiguous"),
+    ({"error": np.zeros(8, dtype=np.int32)}, "out.error: expected a CUDA array"),
+    ({"depths": FakeCudaArray((8, 3), "float32")}, r"out.depths: expected shape \(8, 4\)"),
+])
+def test_cuda_outputs_of_the_wrong_kind_are_coded_errors_not_copies(
+        sphere: voxfmt.Body, change: dict[str, object], message: str) -> None:
+    # Checked before the device is looked for: the same error with a GPU or without one.
+    scene = voxfmt.BatchScene([sphere])
+    poses = FakeCudaArray((8, 4, 4), "float32")
+    with pytest.raises(voxfmt.OptionError, match=message):
+        scene.contacts(poses, poses, max_contacts=4, out=cuda_outputs(8, 4, **change))
+
+
+def test_cuda_poses_of_the_wrong_kind_are_coded_errors(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    good = FakeCudaArray((8, 4, 4), "float32")
+    with pytest.raises(voxfmt.OptionError, match="poses_a: expected float32, got float64"):
+        scene.contacts(FakeCudaArray((8, 4, 4), "float64"), good)
+    with pytest.raises(voxfmt.OptionError, match=r"poses_b: expected shape \(8, 4, 4\)"):
+        scene.contacts(good, FakeCudaArray((7, 4, 4), "float32"))
+    with pytest.raises(voxfmt.OptionError, match="pair_index: expected int32"):
+        scene.contacts(good, good, FakeCudaArray((8,), "int64"))
+    with pytest.raises(voxfmt.OptionError, match="max_contacts"):
+        scene.contacts(good, good, max_contacts=-1)
+
+
+def test_a_well_formed_cuda_call_without_a_device_says_so(sphere: voxfmt.Body) -> None:
+    if voxfmt.cuda_status()[0]:
+        pytest.skip("a CUDA device is present: the fake arrays would be launched")
+    scene = voxfmt.BatchScene([sphere])
+    poses = FakeCudaArray((8, 4, 4), "float32")
+    with pytest.raises(voxfmt.InternalError, match="no CUDA device"):
+        scene.contacts(poses, poses, max_contacts=2, out=cuda_outputs(8, 2))
+    assert voxfmt.cuda_status() is voxfmt.cuda_status()  # asked once per process

@@ -5,14 +5,18 @@ index and the two bodies' 4x4 poses, and returns per environment the contact cou
 penalty wrench on A and, on request, the contacts themselves in buffers of a size you choose, with the number that
 did not fit always reported (``overflow``). NumPy poses run on the CPU; CUDA poses (PyTorch, CuPy: anything with
 ``__cuda_array_interface__``) run on the GPU, on your stream, without a copy or an allocation when you pass the
-outputs (``out=``), so the call can be captured in a CUDA graph. Both run the same code (the query core's
-environment), so code written for the GPU runs everywhere and gives the same answers.
+outputs (``out=``), so the call can be captured in a CUDA graph. The CPU runs the runtime's query
+(runtime::BatchScene), the device the query core's environment; both find the same contacts, so code written for
+the GPU runs everywhere and gives the same answers.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -32,8 +36,10 @@ _ENV_ERRORS = {
 }
 
 
+@functools.cache
 def cuda_status() -> tuple[bool, str]:
-    """(True, device name) if this build of voxfmt has CUDA support and a device can be used, else (False, why)."""
+    """(True, device name) if this build of voxfmt has CUDA support and a device can be used, else (False, why).
+    Asked once per process (a device does not come or go while it runs)."""
     ok, text = _cuda_status()
     return bool(ok), str(text)
 
@@ -73,6 +79,78 @@ def _device_index(array: Any) -> int:
     return int(index or 0)
 
 
+def _cuda_interface(name: str, array: Any) -> dict[str, Any]:
+    try:
+        interface = array.__cuda_array_interface__
+    except AttributeError:
+        raise OptionError("BAD_OPTION", f"{name}: expected a CUDA array (PyTorch, CuPy, or anything with "
+                          f"__cuda_array_interface__), got {type(array).__name__}") from None
+    except Exception as e:  # noqa: BLE001 (any framework's refusal, e.g. a PyTorch tensor that requires grad)
+        raise OptionError("BAD_OPTION", f"{name}: its __cuda_array_interface__ is not available: {e}") from None
+    return dict(interface)
+
+
+def _check_cuda_array(name: str, array: Any, dtype: str, shape: tuple[int, ...], device: int) -> None:
+    """A coded error (OptionError) unless `array` is a C-contiguous CUDA array of `dtype` and `shape` on `device`:
+    the kernel reads and writes the caller's memory itself, never a converted copy."""
+    interface = _cuda_interface(name, array)
+    got = np.dtype(interface["typestr"])
+    if got != np.dtype(dtype):
+        raise OptionError("BAD_OPTION", f"{name}: expected {dtype}, got {got}")
+    got_shape = tuple(int(n) for n in interface["shape"])
+    if got_shape != shape:
+        raise OptionError("BAD_OPTION", f"{name}: expected shape {shape}, got {got_shape}")
+    strides = interface.get("strides")
+    if strides is not None:
+        expected, step = [], got.itemsize
+        for n in reversed(shape):
+            expected.append(step)
+            step *= n
+        if any(n > 1 and s != e for n, s, e in zip(shape, strides, reversed(expected))):
+            raise OptionError("BAD_OPTION", f"{name}: not C-contiguous (strides {tuple(strides)}): pass a contiguous "
+                              "array (.contiguous() in PyTorch, cupy.ascontiguousarray)")
+    if hasattr(array, "device") and _device_index(array) != device:
+        raise OptionError("BAD_OPTION", f"{name}: on CUDA device {_device_index(array)}, the poses on {device}")
+
+
+def _output_specs(envs: int, k: int) -> list[tuple[str, str, tuple[int, ...]]]:
+    specs = [("count", "int32", (envs,)), ("max_depth", "float32", (envs,)), ("force", "float32", (envs, 3)),
+             ("torque", "float32", (envs, 3)), ("overflow", "int32", (envs,)), ("error", "int32", (envs,))]
+    if k > 0:
+        specs += [("points", "float32", (envs, k, 3)), ("normals", "float32", (envs, k, 3)),
+                  ("depths", "float32", (envs, k)), ("point_index", "int32", (envs, k)),
+                  ("point_of_b", "uint8", (envs, k))]
+    return specs
+
+
+def _stream_of(array: Any) -> int:
+    """The stream a CUDA array's producer works on: its framework's current one (PyTorch, CuPy), else the one its
+    __cuda_array_interface__ names (v3), else the legacy default stream."""
+    module = type(array).__module__.split(".")[0]
+    if module == "torch":
+        torch = __import__("torch")
+        return int(torch.cuda.current_stream(array.device).cuda_stream)
+    if module == "cupy":
+        return int(__import__("cupy").cuda.get_current_stream().ptr)
+    stream = _cuda_interface("poses_a", array).get("stream")
+    return int(stream) if stream else 0
+
+
+@contextlib.contextmanager
+def _current_device(array: Any, device: int) -> Iterator[None]:
+    """`device` made current while the scene is uploaded and the kernel launched (the poses' device, whichever is
+    current in the caller's framework)."""
+    module = type(array).__module__.split(".")[0]
+    if module == "torch":
+        with __import__("torch").cuda.device(device):
+            yield
+    elif module == "cupy":
+        with __import__("cupy").cuda.Device(device):
+            yield
+    else:
+        yield
+
+
 def _framework(array: Any) -> Any:
     """The module that made a CUDA array (torch or cupy): it allocates the outputs and names the stream."""
     module = type(array).__module__.split(".")[0]
@@ -101,7 +179,8 @@ class BatchScene:
         self._device_scenes: dict[int, Any] = {}
 
     def device_bytes(self, device: int = 0) -> int:
-        """Device memory the assets take on CUDA device `device` (uploading them if not yet there)."""
+        """Device memory the assets take on CUDA device `device` (uploading them there if not yet: make that device
+        current first, as a call with poses on it does)."""
         return int(self._device_scene(device).device_bytes)
 
     def _device_scene(self, device: int) -> Any:
@@ -146,34 +225,37 @@ class BatchScene:
 
     def _contacts_cuda(self, poses_a: Any, poses_b: Any, pair_index: Any, stiffness: float, proximity: float,
                        max_contacts: int, out: BatchResult | None, stream: int | None) -> BatchResult:
+        k = int(max_contacts)
+        if not 0 <= k <= 1 << 24:
+            raise OptionError("BAD_OPTION", "max_contacts must be in 0..2^24")
+        device = _device_index(poses_a)
+        envs = int(_cuda_interface("poses_a", poses_a)["shape"][0])
+        _check_cuda_array("poses_a", poses_a, "float32", (envs, 4, 4), device)
+        _check_cuda_array("poses_b", poses_b, "float32", (envs, 4, 4), device)
+        if pair_index is not None:
+            _check_cuda_array("pair_index", pair_index, "int32", (envs,), device)
+        if out is not None:
+            for name, dtype, shape in _output_specs(envs, k):
+                _check_cuda_array(f"out.{name}", getattr(out, name), dtype, shape, device)
         ok, why = cuda_status()
         if not ok:
             raise InternalError("INTERNAL", f"CUDA poses, but no CUDA device can be used: {why}")
-        device = _device_index(poses_a)
-        envs = int(poses_a.shape[0])
-        k = int(max_contacts)
-        if out is None:
-            fw = _framework(poses_a)
-            if fw.__name__ == "torch":
-                def empty(shape: tuple[int, ...], dtype: str) -> Any:
-                    return fw.empty(shape, dtype=getattr(fw, dtype), device=poses_a.device)
-            else:
-                def empty(shape: tuple[int, ...], dtype: str) -> Any:
-                    return fw.empty(shape, dtype=dtype)
-            out = BatchResult(empty((envs,), "int32"), empty((envs,), "float32"), empty((envs, 3), "float32"),
-                              empty((envs, 3), "float32"), empty((envs,), "int32"), empty((envs,), "int32"))
-            if k > 0:
-                out.points, out.normals = empty((envs, k, 3), "float32"), empty((envs, k, 3), "float32")
-                out.depths, out.point_index = empty((envs, k), "float32"), empty((envs, k), "int32")
-                out.point_of_b = empty((envs, k), "uint8")
-        if stream is None:
-            fw = _framework(poses_a)
-            stream = (fw.cuda.current_stream(poses_a.device).cuda_stream if fw.__name__ == "torch"
-                      else fw.cuda.get_current_stream().ptr)
-        self._device_scene(device).run(
-            poses_a, poses_b, pair_index, float(proximity), float(stiffness), out.count, out.max_depth, out.force,
-            out.torque, out.overflow, out.error, k, out.points, out.normals, out.depths, out.point_index,
-            out.point_of_b, int(stream))
+        with _current_device(poses_a, device):
+            if out is None:
+                fw = _framework(poses_a)
+                if fw.__name__ == "torch":
+                    def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                        return fw.empty(shape, dtype=getattr(fw, dtype), device=poses_a.device)
+                else:
+                    def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                        return fw.empty(shape, dtype=dtype)
+                out = BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in _output_specs(envs, k)})
+            if stream is None:
+                stream = _stream_of(poses_a)
+            self._device_scene(device).run(
+                poses_a, poses_b, pair_index, float(proximity), float(stiffness), out.count, out.max_depth, out.force,
+                out.torque, out.overflow, out.error, k, out.points, out.normals, out.depths, out.point_index,
+                out.point_of_b, int(stream))
         return out
 
 
