@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/field.h"
 #include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
 
@@ -11,8 +12,6 @@ namespace {
 
 constexpr int kEdge = 8;  // voxels per brick edge
 constexpr int kRow = AssetField::kBlockEdge, kSlice = kRow * kRow;
-
-Eigen::Vector3d to_eigen(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
 
 // Trilinear interpolation of the 8 corner values c (x fastest) at t in [0,1]^3, and its gradient in cell units.
 inline float trilinear(const float c[8], const float t[3], Eigen::Vector3f& gradient) {
@@ -26,12 +25,20 @@ inline float trilinear(const float c[8], const float t[3], Eigen::Vector3f& grad
   return y0 + t[2] * (y1 - y0);
 }
 
+voxfmt::Error no_distance_field() {
+  return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
+                       "the asset has no voxelmap of at least 2 voxels a side: MuJoCo needs its distance field");
+}
+
 }  // namespace
 
 voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::load(const std::string& path) {
-  voxfmt::Result<voxfmt::Asset> asset = voxfmt::read_asset(path);
-  if (!asset) return asset.error();
-  auto field = from_asset(std::move(asset.value()));
+  // One read and one validation (every rule of `voxfmt validate`), by the runtime's loader.
+  runtime::LoadOptions options;
+  options.load_point_shell = false;
+  auto object = runtime::CollisionObject::load(path, options);
+  auto field =
+      object ? from_object(*object.value()) : voxfmt::Result<std::shared_ptr<const AssetField>>(object.error());
   if (!field) {
     voxfmt::Error error = field.error();
     if (error.file.empty()) error.file = path;
@@ -41,34 +48,49 @@ voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::load(const std::st
   return field;
 }
 
-void AssetField::set_geometry(const voxfmt::Asset& asset) {
-  const voxfmt::Voxelmap& vm = asset.voxelmap;
-  voxel_size_ = vm.voxel_size;
-  inverse_voxel_size_ = 1.0 / vm.voxel_size;
-  origin_ = to_eigen(vm.origin);
-  const auto bd = vm.brick_dims();
+voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt::Asset asset) {
+  runtime::LoadOptions options;
+  options.load_point_shell = false;
+  if (asset.voxelmap.bricks.empty()) return no_distance_field();
+  auto object = runtime::CollisionObject::from_asset(std::move(asset), options);
+  if (!object) return object.error();
+  return from_object(*object.value());
+}
+
+voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_object(const runtime::CollisionObject& object) {
+  const std::array<int, 3> dims = object.has_voxelmap() ? object.voxelmap().dims() : std::array<int, 3>{};
+  if (dims[0] < 2 || dims[1] < 2 || dims[2] < 2) return no_distance_field();
+  std::shared_ptr<AssetField> field(new AssetField);
+  field->set_geometry(object);
+  field->fill_blocks(object.voxelmap());
+  return std::shared_ptr<const AssetField>(std::move(field));
+}
+
+// The runtime's own numbers: its lattice (16-bit steps), brick table and band edge, so that every lattice cell
+// and block is the runtime's field.
+void AssetField::set_geometry(const runtime::CollisionObject& object) {
+  const runtime::SparseVoxelmap& map = object.voxelmap();
+  const runtime::core::Field f = field_of(map);
+  voxel_size_ = map.voxel_size();
+  inverse_voxel_size_ = 1.0 / map.voxel_size();
+  origin_ = map.origin();
+  size_t lattice_points = 1;
   for (int a = 0; a < 3; ++a) {
-    dims_[a] = int(vm.dims[size_t(a)]);
-    brick_dims_[a] = int(bd[size_t(a)]);
-    lattice_dims_[a] = brick_dims_[a] + 1;
+    dims_[a] = f.dims[a];
+    brick_dims_[a] = f.brick_dims[a];
+    lattice_dims_[a] = f.lattice_dims[a];
     grid_max_[a] = float(dims_[a] - 1);
+    lattice_points *= size_t(lattice_dims_[a]);
   }
-  band_edge_ = float(vm.distance_band - 0.5);
-  table_ = vm.bricks;
-  // The lattice in the runtime's 16-bit steps (1/16 voxel, coarser only where the largest distance needs it),
-  // so that the lattice cells agree with the runtime's values of the coarse voxels the blocks hold.
-  float largest = 0;
-  for (float v : vm.lattice) largest = std::max(largest, v);
-  const float step = float(std::max(1.0 / 16, double(largest) / vm.voxel_size / 65000.0));
-  const double to_steps = 1.0 / (vm.voxel_size * double(step));
-  lattice_.resize(vm.lattice.size());
-  for (size_t n = 0; n < vm.lattice.size(); ++n)
-    lattice_[n] = float(uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)))) * step;
-  bounds_min_ = to_eigen(asset.bounds_min);
-  bounds_max_ = to_eigen(asset.bounds_max);
+  band_edge_ = f.band_edge;
+  table_.assign(f.bricks, f.bricks + map.brick_count());
+  lattice_.resize(lattice_points);
+  for (size_t n = 0; n < lattice_points; ++n) lattice_[n] = float(f.lattice[n]) * f.lattice_step;
+  bounds_min_ = object.bounds_min();
+  bounds_max_ = object.bounds_max();
   centre_ = 0.5 * (bounds_min_ + bounds_max_);
-  volume_ = asset.mass.volume;
-  center_of_mass_ = to_eigen(asset.mass.center_of_mass);
+  volume_ = object.volume();
+  center_of_mass_ = object.center_of_mass();
 }
 
 // A block for every value brick, and for every coarse brick with a value brick among its + neighbours (its cells
@@ -105,22 +127,6 @@ void AssetField::fill_blocks(const voxfmt::runtime::SparseVoxelmap& map) {
         next += size_t(kBlockValues);
       }
   blocks_.shrink_to_fit();
-}
-
-voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_asset(voxfmt::Asset asset) {
-  const voxfmt::Voxelmap& vm = asset.voxelmap;
-  if (vm.bricks.empty() || vm.dims[0] < 2 || vm.dims[1] < 2 || vm.dims[2] < 2)
-    return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
-                         "the asset has no voxelmap of at least 2 voxels a side: MuJoCo needs its distance field");
-  std::shared_ptr<AssetField> field(new AssetField);
-  field->set_geometry(asset);
-  // The runtime decodes the voxels (and validates the asset); its map is only needed while the blocks are made.
-  voxfmt::runtime::LoadOptions options;
-  options.load_point_shell = false;
-  auto object = voxfmt::runtime::CollisionObject::from_asset(std::move(asset), options);
-  if (!object) return object.error();
-  field->fill_blocks(object.value()->voxelmap());
-  return std::shared_ptr<const AssetField>(std::move(field));
 }
 
 size_t AssetField::memory_bytes() const {

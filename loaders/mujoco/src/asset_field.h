@@ -18,8 +18,9 @@
 #include "voxfmt/result.h"
 
 namespace voxfmt::runtime {
+class CollisionObject;
 class SparseVoxelmap;
-}
+}  // namespace voxfmt::runtime
 
 namespace voxfmt::mujoco {
 
@@ -31,6 +32,8 @@ class AssetField {
   static voxfmt::Result<std::shared_ptr<const AssetField>> load(const std::string& path);
   /// The field of an asset in memory (it must pass quick validation).
   static voxfmt::Result<std::shared_ptr<const AssetField>> from_asset(voxfmt::Asset asset);
+  /// The field of a loaded object (already validated): its voxelmap's lattice, bricks and voxels as they are.
+  static voxfmt::Result<std::shared_ptr<const AssetField>> from_object(const runtime::CollisionObject& object);
 
   /// Signed distance in metres, negative inside, and in `gradient` (may be null) the unit direction in which it
   /// grows. In the grid: the trilinear interpolation of the voxels' values (exact within the band: the stored
@@ -67,8 +70,8 @@ class AssetField {
   // The field (voxel units) and its gradient (voxel units per voxel) at grid coordinates inside the box of
   // voxel centres.
   float lookup(const Eigen::Vector3f& u, Eigen::Vector3f& gradient) const;
-  // from_asset's steps: the grid's geometry and the quantised lattice; the blocks from the runtime's decoded map.
-  void set_geometry(const voxfmt::Asset& asset);
+  // from_object's steps: the grid's geometry and the lattice; the blocks from the runtime's decoded voxels.
+  void set_geometry(const runtime::CollisionObject& object);
   void fill_blocks(const voxfmt::runtime::SparseVoxelmap& map);
 
   double voxel_size_ = 1.0;
