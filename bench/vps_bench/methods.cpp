@@ -14,7 +14,7 @@
 
 #include "../common/hacd_cache.h"
 #include "../common/reduced_hull.h"
-#include "core/field_simd.h"
+#include "traversal/field_simd.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"

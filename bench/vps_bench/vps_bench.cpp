@@ -22,9 +22,9 @@
 #include <optional>
 #include <sstream>
 
-#include "core/field_simd.h"
 #include "methods.h"
 #include "scenarios.h"
+#include "traversal/field_simd.h"
 #include "voxfmt/runtime/query.h"
 
 #ifndef VPS_BENCH_BUNNY

@@ -22,8 +22,8 @@
 
 #include "common/hacd_cache.h"
 #include "common/reduced_hull.h"
-#include "core/function_query.h"
 #include "scenes.h"
+#include "traversal/function_query.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"

@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "common.h"
-#include "core/eigen.h"
+#include "traversal/eigen.h"
 #include "voxfmt/detail/cores.h"
 
 #if defined(VOXFMT_WITH_CUDA)

@@ -744,8 +744,9 @@ void bind_queries(nb::module_& m) {
                 "None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]"),
         "Penalty force (3,) and torque (3,) on A: F = sum k * depth * n over penetrating contacts, torque about\n"
         "`reference` (default: A's centre of mass in the world).");
-  m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, "threads"_a.none(),
-        "with_contacts"_a, "stiffness"_a, "point_budget"_a.none(), "time_budget_us"_a.none(), "proximity"_a,
+  m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, nb::kw_only(),
+        "threads"_a.none() = nb::none(), "with_contacts"_a = false, "stiffness"_a = 1.0,
+        "point_budget"_a.none() = nb::none(), "time_budget_us"_a.none() = nb::none(), "proximity"_a = 0.0,
         "tracker"_a.none() = nb::none());
   nb::class_<Tracker>(m, "_Tracker")
       .def(

@@ -247,18 +247,9 @@ def contacts_batch(
     ``with_contacts``. Raises PoseError naming the first non-rigid pose before any query runs."""
     if not isinstance(with_contacts, bool):
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
-    out = _contacts_batch(
-        a,
-        poses_a,
-        b,
-        poses_b,
-        threads,
-        with_contacts,
-        _real("stiffness", stiffness),
-        point_budget,
-        time_budget_us,
-        _real("proximity", proximity),
-    )
+    out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
+                          stiffness=_real("stiffness", stiffness), point_budget=point_budget,
+                          time_budget_us=time_budget_us, proximity=_real("proximity", proximity))
     return Batch(**out)
 
 
@@ -299,19 +290,9 @@ class Tracker:
         with the one before (and with this tracker's earlier queries). The GIL is released."""
         if not isinstance(with_contacts, bool):
             raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
-        out = _contacts_batch(
-            self.a,
-            poses_a,
-            self.b,
-            poses_b,
-            None,
-            with_contacts,
-            _real("stiffness", stiffness),
-            None,
-            None,
-            _real("proximity", proximity),
-            self._tracker,
-        )
+        out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
+                              stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),
+                              tracker=self._tracker)
         return Batch(**out)
 
     def reset(self) -> None:

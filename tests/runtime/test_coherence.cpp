@@ -9,7 +9,7 @@
 #include <iostream>
 
 #include "baked_bunny.h"
-#include "core/function_query.h"
+#include "traversal/function_query.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

@@ -15,8 +15,8 @@
 
 #include "baked_bunny.h"
 #include "core/batch.h"
-#include "core/eigen.h"
-#include "core/field_simd.h"
+#include "traversal/eigen.h"
+#include "traversal/field_simd.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

@@ -11,9 +11,9 @@
 
 #include "baked_bunny.h"
 #include "core/batch.h"
-#include "core/eigen.h"
 #include "core/field.h"
 #include "exact_surface.h"
+#include "traversal/eigen.h"
 #include "voxfmt/runtime/collision_object.h"
 #include "voxfmt/runtime/haptics.h"
 #include "voxfmt/runtime/query.h"

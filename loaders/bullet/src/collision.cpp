@@ -33,8 +33,8 @@
 #include <unordered_map>
 
 #include "bt_eigen.h"
-#include "core/function_query.h"
 #include "static_mesh.h"
+#include "traversal/function_query.h"
 #include "triangle_set.h"
 #include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"

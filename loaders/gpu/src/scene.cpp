@@ -2,8 +2,8 @@
 // tables), and the launch. No CUDA header here (device.h is plain C++).
 #include "voxfmt/gpu/batch.h"
 
-#include "core/eigen.h"
 #include "device.h"
+#include "traversal/eigen.h"
 
 namespace voxfmt::gpu {
 

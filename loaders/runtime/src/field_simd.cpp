@@ -1,4 +1,4 @@
-#include "core/field_simd.h"
+#include "traversal/field_simd.h"
 
 #include <atomic>
 #include <cstdlib>

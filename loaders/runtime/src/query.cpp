@@ -5,10 +5,10 @@
 #include <cmath>
 #include <functional>
 
-#include "core/eigen.h"
 #include "core/field.h"
-#include "core/field_simd.h"
-#include "core/traversal.h"
+#include "traversal/eigen.h"
+#include "traversal/field_simd.h"
+#include "traversal/traversal.h"
 
 namespace voxfmt::runtime {
 

@@ -4,9 +4,9 @@
 #include <cmath>
 #include <limits>
 
-#include "core/eigen.h"
 #include "core/field.h"
-#include "core/field_simd.h"
+#include "traversal/eigen.h"
+#include "traversal/field_simd.h"
 
 namespace voxfmt::runtime {
 

@@ -11,7 +11,7 @@
 
 namespace voxfmt::runtime::core {
 
-/// A sphere-tree node as the runtime holds it (PointTree::Node has this layout: runtime/src/core/eigen.h checks).
+/// A sphere-tree node as the runtime holds it (PointTree::Node has this layout: runtime/src/traversal/eigen.h checks).
 struct alignas(32) Node {
   float centre[3];  ///< centre of the sphere around the node's point and its descendants (asset frame, metres)
   float radius;

@@ -122,7 +122,7 @@ class QueryScratch {
   /// cost of the lookups alone can be measured. nullptr stops it.
   void record_tested_points(std::vector<Eigen::Vector3f>* into);
 
-  struct Buffers;  ///< the traversal's own (core/traversal.h)
+  struct Buffers;  ///< the traversal's own (traversal/traversal.h)
   Buffers& buffers() { return *buffers_; }
 
  private:
@@ -141,7 +141,7 @@ class TraversalFront {
   /// Forgets the front: the next query starts from the root.
   void reset();
 
-  struct State;  ///< core/coherent_traversal.h
+  struct State;  ///< traversal/coherent_traversal.h
   State& state() { return *state_; }
 
  private:

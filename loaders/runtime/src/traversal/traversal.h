@@ -20,8 +20,8 @@
 #include <utility>
 #include <vector>
 
+#include "../core/prune.h"
 #include "eigen.h"
-#include "prune.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

@@ -7,8 +7,8 @@
 #include <limits>
 #include <vector>
 
+#include "../core/prune.h"
 #include "eigen.h"
-#include "prune.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {

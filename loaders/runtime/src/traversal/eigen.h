@@ -5,7 +5,7 @@
 
 #include <cstddef>
 
-#include "batch.h"
+#include "../core/batch.h"
 #include "voxfmt/runtime/collision_object.h"
 #include "voxfmt/runtime/query.h"
 

@@ -6,7 +6,7 @@
 
 #include <cstddef>
 
-#include "field.h"
+#include "../core/field.h"
 
 namespace voxfmt::runtime::core {
 
