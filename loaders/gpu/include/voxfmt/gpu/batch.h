@@ -14,6 +14,7 @@
 
 #include "voxfmt/result.h"
 #include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/query.h"
 
 namespace voxfmt::gpu {
 
@@ -22,34 +23,10 @@ bool available(std::string* why = nullptr);
 /// The name of the current CUDA device (e.g. "NVIDIA H100 80GB HBM3"), or empty.
 std::string device_name();
 
-/// E environments: device pointers, row-major.
-struct Environments {
-  size_t count = 0;
-  const float* poses_a = nullptr;  ///< E x 4 x 4 body-to-world matrices of A (rigid: else error 2..5)
-  const float* poses_b = nullptr;  ///< E x 4 x 4 of B
-  const int32_t* pair = nullptr;   ///< E indices into the scene's pairs, or nullptr: pair 0 for every one
-  double proximity = 0.0;          ///< metres: also report points outside but nearer than this (negative depth)
-  double stiffness = 1.0;          ///< N/m of the penalty wrench
-};
-
-/// Per-environment outputs: device pointers the caller sized (only `count` is required). Contacts: E x
-/// `max_contacts` (points and normals E x max_contacts x 3); the contacts that did not fit are counted in
-/// `overflow`, never dropped silently.
-struct Outputs {
-  int32_t* count = nullptr;     ///< E: contacts found
-  float* max_depth = nullptr;   ///< E: metres, 0 without penetration
-  float* force = nullptr;       ///< E x 3: on A, sum of stiffness * depth * normal over penetrating contacts
-  float* torque = nullptr;      ///< E x 3: on A, about A's centre of mass in the world
-  int32_t* overflow = nullptr;  ///< E: contacts found beyond max_contacts
-  int32_t* error = nullptr;     ///< E: 0, or why the environment has no result (1 tree too deep, 2..5 bad pose,
-                                ///< 6 pair out of range)
-  uint32_t max_contacts = 0;
-  float* points = nullptr;
-  float* normals = nullptr;
-  float* depths = nullptr;
-  int32_t* point_index = nullptr;
-  uint8_t* point_of_b = nullptr;
-};
+/// E environments and their outputs: the CPU batch's (runtime::BatchScene), as device pointers. The device takes
+/// float32 poses only (`poses_a`, `poses_b`; the `_f64` ones must be null).
+using Environments = runtime::BatchEnvironments;
+using Outputs = runtime::BatchOutputs;
 
 /// Assets resident on the current CUDA device and the pairs an environment may hold.
 class Scene {
@@ -69,7 +46,7 @@ class Scene {
 
   /// Queues every environment on `stream` (a cudaStream_t; nullptr = the default stream) and returns at once:
   /// nothing is allocated or synchronised, so the call can be captured in a CUDA graph. An error only when the
-  /// launch itself fails (BAD_OPTION for a missing `count` output).
+  /// launch itself fails (BAD_OPTION for a missing `count` output or float64 poses).
   Status contacts(const Environments& in, const Outputs& out, void* stream = nullptr) const;
 
  private:

@@ -205,7 +205,7 @@ inline Wrench penalty_wrench(const ContactSet& contacts, const Eigen::Vector3d& 
 
 // ---- Batches: thousands of environments, each a pair of objects at a pair of poses, in one call on worker threads.
 
-/// E environments: row-major arrays in host memory, as gpu::Environments on a CUDA device.
+/// E environments: row-major arrays in host memory (gpu::Scene takes the same struct with device pointers).
 struct BatchEnvironments {
   size_t count = 0;
   const float* poses_a = nullptr;       ///< E x 4 x 4 body-to-world matrices of A (rigid: else error 2..5), or:
@@ -217,7 +217,8 @@ struct BatchEnvironments {
   double stiffness = 1.0;         ///< N/m of the penalty wrench
 };
 
-/// Per-environment outputs the caller sized (only `count` is required; null arrays are skipped), as gpu::Outputs.
+/// Per-environment outputs the caller sized (only `count` is required; null arrays are skipped); gpu::Scene takes
+/// the same struct with device pointers.
 /// Contacts: E x `max_contacts` (points and normals E x max_contacts x 3); those that did not fit are counted in
 /// `overflow`, never dropped silently.
 struct BatchOutputs {
