@@ -1,7 +1,7 @@
 // Signed distances from a world point to the shapes a VPS body meets in Bullet, each with the partner's outward
 // unit normal at its nearest surface point: what a point shell is tested against. Negative inside the partner.
 // The collision algorithm uses these; they are public for users who query partners themselves (haptics,
-// planning) and for tests. (Static meshes and terrain are searched by the private TriangleSet, src/triangle_set.h.)
+// planning) and for tests.
 #pragma once
 
 #include <BulletCollision/CollisionShapes/btConvexShape.h>

@@ -80,8 +80,8 @@ class SparseVoxelmap {
   static constexpr int kBrickVoxels = int(voxfmt::Voxelmap::kBrickVoxels);
 
  private:
-  /// The query core's view of this map (core/field.h): its arrays and the numbers that decode them. The lookups
-  /// themselves live there, shared by this class, the traversal and the CUDA kernels.
+  /// The query core's view of this map (private to the runtime): its arrays and the numbers that decode them.
+  /// The lookups themselves live there, shared by this class, the traversal and the CUDA kernels.
   friend core::Field field_of(const SparseVoxelmap& map);
 
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();

@@ -122,7 +122,7 @@ class QueryScratch {
   /// cost of the lookups alone can be measured. nullptr stops it.
   void record_tested_points(std::vector<Eigen::Vector3f>* into);
 
-  struct Buffers;  ///< the traversal's own (traversal/traversal.h)
+  struct Buffers;  ///< the traversal's own (opaque)
   Buffers& buffers() { return *buffers_; }
 
  private:
@@ -141,7 +141,7 @@ class TraversalFront {
   /// Forgets the front: the next query starts from the root.
   void reset();
 
-  struct State;  ///< traversal/coherent_traversal.h
+  struct State;  ///< the coherent traversal's own (opaque)
   State& state() { return *state_; }
 
  private:
@@ -177,8 +177,8 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
 /// Single world points of a partner B (box corners, a sphere's centre with its `radius`) against A's
 /// voxelmap: reported like B's points (point_of_b, normal = where A must move), the contact point being the
 /// partner's surface point deepest in A. Normals always follow A's distance gradient. A point far outside A
-/// (where A's voxelmap keeps only a lower bound of the distance) reports nothing, whatever its radius: test
-/// large partners with A's points (query_against_function).
+/// (where A's voxelmap keeps only a lower bound of the distance) reports nothing, whatever its radius: large
+/// partners are found by A's points against the partner's own distance (as voxfmt::bullet does for every kind).
 void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, const Eigen::Vector3d* points, size_t count,
                               double radius, const QueryOptions& options, ContactSet& out);
 
