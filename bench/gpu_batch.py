@@ -9,7 +9,7 @@ Two halves, because the GPU machines that measure it have CUDA and Python but no
 
 --prepare bakes CGAL's bunny at the seed's settings (0.15 m, resolution 306, 35,000 points), makes the 40,000 poses
 bench/python_peers.py --parts batch makes (B approaches A until they touch, then 0.5 mm short to 1.5 mm in), runs
-them through voxfmt.BatchScene on the CPU (the same code the kernel runs: its results are the reference) and
+them through voxfmt.BatchScene on the CPU (runtime::BatchScene, the runtime's query: its results are the reference) and
 through contacts_batch on 2 threads (the CPU batch's figure), and exports the asset's arrays as the query core
 reads them. --report joins the GPU's JSON and the CPU's figures into the committed result.
 """

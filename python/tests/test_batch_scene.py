@@ -1,6 +1,7 @@
-"""voxfmt.BatchScene: every environment of a batch through the query core's environment, the code the CUDA kernel
-runs. Here on the CPU (CI has no GPU): against contacts_batch() on the same poses, with several assets and pairs,
-shells and 1.x files, a contact buffer that overflows, and environments with bad poses or pairs."""
+"""voxfmt.BatchScene: every environment of a batch through the runtime's query on the CPU (runtime::BatchScene), the
+contacts the CUDA kernel must find. Here on the CPU (CI has no GPU): against contacts_batch() on the same poses, with
+several assets and pairs, shells and 1.x files, a contact buffer that overflows, and environments with bad poses or
+pairs; and the checks of CUDA arrays, which run before a device is touched."""
 
 from __future__ import annotations
 
