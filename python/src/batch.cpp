@@ -8,7 +8,6 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
-#include <atomic>
 #include <cstdint>
 #include <exception>
 #include <string>
@@ -17,7 +16,6 @@
 
 #include "common.h"
 #include "traversal/eigen.h"
-#include "voxfmt/detail/cores.h"
 
 #if defined(VOXFMT_WITH_CUDA)
 #include "voxfmt/gpu/batch.h"

@@ -8,15 +8,13 @@
 #include <new>
 #include <string>
 
-#include "core/frame.h"
+#include "core/batch.h"
 #include "voxfmt/detail/cores.h"
 #include "voxfmt/runtime/query.h"
 
 namespace voxfmt::runtime {
 
 namespace {
-
-constexpr int32_t kPairOutOfRange = 6;  // as core::kEnvPairOutOfRange, the GPU's code
 
 // A 4x4 row-major matrix as a rigid pose, or why it is none (core::PoseProblem, 2..5).
 template <class T>
@@ -129,7 +127,7 @@ Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out
         for (size_t e = begin; e < std::min(begin + kChunk, in.count); ++e) {
           const int32_t pair = in.pair ? in.pair[e] : 0;
           if (pair < 0 || size_t(pair) >= pairs_.size()) {
-            write_error(out, e, kPairOutOfRange);
+            write_error(out, e, core::kEnvPairOutOfRange);
             continue;
           }
           Pose pa, pb;
