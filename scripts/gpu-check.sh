@@ -14,7 +14,7 @@ nvcc=${NVCC:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/device.txt" || true
 "$nvcc" --version | tail -n 1
 start=$SECONDS
-"$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -Iloaders/runtime/src \
+"$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -Iloaders/runtime/src -Iloaders/runtime/include \
   scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu -o "$OUT/libvoxfmt_gpu_check.so"
 echo "gpu-check: built the runner in $((SECONDS - start)) s"
 python3 scripts/gpu/check.py --input "$input/gpu-batch-input.npz" --library "$OUT/libvoxfmt_gpu_check.so" \

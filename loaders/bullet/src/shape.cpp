@@ -96,7 +96,7 @@ void VpsShape::processAllTriangles(btTriangleCallback* callback, const btVector3
     stack.pop_back();
     // A node's sphere holds its point and its subtree's; splats reach one circumradius beyond their points.
     const double reach = s * double(tree.nodes[node].radius) + circumradius;
-    if (box_distance2(to_shape(tree.nodes[node].centre)) > reach * reach) continue;
+    if (box_distance2(to_shape(tree.centre(node))) > reach * reach) continue;
     const Eigen::Vector3d p = to_shape(tree.points[node]);
     if (box_distance2(p) <= circumradius * circumradius) {
       // Outward normal (the stored one points inward) and a tangent frame around it.

@@ -34,7 +34,8 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   const float rounding_pad = float(4e-7 * largest);
   for (size_t i = 0; i < n; ++i) {
     PointTree::Node& node = tree.nodes[i];
-    node.centre = to_float(shell.sphere_centers[i]);
+    const Eigen::Vector3f centre = to_float(shell.sphere_centers[i]);
+    node.centre = core::Vec3{centre.x(), centre.y(), centre.z()};
     node.radius = float(shell.sphere_radii[i]) * (1.0f + 1e-6f) + rounding_pad;
     node.first_child = shell.child_begin[i];
     node.child_count = shell.child_count[i];
@@ -42,7 +43,7 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   }
   tree.level_offsets = shell.level_offsets;
   for (size_t i = 0; i < n; ++i)
-    tree.extent = std::max({tree.extent, tree.points[i].norm(), tree.nodes[i].centre.norm() + tree.nodes[i].radius});
+    tree.extent = std::max({tree.extent, tree.points[i].norm(), tree.centre(i).norm() + tree.nodes[i].radius});
   tree.extent = tree.extent * (1.0f + 1e-6f) + rounding_pad;
   // How far each child's sphere reaches from its parent's centre (computed in double, rounded up).
   for (size_t parent = 0; parent < n; ++parent)

@@ -15,41 +15,46 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
   SparseVoxelmap map;
   map.origin_ = Eigen::Vector3d(vm.origin[0], vm.origin[1], vm.origin[2]);
   map.voxel_size_ = vm.voxel_size;
+  core::FieldLayout& f = map.layout_;
   const auto bd = vm.brick_dims();
   for (int a = 0; a < 3; ++a) {
-    map.dims_[a] = int(vm.dims[size_t(a)]);
-    map.brick_dims_[a] = int(bd[size_t(a)]);
-    map.lattice_dims_[a] = int(bd[size_t(a)]) + 1;
+    f.dims[a] = int(vm.dims[size_t(a)]);
+    f.brick_dims[a] = int(bd[size_t(a)]);
+    f.lattice_dims[a] = int(bd[size_t(a)]) + 1;
   }
   // An empty grid covers nothing.
-  for (int a = 0; a < 3; ++a) map.cover_max_[a] = map.dims_[a] > 0 ? float(map.dims_[a]) - 0.5f : -1.0f;
-  map.object_min_ = map.to_grid(Eigen::Vector3d(bounds_min[0], bounds_min[1], bounds_min[2]));
-  map.object_max_ = map.to_grid(Eigen::Vector3d(bounds_max[0], bounds_max[1], bounds_max[2]));
+  f.cover_max = core::make_vec3(f.dims[0] > 0 ? float(f.dims[0]) - 0.5f : -1.0f,
+                                f.dims[1] > 0 ? float(f.dims[1]) - 0.5f : -1.0f,
+                                f.dims[2] > 0 ? float(f.dims[2]) - 0.5f : -1.0f);
+  f.object_min = core::to_core(map.to_grid(Eigen::Vector3d(bounds_min[0], bounds_min[1], bounds_min[2])));
+  f.object_max = core::to_core(map.to_grid(Eigen::Vector3d(bounds_max[0], bounds_max[1], bounds_max[2])));
   const double h = vm.voxel_size;
-  map.decode_step_[0] = float(vm.estimate_quantum / h);
-  map.decode_step_[1] = float(vm.distance_quantum / h);
+  f.decode_step[0] = float(vm.estimate_quantum / h);
+  f.decode_step[1] = float(vm.distance_quantum / h);
   // Fixed point rounds a stored distance by half a step; float arithmetic adds a few ulps of the band.
-  map.stored_slack_ = float(0.5 * vm.distance_quantum / h + 1e-6 * vm.distance_band);
-  map.estimate_slack_ = float(0.5 * vm.estimate_quantum / h + 1e-5 * vm.distance_band) + core::kInterpolationBound;
-  map.estimate_offset_ = float(vm.lattice_error[0]);
-  map.estimate_shrink_ = float(1.0 / (1.0 + vm.lattice_error[1]));
-  map.band_edge_ = float(vm.distance_band - 0.5);
+  f.stored_slack = float(0.5 * vm.distance_quantum / h + 1e-6 * vm.distance_band);
+  f.estimate_slack = float(0.5 * vm.estimate_quantum / h + 1e-5 * vm.distance_band) + core::kInterpolationBound;
+  f.estimate_offset = float(vm.lattice_error[0]);
+  f.estimate_shrink = float(1.0 / (1.0 + vm.lattice_error[1]));
+  f.band_edge = float(vm.distance_band - 0.5);
   map.bricks_ = std::move(vm.bricks);
   map.codes_ = std::move(vm.brick_values);
   // 1/16 voxel steps, coarser only if the largest distance would not fit in 16 bits.
   float largest = 0;
   for (float v : vm.lattice) largest = std::max(largest, v);
   const double largest_voxels = double(largest) / h;
-  map.lattice_step_ = float(std::max(1.0 / 16, largest_voxels / 65000.0));
-  map.estimate_slack_ += 0.5f * map.lattice_step_;
+  f.lattice_step = float(std::max(1.0 / 16, largest_voxels / 65000.0));
+  f.estimate_slack += 0.5f * f.lattice_step;
   map.lattice_.resize(vm.lattice.size());
-  const double to_steps = 1.0 / (h * double(map.lattice_step_));
+  const double to_steps = 1.0 / (h * double(f.lattice_step));
   for (size_t n = 0; n < vm.lattice.size(); ++n)
     map.lattice_[n] = uint16_t(std::min(65535.0, std::floor(double(vm.lattice[n]) * to_steps + 0.5)));
   std::vector<float>().swap(vm.lattice);
   // Vector gathers read 16-bit arrays as 32-bit words (field_simd.h): one element more, outside the counts.
   map.codes_.resize(map.codes_.size() + core::kGatherPadding, 0);
   map.lattice_.resize(map.lattice_.size() + core::kGatherPadding, 0);
+  f.gather_safe = map.lattice_.size() > core::kGatherPadding && map.codes_.size() < (size_t(1) << 31) &&
+                  map.lattice_.size() < (size_t(1) << 31) && map.bricks_.size() < (size_t(1) << 31);
   map.bricks_.shrink_to_fit();
   map.codes_.shrink_to_fit();
   map.lattice_.shrink_to_fit();
@@ -63,27 +68,10 @@ size_t SparseVoxelmap::memory_bytes() const {
 
 core::Field field_of(const SparseVoxelmap& map) {
   core::Field f;
+  static_cast<core::FieldLayout&>(f) = map.layout_;
   f.bricks = map.bricks_.data();
   f.codes = map.codes_.data();
   f.lattice = map.lattice_.data();
-  f.gather_safe = !map.lattice_.empty() && map.codes_.size() < (size_t(1) << 31) &&
-                  map.lattice_.size() < (size_t(1) << 31) && map.bricks_.size() < (size_t(1) << 31);
-  for (int a = 0; a < 3; ++a) {
-    f.dims[a] = map.dims_[size_t(a)];
-    f.brick_dims[a] = map.brick_dims_[size_t(a)];
-    f.lattice_dims[a] = map.lattice_dims_[size_t(a)];
-  }
-  f.decode_step[0] = map.decode_step_[0];
-  f.decode_step[1] = map.decode_step_[1];
-  f.stored_slack = map.stored_slack_;
-  f.estimate_slack = map.estimate_slack_;
-  f.estimate_offset = map.estimate_offset_;
-  f.estimate_shrink = map.estimate_shrink_;
-  f.band_edge = map.band_edge_;
-  f.lattice_step = map.lattice_step_;
-  f.cover_max = core::to_core(map.cover_max_);
-  f.object_min = core::to_core(map.object_min_);
-  f.object_max = core::to_core(map.object_max_);
   return f;
 }
 
@@ -104,13 +92,9 @@ float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
 
 FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient) const {
   core::Vec3 g;
-  const core::Sample s = core::sample(field_of(*this), core::to_core(u), gradient ? &g : nullptr);
+  const FieldSample s = core::sample(field_of(*this), core::to_core(u), gradient ? &g : nullptr);
   if (gradient) *gradient = core::to_eigen(g);
-  FieldSample result;
-  result.distance = s.distance;
-  result.exact = s.exact;
-  result.bound = s.bound;
-  return result;
+  return s;
 }
 
 float SparseVoxelmap::distance_lower_bound(const Eigen::Vector3f& u) const {

@@ -17,34 +17,11 @@ constexpr int32_t kCoarseInside = -2;
 // distance (the distance is 1-Lipschitz); that sum is largest at a brick's centre: 4 sqrt(3) voxels (spec §3.3).
 constexpr float kInterpolationBound = 6.9282032f;
 
-/// A voxelmap as the runtime holds it (voxel units throughout): the arrays and the numbers that decode them.
-struct Field {
+/// A voxelmap as the runtime holds it: views of its arrays and how they are read (voxel units throughout).
+struct Field : FieldLayout {
   const int32_t* bricks = nullptr;    ///< brick table: >= 0 a value brick, -1 / -2 coarse outside / inside
   const int16_t* codes = nullptr;     ///< value bricks, kBrickVoxels codes each
   const uint16_t* lattice = nullptr;  ///< unsigned distances at the lattice points, in steps of lattice_step
-  /// codes and lattice hold kGatherPadding elements more and their indices fit 31 bits (field_simd.h): vector
-  /// gathers may read them. A runtime voxelmap's field is; one built by hand is not.
-  bool gather_safe = false;
-  int dims[3] = {0, 0, 0};
-  int brick_dims[3] = {0, 0, 0};
-  int lattice_dims[3] = {0, 0, 0};
-  float decode_step[2] = {1, 1};  ///< a code's multiplier by its lowest bit: estimate, stored distance
-  float stored_slack = 0;         ///< how far a decoded stored distance may be from the file's exact one
-  // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack.
-  float estimate_slack = 0;
-  float estimate_offset = 0;
-  float estimate_shrink = 1;
-  float band_edge = 0;  ///< distance_band - 1/2: voxels without a stored distance are at least this far
-  float lattice_step = 1.0f / 16;
-  Vec3 cover_max = make_vec3(-1, -1, -1);  ///< upper end of the grid's voxels
-  Vec3 object_min, object_max;             ///< the object's bounding box, grid coordinates
-};
-
-/// What the field says at a point (voxel units).
-struct Sample {
-  float distance = 0;
-  bool exact = false;  ///< trilinear interpolation of stored distances only
-  bool bound = false;  ///< outside the grid: only a lower bound (the distance to the object's box)
 };
 
 VOXFMT_HD int lattice_coordinate(const Field& f, int a, int axis) { return min_i(a * kEdge, f.dims[axis] - 1); }

@@ -6,18 +6,9 @@
 #include <cstddef>
 #include <cstdint>
 
-#if defined(__CUDACC__)
-#define VOXFMT_HD __host__ __device__ __forceinline__
-#else
-#define VOXFMT_HD [[gnu::always_inline]] inline
-#endif
+#include "voxfmt/runtime/core_types.h"  // VOXFMT_HD, Vec3 and the data types
 
 namespace voxfmt::runtime::core {
-
-struct Vec3 {
-  float x = 0, y = 0, z = 0;
-  VOXFMT_HD float operator[](int a) const { return a == 0 ? x : a == 1 ? y : z; }
-};
 
 VOXFMT_HD Vec3 make_vec3(float x, float y, float z) {
   Vec3 v;

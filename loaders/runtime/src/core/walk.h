@@ -11,17 +11,6 @@
 
 namespace voxfmt::runtime::core {
 
-/// A sphere-tree node as the runtime holds it (PointTree::Node has this layout: runtime/src/traversal/eigen.h checks).
-struct alignas(32) Node {
-  float centre[3];  ///< centre of the sphere around the node's point and its descendants (asset frame, metres)
-  float radius;
-  float reach_from_parent;        ///< |centre - parent's centre| + radius
-  float reach_from_parent_point;  ///< |centre - parent's point| + radius
-  uint32_t first_child;
-  uint32_t child_count;
-};
-static_assert(sizeof(Node) == 32, "two nodes per cache line");
-
 /// A point-sphere tree (spec §4) in the runtime's form: node n is point n, breadth first.
 struct Shell {
   const Node* nodes = nullptr;
@@ -33,8 +22,6 @@ struct Shell {
 
 /// Deepest tree the walk takes (a stack of this many ranges per thread); a loader refuses deeper ones up front.
 constexpr uint32_t kMaxWalkLevels = 48;
-
-VOXFMT_HD Vec3 centre_of(const Node& n) { return make_vec3(n.centre[0], n.centre[1], n.centre[2]); }
 
 /// Walks `shell` in the grid of `field` (`frame`), calling emit(node, distance, exact, &gradient) for every point
 /// nearer than frame.proximity (grid units). Returns the nodes visited, or -1 for a tree deeper than kMaxWalkLevels.
@@ -64,7 +51,7 @@ VOXFMT_HD int walk(const Field& field, const Shell& shell, const Frame& frame, E
         proximity)
       continue;
     ++visited;
-    const float bound = lower_bound(field, frame.to_grid.apply(centre_of(n)));
+    const float bound = lower_bound(field, frame.to_grid.apply(n.centre));
     if (!sphere_in_reach(bound, n.radius, scale, proximity)) continue;
     const Vec3 u = frame.to_grid.apply(shell.points[node]);
     // An inner node's point is tested on its own bound before its distance (one voxel against up to eight).

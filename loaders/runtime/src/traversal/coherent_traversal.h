@@ -158,7 +158,7 @@ class CoherentTraversal {
 
   float moved(const Entry& e) const {
     const uint32_t node = e.node();
-    const Eigen::Vector3f& x = e.is_point() ? points_[node] : nodes_[node].centre;
+    const Eigen::Vector3f x = e.is_point() ? points_[node] : to_eigen(nodes_[node].centre);
     const float r = e.is_point() ? 0.0f : nodes_[node].radius;
     const float distance = (dM_ * x + dm_).norm() + spin_ * r + rounding_;
     return e.is_sampled() ? kSampledSlope * distance : distance;
@@ -245,7 +245,7 @@ class CoherentTraversal {
       const uint32_t node = queue[q];
       const PointTree::Node& n = nodes_[node];
       const float radius = n.radius * radius_scale_;
-      const float sphere_bound = target_.lower_bound(map(n.centre));
+      const float sphere_bound = target_.lower_bound(map(to_eigen(n.centre)));
       ++stats_.nodes_visited;
       if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
         record(node, false, sphere_bound - radius);

@@ -23,16 +23,11 @@ inline Affine to_core(const Eigen::Matrix3f& M, const Eigen::Vector3f& m) {
   return a;
 }
 
-/// The runtime's tree as the core's plain arrays: the same memory (the layouts are checked here).
+/// The runtime's tree as the core's plain arrays: the same memory.
 inline Shell shell_of(const PointTree& tree) {
-  static_assert(sizeof(PointTree::Node) == sizeof(Node) &&
-                    offsetof(PointTree::Node, radius) == offsetof(Node, radius) &&
-                    offsetof(PointTree::Node, first_child) == offsetof(Node, first_child) &&
-                    offsetof(PointTree::Node, child_count) == offsetof(Node, child_count) &&
-                    sizeof(Eigen::Vector3f) == sizeof(Vec3),
-                "PointTree::Node and core::Node must share one layout");
+  static_assert(sizeof(Eigen::Vector3f) == sizeof(Vec3), "points and normals are read as the core's Vec3");
   Shell s;
-  s.nodes = reinterpret_cast<const Node*>(tree.nodes.data());
+  s.nodes = tree.nodes.data();
   s.points = reinterpret_cast<const Vec3*>(tree.points.data());
   s.normals = reinterpret_cast<const Vec3*>(tree.normals.data());
   s.count = uint32_t(tree.size());

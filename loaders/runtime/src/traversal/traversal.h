@@ -175,7 +175,7 @@ class LevelTraversal {
   // and all its descendants; the distance is 1-Lipschitz, so if even the bound at the centre exceeds the radius
   // nothing below can be within reach. Returns the survivors, with their bounds, in survivor_/bound_.
   size_t cull(const uint32_t* batch, size_t count) {
-    for (size_t i = 0; i < count; ++i) centre_[i] = map(nodes_[batch[i]].centre);
+    for (size_t i = 0; i < count; ++i) centre_[i] = map(to_eigen(nodes_[batch[i]].centre));
     float bounds[kBatch];
     bounds_at(target_, centre_, count, bounds);
     size_t survivors = 0;
@@ -299,7 +299,7 @@ class LevelTraversal {
       if (!std::binary_search(parents.begin(), parents.end(), hit.node)) emit_(hit);
     for (const uint32_t node : parents) {
       const float radius = nodes_[node].radius * radius_scale_;
-      const float d = sample_hit(target_, node, map(nodes_[node].centre)).distance - radius;
+      const float d = sample_hit(target_, node, map(to_eigen(nodes_[node].centre))).distance - radius;
       if (d < proximity_) emit_(Hit{node, d, false});
     }
   }

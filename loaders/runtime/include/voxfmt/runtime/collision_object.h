@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "voxfmt/asset.h"
+#include "voxfmt/runtime/core_types.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
 
@@ -26,13 +27,6 @@ namespace voxfmt::runtime {
 namespace core {
 struct Field;
 }
-
-/// What the field says at a point, in voxel units of the map (multiply by voxel_size for metres).
-struct FieldSample {
-  float distance = 0.0f;  ///< signed distance estimate, negative inside
-  bool exact = false;     ///< true: trilinear interpolation of stored distances; false: estimates or bounds
-  bool bound = false;     ///< only a lower bound: outside the grid (the distance to the object's bounding box)
-};
 
 class SparseVoxelmap {
  public:
@@ -63,7 +57,7 @@ class SparseVoxelmap {
 
   double voxel_size() const { return voxel_size_; }
   const Eigen::Vector3d& origin() const { return origin_; }
-  const std::array<int, 3>& dims() const { return dims_; }
+  std::array<int, 3> dims() const { return {layout_.dims[0], layout_.dims[1], layout_.dims[2]}; }
   bool empty() const { return bricks_.empty(); }
   /// Heap bytes held (what the map costs in RAM).
   size_t memory_bytes() const;
@@ -72,9 +66,9 @@ class SparseVoxelmap {
   size_t value_brick_count() const { return codes_.size() / kBrickVoxels; }
   /// How far an estimate m (voxels; a voxel without a stored distance) may be from the exact distance u:
   /// u <= m + estimate_slack() and u >= (m - estimate_offset()) / (1 + estimate_relative()) - estimate_slack().
-  float estimate_slack() const { return estimate_slack_; }
-  float estimate_offset() const { return estimate_offset_; }
-  float estimate_relative() const { return 1.0f / estimate_shrink_ - 1.0f; }
+  float estimate_slack() const { return layout_.estimate_slack; }
+  float estimate_offset() const { return layout_.estimate_offset; }
+  float estimate_relative() const { return 1.0f / layout_.estimate_shrink - 1.0f; }
 
   static constexpr int kBrickEdge = int(voxfmt::Voxelmap::kBrickEdge);
   static constexpr int kBrickVoxels = int(voxfmt::Voxelmap::kBrickVoxels);
@@ -86,27 +80,12 @@ class SparseVoxelmap {
 
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
   double voxel_size_ = 1.0;
-  std::array<int, 3> dims_{};
-  std::array<int, 3> brick_dims_{};
-  std::array<int, 3> lattice_dims_{};
-  float decode_step_[2] = {1.0f, 1.0f};  ///< a code's multiplier by its lowest bit: estimate, stored distance
-  float stored_slack_ = 0.0f;            ///< how far a decoded stored distance may be from the file's exact one
-  // An estimate m bounds the exact distance u (spec §3.3): u <= m + slack, u >= (m - offset) * shrink - slack, with
-  // slack the interpolation's reach (4 sqrt(3)) and half an estimate step, offset the lattice's absolute error and
-  // shrink 1 / (1 + its relative error).
-  float estimate_slack_ = 0.0f;
-  float estimate_offset_ = 0.0f;
-  float estimate_shrink_ = 1.0f;
-  float band_edge_ = 0.0f;  ///< distance_band - 1/2: voxels without a stored distance are at least this far
-  Eigen::Vector3f cover_max_ = -Eigen::Vector3f::Ones();  ///< upper end of the grid's voxels, grid coordinates
-  Eigen::Vector3f object_min_ = Eigen::Vector3f::Zero();  ///< object bounding box, grid coordinates
-  Eigen::Vector3f object_max_ = Eigen::Vector3f::Zero();
+  core::FieldLayout layout_;  ///< the arrays' shapes and how their codes decode, fixed at load
   std::vector<int32_t> bricks_;  ///< the brick table (>= 0: value brick; -1 / -2: coarse outside / inside)
   std::vector<int16_t> codes_;   ///< value bricks, 512 codes each
   /// Unsigned distances at the lattice points in steps of lattice_step_ voxels (16 bits: half a float's memory; the
   /// far field needs no more, and the step's half is in estimate_slack_).
   std::vector<uint16_t> lattice_;
-  float lattice_step_ = 1.0f / 16;
 };
 
 // ---- The loaded object.
@@ -118,18 +97,9 @@ struct PointTree {
   /// What a traversal reads of a node before it knows whether the node's point is needed, packed so that a
   /// visit touches one cache line (two nodes per line) and a node's children are contiguous. A 16-byte node of
   /// quantised values was measured no faster (bench/results/sampled-gradient): the floats stay.
-  struct alignas(32) Node {
-    Eigen::Vector3f centre;  ///< centre of the sphere around the node's point and its descendants (asset frame)
-    float radius = 0;        ///< metres
-    /// |centre - parent's centre| + radius (metres; 0 for the root): a parent's distance bound minus this bounds
-    /// the node's, so a child out of reach is dropped without a lookup of its own.
-    float reach_from_parent = 0;
-    /// |centre - parent's point| + radius: the same from the parent's point, whose bound is known too.
-    float reach_from_parent_point = 0;
-    uint32_t first_child = 0;
-    uint32_t child_count = 0;
-  };
-  static_assert(sizeof(Node) == 32, "two nodes per cache line");
+  /// A node: its sphere (centre in the asset frame, radius in metres), what its children's reach from it is, and
+  /// where they are (core_types.h).
+  using Node = core::Node;
 
   std::vector<Node> nodes;
   std::vector<Eigen::Vector3f> points;   ///< asset frame, metres
@@ -140,6 +110,8 @@ struct PointTree {
   float extent = 0;
 
   size_t size() const { return points.size(); }
+  /// Centre of node n's sphere (asset frame, metres).
+  Eigen::Vector3f centre(size_t n) const { return {nodes[n].centre.x, nodes[n].centre.y, nodes[n].centre.z}; }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }
   /// Number of points in levels [0, level]: the coarse point shell that stops at `level`.
   size_t points_up_to_level(size_t level) const {
