@@ -24,7 +24,7 @@
 #include "common/reduced_hull.h"
 #include "scenes.h"
 #include "traversal/function_query.h"
-#include "voxfmt/bullet/partners.h"
+#include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
 #include "voxfmt/detail/atomic_file.h"

@@ -9,7 +9,7 @@
 #include <string>
 
 #include "baked_bunny.h"
-#include "voxfmt/bullet/partners.h"
+#include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
 

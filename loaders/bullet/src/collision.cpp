@@ -37,7 +37,6 @@
 #include "static_mesh.h"
 #include "traversal/function_query.h"
 #include "triangle_set.h"
-#include "voxfmt/bullet/partners.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/runtime/detail/contact_reduction.h"
 

@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "partner_pairs.h"
-#include "voxfmt/bullet/partners.h"
+#include "voxfmt/bullet/collision.h"
 
 namespace voxfmt::bullet::detail {
 

@@ -1,4 +1,4 @@
-#include "voxfmt/bullet/partners.h"
+#include "voxfmt/bullet/collision.h"
 
 #include "triangle_distance.h"
 #include "triangle_set.h"

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "triangle_set.h"
-#include "voxfmt/bullet/partners.h"
+#include "voxfmt/bullet/collision.h"
 
 namespace voxfmt::bullet {
 
