@@ -26,6 +26,7 @@
 #include <mutex>
 #include <optional>
 #include <stdexcept>
+#include <limits>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -154,9 +155,23 @@ std::vector<Pose> parse_poses(nb::handle value, const char* what, size_t count) 
   return poses;
 }
 
+// Where a query stops above the leaves: the deepest level (max_level) and what that level's points report.
+struct Cut {
+  std::optional<int64_t> max_level;
+  std::string level = "spheres";
+};
+
 QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us,
-                           double proximity) {
+                           double proximity, const Cut& cut = {}) {
   QueryOptions options;
+  if (cut.max_level) {
+    if (*cut.max_level < 0) fail(IssueCode::BadOption, "max_level must be >= 0 (or None: the whole tree)");
+    options.max_level = uint32_t(std::min<int64_t>(*cut.max_level, std::numeric_limits<uint32_t>::max()));
+  }
+  if (cut.level == "points")
+    options.cut_level = runtime::CutLevel::Points;
+  else if (cut.level != "spheres")
+    fail(IssueCode::BadOption, "cut_level must be 'spheres' or 'points', not '" + cut.level + "'");
   if (point_budget) {
     if (*point_budget < 1) fail(IssueCode::BadOption, "point_budget must be >= 1 (or None: the whole tree)");
     options.point_budget = size_t(*point_budget);
@@ -220,10 +235,11 @@ double deepest_depth(const ContactSet& set) {
 }
 
 Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, std::optional<int64_t> point_budget,
-               std::optional<double> time_budget_us, double proximity) {
+               std::optional<double> time_budget_us, double proximity, std::optional<int64_t> max_level,
+               const std::string& cut_level) {
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
-  const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
   // The traversal fills a per-thread set that keeps its capacity; the result gets one allocation of the exact
   // size (a fresh vector grown contact by contact cost more than the copy).
   thread_local runtime::QueryScratch scratch;
@@ -276,8 +292,8 @@ using BatchDict = nb::typed<nb::dict, nb::str, nb::any>;
 BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
                          std::optional<int64_t> threads, bool with_contacts, double stiffness,
                          std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
-                         Tracker* tracker) {
-  const QueryOptions options = query_options(point_budget, time_budget_us, proximity);
+                         Tracker* tracker, std::optional<int64_t> max_level, const std::string& cut_level) {
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
   if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
   // Either side may be one (4, 4) pose for all K.
@@ -732,13 +748,17 @@ void bind_queries(nb::module_& m) {
         "voxfmt.InternalError (OUT_OF_MEMORY) when reading it would need more than max_memory_mib (default 768),\n"
         "decided from the file's metadata before anything is read.");
   m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a = nb::none(),
-        "time_budget_us"_a = nb::none(), "proximity"_a = 0.0,
+        "time_budget_us"_a = nb::none(), "proximity"_a = 0.0, "max_level"_a = nb::none(), "cut_level"_a = "spheres",
         nb::sig("def contacts(a: Body, pose_a: numpy.typing.ArrayLike, b: Body, pose_b: numpy.typing.ArrayLike, *, "
-                "point_budget: int | None = None, time_budget_us: float | None = None, proximity: float = 0.0) "
-                "-> Contacts"),
+                "point_budget: int | None = None, time_budget_us: float | None = None, proximity: float = 0.0, "
+                "max_level: int | None = None, cut_level: str = 'spheres') -> Contacts"),
         "Contacts between a and b placed by 4x4 rigid body-to-world poses (voxfmt.PoseError, code BAD_POSE,\n"
         "when not rigid). point_budget stops before the tree level that would exceed it; time_budget_us bounds\n"
-        "each traversal; proximity also reports points outside but closer than it (negative depth).");
+        "each traversal; max_level is the deepest tree level tested (0: the root); proximity also reports points\n"
+        "outside but closer than it (negative depth). A query stopped above the leaves reports its last level as\n"
+        "cut_level says: 'spheres' (each point stands for its sphere: no contact of the full tree is lost, depths\n"
+        "up to two radii deeper) or 'points' (each point only for itself, at its true depth: the seed's coarse\n"
+        "shell).");
   m.def("wrench", &wrench, "contacts"_a, "stiffness"_a, nb::kw_only(), "reference"_a = nb::none(),
         nb::sig("def wrench(contacts: Contacts, stiffness: float, *, reference: numpy.typing.ArrayLike | None = "
                 "None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]"),
@@ -747,7 +767,7 @@ void bind_queries(nb::module_& m) {
   m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, nb::kw_only(),
         "threads"_a.none() = nb::none(), "with_contacts"_a = false, "stiffness"_a = 1.0,
         "point_budget"_a.none() = nb::none(), "time_budget_us"_a.none() = nb::none(), "proximity"_a = 0.0,
-        "tracker"_a.none() = nb::none());
+        "tracker"_a.none() = nb::none(), "max_level"_a.none() = nb::none(), "cut_level"_a = "spheres");
   nb::class_<Tracker>(m, "_Tracker")
       .def(
           "__init__",

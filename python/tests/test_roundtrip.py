@@ -104,6 +104,24 @@ def test_budgets_cut_the_tree(sphere: voxfmt.Body) -> None:
     assert not timed.stats.time_budget_hit and len(timed) == len(full)
 
 
+def test_max_level_cuts_at_a_level_and_cut_level_says_what_it_reports(sphere: voxfmt.Body) -> None:
+    pose_b = overlap_pose(2 * sphere.voxel_size)
+    full = voxfmt.contacts(sphere, np.eye(4), sphere, pose_b)
+    level = full.stats.deepest_level - 1
+    spheres = voxfmt.contacts(sphere, np.eye(4), sphere, pose_b, max_level=level)
+    points = voxfmt.contacts(sphere, np.eye(4), sphere, pose_b, max_level=level, cut_level="points")
+    assert spheres.stats.deepest_level == points.stats.deepest_level == level
+    # The level's points only; spheres reach deeper than the points themselves, points no deeper than the tree's.
+    assert 0 < len(points) < len(full) and points.point_index.max() < sphere.levels[level + 1]
+    assert spheres.max_depth >= full.max_depth - 1e-9 >= points.max_depth - 1e-9
+    batch = voxfmt.contacts_batch(sphere, np.eye(4)[None], sphere, pose_b[None], max_level=level, cut_level="points")
+    assert batch.count[0] == len(points) and batch.max_depth[0] == points.max_depth
+    for bad in ({"max_level": -1}, {"cut_level": "leaves"}):
+        with pytest.raises(voxfmt.OptionError) as error:
+            voxfmt.contacts(sphere, np.eye(4), sphere, pose_b, **bad)
+        assert error.value.code == "BAD_OPTION"
+
+
 def test_views_are_read_only_and_outlive_their_owner(sphere_asset: Path) -> None:
     body = voxfmt.load(sphere_asset)
     points, normals, levels, radii = body.points, body.normals, body.levels, body.sphere_radii

@@ -239,17 +239,21 @@ def contacts_batch(
     point_budget: int | None = None,
     time_budget_us: float | None = None,
     proximity: float = 0.0,
+    max_level: int | None = None,
+    cut_level: str = "spheres",
 ) -> Batch:
     """contacts() for K pose pairs at once: ``poses_a`` and ``poses_b`` are (K, 4, 4) (either may be one
     (4, 4) pose for all K). The GIL is released; ``threads`` workers (default: every core) split the poses;
     the outputs are allocated once. Returns per-pose ``count``, ``max_depth``, ``force`` and ``torque``
     (penalty wrench with ``stiffness``, as wrench() computes it), plus the flattened contacts with
-    ``with_contacts``. Raises PoseError naming the first non-rigid pose before any query runs."""
+    ``with_contacts``. ``point_budget``, ``time_budget_us``, ``max_level`` and ``cut_level`` are contacts()'s.
+    Raises PoseError naming the first non-rigid pose before any query runs."""
     if not isinstance(with_contacts, bool):
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
-                          time_budget_us=time_budget_us, proximity=_real("proximity", proximity))
+                          time_budget_us=time_budget_us, proximity=_real("proximity", proximity),
+                          max_level=max_level, cut_level=cut_level)
     return Batch(**out)
 
 
