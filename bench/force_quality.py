@@ -33,8 +33,11 @@ is a few quanta of the stored distance), split at 2 voxels deep:
   the excess jump: the largest step-to-step change of the error F - F_ref over the reference's median change.
 A cut level's points each stand for more surface: its stiffness per point is scaled by (shell points / level's
 points), so that the force per area is the reference's; without that, its force is that fraction of the fine one.
-Not yet measured (see the issue): bunny into bunny and a peg into its hole (need exact mesh distances), the
-haptic renderer (C++ only).
+  peg-in-hole   a peg (radius 5 mm, 30 mm long) lowered 15 mm into a block's through hole (radius 5.2 mm; the
+                block 60 x 60 x 40 mm) without touching, then moved sideways across the clearance and 10 voxels
+                into the hole's wall over 700 steps while going 2 mm deeper: a long, nearly conforming contact
+Not yet measured (see the issue): a bunny into a bunny (it needs exact mesh distances), the haptic renderer (C++
+only).
 """
 
 from __future__ import annotations
@@ -85,6 +88,69 @@ def torus_mesh(R: float, r: float, n_major: int, n_minor: int) -> tuple[np.ndarr
     return vertices, faces
 
 
+def oriented(vertices: np.ndarray, faces: np.ndarray, outward) -> np.ndarray:
+    """Faces turned so that each normal agrees with outward(centroids) (each face's side is known by construction)."""
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    flip = np.einsum("ij,ij->i", normal, outward(tri.mean(axis=1))) < 0
+    faces = faces.copy()
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+def quads(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Two triangles per quad between two closed rings of vertex indices."""
+    a1, b1 = np.roll(a, -1), np.roll(b, -1)
+    return np.concatenate([np.stack([a, b, b1], -1), np.stack([a, b1, a1], -1)])
+
+
+def block_with_hole_mesh(a: float, c: float, hole: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The box [-a, a]^2 x [-c, c] with a through hole of radius `hole` along z; n (a multiple of 8) points
+    around, the square's corners among them."""
+    theta = np.arange(n) * 2 * np.pi / n
+    ring = np.stack([np.cos(theta), np.sin(theta)], -1)
+    square = ring * (a / np.abs(ring).max(axis=1))[:, None]
+    circle = ring * hole
+    rows = [np.hstack([xy, np.full((n, 1), z)]) for xy, z in ((square, c), (circle, c), (square, -c), (circle, -c))]
+    vertices = np.concatenate(rows)
+    sq_top, ci_top, sq_bot, ci_bot = (np.arange(n) + k * n for k in range(4))
+    faces = np.concatenate([quads(ci_top, sq_top), quads(sq_bot, ci_bot), quads(sq_top, sq_bot), quads(ci_bot, ci_top)])
+
+    def outward(x: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(x)
+        rho = np.hypot(x[:, 0], x[:, 1])
+        cap = np.abs(np.abs(x[:, 2]) - c) < 1e-12
+        wall = ~cap & (rho < hole * 1.0001)
+        side = ~cap & ~wall
+        out[cap, 2] = np.sign(x[cap, 2])
+        out[wall, :2] = -x[wall, :2] / rho[wall, None]
+        axis = np.abs(x[side, :2]).argmax(axis=1)
+        out[np.flatnonzero(side), axis] = np.sign(x[side][np.arange(len(axis)), axis])
+        return out
+
+    return vertices, oriented(vertices, faces, outward)
+
+
+def cylinder_mesh(radius: float, half_length: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    theta = np.arange(n) * 2 * np.pi / n
+    ring = np.stack([radius * np.cos(theta), radius * np.sin(theta)], -1)
+    vertices = np.concatenate([np.hstack([ring, np.full((n, 1), half_length)]),
+                               np.hstack([ring, np.full((n, 1), -half_length)]), [[0, 0, half_length], [0, 0, -half_length]]])
+    top, bottom = np.arange(n), np.arange(n) + n
+    caps = [np.stack([np.full(n, 2 * n), top, np.roll(top, -1)], -1),
+            np.stack([np.full(n, 2 * n + 1), np.roll(bottom, -1), bottom], -1)]
+    faces = np.concatenate([quads(top, bottom)] + caps)
+
+    def outward(x: np.ndarray) -> np.ndarray:
+        cap = np.abs(np.abs(x[:, 2]) - half_length) < 1e-12
+        out = np.hstack([x[:, :2], np.zeros((len(x), 1))])
+        out[cap] = [0, 0, 0]
+        out[cap, 2] = np.sign(x[cap, 2])
+        return out
+
+    return vertices, oriented(vertices, faces, outward)
+
+
 # ------------------------------------------------------------------------------------------------ exact fields
 
 def box_sdf(x: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,6 +173,23 @@ def torus_sdf(x: np.ndarray, R: float, r: float) -> tuple[np.ndarray, np.ndarray
     length = np.maximum(np.hypot(qx, qz), 1e-12)
     grad = np.stack([qx / length * x[:, 0] / rho, qx / length * x[:, 1] / rho, qz / length], -1)
     return length - r, grad
+
+
+def block_with_hole_sdf(x: np.ndarray, a: float, c: float, hole: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact inside the material (what a penetrating point needs): minus the distance to the nearest face or to
+    the hole's wall, and that surface's outward normal; outside it, +1 (no contact) and no gradient."""
+    rho = np.maximum(np.hypot(x[:, 0], x[:, 1]), 1e-12)
+    gaps = np.stack([a - np.abs(x[:, 0]), a - np.abs(x[:, 1]), c - np.abs(x[:, 2]), rho - hole], -1)
+    inside = (gaps > 0).all(axis=1)
+    nearest = gaps.argmin(axis=1)
+    d = np.where(inside, -gaps.min(axis=1), 1.0)
+    grad = np.zeros_like(x)
+    for axis in range(3):
+        pick = inside & (nearest == axis)
+        grad[pick, axis] = np.sign(x[pick, axis])
+    wall = inside & (nearest == 3)
+    grad[wall, :2] = -x[wall, :2] / rho[wall, None]
+    return d, grad
 
 
 # ------------------------------------------------------------------------------------------------ poses
@@ -142,6 +225,16 @@ def tori_path(R: float, r: float, h: float) -> tuple[np.ndarray, np.ndarray]:
     poses = np.stack([pose(rotation("z", w), np.array([s, 0.0, 2 * r - o * h]))
                       for o, s, w in zip(overlap, slide, spin)])
     return poses, overlap
+
+
+def peg_path(c: float, clearance: float, half_length: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The peg descends into the hole, centred (no contact), then is moved sideways across the clearance and 10
+    voxels into the wall while it goes 2 mm deeper."""
+    descend = np.concatenate([np.linspace(c + half_length + 0.002, c + half_length - 0.015, 300),
+                              np.linspace(c + half_length - 0.015, c + half_length - 0.017, 700)])
+    offset = np.concatenate([np.zeros(300), np.linspace(0, clearance + 10 * h, 700)])
+    poses = np.stack([pose(np.eye(3), np.array([x, 0.0, z])) for z, x in zip(descend, offset)])
+    return poses, np.maximum(offset - clearance, 0) / h
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -284,6 +377,13 @@ def measure(args) -> dict:
         poses, _ = tori_path(R, r, fixed.voxel_size)
         paths.append(run_path("tori-sliding", moving, fixed, poses, lambda x: torus_sdf(x, R, r),
                               fixed.voxel_size, voxfmt))
+    if "peg-in-hole" in args.paths:
+        a, c, hole, radius, half_length = 0.03, 0.02, 0.0052, 0.005, 0.015
+        block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000)
+        peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000)
+        poses, _ = peg_path(c, hole - radius, half_length, block.voxel_size)
+        paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
+                              block.voxel_size, voxfmt))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
@@ -367,7 +467,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write the figures (and the force along each path) here")
     ap.add_argument("--markdown", help="write the table here")
-    ap.add_argument("--paths", default="wall-push,tori-sliding")
+    ap.add_argument("--paths", default="wall-push,tori-sliding,peg-in-hole")
     ap.add_argument("--cache", default="out/force-quality", help="meshes and baked assets (reused)")
     ap.add_argument("--bunny", default=str(ROOT / "build/cgal-data/data/meshes/bunny00.off"))
     ap.add_argument("--plot", nargs=2, metavar=("JSON", "PNG"), help="only draw a results file's forces")
@@ -378,7 +478,7 @@ def main() -> int:
         plot(*args.plot)
         return 0
     args.paths = args.paths.split(",")
-    unknown = set(args.paths) - {"wall-push", "tori-sliding"}
+    unknown = set(args.paths) - {"wall-push", "tori-sliding", "peg-in-hole"}
     if unknown:
         print(f"force_quality: unknown path(s) {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
