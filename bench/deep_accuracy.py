@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""How far an asset's values beyond the band (its estimates) are from the exact signed distance, and how far they
+would be if the lattice held exact distances, every 8, 4 or 2 voxels (issue "fidelity": measure before choosing).
+
+    PYTHONPATH=build/python .venv/bin/python bench/deep_accuracy.py ASSET MESH [--samples N] [--steps 8,4,2] [--json OUT]
+
+Needs libigl (`pip install libigl`, in pyproject's `bench` extra) for exact distances to the mesh: signed by
+pseudonormals, so MESH must be the closed mesh the asset was baked from, in the asset's units.
+
+Samples voxel centres whose value is beyond the band (|value| > band + 1/2 voxel), inside and outside, and reports
+in voxels: the largest and 99th-percentile error, the share beyond the target of 1 voxel + 1 % of the depth, the
+share under the exact depth by more than half a voxel; for the exact lattices the same, and how many of the
+sampled coarse bricks hold a voxel beyond the target (what refining those bricks alone would cost). The asset is
+read through the runtime (`Body.signed_distance`: what every consumer sees) and h5py (the grid's numbers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+
+def interpolate(table: np.ndarray, ijk: np.ndarray, step: int, dims: np.ndarray) -> np.ndarray:
+    """A lattice of values every `step` voxels (the last point at the grid's end) interpolated at voxels."""
+    lower = ijk // step
+    c0 = lower * step
+    c1 = np.minimum(c0 + step, dims - 1)
+    t = (ijk - c0) / np.maximum(c1 - c0, 1)
+    value = np.zeros(len(ijk))
+    for corner in range(8):
+        d = np.array([(corner >> a) & 1 for a in range(3)])
+        weight = np.prod(np.where(d == 1, t, 1 - t), axis=1)
+        index = np.minimum(lower + d, np.array(table.shape) - 1)
+        value += weight * table[index[:, 0], index[:, 1], index[:, 2]]
+    return value
+
+
+def figures(estimate: np.ndarray, exact: np.ndarray) -> dict:
+    out = {}
+    error = estimate - exact
+    beyond = np.abs(error) > 1 + 0.01 * np.abs(exact)
+    for side, mask in (("inside", exact < 0), ("outside", exact > 0)):
+        e = np.abs(error[mask])
+        out[side] = {
+            "samples": int(mask.sum()),
+            "max_error": round(float(e.max()), 3) if e.size else 0.0,
+            "p99_error": round(float(np.percentile(e, 99)), 3) if e.size else 0.0,
+            "beyond_target_share": round(float(beyond[mask].mean()), 5) if e.size else 0.0,
+            "under_by_half_share": round(float((np.abs(estimate[mask]) < np.abs(exact[mask]) - 0.5).mean()), 5)
+            if e.size else 0.0,
+        }
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("asset")
+    ap.add_argument("mesh")
+    ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
+    ap.add_argument("--steps", default="8,4,2", help="exact lattices to try, voxels apart (default 8,4,2)")
+    ap.add_argument("--json", help="write the figures here")
+    args = ap.parse_args()
+    try:
+        import igl
+    except ImportError:
+        print("deep_accuracy: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
+        return 2
+    import h5py
+
+    import voxfmt
+
+    body = voxfmt.load(args.asset)
+    with h5py.File(args.asset, "r") as f:
+        attrs = f["voxelmap"].attrs
+        origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
+        dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
+    V, F = igl.read_triangle_mesh(args.mesh)
+    rng = np.random.default_rng(1)
+    ijk = np.stack([rng.integers(0, d, 8 * args.samples) for d in dims], -1)
+    current = body.signed_distance(origin + h * ijk) / h
+    deep = np.flatnonzero(np.abs(current) > band + 0.5)[: args.samples]
+    ijk, current = ijk[deep], current[deep]
+    start = time.perf_counter()
+    exact = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+    exact_us = (time.perf_counter() - start) / len(ijk) * 1e6
+    result = {"asset": args.asset, "mesh": args.mesh, "voxel_size": h, "dims": dims.tolist(), "band": band,
+              "exact_us_per_point": round(exact_us, 2), "sign_disagreements": int((np.sign(current) != np.sign(exact)).sum()),
+              "current": figures(current, exact), "exact_lattice": {}}
+    steps = [int(s) for s in args.steps.split(",")]
+    for step in steps:
+        axes = [np.unique(np.minimum(np.arange(0, d + step, step), d - 1)) for d in dims]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+        points = origin + h * grid.reshape(-1, 3)
+        unsigned = np.abs(igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0])
+        table = (unsigned / h).reshape(grid.shape[:3])
+        # The runtime's rule beyond the band: the interpolated magnitude, at least the band's edge, signed.
+        estimate = np.sign(current) * np.maximum(interpolate(table, ijk, step, dims), band - 0.5)
+        entry = figures(estimate, exact)
+        entry["lattice_points"] = int(len(points))
+        if step == 8:
+            beyond = np.abs(estimate - exact) > 1 + 0.01 * np.abs(exact)
+            brick = np.ravel_multi_index((ijk // 8).T, tuple((dims + 7) // 8))
+            sampled, inverse = np.unique(brick, return_inverse=True)
+            bad = np.zeros(len(sampled), bool)
+            np.logical_or.at(bad, inverse, beyond)
+            entry["sampled_bricks"], entry["bricks_beyond_target"] = int(len(sampled)), int(bad.sum())
+        result["exact_lattice"][str(step)] = entry
+    rows = [("current estimates", result["current"])] + [
+        (f"exact lattice every {s}", result["exact_lattice"][str(s)]) for s in steps]
+    print(f"deep_accuracy: {args.asset}, {len(ijk)} voxels beyond the band, exact distances {exact_us:.1f} µs each")
+    print("| values | side | max error | p99 | beyond 1 voxel + 1 % | under by > 1/2 voxel |")
+    print("|---|---|---|---|---|---|")
+    for name, entry in rows:
+        for side in ("inside", "outside"):
+            e = entry[side]
+            print(f"| {name} | {side} | {e['max_error']:.2f} | {e['p99_error']:.2f} | "
+                  f"{100 * e['beyond_target_share']:.2f} % | {100 * e['under_by_half_share']:.2f} % |")
+    e8 = result["exact_lattice"].get("8")
+    if e8:
+        print(f"coarse bricks with a voxel beyond the target under an exact lattice: {e8['bricks_beyond_target']} "
+              f"of {e8['sampled_bricks']} sampled")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=1)
+            f.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
