@@ -70,7 +70,6 @@ def main() -> int:
         print("deep_accuracy: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
         return 2
     import h5py
-
     import voxfmt
 
     body = voxfmt.load(args.asset)
@@ -100,14 +99,14 @@ def main() -> int:
         # The runtime's rule beyond the band: the interpolated magnitude, at least the band's edge, signed.
         estimate = np.sign(current) * np.maximum(interpolate(table, ijk, step, dims), band - 0.5)
         entry = figures(estimate, exact)
-        entry["lattice_points"] = int(len(points))
+        entry["lattice_points"] = len(points)
         if step == 8:
             beyond = np.abs(estimate - exact) > 1 + 0.01 * np.abs(exact)
             brick = np.ravel_multi_index((ijk // 8).T, tuple((dims + 7) // 8))
             sampled, inverse = np.unique(brick, return_inverse=True)
             bad = np.zeros(len(sampled), bool)
             np.logical_or.at(bad, inverse, beyond)
-            entry["sampled_bricks"], entry["bricks_beyond_target"] = int(len(sampled)), int(bad.sum())
+            entry["sampled_bricks"], entry["bricks_beyond_target"] = len(sampled), int(bad.sum())
         result["exact_lattice"][str(step)] = entry
     rows = [("current estimates", result["current"])] + [
         (f"exact lattice every {s}", result["exact_lattice"][str(s)]) for s in steps]

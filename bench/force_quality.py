@@ -53,39 +53,20 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "examples" / "mujoco"))
+from shapes import read_off, torus_mesh, write_off
+
 STIFFNESS = 1000.0  # N/m; every figure is relative, so any value gives the same ones
 MIN_DEPTH_VOXELS = 0.1
 
 
 # ------------------------------------------------------------------------------------------------ meshes
 
-def write_off(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    with open(path, "w") as f:
-        f.write(f"OFF\n{len(vertices)} {len(faces)} 0\n")
-        np.savetxt(f, vertices, fmt="%.9f")
-        np.savetxt(f, np.hstack([np.full((len(faces), 1), 3), faces]), fmt="%d")
-
-
 def box_mesh(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     corners = np.array([[x, y, z] for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)], float) * half
     quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
     faces = [(a, b, c) for a, b, c, d in quads] + [(a, c, d) for a, b, c, d in quads]
     return corners, np.array(faces)
-
-
-def torus_mesh(R: float, r: float, n_major: int, n_minor: int) -> tuple[np.ndarray, np.ndarray]:
-    u = np.arange(n_major) * 2 * np.pi / n_major
-    v = np.arange(n_minor) * 2 * np.pi / n_minor
-    U, V = np.meshgrid(u, v, indexing="ij")
-    rho = R + r * np.cos(V)
-    vertices = np.stack([rho * np.cos(U), rho * np.sin(U), r * np.sin(V)], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
-    a = i * n_minor + j
-    b = ((i + 1) % n_major) * n_minor + j
-    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
-    d = i * n_minor + (j + 1) % n_minor
-    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-    return vertices, faces
 
 
 def oriented(vertices: np.ndarray, faces: np.ndarray, outward) -> np.ndarray:
@@ -389,34 +370,17 @@ def measure(args) -> dict:
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
 
 
-def read_off(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    tokens = [line.split("#")[0] for line in path.read_text().splitlines()]
-    words = " ".join(tokens).split()
-    if words[0] != "OFF":
-        raise SystemExit(f"force_quality: {path}: not an OFF file")
-    nv, nf = int(words[1]), int(words[2])
-    v = np.array(words[4:4 + 3 * nv], float).reshape(nv, 3)
-    rest = words[4 + 3 * nv:]
-    faces, i = [], 0
-    for _ in range(nf):
-        n = int(rest[i])
-        ids = [int(w) for w in rest[i + 1:i + 1 + n]]
-        faces += [(ids[0], ids[j], ids[j + 1]) for j in range(1, n - 1)]
-        i += 1 + n
-    return v, np.array(faces)
-
-
 # ------------------------------------------------------------------------------------------------ output
 
 def markdown(result: dict) -> str:
-    lines = [f"Force quality, {result['machine']}: `{result['command']}`", "",
-             f"Steps whose reference depth is at least {result['min_depth_voxels']} voxel; shallow: up to 2 voxels "
-             "(within: 2 % and 2 degrees), deep: 2-10 voxels (within: 10 % and 2 degrees). Magnitude and angle of "
-             "the force, torque error over |F_ref| x A's radius: 95th percentiles. Smoothness: largest step change "
-             "of F over the median one (the reference's own); excess jump: largest step change of F - F_ref over "
-             "the reference's median one. Cut levels: stiffness per point x shell points / level's points.", "",
-             "| path | method | points | shallow within | magnitude p95 | angle p95 | torque p95 | deep within | "
-             "magnitude p95 | angle p95 | torque p95 | smoothness (reference) | excess jump | µs/step |",
+    legend = (f"Steps whose reference depth is at least {result['min_depth_voxels']} voxel; shallow: up to 2 voxels "
+              "(within: 2 % and 2 degrees), deep: 2-10 voxels (within: 10 % and 2 degrees). Magnitude and angle of "
+              "the force, torque error over |F_ref| x A's radius: 95th percentiles. Smoothness: largest step change "
+              "of F over the median one (the reference's own); excess jump: largest step change of F - F_ref over "
+              "the reference's median one. Cut levels: stiffness per point x shell points / level's points.")
+    header = ("| path | method | points | shallow within | magnitude p95 | angle p95 | torque p95 | deep within | "
+              "magnitude p95 | angle p95 | torque p95 | smoothness (reference) | excess jump | µs/step |")
+    lines = [f"Force quality, {result['machine']}: `{result['command']}`", "", legend, "", header,
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in result["paths"]:
         for name, m in p["methods"].items():

@@ -45,7 +45,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "examples" / "mujoco"))
-import shapes  # noqa: E402  (examples/mujoco/shapes.py: the peg and the block)
+import shapes  # noqa: E402  (examples/mujoco/shapes.py: the peg, the block and the torus)
 
 import voxfmt  # noqa: E402
 import voxfmt.newton as vn  # noqa: E402
@@ -73,21 +73,6 @@ class Scene:
     seconds: float
     cfg: dict
     walls: list[tuple[tuple[float, float, float], tuple[float, float, float]]]  # box centres and half sizes
-
-
-def torus_mesh(R: float, r: float, major: int, minor: int) -> tuple[np.ndarray, np.ndarray]:
-    """A closed torus around the z axis, outward-facing."""
-    u = 2 * math.pi * np.arange(major) / major
-    v = 2 * math.pi * np.arange(minor) / minor
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    vertices = np.stack([(R + r * np.cos(vv)) * np.cos(uu), (R + r * np.cos(vv)) * np.sin(uu), r * np.sin(vv)], -1)
-    i, j = np.meshgrid(np.arange(major), np.arange(minor), indexing="ij")
-    a = i * minor + j
-    b = ((i + 1) % major) * minor + j
-    c = ((i + 1) % major) * minor + (j + 1) % minor
-    d = i * minor + (j + 1) % minor
-    triangles = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
-    return vertices.reshape(-1, 3), triangles
 
 
 def baked(name: str, mesh: tuple[np.ndarray, np.ndarray], cache: Path, **settings: Any) -> Path:
@@ -137,7 +122,7 @@ def make_scenes(cache: Path, quick: bool) -> dict[str, Scene]:
         {"mu": 0.3, "gap": 0.0005},
         [],
     )
-    torus = torus_mesh(0.05, 0.02, 120, 40)
+    torus = shapes.torus_mesh(0.05, 0.02, 120, 40)
     torus_asset = baked("torus-120x40", torus, cache, resolution=96 if quick else 160, points=8000)
     standing = wp.quat_from_axis_angle(wp.vec3(1.0, 0.0, 0.0), math.pi / 2)
     scenes["torus-in-torus"] = Scene(

@@ -1,5 +1,6 @@
-"""Closed triangle meshes for the MuJoCo examples and bench/mujoco_compare.py: a chamfered peg and a block with a
-chamfered blind hole (metres, z up, watertight, outward-facing), written as OFF and OBJ, plus readers.
+"""Closed triangle meshes for the MuJoCo examples and the benchmarks (bench/mujoco_compare.py, newton_scenes.py,
+force_quality.py): a chamfered peg and a block with a chamfered blind hole, and a torus (metres, z up, watertight,
+outward-facing), written as OFF and OBJ, plus readers.
 
 The hole's radius is the peg's plus the radial clearance, so the same peg fits holes of any clearance.
 """
@@ -107,6 +108,21 @@ def _revolve(profile: list[tuple[float, float]], bottom_cap: bool, top_cap: bool
     if top_cap:
         faces.append(np.column_stack([last + i, last + j, np.full(n, top_centre)]))
     return vertices, np.concatenate(faces)
+
+
+def torus_mesh(R: float, r: float, major: int, minor: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed torus around the z axis (major radius R, tube radius r), `major` x `minor` vertices on it."""
+    u = 2 * math.pi * np.arange(major) / major
+    v = 2 * math.pi * np.arange(minor) / minor
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    vertices = np.stack([(R + r * np.cos(vv)) * np.cos(uu), (R + r * np.cos(vv)) * np.sin(uu), r * np.sin(vv)], -1)
+    i, j = np.meshgrid(np.arange(major), np.arange(minor), indexing="ij")
+    a = i * minor + j
+    b = ((i + 1) % major) * minor + j
+    c = ((i + 1) % major) * minor + (j + 1) % minor
+    d = i * minor + (j + 1) % minor
+    triangles = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return vertices.reshape(-1, 3), triangles
 
 
 def write_off(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndarray) -> None:
