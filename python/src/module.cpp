@@ -22,11 +22,11 @@
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <stdexcept>
-#include <limits>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -161,8 +161,8 @@ struct Cut {
   std::string level = "spheres";
 };
 
-QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us,
-                           double proximity, const Cut& cut = {}) {
+QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
+                           const Cut& cut = {}) {
   QueryOptions options;
   if (cut.max_level) {
     if (*cut.max_level < 0) fail(IssueCode::BadOption, "max_level must be >= 0 (or None: the whole tree)");

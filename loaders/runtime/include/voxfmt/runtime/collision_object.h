@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "voxfmt/asset.h"
-#include "voxfmt/runtime/core_types.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
+#include "voxfmt/runtime/core_types.h"
 
 namespace voxfmt::runtime {
 
@@ -80,7 +80,7 @@ class SparseVoxelmap {
 
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
   double voxel_size_ = 1.0;
-  core::FieldLayout layout_;  ///< the arrays' shapes and how their codes decode, fixed at load
+  core::FieldLayout layout_;     ///< the arrays' shapes and how their codes decode, fixed at load
   std::vector<int32_t> bricks_;  ///< the brick table (>= 0: value brick; -1 / -2: coarse outside / inside)
   std::vector<int16_t> codes_;   ///< value bricks, 512 codes each
   /// Unsigned distances at the lattice points in steps of lattice_step_ voxels (16 bits: half a float's memory; the

@@ -46,17 +46,17 @@ struct FieldLayout {
   float estimate_slack = 0;
   float estimate_offset = 0;
   float estimate_shrink = 1;
-  float band_edge = 0;              ///< distance_band - 1/2: voxels without a stored distance are at least this far
-  float lattice_step = 1.0f / 16;   ///< the lattice's unit (16-bit unsigned distances), voxels
-  Vec3 cover_max{-1, -1, -1};       ///< upper end of the grid's voxels, grid coordinates (an empty grid: none)
-  Vec3 object_min, object_max;      ///< the object's bounding box, grid coordinates
+  float band_edge = 0;             ///< distance_band - 1/2: voxels without a stored distance are at least this far
+  float lattice_step = 1.0f / 16;  ///< the lattice's unit (16-bit unsigned distances), voxels
+  Vec3 cover_max{-1, -1, -1};      ///< upper end of the grid's voxels, grid coordinates (an empty grid: none)
+  Vec3 object_min, object_max;     ///< the object's bounding box, grid coordinates
 };
 
 /// A node of the point-sphere tree (spec §4), what a traversal reads of it before it knows whether the node's
 /// point is needed: one cache line holds two, and a node's children are contiguous. A 16-byte node of quantised
 /// values was measured no faster (bench/results/sampled-gradient): the floats stay.
 struct alignas(32) Node {
-  Vec3 centre;  ///< centre of the sphere around the node's point and its descendants (asset frame, metres)
+  Vec3 centre;       ///< centre of the sphere around the node's point and its descendants (asset frame, metres)
   float radius = 0;  ///< metres
   /// |centre - parent's centre| + radius (metres; 0 for the root): a parent's distance bound minus this bounds
   /// the node's, so a child out of reach is dropped without a lookup of its own.
