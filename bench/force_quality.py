@@ -189,33 +189,30 @@ def pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return m
 
 
-def wall_push_path(tool, wall_top: float, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """The tool's poses and the commanded depth (voxels) per step."""
+def wall_push_path(tool, wall_top: float, h: float) -> np.ndarray:
+    """The tool's poses: 0 -> 10 voxels into the wall, then slid along it."""
     R0 = rotation("z", 30) @ rotation("x", 20)
     lowest = (tool.points.astype(np.float64) @ R0.T)[:, 2].min()
     depth = np.concatenate([np.linspace(0, 10, 700), np.full(300, 10.0)])
     slide = np.concatenate([np.zeros(700), np.linspace(0, 0.02, 300)])
-    poses = np.stack([pose(R0, np.array([s, 0.0, wall_top - lowest - d * h])) for d, s in zip(depth, slide)])
-    return poses, depth
+    return np.stack([pose(R0, np.array([s, 0.0, wall_top - lowest - d * h])) for d, s in zip(depth, slide)])
 
 
-def tori_path(R: float, r: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+def tori_path(r: float, h: float) -> np.ndarray:
     overlap = np.concatenate([np.linspace(0, 6, 600), np.full(400, 6.0)])
     slide = np.concatenate([np.zeros(600), np.linspace(0, 0.01, 400)])
     spin = np.concatenate([np.zeros(600), np.linspace(0, 90, 400)])
-    poses = np.stack([pose(rotation("z", w), np.array([s, 0.0, 2 * r - o * h]))
-                      for o, s, w in zip(overlap, slide, spin)])
-    return poses, overlap
+    return np.stack([pose(rotation("z", w), np.array([s, 0.0, 2 * r - o * h]))
+                     for o, s, w in zip(overlap, slide, spin)])
 
 
-def peg_path(c: float, clearance: float, half_length: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+def peg_path(c: float, clearance: float, half_length: float, h: float) -> np.ndarray:
     """The peg descends into the hole, centred (no contact), then is moved sideways across the clearance and 10
     voxels into the wall while it goes 2 mm deeper."""
     descend = np.concatenate([np.linspace(c + half_length + 0.002, c + half_length - 0.015, 300),
                               np.linspace(c + half_length - 0.015, c + half_length - 0.017, 700)])
     offset = np.concatenate([np.zeros(300), np.linspace(0, clearance + 10 * h, 700)])
-    poses = np.stack([pose(np.eye(3), np.array([x, 0.0, z])) for z, x in zip(descend, offset)])
-    return poses, np.maximum(offset - clearance, 0) / h
+    return np.stack([pose(np.eye(3), np.array([x, 0.0, z])) for z, x in zip(descend, offset)])
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -243,22 +240,26 @@ def angle_degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
+def step_changes(values: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """|values[k] - values[k - 1]| over consecutive steps both in contact."""
+    return np.linalg.norm(np.diff(values, axis=0), axis=1)[active[1:] & active[:-1]]
+
+
+def largest_over_median(changes: np.ndarray, typical: np.ndarray) -> float:
+    median = float(np.median(typical)) if typical.size else 0.0
+    return float(changes.max() / median) if median > 0 else float("inf")
+
+
 def smoothness(force: np.ndarray, active: np.ndarray) -> float:
     """Largest step-to-step change of the force over the median change, over consecutive steps in contact."""
-    both = active[1:] & active[:-1]
-    change = np.linalg.norm(np.diff(force, axis=0), axis=1)[both]
-    change_median = float(np.median(change)) if change.size else 0.0
-    return float(change.max() / change_median) if change_median > 0 else float("inf")
+    changes = step_changes(force, active)
+    return largest_over_median(changes, changes)
 
 
 def excess_jump(force: np.ndarray, ref_force: np.ndarray, active: np.ndarray) -> float:
     """Largest step-to-step change of the error F - F_ref over the reference's median change: a jump the path
     itself does not make."""
-    both = active[1:] & active[:-1]
-    ref_change = np.linalg.norm(np.diff(ref_force, axis=0), axis=1)[both]
-    error_change = np.linalg.norm(np.diff(force - ref_force, axis=0), axis=1)[both]
-    median = float(np.median(ref_change)) if ref_change.size else 0.0
-    return float(error_change.max() / median) if median > 0 else float("inf")
+    return largest_over_median(step_changes(force - ref_force, active), step_changes(ref_force, active))
 
 
 def method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever) -> dict:
@@ -348,21 +349,21 @@ def measure(args) -> dict:
             v = (v - v.mean(axis=0)) * (0.15 / (v.max(axis=0) - v.min(axis=0)).max())
             write_off(bunny_mesh, v, f)
         bunny = baked(voxfmt, cache, "bunny-0.15m", bunny_mesh, 35000)
-        poses, _ = wall_push_path(bunny, half[2], wall.voxel_size)
+        poses = wall_push_path(bunny, half[2], wall.voxel_size)
         paths.append(run_path("wall-push", bunny, wall, poses, lambda x: box_sdf(x, half), wall.voxel_size, voxfmt))
     if "tori-sliding" in args.paths:
         R, r = 0.05, 0.02
         mesh = torus_mesh(R, r, 1440, 480)
         fixed = baked(voxfmt, cache, "torus-b", mesh, 35000)
         moving = baked(voxfmt, cache, "torus-a", mesh, 30000)  # fewer points: its shell goes into B's field
-        poses, _ = tori_path(R, r, fixed.voxel_size)
+        poses = tori_path(r, fixed.voxel_size)
         paths.append(run_path("tori-sliding", moving, fixed, poses, lambda x: torus_sdf(x, R, r),
                               fixed.voxel_size, voxfmt))
     if "peg-in-hole" in args.paths:
         a, c, hole, radius, half_length = 0.03, 0.02, 0.0052, 0.005, 0.015
         block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000)
         peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000)
-        poses, _ = peg_path(c, hole - radius, half_length, block.voxel_size)
+        poses = peg_path(c, hole - radius, half_length, block.voxel_size)
         paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
                               block.voxel_size, voxfmt))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "traversal/eigen.h"
 #include "voxfmt/io.h"
 
 namespace voxfmt::runtime {
@@ -34,8 +35,7 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   const float rounding_pad = float(4e-7 * largest);
   for (size_t i = 0; i < n; ++i) {
     PointTree::Node& node = tree.nodes[i];
-    const Eigen::Vector3f centre = to_float(shell.sphere_centers[i]);
-    node.centre = core::Vec3{centre.x(), centre.y(), centre.z()};
+    node.centre = core::to_core(to_float(shell.sphere_centers[i]));
     node.radius = float(shell.sphere_radii[i]) * (1.0f + 1e-6f) + rounding_pad;
     node.first_child = shell.child_begin[i];
     node.child_count = shell.child_count[i];

@@ -23,9 +23,8 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
     f.lattice_dims[a] = int(bd[size_t(a)]) + 1;
   }
   // An empty grid covers nothing.
-  f.cover_max =
-      core::make_vec3(f.dims[0] > 0 ? float(f.dims[0]) - 0.5f : -1.0f, f.dims[1] > 0 ? float(f.dims[1]) - 0.5f : -1.0f,
-                      f.dims[2] > 0 ? float(f.dims[2]) - 0.5f : -1.0f);
+  auto cover_end = [&](int a) { return f.dims[a] > 0 ? float(f.dims[a]) - 0.5f : -1.0f; };
+  f.cover_max = core::make_vec3(cover_end(0), cover_end(1), cover_end(2));
   f.object_min = core::to_core(map.to_grid(Eigen::Vector3d(bounds_min[0], bounds_min[1], bounds_min[2])));
   f.object_max = core::to_core(map.to_grid(Eigen::Vector3d(bounds_max[0], bounds_max[1], bounds_max[2])));
   const double h = vm.voxel_size;

@@ -94,11 +94,8 @@ class SparseVoxelmap {
 /// [nodes[n].first_child, nodes[n].first_child + nodes[n].child_count), level l is
 /// [level_offsets[l], level_offsets[l + 1]).
 struct PointTree {
-  /// What a traversal reads of a node before it knows whether the node's point is needed, packed so that a
-  /// visit touches one cache line (two nodes per line) and a node's children are contiguous. A 16-byte node of
-  /// quantised values was measured no faster (bench/results/sampled-gradient): the floats stay.
   /// A node: its sphere (centre in the asset frame, radius in metres), what its children's reach from it is, and
-  /// where they are (core_types.h).
+  /// where they are, packed two to a cache line (core_types.h).
   using Node = core::Node;
 
   std::vector<Node> nodes;
