@@ -19,6 +19,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-h5py python3-numpy python3-matplotlib
   python3-dev python3-venv
+  chromium chromium-driver python3-selenium
 )
 
 missing=()

@@ -59,6 +59,7 @@ struct Options {
   std::string manifest;
   bool json = false;
   bool quiet = false;
+  bool report = false;
   bake::Settings bake;
 };
 
@@ -489,6 +490,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   add_bake_options(*cmd, o->bake);
   cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
+  cmd->add_flag("--report", o->report, "Then write the library's HTML report into OUTDIR/report (`voxfmt report`)");
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt batch meshes/ -o assets/                       # every mesh below meshes/, on every core\n"
@@ -497,6 +499,18 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   cmd->callback([o, &exit_code] {
     try {
       exit_code = Runner(*o).run();
+      if (o->report) {
+        report::LibraryReportOptions options;
+        options.library = o->output_dir;
+        options.threads = int(o->jobs);
+        const Result<report::ReportInfo> info = report::write_library_report(options);
+        if (!info)
+          exit_code = std::max(exit_code, report_error("batch", info.error()));
+        else if (o->json)  // stdout holds one JSON document: the batch's
+          std::cerr << "report: " << info->index_html << "\n";
+        else
+          print_report_summary(info.value());
+      }
     } catch (const UsageError& e) {
       std::cerr << "voxfmt batch: error: " << e.what() << "\n";
       exit_code = kExitUsageOrIo;

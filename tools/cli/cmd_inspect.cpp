@@ -24,6 +24,7 @@ struct Options {
   int zoom = 0;
   std::string ply;
   std::string vdb;
+  std::string html;
   int level = -1;
   bool inward_normals = false;
 };
@@ -178,9 +179,19 @@ void add_export_options(CLI::App* cmd, Options& options) {
   cmd->add_option("--vdb", options.vdb,
                   "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
                   "\"layers\" (int32), for Houdini, Blender or vdb_view");
+  cmd->add_option("--html", options.html,
+                  "Write the asset's report card (facts, validation, pictures, 3D view) as a folder with index.html "
+                  "(the card `voxfmt report` shows)");
 }
 
 int run(const Options& options) {
+  if (!options.html.empty()) {
+    const Result<report::ReportInfo> info = report::write_asset_report(options.file, options.html, options.read);
+    if (!info) return report_error("inspect", info.error());
+    std::cout << info->index_html << ": the asset's report card (" << std::fixed << std::setprecision(1)
+              << double(info->bytes) / (1 << 20) << " MB folder)\n";
+    return kExitOk;
+  }
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(options.file, &warnings, options.read);
   if (!asset) return report_error("inspect", asset.error());
@@ -217,7 +228,8 @@ void add_inspect_command(CLI::App& app, int& exit_code) {
       "\nExamples:\n"
       "  voxfmt inspect bunny.vox.h5                                  # what the asset holds\n"
       "  voxfmt inspect bunny.vox.h5 --slice z=150 --png slice.png    # a picture of the voxelmap\n"
-      "  voxfmt inspect bunny.vox.h5 --ply shell.ply --vdb grids.vdb  # point shell and grids for other tools\n");
+      "  voxfmt inspect bunny.vox.h5 --ply shell.ply --vdb grids.vdb  # point shell and grids for other tools\n"
+      "  voxfmt inspect bunny.vox.h5 --html bunny-card/               # the report card, open bunny-card/index.html\n");
   cmd->callback([options, &exit_code] { exit_code = run(*options); });
 }
 

@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "report.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
 
@@ -32,5 +33,9 @@ void add_inspect_command(CLI::App& app, int& exit_code);
 void add_validate_command(CLI::App& app, int& exit_code);
 void add_upgrade_command(CLI::App& app, int& exit_code);
 void add_export_command(CLI::App& app, int& exit_code);
+void add_report_command(CLI::App& app, int& exit_code);
+
+/// The report's one-line summary (`voxfmt report`, `batch --report`).
+void print_report_summary(const report::ReportInfo& info);
 
 }  // namespace voxfmt::cli

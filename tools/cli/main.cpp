@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   voxfmt::cli::add_validate_command(app, exit_code);
   voxfmt::cli::add_upgrade_command(app, exit_code);
   voxfmt::cli::add_export_command(app, exit_code);
+  voxfmt::cli::add_report_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {

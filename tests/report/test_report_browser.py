@@ -1,0 +1,176 @@
+"""The report in a real browser: headless Chromium (Debian's chromium and chromium-driver, driven by Selenium)
+opens the report of a small library with failures, warnings and a damaged asset from file://, checks the counts
+against the manifest, filters to one warning code, opens a failed mesh's card and reads its error code, opens
+the 3D view and checks its canvas draws, reads the comparison with another bake, and finds no console error.
+WebGL runs on the CPU (SwiftShader)."""
+import json
+import os
+import shutil
+import tempfile
+import time
+import unittest
+
+from selenium import webdriver
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import Select, WebDriverWait
+
+import report_fixture as fx
+
+CHROMIUM = os.environ.get("VOXFMT_CHROMIUM", "/usr/bin/chromium")
+CHROMEDRIVER = os.environ.get("VOXFMT_CHROMEDRIVER", "/usr/bin/chromedriver")
+
+
+def browser():
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                "--window-size=1400,1000", "--disable-dev-shm-usage"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+
+
+def open_page(driver, index_html):
+    driver.get("file://" + os.path.abspath(index_html))
+    WebDriverWait(driver, 20).until(lambda d: d.execute_script("return document.body.dataset.ready") == "true")
+    return float(driver.execute_script("return document.body.dataset.readyMs"))
+
+
+# Non-background pixels of the 3D view's canvas (its clear colour is #f3f5f8).
+DRAWN_PIXELS = """
+const c = document.querySelector('#viewer canvas');
+if (!c) return -1;
+const t = document.createElement('canvas'); t.width = c.width; t.height = c.height;
+const g = t.getContext('2d'); g.drawImage(c, 0, 0);
+const d = g.getImageData(0, 0, t.width, t.height).data;
+let n = 0;
+for (let i = 0; i < d.length; i += 4)
+  if (Math.abs(d[i] - 243) + Math.abs(d[i + 1] - 245) + Math.abs(d[i + 2] - 248) > 24) ++n;
+return n;
+"""
+
+
+class BrowserReportTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        for path in (CHROMIUM, CHROMEDRIVER):
+            if not os.access(path, os.X_OK):
+                raise AssertionError("%s is missing: scripts/install-deps.sh installs chromium and chromium-driver" % path)
+        cls.tmp = tempfile.mkdtemp(prefix="voxfmt-report-browser-")
+        cls.library, cls.other = fx.make_library(cls.tmp)
+        cls.report = os.path.join(cls.tmp, "report")
+        fx.run("report", cls.library, "-o", cls.report, "--against", cls.other)
+        cls.records = fx.manifest(cls.library)
+        cls.driver = browser()
+        cls.ready_ms = open_page(cls.driver, os.path.join(cls.report, "index.html"))
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.driver.quit()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def setUp(self):
+        close = self.driver.find_elements(By.CSS_SELECTOR, "#card .close")
+        if close and close[0].is_displayed():
+            close[0].click()
+        self.driver.find_element(By.ID, "filter-clear").click()
+
+    def tile(self, label):
+        return self.driver.find_element(By.CSS_SELECTOR, '.tile[data-count="%s"] b' % label).text
+
+    def rows_shown(self):
+        return self.driver.find_element(By.ID, "filter-count").text
+
+    def test_1_counts_match_the_manifest(self):
+        print("page interactive in %.0f ms" % self.ready_ms)
+        statuses = [r["status"] for r in self.records]
+        self.assertEqual(self.tile("meshes"), str(len(self.records)))
+        self.assertEqual(self.tile("built"), str(statuses.count("ok")))
+        self.assertEqual(self.tile("failed"), str(statuses.count("failed")))
+        self.assertEqual(self.tile("unreadable assets"), "1")
+        self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(self.records), len(self.records)))
+        self.assertEqual(len(self.driver.find_elements(By.CSS_SELECTOR, "#table-rows .trow")), len(self.records))
+
+    def test_2_filter_to_one_warning_code(self):
+        with_border = [r for r in self.records if "OPEN_BORDER" in [w["code"] for w in r.get("warnings") or []]]
+        self.assertTrue(with_border)
+        Select(self.driver.find_element(By.ID, "filter-code")).select_by_value("OPEN_BORDER")
+        self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(with_border), len(self.records)))
+        names = [e.text for e in self.driver.find_elements(By.CSS_SELECTOR, "#table-rows .trow > div:first-child")]
+        self.assertEqual(sorted(names), sorted(os.path.basename(r["input"]) for r in with_border))
+        # The bar of a code filters too.
+        self.driver.find_element(By.ID, "filter-clear").click()
+        self.driver.find_element(By.CSS_SELECTOR, '.bar-label[data-code="OPEN_BORDER"]').click()
+        self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(with_border), len(self.records)))
+
+    def test_3_failed_mesh_card_shows_its_error_code(self):
+        failed = next(r for r in self.records if r["status"] == "failed")
+        name = os.path.basename(failed["input"])
+        self.driver.find_element(By.ID, "filter-name").send_keys(name)
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.assertEqual(self.driver.find_element(By.ID, "card-name").text, name)
+        self.assertEqual(self.driver.find_element(By.ID, "card-error-code").text, failed["error"]["code"])
+
+    def test_4_damaged_asset_card_shows_its_code(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("damaged")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.assertRegex(self.driver.find_element(By.ID, "card-error-code").text, r"^[A-Z0-9_]+$")
+        self.assertIn("invalid", self.driver.find_element(By.ID, "card-validation").text)
+
+    def test_5_3d_view_draws(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("tet.obj")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.driver.find_element(By.ID, "open-3d").click()
+        WebDriverWait(self.driver, 30).until(
+            lambda d: d.find_elements(By.CSS_SELECTOR, "#viewer canvas") or d.find_elements(By.ID, "viewer-error"))
+        self.assertFalse(self.driver.find_elements(By.ID, "viewer-error"))
+        drawn = self.driver.execute_script(DRAWN_PIXELS)
+        self.assertGreater(drawn, 500)
+        # The surface and the slicing plane draw too: more pixels once both are on.
+        self.driver.find_element(By.ID, "show-surface").click()
+        self.driver.find_element(By.ID, "show-slice").click()
+        self.assertGreater(self.driver.execute_script(DRAWN_PIXELS), drawn)
+        # The level slider shows fewer points at the root.
+        slider = self.driver.find_element(By.ID, "level")
+        self.driver.execute_script("arguments[0].value = 0; arguments[0].dispatchEvent(new Event('input'))", slider)
+        self.assertIn("levels 0–0 (1 points)", self.driver.find_element(By.ID, "level-label").text)
+
+    def test_6_comparison_with_another_bake(self):
+        counts = {e.get_attribute("data-change"): int(e.find_element(By.TAG_NAME, "td").text)
+                  for e in self.driver.find_elements(By.CSS_SELECTOR, "#compare-counts tr")}
+        self.assertEqual(counts["appeared"], 0)
+        self.assertEqual(counts["disappeared"], 0)
+        # 24 against 96 voxels: smaller files everywhere something was built in both.
+        self.assertGreater(counts["shrank"], 0)
+        self.assertEqual(counts["grew"], 0)
+
+    def test_7_no_console_errors(self):
+        errors = [e for e in self.driver.get_log("browser") if e["level"] == "SEVERE"]
+        self.assertEqual(errors, [])
+
+
+class BrowserAssetCardTest(unittest.TestCase):
+    def test_inspect_html_opens_on_its_card(self):
+        tmp = tempfile.mkdtemp(prefix="voxfmt-card-browser-")
+        try:
+            mesh = os.path.join(tmp, "tet.obj")
+            with open(mesh, "w") as f:
+                f.write(fx.TET)
+            asset = os.path.join(tmp, "tet.vox.h5")
+            fx.run("build", mesh, "-o", asset, "--resolution", "24", "--points", "300")
+            fx.run("inspect", asset, "--html", os.path.join(tmp, "card"))
+            driver = browser()
+            try:
+                open_page(driver, os.path.join(tmp, "card", "index.html"))
+                self.assertEqual(driver.find_element(By.ID, "card-name").text, "tet.vox.h5")
+                self.assertIn("valid", driver.find_element(By.ID, "card-validation").text)
+                self.assertEqual([e for e in driver.get_log("browser") if e["level"] == "SEVERE"], [])
+            finally:
+                driver.quit()
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,162 @@
+"""`voxfmt report`, `inspect --html` and `batch --report` without a browser: the folder, its data against the
+manifest, the 3D view's arrays decoded as the page decodes them, damaged input, and usage errors."""
+import base64
+import json
+import os
+import shutil
+import tempfile
+import unittest
+import zlib
+
+import report_fixture as fx
+
+
+def load_data(report):
+    with open(os.path.join(report, "data.js")) as f:
+        text = f.read()
+    prefix = "window.VOXFMT_REPORT = "
+    assert text.startswith(prefix) and text.rstrip().endswith(";")
+    return json.loads(text[len(prefix):].rstrip().rstrip(";"))
+
+
+def load_asset(report, row):
+    with open(os.path.join(report, row["detail"])) as f:
+        text = f.read()
+    prefix = "voxfmtReport.addAsset(%d, " % row["id"]
+    assert text.startswith(prefix), text[:60]
+    return json.loads(text[len(prefix):].rstrip().rstrip(";").rstrip(")"))
+
+
+class ReportTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="voxfmt-report-")
+        cls.library, cls.other = fx.make_library(cls.tmp)
+        cls.report = os.path.join(cls.tmp, "report")
+        p = fx.run("report", cls.library, "-o", cls.report, "--against", cls.other, "--json")
+        cls.summary = json.loads(p.stdout)
+        cls.data = load_data(cls.report)
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def test_counts_match_the_manifest(self):
+        records = fx.manifest(self.library)
+        statuses = [r["status"] for r in records]
+        self.assertEqual(self.summary["meshes"], len(records))
+        self.assertEqual(self.summary["built"], statuses.count("ok"))
+        self.assertEqual(self.summary["failed"], statuses.count("failed"))
+        self.assertEqual(self.summary["failed"], 2)
+        self.assertEqual(self.summary["unreadable_assets"], 1)
+        self.assertEqual(self.summary["skipped_manifest_lines"], 2)
+        self.assertEqual(len(self.data["rows"]), len(records))
+        self.assertEqual(sorted(r["status"] for r in self.data["rows"]), sorted(statuses))
+
+    def test_the_folder_is_self_contained(self):
+        for name in ["index.html", "voxfmt-report.js", "voxfmt-report.css", "three.cjs.js", "three-LICENSE.txt"]:
+            self.assertTrue(os.path.isfile(os.path.join(self.report, name)), name)
+        with open(os.path.join(self.report, "index.html")) as f:
+            page = f.read()
+        self.assertNotIn("http://", page)
+        self.assertNotIn("https://", page)
+        with open(os.path.join(self.report, "three-LICENSE.txt")) as f:
+            self.assertIn("Permission is hereby granted", f.read())  # three.js's MIT licence, beside it
+
+    def test_built_assets_have_pictures_and_3d_data(self):
+        built = [r for r in self.data["rows"] if r["status"] == "ok" and "asset_error" not in r]
+        self.assertEqual(len(built), 3)
+        for row in built:
+            for key in ("views", "slice"):
+                with open(os.path.join(self.report, row[key]), "rb") as f:
+                    self.assertEqual(f.read(8), b"\x89PNG\r\n\x1a\n")
+            self.assertTrue(row["validation"]["valid"])
+            scene = load_asset(self.report, row)["scene"]
+            shell = zlib.decompress(base64.b64decode(scene["shell"]["data"]))
+            n = scene["shell"]["points"]
+            self.assertEqual(len(shell), 9 * n)
+            self.assertEqual(scene["shell"]["level_offsets"][-1], n)
+            # Decoded as the page decodes it: every point inside the bounds, every normal about unit length.
+            lo, hi = scene["bounds"]
+            for p in range(n):
+                for a in range(3):
+                    q = shell[3 * p + a] | (shell[3 * n + 3 * p + a] << 8)
+                    self.assertLessEqual(q, 4095)
+                nx, ny, nz = (((shell[6 * n + 3 * p + a] + 128) % 256) - 128 for a in range(3))
+                self.assertAlmostEqual((nx * nx + ny * ny + nz * nz) ** 0.5 / 127, 1.0, delta=0.02)
+            field = zlib.decompress(base64.b64decode(scene["field"]["data"]))
+            dims = scene["field"]["dims"]
+            self.assertEqual(len(field), dims[0] * dims[1] * dims[2])
+            signed = [((b + 128) % 256) - 128 for b in field]
+            if row["name"] != "sheet.obj":  # a closed mesh has inside and outside on the grid
+                self.assertLess(min(signed), 0)
+            self.assertGreater(max(signed), 0)
+
+    def test_failures_and_the_damaged_asset_carry_codes(self):
+        rows = {r["name"]: r for r in self.data["rows"]}
+        for name in ("not_a_mesh.obj", "points_only.obj"):
+            self.assertEqual(rows[name]["status"], "failed")
+            self.assertRegex(rows[name]["error"]["code"], r"^[A-Z0-9_]+$")
+        damaged = rows["damaged.obj"]
+        self.assertEqual(damaged["status"], "ok")
+        self.assertRegex(damaged["asset_error"]["code"], r"^[A-Z0-9_]+$")
+        self.assertFalse(damaged["validation"]["valid"])
+        self.assertNotIn("detail", damaged)
+        self.assertIn("OPEN_BORDER", [w["code"] for w in rows["sheet.obj"]["warnings"]])
+
+    def test_against_holds_the_other_bake(self):
+        against = self.data["against"]
+        self.assertEqual(len(against["rows"]), len(fx.manifest(self.other)))
+        self.assertEqual({r["output"] for r in against["rows"]},
+                         {os.path.basename(r["output"]) for r in fx.manifest(self.library)})
+
+    def test_run_twice_replaces_the_report(self):
+        out = os.path.join(self.tmp, "again")
+        for _ in range(2):
+            p = fx.run("report", self.library, "-o", out)
+            self.assertEqual(p.returncode, 0, p.stderr)
+        self.assertFalse([n for n in os.listdir(self.tmp) if ".partial-" in n])
+
+    def test_usage_errors(self):
+        p = fx.run("report", os.path.join(self.tmp, "nowhere"), check=False)
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("FILE_NOT_FOUND", p.stderr)
+        p = fx.run("report", self.library, "--against", os.path.join(self.tmp, "nowhere"), "-o", os.path.join(self.tmp, "x"), check=False)
+        self.assertEqual(p.returncode, 2)
+        self.assertFalse(os.path.exists(os.path.join(self.tmp, "x")))
+        # An output folder that is not a report is never replaced.
+        precious = os.path.join(self.tmp, "precious")
+        os.makedirs(precious)
+        with open(os.path.join(precious, "thesis.tex"), "w") as f:
+            f.write("x")
+        p = fx.run("report", self.library, "-o", precious, check=False)
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("BAD_OPTION", p.stderr)
+        self.assertTrue(os.path.isfile(os.path.join(precious, "thesis.tex")))
+
+    def test_inspect_html(self):
+        asset = os.path.join(self.library, "tet.obj.vox.h5")
+        out = os.path.join(self.tmp, "card")
+        p = fx.run("inspect", asset, "--html", out)
+        self.assertEqual(p.returncode, 0, p.stderr)
+        data = load_data(out)
+        self.assertEqual(data["kind"], "asset")
+        self.assertEqual(len(data["rows"]), 1)
+        self.assertTrue(data["rows"][0]["validation"]["valid"])
+        self.assertIn("scene", load_asset(out, data["rows"][0]))
+        p = fx.run("inspect", os.path.join(self.library, "damaged.obj.vox.h5"), "--html", os.path.join(self.tmp, "bad"),
+                   check=False)
+        self.assertNotEqual(p.returncode, 0)
+        self.assertRegex(p.stderr, r"error: [A-Z0-9_]+:")
+        self.assertFalse(os.path.exists(os.path.join(self.tmp, "bad")))
+
+    def test_batch_report(self):
+        meshes = os.path.join(self.tmp, "meshes")
+        out = os.path.join(self.tmp, "batched")
+        p = fx.run("batch", meshes, "-o", out, "--resolution", "16", "--points", "200", "-q", "--report")
+        self.assertIn("report: ", p.stdout)
+        self.assertEqual(len(load_data(os.path.join(out, "report"))["rows"]), len(fx.MESHES))
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,43 @@
+// voxfmt report: a baked library (a `voxfmt batch` output folder) or one asset as a self-contained HTML
+// report folder — index.html, the page's script and style, three.js with its licence, the library's data as a
+// script, and per asset its pictures and a compressed point shell and distance grid for the 3D view. Everything
+// loads from file:// with no server and no network (scripts, not fetch: browsers refuse file:// fetches).
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "voxfmt/io.h"
+#include "voxfmt/result.h"
+
+namespace voxfmt::report {
+
+struct LibraryReportOptions {
+  std::string library;           ///< folder holding manifest.jsonl and the assets
+  std::string out;               ///< report folder (default LIBRARY/report); replaced atomically when it is a report
+  std::string against;           ///< another baked library to compare with ("" = none)
+  double size_threshold = 0.10;  ///< relative growth or shrinkage of a file that the comparison lists
+  double time_threshold = 0.25;  ///< relative slow-down of a bake that the comparison lists
+  int threads = 0;               ///< 0 = every core
+  bool pictures = true;          ///< thumbnails, slices and 3D data of each readable asset
+  ReadOptions read;              ///< budget of each asset read
+};
+
+struct ReportInfo {
+  std::string index_html;  ///< path of the written page
+  size_t meshes = 0, built = 0, up_to_date = 0, failed = 0;
+  size_t unreadable_assets = 0;  ///< built per the manifest, but the asset cannot be read now (its card says why)
+  size_t skipped_lines = 0;      ///< manifest lines that are not JSON records
+  uint64_t bytes = 0;            ///< size of the report folder
+};
+
+/// Writes the report of a library. FILE_NOT_FOUND when LIBRARY (or AGAINST) has no manifest.jsonl, BAD_OPTION
+/// when OUT exists and is not a report folder, WRITE_FAILED when it cannot be written. A damaged asset or a
+/// damaged manifest line never fails the report: the asset's card carries the coded error.
+Result<ReportInfo> write_library_report(const LibraryReportOptions& options);
+
+/// The same page for one asset (`voxfmt inspect ASSET --html OUT`), its card open. Fails like read_asset when
+/// the asset cannot be read, WRITE_FAILED when OUT cannot be written.
+Result<ReportInfo> write_asset_report(const std::string& asset, const std::string& out, const ReadOptions& read);
+
+}  // namespace voxfmt::report
