@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The README's main job: install dependencies, build the two programs it runs, batch-convert CGAL's whole sample
-# mesh library (default bake settings) into out/library/ with a manifest and a summary, bake CGAL's Stanford
+# mesh library (default bake settings) into out/library/ with a manifest, a summary and an HTML report (report/), bake CGAL's Stanford
 # bunny at the seed's settings, validate and inspect it (summary, a slice picture, the point shell as PLY, the
 # voxelmap as OpenVDB), then drop it in Bullet with every collision method (bunny_drop). Pass another mesh as $1
 # to use that instead of the bunny. Safe to run again: the library step skips the assets that are up to date.
@@ -22,12 +22,13 @@ mkdir -p "$OUT" "$LOGS"
 echo "== 1/4 voxfmt batch $LIBRARY -> $OUT/library (CGAL's sample library, default settings; some meshes are broken on purpose)"
 # Exit 1 means some meshes failed (recorded in the manifest with their reason): expected for this library.
 # Exit 2 (bad arguments, unreadable input, another batch on the same manifest) stops the job. On a terminal batch
-# draws a bar (and prints the failures); elsewhere it writes a line per mesh, which goes to the log.
+# draws a bar (and prints the failures); elsewhere it writes a line per mesh, which goes to the log. --report then
+# writes the library's HTML report into $OUT/library/report/ and prints its path.
 status=0
 if [ -t 2 ]; then
-  "$BIN/voxfmt" batch "$LIBRARY" -o "$OUT/library" --timeout 300 || status=$?
+  "$BIN/voxfmt" batch "$LIBRARY" -o "$OUT/library" --timeout 300 --report || status=$?
 else
-  "$BIN/voxfmt" batch "$LIBRARY" -o "$OUT/library" --timeout 300 2>"$LOGS/batch.log" || status=$?
+  "$BIN/voxfmt" batch "$LIBRARY" -o "$OUT/library" --timeout 300 --report 2>"$LOGS/batch.log" || status=$?
   echo "(one line per mesh: $LOGS/batch.log)"
 fi
 if [ "$status" -ge 2 ]; then

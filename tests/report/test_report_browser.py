@@ -139,11 +139,19 @@ class BrowserReportTest(unittest.TestCase):
     def test_6_comparison_with_another_bake(self):
         counts = {e.get_attribute("data-change"): int(e.find_element(By.TAG_NAME, "td").text)
                   for e in self.driver.find_elements(By.CSS_SELECTOR, "#compare-counts tr")}
-        self.assertEqual(counts["appeared"], 0)
+        self.assertEqual(counts["appeared"], 1)  # the hostile record
         self.assertEqual(counts["disappeared"], 0)
         # 24 against 96 voxels: smaller files everywhere something was built in both.
         self.assertGreater(counts["shrank"], 0)
         self.assertEqual(counts["grew"], 0)
+
+    def test_6b_hostile_strings_stay_text(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("<img")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.assertEqual(self.driver.find_element(By.ID, "card-name").text, "<img src=x onerror=alert(1)>.obj")
+        self.assertIn("<script>alert(1)</script>", self.driver.find_element(By.ID, "card-error").text)
+        self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card img[src^='https'], script[src^='https']"))
+        self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card-pictures img"))
 
     def test_7_no_console_errors(self):
         errors = [e for e in self.driver.get_log("browser") if e["level"] == "SEVERE"]

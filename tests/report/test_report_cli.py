@@ -47,7 +47,7 @@ class ReportTest(unittest.TestCase):
         self.assertEqual(self.summary["meshes"], len(records))
         self.assertEqual(self.summary["built"], statuses.count("ok"))
         self.assertEqual(self.summary["failed"], statuses.count("failed"))
-        self.assertEqual(self.summary["failed"], 2)
+        self.assertEqual(self.summary["failed"], 3)  # two meshes, and the hostile record
         self.assertEqual(self.summary["unreadable_assets"], 1)
         self.assertEqual(self.summary["skipped_manifest_lines"], 2)
         self.assertEqual(len(self.data["rows"]), len(records))
@@ -107,8 +107,14 @@ class ReportTest(unittest.TestCase):
     def test_against_holds_the_other_bake(self):
         against = self.data["against"]
         self.assertEqual(len(against["rows"]), len(fx.manifest(self.other)))
-        self.assertEqual({r["output"] for r in against["rows"]},
+        self.assertEqual({r["output"] for r in against["rows"]} | {"hostile.vox.h5"},
                          {os.path.basename(r["output"]) for r in fx.manifest(self.library)})
+
+    def test_a_hostile_record_cannot_point_the_page_elsewhere(self):
+        row = next(r for r in self.data["rows"] if r["output_name"] == "hostile.vox.h5")
+        self.assertNotIn("detail", row)
+        self.assertNotIn("views", row)
+        self.assertEqual(row["status"], "failed")
 
     def test_run_twice_replaces_the_report(self):
         out = os.path.join(self.tmp, "again")

@@ -29,6 +29,8 @@ constexpr int kSliceSize = 160;         // pixels of the slice's longer side
 constexpr size_t kScenePoints = 12000;  // point-shell points of the 3D view (whole levels)
 constexpr uint32_t kSceneGrid = 40;     // cells of the 3D view's distance grid on its longest side
 constexpr size_t kMaxFindings = 50;     // validation findings listed per asset
+constexpr const char* kReportKeys[] = {"id",    "name",   "output_name", "detail",      "views",
+                                       "slice", "asset_error", "validation", "memory_bytes"};
 
 std::string utc_now() {
   const std::time_t now = std::time(nullptr);
@@ -257,6 +259,9 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
       row = records[i];
       row.erase("command");  // the bake's argv: long, and the build parameters say the same
       row.erase("output_mtime_ns");
+      // The keys the report sets are the report's: a manifest's own (hand-edited, hostile) never reach the page,
+      // which loads "detail" as a script and "views" and "slice" as pictures.
+      for (const char* key : kReportKeys) row.erase(key);
       row["id"] = i;
       row["name"] = mesh_name(records[i]);
       row["output_name"] = fs::path(text_of(records[i], "output")).filename().string();
