@@ -29,8 +29,8 @@ constexpr int kSliceSize = 160;         // pixels of the slice's longer side
 constexpr size_t kScenePoints = 12000;  // point-shell points of the 3D view (whole levels)
 constexpr uint32_t kSceneGrid = 40;     // cells of the 3D view's distance grid on its longest side
 constexpr size_t kMaxFindings = 50;     // validation findings listed per asset
-constexpr const char* kReportKeys[] = {"id",    "name",   "output_name", "detail",      "views",
-                                       "slice", "asset_error", "validation", "memory_bytes"};
+constexpr const char* kReportKeys[] = {"id",    "name",        "output_name", "detail",      "views",
+                                       "slice", "asset_error", "validation",  "memory_bytes"};
 
 std::string utc_now() {
   const std::time_t now = std::time(nullptr);
