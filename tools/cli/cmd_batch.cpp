@@ -503,6 +503,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
         report::LibraryReportOptions options;
         options.library = o->output_dir;
         options.threads = int(o->jobs);
+        if (!o->json && !o->quiet) options.progress = report_progress();
         const Result<report::ReportInfo> info = report::write_library_report(options);
         if (!info)
           exit_code = std::max(exit_code, report_error("batch", info.error()));

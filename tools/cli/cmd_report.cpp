@@ -1,4 +1,6 @@
 // `voxfmt report LIBRARY [-o OUT] [--against OLD]`: an HTML report of a baked library.
+#include <unistd.h>
+
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -33,6 +35,13 @@ nlohmann::json report_summary_json(const report::ReportInfo& info) {
           {"unreadable_assets", info.unreadable_assets},
           {"skipped_manifest_lines", info.skipped_lines},
           {"bytes", info.bytes}};
+}
+
+std::function<void(size_t, size_t)> report_progress() {
+  if (!::isatty(STDERR_FILENO)) return {};  // logs get the summary line only
+  return [](size_t done, size_t total) {
+    std::cerr << "\rreport: " << done << " / " << total << " meshes" << (done == total ? "\r\033[K" : "") << std::flush;
+  };
 }
 
 void print_report_summary(const report::ReportInfo& info) {
@@ -75,6 +84,7 @@ void add_report_command(CLI::App& app, int& exit_code) {
       "  voxfmt report new/ --against old/ -o diff/       # what changed between two bakes\n"
       "Open index.html in a browser (file://). A damaged asset gets its card with the coded error.\n");
   cmd->callback([options, &exit_code] {
+    options->report.progress = report_progress();
     const Result<report::ReportInfo> info = report::write_library_report(options->report);
     if (!info) {
       exit_code = report_error("report", info.error());

@@ -254,6 +254,8 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
   Result<ReportInfo> written = write_report_folder(out, [&](const fs::path& dir) -> Status {
     std::vector<nlohmann::json> rows(records.size());
     std::vector<std::string> scripts(records.size());
+    std::mutex progress_mutex;
+    std::atomic<size_t> done{0};
     parallel_for(records.size(), options.threads, [&](size_t i) {
       nlohmann::json& row = rows[i];
       row = records[i];
@@ -269,6 +271,11 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
       if (status == "ok" || status == "up_to_date")
         scripts[i] = describe_asset(asset_path(options.library, records[i]), dir.string(), i, options.read,
                                     options.pictures, row);
+      const size_t finished = ++done;
+      if (options.progress && (finished % 16 == 0 || finished == records.size())) {
+        std::lock_guard<std::mutex> lock(progress_mutex);
+        options.progress(finished, records.size());
+      }
     });
     for (size_t i = 0; i < rows.size(); ++i) {
       const std::string status = text_of(rows[i], "status");

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include "voxfmt/io.h"
@@ -21,6 +22,8 @@ struct LibraryReportOptions {
   int threads = 0;               ///< 0 = every core
   bool pictures = true;          ///< thumbnails, slices and 3D data of each readable asset
   ReadOptions read;              ///< budget of each asset read
+  /// Called now and then from the worker threads (one at a time) with the assets read so far and their number.
+  std::function<void(size_t done, size_t total)> progress;
 };
 
 struct ReportInfo {
