@@ -656,8 +656,9 @@ void bind_body(nb::module_& m) {
            "Signed distance (metres) of each asset-frame point (M, 3) to the surface: NEGATIVE INSIDE, positive\n"
            "outside (trimesh.proximity.signed_distance uses the opposite sign). Exact within the stored band\n"
            "(a few voxels of the surface; 15-bit fixed point), an estimate from the asset's lattice of exact\n"
-           "distances beyond it (within 4*sqrt(3) voxels, spec section 3.1), and outside the grid the distance to\n"
-           "the bounding box (a lower bound).")
+           "distances beyond it (within 4*sqrt(3) voxels, spec section 3.1), and outside the grid a lower bound\n"
+           "that continues the field without a jump: sqrt(t^2 + d^2), t the distance to the grid and d the value\n"
+           "at its nearest point, and at least the distance to the bounding box.")
       .def("__repr__", [](const Body& b) {
         const auto& d = b.object->voxelmap().dims();
         return "<voxfmt.Body '" + b.path + "': " + std::to_string(b.object->point_tree().size()) + " points, " +

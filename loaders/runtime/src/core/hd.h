@@ -35,6 +35,14 @@ VOXFMT_HD float length(const Vec3& a) {
 #endif
 }
 
+VOXFMT_HD float sqrt_f(float v) {
+#if defined(__CUDA_ARCH__)
+  return sqrtf(v);
+#else
+  return __builtin_sqrtf(v);
+#endif
+}
+
 VOXFMT_HD double sqrt_d(double v) {
 #if defined(__CUDA_ARCH__)
   return sqrt(v);

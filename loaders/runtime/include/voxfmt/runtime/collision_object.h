@@ -41,9 +41,10 @@ class SparseVoxelmap {
     return ((asset_point - origin_) / voxel_size_).cast<float>();
   }
   /// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values
-  /// (stored distances, or estimates where none is stored). Outside the grid: the distance to the object's
-  /// bounding box. If `gradient` is given it receives the direction of increasing distance (grid axes = asset
-  /// axes, not normalised; zero where the field is flat).
+  /// (stored distances, or estimates where none is stored). Outside the grid a lower bound (`bound` set) that
+  /// continues the field: sqrt(|u - q|^2 + d(q)^2) with q the grid's nearest point, at least the distance to the
+  /// object's bounding box; no jump where the grid ends. If `gradient` is given it receives the direction of
+  /// increasing distance (grid axes = asset axes, not normalised; zero where the field is flat).
   FieldSample sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient = nullptr) const;
   /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
   float distance_lower_bound(const Eigen::Vector3f& u) const;

@@ -17,7 +17,7 @@ namespace voxfmt::runtime {
 struct FieldSample {
   float distance = 0.0f;  ///< signed distance estimate, negative inside
   bool exact = false;     ///< true: trilinear interpolation of stored distances; false: estimates or bounds
-  bool bound = false;     ///< only a lower bound: outside the grid (the distance to the object's bounding box)
+  bool bound = false;     ///< only a lower bound: outside the grid (core::sample says which)
 };
 
 namespace core {
