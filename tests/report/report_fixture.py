@@ -19,6 +19,7 @@ MESHES = {
     "points_only.obj": "v 0 0 0\nv 1 0 0\nv 0 1 0\n",  # fails: no triangles
     "damaged.obj": TET.replace("v 0 0 1", "v 0 0 2"),  # baked, then its asset is cut short
 }
+MESH_COUNT = len(MESHES) + 1  # and parts/tet.obj
 
 
 def run(*args, check=True):
@@ -34,7 +35,7 @@ def manifest(library):
         for line in f:
             try:
                 r = json.loads(line)
-            except ValueError:
+            except (ValueError, RecursionError):  # torn, or nested too deep
                 continue
             if isinstance(r, dict) and "output" in r:
                 records[r["output"]] = r
@@ -48,6 +49,10 @@ def make_library(root):
     for name, text in MESHES.items():
         with open(os.path.join(meshes, name), "w") as f:
             f.write(text)
+    # The same file name in a subfolder: its own asset (parts/tet.obj.vox.h5), told apart everywhere.
+    os.makedirs(os.path.join(meshes, "parts"), exist_ok=True)
+    with open(os.path.join(meshes, "parts", "tet.obj"), "w") as f:
+        f.write(BOX)
     library, other = os.path.join(root, "library"), os.path.join(root, "older")
     run("batch", meshes, "-o", library, "--resolution", "24", "--points", "600", "-j", "2", "-q")
     run("batch", meshes, "-o", other, "--resolution", "96", "--points", "600", "-j", "2", "-q")
@@ -63,4 +68,11 @@ def make_library(root):
                        status="failed", detail="https://example.com/evil.js", views="https://example.com/x.png",
                        error={"code": "IMPORT_FAILED", "message": "<script>alert(1)</script>"})
         f.write(json.dumps(hostile) + "\n")
+        # "__proto__" in a JavaScript object literal would set the row's prototype: inherited keys the page reads.
+        proto = dict(hostile, output=os.path.join(library, "proto.vox.h5"), input="proto.obj")
+        del proto["detail"], proto["views"]
+        f.write(json.dumps(proto)[:-1] + ', "__proto__": {"detail": "https://example.com/evil.js", '
+                '"views": "https://example.com/x.png", "slice": "file:///etc/passwd"}}\n')
+        # Nested deeper than any record: skipped (copying or printing it would recurse 100,000 times).
+        f.write('{"output": "deep", "x": ' + "[" * 100000 + "]" * 100000 + "}\n")
     return library, other

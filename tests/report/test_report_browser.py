@@ -139,7 +139,7 @@ class BrowserReportTest(unittest.TestCase):
     def test_6_comparison_with_another_bake(self):
         counts = {e.get_attribute("data-change"): int(e.find_element(By.TAG_NAME, "td").text)
                   for e in self.driver.find_elements(By.CSS_SELECTOR, "#compare-counts tr")}
-        self.assertEqual(counts["appeared"], 1)  # the hostile record
+        self.assertEqual(counts["appeared"], 2)  # the hostile records
         self.assertEqual(counts["disappeared"], 0)
         # 24 against 96 voxels: smaller files everywhere something was built in both.
         self.assertGreater(counts["shrank"], 0)
@@ -152,6 +152,14 @@ class BrowserReportTest(unittest.TestCase):
         self.assertIn("<script>alert(1)</script>", self.driver.find_element(By.ID, "card-error").text)
         self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card img[src^='https'], script[src^='https']"))
         self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card-pictures img"))
+        # "__proto__" in a record gives it no inherited script or pictures.
+        self.driver.find_element(By.CSS_SELECTOR, "#card .close").click()
+        self.driver.find_element(By.ID, "filter-clear").click()
+        self.driver.find_element(By.ID, "filter-name").send_keys("proto.obj")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.assertEqual(self.driver.find_element(By.ID, "card-name").text, "proto.obj")
+        self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card-pictures img, #open-3d"))
+        self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "script[src^='https'], script[src^='file']"))
 
     def test_7_no_console_errors(self):
         errors = [e for e in self.driver.get_log("browser") if e["level"] == "SEVERE"]

@@ -11,20 +11,21 @@ import zlib
 import report_fixture as fx
 
 
+def parsed(text, prefix, suffix):
+    """The value of `PREFIX JSON.parse("...") SUFFIX`: a JSON document inside a JSON string."""
+    text = text.rstrip()
+    assert text.startswith(prefix + "JSON.parse(") and text.endswith(")" + suffix), text[:80]
+    return json.loads(json.loads(text[len(prefix + "JSON.parse("):-len(")" + suffix)]))
+
+
 def load_data(report):
     with open(os.path.join(report, "data.js")) as f:
-        text = f.read()
-    prefix = "window.VOXFMT_REPORT = "
-    assert text.startswith(prefix) and text.rstrip().endswith(";")
-    return json.loads(text[len(prefix):].rstrip().rstrip(";"))
+        return parsed(f.read(), "window.VOXFMT_REPORT = ", ";")
 
 
 def load_asset(report, row):
     with open(os.path.join(report, row["detail"])) as f:
-        text = f.read()
-    prefix = "voxfmtReport.addAsset(%d, " % row["id"]
-    assert text.startswith(prefix), text[:60]
-    return json.loads(text[len(prefix):].rstrip().rstrip(";").rstrip(")"))
+        return parsed(f.read(), "voxfmtReport.addAsset(%d, " % row["id"], ");")
 
 
 class ReportTest(unittest.TestCase):
@@ -47,9 +48,9 @@ class ReportTest(unittest.TestCase):
         self.assertEqual(self.summary["meshes"], len(records))
         self.assertEqual(self.summary["built"], statuses.count("ok"))
         self.assertEqual(self.summary["failed"], statuses.count("failed"))
-        self.assertEqual(self.summary["failed"], 3)  # two meshes, and the hostile record
+        self.assertEqual(self.summary["failed"], 4)  # two meshes, and the two hostile records
         self.assertEqual(self.summary["unreadable_assets"], 1)
-        self.assertEqual(self.summary["skipped_manifest_lines"], 2)
+        self.assertEqual(self.summary["skipped_manifest_lines"], 3)  # torn, not an object, nested too deep
         self.assertEqual(len(self.data["rows"]), len(records))
         self.assertEqual(sorted(r["status"] for r in self.data["rows"]), sorted(statuses))
 
@@ -65,7 +66,7 @@ class ReportTest(unittest.TestCase):
 
     def test_built_assets_have_pictures_and_3d_data(self):
         built = [r for r in self.data["rows"] if r["status"] == "ok" and "asset_error" not in r]
-        self.assertEqual(len(built), 3)
+        self.assertEqual(len(built), 4)
         for row in built:
             for key in ("views", "slice"):
                 with open(os.path.join(self.report, row[key]), "rb") as f:
@@ -107,21 +108,44 @@ class ReportTest(unittest.TestCase):
     def test_against_holds_the_other_bake(self):
         against = self.data["against"]
         self.assertEqual(len(against["rows"]), len(fx.manifest(self.other)))
-        self.assertEqual({r["output"] for r in against["rows"]} | {"hostile.vox.h5"},
-                         {os.path.basename(r["output"]) for r in fx.manifest(self.library)})
+        self.assertEqual({r["output"] for r in against["rows"]} | {"hostile.vox.h5", "proto.vox.h5"},
+                         {r["output_name"] for r in self.data["rows"]})
+
+    def test_same_names_in_subfolders_stay_apart(self):
+        names = [r["output_name"] for r in self.data["rows"]]
+        self.assertEqual(len(names), len(set(names)))
+        self.assertIn("parts/tet.obj.vox.h5", names)
+        self.assertIn("tet.obj.vox.h5", names)
+        rows = {r["output_name"]: r for r in self.data["rows"]}
+        # Each read its own asset (a box and a tetrahedron: different volumes).
+        self.assertNotEqual(rows["parts/tet.obj.vox.h5"]["volume"], rows["tet.obj.vox.h5"]["volume"])
+        self.assertNotIn("asset_error", rows["parts/tet.obj.vox.h5"])
 
     def test_a_hostile_record_cannot_point_the_page_elsewhere(self):
         row = next(r for r in self.data["rows"] if r["output_name"] == "hostile.vox.h5")
         self.assertNotIn("detail", row)
         self.assertNotIn("views", row)
         self.assertEqual(row["status"], "failed")
+        # "__proto__" stays an ordinary key: data.js is JSON.parse of a string, not an object literal.
+        proto = next(r for r in self.data["rows"] if r["output_name"] == "proto.vox.h5")
+        self.assertIn("__proto__", proto)
+        with open(os.path.join(self.report, "data.js")) as f:
+            self.assertTrue(f.read().startswith('window.VOXFMT_REPORT = JSON.parse("'))
 
     def test_run_twice_replaces_the_report(self):
         out = os.path.join(self.tmp, "again")
-        for _ in range(2):
-            p = fx.run("report", self.library, "-o", out)
+        for target in (out, out + "/", out + "/"):  # a trailing slash names the same folder
+            p = fx.run("report", self.library, "-o", target)
             self.assertEqual(p.returncode, 0, p.stderr)
-        self.assertFalse([n for n in os.listdir(self.tmp) if ".partial-" in n])
+            self.assertEqual(load_data(out)["kind"], "library")
+        self.assertFalse([n for n in os.listdir(self.tmp) if ".partial-" in n or ".old-" in n])
+        # A report folder that gained a file of someone's is not a report any more: never replaced.
+        with open(os.path.join(out, "notes.txt"), "w") as f:
+            f.write("mine")
+        p = fx.run("report", self.library, "-o", out, check=False)
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("BAD_OPTION", p.stderr)
+        self.assertTrue(os.path.isfile(os.path.join(out, "notes.txt")))
 
     def test_usage_errors(self):
         p = fx.run("report", os.path.join(self.tmp, "nowhere"), check=False)
@@ -161,7 +185,13 @@ class ReportTest(unittest.TestCase):
         out = os.path.join(self.tmp, "batched")
         p = fx.run("batch", meshes, "-o", out, "--resolution", "16", "--points", "200", "-q", "--report")
         self.assertIn("report: ", p.stdout)
-        self.assertEqual(len(load_data(os.path.join(out, "report"))["rows"]), len(fx.MESHES))
+        self.assertEqual(len(load_data(os.path.join(out, "report"))["rows"]), fx.MESH_COUNT)
+        # With its own manifest file, the report reads that one.
+        other = os.path.join(self.tmp, "batched2")
+        p = fx.run("batch", meshes, "-o", other, "--resolution", "16", "--points", "200", "-q", "--report",
+                   "--manifest", os.path.join(self.tmp, "custom.jsonl"))
+        self.assertIn("report: ", p.stdout)
+        self.assertEqual(len(load_data(os.path.join(other, "report"))["rows"]), fx.MESH_COUNT)
 
 
 if __name__ == "__main__":

@@ -499,9 +499,14 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   cmd->callback([o, &exit_code] {
     try {
       exit_code = Runner(*o).run();
-      if (o->report) {
+      const bool sharded = o->shard.substr(o->shard.find('/') + 1) != "1";
+      if (o->report && sharded) {
+        std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o->output_dir
+                  << "` once every shard is done (it reads every shard's manifest)\n";
+      } else if (o->report) {
         report::LibraryReportOptions options;
         options.library = o->output_dir;
+        options.manifest = o->manifest;
         options.threads = int(o->jobs);
         if (!o->json && !o->quiet) options.progress = report_progress();
         const Result<report::ReportInfo> info = report::write_library_report(options);

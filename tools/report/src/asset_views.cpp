@@ -32,9 +32,10 @@ std::string deflate_base64(const std::vector<uint8_t>& bytes) {
 int up_index(const Asset& asset) { return asset.up_axis.find('Z') != std::string::npos ? 2 : 1; }
 
 struct View {
-  int right, up;  // asset axes drawn left-to-right and bottom-to-top
-  int toward;     // the axis pointing at the viewer
-  double sign;    // +1: the viewer looks down -toward
+  int right, up;         // asset axes drawn left-to-right and bottom-to-top
+  int toward;            // the axis pointing at the viewer
+  double sign;           // +1: the viewer looks down -toward
+  double up_sign = 1.0;  // -1: the `up` axis points down the picture (a top view of a Y-up asset: +z is nearer)
 };
 
 // One orthographic view of the point shell: each point a small disc, lit by its outward normal (headlight from
@@ -56,7 +57,7 @@ void draw_view(RasterImage& image, int x0, int size, const Asset& asset, const V
     const Vec3f& n = shell.normals[p];
     const double toward = view.sign * q[size_t(view.toward)];
     const int px = x0 + size / 2 + int(std::lround((q[size_t(view.right)] - cx) * scale));
-    const int py = size / 2 - int(std::lround((q[size_t(view.up)] - cy) * scale));
+    const int py = size / 2 - int(std::lround(view.up_sign * (q[size_t(view.up)] - cy) * scale));
     // Outward normal = -inward; facing the viewer where it points along +toward.
     const double facing = -view.sign * double(n[size_t(view.toward)]);
     const double above = -double(n[size_t(view.up)]);
@@ -84,7 +85,7 @@ Status write_views_png(const Asset& asset, int size, const std::string& path) {
   const double depth_sign = up == 1 ? 1.0 : -1.0;
   const View front{0, up, depth_axis, depth_sign};
   const View side{depth_axis, up, 0, -1.0 * depth_sign};
-  const View top{0, depth_axis, up, 1.0};
+  const View top{0, depth_axis, up, 1.0, up == 1 ? -1.0 : 1.0};
   RasterImage image(3 * size, size, Rgb{255, 255, 255});
   draw_view(image, 0, size, asset, front);
   draw_view(image, size, size, asset, side);

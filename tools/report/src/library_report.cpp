@@ -1,4 +1,8 @@
+#include <signal.h>
 #include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
 
 #include <algorithm>
 #include <atomic>
@@ -8,6 +12,7 @@
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -44,7 +49,7 @@ std::string dump(const nlohmann::json& value) {
   return value.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
-// The manifest's records, last one per output, in output order; lines that are not JSON objects with an
+// The manifest's records, the latest one per output, in output order; lines that are not JSON objects with an
 // "output" are counted, not fatal (a hand-edited or torn manifest still gets its report).
 struct ManifestRecords {
   std::vector<nlohmann::json> records;
@@ -64,11 +69,47 @@ std::vector<fs::path> manifest_files(const std::string& library) {
   return files;
 }
 
-Result<ManifestRecords> read_manifest(const std::string& library) {
-  const std::vector<fs::path> files = manifest_files(library);
-  if (files.empty())
-    return Error(IssueCode::FileNotFound,
-                 library + ": no manifest.jsonl here (a library is the output folder of `voxfmt batch`)", library);
+// Lines nested deeper than this are not records: copying or printing a JSON value recurses once per level, and
+// a browser's parser too.
+constexpr int kMaxNesting = 64;
+
+bool nested_too_deep(const std::string& line) {
+  int depth = 0;
+  bool in_string = false, escaped = false;
+  for (const char c : line) {
+    if (in_string) {
+      if (escaped)
+        escaped = false;
+      else if (c == '\\')
+        escaped = true;
+      else if (c == '"')
+        in_string = false;
+      continue;
+    }
+    if (c == '"') in_string = true;
+    if (c == '[' || c == '{') {
+      if (++depth > kMaxNesting) return true;
+    } else if (c == ']' || c == '}') {
+      --depth;
+    }
+  }
+  return false;
+}
+
+Result<ManifestRecords> read_manifest(const std::string& library, const std::string& manifest_file) {
+  std::vector<fs::path> files;
+  if (!manifest_file.empty()) {
+    std::error_code ec;
+    if (fs::is_regular_file(manifest_file, ec)) files.push_back(manifest_file);
+  } else {
+    files = manifest_files(library);
+  }
+  if (files.empty()) {
+    const std::string where =
+        manifest_file.empty() ? library + ": no manifest.jsonl here" : manifest_file + ": no such file";
+    return Error(IssueCode::FileNotFound, where + " (a library is the output folder of `voxfmt batch`)",
+                 manifest_file.empty() ? library : manifest_file);
+  }
   ManifestRecords m;
   std::map<std::string, nlohmann::json> last;
   for (const fs::path& file : files) {
@@ -76,13 +117,19 @@ Result<ManifestRecords> read_manifest(const std::string& library) {
     std::string line;
     while (std::getline(in, line)) {
       if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-      nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
+      nlohmann::json record = nested_too_deep(line) ? nlohmann::json() : nlohmann::json::parse(line, nullptr, false);
       if (!record.is_object() || !record.contains("output") || !record["output"].is_string()) {
         ++m.skipped_lines;
         continue;
       }
+      // Across files (the shards' and the whole library's), the record that finished last wins.
       const std::string output = record["output"].get<std::string>();
-      last[output] = std::move(record);
+      auto [it, inserted] = last.try_emplace(output);
+      const auto finished = [](const nlohmann::json& r) {
+        const auto f = r.find("finished_utc");
+        return f != r.end() && f->is_string() ? f->get<std::string>() : std::string();
+      };
+      if (inserted || finished(record) >= finished(it->second)) it->second = std::move(record);
     }
   }
   for (auto& [output, record] : last) m.records.push_back(std::move(record));
@@ -105,12 +152,27 @@ std::string mesh_name(const nlohmann::json& record) {
   return name;
 }
 
-// The asset's path: the manifest's output when it exists, else the same name inside the library (a library
-// moved or copied after its bake).
-std::string asset_path(const std::string& library, const nlohmann::json& record) {
-  const std::string output = text_of(record, "output");
-  if (!output.empty() && fs::exists(output)) return output;
-  return (fs::path(library) / fs::path(output).filename()).string();
+// The asset's path below the library: the longest tail of the manifest's output that names a file in the
+// library (batch records OUTDIR as it was typed, relative to where it ran; a library moved or copied keeps its
+// layout), else the output's file name. What the report shows, and what two bakes are compared by.
+std::string library_relative(const std::string& library, const std::string& output) {
+  std::vector<fs::path> parts;
+  for (const fs::path& part : fs::path(output).relative_path()) parts.push_back(part);
+  std::error_code ec;
+  for (size_t first = 0; first < parts.size(); ++first) {
+    fs::path tail;
+    for (size_t k = first; k < parts.size(); ++k) tail /= parts[k];
+    if (fs::is_regular_file(fs::path(library) / tail, ec)) return tail.generic_string();
+  }
+  return fs::path(output).filename().string();
+}
+
+// The asset's file: in the library when it is there, else the manifest's output as recorded.
+std::string asset_path(const std::string& library, const std::string& relative, const std::string& output) {
+  std::error_code ec;
+  const fs::path in_library = fs::path(library) / relative;
+  if (fs::is_regular_file(in_library, ec) || output.empty() || !fs::exists(output, ec)) return in_library.string();
+  return output;
 }
 
 nlohmann::json error_json(const Error& e) { return {{"code", code_name(e.code)}, {"message", e.message}}; }
@@ -127,31 +189,49 @@ nlohmann::json issues_json(const std::vector<Issue>& issues) {
   return list;
 }
 
-// Everything the report shows of one asset file. `row` gets the small facts (for the table and the card),
-// the returned script the large ones (loaded when the card opens).
-std::string describe_asset(const std::string& path, const std::string& dir, size_t id, const ReadOptions& read,
-                           bool pictures, nlohmann::json& row) {
+Status write_text(const fs::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out.write(text.data(), std::streamsize(text.size()));
+  out.close();
+  if (!out) return Error(IssueCode::WriteFailed, path.string() + ": cannot write", path.string());
+  return Status::success();
+}
+
+// A script that hands `value` to the page: as a JSON string for JSON.parse, so that every key is data (in a
+// JavaScript object literal, "__proto__" would set the object's prototype instead).
+std::string script_value(const nlohmann::json& value) {
+  return "JSON.parse(" + dump(nlohmann::json(dump(value))) + ")";
+}
+
+// Everything the report shows of one asset file: `row` gets the small facts (for the table and the card);
+// assets/ID.js the large ones (loaded when the card opens), whose path goes into row["detail"].
+Status describe_asset(const std::string& path, const fs::path& dir, size_t id, const ReadOptions& read, bool pictures,
+                      nlohmann::json& row) {
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(path, &warnings, read);
   if (!asset) {
     row["asset_error"] = error_json(asset.error());
     const std::vector<Issue> findings = validate_file(path, read);
     row["validation"] = {{"valid", false}, {"findings", issues_json(findings)}, {"count", findings.size()}};
-    return {};
+    return Status::success();
   }
   const AssetSummary summary = summarize_asset(path, asset.value());
   nlohmann::json inspect = nlohmann::json::parse(inspect_json(path, asset.value(), summary, warnings), nullptr, false);
   row["validation"] = {{"valid", true}, {"findings", issues_json(warnings)}, {"count", warnings.size()}};
   row["memory_bytes"] = summary.memory_bytes;
   nlohmann::json detail = {{"inspect", inspect}};
+  const std::string name = std::to_string(id);
   if (pictures) {
-    const std::string views = "img/" + std::to_string(id) + "-views.png";
-    const std::string slice = "img/" + std::to_string(id) + "-slice.png";
-    if (write_views_png(asset.value(), kViewSize, (fs::path(dir) / views).string())) row["views"] = views;
-    if (write_mid_slice_png(asset.value(), kSliceSize, (fs::path(dir) / slice).string())) row["slice"] = slice;
+    const std::string views = "img/" + name + "-views.png", slice = "img/" + name + "-slice.png";
+    if (write_views_png(asset.value(), kViewSize, (dir / views).string())) row["views"] = views;
+    if (write_mid_slice_png(asset.value(), kSliceSize, (dir / slice).string())) row["slice"] = slice;
     detail["scene"] = scene_data(asset.value(), kScenePoints, kSceneGrid);
   }
-  return "voxfmtReport.addAsset(" + std::to_string(id) + ", " + dump(detail) + ");\n";
+  const std::string script = "assets/" + name + ".js";
+  if (Status s = write_text(dir / script, "voxfmtReport.addAsset(" + name + ", " + script_value(detail) + ");\n"); !s)
+    return s;
+  row["detail"] = script;
+  return Status::success();
 }
 
 // Runs f(i) for i in [0, n) on `threads` threads.
@@ -168,34 +248,65 @@ void parallel_for(size_t n, int threads, F&& f) {
   for (std::thread& t : pool) t.join();
 }
 
-Status write_text(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary);
-  out.write(text.data(), std::streamsize(text.size()));
-  out.close();
-  if (!out) return Error(IssueCode::WriteFailed, path.string() + ": cannot write", path.string());
-  return Status::success();
+// What a report folder holds: replacing a folder with anything else in it could delete someone's files.
+constexpr const char* kReportFolders[] = {"img", "assets"};
+constexpr const char* kReportFiles[] = {"data.js"};
+
+bool report_entry(const fs::directory_entry& entry) {
+  std::error_code ec;
+  const std::string name = entry.path().filename().string();
+  if (entry.is_directory(ec))
+    return std::find(std::begin(kReportFolders), std::end(kReportFolders), name) != std::end(kReportFolders);
+  if (std::find(std::begin(kReportFiles), std::end(kReportFiles), name) != std::end(kReportFiles)) return true;
+  for (size_t r = 0; r < kResourceCount; ++r)
+    if (name == kResources[r].name) return true;
+  return false;
 }
 
-// A folder earlier `voxfmt report` runs wrote (index.html and data.js), or an empty one: safe to replace.
+// A folder that holds only what `voxfmt report` writes (or nothing): safe to replace.
 bool replaceable(const fs::path& out) {
   std::error_code ec;
   if (!fs::exists(out, ec)) return true;
-  if (!fs::is_directory(out, ec)) return false;
-  if (fs::is_empty(out, ec)) return true;
-  return fs::exists(out / "index.html", ec) && fs::exists(out / "data.js", ec) &&
-         fs::exists(out / "voxfmt-report.js", ec);
+  if (!fs::is_directory(out, ec) || fs::is_symlink(out, ec)) return false;
+  for (const auto& entry : fs::directory_iterator(out, ec))
+    if (!report_entry(entry)) return false;
+  return !ec;
 }
 
-// Builds the report in a temporary folder beside OUT and renames it over OUT: a killed run never leaves half a
-// report under OUT's name.
-Result<ReportInfo> write_report_folder(const fs::path& out, const std::function<Status(const fs::path&)>& fill) {
-  if (!replaceable(out))
-    return Error(IssueCode::BadOption, out.string() + " exists and is not a voxfmt report: not replaced", out.string());
+// Leftovers of killed runs beside `out` (NAME.partial-PID, NAME.old-PID whose process is gone).
+void remove_stale_leftovers(const fs::path& out) {
   std::error_code ec;
-  const fs::path parent = out.parent_path().empty() ? fs::path(".") : out.parent_path();
+  const std::string name = out.filename().string();
+  for (const auto& entry : fs::directory_iterator(out.parent_path(), ec)) {
+    const std::string other = entry.path().filename().string();
+    for (const std::string& marker : {name + std::string(kPartialMarker), name + ".old-"}) {
+      if (other.rfind(marker, 0) != 0) continue;
+      const std::string pid = other.substr(marker.size());
+      if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) continue;
+      const long process = std::strtol(pid.c_str(), nullptr, 10);
+      if (process > 0 && ::kill(pid_t(process), 0) != 0 && errno == ESRCH) fs::remove_all(entry.path(), ec);
+    }
+  }
+}
+
+// Builds the report in a temporary folder beside OUT, then swaps it in (OUT moved aside, the new one renamed to
+// OUT, the old one removed): a killed run leaves either report whole under OUT's name, never half of one.
+Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(const fs::path&)>& fill) {
+  std::error_code ec;
+  out = fs::absolute(out, ec).lexically_normal();
+  if (out.filename().empty()) out = out.parent_path();  // "report/" names the folder "report"
+  if (out == out.root_path())
+    return Error(IssueCode::BadOption, out.string() + ": a report needs a folder of its own", out.string());
+  if (!replaceable(out))
+    return Error(IssueCode::BadOption,
+                 out.string() + " exists and holds files a report does not write: not replaced (choose another -o)",
+                 out.string());
+  const fs::path parent = out.parent_path();
   fs::create_directories(parent, ec);
-  const fs::path temporary =
-      parent / (out.filename().string() + std::string(kPartialMarker) + std::to_string(::getpid()));
+  remove_stale_leftovers(out);
+  const std::string pid = std::to_string(::getpid());
+  const fs::path temporary = parent / (out.filename().string() + std::string(kPartialMarker) + pid);
+  const fs::path old = parent / (out.filename().string() + ".old-" + pid);
   fs::remove_all(temporary, ec);
   if (!fs::create_directories(temporary / "img", ec) || !fs::create_directories(temporary / "assets", ec))
     return Error(IssueCode::WriteFailed, temporary.string() + ": cannot create the folder (" + ec.message() + ")",
@@ -210,22 +321,27 @@ Result<ReportInfo> write_report_folder(const fs::path& out, const std::function<
   ReportInfo info;
   for (const auto& entry : fs::recursive_directory_iterator(temporary, ec))
     if (entry.is_regular_file(ec)) info.bytes += entry.file_size(ec);
-  fs::remove_all(out, ec);
-  fs::rename(temporary, out, ec);
+  const bool had_one = fs::exists(out, ec);
+  if (had_one) fs::rename(out, old, ec);
+  if (!ec) fs::rename(temporary, out, ec);
   if (ec) {
+    const std::string reason = ec.message();
+    if (had_one && !fs::exists(out)) fs::rename(old, out, ec);
     fs::remove_all(temporary, ec);
-    return Error(IssueCode::WriteFailed, out.string() + ": cannot move the report into place", out.string());
+    return Error(IssueCode::WriteFailed, out.string() + ": cannot move the report into place (" + reason + ")",
+                 out.string());
   }
+  if (had_one) fs::remove_all(old, ec);
   info.index_html = (out / "index.html").string();
   return info;
 }
 
 // The fields the comparison needs of each record of the other library.
-nlohmann::json compact_rows(const std::vector<nlohmann::json>& records) {
+nlohmann::json compact_rows(const std::string& library, const std::vector<nlohmann::json>& records) {
   nlohmann::json rows = nlohmann::json::array();
   for (const nlohmann::json& r : records) {
     nlohmann::json row = {{"name", mesh_name(r)},
-                          {"output", fs::path(text_of(r, "output")).filename().string()},
+                          {"output", library_relative(library, text_of(r, "output"))},
                           {"status", text_of(r, "status")}};
     for (const char* key : {"file_size_bytes", "total_s", "error", "warnings", "voxelmap", "tool_version"})
       if (r.contains(key)) row[key] = r[key];
@@ -234,17 +350,29 @@ nlohmann::json compact_rows(const std::vector<nlohmann::json>& records) {
   return rows;
 }
 
+nlohmann::json report_data(const char* kind, const std::string& library, const LibraryReportOptions& options,
+                           size_t skipped_lines, nlohmann::json rows, nlohmann::json against) {
+  return {{"kind", kind},
+          {"library", fs::absolute(library).lexically_normal().string()},
+          {"generated_utc", utc_now()},
+          {"tool_version", VOXFMT_VERSION_STRING},
+          {"skipped_lines", skipped_lines},
+          {"thresholds", {{"size", options.size_threshold}, {"time", options.time_threshold}}},
+          {"rows", std::move(rows)},
+          {"against", std::move(against)}};
+}
+
 }  // namespace
 
 Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
-  Result<ManifestRecords> manifest = read_manifest(options.library);
+  Result<ManifestRecords> manifest = read_manifest(options.library, options.manifest);
   if (!manifest) return manifest.error();
   nlohmann::json against;
   if (!options.against.empty()) {
-    Result<ManifestRecords> other = read_manifest(options.against);
+    Result<ManifestRecords> other = read_manifest(options.against, "");
     if (!other) return other.error();
     against = {{"library", fs::absolute(options.against).lexically_normal().string()},
-               {"rows", compact_rows(other->records)}};
+               {"rows", compact_rows(options.against, other->records)}};
   }
   const fs::path out = options.out.empty() ? fs::path(options.library) / "report" : fs::path(options.out);
   std::vector<nlohmann::json>& records = manifest->records;
@@ -252,50 +380,57 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
   counts.meshes = records.size();
   counts.skipped_lines = manifest->skipped_lines;
   Result<ReportInfo> written = write_report_folder(out, [&](const fs::path& dir) -> Status {
-    std::vector<nlohmann::json> rows(records.size());
-    std::vector<std::string> scripts(records.size());
-    std::mutex progress_mutex;
+    nlohmann::json rows = nlohmann::json::array();
+    std::vector<nlohmann::json> row_of(records.size());
+    std::mutex mutex;  // the progress callback and the first write error
+    std::optional<Error> write_error;
     std::atomic<size_t> done{0};
     parallel_for(records.size(), options.threads, [&](size_t i) {
-      nlohmann::json& row = rows[i];
-      row = records[i];
+      nlohmann::json& row = row_of[i];
+      const std::string output = text_of(records[i], "output");
+      const std::string relative = library_relative(options.library, output);
+      row = std::move(records[i]);
       row.erase("command");  // the bake's argv: long, and the build parameters say the same
       row.erase("output_mtime_ns");
       // The keys the report sets are the report's: a manifest's own (hand-edited, hostile) never reach the page,
       // which loads "detail" as a script and "views" and "slice" as pictures.
       for (const char* key : kReportKeys) row.erase(key);
       row["id"] = i;
-      row["name"] = mesh_name(records[i]);
-      row["output_name"] = fs::path(text_of(records[i], "output")).filename().string();
-      const std::string status = text_of(records[i], "status");
-      if (status == "ok" || status == "up_to_date")
-        scripts[i] = describe_asset(asset_path(options.library, records[i]), dir.string(), i, options.read,
-                                    options.pictures, row);
+      row["name"] = mesh_name(row);
+      row["output_name"] = relative;
+      const std::string status = text_of(row, "status");
+      if (status == "ok" || status == "up_to_date") {
+        Status described;
+        try {
+          described = describe_asset(asset_path(options.library, relative, output), dir, i, options.read,
+                                     options.pictures, row);
+        } catch (const std::exception& e) {  // a file system error on a hostile path: this asset's card says so
+          row["asset_error"] = {{"code", "INTERNAL"},
+                                {"message", std::string("cannot describe the asset: ") + e.what()}};
+        }
+        if (!described) {
+          std::lock_guard<std::mutex> lock(mutex);
+          if (!write_error) write_error = described.error();
+        }
+      }
       const size_t finished = ++done;
       if (options.progress && (finished % 16 == 0 || finished == records.size())) {
-        std::lock_guard<std::mutex> lock(progress_mutex);
+        std::lock_guard<std::mutex> lock(mutex);
         options.progress(finished, records.size());
       }
     });
-    for (size_t i = 0; i < rows.size(); ++i) {
-      const std::string status = text_of(rows[i], "status");
+    if (write_error) return *write_error;
+    for (nlohmann::json& row : row_of) {
+      const std::string status = text_of(row, "status");
       counts.built += status == "ok";
       counts.up_to_date += status == "up_to_date";
       counts.failed += status == "failed";
-      counts.unreadable_assets += rows[i].contains("asset_error");
-      if (scripts[i].empty()) continue;
-      rows[i]["detail"] = "assets/" + std::to_string(i) + ".js";
-      if (Status s = write_text(dir / "assets" / (std::to_string(i) + ".js"), scripts[i]); !s) return s;
+      counts.unreadable_assets += row.contains("asset_error");
+      rows.push_back(std::move(row));
     }
-    const nlohmann::json data = {{"kind", "library"},
-                                 {"library", fs::absolute(options.library).lexically_normal().string()},
-                                 {"generated_utc", utc_now()},
-                                 {"tool_version", VOXFMT_VERSION_STRING},
-                                 {"skipped_lines", manifest->skipped_lines},
-                                 {"thresholds", {{"size", options.size_threshold}, {"time", options.time_threshold}}},
-                                 {"rows", rows},
-                                 {"against", against}};
-    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + dump(data) + ";\n");
+    const nlohmann::json data =
+        report_data("library", options.library, options, manifest->skipped_lines, std::move(rows), against);
+    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
   });
   if (!written) return written.error();
   ReportInfo info = counts;
@@ -316,20 +451,13 @@ Result<ReportInfo> write_asset_report(const std::string& asset, const std::strin
                           {"output", fs::absolute(asset).lexically_normal().string()},
                           {"output_name", fs::path(asset).filename().string()},
                           {"status", "ok"}};
-    const std::string script = describe_asset(asset, dir.string(), 0, read, true, row);
     std::error_code ec;
     row["file_size_bytes"] = fs::file_size(asset, ec);
-    row["detail"] = "assets/0.js";
-    if (Status s = write_text(dir / "assets" / "0.js", script); !s) return s;
-    const nlohmann::json data = {{"kind", "asset"},
-                                 {"library", fs::absolute(asset).parent_path().lexically_normal().string()},
-                                 {"generated_utc", utc_now()},
-                                 {"tool_version", VOXFMT_VERSION_STRING},
-                                 {"skipped_lines", 0},
-                                 {"thresholds", {{"size", 0.1}, {"time", 0.25}}},
-                                 {"rows", {row}},
-                                 {"against", nullptr}};
-    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + dump(data) + ";\n");
+    if (Status s = describe_asset(asset, dir, 0, read, true, row); !s) return s;
+    LibraryReportOptions defaults;
+    const nlohmann::json data = report_data("asset", fs::path(asset).parent_path().string(), defaults, 0,
+                                            nlohmann::json::array({row}), nullptr);
+    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
   });
   if (!written) return written.error();
   ReportInfo info = written.value();

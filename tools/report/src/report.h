@@ -15,7 +15,8 @@ namespace voxfmt::report {
 
 struct LibraryReportOptions {
   std::string library;           ///< folder holding manifest.jsonl and the assets
-  std::string out;               ///< report folder (default LIBRARY/report); replaced atomically when it is a report
+  std::string out;               ///< report folder (default LIBRARY/report); replaced only when it holds nothing else
+  std::string manifest;          ///< the manifest to read ("" = LIBRARY/manifest*.jsonl: the library's and its shards')
   std::string against;           ///< another baked library to compare with ("" = none)
   double size_threshold = 0.10;  ///< relative growth or shrinkage of a file that the comparison lists
   double time_threshold = 0.25;  ///< relative slow-down of a bake that the comparison lists
@@ -35,8 +36,8 @@ struct ReportInfo {
 };
 
 /// Writes the report of a library. FILE_NOT_FOUND when LIBRARY (or AGAINST) has no manifest.jsonl, BAD_OPTION
-/// when OUT exists and is not a report folder, WRITE_FAILED when it cannot be written. A damaged asset or a
-/// damaged manifest line never fails the report: the asset's card carries the coded error.
+/// when OUT exists and holds anything a report does not write, WRITE_FAILED when it cannot be written. A damaged asset
+/// or a damaged manifest line never fails the report: the asset's card carries the coded error.
 Result<ReportInfo> write_library_report(const LibraryReportOptions& options);
 
 /// The same page for one asset (`voxfmt inspect ASSET --html OUT`), its card open. Fails like read_asset when

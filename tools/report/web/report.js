@@ -35,6 +35,8 @@
     if (s >= 60) return (s / 60).toFixed(1) + ' min';
     return s >= 10 ? s.toFixed(1) + ' s' : s.toFixed(2) + ' s';
   }
+  // Only the report's own keys, never inherited ones, name files to load.
+  const own = (o, key) => Object.prototype.hasOwnProperty.call(o, key) && typeof o[key] === 'string' && /^(img|assets)\/[0-9]+[-a-z]*\.(png|js)$/.test(o[key]);
   const count = (v) => (num(v) === null ? '' : v.toLocaleString('en-US'));
   const text = (v) => (v === undefined || v === null ? '' : typeof v === 'object' ? JSON.stringify(v) : String(v));
 
@@ -49,7 +51,7 @@
   const rows = R.rows.map((r) => {
     const warnings = Array.isArray(r.warnings) ? r.warnings.filter((w) => w && typeof w === 'object') : [];
     const error = r.error && typeof r.error === 'object' ? r.error : r.asset_error && typeof r.asset_error === 'object' ? r.asset_error : null;
-    const dims = r.voxelmap && Array.isArray(r.voxelmap.dims) ? r.voxelmap.dims.map(Number) : null;
+    const dims = r.voxelmap && Array.isArray(r.voxelmap.dims) && r.voxelmap.dims.length === 3 ? r.voxelmap.dims.map(Number) : null;
     const state = r.asset_error ? 'unreadable' : text(r.status) || 'unknown';
     return {
       raw: r, id: r.id, name: text(r.name), state, warnings,
@@ -58,7 +60,7 @@
       error,
       triangles: num(r.input_triangles),
       dims,
-      resolution: dims ? Math.max(...dims) : null,
+      resolution: dims ? Math.max(dims[0], dims[1], dims[2]) : null,
       size: num(r.file_size_bytes),
       time: num(r.total_s) !== null ? r.total_s : num(r.wall_s),
       stored: r.voxelmap ? num(r.voxelmap.stored_distances) : null,
@@ -291,7 +293,7 @@
   }
   function loadDetail(row) {
     if (details.has(row.id)) return Promise.resolve(details.get(row.id));
-    if (!row.raw.detail) return Promise.resolve(null);
+    if (!own(row.raw, 'detail')) return Promise.resolve(null);
     return new Promise((resolve, reject) => {
       if (!waiting.has(row.id)) {
         waiting.set(row.id, []);
@@ -327,9 +329,9 @@
       el('div', {}, el('span', { class: 'status ' + row.state, id: 'card-status' }, row.state.replace(/_/g, ' ')), r.tool_version ? ' · voxfmt ' + text(r.tool_version) : '', r.finished_utc ? ' · ' + text(r.finished_utc) : ''),
       row.error ? el('div', { class: 'error-box', id: 'card-error' }, el('span', { class: 'code error', id: 'card-error-code' }, text(row.error.code)), text(row.error.message)) : null,
       el('div', { class: 'pictures', id: 'card-pictures' },
-        r.views ? el('figure', {}, el('img', { src: r.views, alt: 'front, side and top views of the point shell', width: 384, height: 128 }), el('figcaption', {}, 'point shell: front · side · top')) : null,
-        r.slice ? el('figure', {}, el('img', { src: r.slice, alt: 'middle slice of the voxelmap' }), el('figcaption', {}, 'mid slice: inside red, outside blue, surface black')) : null),
-      r.detail ? el('div', { id: 'viewer' }, el('button', { type: 'button', id: 'open-3d', onclick: () => open3d(row) }, 'Open the 3D view')) : null,
+        own(r, 'views') ? el('figure', {}, el('img', { src: r.views, alt: 'front, side and top views of the point shell', width: 384, height: 128 }), el('figcaption', {}, 'point shell: front · side · top')) : null,
+        own(r, 'slice') ? el('figure', {}, el('img', { src: r.slice, alt: 'middle slice of the voxelmap' }), el('figcaption', {}, 'mid slice: inside red, outside blue, surface black')) : null),
+      own(r, 'detail') ? el('div', { id: 'viewer' }, el('button', { type: 'button', id: 'open-3d', onclick: () => open3d(row) }, 'Open the 3D view')) : null,
       el('h3', {}, 'Input'),
       table([['file', text(r.input)], ['triangles', count(r.input_triangles)], ['vertices', count(r.input_vertices)], ['bytes', bytes(r.input_bytes)],
         ['closed', r.closed === undefined ? '' : r.closed ? 'yes' : 'no (baked as a shell)'], ['sha256', text(r.source_sha256)]]),
@@ -493,7 +495,8 @@
       const mid = origin.map((o, a) => o + 0.5 * (dims[a] - 1) * cell);
       slice.position.set(mid[0], mid[1], mid[2]);
       slice.position.setComponent(sliceAxis, origin[sliceAxis] + sliceIndex * cell);
-      slice.rotation.set(sliceAxis === 0 ? 0 : sliceAxis === 1 ? -Math.PI / 2 : 0, sliceAxis === 0 ? Math.PI / 2 : 0, 0);
+      // The plane's local x and y onto the slice's (u, v): x -> (y, z), y -> (x, z), z -> (x, y).
+      slice.rotation.set(sliceAxis === 2 ? 0 : Math.PI / 2, sliceAxis === 0 ? Math.PI / 2 : 0, 0);
     }
     drawSlice();
 
