@@ -176,7 +176,8 @@ VOXFMT_HD Sample sample_inside(const Field& f, const Vec3& u, Vec3* gradient);
 /// the grid's nearest point and d the field there, sqrt(|u - q|^2 + d^2) -- the surface lies inside the grid, a
 /// convex box, so its nearest point s to u satisfies |u - s|^2 >= |u - q|^2 + |q - s|^2: a lower bound wherever d
 /// is one, above the exact distance by no more than d is at q -- and at least the distance to the object's
-/// bounding box. It meets the field at the grid's faces (no cliff) and grows at most one voxel per voxel. `gradient`,
+/// bounding box. It meets the field at the grid's faces (no cliff) and changes no faster than the distance
+/// travelled or the field along the faces. `gradient`,
 /// if given, receives the direction of increasing distance (not normalised; zero where flat).
 VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   if (covers(f, u)) return sample_inside(f, u, gradient);
@@ -203,8 +204,27 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   return result;
 }
 
-/// sample() at a point the grid covers.
+VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient);
+
+/// sample() at a point the grid covers: the trilinear field, and where that is an estimate outside the object,
+/// at least the distance to the object's bounding box (a bound the estimate may fall below near the grid's
+/// faces; the same bound outside the grid, so the two meet without a step).
 VOXFMT_HD Sample sample_inside(const Field& f, const Vec3& u, Vec3* gradient) {
+  Sample result = sample_grid(f, u, gradient);
+  if (result.exact || result.distance <= 0.0f) return result;
+  const float box = bounds_distance(f, u);
+  if (box > result.distance) {
+    result.distance = box;
+    if (gradient)
+      *gradient =
+          u - make_vec3(clamp_f(u.x, f.object_min.x, f.object_max.x), clamp_f(u.y, f.object_min.y, f.object_max.y),
+                        clamp_f(u.z, f.object_min.z, f.object_max.z));
+  }
+  return result;
+}
+
+/// The trilinear field at a point the grid covers.
+VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient) {
   Sample result;
   // The cell whose corners surround u, clamped so that all 8 corners exist.
   int base[3];
