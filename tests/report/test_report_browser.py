@@ -104,6 +104,16 @@ class BrowserReportTest(unittest.TestCase):
         self.driver.find_element(By.CSS_SELECTOR, '.bar-label[data-code="OPEN_BORDER"]').click()
         self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(with_border), len(self.records)))
 
+    def test_2b_filter_by_size_and_time(self):
+        sizes = sorted(r["file_size_bytes"] for r in self.records if "file_size_bytes" in r)
+        threshold = sizes[len(sizes) // 2] / 1048576  # the median, in MiB
+        self.driver.find_element(By.ID, "filter-size").send_keys("%.6f" % (threshold - 1e-6))
+        expected = sum(1 for r in self.records if r.get("file_size_bytes", -1) >= (threshold - 1e-6) * 1048576)
+        self.assertEqual(self.rows_shown(), "%d of %d meshes" % (expected, len(self.records)))
+        self.driver.find_element(By.ID, "filter-clear").click()
+        self.driver.find_element(By.ID, "filter-time").send_keys("100000")
+        self.assertEqual(self.rows_shown(), "0 of %d meshes" % len(self.records))
+
     def test_3_failed_mesh_card_shows_its_error_code(self):
         failed = next(r for r in self.records if r["status"] == "failed")
         name = os.path.basename(failed["input"])

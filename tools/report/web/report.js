@@ -75,7 +75,7 @@
     (R.skipped_lines ? ' · ' + R.skipped_lines + ' manifest line(s) were not records and are not shown' : '');
 
   // ---- filters and sorting state
-  const filter = { name: '', status: '', code: '' };
+  const filter = { name: '', status: '', code: '', size: '', time: '' };
   let sortKey = 'name', sortDesc = false;
   let visible = rows.slice();
 
@@ -237,7 +237,9 @@
     const q = filter.name.toLowerCase();
     visible = rows.filter((r) => (!q || r.name.toLowerCase().includes(q)) &&
       (!filter.status || r.state === filter.status || r.raw.status === filter.status) &&
-      (!filter.code || r.errorCode === filter.code || r.warningCodes.includes(filter.code)));
+      (!filter.code || r.errorCode === filter.code || r.warningCodes.includes(filter.code)) &&
+      (filter.size === '' || (r.size !== null && r.size >= Number(filter.size) * 1048576)) &&
+      (filter.time === '' || (r.time !== null && r.time >= Number(filter.time))));
     const dir = sortDesc ? -1 : 1;
     visible.sort((a, b) => {
       const x = sortValue(a, sortKey), y = sortValue(b, sortKey);
@@ -270,6 +272,8 @@
     $('filter-name').value = filter.name;
     $('filter-status').value = filter.status;
     $('filter-code').value = filter.code;
+    $('filter-size').value = filter.size;
+    $('filter-time').value = filter.time;
     apply();
     $('library').scrollIntoView({ block: 'start' });
   }
@@ -641,7 +645,9 @@
     $('filter-name').addEventListener('input', (e) => { filter.name = e.target.value; apply(); });
     $('filter-status').addEventListener('change', (e) => { filter.status = e.target.value; apply(); });
     $('filter-code').addEventListener('change', (e) => { filter.code = e.target.value; apply(); });
-    $('filter-clear').addEventListener('click', () => setFilter({ name: '', status: '', code: '' }));
+    $('filter-size').addEventListener('input', (e) => { filter.size = e.target.value; apply(); });
+    $('filter-time').addEventListener('input', (e) => { filter.time = e.target.value; apply(); });
+    $('filter-clear').addEventListener('click', () => setFilter({ name: '', status: '', code: '', size: '', time: '' }));
     apply();
     const m = /^#asset-(\d+)$/.exec(location.hash);
     if (m) openCard(Number(m[1]));
