@@ -189,6 +189,8 @@ nlohmann::json issues_json(const std::vector<Issue>& issues) {
   return list;
 }
 
+// Plain writes, not write_file_atomically: every file goes into the temporary folder, and the folder is what
+// is swapped in whole (a flush and rename per file would only add hundreds of syncs).
 Status write_text(const fs::path& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary);
   out.write(text.data(), std::streamsize(text.size()));
@@ -203,12 +205,24 @@ std::string script_value(const nlohmann::json& value) {
   return "JSON.parse(" + dump(nlohmann::json(dump(value))) + ")";
 }
 
-// Everything the report shows of one asset file: `row` gets the small facts (for the table and the card);
-// assets/ID.js the large ones (loaded when the card opens), whose path goes into row["detail"].
-Status describe_asset(const std::string& path, const fs::path& dir, size_t id, const ReadOptions& read, bool pictures,
-                      nlohmann::json& row) {
+// An asset file as read, with the warnings of its read.
+struct ReadAsset {
+  Result<Asset> asset;
+  std::vector<Issue> warnings;
+};
+
+ReadAsset read_for_report(const std::string& path, const ReadOptions& read) {
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(path, &warnings, read);
+  return {std::move(asset), std::move(warnings)};
+}
+
+// Everything the report shows of one asset file: `row` gets the small facts (for the table and the card);
+// assets/ID.js the large ones (loaded when the card opens), whose path goes into row["detail"].
+Status describe_asset(const std::string& path, const ReadAsset& read_result, const fs::path& dir, size_t id,
+                      const ReadOptions& read, bool pictures, nlohmann::json& row) {
+  const Result<Asset>& asset = read_result.asset;
+  const std::vector<Issue>& warnings = read_result.warnings;
   if (!asset) {
     row["asset_error"] = error_json(asset.error());
     const std::vector<Issue> findings = validate_file(path, read);
@@ -402,8 +416,9 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
       if (status == "ok" || status == "up_to_date") {
         Status described;
         try {
-          described = describe_asset(asset_path(options.library, relative, output), dir, i, options.read,
-                                     options.pictures, row);
+          const std::string path = asset_path(options.library, relative, output);
+          described =
+              describe_asset(path, read_for_report(path, options.read), dir, i, options.read, options.pictures, row);
         } catch (const std::exception& e) {  // a file system error on a hostile path: this asset's card says so
           row["asset_error"] = {{"code", "INTERNAL"},
                                 {"message", std::string("cannot describe the asset: ") + e.what()}};
@@ -440,11 +455,8 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
 }
 
 Result<ReportInfo> write_asset_report(const std::string& asset, const std::string& out, const ReadOptions& read) {
-  std::vector<Issue> warnings;
-  {
-    Result<Asset> readable = read_asset(asset, &warnings, read);  // an unreadable asset is the command's error
-    if (!readable) return readable.error();
-  }
+  const ReadAsset read_result = read_for_report(asset, read);
+  if (!read_result.asset) return read_result.asset.error();  // an unreadable asset is the command's error
   Result<ReportInfo> written = write_report_folder(fs::path(out), [&](const fs::path& dir) -> Status {
     nlohmann::json row = {{"id", 0},
                           {"name", fs::path(asset).filename().string()},
@@ -453,7 +465,7 @@ Result<ReportInfo> write_asset_report(const std::string& asset, const std::strin
                           {"status", "ok"}};
     std::error_code ec;
     row["file_size_bytes"] = fs::file_size(asset, ec);
-    if (Status s = describe_asset(asset, dir, 0, read, true, row); !s) return s;
+    if (Status s = describe_asset(asset, read_result, dir, 0, read, true, row); !s) return s;
     LibraryReportOptions defaults;
     const nlohmann::json data = report_data("asset", fs::path(asset).parent_path().string(), defaults, 0,
                                             nlohmann::json::array({row}), nullptr);

@@ -169,60 +169,6 @@ VOXFMT_HD bool brick_corners(const Field& f, const int base[3], float v[8], bool
   return true;
 }
 
-VOXFMT_HD Sample sample_inside(const Field& f, const Vec3& u, Vec3* gradient);
-
-/// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values (stored
-/// distances, or estimates where none is stored). Outside the grid, the field continued as a lower bound: with q
-/// the grid's nearest point and d the field there, sqrt(|u - q|^2 + d^2) -- the surface lies inside the grid, a
-/// convex box, so its nearest point s to u satisfies |u - s|^2 >= |u - q|^2 + |q - s|^2: a lower bound wherever d
-/// is one, above the exact distance by no more than d is at q -- and at least the distance to the object's
-/// bounding box. It meets the field at the grid's faces (no cliff) and changes no faster than the distance
-/// travelled or the field along the faces. `gradient`,
-/// if given, receives the direction of increasing distance (not normalised; zero where flat).
-VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
-  if (covers(f, u)) return sample_inside(f, u, gradient);
-  Sample result;
-  result.bound = true;
-  const Vec3 q = make_vec3(clamp_f(u.x, -0.5f, f.cover_max.x), clamp_f(u.y, -0.5f, f.cover_max.y),
-                           clamp_f(u.z, -0.5f, f.cover_max.z));
-  Vec3 face_gradient = make_vec3(0, 0, 0);
-  const float d = sample_inside(f, q, gradient ? &face_gradient : nullptr).distance;
-  const Vec3 away = u - q;
-  const float box = bounds_distance(f, u);
-  const float continued = d > 0.0f ? sqrt_f(dot(away, away) + d * d) : 0.0f;
-  result.distance = max_f(box, continued);
-  if (gradient) {
-    if (continued >= box) {
-      // d/du of the bound: the way out of the grid, plus d times the field's slope along the faces u is beyond.
-      const Vec3 along = make_vec3(away.x == 0.0f ? face_gradient.x : 0.0f, away.y == 0.0f ? face_gradient.y : 0.0f,
-                                   away.z == 0.0f ? face_gradient.z : 0.0f);
-      *gradient = away + d * along;
-    } else {
-      *gradient = u - 0.5f * (f.object_min + f.object_max);
-    }
-  }
-  return result;
-}
-
-VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient);
-
-/// sample() at a point the grid covers: the trilinear field, and where that is an estimate outside the object,
-/// at least the distance to the object's bounding box (a bound the estimate may fall below near the grid's
-/// faces; the same bound outside the grid, so the two meet without a step).
-VOXFMT_HD Sample sample_inside(const Field& f, const Vec3& u, Vec3* gradient) {
-  Sample result = sample_grid(f, u, gradient);
-  if (result.exact || result.distance <= 0.0f) return result;
-  const float box = bounds_distance(f, u);
-  if (box > result.distance) {
-    result.distance = box;
-    if (gradient)
-      *gradient =
-          u - make_vec3(clamp_f(u.x, f.object_min.x, f.object_max.x), clamp_f(u.y, f.object_min.y, f.object_max.y),
-                        clamp_f(u.z, f.object_min.z, f.object_max.z));
-  }
-  return result;
-}
-
 /// The trilinear field at a point the grid covers.
 VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient) {
   Sample result;
@@ -265,6 +211,56 @@ VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient) {
     const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
     const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
     *gradient = make_vec3(gx, gy, y1 - y0);
+  }
+  return result;
+}
+
+/// sample() at a point the grid covers: the trilinear field, and where that is an estimate outside the object,
+/// at least the distance to the object's bounding box (a bound the estimate may fall below near the grid's
+/// faces; the same bound outside the grid, so the two meet without a step).
+VOXFMT_HD Sample sample_inside(const Field& f, const Vec3& u, Vec3* gradient) {
+  Sample result = sample_grid(f, u, gradient);
+  if (result.exact || result.distance <= 0.0f) return result;
+  const float box = bounds_distance(f, u);
+  if (box > result.distance) {
+    result.distance = box;
+    if (gradient)
+      *gradient =
+          u - make_vec3(clamp_f(u.x, f.object_min.x, f.object_max.x), clamp_f(u.y, f.object_min.y, f.object_max.y),
+                        clamp_f(u.z, f.object_min.z, f.object_max.z));
+  }
+  return result;
+}
+
+/// Signed distance at grid coordinates `u`: trilinear interpolation of the 8 surrounding voxels' values (stored
+/// distances, or estimates where none is stored). Outside the grid, the field continued as a lower bound: with q
+/// the grid's nearest point and d the field there, sqrt(|u - q|^2 + d^2) -- the surface lies inside the grid, a
+/// convex box, so its nearest point s to u satisfies |u - s|^2 >= |u - q|^2 + |q - s|^2: a lower bound wherever d
+/// is one, above the exact distance by no more than d is at q -- and at least the distance to the object's
+/// bounding box. It meets the field at the grid's faces (no cliff) and changes no faster than the distance
+/// travelled or the field along the faces. `gradient`, if given, receives the direction of increasing distance
+/// (not normalised; zero where flat).
+VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
+  if (covers(f, u)) return sample_inside(f, u, gradient);
+  Sample result;
+  result.bound = true;
+  const Vec3 q = make_vec3(clamp_f(u.x, -0.5f, f.cover_max.x), clamp_f(u.y, -0.5f, f.cover_max.y),
+                           clamp_f(u.z, -0.5f, f.cover_max.z));
+  Vec3 face_gradient = make_vec3(0, 0, 0);
+  const float d = sample_inside(f, q, gradient ? &face_gradient : nullptr).distance;
+  const Vec3 away = u - q;
+  const float box = bounds_distance(f, u);
+  const float continued = d > 0.0f ? sqrt_f(dot(away, away) + d * d) : 0.0f;
+  result.distance = max_f(box, continued);
+  if (gradient) {
+    if (continued >= box) {
+      // d/du of the bound: the way out of the grid, plus d times the field's slope along the faces u is beyond.
+      const Vec3 along = make_vec3(away.x == 0.0f ? face_gradient.x : 0.0f, away.y == 0.0f ? face_gradient.y : 0.0f,
+                                   away.z == 0.0f ? face_gradient.z : 0.0f);
+      *gradient = away + d * along;
+    } else {
+      *gradient = u - 0.5f * (f.object_min + f.object_max);
+    }
   }
   return result;
 }
