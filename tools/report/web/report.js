@@ -477,8 +477,11 @@
     let sliceAxis = 2, sliceIndex = Math.floor(dims[2] / 2);
     function drawSlice() {
       const [u, v] = sliceAxis === 0 ? [1, 2] : sliceAxis === 1 ? [0, 2] : [0, 1];
-      sliceCanvas.width = dims[u];
-      sliceCanvas.height = dims[v];
+      if (sliceCanvas.width !== dims[u] || sliceCanvas.height !== dims[v]) {
+        sliceTexture.dispose();  // a texture keeps its first size: a new one for the new axis's
+        sliceCanvas.width = dims[u];
+        sliceCanvas.height = dims[v];
+      }
       const g = sliceCanvas.getContext('2d');
       const img = g.createImageData(dims[u], dims[v]);
       const limit = 8 * cell;
