@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iostream>
+#include <map>
 #include <random>
 
 #include "baked_bunny.h"
@@ -489,6 +490,54 @@ TEST(Query, PointBudgetStopsAtATreeLevel) {
   EXPECT_LT(coarse.contacts.size(), fine.contacts.size());
   for (const Contact& c : coarse.contacts)
     EXPECT_LT(c.point_index, tree.points_up_to_level(coarse.stats.deepest_level));
+}
+
+TEST(Query, ARefinedCutGoesOnBelowItsNearestPointsWithinItsBudget) {
+  // refine_cut_contacts: below a point budget's cut, the walk goes on in the spheres nearest the partner. Every
+  // contact is a contact of the full tree with the same depth (true surface points); the points tested below the
+  // cut are at most as many again as above it; and the refined set reaches the leaves and holds more of the full
+  // tree's contacts than the cut alone.
+  const Bunny& bunny = Bunny::get();
+  const PointTree& tree = bunny.object->point_tree();
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
+  size_t compared = 0, deeper = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    const Eigen::Vector3d axis(unit(random), unit(random), unit(random));
+    const Pose pa = make_pose(angle(random), axis, Eigen::Vector3d(offset(random), 0.05 * unit(random), 0.0));
+    const Pose pb;
+    QueryOptions options;
+    options.direction = QueryDirection::APointsInB;
+    options.cut_level = CutLevel::Points;
+    ContactSet full, cut, refined;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, full);
+    options.point_budget = 828;  // levels 0..4 of this tree at most
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, cut);
+    options.refine_cut_contacts = true;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, refined);
+    if (cut.stats.deepest_level == full.stats.deepest_level) continue;  // the budget did not cut
+    ++compared;
+    EXPECT_EQ(refined.stats.deepest_level, cut.stats.deepest_level) << "trial " << trial;
+    EXPECT_EQ(cut.stats.points_refined, 0u);
+    const size_t above = refined.stats.points_tested - refined.stats.points_refined;
+    EXPECT_EQ(above, cut.stats.points_tested) << "trial " << trial;
+    EXPECT_LE(refined.stats.points_refined, std::min<size_t>(above, 828)) << "trial " << trial;
+    std::map<uint32_t, double> full_depth;
+    for (const Contact& c : full.contacts) full_depth[c.point_index] = c.depth;
+    size_t below_cut = 0;
+    for (const Contact& c : refined.contacts) {
+      const auto found = full_depth.find(c.point_index);
+      ASSERT_NE(found, full_depth.end()) << "trial " << trial << ": point " << c.point_index;
+      EXPECT_EQ(c.depth, found->second);
+      below_cut += c.point_index >= tree.points_up_to_level(cut.stats.deepest_level);
+    }
+    EXPECT_GE(refined.contacts.size(), cut.contacts.size());
+    if (below_cut > 0) ++deeper;
+  }
+  std::cout << "[ figures  ] " << compared << " poses cut by the budget, " << deeper
+            << " with contacts found below the cut\n";
+  ASSERT_GT(compared, 10u);
+  EXPECT_GT(deeper, compared / 2);  // the refinement found contacts below the cut in most poses
 }
 
 TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {

@@ -525,6 +525,7 @@ class Registration : public VpsCollisionRegistration {
 runtime::QueryOptions physics_query_defaults() {
   runtime::QueryOptions query;
   query.cut_level = runtime::CutLevel::Points;
+  query.refine_cut_contacts = true;
   return query;
 }
 

@@ -46,6 +46,15 @@ struct QueryScratch::Buffers {
   /// The same for the last completed level, held while the next one runs (a time budget may end it).
   std::vector<Hit> done_hits;
   std::vector<uint32_t> done_parents;
+  /// Nodes of the level being traversed that queued children: below a cut, those whose points are nearest the
+  /// target go on first (QueryOptions::refine_cut_contacts).
+  struct Opener {
+    float distance;  ///< its point's (or a bound on it)
+    uint32_t node;
+    float bound, point_bound;  ///< as open() carried them to its children
+    bool operator<(const Opener& o) const { return distance < o.distance || (distance == o.distance && node < o.node); }
+  };
+  std::vector<Opener> level_openers;
   /// Testing hook (QueryScratch::record_tested_points): every point whose distance is looked up, in the
   /// target's coordinates.
   std::vector<Eigen::Vector3f>* tested_points = nullptr;
@@ -86,6 +95,7 @@ struct WalkLimits {
   size_t point_budget;
   size_t min_points;
   bool spheres;  ///< a cut level reports its points' spheres (CutLevel::Spheres)
+  bool refine;   ///< below a cut level, its points nearest the target go on (QueryOptions::refine_cut_contacts)
   bool timed;
   std::chrono::steady_clock::time_point deadline;
   static WalkLimits of(const QueryOptions& o) {
@@ -94,6 +104,7 @@ struct WalkLimits {
             o.point_budget,
             o.min_points,
             o.cut_level == CutLevel::Spheres,
+            o.refine_cut_contacts && o.cut_level == CutLevel::Points,
             timed,
             timed ? std::chrono::steady_clock::now() + std::chrono::nanoseconds(int64_t(o.time_budget_us * 1e3))
                   : std::chrono::steady_clock::time_point::max()};
@@ -156,6 +167,7 @@ class LevelTraversal {
     b_.level_parents.clear();
     b_.done_hits.clear();
     b_.done_parents.clear();
+    b_.level_openers.clear();
     if (tree_.size() == 0) return false;
     // A level never holds more nodes than the tree: sized once, the queues are filled without capacity checks
     // (children are written unconditionally and kept by advancing the size: no branch to mispredict).
@@ -198,7 +210,7 @@ class LevelTraversal {
     for (size_t i = 0; i < survivors; ++i) {
       const uint32_t node = survivor_[i];
       const PointTree::Node& parent = nodes_[node];
-      test_point(node, point_[i], point_bound[i]);
+      const float point_distance = test_point(node, point_[i], point_bound[i]);
       const size_t queued = next_size_;
       uint32_t* const out = b_.next_queue.data();
       for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
@@ -207,6 +219,8 @@ class LevelTraversal {
                                           nodes_[c].reach_from_parent_point, radius_scale_) <= proximity_;
       }
       if (limits_.spheres && next_size_ > queued) b_.level_parents.push_back(node);
+      if (limits_.refine && next_size_ > queued)
+        b_.level_openers.push_back({point_distance, node, bound_[i], point_bound[i]});
     }
     tested_ += survivors;
   }
@@ -229,27 +243,37 @@ class LevelTraversal {
     for (size_t n = 0; n < inner; ++n) point_bound[inner_slot[n]] = inner_bound[n];
   }
 
-  // Stage 3, test a point: its distance, unless its bound (point_bounds) rules it out.
-  void test_point(uint32_t node, const Eigen::Vector3f& u, float point_bound) {
+  // Stage 3, test a point: its distance, unless its bound (point_bounds) rules it out. Returns the distance, or
+  // the bound where that ruled the point out.
+  float test_point(uint32_t node, const Eigen::Vector3f& u, float point_bound) {
     if (b_.tested_points) b_.tested_points->push_back(u);
-    if (point_bound < proximity_) {
-      const Hit hit = sample_hit(target_, node, u);
-      if (hit.distance < proximity_) {
-        if (hold_)
-          b_.level_hits.push_back(hit);
-        else
-          emit_(hit);
-      }
+    if (!(point_bound < proximity_)) return point_bound;
+    const Hit hit = sample_hit(target_, node, u);
+    if (hit.distance < proximity_) {
+      if (hold_)
+        b_.level_hits.push_back(hit);
+      else
+        emit_(hit);
     }
+    return hit.distance;
   }
 
   // Stage 4, carry on: after a complete level, the next one unless it is empty, too deep or over a limit; the
   // level before is then final (a complete level refines it).
   bool next_level() {
     const bool next_in_floor = tested_ + next_size_ <= limits_.min_points;
-    if (next_size_ == 0 ||
-        (!next_in_floor && (level_ + 1 > limits_.max_level || tested_ + next_size_ > limits_.point_budget)))
-      return false;
+    if (next_size_ == 0) return false;
+    if (refining_) {
+      const size_t room = refine_budget_ - std::min(tested_ - refined_from_, refine_budget_);
+      if (next_size_ > room && !nearest_openers_only(room)) return false;
+    } else if (!next_in_floor && (level_ + 1 > limits_.max_level || tested_ + next_size_ > limits_.point_budget)) {
+      if (!limits_.refine) return false;
+      refining_ = true;
+      refined_from_ = tested_;
+      cut_level_ = level_;
+      refine_budget_ = std::min(limits_.point_budget, std::max(tested_, limits_.min_points));
+      if (next_size_ > refine_budget_ && !nearest_openers_only(refine_budget_)) return false;
+    }
     if (limits_.timed && !next_in_floor && clock_expired()) return false;
     if (limits_.spheres) {
       emit_points(b_.done_hits);
@@ -261,11 +285,37 @@ class LevelTraversal {
       emit_points(b_.level_hits);
       b_.level_hits.clear();
     }
+    b_.level_openers.clear();
     b_.queue.swap(b_.next_queue);
     frontier_size_ = next_size_;
     next_size_ = 0;
     ++level_;
     return true;
+  }
+
+  // Below a cut (QueryOptions::refine_cut_contacts): the next level holds only the children of the level's nodes
+  // whose points are nearest the target, as many as fit in `room` (half of it above the leaves, so that the
+  // levels below have their share). Returns false when none fit.
+  bool nearest_openers_only(size_t room) {
+    std::vector<QueryScratch::Buffers::Opener>& openers = b_.level_openers;
+    if (openers.empty()) return false;
+    std::sort(openers.begin(), openers.end());
+    if (nodes_[nodes_[openers.front().node].first_child].child_count > 0) room /= 2;
+    size_t count = 0;
+    uint32_t* const out = b_.next_queue.data();
+    for (const QueryScratch::Buffers::Opener& o : openers) {
+      const PointTree::Node& parent = nodes_[o.node];
+      size_t kept = count;
+      for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
+        out[kept] = c;
+        kept += core::carried_bound(o.bound, o.point_bound, nodes_[c].reach_from_parent,
+                                    nodes_[c].reach_from_parent_point, radius_scale_) <= proximity_;
+      }
+      if (kept > room) break;
+      count = kept;
+    }
+    next_size_ = count;
+    return count > 0;
   }
 
   // Stage 5, finish: report what is held. A level the clock interrupted is dropped and the one before is the cut;
@@ -283,6 +333,10 @@ class LevelTraversal {
         emit_points(b_.level_hits);
     } else if (hold_) {
       emit_points(b_.level_hits);
+    }
+    if (refining_) {  // the cut is the deepest whole level; the points below it are counted apart
+      completed = cut_level_;
+      stats_.points_refined += tested_ - refined_from_;
     }
     if (out_of_time_) stats_.time_budget_hit = true;
     stats_.points_tested += tested_;
@@ -321,6 +375,9 @@ class LevelTraversal {
   size_t frontier_size_ = 0, next_size_ = 0, tested_ = 0;
   uint32_t level_ = 0;
   bool out_of_time_ = false, level_done_ = false;
+  bool refining_ = false;  // below a cut level, on its nodes nearest the target (nearest_openers_only)
+  size_t refined_from_ = 0, refine_budget_ = 0;
+  uint32_t cut_level_ = 0;
   // One batch: sphere centres in the target frame, then the survivors with their bounds and points.
   Eigen::Vector3f centre_[kBatch], point_[kBatch];
   float bound_[kBatch];

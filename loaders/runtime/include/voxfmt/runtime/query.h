@@ -72,6 +72,13 @@ struct QueryOptions {
   uint32_t max_level = std::numeric_limits<uint32_t>::max();
   /// What the last level of a cut query reports (see CutLevel).
   CutLevel cut_level = CutLevel::Spheres;
+  /// With CutLevel::Points: where `max_level` or `point_budget` stops the walk at a level, the walk goes on
+  /// below it in the spheres of that level whose points are nearest the partner, as many as fit in as many
+  /// points again as were tested down to the cut (at most `point_budget`), and so on down to the leaves. Every
+  /// point reported is a surface point at its true depth, as at the cut; but a body rests on its surface's own
+  /// points where it touches, not on the few of a coarse level, whose base is narrower than the surface's (a
+  /// bunny rocked on three such points for seconds). Not with a time budget's cut. Physics defaults turn it on.
+  bool refine_cut_contacts = false;
   /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops and physics steps: the
   /// clock is read at level ends and every 32 nodes. A level the budget interrupts is dropped and the last
   /// completed level is the cut, reported as `cut_level` says: contacts are those of whole levels (the same as a
@@ -98,6 +105,7 @@ struct QueryStats {
   size_t nodes_visited = 0;      ///< sphere-tree nodes popped from the queue
   size_t points_tested = 0;      ///< points whose distance was looked up
   uint32_t deepest_level = 0;    ///< deepest tree level completed (and reported)
+  size_t points_refined = 0;     ///< of points_tested, those below a cut level (QueryOptions::refine_cut_contacts)
   bool time_budget_hit = false;  ///< a traversal stopped at QueryOptions::time_budget_us
 };
 
