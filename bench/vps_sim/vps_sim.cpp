@@ -60,7 +60,8 @@ struct Options {
   double coarse_points = 800;
   bool cached_decompositions_only = false;
   bool plots = true;
-  std::string cut_level;  // empty: CollisionSettings' default
+  std::string cut_level;   // empty: CollisionSettings' default
+  bool refine_cut = true;  // CollisionSettings' default: refine_cut_contacts
 };
 
 // ------------------------------------------------------------------------------------------------ methods
@@ -267,6 +268,7 @@ RunResult run(const Scene& scene, const std::string& method, const Options& opti
 
   if (options.cut_level == "points") settings.query.cut_level = voxfmt::runtime::CutLevel::Points;
   if (options.cut_level == "spheres") settings.query.cut_level = voxfmt::runtime::CutLevel::Spheres;
+  settings.query.refine_cut_contacts = options.refine_cut;
   voxfmt::bullet::World world(settings, factory.is_vps());
   btGImpactCollisionAlgorithm::registerAlgorithm(&world.dispatcher());
   world.dynamics().setGravity(btVector3(0, btScalar(-kGravity), 0));
@@ -561,6 +563,9 @@ int main(int argc, char** argv) {
   app.add_option("--cut-level", options.cut_level,
                  "what a cut shell's last level reports in vps-coarse and vps-budget (default: the library's)")
       ->check(CLI::IsMember({"points", "spheres"}));
+  app.add_flag("!--no-refine-cut", options.refine_cut,
+               "vps-coarse and vps-budget: do not walk on below the cut where the shell touches "
+               "(query.refine_cut_contacts off, as before 0.4.0)");
   app.footer(
       "\nExamples:\n"
       "  vps-sim --quick --json out/vps-sim/quick.json\n"
@@ -620,6 +625,8 @@ int main(int argc, char** argv) {
       doc["rest_speed_mps"] = kRestSpeed;
       doc["quick"] = options.quick;
       doc["pile_bodies"] = options.bodies;
+      doc["cut_level"] = options.cut_level.empty() ? "points" : options.cut_level;
+      doc["refine_cut_contacts"] = options.refine_cut;
       doc["runs"] = nlohmann::json::array();
       for (const RunResult& r : results) doc["runs"].push_back(to_json(r));
       const auto written = voxfmt::write_file_atomically(options.json, doc.dump(2) + "\n");

@@ -126,10 +126,11 @@ struct DropOutcome {
 /// Drops a bunny from 2 cm onto a static bunny standing on a plane for 3 s, both cut at tree level `max_level`
 /// of their shells, or both whole under a step time budget of `step_budget_us`.
 DropOutcome coarse_bunny_drop(runtime::CutLevel cut_level, uint32_t max_level, double step_budget_us = 0.0,
-                              bool coherent = true) {
+                              bool coherent = true, bool refine = true) {
   const Bunny& bunny = Bunny::get();
   CollisionSettings settings;
   settings.query.cut_level = cut_level;
+  settings.query.refine_cut_contacts = refine;
   settings.step_time_budget_us = step_budget_us;
   settings.coherent = coherent;
   World world(settings);
@@ -183,14 +184,19 @@ TEST(Bullet, ACoarseShapeDoesNotGainEnergyFromItsCut) {
   // Shapes cut at tree level 2 report the level's own points (CutLevel::Points, the default): dropped on a
   // bunny, the body never has more energy than it started with, and it comes to rest. Reporting each point as
   // its sphere (Spheres, up to two radii deeper than the surface), the solver turns the extra depth into energy.
-  const DropOutcome points = coarse_bunny_drop(runtime::CutLevel::Points, 2);
-  const DropOutcome spheres = coarse_bunny_drop(runtime::CutLevel::Spheres, 2);
+  // Refining the cut where it touches (the default) adds none either.
+  const DropOutcome points = coarse_bunny_drop(runtime::CutLevel::Points, 2, 0.0, true, false);
+  const DropOutcome spheres = coarse_bunny_drop(runtime::CutLevel::Spheres, 2, 0.0, true, false);
+  const DropOutcome refined = coarse_bunny_drop(runtime::CutLevel::Points, 2);
   std::cout << "[ figures  ] largest energy gain over the drop's potential energy: points " << points.gain
             << " (final speed " << points.final_speed << " m/s), spheres " << spheres.gain << " (final "
-            << spheres.final_speed << " m/s)\n";
+            << spheres.final_speed << " m/s), points refined where they touch " << refined.gain << " (deepest "
+            << refined.deepest << " voxel, the cut alone " << points.deepest << ")\n";
   EXPECT_LT(points.gain, 0.05);
   EXPECT_LT(points.final_speed, 1e-2);
   EXPECT_GT(spheres.gain, points.gain);
+  EXPECT_LT(refined.gain, 0.05);
+  EXPECT_LT(refined.deepest, points.deepest);
 }
 
 /// The speed after 2 s of a bunny dropped from 10 cm onto a box table, its shell cut at the ~800-point level (the

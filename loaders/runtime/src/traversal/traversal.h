@@ -271,7 +271,7 @@ class LevelTraversal {
       refining_ = true;
       refined_from_ = tested_;
       cut_level_ = level_;
-      refine_budget_ = std::min(limits_.point_budget, std::max(tested_, limits_.min_points));
+      refine_budget_ = refine_budget();
       if (next_size_ > refine_budget_ && !nearest_openers_only(refine_budget_)) return false;
     }
     if (limits_.timed && !next_in_floor && clock_expired()) return false;
@@ -291,6 +291,14 @@ class LevelTraversal {
     next_size_ = 0;
     ++level_;
     return true;
+  }
+
+  // Below a cut, at most as many points again as the cut's shell holds (what its limit let through), and no more
+  // than the point budget. Fewer flickered: of 672 spheres in reach below a resting bunny's cut, the 155 points
+  // the cut tested let 77 go on, a set that changed from step to step and kept the bunny jittering.
+  size_t refine_budget() const {
+    const size_t shell = tree_.points_up_to_level(limits_.max_level);
+    return std::max(std::min(limits_.point_budget, shell), limits_.min_points);
   }
 
   // Below a cut (QueryOptions::refine_cut_contacts): the next level holds only the children of the level's nodes

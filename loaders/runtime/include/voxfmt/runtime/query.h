@@ -73,11 +73,12 @@ struct QueryOptions {
   /// What the last level of a cut query reports (see CutLevel).
   CutLevel cut_level = CutLevel::Spheres;
   /// With CutLevel::Points: where `max_level` or `point_budget` stops the walk at a level, the walk goes on
-  /// below it in the spheres of that level whose points are nearest the partner, as many as fit in as many
-  /// points again as were tested down to the cut (at most `point_budget`), and so on down to the leaves. Every
-  /// point reported is a surface point at its true depth, as at the cut; but a body rests on its surface's own
-  /// points where it touches, not on the few of a coarse level, whose base is narrower than the surface's (a
-  /// bunny rocked on three such points for seconds). Not with a time budget's cut. Physics defaults turn it on.
+  /// below it in the spheres of that level whose points are nearest the partner, level by level to the leaves,
+  /// within as many points again as the cut's shell holds (the points up to `max_level`, at most `point_budget`,
+  /// at least `min_points`). Every point reported is a surface point at its true depth, as at the cut; but a
+  /// body rests on its surface's own points where it touches, not on the few of a coarse level, whose base is
+  /// narrower than the surface's (a bunny rocked on three such points for seconds). Not below a time budget's
+  /// cut. Physics defaults turn it on.
   bool refine_cut_contacts = false;
   /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops and physics steps: the
   /// clock is read at level ends and every 32 nodes. A level the budget interrupts is dropped and the last
