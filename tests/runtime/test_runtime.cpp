@@ -57,6 +57,13 @@ Pose make_pose(double angle_deg, const Eigen::Vector3d& axis, const Eigen::Vecto
   return pose;
 }
 
+/// A bunny beside a bunny at the origin, 0.6-0.9 m away along x, turned about a random axis: mostly touching.
+Pose random_neighbour_pose(std::mt19937& random) {
+  std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
+  const Eigen::Vector3d axis(unit(random), unit(random), unit(random));
+  return make_pose(angle(random), axis, Eigen::Vector3d(offset(random), 0.05 * unit(random), 0.0));
+}
+
 /// Exact signed distance of a world point to the bunny placed at `pose`.
 double exact_distance(const Bunny& bunny, const Pose& pose, const Eigen::Vector3d& world) {
   const Eigen::Vector3d local = pose.rotation.transpose() * (world - pose.translation) / pose.scale;
@@ -499,11 +506,9 @@ TEST(Query, ARefinedCutGoesOnBelowItsNearestPointsWithinItsBudget) {
   const Bunny& bunny = Bunny::get();
   const PointTree& tree = bunny.object->point_tree();
   std::mt19937 random(11);
-  std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
   size_t compared = 0, deeper = 0;
   for (int trial = 0; trial < 40; ++trial) {
-    const Eigen::Vector3d axis(unit(random), unit(random), unit(random));
-    const Pose pa = make_pose(angle(random), axis, Eigen::Vector3d(offset(random), 0.05 * unit(random), 0.0));
+    const Pose pa = random_neighbour_pose(random);
     const Pose pb;
     QueryOptions options;
     options.direction = QueryDirection::APointsInB;
@@ -551,12 +556,10 @@ TEST(Query, ACutLevelOfSpheresFindsEveryContactTheFullTreeFinds) {
   for (size_t i = tree.level_offsets[level]; i < tree.level_offsets[level + 1]; ++i)
     largest_radius = std::max(largest_radius, tree.nodes[i].radius);
   std::mt19937 random(7);
-  std::uniform_real_distribution<double> angle(0, 360), unit(-1, 1), offset(0.6, 0.9);
   size_t fine_touching = 0, spheres_detected = 0, points_detected = 0;
   double worst_excess = 0;
   for (int trial = 0; trial < 60; ++trial) {
-    const Eigen::Vector3d axis(unit(random), unit(random), unit(random));
-    const Pose pa = make_pose(angle(random), axis, Eigen::Vector3d(offset(random), 0.05 * unit(random), 0.0));
+    const Pose pa = random_neighbour_pose(random);
     const Pose pb;
     QueryOptions options;
     options.direction = QueryDirection::APointsInB;
