@@ -212,17 +212,25 @@ class LevelTraversal {
       const PointTree::Node& parent = nodes_[node];
       const float point_distance = test_point(node, point_[i], point_bound[i]);
       const size_t queued = next_size_;
-      uint32_t* const out = b_.next_queue.data();
-      for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
-        out[next_size_] = c;
-        next_size_ += core::carried_bound(bound_[i], point_bound[i], nodes_[c].reach_from_parent,
-                                          nodes_[c].reach_from_parent_point, radius_scale_) <= proximity_;
-      }
+      next_size_ = queue_children(parent, bound_[i], point_bound[i], next_size_);
       if (limits_.spheres && next_size_ > queued) b_.level_parents.push_back(node);
       if (limits_.refine && next_size_ > queued)
         b_.level_openers.push_back({point_distance, node, bound_[i], point_bound[i]});
     }
     tested_ += survivors;
+  }
+
+  // The children of `parent` that its bounds, carried to each child's sphere, cannot rule out, written into the
+  // next level's queue from position `size` (every child is written, the kept ones by advancing: no branch).
+  // Returns the new size.
+  size_t queue_children(const PointTree::Node& parent, float bound, float point_bound, size_t size) {
+    uint32_t* const out = b_.next_queue.data();
+    for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
+      out[size] = c;
+      size += core::carried_bound(bound, point_bound, nodes_[c].reach_from_parent, nodes_[c].reach_from_parent_point,
+                                  radius_scale_) <= proximity_;
+    }
+    return size;
   }
 
   // The bounds of the survivors' own points: a leaf's sphere is its point, whose bound stage 1 has just tested
@@ -310,15 +318,8 @@ class LevelTraversal {
     std::sort(openers.begin(), openers.end());
     if (nodes_[nodes_[openers.front().node].first_child].child_count > 0) room /= 2;
     size_t count = 0;
-    uint32_t* const out = b_.next_queue.data();
     for (const QueryScratch::Buffers::Opener& o : openers) {
-      const PointTree::Node& parent = nodes_[o.node];
-      size_t kept = count;
-      for (uint32_t c = parent.first_child; c < parent.first_child + parent.child_count; ++c) {
-        out[kept] = c;
-        kept += core::carried_bound(o.bound, o.point_bound, nodes_[c].reach_from_parent,
-                                    nodes_[c].reach_from_parent_point, radius_scale_) <= proximity_;
-      }
+      const size_t kept = queue_children(nodes_[o.node], o.bound, o.point_bound, count);
       if (kept > room) break;
       count = kept;
     }
