@@ -456,6 +456,28 @@ void Runner::report(bool interrupted) const {
   }
 }
 
+// `batch --report`: the library's report once the batch is done (a shard's batch says when to write it instead).
+// The report's exit code, 0 if written.
+int report_after_batch(const Options& o) {
+  if (o.shard.substr(o.shard.find('/') + 1) != "1") {
+    std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o.output_dir
+              << "` once every shard is done (it reads every shard's manifest)\n";
+    return 0;
+  }
+  report::LibraryReportOptions options;
+  options.library = o.output_dir;
+  options.manifest = o.manifest;
+  options.threads = int(o.jobs);
+  if (!o.json && !o.quiet) options.progress = report_progress();
+  const Result<report::ReportInfo> info = report::write_library_report(options);
+  if (!info) return report_error("batch", info.error());
+  if (o.json)  // stdout holds one JSON document: the batch's
+    std::cerr << "report: " << info->index_html << "\n";
+  else
+    print_report_summary(info.value());
+  return 0;
+}
+
 }  // namespace
 
 void add_batch_command(CLI::App& app, int& exit_code) {
@@ -499,24 +521,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   cmd->callback([o, &exit_code] {
     try {
       exit_code = Runner(*o).run();
-      const bool sharded = o->shard.substr(o->shard.find('/') + 1) != "1";
-      if (o->report && sharded) {
-        std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o->output_dir
-                  << "` once every shard is done (it reads every shard's manifest)\n";
-      } else if (o->report) {
-        report::LibraryReportOptions options;
-        options.library = o->output_dir;
-        options.manifest = o->manifest;
-        options.threads = int(o->jobs);
-        if (!o->json && !o->quiet) options.progress = report_progress();
-        const Result<report::ReportInfo> info = report::write_library_report(options);
-        if (!info)
-          exit_code = std::max(exit_code, report_error("batch", info.error()));
-        else if (o->json)  // stdout holds one JSON document: the batch's
-          std::cerr << "report: " << info->index_html << "\n";
-        else
-          print_report_summary(info.value());
-      }
+      if (o->report) exit_code = std::max(exit_code, report_after_batch(*o));
     } catch (const UsageError& e) {
       std::cerr << "voxfmt batch: error: " << e.what() << "\n";
       exit_code = kExitUsageOrIo;

@@ -137,15 +137,10 @@ Status write_mid_slice_png(const Asset& asset, int size, const std::string& path
   return image.write_png(path);
 }
 
-nlohmann::json scene_data(const Asset& asset, size_t max_points, uint32_t max_grid) {
-  nlohmann::json data;
-  const Vec3& lo = asset.bounds_min;
-  const Vec3& hi = asset.bounds_max;
-  data["bounds"] = {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}};
-  data["up_axis"] = asset.up_axis;
+namespace {
 
-  // Point shell: whole levels from the root while they fit in max_points (the root always).
-  const PointShell& shell = asset.point_shell;
+// The point shell for the viewer: whole levels from the root while they fit in max_points (the root always).
+nlohmann::json shell_data(const PointShell& shell, const Vec3& lo, const Vec3& hi, size_t max_points) {
   size_t levels = std::min<size_t>(1, shell.level_count());
   while (levels < shell.level_count() && shell.level_offsets[levels + 1] <= max_points) ++levels;
   const size_t n = levels ? shell.level_offsets[levels] : 0;
@@ -164,19 +159,20 @@ nlohmann::json scene_data(const Asset& asset, size_t max_points, uint32_t max_gr
     }
   }
   std::vector<uint32_t> offsets(shell.level_offsets.begin(), shell.level_offsets.begin() + std::ptrdiff_t(levels + 1));
-  data["shell"] = {{"points", n},
-                   {"levels_shown", levels},
-                   {"levels", shell.level_count()},
-                   {"total_points", shell.size()},
-                   {"level_offsets", offsets},
-                   {"encoding",
-                    "12-bit xyz over the bounds as low bytes (3n) then high bytes (3n), then int8 outward normals xyz "
-                    "(3n); zlib; base64"},
-                   {"data", deflate_base64(bytes)}};
+  return {{"points", n},
+          {"levels_shown", levels},
+          {"levels", shell.level_count()},
+          {"total_points", shell.size()},
+          {"level_offsets", offsets},
+          {"encoding",
+           "12-bit xyz over the bounds as low bytes (3n) then high bytes (3n), then int8 outward normals xyz "
+           "(3n); zlib; base64"},
+          {"data", deflate_base64(bytes)}};
+}
 
+nlohmann::json field_data(const Voxelmap& vm, uint32_t max_grid) {
   // Distance grid: every step-th voxel's signed distance (stored or estimate), in 1/16 of a grid cell, clamped
   // to +-127 (8 cells): enough for the surface and the slicing plane.
-  const Voxelmap& vm = asset.voxelmap;
   const uint32_t longest = std::max({vm.dims[0], vm.dims[1], vm.dims[2], 1u});
   const uint32_t step = std::max(1u, (longest + max_grid - 1) / max_grid);
   std::array<uint32_t, 3> g{};
@@ -192,13 +188,25 @@ nlohmann::json scene_data(const Asset& asset, size_t max_points, uint32_t max_gr
         field[v++] = uint8_t(int8_t(std::lround(std::clamp(d / quantum, -127.0, 127.0))));
       }
   const Vec3& o = vm.origin;
-  data["field"] = {{"dims", g},
-                   {"origin", {o[0], o[1], o[2]}},
-                   {"cell", cell},
-                   {"quantum", quantum},
-                   {"step_voxels", step},
-                   {"encoding", "int8 signed distance / quantum (negative inside), x fastest; zlib; base64"},
-                   {"data", deflate_base64(field)}};
+  return {{"dims", g},
+          {"origin", {o[0], o[1], o[2]}},
+          {"cell", cell},
+          {"quantum", quantum},
+          {"step_voxels", step},
+          {"encoding", "int8 signed distance / quantum (negative inside), x fastest; zlib; base64"},
+          {"data", deflate_base64(field)}};
+}
+
+}  // namespace
+
+nlohmann::json scene_data(const Asset& asset, size_t max_points, uint32_t max_grid) {
+  nlohmann::json data;
+  const Vec3& lo = asset.bounds_min;
+  const Vec3& hi = asset.bounds_max;
+  data["bounds"] = {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}};
+  data["up_axis"] = asset.up_axis;
+  data["shell"] = shell_data(asset.point_shell, lo, hi, max_points);
+  data["field"] = field_data(asset.voxelmap, max_grid);
   return data;
 }
 

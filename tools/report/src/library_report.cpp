@@ -376,6 +376,60 @@ nlohmann::json report_data(const char* kind, const std::string& library, const L
           {"against", std::move(against)}};
 }
 
+// One manifest record as the page's row: the report's own keys set (a manifest's never reach the page, which loads
+// "detail" as a script and "views" and "slice" as pictures), and a built asset described into `dir`. A file
+// system error on a hostile path becomes the row's asset_error; a write error is returned.
+Status library_row(const LibraryReportOptions& options, nlohmann::json record, size_t i, const fs::path& dir,
+                   nlohmann::json& row) {
+  const std::string output = text_of(record, "output");
+  const std::string relative = library_relative(options.library, output);
+  row = std::move(record);
+  row.erase("command");  // the bake's argv: long, and the build parameters say the same
+  row.erase("output_mtime_ns");
+  for (const char* key : kReportKeys) row.erase(key);
+  row["id"] = i;
+  row["name"] = mesh_name(row);
+  row["output_name"] = relative;
+  const std::string status = text_of(row, "status");
+  if (status != "ok" && status != "up_to_date") return Status::success();
+  try {
+    const std::string path = asset_path(options.library, relative, output);
+    return describe_asset(path, read_for_report(path, options.read), dir, i, options.read, options.pictures, row);
+  } catch (const std::exception& e) {
+    row["asset_error"] = {{"code", "INTERNAL"}, {"message", std::string("cannot describe the asset: ") + e.what()}};
+    return Status::success();
+  }
+}
+
+// The rows of every record, described in parallel, in the manifest's order; the first write error if any.
+Result<std::vector<nlohmann::json>> library_rows(const LibraryReportOptions& options,
+                                                 std::vector<nlohmann::json>& records, const fs::path& dir) {
+  std::vector<nlohmann::json> row_of(records.size());
+  std::mutex mutex;  // the progress callback and the first write error
+  std::optional<Error> write_error;
+  std::atomic<size_t> done{0};
+  parallel_for(records.size(), options.threads, [&](size_t i) {
+    const Status described = library_row(options, std::move(records[i]), i, dir, row_of[i]);
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!described && !write_error) write_error = described.error();
+    const size_t finished = ++done;
+    if (options.progress && (finished % 16 == 0 || finished == records.size()))
+      options.progress(finished, records.size());
+  });
+  if (write_error) return *write_error;
+  return row_of;
+}
+
+void count_rows(const std::vector<nlohmann::json>& rows, ReportInfo& counts) {
+  for (const nlohmann::json& row : rows) {
+    const std::string status = text_of(row, "status");
+    counts.built += status == "ok";
+    counts.up_to_date += status == "up_to_date";
+    counts.failed += status == "failed";
+    counts.unreadable_assets += row.contains("asset_error");
+  }
+}
+
 }  // namespace
 
 Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
@@ -389,62 +443,17 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
                {"rows", compact_rows(options.against, other->records)}};
   }
   const fs::path out = options.out.empty() ? fs::path(options.library) / "report" : fs::path(options.out);
-  std::vector<nlohmann::json>& records = manifest->records;
   ReportInfo counts;
-  counts.meshes = records.size();
+  counts.meshes = manifest->records.size();
   counts.skipped_lines = manifest->skipped_lines;
   Result<ReportInfo> written = write_report_folder(out, [&](const fs::path& dir) -> Status {
-    nlohmann::json rows = nlohmann::json::array();
-    std::vector<nlohmann::json> row_of(records.size());
-    std::mutex mutex;  // the progress callback and the first write error
-    std::optional<Error> write_error;
-    std::atomic<size_t> done{0};
-    parallel_for(records.size(), options.threads, [&](size_t i) {
-      nlohmann::json& row = row_of[i];
-      const std::string output = text_of(records[i], "output");
-      const std::string relative = library_relative(options.library, output);
-      row = std::move(records[i]);
-      row.erase("command");  // the bake's argv: long, and the build parameters say the same
-      row.erase("output_mtime_ns");
-      // The keys the report sets are the report's: a manifest's own (hand-edited, hostile) never reach the page,
-      // which loads "detail" as a script and "views" and "slice" as pictures.
-      for (const char* key : kReportKeys) row.erase(key);
-      row["id"] = i;
-      row["name"] = mesh_name(row);
-      row["output_name"] = relative;
-      const std::string status = text_of(row, "status");
-      if (status == "ok" || status == "up_to_date") {
-        Status described;
-        try {
-          const std::string path = asset_path(options.library, relative, output);
-          described =
-              describe_asset(path, read_for_report(path, options.read), dir, i, options.read, options.pictures, row);
-        } catch (const std::exception& e) {  // a file system error on a hostile path: this asset's card says so
-          row["asset_error"] = {{"code", "INTERNAL"},
-                                {"message", std::string("cannot describe the asset: ") + e.what()}};
-        }
-        if (!described) {
-          std::lock_guard<std::mutex> lock(mutex);
-          if (!write_error) write_error = described.error();
-        }
-      }
-      const size_t finished = ++done;
-      if (options.progress && (finished % 16 == 0 || finished == records.size())) {
-        std::lock_guard<std::mutex> lock(mutex);
-        options.progress(finished, records.size());
-      }
-    });
-    if (write_error) return *write_error;
-    for (nlohmann::json& row : row_of) {
-      const std::string status = text_of(row, "status");
-      counts.built += status == "ok";
-      counts.up_to_date += status == "up_to_date";
-      counts.failed += status == "failed";
-      counts.unreadable_assets += row.contains("asset_error");
-      rows.push_back(std::move(row));
-    }
+    Result<std::vector<nlohmann::json>> rows = library_rows(options, manifest->records, dir);
+    if (!rows) return rows.error();
+    count_rows(rows.value(), counts);
+    nlohmann::json row_array = nlohmann::json::array();
+    for (nlohmann::json& row : rows.value()) row_array.push_back(std::move(row));
     const nlohmann::json data =
-        report_data("library", options.library, options, manifest->skipped_lines, std::move(rows), against);
+        report_data("library", options.library, options, manifest->skipped_lines, std::move(row_array), against);
     return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
   });
   if (!written) return written.error();
