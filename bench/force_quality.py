@@ -36,8 +36,12 @@ points), so that the force per area is the reference's; without that, its force 
   peg-in-hole   a peg (radius 5 mm, 30 mm long) lowered 15 mm into a block's through hole (radius 5.2 mm; the
                 block 60 x 60 x 40 mm) without touching, then moved sideways across the clearance and 10 voxels
                 into the hole's wall over 700 steps while going 2 mm deeper: a long, nearly conforming contact
-Not yet measured (see the issue): a bunny into a bunny (it needs exact mesh distances), the haptic renderer (C++
-only).
+  bunny-bunny   CGAL's bunny (0.15 m) turned over and lowered onto a second one's back, 0 -> 8 voxels over 600
+                steps, then slid 10 mm sideways while turning 20 degrees for 400 steps: curved, non-convex
+                contact. Its reference takes B's exact distance from its mesh (libigl: `pip install libigl`; the
+                pseudonormal sign), for every point of A that B's field does not put more than 2 voxels outside
+                (the field's error is far below that: a point it puts farther out is outside and adds nothing).
+Not yet measured (see the issue): the haptic renderer (C++ only).
 """
 
 from __future__ import annotations
@@ -215,6 +219,55 @@ def peg_path(c: float, clearance: float, half_length: float, h: float) -> np.nda
     return np.stack([pose(np.eye(3), np.array([x, 0.0, z])) for z, x in zip(descend, offset)])
 
 
+def bunny_path(tool, field, h: float) -> np.ndarray:
+    """A turned over and lowered onto B from where their meshes first touch (B's field tells), then slid."""
+    R0 = rotation("y", 180) @ rotation("z", 40)
+    points = tool.points.astype(np.float64)
+
+    def gap(z: float) -> float:
+        return float(field.signed_distance(points @ R0.T + np.array([0.0, 0.0, z])).min())
+
+    lo, hi = 0.0, 0.3  # B's centre to well above it
+    for _ in range(40):  # the lowest height at which A is clear of B
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if gap(mid) > 0 else (mid, hi)
+    depth = np.concatenate([np.linspace(0, 8, 600), np.full(400, 8.0)])
+    slide = np.concatenate([np.zeros(600), np.linspace(0, 0.01, 400)])
+    turn = np.concatenate([np.zeros(600), np.linspace(0, 20, 400)])
+    return np.stack([pose(rotation("z", w) @ R0, np.array([s, 0.0, hi - d * h]))
+                     for d, s, w in zip(depth, slide, turn)])
+
+
+def mesh_reference_wrench(tool, poses: np.ndarray, vertices: np.ndarray, faces: np.ndarray, field,
+                          margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """reference_wrench with B's exact signed distance and outward normal from its mesh (libigl, pseudonormal
+    sign), for the points of every step that B's field puts under `margin` (the others are outside: no force),
+    in one call for the whole path (libigl builds its tree per call)."""
+    import igl
+
+    points = tool.points.astype(np.float64)
+    com = np.asarray(tool.center_of_mass, np.float64)
+    near_points, owner = [], []
+    for k, m in enumerate(poses):
+        x = points @ m[:3, :3].T + m[:3, 3]
+        near = field.signed_distance(x) < margin
+        near_points.append(x[near])
+        owner.append(np.full(int(near.sum()), k))
+    x, owner = np.concatenate(near_points), np.concatenate(owner)
+    d, _, closest, _ = igl.signed_distance(x, vertices, faces, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+    hit = d < 0
+    offset = x[hit] - closest[hit]
+    normal = -offset / np.maximum(np.linalg.norm(offset, axis=1), 1e-300)[:, None]  # outward: x is inside
+    f = STIFFNESS * (-d[hit])[:, None] * normal
+    centre = np.einsum("kij,j->ki", poses[:, :3, :3], com) + poses[:, :3, 3]
+    force, torque, deepest = np.zeros((len(poses), 3)), np.zeros((len(poses), 3)), np.zeros(len(poses))
+    k = owner[hit]
+    np.add.at(force, k, f)
+    np.add.at(torque, k, np.cross(x[hit] - centre[k], f))
+    np.maximum.at(deepest, k, -d[hit])
+    return force, torque, deepest
+
+
 # ------------------------------------------------------------------------------------------------ figures
 
 def reference_wrench(tool, poses: np.ndarray, sdf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -288,8 +341,9 @@ def method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever) ->
 
 
 def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt) -> dict:
+    """`sdf`: B's exact signed distance (a callable), or the reference wrench already computed."""
     identity = np.eye(4)
-    ref_force, ref_torque, deepest = reference_wrench(tool, poses, sdf)
+    ref_force, ref_torque, deepest = sdf if isinstance(sdf, tuple) else reference_wrench(tool, poses, sdf)
     depth_voxels = deepest / h
     lever = float(np.linalg.norm(tool.points - np.asarray(tool.center_of_mass, np.float32), axis=1).max())
     methods: dict[str, dict] = {}
@@ -323,6 +377,16 @@ def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt) -
 
 # ------------------------------------------------------------------------------------------------ assets
 
+def scaled_bunny(cache: Path, source: str) -> Path:
+    """CGAL's bunny centred and scaled to 0.15 m."""
+    path = cache / "bunny-0.15m.off"
+    if not path.exists():
+        v, f = read_off(Path(source))
+        v = (v - v.mean(axis=0)) * (0.15 / (v.max(axis=0) - v.min(axis=0)).max())
+        write_off(path, v, f)
+    return path
+
+
 def baked(voxfmt, cache: Path, name: str, mesh: tuple[np.ndarray, np.ndarray] | Path, points: int):
     asset = cache / f"{name}.vox.h5"
     if not asset.exists():
@@ -343,12 +407,7 @@ def measure(args) -> dict:
     if "wall-push" in args.paths:
         half = np.array([0.2, 0.2, 0.05])
         wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000)
-        bunny_mesh = cache / "bunny-0.15m.off"
-        if not bunny_mesh.exists():
-            v, f = read_off(Path(args.bunny))
-            v = (v - v.mean(axis=0)) * (0.15 / (v.max(axis=0) - v.min(axis=0)).max())
-            write_off(bunny_mesh, v, f)
-        bunny = baked(voxfmt, cache, "bunny-0.15m", bunny_mesh, 35000)
+        bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
         poses = wall_push_path(bunny, half[2], wall.voxel_size)
         paths.append(run_path("wall-push", bunny, wall, poses, lambda x: box_sdf(x, half), wall.voxel_size, voxfmt))
     if "tori-sliding" in args.paths:
@@ -366,6 +425,14 @@ def measure(args) -> dict:
         poses = peg_path(c, hole - radius, half_length, block.voxel_size)
         paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
                               block.voxel_size, voxfmt))
+    if "bunny-bunny" in args.paths:
+        import igl
+
+        bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
+        vertices, faces = igl.read_triangle_mesh(str(cache / "bunny-0.15m.off"))
+        poses = bunny_path(bunny, bunny, bunny.voxel_size)
+        reference = mesh_reference_wrench(bunny, poses, vertices, faces.astype(np.int64), bunny, 2 * bunny.voxel_size)
+        paths.append(run_path("bunny-bunny", bunny, bunny, poses, reference, bunny.voxel_size, voxfmt))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
@@ -432,7 +499,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write the figures (and the force along each path) here")
     ap.add_argument("--markdown", help="write the table here")
-    ap.add_argument("--paths", default="wall-push,tori-sliding,peg-in-hole")
+    ap.add_argument("--paths", default="wall-push,tori-sliding,peg-in-hole,bunny-bunny")
     ap.add_argument("--cache", default="out/force-quality", help="meshes and baked assets (reused)")
     ap.add_argument("--bunny", default=str(ROOT / "build/cgal-data/data/meshes/bunny00.off"))
     ap.add_argument("--plot", nargs=2, metavar=("JSON", "PNG"), help="only draw a results file's forces")
@@ -443,7 +510,7 @@ def main() -> int:
         plot(*args.plot)
         return 0
     args.paths = args.paths.split(",")
-    unknown = set(args.paths) - {"wall-push", "tori-sliding", "peg-in-hole"}
+    unknown = set(args.paths) - {"wall-push", "tori-sliding", "peg-in-hole", "bunny-bunny"}
     if unknown:
         print(f"force_quality: unknown path(s) {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
