@@ -426,7 +426,11 @@ def measure(args) -> dict:
         paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
                               block.voxel_size, voxfmt))
     if "bunny-bunny" in args.paths:
-        import igl
+        try:
+            import igl
+        except ImportError:
+            raise SystemExit("force_quality: the bunny-bunny path needs libigl (pip install libigl), or leave it out "
+                             "with --paths")
 
         bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
         vertices, faces = igl.read_triangle_mesh(str(cache / "bunny-0.15m.off"))
