@@ -41,7 +41,8 @@ points), so that the force per area is the reference's; without that, its force 
                 contact. Its reference takes B's exact distance from its mesh (libigl: `pip install libigl`; the
                 pseudonormal sign), for every point of A that B's field does not put more than 2 voxels outside
                 (the field's error is far below that: a point it puts farther out is outside and adds nothing).
-Not yet measured (see the issue): the haptic renderer (C++ only).
+And the haptic renderer (HapticRenderer::contact_wrench_at, full trees: the same per-point penalty along the
+tool's own point normals, classical VPS), through build/bin/haptic-wrench (bench/haptic_wrench.cpp) when built.
 """
 
 from __future__ import annotations
@@ -50,7 +51,9 @@ import argparse
 import json
 import os
 import platform
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,6 +63,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "examples" / "mujoco"))
 from shapes import read_off, torus_mesh, write_off
 
+HAPTIC_WRENCH = ROOT / "build" / "bin" / "haptic-wrench"  # bench/haptic_wrench.cpp
 STIFFNESS = 1000.0  # N/m; every figure is relative, so any value gives the same ones
 MIN_DEPTH_VOXELS = 0.1
 
@@ -340,8 +344,23 @@ def method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever) ->
     return out
 
 
-def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt) -> dict:
-    """`sdf`: B's exact signed distance (a callable), or the reference wrench already computed."""
+def haptic_wrench(tool_asset: Path, field_asset: Path, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """HapticRenderer::contact_wrench_at at every pose, through bench/haptic_wrench.cpp (the renderer is C++), and
+    its microseconds per pose (loading excluded)."""
+    with tempfile.TemporaryDirectory() as scratch:
+        pose_file, out_file = Path(scratch) / "poses.f64", Path(scratch) / "wrench.f64"
+        np.ascontiguousarray(poses, dtype="<f8").tofile(pose_file)
+        run = subprocess.run([str(HAPTIC_WRENCH), str(tool_asset), str(field_asset), str(pose_file), str(out_file),
+                              "--stiffness", str(STIFFNESS)], check=True, capture_output=True, text=True)
+        wrench = np.fromfile(out_file, dtype="<f8").reshape(len(poses), 6)
+    us_per_pose = float(run.stdout.split()[-1])
+    return wrench[:, :3], wrench[:, 3:], us_per_pose
+
+
+def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt,
+             assets: tuple[Path, Path] | None = None) -> dict:
+    """`sdf`: B's exact signed distance (a callable), or the reference wrench already computed; `assets`: the
+    tool's and B's files, for the haptic renderer (skipped without them or its program)."""
     identity = np.eye(4)
     ref_force, ref_torque, deepest = sdf if isinstance(sdf, tuple) else reference_wrench(tool, poses, sdf)
     depth_voxels = deepest / h
@@ -370,6 +389,13 @@ def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt) -
         figures["us_per_step"] = round(seconds / len(poses) * 1e6, 1)
         methods[label] = figures
         series[label] = np.linalg.norm(force, axis=1).round(6).tolist()
+    if assets and HAPTIC_WRENCH.exists():
+        # The haptic renderer (full trees): the same per-point penalty along the tool's own point normals.
+        force, torque, us_per_pose = haptic_wrench(*assets, poses)
+        figures = method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever)
+        figures.update(stiffness_scale=1.0, points=len(tool.points), us_per_step=round(us_per_pose, 1))
+        methods["haptic renderer"] = figures
+        series["haptic renderer"] = np.linalg.norm(force, axis=1).round(6).tolist()
     reference_smoothness = round(smoothness(ref_force, depth_voxels >= MIN_DEPTH_VOXELS), 3)
     return {"path": name, "steps": len(poses), "voxel_size": h, "reference_smoothness": reference_smoothness,
             "methods": methods, "depth_voxels": depth_voxels.round(4).tolist(), "force_norm": series}
@@ -409,7 +435,8 @@ def measure(args) -> dict:
         wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000)
         bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
         poses = wall_push_path(bunny, half[2], wall.voxel_size)
-        paths.append(run_path("wall-push", bunny, wall, poses, lambda x: box_sdf(x, half), wall.voxel_size, voxfmt))
+        paths.append(run_path("wall-push", bunny, wall, poses, lambda x: box_sdf(x, half), wall.voxel_size, voxfmt,
+                              (cache / "bunny-0.15m.vox.h5", cache / "wall.vox.h5")))
     if "tori-sliding" in args.paths:
         R, r = 0.05, 0.02
         mesh = torus_mesh(R, r, 1440, 480)
@@ -417,14 +444,14 @@ def measure(args) -> dict:
         moving = baked(voxfmt, cache, "torus-a", mesh, 30000)  # fewer points: its shell goes into B's field
         poses = tori_path(r, fixed.voxel_size)
         paths.append(run_path("tori-sliding", moving, fixed, poses, lambda x: torus_sdf(x, R, r),
-                              fixed.voxel_size, voxfmt))
+                              fixed.voxel_size, voxfmt, (cache / "torus-a.vox.h5", cache / "torus-b.vox.h5")))
     if "peg-in-hole" in args.paths:
         a, c, hole, radius, half_length = 0.03, 0.02, 0.0052, 0.005, 0.015
         block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000)
         peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000)
         poses = peg_path(c, hole - radius, half_length, block.voxel_size)
         paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
-                              block.voxel_size, voxfmt))
+                              block.voxel_size, voxfmt, (cache / "peg-5mm.vox.h5", cache / "block-hole-5.2mm.vox.h5")))
     if "bunny-bunny" in args.paths:
         try:
             import igl
@@ -436,7 +463,8 @@ def measure(args) -> dict:
         vertices, faces = igl.read_triangle_mesh(str(cache / "bunny-0.15m.off"))
         poses = bunny_path(bunny, bunny, bunny.voxel_size)
         reference = mesh_reference_wrench(bunny, poses, vertices, faces.astype(np.int64), bunny, 2 * bunny.voxel_size)
-        paths.append(run_path("bunny-bunny", bunny, bunny, poses, reference, bunny.voxel_size, voxfmt))
+        asset = cache / "bunny-0.15m.vox.h5"
+        paths.append(run_path("bunny-bunny", bunny, bunny, poses, reference, bunny.voxel_size, voxfmt, (asset, asset)))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
