@@ -1,0 +1,130 @@
+#!/usr/bin/env python3
+"""Which coarse bricks would need a finer source than the 8-voxel lattice for deep values within 1 voxel + 1 % of
+the depth, and how well a finer local lattice there would do (issue "fidelity", part 1: measure before choosing).
+
+    PYTHONPATH=build/python .venv/bin/python bench/deep_refinement.py ASSET MESH [--threshold 0.75] [--json OUT]
+
+Needs libigl (`pip install libigl`) for exact distances; MESH is the closed mesh the asset was baked from, in the
+asset's units. With the lattice made exact (libigl at every brick corner), each coarse brick is probed at its
+centre and its six face centres: a brick is flagged where the interpolated lattice (at least the band's edge) is
+more than THRESHOLD voxels from the exact distance at a probe. Then, over voxels sampled beyond the band (as
+`deep_accuracy.py` samples them), it reports how many stay beyond the target when the flagged bricks take
+  exact   every voxel's exact distance (what storing them as value bricks would give),
+  local s a local lattice every s voxels (4 or 2) of exact distances, interpolated,
+and how many beyond-target voxels lie in value bricks (their estimates are the lattice's too), with the bytes a
+flagged brick would take (512 codes, or (8/s + 1)^3 values).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("asset")
+    ap.add_argument("mesh")
+    ap.add_argument("--threshold", type=float, default=0.75, help="probe error (voxels) that flags a brick")
+    ap.add_argument("--samples", type=int, default=60000)
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    try:
+        import igl
+    except ImportError:
+        print("deep_refinement: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
+        return 2
+    import h5py
+    import voxfmt
+
+    body = voxfmt.load(args.asset)
+    with h5py.File(args.asset, "r") as f:
+        attrs = f["voxelmap"].attrs
+        origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
+        dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
+        bricks = (dims + 7) // 8
+        table = f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
+    V, F = igl.read_triangle_mesh(args.mesh)
+
+    def exact_unsigned(ijk: np.ndarray) -> np.ndarray:
+        return np.abs(igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0]) / h
+
+    def interpolate(ijk: np.ndarray, step: int, values) -> np.ndarray:
+        """Values every `step` voxels (the last at the grid's end), interpolated at voxels; `values(points)`."""
+        c0 = ijk // step * step
+        c1 = np.minimum(c0 + step, dims - 1)
+        t = (ijk - c0) / np.maximum(c1 - c0, 1)
+        out = np.zeros(len(ijk))
+        for corner in range(8):
+            d = np.array([(corner >> a) & 1 for a in range(3)])
+            out += np.prod(np.where(d == 1, t, 1 - t), axis=1) * values(np.minimum(c0 + d * step, dims - 1))
+        return out
+
+    axes = [np.unique(np.minimum(np.arange(0, d + 8, 8), d - 1)) for d in dims]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+    lattice = exact_unsigned(grid.reshape(-1, 3)).reshape(grid.shape[:3])
+
+    def lattice_at(points: np.ndarray) -> np.ndarray:
+        index = np.minimum(points // 8 + (points % 8 > 0), np.array(lattice.shape) - 1)  # the point's lattice index
+        return lattice[index[:, 0], index[:, 1], index[:, 2]]
+
+    def estimate(ijk: np.ndarray) -> np.ndarray:
+        return np.maximum(interpolate(ijk, 8, lattice_at), band - 0.5)
+
+    start = time.perf_counter()
+    coarse = np.argwhere(table < 0)
+    probes = np.array([[4, 4, 4], [0, 4, 4], [7, 4, 4], [4, 0, 4], [4, 7, 4], [4, 4, 0], [4, 4, 7]])
+    worst = np.zeros(len(coarse))
+    for probe in probes:
+        points = np.minimum(coarse * 8 + probe, dims - 1)
+        worst = np.maximum(worst, np.abs(estimate(points) - exact_unsigned(points)))
+    flagged = worst > args.threshold
+    flagged_set = set(map(tuple, coarse[flagged]))
+    probe_s = time.perf_counter() - start
+
+    rng = np.random.default_rng(1)
+    ijk = np.stack([rng.integers(0, d, 8 * args.samples) for d in dims], -1)
+    current = body.signed_distance(origin + h * ijk) / h
+    deep = np.flatnonzero(np.abs(current) > band + 0.5)[: args.samples]
+    ijk, sign = ijk[deep], np.sign(current[deep])
+    exact = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+    brick = ijk // 8
+    in_value = table[brick[:, 0], brick[:, 1], brick[:, 2]] >= 0
+    in_flagged = np.array([tuple(b) in flagged_set for b in brick])
+    lattice_estimate = estimate(ijk)
+
+    def beyond(magnitude: np.ndarray) -> np.ndarray:
+        return np.abs(sign * magnitude - exact) > 1 + 0.01 * np.abs(exact)
+
+    rows = {"exact 8-lattice": lattice_estimate, "flagged: exact": np.where(in_flagged, np.abs(exact), lattice_estimate)}
+    for step in (4, 2):
+        local = np.maximum(interpolate(ijk, step, exact_unsigned), band - 0.5)
+        rows[f"flagged: local lattice every {step}"] = np.where(in_flagged, local, lattice_estimate)
+    result = {"asset": args.asset, "mesh": args.mesh, "threshold": args.threshold, "coarse_bricks": len(coarse),
+              "flagged_bricks": int(flagged.sum()), "probe_seconds_numpy": round(probe_s, 2),
+              "samples": len(ijk), "samples_in_value_bricks": int(in_value.sum()), "rows": {}}
+    print(f"deep_refinement: {args.asset}: {flagged.sum()} of {len(coarse)} coarse bricks flagged "
+          f"({flagged.mean():.2%}) at {args.threshold} voxel; {len(ijk)} deep voxels sampled")
+    print("| values | beyond target in coarse bricks | in value bricks | largest error in coarse bricks | "
+          "bytes per flagged brick |")
+    print("|---|---|---|---|---|")
+    for name, magnitude in rows.items():
+        b = beyond(magnitude)
+        error = np.abs(sign * magnitude - exact)[~in_value]
+        size = {"exact 8-lattice": 0, "flagged: exact": 1024}.get(name, 2 * (8 // (4 if "4" in name else 2) + 1) ** 3)
+        result["rows"][name] = {"beyond_coarse": int((b & ~in_value).sum()), "beyond_value": int((b & in_value).sum()),
+                                "max_error_coarse": round(float(error.max()), 3), "bytes_per_flagged_brick": size}
+        print(f"| {name} | {int((b & ~in_value).sum())} | {int((b & in_value).sum())} | {error.max():.2f} | {size} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=1)
+            f.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
