@@ -535,12 +535,17 @@ def main() -> int:
     ap.add_argument("--cache", default="out/force-quality", help="meshes and baked assets (reused)")
     ap.add_argument("--bunny", default=str(ROOT / "build/cgal-data/data/meshes/bunny00.off"))
     ap.add_argument("--plot", nargs=2, metavar=("JSON", "PNG"), help="only draw a results file's forces")
+    ap.add_argument("--check-reference", action="store_true",
+                    help="only compare the bunny path's mesh reference (libigl) with the closed form on the wall path "
+                         "(a test)")
     ap.add_argument("--check", action="store_true",
                     help="exit 1 unless the fine shell meets the targets on every path run and coherent is fine (a test)")
     args = ap.parse_args()
     if args.plot:
         plot(*args.plot)
         return 0
+    if args.check_reference:
+        return check_reference(args)
     args.paths = args.paths.split(",")
     unknown = set(args.paths) - {"wall-push", "tori-sliding", "peg-in-hole", "bunny-bunny"}
     if unknown:
@@ -554,6 +559,29 @@ def main() -> int:
     if args.markdown:
         Path(args.markdown).write_text(table)
     return check(result) if args.check else 0
+
+
+def check_reference(args) -> int:
+    """The mesh reference (libigl) against the closed form on the wall path, whose box mesh is the box itself:
+    force, torque and depth must agree, or the bunny path's reference is wrong (sign, normal, torque or steps)."""
+    import igl  # noqa: F401 (mesh_reference_wrench's; a clear ImportError if missing)
+    import voxfmt
+
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    half = np.array([0.2, 0.2, 0.05])
+    wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000)
+    bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
+    poses = wall_push_path(bunny, half[2], wall.voxel_size)[::10]
+    vertices, faces = box_mesh(half)
+    closed = reference_wrench(bunny, poses, lambda x: box_sdf(x, half))
+    mesh = mesh_reference_wrench(bunny, poses, vertices.astype(np.float64), faces.astype(np.int64), wall,
+                                 2 * wall.voxel_size)
+    scale = np.abs(closed[0]).max()
+    worst = [float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300)) for a, b in zip(closed, mesh)]
+    print(f"force_quality: mesh reference against the closed form on {len(poses)} wall poses (largest force "
+          f"{scale:.3g} N): relative differences force {worst[0]:.2e}, torque {worst[1]:.2e}, depth {worst[2]:.2e}")
+    return 0 if max(worst) < 1e-6 else 1
 
 
 def check(result: dict) -> int:

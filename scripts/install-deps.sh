@@ -52,7 +52,7 @@ fi
 # `--dry-run` would still reach the index, so the check is an import.
 VENV=.venv
 MUJOCO_PIN=$(sed -n 's/^mujoco==//p' python/requirements-dev.txt)
-if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py, mujoco; assert mujoco.__version__ == '$MUJOCO_PIN'" \
+if ! "$VENV/bin/python" -c "import nanobind, numpy, pytest, h5py, igl, mujoco; assert mujoco.__version__ == '$MUJOCO_PIN'" \
     >/dev/null 2>&1; then
   echo "install-deps: setting up $VENV with python/requirements-dev.txt (log: .logs/pip.log) ..."
   mkdir -p .logs
