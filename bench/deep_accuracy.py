@@ -39,6 +39,29 @@ def interpolate(table: np.ndarray, ijk: np.ndarray, step: int, dims: np.ndarray)
     return value
 
 
+def read_grid(path: str):
+    """The asset through the runtime (what every consumer sees) and its grid's numbers: body, origin, voxel size,
+    dims and band (h5py)."""
+    import h5py
+    import voxfmt
+
+    body = voxfmt.load(path)
+    with h5py.File(path, "r") as f:
+        attrs = f["voxelmap"].attrs
+        origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
+        dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
+    return body, origin, h, dims, band
+
+
+def deep_voxels(body, origin, h, dims, band, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Up to `samples` random voxels whose value is beyond the band, and their values (voxels)."""
+    rng = np.random.default_rng(1)
+    ijk = np.stack([rng.integers(0, d, 8 * samples) for d in dims], -1)
+    current = body.signed_distance(origin + h * ijk) / h
+    deep = np.flatnonzero(np.abs(current) > band + 0.5)[:samples]
+    return ijk[deep], current[deep]
+
+
 def figures(estimate: np.ndarray, exact: np.ndarray) -> dict:
     out = {}
     error = estimate - exact
@@ -69,20 +92,9 @@ def main() -> int:
     except ImportError:
         print("deep_accuracy: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
         return 2
-    import h5py
-    import voxfmt
-
-    body = voxfmt.load(args.asset)
-    with h5py.File(args.asset, "r") as f:
-        attrs = f["voxelmap"].attrs
-        origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
-        dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
+    body, origin, h, dims, band = read_grid(args.asset)
     V, F = igl.read_triangle_mesh(args.mesh)
-    rng = np.random.default_rng(1)
-    ijk = np.stack([rng.integers(0, d, 8 * args.samples) for d in dims], -1)
-    current = body.signed_distance(origin + h * ijk) / h
-    deep = np.flatnonzero(np.abs(current) > band + 0.5)[: args.samples]
-    ijk, current = ijk[deep], current[deep]
+    ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
     start = time.perf_counter()
     exact = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
     exact_us = (time.perf_counter() - start) / len(ijk) * 1e6

@@ -19,10 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from deep_accuracy import deep_voxels, read_grid  # noqa: E402 (the same sampling as deep_accuracy.py's)
 
 
 def main() -> int:
@@ -39,14 +43,10 @@ def main() -> int:
         print("deep_refinement: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
         return 2
     import h5py
-    import voxfmt
 
-    body = voxfmt.load(args.asset)
+    body, origin, h, dims, band = read_grid(args.asset)
+    bricks = (dims + 7) // 8
     with h5py.File(args.asset, "r") as f:
-        attrs = f["voxelmap"].attrs
-        origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
-        dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
-        bricks = (dims + 7) // 8
         table = f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
     V, F = igl.read_triangle_mesh(args.mesh)
 
@@ -86,11 +86,8 @@ def main() -> int:
     flagged_set = set(map(tuple, coarse[flagged]))
     probe_s = time.perf_counter() - start
 
-    rng = np.random.default_rng(1)
-    ijk = np.stack([rng.integers(0, d, 8 * args.samples) for d in dims], -1)
-    current = body.signed_distance(origin + h * ijk) / h
-    deep = np.flatnonzero(np.abs(current) > band + 0.5)[: args.samples]
-    ijk, sign = ijk[deep], np.sign(current[deep])
+    ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
+    sign = np.sign(current)
     exact = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
     brick = ijk // 8
     in_value = table[brick[:, 0], brick[:, 1], brick[:, 2]] >= 0
