@@ -86,6 +86,24 @@ TEST(Isolation, AChildAsleepWithoutProgressIsStoppedAfterTheAsleepLimit) {
   EXPECT_LT(seconds_since(start), 10.0);
 }
 
+TEST(Isolation, AChildAsleepIsStoppedWithOnlyATotalLimitToo) {
+  // The import's and the repair's watchdogs have a total limit and asleep_s but no idle limit: a child asleep on a
+  // lock inherited at the fork is stopped after asleep_s (and retried by them), not after the total limit.
+  int value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{30.0, 0, nullptr, 0.5}, value,
+      [] {
+        std::this_thread::sleep_for(std::chrono::seconds(60));
+        return 0;
+      },
+      visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
+  EXPECT_TRUE(outcome.asleep);
+  EXPECT_GE(seconds_since(start), 0.5);
+  EXPECT_LT(seconds_since(start), 10.0);
+}
+
 TEST(Isolation, ASpinningChildIsNotSaidToSleep) {
   std::atomic<uint64_t> progress{0};
   int value = 0;

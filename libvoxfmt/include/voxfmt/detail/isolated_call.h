@@ -255,21 +255,23 @@ class WireReader {
         const double idle_cpu = cpu - cpu_at_progress_;
         left = std::min<long long>(left, (long long)((watchdog_.idle_s - idle_cpu) * 1000.0) + 1);
         until(last_progress_, watchdog_.idle_s * Watchdog::kBlockedFactor);
-        // Asleep since when, without CPU: a CPU tick or a progress starts the count again.
-        if (watchdog_.asleep_s > 0) {
-          if (state_ != 'S' || cpu != asleep_cpu_) asleep_since_.reset();
-          if (state_ == 'S' && !asleep_since_) {
-            asleep_since_ = now;
-            asleep_cpu_ = cpu;
-          }
-          if (asleep_since_) {
-            const long long before = left;
-            until(*asleep_since_, watchdog_.asleep_s);
-            if (left <= 0 && before > 0) asleep_ = true;
-          }
-        }
       } else {
         until(last_progress_, watchdog_.idle_s);
+      }
+    }
+    // Asleep since when, without CPU: a CPU tick or a progress starts the count again (with or without an idle
+    // limit: the import and the repair have only a total one).
+    const double cpu = watchdog_.asleep_s > 0 && child_ > 0 ? child_cpu() : -1;
+    if (cpu >= 0) {
+      if (state_ != 'S' || cpu != asleep_cpu_) asleep_since_.reset();
+      if (state_ == 'S' && !asleep_since_) {
+        asleep_since_ = now;
+        asleep_cpu_ = cpu;
+      }
+      if (asleep_since_) {
+        const long long before = left;
+        until(*asleep_since_, watchdog_.asleep_s);
+        if (left <= 0 && before > 0) asleep_ = true;
       }
     }
     return left;
