@@ -357,17 +357,24 @@ def haptic_wrench(tool_asset: Path, field_asset: Path, poses: np.ndarray) -> tup
     return wrench[:, :3], wrench[:, 3:], us_per_pose
 
 
-def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt,
+def run_path(name: str, tool, field, poses: np.ndarray, reference, h: float, voxfmt,
              assets: tuple[Path, Path] | None = None) -> dict:
-    """`sdf`: B's exact signed distance (a callable), or the reference wrench already computed; `assets`: the
-    tool's and B's files, for the haptic renderer (skipped without them or its program)."""
+    """`reference`: (force, torque, deepest) of reference_wrench or mesh_reference_wrench; `assets`: the tool's and
+    B's files, for the haptic renderer (skipped without them or its program)."""
     identity = np.eye(4)
-    ref_force, ref_torque, deepest = sdf if isinstance(sdf, tuple) else reference_wrench(tool, poses, sdf)
+    ref_force, ref_torque, deepest = reference
     depth_voxels = deepest / h
     lever = float(np.linalg.norm(tool.points - np.asarray(tool.center_of_mass, np.float32), axis=1).max())
     methods: dict[str, dict] = {}
     series: dict[str, list[float]] = {"reference": np.linalg.norm(ref_force, axis=1).round(6).tolist()}
     levels = np.asarray(tool.levels)
+
+    def record(label: str, force: np.ndarray, torque: np.ndarray, scale: float, points: int, us: float) -> None:
+        figures = method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever)
+        figures.update(stiffness_scale=round(scale, 4), points=points, us_per_step=round(us, 1))
+        methods[label] = figures
+        series[label] = np.linalg.norm(force, axis=1).round(6).tolist()
+
     runs = [("fine", None, None)] + [(f"level {level} {cut}", level, cut) for level in range(len(levels) - 2)
                                      for cut in ("points", "spheres")]
     for label, level, cut in runs + [("coherent", None, None)]:
@@ -382,20 +389,11 @@ def run_path(name: str, tool, field, poses: np.ndarray, sdf, h: float, voxfmt,
         # A cut shell has fewer points to share the load: each stands for len(shell) / points of the surface, so
         # its stiffness per point is scaled by that (the force per area stays the reference's).
         scale = len(tool.points) / points
-        force, torque = batch.force * scale, batch.torque * scale
-        figures = method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever)
-        figures["stiffness_scale"] = round(scale, 4)
-        figures["points"] = points
-        figures["us_per_step"] = round(seconds / len(poses) * 1e6, 1)
-        methods[label] = figures
-        series[label] = np.linalg.norm(force, axis=1).round(6).tolist()
+        record(label, batch.force * scale, batch.torque * scale, scale, points, seconds / len(poses) * 1e6)
     if assets and HAPTIC_WRENCH.exists():
         # The haptic renderer (full trees): the same per-point penalty along the tool's own point normals.
         force, torque, us_per_pose = haptic_wrench(*assets, poses)
-        figures = method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever)
-        figures.update(stiffness_scale=1.0, points=len(tool.points), us_per_step=round(us_per_pose, 1))
-        methods["haptic renderer"] = figures
-        series["haptic renderer"] = np.linalg.norm(force, axis=1).round(6).tolist()
+        record("haptic renderer", force, torque, 1.0, len(tool.points), us_per_pose)
     reference_smoothness = round(smoothness(ref_force, depth_voxels >= MIN_DEPTH_VOXELS), 3)
     return {"path": name, "steps": len(poses), "voxel_size": h, "reference_smoothness": reference_smoothness,
             "methods": methods, "depth_voxels": depth_voxels.round(4).tolist(), "force_norm": series}
@@ -413,8 +411,13 @@ def scaled_bunny(cache: Path, source: str) -> Path:
     return path
 
 
+def asset_file(cache: Path, name: str) -> Path:
+    """Where `baked` keeps the asset called `name`."""
+    return cache / f"{name}.vox.h5"
+
+
 def baked(voxfmt, cache: Path, name: str, mesh: tuple[np.ndarray, np.ndarray] | Path, points: int):
-    asset = cache / f"{name}.vox.h5"
+    asset = asset_file(cache, name)
     if not asset.exists():
         source = mesh if isinstance(mesh, Path) else cache / f"{name}.off"
         if not isinstance(mesh, Path):
@@ -435,23 +438,27 @@ def measure(args) -> dict:
         wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000)
         bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
         poses = wall_push_path(bunny, half[2], wall.voxel_size)
-        paths.append(run_path("wall-push", bunny, wall, poses, lambda x: box_sdf(x, half), wall.voxel_size, voxfmt,
-                              (cache / "bunny-0.15m.vox.h5", cache / "wall.vox.h5")))
+        paths.append(run_path("wall-push", bunny, wall, poses,
+                              reference_wrench(bunny, poses, lambda x: box_sdf(x, half)), wall.voxel_size, voxfmt,
+                              (asset_file(cache, "bunny-0.15m"), asset_file(cache, "wall"))))
     if "tori-sliding" in args.paths:
         R, r = 0.05, 0.02
         mesh = torus_mesh(R, r, 1440, 480)
         fixed = baked(voxfmt, cache, "torus-b", mesh, 35000)
         moving = baked(voxfmt, cache, "torus-a", mesh, 30000)  # fewer points: its shell goes into B's field
         poses = tori_path(r, fixed.voxel_size)
-        paths.append(run_path("tori-sliding", moving, fixed, poses, lambda x: torus_sdf(x, R, r),
-                              fixed.voxel_size, voxfmt, (cache / "torus-a.vox.h5", cache / "torus-b.vox.h5")))
+        paths.append(run_path("tori-sliding", moving, fixed, poses,
+                              reference_wrench(moving, poses, lambda x: torus_sdf(x, R, r)), fixed.voxel_size, voxfmt,
+                              (asset_file(cache, "torus-a"), asset_file(cache, "torus-b"))))
     if "peg-in-hole" in args.paths:
         a, c, hole, radius, half_length = 0.03, 0.02, 0.0052, 0.005, 0.015
         block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000)
         peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000)
         poses = peg_path(c, hole - radius, half_length, block.voxel_size)
-        paths.append(run_path("peg-in-hole", peg, block, poses, lambda x: block_with_hole_sdf(x, a, c, hole),
-                              block.voxel_size, voxfmt, (cache / "peg-5mm.vox.h5", cache / "block-hole-5.2mm.vox.h5")))
+        paths.append(run_path("peg-in-hole", peg, block, poses,
+                              reference_wrench(peg, poses, lambda x: block_with_hole_sdf(x, a, c, hole)),
+                              block.voxel_size, voxfmt,
+                              (asset_file(cache, "peg-5mm"), asset_file(cache, "block-hole-5.2mm"))))
     if "bunny-bunny" in args.paths:
         try:
             import igl
@@ -459,11 +466,12 @@ def measure(args) -> dict:
             raise SystemExit("force_quality: the bunny-bunny path needs libigl (pip install libigl), or leave it out "
                              "with --paths")
 
-        bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
-        vertices, faces = igl.read_triangle_mesh(str(cache / "bunny-0.15m.off"))
+        mesh = scaled_bunny(cache, args.bunny)
+        bunny = baked(voxfmt, cache, "bunny-0.15m", mesh, 35000)
+        vertices, faces = igl.read_triangle_mesh(str(mesh))
         poses = bunny_path(bunny, bunny, bunny.voxel_size)
         reference = mesh_reference_wrench(bunny, poses, vertices, faces.astype(np.int64), bunny, 2 * bunny.voxel_size)
-        asset = cache / "bunny-0.15m.vox.h5"
+        asset = asset_file(cache, "bunny-0.15m")
         paths.append(run_path("bunny-bunny", bunny, bunny, poses, reference, bunny.voxel_size, voxfmt, (asset, asset)))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
@@ -564,7 +572,6 @@ def main() -> int:
 def check_reference(args) -> int:
     """The mesh reference (libigl) against the closed form on the wall path, whose box mesh is the box itself:
     force, torque and depth must agree, or the bunny path's reference is wrong (sign, normal, torque or steps)."""
-    import igl  # noqa: F401 (mesh_reference_wrench's; a clear ImportError if missing)
     import voxfmt
 
     cache = Path(args.cache)
