@@ -24,19 +24,35 @@ import time
 import numpy as np
 
 
-def interpolate(table: np.ndarray, ijk: np.ndarray, step: int, dims: np.ndarray) -> np.ndarray:
-    """A lattice of values every `step` voxels (the last point at the grid's end) interpolated at voxels."""
+def interpolate(ijk: np.ndarray, step: int, dims: np.ndarray, values) -> np.ndarray:
+    """A lattice every `step` voxels (the last point at the grid's end) interpolated at voxels; `values(index)`
+    gives the lattice's values at lattice indices (n, 3)."""
     lower = ijk // step
     c0 = lower * step
     c1 = np.minimum(c0 + step, dims - 1)
     t = (ijk - c0) / np.maximum(c1 - c0, 1)
+    last = (dims - 2) // step + 1  # the last lattice index along each axis (the grid's end)
     value = np.zeros(len(ijk))
     for corner in range(8):
         d = np.array([(corner >> a) & 1 for a in range(3)])
         weight = np.prod(np.where(d == 1, t, 1 - t), axis=1)
-        index = np.minimum(lower + d, np.array(table.shape) - 1)
-        value += weight * table[index[:, 0], index[:, 1], index[:, 2]]
+        value += weight * values(np.minimum(lower + d, last))
     return value
+
+
+def table_values(table: np.ndarray):
+    """`interpolate`'s values from a table of the whole lattice."""
+    return lambda index: table[index[:, 0], index[:, 1], index[:, 2]]
+
+
+def import_igl(script: str):
+    """libigl, or None after saying it is needed."""
+    try:
+        import igl
+    except ImportError:
+        print(f"{script}: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
+        return None
+    return igl
 
 
 def read_grid(path: str):
@@ -87,10 +103,8 @@ def main() -> int:
     ap.add_argument("--steps", default="8,4,2", help="exact lattices to try, voxels apart (default 8,4,2)")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args()
-    try:
-        import igl
-    except ImportError:
-        print("deep_accuracy: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
+    igl = import_igl("deep_accuracy")
+    if igl is None:
         return 2
     body, origin, h, dims, band = read_grid(args.asset)
     V, F = igl.read_triangle_mesh(args.mesh)
@@ -109,7 +123,7 @@ def main() -> int:
         unsigned = np.abs(igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0])
         table = (unsigned / h).reshape(grid.shape[:3])
         # The runtime's rule beyond the band: the interpolated magnitude, at least the band's edge, signed.
-        estimate = np.sign(current) * np.maximum(interpolate(table, ijk, step, dims), band - 0.5)
+        estimate = np.sign(current) * np.maximum(interpolate(ijk, step, dims, table_values(table)), band - 0.5)
         entry = figures(estimate, exact)
         entry["lattice_points"] = len(points)
         if step == 8:

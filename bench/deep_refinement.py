@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from deep_accuracy import deep_voxels, read_grid  # noqa: E402 (the same sampling as deep_accuracy.py's)
+from deep_accuracy import deep_voxels, import_igl, interpolate, read_grid, table_values  # noqa: E402
 
 
 def main() -> int:
@@ -37,10 +37,8 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=60000)
     ap.add_argument("--json")
     args = ap.parse_args()
-    try:
-        import igl
-    except ImportError:
-        print("deep_refinement: needs libigl (pip install libigl) for exact distances", file=sys.stderr)
+    igl = import_igl("deep_refinement")
+    if igl is None:
         return 2
     import h5py
 
@@ -53,27 +51,16 @@ def main() -> int:
     def exact_unsigned(ijk: np.ndarray) -> np.ndarray:
         return np.abs(igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0]) / h
 
-    def interpolate(ijk: np.ndarray, step: int, values) -> np.ndarray:
-        """Values every `step` voxels (the last at the grid's end), interpolated at voxels; `values(points)`."""
-        c0 = ijk // step * step
-        c1 = np.minimum(c0 + step, dims - 1)
-        t = (ijk - c0) / np.maximum(c1 - c0, 1)
-        out = np.zeros(len(ijk))
-        for corner in range(8):
-            d = np.array([(corner >> a) & 1 for a in range(3)])
-            out += np.prod(np.where(d == 1, t, 1 - t), axis=1) * values(np.minimum(c0 + d * step, dims - 1))
-        return out
+    def exact_every(step: int):
+        """`interpolate`'s values of a lattice every `step` voxels: exact distances, computed where asked."""
+        return lambda index: exact_unsigned(np.minimum(index * step, dims - 1))
 
     axes = [np.unique(np.minimum(np.arange(0, d + 8, 8), d - 1)) for d in dims]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
     lattice = exact_unsigned(grid.reshape(-1, 3)).reshape(grid.shape[:3])
 
-    def lattice_at(points: np.ndarray) -> np.ndarray:
-        index = np.minimum(points // 8 + (points % 8 > 0), np.array(lattice.shape) - 1)  # the point's lattice index
-        return lattice[index[:, 0], index[:, 1], index[:, 2]]
-
     def estimate(ijk: np.ndarray) -> np.ndarray:
-        return np.maximum(interpolate(ijk, 8, lattice_at), band - 0.5)
+        return np.maximum(interpolate(ijk, 8, dims, table_values(lattice)), band - 0.5)
 
     start = time.perf_counter()
     coarse = np.argwhere(table < 0)
@@ -97,9 +84,10 @@ def main() -> int:
     def beyond(magnitude: np.ndarray) -> np.ndarray:
         return np.abs(sign * magnitude - exact) > 1 + 0.01 * np.abs(exact)
 
-    rows = {"exact 8-lattice": lattice_estimate, "flagged: exact": np.where(in_flagged, np.abs(exact), lattice_estimate)}
+    rows = {"exact 8-lattice": lattice_estimate,
+            "flagged: exact": np.where(in_flagged, np.abs(exact), lattice_estimate)}
     for step in (4, 2):
-        local = np.maximum(interpolate(ijk, step, exact_unsigned), band - 0.5)
+        local = np.maximum(interpolate(ijk, step, dims, exact_every(step)), band - 0.5)
         rows[f"flagged: local lattice every {step}"] = np.where(in_flagged, local, lattice_estimate)
     result = {"asset": args.asset, "mesh": args.mesh, "threshold": args.threshold, "coarse_bricks": len(coarse),
               "flagged_bricks": int(flagged.sum()), "probe_seconds_numpy": round(probe_s, 2),
