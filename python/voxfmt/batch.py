@@ -33,6 +33,7 @@ _ENV_ERRORS = {
     4: "a pose's rotation part is not orthonormal (|R^T R - I| > 1e-6)",
     5: "a pose's rotation part has determinant -1 (a reflection)",
     6: "its pair index names no pair of the scene",
+    7: "a level of its walk opened more nodes than the device's frontier holds (a fault of voxfmt: please report it)",
 }
 
 
@@ -268,5 +269,7 @@ def _raise_for(error: Any) -> None:
     message = f"environment {first}: {_ENV_ERRORS.get(codes[0], 'error ' + str(codes[0]))}"
     if any(c in (2, 3, 4, 5) for c in codes):
         raise PoseError("BAD_POSE", message)
+    if 7 in codes:
+        raise InternalError("INTERNAL", message)
     raise OptionError("BAD_OPTION", message)
 

@@ -5,6 +5,7 @@
 
 #include <cstring>
 #include <string>
+#include <vector>
 
 #include "../../loaders/gpu/src/device.h"
 
@@ -82,7 +83,23 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
     out.torque = torque;
     out.overflow = overflow;
     out.error = error;
-    failure = voxfmt::gpu::device::launch(in, out, reinterpret_cast<void*>(stream));
+    // The frontier's size from the tree (read back once per tree) and the grid's from the device.
+    static const void* sized_for = nullptr;
+    static uint32_t capacity = 1;
+    static unsigned resident = 0;
+    if (nodes != sized_for) {
+      std::vector<core::Node> host(count);
+      if (cudaMemcpy(host.data(), nodes, count * sizeof(core::Node), cudaMemcpyDeviceToHost) != cudaSuccess)
+        failure = "cannot read the tree back";
+      core::Shell shell = b.shell;
+      shell.nodes = host.data();
+      const core::Shell* shells[] = {&shell};
+      capacity = core::frontier_capacity(shells, 1);
+      sized_for = nodes;
+    }
+    if (resident == 0 && failure.empty()) resident = voxfmt::gpu::device::resident_blocks(failure);
+    if (failure.empty())
+      failure = voxfmt::gpu::device::launch(in, out, resident, capacity, reinterpret_cast<void*>(stream));
   }
   if (failure.empty()) return 0;
   std::strncpy(error_text, failure.c_str(), error_size - 1);

@@ -9,12 +9,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <random>
 #include <tuple>
 #include <vector>
 
 #include "baked_bunny.h"
 #include "core/batch.h"
+#include "core/block_walk.h"
 #include "traversal/eigen.h"
 #include "traversal/field_simd.h"
 #include "voxfmt/runtime/query.h"
@@ -221,6 +223,162 @@ TEST(QueryCore, AnEnvironmentWithABadPoseOrPairSaysWhy) {
   EXPECT_EQ(error[2], core::kEnvPairOutOfRange);
   EXPECT_EQ(error[3], core::kPoseLastRow);
   EXPECT_EQ(count[1] + count[2] + count[3], 0);
+}
+
+// A batch of environments of the bunny against itself, walked by EmulatedBlock: the block walk as a CUDA block runs it.
+struct BlockBatch {
+  core::Body body;
+  std::vector<double> poses_a, poses_b;
+  std::vector<int32_t> count, overflow, error;
+  std::vector<float> max_depth, force, torque, points, normals, depths;
+  std::vector<int32_t> index;
+  std::vector<uint8_t> of_b;
+  uint32_t capacity = 0;
+
+  BlockBatch(const CollisionObject& object, const std::vector<std::pair<Pose, Pose>>& poses, uint32_t max_contacts)
+      : body(core::body_of(object)), capacity(max_contacts) {
+    for (const auto& [a, b] : poses) {
+      append(a, poses_a);
+      append(b, poses_b);
+    }
+    const size_t e = poses.size(), k = size_t(max_contacts);
+    count.assign(e, -1), overflow.assign(e, -1), error.assign(e, -1);
+    max_depth.assign(e, -1), force.assign(3 * e, 0), torque.assign(3 * e, 0);
+    points.assign(3 * e * k, 0), normals.assign(3 * e * k, 0), depths.assign(e * k, 0);
+    index.assign(e * k, -1), of_b.assign(e * k, 9);
+  }
+  static void append(const Pose& p, std::vector<double>& m) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) m.push_back(p.rotation(r, c));
+      m.push_back(p.translation[r]);
+    }
+    for (const double x : {0.0, 0.0, 0.0, 1.0}) m.push_back(x);
+  }
+  // Every environment on one emulated block whose frontier holds `frontier` ranges (0: as a scene sizes it).
+  void run(double proximity, double stiffness, bool gradient, uint32_t frontier = 0) {
+    const uint32_t zero = 0;
+    core::BatchInputs<double> in;
+    in.bodies = &body;
+    in.pair_a = in.pair_b = &zero;
+    in.pair_count = 1;
+    in.poses_a = poses_a.data();
+    in.poses_b = poses_b.data();
+    in.environments = count.size();
+    in.proximity = proximity;
+    in.stiffness = stiffness;
+    in.gradient_normals = gradient;
+    core::BatchOutputs out;
+    out.count = count.data(), out.overflow = overflow.data(), out.error = error.data();
+    out.max_depth = max_depth.data(), out.force = force.data(), out.torque = torque.data();
+    out.contacts = {points.data(), normals.data(), depths.data(), index.data(), of_b.data(), capacity};
+    const core::Shell* shells[] = {&body.shell};
+    if (frontier == 0) frontier = core::frontier_capacity(shells, 1);
+    std::vector<core::OpenRange> ranges(2 * size_t(frontier));
+    auto state = std::make_unique<core::BlockState>();
+    for (size_t e = 0; e < count.size(); ++e)
+      core::run_environment_block(core::EmulatedBlock{}, *state, in, out, e, core::Frontier{ranges.data(), frontier});
+  }
+};
+
+TEST(QueryCore, TheBlockWalkFindsTheRuntimesContactsInItsOrderAndItsWrenchBitForBit) {
+  const BakedBunny& bunny = BakedBunny::get();
+  const CollisionObject& object = *bunny.object;
+  std::mt19937 rng(23);
+  std::vector<std::pair<Pose, Pose>> poses;
+  for (int k = 0; k < 60; ++k) poses.emplace_back(random_pose(rng, 0.0), random_pose(rng, k % 2 ? 0.05 : 0.14));
+  const uint32_t capacity = 20000;
+  BlockBatch batch(object, poses, capacity);
+  QueryScratch scratch;
+  size_t touching = 0, compared = 0;
+  for (const double proximity : {0.0, 0.003})
+    for (const bool gradient : {true, false}) {
+      batch.run(proximity, 2e4, gradient);
+      QueryOptions options;
+      options.proximity = proximity;
+      options.normal_source = gradient ? NormalSource::DistanceGradient : NormalSource::PointShell;
+      for (size_t e = 0; e < poses.size(); ++e) {
+        const auto& [pa, pb] = poses[e];
+        ContactSet set;
+        query_contacts(object, pa, object, pb, options, set, scratch);
+        const Wrench w = penalty_wrench(set, pa.apply(object.center_of_mass()), 2e4);
+        ASSERT_EQ(batch.error[e], core::kEnvOk);
+        ASSERT_EQ(size_t(batch.count[e]), set.contacts.size()) << "environment " << e;
+        ASSERT_EQ(batch.overflow[e], 0);
+        double deepest = 0;
+        for (size_t i = 0; i < set.contacts.size(); ++i) {
+          // Contact i is the runtime's contact i: the same point, depth, position and normal.
+          const Contact& c = set.contacts[i];
+          const size_t at = e * capacity + i;
+          ASSERT_EQ(uint32_t(batch.index[at]), c.point_index) << e << ", contact " << i;
+          ASSERT_EQ(batch.of_b[at] != 0, c.point_of_b);
+          ASSERT_EQ(batch.depths[at], float(c.depth));
+          for (int a = 0; a < 3; ++a) {
+            ASSERT_EQ(batch.points[3 * at + a], float(c.point[a])) << e << ", contact " << i;
+            ASSERT_EQ(batch.normals[3 * at + a], float(c.normal[a])) << e << ", contact " << i;
+          }
+          deepest = std::max(deepest, c.depth);
+        }
+        EXPECT_EQ(batch.max_depth[e], float(deepest));
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_EQ(batch.force[3 * e + a], float(w.force[a])) << "environment " << e;
+          EXPECT_EQ(batch.torque[3 * e + a], float(w.torque[a])) << "environment " << e;
+        }
+        touching += !set.contacts.empty();
+        ++compared;
+      }
+    }
+  EXPECT_EQ(compared, 240u);
+  EXPECT_GT(touching, 80u);
+}
+
+TEST(QueryCore, TheBlockWalkCountsWhatDidNotFitAndRefusesNoNodeWithinItsFrontier) {
+  const BakedBunny& bunny = BakedBunny::get();
+  Pose here, near;
+  near.translation = Eigen::Vector3d(0.02, 0, 0);  // deep overlap: hundreds of contacts
+  BlockBatch all(*bunny.object, {{here, near}}, 100000), capped(*bunny.object, {{here, near}}, 8);
+  all.run(0.0, 1.0, true);
+  capped.run(0.0, 1.0, true);
+  ASSERT_GT(all.count[0], 8);
+  EXPECT_EQ(all.overflow[0], 0);
+  EXPECT_EQ(capped.count[0], all.count[0]);
+  EXPECT_EQ(capped.overflow[0], all.count[0] - 8);
+  EXPECT_TRUE(std::equal(capped.depths.begin(), capped.depths.end(), all.depths.begin()));
+  for (int a = 0; a < 3; ++a) EXPECT_EQ(capped.force[a], all.force[a]);
+  // The depth-first walk finds the same contacts (in its own order).
+  const core::Body body = core::body_of(*bunny.object);
+  std::vector<float> dfs(100000);
+  core::ContactArrays out;
+  out.depths = dfs.data();
+  out.capacity = 100000;
+  core::EnvResult r;
+  core::env_contacts(body, core::to_core(here), body, core::to_core(near), 0.0, 1.0, true, out, r);
+  ASSERT_EQ(int32_t(r.count), all.count[0]);
+  std::vector<float> block_depths(all.depths.begin(), all.depths.begin() + all.count[0]);
+  dfs.resize(r.count);
+  std::sort(dfs.begin(), dfs.end());
+  std::sort(block_depths.begin(), block_depths.end());
+  EXPECT_EQ(dfs, block_depths);
+  // A frontier smaller than a level's opened nodes ends the environment with its code, nothing counted.
+  BlockBatch small(*bunny.object, {{here, near}}, 8);
+  small.run(0.0, 1.0, true, 4);
+  EXPECT_EQ(small.error[0], core::kEnvFrontierFull);
+  EXPECT_EQ(small.count[0], 0);
+  EXPECT_EQ(small.force[0], 0.0f);
+}
+
+TEST(QueryCore, TheBlockWalkSaysWhyAnEnvironmentHasNoResult) {
+  const BakedBunny& bunny = BakedBunny::get();
+  Pose here, near;
+  near.translation = Eigen::Vector3d(0.02, 0, 0);
+  BlockBatch batch(*bunny.object, {{here, near}, {here, near}, {here, near}}, 4);
+  batch.poses_b[16 + 0] = 2.0;           // environment 1: a scale, not a rigid transform
+  batch.poses_a[32 + 3] = std::nan("");  // environment 2: not finite
+  batch.run(0.0, 1.0, true);
+  EXPECT_EQ(batch.error[0], core::kEnvOk);
+  EXPECT_GT(batch.count[0], 0);
+  EXPECT_EQ(batch.error[1], core::kPoseNotOrthonormal);
+  EXPECT_EQ(batch.error[2], core::kPoseNotFinite);
+  EXPECT_EQ(batch.count[1] + batch.count[2], 0);
 }
 
 }  // namespace

@@ -6,7 +6,7 @@
 #include <cstdint>
 #include <string>
 
-#include "core/batch.h"
+#include "core/block_walk.h"
 
 namespace voxfmt::gpu::device {
 
@@ -21,8 +21,14 @@ std::string device_name();
 void* copy_to_device(const void* host, size_t bytes, std::string& error);
 void release(void* device_pointer);
 
-/// Runs every environment of `in` into `out` (device pointers) on `stream`, asynchronously: one CUDA thread per
-/// environment (core::run_environment). Empty, or the launch's error.
-std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, void* stream);
+/// How many blocks of the batch's kernel the current device keeps resident at once (its grid); 0 and `error` when
+/// the device cannot say.
+unsigned resident_blocks(std::string& error);
+
+/// Runs every environment of `in` into `out` (device pointers) on `stream`, asynchronously: a block per
+/// environment (core::run_environment_block) on `resident` blocks, whose frontiers hold `capacity` ranges
+/// (core::frontier_capacity of the scene's shells). Empty, or the launch's error.
+std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, unsigned resident,
+                   uint32_t capacity, void* stream);
 
 }  // namespace voxfmt::gpu::device

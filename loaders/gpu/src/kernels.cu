@@ -1,6 +1,8 @@
-// The batched contact query on a CUDA device: one thread per environment, each running the query core's
-// environment (core/batch.h) — the very function the CPU path and its tests run. Compiled with --fmad=false, so
-// that the device's float arithmetic is the CPU's (no fused multiply-adds): the same lookups, the same points.
+// The batched contact query on a CUDA device: a block of core::kBlockLanes threads per environment, walking its
+// tree level by level (core/block_walk.h) — the very code the CPU tests run on an emulated block, where it gives the
+// runtime's contacts in the runtime's order. The grid holds as many blocks as the device keeps resident; each takes
+// environments in turn. Compiled with --fmad=false, so that the device's float arithmetic is the CPU's (no fused
+// multiply-adds): the same lookups, the same points.
 #include <cuda_runtime.h>
 
 #include "device.h"
@@ -9,9 +11,23 @@ namespace voxfmt::gpu::device {
 
 namespace {
 
-__global__ void environments(core::BatchInputs<float> in, core::BatchOutputs out) {
-  const size_t e = size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (e < in.environments) core::run_environment(in, out, e);
+// A thread block as the block walk's Block: a phase on every thread, then a barrier.
+struct CudaBlock {
+  template <class Phase>
+  __device__ void each(Phase&& phase) const {
+    phase(int(threadIdx.x));
+    __syncthreads();
+  }
+};
+
+__global__ void __launch_bounds__(core::kBlockLanes)
+    environments(core::BatchInputs<float> in, core::BatchOutputs out, core::OpenRange* frontiers, uint32_t capacity) {
+  // Raw storage: BlockState's members have default initialisers, which __shared__ variables may not run.
+  __shared__ __align__(16) unsigned char storage[sizeof(core::BlockState)];
+  core::BlockState& state = *reinterpret_cast<core::BlockState*>(storage);
+  const core::Frontier frontier{frontiers + size_t(blockIdx.x) * 2 * capacity, capacity};
+  for (size_t e = blockIdx.x; e < in.environments; e += gridDim.x)
+    core::run_environment_block(CudaBlock{}, state, in, out, e, frontier);
 }
 
 std::string describe(cudaError_t status) {
@@ -57,13 +73,37 @@ void release(void* device_pointer) {
   if (device_pointer) cudaFree(device_pointer);
 }
 
-std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, void* stream) {
+unsigned resident_blocks(std::string& error) {
+  int device = 0, processors = 0, per_processor = 0;
+  cudaError_t status = cudaGetDevice(&device);
+  if (status == cudaSuccess) status = cudaDeviceGetAttribute(&processors, cudaDevAttrMultiProcessorCount, device);
+  if (status == cudaSuccess)
+    status = cudaOccupancyMaxActiveBlocksPerMultiprocessor(&per_processor, environments, core::kBlockLanes, 0);
+  if (status != cudaSuccess) {
+    error = describe(status);
+    cudaGetLastError();
+    return 0;
+  }
+  return unsigned(processors) * unsigned(per_processor > 0 ? per_processor : 1);
+}
+
+std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, unsigned resident,
+                   uint32_t capacity, void* stream) {
   if (in.environments == 0) return std::string();
-  // 128 threads a block: the walk's stack (48 ranges of 16 bytes) lives in each thread's local memory.
-  constexpr unsigned kThreads = 128;
-  const size_t blocks = (in.environments + kThreads - 1) / kThreads;
-  environments<<<unsigned(blocks), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(in, out);
-  const cudaError_t status = cudaGetLastError();
+  const cudaStream_t s = static_cast<cudaStream_t>(stream);
+  const unsigned blocks = unsigned(in.environments < resident ? in.environments : resident);
+  // Each block's frontier, from the stream's memory pool: stream ordered (capturable in a graph) and, unlike memory
+  // held by the scene, never shared by two launches on two streams.
+  void* frontiers = nullptr;
+  cudaError_t status = cudaMallocAsync(&frontiers, size_t(blocks) * 2 * capacity * sizeof(core::OpenRange), s);
+  if (status != cudaSuccess) {
+    cudaGetLastError();
+    return describe(status);
+  }
+  environments<<<blocks, core::kBlockLanes, 0, s>>>(in, out, static_cast<core::OpenRange*>(frontiers), capacity);
+  status = cudaGetLastError();
+  const cudaError_t freed = cudaFreeAsync(frontiers, s);
+  if (status == cudaSuccess) status = freed;
   return status == cudaSuccess ? std::string() : describe(status);
 }
 

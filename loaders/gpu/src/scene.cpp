@@ -2,6 +2,8 @@
 // tables), and the launch. No CUDA header here (device.h is plain C++).
 #include "voxfmt/gpu/batch.h"
 
+#include <algorithm>
+
 #include "device.h"
 #include "traversal/eigen.h"
 
@@ -14,6 +16,8 @@ struct Scene::Device {
   core::Body* bodies = nullptr;
   uint32_t* pair_a = nullptr;
   uint32_t* pair_b = nullptr;
+  unsigned resident_blocks = 0;
+  uint32_t frontier_capacity = 1;  ///< core::frontier_capacity of the scene's shells
   ~Device() {
     for (void* p : allocations) device::release(p);
   }
@@ -59,6 +63,10 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
                                              " levels, more than the device walk's " +
                                              std::to_string(core::kMaxWalkLevels)};
     core::Body body = core::body_of(*asset);  // host pointers, replaced by device ones below
+    if (body.has_shell) {
+      const core::Shell* shell = &body.shell;
+      d.frontier_capacity = std::max(d.frontier_capacity, core::frontier_capacity(&shell, 1));
+    }
     size_t bytes = 0;
     if (body.has_field) {
       const runtime::SparseVoxelmap& map = asset->voxelmap();
@@ -85,6 +93,8 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
   d.pair_a = d.upload(pair_a.data(), pair_a.size(), error);
   d.pair_b = d.upload(pair_b.data(), pair_b.size(), error);
   if (!error.empty()) return Error{IssueCode::OutOfMemory, "cannot upload the scene's tables: " + error};
+  d.resident_blocks = device::resident_blocks(error);
+  if (d.resident_blocks == 0) return Error{IssueCode::Internal, "cannot size the batch's grid: " + error};
   return scene;
 }
 
@@ -119,7 +129,8 @@ Status Scene::contacts(const Environments& in, const Outputs& out, void* stream)
   outputs.overflow = out.overflow;
   outputs.error = out.error;
   outputs.contacts = {out.points, out.normals, out.depths, out.point_index, out.point_of_b, out.max_contacts};
-  const std::string failure = device::launch(inputs, outputs, stream);
+  const std::string failure =
+      device::launch(inputs, outputs, device_->resident_blocks, device_->frontier_capacity, stream);
   if (!failure.empty()) return Error{IssueCode::Internal, "the batch's kernel did not start: " + failure};
   return Status::success();
 }

@@ -1,8 +1,9 @@
 // One environment of a batched contact query, as host/device code: a pair of assets at a pair of poses, queried
 // in the direction the runtime's Auto picks, reduced to what a learning loop needs (contact count, deepest
 // penetration, the penalty wrench on A) and, on request, the contacts in a buffer the caller sized, with the
-// number that did not fit always counted. The CUDA kernel runs one per thread; the CPU runs the same function on
-// its threads, so the two agree by construction.
+// number that did not fit always counted. env_contacts walks one environment depth first on one thread; the CUDA
+// kernel walks one on a block's lanes (block_walk.h), with the same examination of each node and the same
+// contact values, in the runtime's order.
 #pragma once
 
 #include "walk.h"
@@ -92,54 +93,108 @@ VOXFMT_HD void contact_normal(const Field& field, const Frame& frame, const Rigi
   point_normal(shell, shell_pose, node, normal);
 }
 
-/// Adds each contact of one direction to `result` (and `out`, while it has room).
-struct ContactSink {
-  const Shell& shell;
-  const RigidPose& shell_pose;
-  const Field& field;
-  const Frame& frame;
-  const RigidPose& field_pose;
+/// One environment's query, set up: which object's points go into which field, the frame between them, and what
+/// a contact's wrench is taken about. Plain values (a CUDA block keeps it in shared memory).
+struct EnvQuery {
+  const Shell* shell;
+  const Field* field;
+  RigidPose shell_pose, field_pose;
+  Frame frame;
   bool gradient_normals;
   double sign;  ///< +1: A's points (normals as they are); -1: B's points (A must move the other way)
-  double metres_per_unit;
   double stiffness;
   double reference[3];  ///< A's centre of mass, world
-  ContactArrays out;
   uint32_t point_of_b;
+  bool runs;  ///< false where one side has no shell or the other no field: nothing to find
+};
+
+/// A at `pa` against B at `pb` in the direction the runtime's Auto picks (proximity in metres).
+VOXFMT_HD EnvQuery env_query(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb, double proximity,
+                             double stiffness, bool gradient_normals) {
+  EnvQuery q;
+  for (int r = 0; r < 3; ++r)
+    q.reference[r] = pa.R[3 * r] * (pa.scale * a.center_of_mass[0]) +
+                     pa.R[3 * r + 1] * (pa.scale * a.center_of_mass[1]) +
+                     pa.R[3 * r + 2] * (pa.scale * a.center_of_mass[2]) + pa.t[r];
+  const bool b_in_a = b_points_in_a(a, pa, b, pb);
+  const Body& shell_body = b_in_a ? b : a;
+  const Body& field_body = b_in_a ? a : b;
+  q.shell = &shell_body.shell;
+  q.field = &field_body.field;
+  q.shell_pose = b_in_a ? pb : pa;
+  q.field_pose = b_in_a ? pa : pb;
+  q.runs = shell_body.has_shell && field_body.has_field;
+  q.frame = frame_of(q.shell_pose, q.field_pose, field_body.origin, field_body.voxel_size, proximity);
+  q.gradient_normals = gradient_normals;
+  q.sign = b_in_a ? -1.0 : 1.0;
+  q.stiffness = stiffness;
+  q.point_of_b = b_in_a ? 1u : 0u;
+  return q;
+}
+
+/// One contact: where, which way, how deep, and its share of the penalty wrench (zero unless it penetrates).
+struct ContactValues {
+  double point[3], normal[3], depth, force[3], torque[3];
+};
+
+/// The contact of shell point `node` at `distance` (grid units); `gradient`: the field's there, from its distance
+/// sample (contact_normal). The runtime's penalty_wrench computes a contact's share in the same order.
+VOXFMT_HD void contact_values(const EnvQuery& q, uint32_t node, float distance, const Vec3* gradient,
+                              ContactValues& c) {
+  const Vec3& x = q.shell->points[node];
+  const float xs[3] = {x.x, x.y, x.z};
+  apply_pose(q.shell_pose, xs, c.point);
+  contact_normal(*q.field, q.frame, q.field_pose, *q.shell, q.shell_pose, node, q.gradient_normals, gradient, c.normal);
+  for (int r = 0; r < 3; ++r) c.normal[r] *= q.sign;
+  c.depth = -double(distance) * q.frame.metres_per_unit;
+  const double k = c.depth > 0 ? q.stiffness * c.depth : 0.0;
+  const double f[3] = {k * c.normal[0], k * c.normal[1], k * c.normal[2]};
+  const double r[3] = {c.point[0] - q.reference[0], c.point[1] - q.reference[1], c.point[2] - q.reference[2]};
+  for (int a = 0; a < 3; ++a) c.force[a] = f[a];
+  c.torque[0] = r[1] * f[2] - r[2] * f[1];
+  c.torque[1] = r[2] * f[0] - r[0] * f[2];
+  c.torque[2] = r[0] * f[1] - r[1] * f[0];
+}
+
+/// Contact `i` of `out` (which must have room for it).
+VOXFMT_HD void write_contact(const ContactArrays& out, uint32_t i, const ContactValues& c, uint32_t node,
+                             uint32_t point_of_b) {
+  for (int k = 0; k < 3; ++k) {
+    if (out.points) out.points[3 * i + k] = float(c.point[k]);
+    if (out.normals) out.normals[3 * i + k] = float(c.normal[k]);
+  }
+  if (out.depths) out.depths[i] = float(c.depth);
+  if (out.point_index) out.point_index[i] = int32_t(node);
+  if (out.point_of_b) out.point_of_b[i] = uint8_t(point_of_b);
+}
+
+/// Adds a contact to the environment's reductions (in the order contacts are found: the wrench's sums are the
+/// runtime's when that order is).
+VOXFMT_HD void add_contact(const ContactValues& c, EnvResult& result, double force[3], double torque[3]) {
+  if (c.depth > 0) {
+    for (int k = 0; k < 3; ++k) {
+      force[k] += c.force[k];
+      torque[k] += c.torque[k];
+    }
+    if (float(c.depth) > result.max_depth) result.max_depth = float(c.depth);
+  }
+}
+
+/// Adds each contact of the depth-first walk to `result` (and `out`, while it has room).
+struct ContactSink {
+  const EnvQuery& query;
+  ContactArrays out;
   EnvResult& result;
   double force[3], torque[3];
 
-  /// `gradient`: the field's at the point, from its distance sample (contact_normal).
   VOXFMT_HD void operator()(uint32_t node, float distance, bool, const Vec3* gradient) {
-    const Vec3& x = shell.points[node];
-    const float xs[3] = {x.x, x.y, x.z};
-    double point[3];
-    apply_pose(shell_pose, xs, point);
-    double normal[3];
-    contact_normal(field, frame, field_pose, shell, shell_pose, node, gradient_normals, gradient, normal);
-    for (int r = 0; r < 3; ++r) normal[r] *= sign;
-    const double depth = -double(distance) * metres_per_unit;
-    if (depth > 0) {
-      const double f[3] = {stiffness * depth * normal[0], stiffness * depth * normal[1], stiffness * depth * normal[2]};
-      const double r[3] = {point[0] - reference[0], point[1] - reference[1], point[2] - reference[2]};
-      for (int k = 0; k < 3; ++k) force[k] += f[k];
-      torque[0] += r[1] * f[2] - r[2] * f[1];
-      torque[1] += r[2] * f[0] - r[0] * f[2];
-      torque[2] += r[0] * f[1] - r[1] * f[0];
-      if (float(depth) > result.max_depth) result.max_depth = float(depth);
-    }
-    if (result.count < out.capacity) {
-      const uint32_t i = result.count;
-      for (int k = 0; k < 3; ++k) {
-        if (out.points) out.points[3 * i + k] = float(point[k]);
-        if (out.normals) out.normals[3 * i + k] = float(normal[k]);
-      }
-      if (out.depths) out.depths[i] = float(depth);
-      if (out.point_index) out.point_index[i] = int32_t(node);
-      if (out.point_of_b) out.point_of_b[i] = uint8_t(point_of_b);
-    } else {
+    ContactValues c;
+    contact_values(query, node, distance, gradient, c);
+    add_contact(c, result, force, torque);
+    if (result.count < out.capacity)
+      write_contact(out, result.count, c, node, query.point_of_b);
+    else
       ++result.overflow;
-    }
     ++result.count;
   }
 };
@@ -149,34 +204,10 @@ struct ContactSink {
 VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, const RigidPose& pb, double proximity,
                             double stiffness, bool gradient_normals, const ContactArrays& out, EnvResult& result) {
   result = EnvResult{};
-  // The wrench's reference: A's centre of mass in the world.
-  double reference[3];
-  for (int r = 0; r < 3; ++r)
-    reference[r] = pa.R[3 * r] * (pa.scale * a.center_of_mass[0]) + pa.R[3 * r + 1] * (pa.scale * a.center_of_mass[1]) +
-                   pa.R[3 * r + 2] * (pa.scale * a.center_of_mass[2]) + pa.t[r];
-  const bool b_in_a = b_points_in_a(a, pa, b, pb);
-  const Body& shell_body = b_in_a ? b : a;
-  const Body& field_body = b_in_a ? a : b;
-  const RigidPose& shell_pose = b_in_a ? pb : pa;
-  const RigidPose& field_pose = b_in_a ? pa : pb;
-  if (!shell_body.has_shell || !field_body.has_field) return;
-  const Frame frame = frame_of(shell_pose, field_pose, field_body.origin, field_body.voxel_size, proximity);
-  ContactSink sink{shell_body.shell,
-                   shell_pose,
-                   field_body.field,
-                   frame,
-                   field_pose,
-                   gradient_normals,
-                   b_in_a ? -1.0 : 1.0,
-                   frame.metres_per_unit,
-                   stiffness,
-                   {reference[0], reference[1], reference[2]},
-                   out,
-                   b_in_a ? 1u : 0u,
-                   result,
-                   {0, 0, 0},
-                   {0, 0, 0}};
-  if (walk(field_body.field, shell_body.shell, frame, sink) < 0) result.error = 1;
+  const EnvQuery query = env_query(a, pa, b, pb, proximity, stiffness, gradient_normals);
+  if (!query.runs) return;
+  ContactSink sink{query, out, result, {0, 0, 0}, {0, 0, 0}};
+  if (walk(*query.field, *query.shell, query.frame, sink) < 0) result.error = 1;
   for (int k = 0; k < 3; ++k) {
     result.force[k] = float(sink.force[k]);
     result.torque[k] = float(sink.torque[k]);
@@ -184,7 +215,14 @@ VOXFMT_HD void env_contacts(const Body& a, const RigidPose& pa, const Body& b, c
 }
 
 /// Why an environment has no result (EnvResult::error, the batch's `error` output).
-enum EnvError : int32_t { kEnvOk = 0, kEnvTreeTooDeep = 1, kEnvPairOutOfRange = 6 };  // 2..5: PoseProblem
+/// kEnvFrontierFull: a level of the block walk opened more nodes than its frontier holds (a scene sizes it so that
+/// none does: this is a fault, never an input's).
+enum EnvError : int32_t {
+  kEnvOk = 0,
+  kEnvTreeTooDeep = 1,
+  kEnvPairOutOfRange = 6,
+  kEnvFrontierFull = 7
+};  // 2..5: PoseProblem
 
 /// A batch: the assets, the pairs environments may hold (indices into `bodies`), and per environment its pair
 /// (null: pair 0 for all) and the two 4x4 row-major body-to-world matrices.
@@ -217,29 +255,20 @@ struct BatchOutputs {
   ContactArrays contacts;
 };
 
-/// Environment `e` of a batch, start to end: the same on a CPU thread and a CUDA thread.
-template <class T>
-VOXFMT_HD void run_environment(const BatchInputs<T>& in, const BatchOutputs& out, size_t e) {
-  EnvResult r;
-  const int32_t pair = in.pair_index ? in.pair_index[e] : 0;
-  RigidPose pa, pb;
-  if (pair < 0 || uint32_t(pair) >= in.pair_count) {
-    r.error = kEnvPairOutOfRange;
-  } else if (const int32_t problem = pose_from_matrix(in.poses_a + 16 * e, pa)) {
-    r.error = problem;
-  } else if (const int32_t problem_b = pose_from_matrix(in.poses_b + 16 * e, pb)) {
-    r.error = problem_b;
-  } else {
-    ContactArrays at = out.contacts;
-    const size_t first = e * size_t(at.capacity);
-    if (at.points) at.points += 3 * first;
-    if (at.normals) at.normals += 3 * first;
-    if (at.depths) at.depths += first;
-    if (at.point_index) at.point_index += first;
-    if (at.point_of_b) at.point_of_b += first;
-    env_contacts(in.bodies[in.pair_a[pair]], pa, in.bodies[in.pair_b[pair]], pb, in.proximity, in.stiffness,
-                 in.gradient_normals, at, r);
-  }
+/// Environment `e`'s part of the contact outputs.
+VOXFMT_HD ContactArrays environment_contacts(const BatchOutputs& out, size_t e) {
+  ContactArrays at = out.contacts;
+  const size_t first = e * size_t(at.capacity);
+  if (at.points) at.points += 3 * first;
+  if (at.normals) at.normals += 3 * first;
+  if (at.depths) at.depths += first;
+  if (at.point_index) at.point_index += first;
+  if (at.point_of_b) at.point_of_b += first;
+  return at;
+}
+
+/// Environment `e`'s reductions into the outputs.
+VOXFMT_HD void write_result(const BatchOutputs& out, size_t e, const EnvResult& r) {
   out.count[e] = int32_t(r.count);
   if (out.max_depth) out.max_depth[e] = r.max_depth;
   for (int k = 0; k < 3; ++k) {
@@ -248,6 +277,33 @@ VOXFMT_HD void run_environment(const BatchInputs<T>& in, const BatchOutputs& out
   }
   if (out.overflow) out.overflow[e] = int32_t(r.overflow);
   if (out.error) out.error[e] = r.error;
+}
+
+/// Environment `e`'s pair and poses (false, with `r.error` set, for a bad pair index or pose).
+template <class T>
+VOXFMT_HD bool environment_of(const BatchInputs<T>& in, size_t e, int32_t& pair, RigidPose& pa, RigidPose& pb,
+                              EnvResult& r) {
+  pair = in.pair_index ? in.pair_index[e] : 0;
+  if (pair < 0 || uint32_t(pair) >= in.pair_count)
+    r.error = kEnvPairOutOfRange;
+  else if (const int32_t problem = pose_from_matrix(in.poses_a + 16 * e, pa))
+    r.error = problem;
+  else if (const int32_t problem_b = pose_from_matrix(in.poses_b + 16 * e, pb))
+    r.error = problem_b;
+  return r.error == 0;
+}
+
+/// Environment `e` of a batch, start to end: the same on a CPU thread and a CUDA thread.
+template <class T>
+VOXFMT_HD void run_environment(const BatchInputs<T>& in, const BatchOutputs& out, size_t e) {
+  EnvResult r;
+  int32_t pair = 0;
+  RigidPose pa, pb;
+  if (environment_of(in, e, pair, pa, pb, r)) {
+    env_contacts(in.bodies[in.pair_a[pair]], pa, in.bodies[in.pair_b[pair]], pb, in.proximity, in.stiffness,
+                 in.gradient_normals, environment_contacts(out, e), r);
+  }
+  write_result(out, e, r);
 }
 
 }  // namespace voxfmt::runtime::core

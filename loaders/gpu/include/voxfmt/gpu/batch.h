@@ -1,6 +1,7 @@
 // Batched contact queries on a CUDA device: thousands of environments, each a pair of assets at a pair of poses,
 // in one call, with the assets uploaded once and shared by every environment. The device runs the query core the
-// CPU runtime runs (the same pruning, the same lookups in the same bricks), so its contacts are the CPU's.
+// CPU runtime runs (the same pruning, the same lookups in the same bricks, level by level as the runtime walks), so
+// its contacts are the CPU's, in the CPU's order.
 // Built when a CUDA compiler is found (CMake option VOXFMT_CUDA); `available()` says whether this process can use
 // a device at all.
 #pragma once
@@ -44,9 +45,10 @@ class Scene {
   size_t asset_device_bytes(size_t asset) const { return asset_bytes_.at(asset); }
   size_t pair_count() const { return pairs_; }
 
-  /// Queues every environment on `stream` (a cudaStream_t; nullptr = the default stream) and returns at once:
-  /// nothing is allocated or synchronised, so the call can be captured in a CUDA graph. An error only when the
-  /// launch itself fails (BAD_OPTION for a missing `count` output or float64 poses).
+  /// Queues every environment on `stream` (a cudaStream_t; nullptr = the default stream) and returns at once: a
+  /// block of threads per environment, the walk's frontier from the stream's memory pool (stream ordered), nothing
+  /// synchronised, so the call can be captured in a CUDA graph and calls on several streams do not share memory.
+  /// An error only when the launch itself fails (BAD_OPTION for a missing `count` output or float64 poses).
   Status contacts(const Environments& in, const Outputs& out, void* stream = nullptr) const;
 
  private:
