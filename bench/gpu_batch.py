@@ -53,9 +53,11 @@ def prepare(folder: Path, poses: int, seed: int, bunny_mesh: str, threads: int) 
     np.savez(folder / "gpu-batch-input.npz", poses_a=pa, poses_b=pb, stiffness=stiffness,
              cpu_count=ref.count, cpu_max_depth=ref.max_depth, cpu_force=ref.force, cpu_torque=ref.torque,
              **{k: np.asarray(v) for k, v in core.items()})
-    arrays = sum(np.asarray(core[k]).nbytes for k in ("bricks", "codes", "lattice", "nodes", "points", "normals"))
+    device_arrays = sum(np.asarray(core[k]).nbytes for k in ("bricks", "codes", "lattice", "nodes", "points", "normals"))
+    # The export's codes carry the device's apron (736 codes a brick); the runtime holds 512 a brick.
+    arrays = device_arrays - np.asarray(core["codes"]).nbytes * (736 - 512) // 736
     cpu = {"poses": poses, "threads": threads, "cpu_poses_per_s": batch_rate, "batch_scene_cpu_poses_per_s": scene_rate,
-           "runtime_arrays_mb": arrays / 1e6, "touching": int((ref.count > 0).sum()),
+           "runtime_arrays_mb": arrays / 1e6, "device_arrays_mb": device_arrays / 1e6, "touching": int((ref.count > 0).sum()),
            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load_average": list(os.getloadavg()),
            "asset": str(folder / "bunny00-0.15m-r306-p35000.vox.h5")}
     (folder / "cpu.json").write_text(json.dumps(cpu, indent=1))

@@ -191,8 +191,9 @@ struct DeviceScene {
 };
 #endif
 
-// A Body's arrays exactly as the query core reads them (core::Body): for a runner that has only the core and CUDA
-// (scripts/gpu-check.sh on a machine without our libraries) to rebuild the same Body there.
+// A Body's arrays exactly as the device reads them (core::Body; the value bricks with an apron, as gpu::Scene
+// uploads them): for a runner that has only the core and CUDA (scripts/gpu-check.sh on a machine without our
+// libraries) to rebuild the same Body there.
 nb::dict export_core(const Body& body) {
   const core::Body b = core::body_of(*body.object);
   nb::dict d;
@@ -203,11 +204,12 @@ nb::dict export_core(const Body& body) {
     return a.array;
   };
   const runtime::SparseVoxelmap& map = body.object->voxelmap();
-  const size_t codes = map.value_brick_count() * size_t(core::kBrickVoxels);
+  // The value bricks with their apron, as gpu::Scene uploads them.
+  const std::vector<int16_t> apron = core::apron_codes(b.field, map.value_brick_count());
   size_t lattice = 1;
   for (int a = 0; a < 3; ++a) lattice *= size_t(b.field.lattice_dims[a]);
   d["bricks"] = copy(b.field.bricks, map.brick_count(), {map.brick_count()});
-  d["codes"] = copy(b.field.codes, codes, {codes});
+  d["codes"] = copy(apron.data(), apron.size(), {apron.size()});
   d["lattice"] = copy(b.field.lattice, lattice, {lattice});
   const float* field_numbers[] = {&b.field.decode_step[0], &b.field.decode_step[1],  &b.field.stored_slack,
                                   &b.field.estimate_slack, &b.field.estimate_offset, &b.field.estimate_shrink,

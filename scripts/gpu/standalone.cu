@@ -29,6 +29,7 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
   b.field.bricks = bricks;
   b.field.codes = codes;
   b.field.lattice = lattice;
+  b.field.apron = true;  // _export_core's codes are the value bricks with their apron, as gpu::Scene uploads them
   for (int a = 0; a < 3; ++a) {
     b.field.dims[a] = field_dims[a];
     b.field.brick_dims[a] = field_dims[3 + a];

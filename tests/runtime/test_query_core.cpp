@@ -235,8 +235,17 @@ struct BlockBatch {
   std::vector<uint8_t> of_b;
   uint32_t capacity = 0;
 
-  BlockBatch(const CollisionObject& object, const std::vector<std::pair<Pose, Pose>>& poses, uint32_t max_contacts)
+  std::vector<int16_t> apron;  ///< the value bricks with an apron, where the batch reads those (as a GPU does)
+
+  BlockBatch(const CollisionObject& object, const std::vector<std::pair<Pose, Pose>>& poses, uint32_t max_contacts,
+             bool with_apron = false)
       : body(core::body_of(object)), capacity(max_contacts) {
+    if (with_apron) {
+      apron = core::apron_codes(body.field, object.voxelmap().value_brick_count());
+      body.field.codes = apron.data();
+      body.field.apron = true;
+      body.field.gather_safe = false;
+    }
     for (const auto& [a, b] : poses) {
       append(a, poses_a);
       append(b, poses_b);
@@ -280,6 +289,61 @@ struct BlockBatch {
   }
 };
 
+TEST(QueryCore, BricksWithAnApronGiveEveryLookupBitForBit) {
+  const BakedBunny& bunny = BakedBunny::get();
+  const SparseVoxelmap& map = bunny.object->voxelmap();
+  const core::Field field = field_of(map);
+  const std::vector<int16_t> apron = core::apron_codes(field, map.value_brick_count());
+  core::Field aproned = field;
+  aproned.codes = apron.data();
+  aproned.apron = true;
+  aproned.gather_safe = false;
+  // Points everywhere, many near the surface (value bricks, their faces, edges and corners: where a cell reaches
+  // into a neighbour, stored or coarse).
+  std::mt19937 rng(29);
+  std::vector<core::Vec3> points;
+  for (int t = 0; t < 100000; ++t) {
+    float c[3];
+    for (int a = 0; a < 3; ++a)
+      c[a] = std::uniform_real_distribution<float>(-0.1f * float(field.dims[a]), 1.1f * float(field.dims[a]))(rng);
+    points.push_back(core::make_vec3(c[0], c[1], c[2]));
+  }
+  const PointTree& tree = bunny.object->point_tree();
+  std::uniform_real_distribution<float> jitter(-2.0f, 2.0f);
+  for (size_t n = 0; n < tree.size(); ++n) {
+    const core::Vec3 u = core::to_core(map.to_grid(tree.points[n].cast<double>()));
+    points.push_back(u);
+    points.push_back(core::make_vec3(std::floor(u.x) + 0.5f, std::floor(u.y), u.z));
+    points.push_back(u + core::make_vec3(jitter(rng), jitter(rng), jitter(rng)));
+  }
+  size_t in_one_brick = 0, straddling = 0;
+  for (const core::Vec3& u : points) {
+    core::Vec3 g0, g1;
+    const core::Sample a = core::sample(field, u, &g0), b = core::sample(aproned, u, &g1);
+    ASSERT_EQ(std::memcmp(&a.distance, &b.distance, sizeof(float)), 0) << u.x << " " << u.y << " " << u.z;
+    ASSERT_EQ(a.exact, b.exact);
+    ASSERT_EQ(a.bound, b.bound);
+    ASSERT_EQ(std::memcmp(&g0, &g1, sizeof g0), 0)
+        << u.x << " " << u.y << " " << u.z << ": " << g0.x << " " << g0.y << " " << g0.z << " vs " << g1.x << " "
+        << g1.y << " " << g1.z << " d " << a.distance << " exact " << a.exact;
+    const float l0 = core::lower_bound(field, u), l1 = core::lower_bound(aproned, u);
+    ASSERT_EQ(std::memcmp(&l0, &l1, sizeof(float)), 0);
+    // How often a GPU's sample stays in one brick with and without the apron.
+    int base[3];
+    for (int k = 0; k < 3; ++k)
+      base[k] = std::min(int(std::clamp(u[k], 0.0f, float(field.dims[k] - 1))), std::max(field.dims[k] - 2, 0));
+    float v[8];
+    bool exact = true;
+    int32_t entry = 0;
+    if (core::apron_corners(aproned, base, v, exact, entry)) {
+      ++in_one_brick;
+      straddling += !core::brick_corners(field, base, v, exact, entry);
+    }
+  }
+  // The apron is what serves the samples that straddle a brick's face (a third of those in value bricks).
+  EXPECT_GT(straddling, in_one_brick / 5);
+}
+
 TEST(QueryCore, TheBlockWalkFindsTheRuntimesContactsInItsOrderAndItsWrenchBitForBit) {
   const BakedBunny& bunny = BakedBunny::get();
   const CollisionObject& object = *bunny.object;
@@ -287,11 +351,13 @@ TEST(QueryCore, TheBlockWalkFindsTheRuntimesContactsInItsOrderAndItsWrenchBitFor
   std::vector<std::pair<Pose, Pose>> poses;
   for (int k = 0; k < 60; ++k) poses.emplace_back(random_pose(rng, 0.0), random_pose(rng, k % 2 ? 0.05 : 0.14));
   const uint32_t capacity = 20000;
-  BlockBatch batch(object, poses, capacity);
+  // The runtime's bricks, and bricks with an apron (a GPU's): the same contacts either way.
+  BlockBatch plain(object, poses, capacity), with_apron(object, poses, capacity, true);
   QueryScratch scratch;
   size_t touching = 0, compared = 0;
   for (const double proximity : {0.0, 0.003})
     for (const bool gradient : {true, false}) {
+      BlockBatch& batch = gradient == (proximity > 0) ? with_apron : plain;
       batch.run(proximity, 2e4, gradient);
       QueryOptions options;
       options.proximity = proximity;

@@ -3,6 +3,7 @@
 #include "voxfmt/gpu/batch.h"
 
 #include <algorithm>
+#include <vector>
 
 #include "device.h"
 #include "traversal/eigen.h"
@@ -70,11 +71,16 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
     size_t bytes = 0;
     if (body.has_field) {
       const runtime::SparseVoxelmap& map = asset->voxelmap();
-      const size_t bricks = map.brick_count(), codes = map.value_brick_count() * size_t(core::kBrickVoxels);
+      const size_t bricks = map.brick_count();
+      // Value bricks with an apron: a sample's eight corners in one brick wherever the neighbours are stored.
+      const std::vector<int16_t> apron = core::apron_codes(body.field, map.value_brick_count());
+      const size_t codes = apron.size();
       size_t lattice = 1;
       for (int a = 0; a < 3; ++a) lattice *= size_t(body.field.lattice_dims[a]);
       body.field.bricks = d.upload(body.field.bricks, bricks, error);
-      body.field.codes = d.upload(body.field.codes, codes, error);
+      body.field.codes = d.upload(apron.data(), codes, error);
+      body.field.apron = true;
+      body.field.gather_safe = false;
       body.field.lattice = d.upload(body.field.lattice, lattice, error);
       bytes += bricks * sizeof(int32_t) + codes * sizeof(int16_t) + lattice * sizeof(uint16_t);
     }

@@ -74,6 +74,41 @@ core::Field field_of(const SparseVoxelmap& map) {
   return f;
 }
 
+namespace core {
+
+std::vector<int16_t> apron_codes(const Field& f, size_t value_bricks) {
+  std::vector<int16_t> out(value_bricks * kApronBrickCodes, 0);
+  for (int bz = 0; bz < f.brick_dims[2]; ++bz)
+    for (int by = 0; by < f.brick_dims[1]; ++by)
+      for (int bx = 0; bx < f.brick_dims[0]; ++bx) {
+        const int32_t entry = entry_of(f, bx * kEdge, by * kEdge, bz * kEdge);
+        if (entry < 0) continue;
+        int16_t* brick = &out[size_t(entry) * kApronBrickCodes];
+        // Neighbour (dx, dy, dz) is in the apron where it is a value brick of the grid.
+        int32_t neighbour[8];
+        int mask = 0;
+        for (int o = 1; o < 8; ++o) {
+          const int n[3] = {bx + (o & 1), by + ((o >> 1) & 1), bz + (o >> 2)};
+          const bool in_grid = n[0] < f.brick_dims[0] && n[1] < f.brick_dims[1] && n[2] < f.brick_dims[2];
+          neighbour[o] = in_grid ? entry_of(f, n[0] * kEdge, n[1] * kEdge, n[2] * kEdge) : -1;
+          if (neighbour[o] >= 0) mask |= 1 << o;
+        }
+        neighbour[0] = entry;
+        brick[kApronMask] = int16_t(mask);
+        for (int k = 0; k < kApronEdge; ++k)
+          for (int j = 0; j < kApronEdge; ++j)
+            for (int i = 0; i < kApronEdge; ++i) {
+              const int o = int(i == kEdge) | int(j == kEdge) << 1 | int(k == kEdge) << 2;
+              if (neighbour[o] < 0) continue;  // not in the mask: never read
+              const int local = ((k & (kEdge - 1)) * kEdge + (j & (kEdge - 1))) * kEdge + (i & (kEdge - 1));
+              brick[(k * kApronEdge + j) * kApronEdge + i] = f.codes[size_t(neighbour[o]) * kBrickVoxels + local];
+            }
+      }
+  return out;
+}
+
+}  // namespace core
+
 float SparseVoxelmap::value_at(int i, int j, int k) const {
   bool exact = true;
   return core::voxel_value(field_of(*this), i, j, k, exact);

@@ -17,11 +17,22 @@ constexpr int32_t kCoarseInside = -2;
 // distance (the distance is 1-Lipschitz); that sum is largest at a brick's centre: 4 sqrt(3) voxels (spec §3.3).
 constexpr float kInterpolationBound = 6.9282032f;
 
+// A value brick with an apron (Field::apron): its 8^3 codes and the first layer of its +x, +y and +z neighbours',
+// 9^3 in all, so that a trilinear sample's eight corners are in one brick; then a mask of which of the seven
+// neighbours' codes the apron holds (a coarse neighbour has none), padded to whole 16-byte rows.
+constexpr int kApronEdge = kEdge + 1;
+constexpr int kApronMask = kApronEdge * kApronEdge * kApronEdge;
+constexpr int kApronBrickCodes = 736;
+static_assert(kApronBrickCodes > kApronMask && kApronBrickCodes * 2 % 16 == 0, "the mask, then whole rows");
+
 /// A voxelmap as the runtime holds it: views of its arrays and how they are read (voxel units throughout).
 struct Field : FieldLayout {
   const int32_t* bricks = nullptr;    ///< brick table: >= 0 a value brick, -1 / -2 coarse outside / inside
-  const int16_t* codes = nullptr;     ///< value bricks, kBrickVoxels codes each
+  const int16_t* codes = nullptr;     ///< value bricks, kBrickVoxels codes each (kApronBrickCodes with an apron)
   const uint16_t* lattice = nullptr;  ///< unsigned distances at the lattice points, in steps of lattice_step
+  /// The value bricks carry an apron (apron_codes): what a GPU holds, where one table read and eight loads in one
+  /// brick serve every sample whose neighbours are stored. The runtime's own bricks have none.
+  bool apron = false;
 };
 
 VOXFMT_HD int lattice_coordinate(const Field& f, int a, int axis) { return min_i(a * kEdge, f.dims[axis] - 1); }
@@ -103,6 +114,10 @@ VOXFMT_HD float lattice_at(const Field& f, const Vec3& u, Vec3* gradient) {
 
 /// Where voxel (i, j, k) of value brick `entry` keeps its code.
 VOXFMT_HD const int16_t* code_of(const Field& f, int i, int j, int k, int32_t entry) {
+  if (f.apron) {
+    const int local = ((k & (kEdge - 1)) * kApronEdge + (j & (kEdge - 1))) * kApronEdge + (i & (kEdge - 1));
+    return &f.codes[size_t(entry) * kApronBrickCodes + size_t(local)];
+  }
   const int local = ((k & (kEdge - 1)) * kEdge + (j & (kEdge - 1))) * kEdge + (i & (kEdge - 1));
   return &f.codes[size_t(entry) * kBrickVoxels + size_t(local)];
 }
@@ -150,7 +165,42 @@ VOXFMT_HD float bounds_distance(const Field& f, const Vec3& u) {
 /// The 8 corner values of the cell at `base` when they lie in one value brick (one table entry, two cache lines
 /// near the surface): true, and `exact` whether all are stored. False where the cell is not in one brick, or the
 /// brick is coarse (`entry` then says which).
+VOXFMT_HD bool brick_corners(const Field& f, const int base[3], float v[8], bool& exact, int32_t& entry);
+
+/// brick_corners for bricks with an apron: the cell is in one brick wherever its base voxel is, unless it reaches
+/// into a neighbour the apron has no codes of.
+VOXFMT_HD bool apron_corners(const Field& f, const int base[3], float v[8], bool& exact, int32_t& entry) {
+  // The neighbours the cell reaches (bit x | y << 1 | z << 2 of the offset): every nonzero offset within them must
+  // be in the apron's mask.
+  const int reach = int((base[0] & (kEdge - 1)) == kEdge - 1) | int((base[1] & (kEdge - 1)) == kEdge - 1) << 1 |
+                    int((base[2] & (kEdge - 1)) == kEdge - 1) << 2;
+  const bool flat = f.dims[0] < 2 || f.dims[1] < 2 || f.dims[2] < 2;
+  entry = flat ? 0 : entry_of(f, base[0], base[1], base[2]);
+  if (flat) return false;
+  if (entry < 0) {
+    // As brick_corners: a cell across bricks goes corner by corner (entry 0) even from a coarse brick.
+    if (reach != 0) entry = 0;
+    return false;
+  }
+  const int16_t* brick = &f.codes[size_t(entry) * kApronBrickCodes];
+  constexpr uint8_t kWithin[8] = {0x00, 0x02, 0x04, 0x0e, 0x10, 0x32, 0x54, 0xfe};  // nonzero subsets of each
+  if ((kWithin[reach] & ~int(uint16_t(brick[kApronMask]))) != 0) return false;
+  const int local =
+      ((base[2] & (kEdge - 1)) * kApronEdge + (base[1] & (kEdge - 1))) * kApronEdge + (base[0] & (kEdge - 1));
+  constexpr int kRow = kApronEdge, kPlane = kApronEdge * kApronEdge;
+  const int offset[8] = {0, 1, kRow, kRow + 1, kPlane, kPlane + 1, kPlane + kRow, kPlane + kRow + 1};
+  int flags = 1;
+  for (int corner = 0; corner < 8; ++corner) {
+    const int value = brick[local + offset[corner]];
+    flags &= value;
+    v[corner] = float(value >> 1) * f.decode_step[value & 1];
+  }
+  exact = flags != 0;
+  return true;
+}
+
 VOXFMT_HD bool brick_corners(const Field& f, const int base[3], float v[8], bool& exact, int32_t& entry) {
+  if (f.apron) return apron_corners(f, base, v, exact, entry);
   const bool in_one_brick = (base[0] & (kEdge - 1)) < kEdge - 1 && (base[1] & (kEdge - 1)) < kEdge - 1 &&
                             (base[2] & (kEdge - 1)) < kEdge - 1 && f.dims[0] > 1 && f.dims[1] > 1 && f.dims[2] > 1;
   entry = in_one_brick ? entry_of(f, base[0], base[1], base[2]) : 0;
@@ -362,9 +412,16 @@ inline void lower_bounds(const Field& f, const Vec3* points, size_t n, float* ou
 }  // namespace voxfmt::runtime::core
 
 #if !defined(__CUDACC__)
+#include <vector>
+
 namespace voxfmt::runtime {
 class SparseVoxelmap;
 /// The core's view of a runtime voxelmap (sparse_voxelmap.cpp): pointers into it, valid while it lives.
 core::Field field_of(const SparseVoxelmap& map);
+namespace core {
+/// `field`'s value bricks with an apron (kApronBrickCodes codes each, in the brick table's order): for a Field
+/// whose `codes` point there and whose `apron` is set, every lookup gives the same values, bit for bit.
+std::vector<int16_t> apron_codes(const Field& field, size_t value_bricks);
+}  // namespace core
 }  // namespace voxfmt::runtime
 #endif
