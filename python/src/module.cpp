@@ -16,7 +16,6 @@
 #include <Eigen/LU>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -33,7 +32,6 @@
 #include <vector>
 
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/report.h"
 #include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -288,7 +286,61 @@ std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrenc
 
 using BatchDict = nb::typed<nb::dict, nb::str, nb::any>;
 
-// With a tracker: the poses in order on one thread, each query coherent with the one before (a trajectory).
+// K poses as the row-major 4x4 matrices a batch reads.
+std::vector<double> matrices_of(const std::vector<Pose>& poses) {
+  std::vector<double> m;
+  m.reserve(16 * poses.size());
+  for (const Pose& p : poses) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) m.push_back(p.rotation(r, c));
+      m.push_back(p.translation[r]);
+    }
+    for (const double x : {0.0, 0.0, 0.0, 1.0}) m.push_back(x);
+  }
+  return m;
+}
+
+// Each worker's contacts, in the order it found them, and where each environment's are: concatenated in pose
+// order afterwards, whichever worker ran them.
+struct FoundContacts {
+  std::vector<std::vector<runtime::Contact>> by_worker;
+  std::vector<std::pair<unsigned, size_t>> first;  // per pose: (worker, index of its first contact there)
+};
+
+// contacts_batch's ragged outputs: offsets (K + 1) and the contacts' fields, in pose order.
+void add_contact_arrays(BatchDict& out, const FoundContacts& found, const OutArray<int64_t>& count, size_t k) {
+  size_t total = 0;
+  for (size_t i = 0; i < k; ++i) total += size_t(count.data[i]);
+  OutArray<int64_t> offsets({k + 1});
+  OutArray<double> points({total, 3}), normals({total, 3}), depths({total});
+  OutArray<uint32_t> index({total});
+  OutArray<bool> of_b({total});
+  offsets.data[0] = 0;
+  size_t at = 0;
+  for (size_t i = 0; i < k; ++i) {
+    offsets.data[i + 1] = offsets.data[i] + count.data[i];
+    const auto& [worker, first] = found.first[i];
+    for (size_t n = 0; n < size_t(count.data[i]); ++n, ++at) {
+      const runtime::Contact& c = found.by_worker[worker][first + n];
+      for (int j = 0; j < 3; ++j) {
+        points.data[3 * at + j] = c.point[j];
+        normals.data[3 * at + j] = c.normal[j];
+      }
+      depths.data[at] = c.depth;
+      index.data[at] = c.point_index;
+      of_b.data[at] = c.point_of_b;
+    }
+  }
+  out["offsets"] = offsets.array;
+  out["points"] = points.array;
+  out["normals"] = normals.array;
+  out["depths"] = depths.array;
+  out["point_index"] = index.array;
+  out["point_of_b"] = of_b.array;
+}
+
+// K pose pairs through runtime::BatchScene's worker loop. With a tracker: in order on one thread, each query
+// coherent with the one before (a trajectory).
 BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
                          std::optional<int64_t> threads, bool with_contacts, double stiffness,
                          std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
@@ -300,91 +352,60 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   const InArray first_a = as_float64(poses_a, "poses_a");
   const size_t k_a = first_a.ndim() == 3 ? first_a.shape(0) : 0;
   std::vector<Pose> pa = parse_poses(poses_a, "poses_a", 0);
-  std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k_a);
-  if (k_a == 0 && pb.size() != pa.size()) {
-    const Pose only = pa.front();
-    pa.assign(pb.size(), only);
-  }
+  const std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k_a);
+  if (k_a == 0 && pb.size() != pa.size()) pa.assign(pb.size(), pa.front());
   const size_t k = pb.size();
+  const std::vector<double> ma = matrices_of(pa), mb = matrices_of(pb);
+  runtime::BatchEnvironments in;
+  in.count = k;
+  in.poses_a_f64 = ma.data();
+  in.poses_b_f64 = mb.data();
+  in.proximity = options.proximity;
+  Result<runtime::BatchScene> scene = runtime::BatchScene::create({a.object, b.object}, {{0u, 1u}});
+  if (!scene) throw CodedError(scene.error());
 
   OutArray<int64_t> count({k});
   OutArray<double> max_depth({k});
   OutArray<double> force({k, 3});
   OutArray<double> torque({k, 3});
-  const size_t hardware = voxfmt::usable_cores();
-  const size_t workers = tracker ? 1 : std::max<size_t>(1, std::min<size_t>(threads ? size_t(*threads) : hardware, k));
-  std::unique_lock<std::mutex> tracker_lock;
-  if (tracker) tracker_lock = std::unique_lock<std::mutex>(tracker->busy);
-  constexpr size_t kChunk = 16;
-  std::atomic<size_t> next{0};
-  // Contacts per chunk of poses: concatenated in chunk order they are in pose order, whichever thread ran them.
-  std::vector<std::vector<runtime::Contact>> found(with_contacts ? (k + kChunk - 1) / kChunk : 0);
-  std::vector<std::exception_ptr> errors(workers);
-
-  auto work = [&](size_t w) {
-    try {
-      ContactSet set;
-      runtime::QueryScratch scratch;
-      // Chunks taken in turn, not a fixed half each: poses differ in cost (touching or apart), and a fixed split
-      // left one thread idle while the other finished its half (1.48x on 2 threads).
-      for (size_t i = next.fetch_add(kChunk); i < k; i = (i + 1) % kChunk == 0 ? next.fetch_add(kChunk) : i + 1) {
-        set.clear();
-        if (tracker)
-          runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, tracker->scratch, tracker->state);
-        else
-          runtime::query_contacts(*a.object, pa[i], *b.object, pb[i], options, set, scratch);
-        const runtime::Wrench wr = runtime::penalty_wrench(set, pa[i].apply(a.object->center_of_mass()), stiffness);
-        count.data[i] = int64_t(set.contacts.size());
-        max_depth.data[i] = deepest_depth(set);
-        for (int j = 0; j < 3; ++j) {
-          force.data[3 * i + j] = wr.force[j];
-          torque.data[3 * i + j] = wr.torque[j];
-        }
-        if (with_contacts) found[i / kChunk].insert(found[i / kChunk].end(), set.contacts.begin(), set.contacts.end());
-      }
-    } catch (...) {
-      errors[w] = std::current_exception();
+  const unsigned workers = runtime::BatchScene::workers(k, threads ? unsigned(*threads) : 0u);
+  FoundContacts found;
+  found.by_worker.resize(workers);
+  found.first.resize(with_contacts ? k : 0);
+  auto visit = [&](const runtime::BatchScene::Visit& v) {
+    const size_t i = v.environment;
+    const runtime::Wrench w = runtime::penalty_wrench(v.contacts, v.reference, stiffness);
+    count.data[i] = int64_t(v.contacts.contacts.size());
+    max_depth.data[i] = deepest_depth(v.contacts);
+    for (int j = 0; j < 3; ++j) {
+      force.data[3 * i + j] = w.force[j];
+      torque.data[3 * i + j] = w.torque[j];
     }
+    if (!with_contacts) return;
+    std::vector<runtime::Contact>& mine = found.by_worker[v.worker];
+    found.first[i] = {v.worker, mine.size()};
+    mine.insert(mine.end(), v.contacts.contacts.begin(), v.contacts.contacts.end());
   };
+  std::unique_lock<std::mutex> tracker_lock;
+  std::optional<runtime::BatchScene::Trajectory> trajectory;
+  if (tracker) {
+    tracker_lock = std::unique_lock<std::mutex>(tracker->busy);
+    trajectory.emplace(runtime::BatchScene::Trajectory{tracker->scratch, tracker->state});
+  }
+  Status done = Status::success();
   {
     nb::gil_scoped_release release;
-    voxfmt::run_workers(unsigned(workers), work);
+    done = scene.value().each_environment(in, options, threads ? unsigned(*threads) : 0u, visit,
+                                          trajectory ? &*trajectory : nullptr);
   }
-  for (const std::exception_ptr& e : errors)
-    if (e) std::rethrow_exception(e);
+  if (!done) throw CodedError(done.error());
 
   BatchDict out;
   out["count"] = count.array;
   out["max_depth"] = max_depth.array;
   out["force"] = force.array;
   out["torque"] = torque.array;
-  if (with_contacts) {
-    size_t total = 0;
-    for (const auto& f : found) total += f.size();
-    OutArray<int64_t> offsets({k + 1});
-    OutArray<double> points({total, 3}), normals({total, 3}), depths({total});
-    OutArray<uint32_t> index({total});
-    OutArray<bool> of_b({total});
-    size_t at = 0;
-    for (size_t i = 0; i < k; ++i) offsets.data[i + 1] = offsets.data[i] + count.data[i];
-    for (const auto& f : found)
-      for (const runtime::Contact& c : f) {
-        for (int j = 0; j < 3; ++j) {
-          points.data[3 * at + j] = c.point[j];
-          normals.data[3 * at + j] = c.normal[j];
-        }
-        depths.data[at] = c.depth;
-        index.data[at] = c.point_index;
-        of_b.data[at] = c.point_of_b;
-        ++at;
-      }
-    out["offsets"] = offsets.array;
-    out["points"] = points.array;
-    out["normals"] = normals.array;
-    out["depths"] = depths.array;
-    out["point_index"] = index.array;
-    out["point_of_b"] = of_b.array;
-  }
+  if (with_contacts) add_contact_arrays(out, found, count, k);
   return out;
 }
 

@@ -1,6 +1,7 @@
 // runtime::BatchScene against the runtime's own query, environment by environment, on exact spheres made in code.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -121,6 +122,63 @@ TEST(BatchScene, EveryEnvironmentIsTheRuntimesQueryReduced) {
   }
   EXPECT_GT(touching, kEnvs / 4) << "too few environments touch: the test no longer compares contacts";
   EXPECT_GT(overflowing, 10u) << "no environment overflows its buffer: the test no longer checks overflow";
+}
+
+TEST(BatchScene, EachEnvironmentIsVisitedOnceWithTheQueryItsOptionsAndTrajectoryGive) {
+  const auto big = sphere(0.1, 0.01, 2000), small = sphere(0.05, 0.005, 800);
+  auto scene = BatchScene::create({big, small}, {{0, 1}});
+  ASSERT_TRUE(scene) << scene.error().describe();
+  constexpr size_t kEnvs = 300;
+  std::mt19937 rng(9);
+  std::vector<float> pa(16 * kEnvs), pb(16 * kEnvs);
+  for (size_t e = 0; e < kEnvs; ++e) {
+    random_pose(rng, 0.0, &pa[16 * e]);
+    random_pose(rng, 0.15, &pb[16 * e]);
+  }
+  BatchEnvironments in;
+  in.count = kEnvs;
+  in.poses_a = pa.data();
+  in.poses_b = pb.data();
+  in.proximity = 0.002;
+  QueryOptions cut;  // a cut level: options reach every query
+  cut.max_level = 2;
+  cut.cut_level = CutLevel::Points;
+  QueryScratch scratch;
+  auto expect_runtime = [&](const BatchScene::Visit& v, const QueryOptions& options) {
+    ContactSet set;
+    QueryOptions o = options;
+    o.proximity = in.proximity;
+    query_contacts(*big, pose_of(&pa[16 * v.environment]), *small, pose_of(&pb[16 * v.environment]), o, set, scratch);
+    ASSERT_EQ(v.contacts.contacts.size(), set.contacts.size()) << v.environment;
+    for (size_t i = 0; i < set.contacts.size(); ++i) {
+      EXPECT_EQ(v.contacts.contacts[i].point_index, set.contacts[i].point_index);
+      EXPECT_EQ(v.contacts.contacts[i].depth, set.contacts[i].depth);
+    }
+  };
+  std::vector<int> visits(kEnvs, 0);
+  size_t touching = 0;
+  ASSERT_TRUE(scene.value().each_environment(in, cut, 2, [&](const BatchScene::Visit& v) {
+    ++visits[v.environment];
+    EXPECT_EQ(v.error, 0);
+    EXPECT_LT(v.worker, BatchScene::workers(kEnvs, 2));
+    touching += !v.contacts.contacts.empty();
+  }));
+  EXPECT_EQ(std::count(visits.begin(), visits.end(), 1), int(kEnvs));
+  EXPECT_GT(touching, 30u);
+  // One thread, so the check may query here; with the cut, and then as a trajectory (in order, coherent).
+  ASSERT_TRUE(scene.value().each_environment(in, cut, 1, [&](const BatchScene::Visit& v) { expect_runtime(v, cut); }));
+  QueryScratch trajectory_scratch;
+  QueryState state;
+  const BatchScene::Trajectory trajectory{trajectory_scratch, state};
+  size_t next = 0;
+  ASSERT_TRUE(scene.value().each_environment(
+      in, QueryOptions{}, 4,
+      [&](const BatchScene::Visit& v) {
+        EXPECT_EQ(v.environment, next++);  // in order, whatever `threads` says
+        expect_runtime(v, QueryOptions{});
+      },
+      &trajectory));
+  EXPECT_EQ(next, kEnvs);
 }
 
 TEST(BatchScene, OneThreadOrSeveralDoublesOrFloatsTheSameAnswers) {

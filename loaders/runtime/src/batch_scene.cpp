@@ -83,12 +83,12 @@ void write_error(const BatchOutputs& out, size_t e, int32_t code) {
 Status check_batch(const BatchEnvironments& in, const BatchOutputs& out) {
   auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "batch: " + what}; };
   if (!out.count) return bad("the count output is required");
-  const bool f32 = in.poses_a && in.poses_b, f64 = in.poses_a_f64 && in.poses_b_f64;
-  if (in.count > 0 && f32 == f64) return bad("poses_a and poses_b: both float or both double, one of the two");
-  if (!(std::isfinite(in.proximity) && in.proximity >= 0)) return bad("proximity must be finite and >= 0");
   if (!(std::isfinite(in.stiffness) && in.stiffness >= 0)) return bad("stiffness must be finite and >= 0");
   return Status::success();
 }
+
+// Environments are taken in chunks, in turn: they differ in cost (touching or apart).
+constexpr size_t kChunk = 16;
 
 }  // namespace
 
@@ -109,49 +109,69 @@ Result<BatchScene> BatchScene::create(std::vector<std::shared_ptr<const Collisio
   return scene;
 }
 
-Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads) const {
-  if (const Status checked = check_batch(in, out); !checked) return checked;
-  QueryOptions options;
-  options.direction = QueryDirection::Auto;
-  options.normal_source = NormalSource::DistanceGradient;
-  options.proximity = in.proximity;
-  // Chunks taken in turn, not a fixed share each: environments differ in cost (touching or apart).
-  constexpr size_t kChunk = 16;
+unsigned BatchScene::workers(size_t environments, unsigned threads) {
+  const size_t chunks = (environments + kChunk - 1) / kChunk;
+  return unsigned(std::max<size_t>(1, std::min<size_t>(threads ? threads : usable_cores(), chunks)));
+}
+
+Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOptions& options, unsigned threads,
+                                    const std::function<void(const Visit&)>& visit,
+                                    const Trajectory* trajectory) const {
+  auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "batch: " + what}; };
+  const bool f32 = in.poses_a && in.poses_b, f64 = in.poses_a_f64 && in.poses_b_f64;
+  if (in.count > 0 && f32 == f64) return bad("poses_a and poses_b: both float or both double, one of the two");
+  if (!(std::isfinite(in.proximity) && in.proximity >= 0)) return bad("proximity must be finite and >= 0");
+  QueryOptions query = options;
+  query.proximity = in.proximity;
   std::atomic<size_t> next{0};
   std::atomic<bool> out_of_memory{false};
-  auto work = [&](unsigned) {
+  auto work = [&](unsigned worker) {
     try {
       ContactSet set;
-      QueryScratch scratch;
+      QueryScratch own;
+      QueryScratch& scratch = trajectory ? trajectory->scratch : own;
       for (size_t begin = next.fetch_add(kChunk); begin < in.count; begin = next.fetch_add(kChunk))
         for (size_t e = begin; e < std::min(begin + kChunk, in.count); ++e) {
+          set.clear();
           const int32_t pair = in.pair ? in.pair[e] : 0;
-          if (pair < 0 || size_t(pair) >= pairs_.size()) {
-            write_error(out, e, core::kEnvPairOutOfRange);
-            continue;
-          }
           Pose pa, pb;
-          if (const int32_t problem = read_poses(in, e, pa, pb)) {
-            write_error(out, e, problem);
+          int32_t error = pair < 0 || size_t(pair) >= pairs_.size() ? core::kEnvPairOutOfRange : 0;
+          if (error == 0) error = read_poses(in, e, pa, pb);
+          if (error != 0) {
+            visit({worker, e, error, set, Eigen::Vector3d::Zero()});
             continue;
           }
           const CollisionObject& a = *objects_[pairs_[size_t(pair)][0]];
           const CollisionObject& b = *objects_[pairs_[size_t(pair)][1]];
-          set.clear();
-          query_contacts(a, pa, b, pb, options, set, scratch);
-          write_environment(set, pa.apply(a.center_of_mass()), in, out, e);
-          if (out.error) out.error[e] = 0;
+          if (trajectory)
+            query_contacts(a, pa, b, pb, query, set, scratch, trajectory->state);
+          else
+            query_contacts(a, pa, b, pb, query, set, scratch);
+          visit({worker, e, 0, set, pa.apply(a.center_of_mass())});
         }
     } catch (const std::bad_alloc&) {
       out_of_memory = true;
       next = in.count;  // the other workers stop at their next chunk
     }
   };
-  const size_t chunks = (in.count + kChunk - 1) / kChunk;
-  const size_t workers = std::max<size_t>(1, std::min<size_t>(threads ? threads : usable_cores(), chunks));
-  run_workers(unsigned(workers), work);
+  run_workers(trajectory ? 1u : workers(in.count, threads), work);
   if (out_of_memory) return Error{IssueCode::OutOfMemory, "batch: out of memory while querying"};
   return Status::success();
+}
+
+Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads) const {
+  if (const Status checked = check_batch(in, out); !checked) return checked;
+  QueryOptions options;
+  options.direction = QueryDirection::Auto;
+  options.normal_source = NormalSource::DistanceGradient;
+  return each_environment(in, options, threads, [&](const Visit& v) {
+    if (v.error != 0) {
+      write_error(out, v.environment, v.error);
+      return;
+    }
+    write_environment(v.contacts, v.reference, in, out, v.environment);
+    if (out.error) out.error[v.environment] = 0;
+  });
 }
 
 }  // namespace voxfmt::runtime

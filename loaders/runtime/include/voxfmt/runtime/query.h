@@ -7,6 +7,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <vector>
@@ -262,6 +263,28 @@ class BatchScene {
   /// written) without a `count` output, without poses for a non-empty batch, or for a proximity or stiffness that
   /// is negative or not finite; a bad environment is its `error`, the others are still answered.
   Status contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads = 0) const;
+
+  /// One environment's query, handed to each_environment's visitor on the worker that ran it.
+  struct Visit {
+    unsigned worker;     ///< 0 .. workers(...) - 1: one visit at a time per worker
+    size_t environment;  ///< its index in the batch
+    int32_t error;       ///< 0, or why it has no result (as BatchOutputs::error; `contacts` is then empty)
+    const ContactSet& contacts;
+    Eigen::Vector3d reference;  ///< A's centre of mass in the world (the wrench's reference)
+  };
+  /// A trajectory: the environments in order on one worker, each query coherent with the one before (a pair's
+  /// QueryState and the scratch it was built with).
+  struct Trajectory {
+    QueryScratch& scratch;
+    QueryState& state;
+  };
+  /// The worker loop under contacts(): every environment queried with `options` (any QueryOptions: a cut, a
+  /// budget, a direction) on workers(in.count, threads) workers, its contacts handed to `visit`. BAD_OPTION for
+  /// poses missing or both kinds given, OUT_OF_MEMORY if a worker ran out.
+  Status each_environment(const BatchEnvironments& in, const QueryOptions& options, unsigned threads,
+                          const std::function<void(const Visit&)>& visit, const Trajectory* trajectory = nullptr) const;
+  /// How many workers each_environment runs for `environments` on `threads` (0: every usable core).
+  static unsigned workers(size_t environments, unsigned threads);
 
  private:
   std::vector<std::shared_ptr<const CollisionObject>> objects_;
