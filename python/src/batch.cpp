@@ -117,8 +117,10 @@ nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std
 }
 
 #if defined(VOXFMT_WITH_CUDA)
-template <class T, class... Dims>
-using CudaArray = nb::ndarray<T, nb::device::cuda, nb::c_contig, Dims...>;
+template <class T>
+T* pointer(uintptr_t address) {
+  return reinterpret_cast<T*>(address);
+}
 
 // Assets on the device, uploaded once; a call queues one kernel on the caller's stream and returns.
 struct DeviceScene {
@@ -139,51 +141,39 @@ struct DeviceScene {
     scene = uploaded.value();
   }
 
-  void run(CudaArray<const float, nb::shape<-1, 4, 4>> poses_a, CudaArray<const float, nb::shape<-1, 4, 4>> poses_b,
-           std::optional<CudaArray<const int32_t, nb::ndim<1>>> pair, double proximity, double stiffness,
-           CudaArray<int32_t, nb::ndim<1>> count, CudaArray<float, nb::ndim<1>> max_depth,
-           CudaArray<float, nb::shape<-1, 3>> force, CudaArray<float, nb::shape<-1, 3>> torque,
-           CudaArray<int32_t, nb::ndim<1>> overflow, CudaArray<int32_t, nb::ndim<1>> error, int64_t max_contacts,
-           std::optional<CudaArray<float, nb::ndim<3>>> points, std::optional<CudaArray<float, nb::ndim<3>>> normals,
-           std::optional<CudaArray<float, nb::ndim<2>>> depths, std::optional<CudaArray<int32_t, nb::ndim<2>>> index,
-           std::optional<CudaArray<uint8_t, nb::ndim<2>>> of_b, uintptr_t stream) const {
-    const size_t envs = poses_a.shape(0);
-    if (poses_b.shape(0) != envs || count.shape(0) != envs || max_depth.shape(0) != envs || force.shape(0) != envs ||
-        torque.shape(0) != envs || overflow.shape(0) != envs || error.shape(0) != envs ||
-        (pair && pair->shape(0) != envs))
-      fail(IssueCode::BadOption, "every input and output of a batch holds one row per environment");
+  // Device pointers, as the arrays' __cuda_array_interface__ gives them: batch.py has checked every array's dtype,
+  // shape, layout and device there (nanobind reads DLPack, which arrays that only show that interface lack).
+  void run(size_t envs, uintptr_t poses_a, uintptr_t poses_b, uintptr_t pair, double proximity, double stiffness,
+           uintptr_t count, uintptr_t max_depth, uintptr_t force, uintptr_t torque, uintptr_t overflow, uintptr_t error,
+           int64_t max_contacts, uintptr_t points, uintptr_t normals, uintptr_t depths, uintptr_t index, uintptr_t of_b,
+           uintptr_t stream) const {
+    if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
+      fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
+    if (envs > 0 && (!poses_a || !poses_b || !count || !max_depth || !force || !torque || !overflow || !error))
+      fail(IssueCode::BadOption, "a batch needs both poses and every per-environment output");
+    if (envs > 0 && max_contacts > 0 && (!points || !normals || !depths || !index || !of_b))
+      fail(IssueCode::BadOption, "max_contacts > 0 needs every contact output");
     gpu::Environments in;
     in.count = envs;
-    in.poses_a = poses_a.data();
-    in.poses_b = poses_b.data();
-    in.pair = pair ? pair->data() : nullptr;
+    in.poses_a = pointer<const float>(poses_a);
+    in.poses_b = pointer<const float>(poses_b);
+    in.pair = pointer<const int32_t>(pair);
     in.proximity = proximity;
     in.stiffness = stiffness;
     gpu::Outputs out;
-    out.count = count.data();
-    out.max_depth = max_depth.data();
-    out.force = force.data();
-    out.torque = torque.data();
-    out.overflow = overflow.data();
-    out.error = error.data();
+    out.count = pointer<int32_t>(count);
+    out.max_depth = pointer<float>(max_depth);
+    out.force = pointer<float>(force);
+    out.torque = pointer<float>(torque);
+    out.overflow = pointer<int32_t>(overflow);
+    out.error = pointer<int32_t>(error);
     out.max_contacts = uint32_t(max_contacts);
-    if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
-      fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
     if (max_contacts > 0) {
-      if (!points || !normals || !depths || !index || !of_b)
-        fail(IssueCode::BadOption, "max_contacts > 0 needs every contact output");
-      // The kernel writes envs x max_contacts rows: a shorter buffer would be written past its end.
-      const size_t k = size_t(max_contacts);
-      const bool fits = points->shape(0) == envs && points->shape(1) == k && points->shape(2) == 3 &&
-                        normals->shape(0) == envs && normals->shape(1) == k && normals->shape(2) == 3 &&
-                        depths->shape(0) == envs && depths->shape(1) == k && index->shape(0) == envs &&
-                        index->shape(1) == k && of_b->shape(0) == envs && of_b->shape(1) == k;
-      if (!fits) fail(IssueCode::BadOption, "the contact outputs must be (E, max_contacts[, 3]) arrays");
-      out.points = points->data();
-      out.normals = normals->data();
-      out.depths = depths->data();
-      out.point_index = index->data();
-      out.point_of_b = of_b->data();
+      out.points = pointer<float>(points);
+      out.normals = pointer<float>(normals);
+      out.depths = pointer<float>(depths);
+      out.point_index = pointer<int32_t>(index);
+      out.point_of_b = pointer<uint8_t>(of_b);
     }
     const Status launched = scene->contacts(in, out, reinterpret_cast<void*>(stream));
     if (!launched) throw CodedError(launched.error());
@@ -260,13 +250,9 @@ void bind_batch(nb::module_& m) {
            "pairs"_a)
       .def_prop_ro("device_bytes", [](const DeviceScene& s) { return s.scene->device_bytes(); })
       .def("asset_device_bytes", [](const DeviceScene& s, size_t i) { return s.scene->asset_device_bytes(i); })
-      // noconvert: the kernel reads and writes the caller's arrays, never a converted copy of them.
-      .def("run", &DeviceScene::run, "poses_a"_a.noconvert(), "poses_b"_a.noconvert(),
-           "pair_index"_a.noconvert().none(), "proximity"_a, "stiffness"_a, "count"_a.noconvert(),
-           "max_depth"_a.noconvert(), "force"_a.noconvert(), "torque"_a.noconvert(), "overflow"_a.noconvert(),
-           "error"_a.noconvert(), "max_contacts"_a, "points"_a.noconvert().none(), "normals"_a.noconvert().none(),
-           "depths"_a.noconvert().none(), "point_index"_a.noconvert().none(), "point_of_b"_a.noconvert().none(),
-           "stream"_a);
+      .def("run", &DeviceScene::run, "envs"_a, "poses_a"_a, "poses_b"_a, "pair_index"_a, "proximity"_a, "stiffness"_a,
+           "count"_a, "max_depth"_a, "force"_a, "torque"_a, "overflow"_a, "error"_a, "max_contacts"_a, "points"_a,
+           "normals"_a, "depths"_a, "point_index"_a, "point_of_b"_a, "stream"_a);
 #else
   m.def("_cuda_status", [] { return std::make_pair(false, std::string("this build of voxfmt has no CUDA support")); });
 #endif

@@ -133,9 +133,10 @@ class FakeCudaArray:
     """What a CUDA array shows of itself (__cuda_array_interface__ v3), for the checks that run before any device is
     touched: they need no GPU."""
 
-    def __init__(self, shape: tuple[int, ...], dtype: str, strides: tuple[int, ...] | None = None) -> None:
+    def __init__(self, shape: tuple[int, ...], dtype: str, strides: tuple[int, ...] | None = None,
+                 address: int = 0) -> None:
         self.shape = shape
-        self.__cuda_array_interface__ = {"shape": shape, "typestr": np.dtype(dtype).str, "data": (0, False),
+        self.__cuda_array_interface__ = {"shape": shape, "typestr": np.dtype(dtype).str, "data": (address, False),
                                          "version": 3, "strides": strides}
 
 
@@ -188,3 +189,38 @@ def test_a_well_formed_cuda_call_without_a_device_says_so(sphere: voxfmt.Body) -
     with pytest.raises(voxfmt.InternalError, match="no CUDA device"):
         scene.contacts(poses, poses, max_contacts=2, out=cuda_outputs(8, 2))
     assert voxfmt.cuda_status() is voxfmt.cuda_status()  # asked once per process
+
+
+class RecordingDeviceScene:
+    """Stands in for the compiled device scene: records what a launch would be given."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[object, ...]] = []
+
+    def run(self, *args: object) -> None:
+        self.calls.append(args)
+
+
+@pytest.mark.parametrize("k", [0, 3])
+def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
+        sphere: voxfmt.Body, k: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every array by the address its __cuda_array_interface__ gives (nothing converted, nothing copied), in the
+    # order the device scene takes them; no device needed: the launch is recorded, not made.
+    from voxfmt import batch
+
+    monkeypatch.setattr(batch, "cuda_status", lambda: (True, "a recorded device"))
+    scene = voxfmt.BatchScene([sphere])
+    recorder = RecordingDeviceScene()
+    scene._device_scenes[0] = recorder
+    names = [name for name, _, _ in batch._output_specs(8, k)]
+    outputs = voxfmt.BatchResult(**{name: FakeCudaArray(shape, dtype, address=0x1000 * (n + 1))
+                                    for n, (name, dtype, shape) in enumerate(batch._output_specs(8, k))})
+    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa0000)
+    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb0000)
+    pairs = FakeCudaArray((8,), "int32", address=0xc0000)
+    assert scene.contacts(poses_a, poses_b, pairs, stiffness=5.0, proximity=0.25, max_contacts=k, out=outputs,
+                          stream=77, check=False) is outputs
+    (args,) = recorder.calls
+    expected_outputs = [0x1000 * (n + 1) for n in range(len(names))]
+    contacts = expected_outputs[6:] or [0] * 5
+    assert args == (8, 0xa0000, 0xb0000, 0xc0000, 0.25, 5.0, *expected_outputs[:6], k, *contacts, 77)

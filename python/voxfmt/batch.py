@@ -91,6 +91,11 @@ def _cuda_interface(name: str, array: Any) -> dict[str, Any]:
     return dict(interface)
 
 
+def _pointer(name: str, array: Any) -> int:
+    """The device address of a checked CUDA array (0 for None): what the kernel reads and writes."""
+    return 0 if array is None else int(_cuda_interface(name, array)["data"][0])
+
+
 def _check_cuda_array(name: str, array: Any, dtype: str, shape: tuple[int, ...], device: int) -> None:
     """A coded error (OptionError) unless `array` is a C-contiguous CUDA array of `dtype` and `shape` on `device`:
     the kernel reads and writes the caller's memory itself, never a converted copy."""
@@ -253,10 +258,11 @@ class BatchScene:
                 out = BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in _output_specs(envs, k)})
             if stream is None:
                 stream = _stream_of(poses_a)
+            outputs = [_pointer(f"out.{name}", getattr(out, name)) for name, _, _ in _output_specs(envs, k)]
+            per_env, contacts = outputs[:6], outputs[6:] or [0] * 5
             self._device_scene(device).run(
-                poses_a, poses_b, pair_index, float(proximity), float(stiffness), out.count, out.max_depth, out.force,
-                out.torque, out.overflow, out.error, k, out.points, out.normals, out.depths, out.point_index,
-                out.point_of_b, int(stream))
+                envs, _pointer("poses_a", poses_a), _pointer("poses_b", poses_b), _pointer("pair_index", pair_index),
+                float(proximity), float(stiffness), *per_env, k, *contacts, int(stream))
         return out
 
 
