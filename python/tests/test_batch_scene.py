@@ -224,3 +224,11 @@ def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
     expected_outputs = [0x1000 * (n + 1) for n in range(len(names))]
     contacts = expected_outputs[6:] or [0] * 5
     assert args == (8, 0xa0000, 0xb0000, 0xc0000, 0.25, 5.0, *expected_outputs[:6], k, *contacts, 77)
+
+
+def test_new_outputs_are_refused_for_arrays_no_framework_allocates(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    with pytest.raises(voxfmt.OptionError, match="use PyTorch or CuPy, or pass out="):
+        scene.new_outputs(FakeCudaArray((8, 4, 4), "float32"), 4)
+    with pytest.raises(voxfmt.OptionError, match="expected a CUDA array"):
+        scene.new_outputs(np.zeros((8, 4, 4), np.float32))

@@ -197,6 +197,22 @@ class BatchScene:
             scene = self._device_scenes[device] = _DeviceScene(self.bodies, self.pairs)
         return scene
 
+    def new_outputs(self, poses: Any, max_contacts: int = 0) -> BatchResult:
+        """Output arrays for contacts(..., out=) on CUDA poses (E, 4, 4): allocated by the poses' framework (PyTorch
+        or CuPy) on their device, for E environments and `max_contacts` contacts each. What a CUDA graph is
+        captured with (examples/gpu/cuda_graph.py)."""
+        envs = int(_cuda_interface("poses", poses)["shape"][0])
+        fw = _framework(poses)
+        if fw.__name__ == "torch":
+            def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                return fw.empty(shape, dtype=getattr(fw, dtype), device=poses.device)
+        else:
+            def empty(shape: tuple[int, ...], dtype: str) -> Any:
+                with fw.cuda.Device(_device_index(poses)):
+                    return fw.empty(shape, dtype=dtype)
+        specs = _output_specs(envs, int(max_contacts))
+        return BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in specs})
+
     def contacts(
         self,
         poses_a: Any,
@@ -248,14 +264,7 @@ class BatchScene:
             raise InternalError("INTERNAL", f"CUDA poses, but no CUDA device can be used: {why}")
         with _current_device(poses_a, device):
             if out is None:
-                fw = _framework(poses_a)
-                if fw.__name__ == "torch":
-                    def empty(shape: tuple[int, ...], dtype: str) -> Any:
-                        return fw.empty(shape, dtype=getattr(fw, dtype), device=poses_a.device)
-                else:
-                    def empty(shape: tuple[int, ...], dtype: str) -> Any:
-                        return fw.empty(shape, dtype=dtype)
-                out = BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in _output_specs(envs, k)})
+                out = self.new_outputs(poses_a, k)
             if stream is None:
                 stream = _stream_of(poses_a)
             outputs = [_pointer(f"out.{name}", getattr(out, name)) for name, _, _ in _output_specs(envs, k)]

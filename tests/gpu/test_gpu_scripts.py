@@ -1,6 +1,6 @@
 """The GPU batch's scripts run end to end on the CPU (CI has no GPU): bench/gpu_batch.py --prepare, the device
-check's flow (scripts/gpu/check.py on voxfmt's CPU path, which runs the kernel's code), --report, and the
-parallel-probes example. On a GPU machine scripts/gpu-check.sh runs the same check on the device."""
+check's flow (scripts/gpu/check.py on voxfmt's CPU path, which runs the kernel's code), --report, the
+parallel-probes example, and the CUDA-graph example (which needs a device, and says so without one). On a GPU machine scripts/gpu-check.sh runs the same check on the device."""
 
 from __future__ import annotations
 
@@ -44,3 +44,12 @@ def test_parallel_probes_press_into_the_bunny(tmp_path: Path) -> None:
     touching = int(out.split("touching at the end: ")[1].split(" of ")[0])
     assert touching > 100, out
     assert "errors 0" in out, out
+
+
+def test_the_cuda_graph_example_replays_what_direct_calls_give(tmp_path: Path) -> None:
+    # With a device and PyTorch: every replay of the captured call equals a direct call. Without (CI): it says why.
+    out = run("examples/gpu/cuda_graph.py", "--envs", "256", "--steps", "20", "--bunny", str(MESHES / "bunny00.off"),
+              "--cache", str(tmp_path))
+    if "no CUDA graph without a CUDA device" in out:
+        return
+    assert "replays equal to direct calls: 20 of 20" in out, out
