@@ -5,8 +5,12 @@ built (bench/gpu_batch.py --prepare), against the CPU's results on the same pose
   python3 scripts/gpu/check.py --input out/gpu-input/gpu-batch-input.npz --library LIB.so --json OUT.json
   python3 scripts/gpu/check.py --input ... --backend cpu --json OUT.json   # the same flow on voxfmt's CPU path
 
-Reports (JSON): device, poses/s over environments from 1 to 1 M, per-call latency p50/p99 (host clock, launch to
-results) at 1, 64, 1024, 4096 and 16384 environments, device memory of the asset, and agreement with the CPU.
+Reports (JSON): device, poses/s over environments from 1 to 1 M, per-call latency p50/p99 at 1, 64, 1024, 4096 and
+16384 environments (host clock, launch to results, beside the kernel's own time by CUDA events), the device memory
+the asset's upload took (measured: the device's free memory before and after), and agreement with the CPU: every
+output of every environment (counts, deepest penetration, force, torque, overflow, error codes and the first
+max_contacts contacts: points, normals, depths, point indices, sides), touching (proximity 0) and near (1 mm),
+compared for equality.
 """
 
 from __future__ import annotations
@@ -24,16 +28,29 @@ LATENCY_ENVS = [1, 64, 1024, 4096, 16384]
 THROUGHPUT_ENVS = [1, 16, 256, 4096, 16384, 65536, 262144, 1048576]
 
 
+PER_ENV = ("count", "max_depth", "force", "torque", "overflow", "error")
+CONTACTS = ("points", "normals", "depths", "point_index", "point_of_b")
+
+
 def agreement(ref: dict[str, np.ndarray], got: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Per pose: the same count, deepest penetration within 1e-6 m, wrench within 1e-5 of its size."""
-    count_same = ref["count"] == got["count"]
-    depth_same = np.abs(ref["max_depth"] - got["max_depth"]) <= 1e-6
-    scale = 1 + np.abs(ref["force"]).max(axis=1)
-    force_same = np.abs(ref["force"] - got["force"]).max(axis=1) <= 1e-5 * scale
-    identical = count_same & depth_same & force_same
-    return {"poses": int(len(identical)), "identical": int(identical.sum()), "count_differs": int((~count_same).sum()),
-            "max_depth_err_m": float(np.abs(ref["max_depth"] - got["max_depth"]).max()),
-            "errors": int((got["error"] != 0).sum())}
+    """Per environment: every output equal to the CPU's (a contact row only where the environment has one)."""
+    n = len(ref["count"])
+    same = np.ones(n, dtype=bool)
+    differs: dict[str, dict[str, float]] = {}
+    for name in PER_ENV + (CONTACTS if "points" in ref else ()):
+        a, b = np.asarray(ref[name]), np.asarray(got[name])
+        equal = a == b
+        if name in CONTACTS:  # rows past an environment's contacts are not written
+            kept = np.minimum(ref["count"], a.shape[1])
+            written = np.arange(a.shape[1])[None, :] < kept[:, None]
+            equal |= ~(written.reshape(written.shape + (1,) * (a.ndim - 2)))
+        per_env = equal.reshape(n, -1).all(axis=1)
+        same &= per_env
+        if not per_env.all():
+            gap = np.abs(a.astype(np.float64) - b.astype(np.float64))[~per_env].max()
+            differs[name] = {"environments": int((~per_env).sum()), "max_abs_difference": float(gap)}
+    return {"environments": n, "identical": int(same.sum()), "differs": differs,
+            "errors": int((np.asarray(got["error"]) != 0).sum())}
 
 
 class CudaBackend:
@@ -45,38 +62,51 @@ class CudaBackend:
         self.cp = cupy
         self.lib = ctypes.CDLL(library)
         self.lib.voxfmt_gpu_check_run.restype = ctypes.c_int
+        cupy.cuda.Device().synchronize()
+        free_before = cupy.cuda.runtime.memGetInfo()[0]
         self.d = {k: cupy.asarray(data[k]) for k in ("bricks", "codes", "lattice", "nodes", "points", "normals")}
+        cupy.cuda.Device().synchronize()
+        self.device_bytes = int(free_before - cupy.cuda.runtime.memGetInfo()[0])  # measured, pool rounding and all
+        self.array_bytes = int(sum(a.nbytes for a in self.d.values()))
         self.host = {k: np.ascontiguousarray(data[k]) for k in ("field_floats", "field_dims", "body_doubles")}
         self.count = int(data["points"].shape[0])
         self.levels = int(data["levels"])
         self.device = cupy.cuda.runtime.getDeviceProperties(cupy.cuda.runtime.getDevice())["name"].decode()
-        self.device_bytes = int(sum(a.nbytes for a in self.d.values()))
 
     def upload(self, poses: np.ndarray) -> Any:
         return self.cp.asarray(poses)
 
-    def run(self, pa: Any, pb: Any, stiffness: float) -> Callable[[], dict[str, np.ndarray]]:
+    def run(self, pa: Any, pb: Any, stiffness: float, proximity: float = 0.0, k: int = 0,
+            timed: bool = False) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
         cp, n = self.cp, pa.shape[0]
         out = {"count": cp.empty(n, cp.int32), "max_depth": cp.empty(n, cp.float32), "force": cp.empty((n, 3), cp.float32),
                "torque": cp.empty((n, 3), cp.float32), "overflow": cp.empty(n, cp.int32), "error": cp.empty(n, cp.int32)}
+        if k:
+            out |= {"points": cp.empty((n, k, 3), cp.float32), "normals": cp.empty((n, k, 3), cp.float32),
+                    "depths": cp.empty((n, k), cp.float32), "point_index": cp.empty((n, k), cp.int32),
+                    "point_of_b": cp.empty((n, k), cp.uint8)}
         text = ctypes.create_string_buffer(512)
         ptr = lambda a: ctypes.c_void_p(a.data.ptr)  # noqa: E731
+        maybe = lambda name: ptr(out[name]) if k else ctypes.c_void_p(0)  # noqa: E731
         hptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+        kernel_ms = ctypes.c_float(0.0)
         status = self.lib.voxfmt_gpu_check_run(
             ptr(self.d["bricks"]), ptr(self.d["codes"]), ptr(self.d["lattice"]), hptr(self.host["field_floats"]),
             hptr(self.host["field_dims"]), ptr(self.d["nodes"]), ptr(self.d["points"]), ptr(self.d["normals"]),
             hptr(self.host["body_doubles"]), ctypes.c_uint32(self.count), ctypes.c_uint32(self.levels), ptr(pa), ptr(pb),
-            ctypes.c_size_t(n), ctypes.c_double(0.0), ctypes.c_double(stiffness), ptr(out["count"]),
+            ctypes.c_size_t(n), ctypes.c_double(proximity), ctypes.c_double(stiffness), ptr(out["count"]),
             ptr(out["max_depth"]), ptr(out["force"]), ptr(out["torque"]), ptr(out["overflow"]), ptr(out["error"]),
+            ctypes.c_uint32(k), maybe("points"), maybe("normals"), maybe("depths"), maybe("point_index"),
+            maybe("point_of_b"), ctypes.byref(kernel_ms) if timed else None,
             ctypes.c_size_t(cp.cuda.get_current_stream().ptr), text, ctypes.c_size_t(512))
         if status != 0:
             raise RuntimeError(text.value.decode())
 
         def fetch() -> dict[str, np.ndarray]:
             cp.cuda.get_current_stream().synchronize()
-            return {k: cp.asnumpy(v) for k, v in out.items()}
+            return {name: cp.asnumpy(v) for name, v in out.items()}
 
-        return fetch
+        return fetch, (float(kernel_ms.value) if timed else None)
 
     def sync(self) -> None:
         self.cp.cuda.get_current_stream().synchronize()
@@ -90,14 +120,15 @@ class CpuBackend:
 
         self.scene = voxfmt.BatchScene([voxfmt.load(asset)])
         self.device = "cpu (voxfmt.BatchScene)"
-        self.device_bytes = 0
+        self.device_bytes = self.array_bytes = 0
 
     def upload(self, poses: np.ndarray) -> np.ndarray:
         return poses
 
-    def run(self, pa: np.ndarray, pb: np.ndarray, stiffness: float) -> Callable[[], dict[str, np.ndarray]]:
-        r = self.scene.contacts(pa, pb, stiffness=stiffness, check=False)
-        return lambda: {k: getattr(r, k) for k in ("count", "max_depth", "force", "torque", "overflow", "error")}
+    def run(self, pa: np.ndarray, pb: np.ndarray, stiffness: float, proximity: float = 0.0, k: int = 0,
+            timed: bool = False) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
+        r = self.scene.contacts(pa, pb, stiffness=stiffness, proximity=proximity, max_contacts=k, check=False)
+        return (lambda: {name: getattr(r, name) for name in PER_ENV + (CONTACTS if k else ())}), None
 
     def sync(self) -> None:
         pass
@@ -119,33 +150,45 @@ def main() -> int:
     parser.add_argument("--json", required=True)
     args = parser.parse_args()
     data = dict(np.load(args.input))
-    stiffness = float(data["stiffness"])
+    stiffness, k = float(data["stiffness"]), int(data["max_contacts"])
     backend = CudaBackend(args.library, data) if args.backend == "cuda" else CpuBackend(args.asset)
     pa_all, pb_all = data["poses_a"], data["poses_b"]
-    k = len(pa_all)
+    count = len(pa_all)
 
-    # Agreement on every pose of the bench.
-    got = backend.run(backend.upload(pa_all), backend.upload(pb_all), stiffness)()
-    ref = {name: data["cpu_" + name] for name in ("count", "max_depth", "force", "torque")}
+    # Agreement on every pose of the bench, touching and near, every output.
     report: dict[str, Any] = {"device": backend.device, "device_memory_mb": backend.device_bytes / 1e6,
-                              "agreement": agreement(ref, got), "latency": [], "throughput": []}
-    # Latency: host clock from the launch to results in host memory.
+                              "device_array_mb": backend.array_bytes / 1e6, "agreement": {}, "latency": [],
+                              "throughput": []}
+    pa, pb = backend.upload(pa_all), backend.upload(pb_all)
+    for case in ("touching", "near"):
+        proximity = float(data[f"{case}_proximity"])
+        got = backend.run(pa, pb, stiffness, proximity, k)[0]()
+        ref = {name: data[f"{case}_{name}"] for name in PER_ENV + CONTACTS}
+        report["agreement"][case] = agreement(ref, got) | {"proximity_m": proximity, "max_contacts": k}
+    # Latency: host clock from the launch to results in host memory; the kernel's time by CUDA events.
     for envs in [e for e in LATENCY_ENVS if e <= args.max_envs]:
-        pa, pb = backend.upload(pa_all[:envs] if envs <= k else np.resize(pa_all, (envs, 4, 4))), \
-            backend.upload(pb_all[:envs] if envs <= k else np.resize(pb_all, (envs, 4, 4)))
-        samples = []
+        pa, pb = backend.upload(pa_all[:envs] if envs <= count else np.resize(pa_all, (envs, 4, 4))), \
+            backend.upload(pb_all[:envs] if envs <= count else np.resize(pb_all, (envs, 4, 4)))
+        samples, kernel = [], []
         for rep in range(args.reps + 3):
             start = time.perf_counter()
-            backend.run(pa, pb, stiffness)()
+            backend.run(pa, pb, stiffness)[0]()
             if rep >= 3:  # the first calls warm the device and the caches
                 samples.append(time.perf_counter() - start)
+                kernel_ms = backend.run(pa, pb, stiffness, timed=True)[1]
+                if kernel_ms is not None:
+                    kernel.append(kernel_ms * 1e-3)
         p50, p99 = percentiles_us(samples)
-        report["latency"].append({"envs": envs, "p50_us": p50, "p99_us": p99})
-        print(f"latency {envs:>7} envs: p50 {p50:9.1f} us  p99 {p99:9.1f} us", flush=True)
+        row = {"envs": envs, "p50_us": p50, "p99_us": p99}
+        if kernel:
+            row["kernel_p50_us"], row["kernel_p99_us"] = percentiles_us(kernel)
+        report["latency"].append(row)
+        print(f"latency {envs:>7} envs: p50 {p50:9.1f} us  p99 {p99:9.1f} us"
+              + (f"  kernel p50 {row['kernel_p50_us']:9.1f} us" if kernel else ""), flush=True)
     # Throughput: poses per second at growing batch sizes (the bench's poses, repeated).
     for envs in [e for e in THROUGHPUT_ENVS if e <= args.max_envs]:
         pa, pb = backend.upload(np.resize(pa_all, (envs, 4, 4))), backend.upload(np.resize(pb_all, (envs, 4, 4)))
-        backend.run(pa, pb, stiffness)()
+        backend.run(pa, pb, stiffness)[0]()
         reps = max(3, min(50, int(2e6 // envs)))
         start = time.perf_counter()
         for _ in range(reps):

@@ -13,15 +13,18 @@ namespace core = voxfmt::runtime::core;
 
 extern "C" {
 
-/// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers; the numbers
-/// (field_floats 17, field_dims 9, body_doubles 8, as _export_core gives them): host. Returns 0, or -1 with the
-/// reason in `error_text`.
+/// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers (the contact
+/// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 17,
+/// field_dims 9, body_doubles 8, as _export_core gives them): host. With `kernel_ms` (host), the kernel's time by
+/// CUDA events around the launch, waited for. Returns 0, or -1 with the reason in `error_text`.
 int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint16_t* lattice,
                          const float* field_floats, const int32_t* field_dims, const void* nodes, const float* points,
                          const float* normals, const double* body_doubles, uint32_t count, uint32_t levels,
                          const float* poses_a, const float* poses_b, size_t envs, double proximity, double stiffness,
                          int32_t* out_count, float* max_depth, float* force, float* torque, int32_t* overflow,
-                         int32_t* error, uintptr_t stream, char* error_text, size_t error_size) {
+                         int32_t* error, uint32_t max_contacts, float* contact_points, float* contact_normals,
+                         float* contact_depths, int32_t* point_index, uint8_t* point_of_b, float* kernel_ms,
+                         uintptr_t stream, char* error_text, size_t error_size) {
   static core::Body* device_body = nullptr;
   static uint32_t* device_pair = nullptr;
   core::Body b;
@@ -84,6 +87,7 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
     out.torque = torque;
     out.overflow = overflow;
     out.error = error;
+    out.contacts = {contact_points, contact_normals, contact_depths, point_index, point_of_b, max_contacts};
     // The frontier's size from the tree (read back once per tree) and the grid's from the device.
     static const void* sized_for = nullptr;
     static uint32_t capacity = 1;
@@ -99,8 +103,17 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
       sized_for = nodes;
     }
     if (resident == 0 && failure.empty()) resident = voxfmt::gpu::device::resident_blocks(failure);
-    if (failure.empty())
-      failure = voxfmt::gpu::device::launch(in, out, resident, capacity, reinterpret_cast<void*>(stream));
+    static cudaEvent_t begin = nullptr, end = nullptr;
+    if (kernel_ms && !begin && (cudaEventCreate(&begin) != cudaSuccess || cudaEventCreate(&end) != cudaSuccess))
+      failure = "cannot create the timing events";
+    const cudaStream_t s = reinterpret_cast<cudaStream_t>(stream);
+    if (failure.empty() && kernel_ms) cudaEventRecord(begin, s);
+    if (failure.empty()) failure = voxfmt::gpu::device::launch(in, out, resident, capacity, s);
+    if (failure.empty() && kernel_ms) {
+      cudaEventRecord(end, s);
+      if (cudaEventSynchronize(end) != cudaSuccess || cudaEventElapsedTime(kernel_ms, begin, end) != cudaSuccess)
+        failure = "cannot time the kernel";
+    }
   }
   if (failure.empty()) return 0;
   std::strncpy(error_text, failure.c_str(), error_size - 1);

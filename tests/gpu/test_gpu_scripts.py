@@ -28,8 +28,9 @@ def test_prepare_check_and_report_agree(tmp_path: Path) -> None:
     run("scripts/gpu/check.py", "--input", str(folder / "gpu-batch-input.npz"), "--backend", "cpu", "--asset",
         cpu["asset"], "--max-envs", "64", "--reps", "3", "--json", str(tmp_path / "device.json"))
     device = json.loads((tmp_path / "device.json").read_text())
-    assert device["agreement"] == {"poses": 600, "identical": 600, "count_differs": 0, "max_depth_err_m": 0.0,
-                                   "errors": 0}
+    for case, proximity in (("touching", 0.0), ("near", 1e-3)):
+        assert device["agreement"][case] == {"environments": 600, "identical": 600, "differs": {}, "errors": 0,
+                                             "proximity_m": proximity, "max_contacts": 8}, case
     assert [r["envs"] for r in device["latency"]] == [1, 64]
     run("bench/gpu_batch.py", "--report", str(tmp_path / "device.json"), "--input", str(folder), "--json",
         str(tmp_path / "result.json"))
@@ -53,3 +54,25 @@ def test_the_cuda_graph_example_replays_what_direct_calls_give(tmp_path: Path) -
     if "no CUDA graph without a CUDA device" in out:
         return
     assert "replays equal to direct calls: 20 of 20" in out, out
+
+
+def test_the_device_checks_agreement_finds_any_differing_output() -> None:
+    sys.path.insert(0, str(REPO / "scripts/gpu"))
+    import numpy as np
+    from check import agreement
+
+    rng = np.random.default_rng(0)
+    ref = {"count": np.array([3, 0, 12], np.int32), "max_depth": rng.random(3, np.float32),
+           "force": rng.random((3, 3), np.float32), "torque": rng.random((3, 3), np.float32),
+           "overflow": np.array([0, 0, 4], np.int32), "error": np.zeros(3, np.int32),
+           "points": rng.random((3, 8, 3), np.float32), "normals": rng.random((3, 8, 3), np.float32),
+           "depths": rng.random((3, 8), np.float32), "point_index": rng.integers(0, 99, (3, 8), np.int32),
+           "point_of_b": rng.integers(0, 2, (3, 8), np.uint8)}
+    got = {k: v.copy() for k, v in ref.items()}
+    got["points"][1, 5] = 7.0  # past environment 1's contacts (it has none): not compared
+    assert agreement(ref, got)["identical"] == 3
+    got["depths"][0, 2] = np.nextafter(got["depths"][0, 2], np.float32(1))  # one ulp, in a written row
+    got["torque"][2, 1] += 1e-3
+    result = agreement(ref, got)
+    assert result["identical"] == 1 and set(result["differs"]) == {"depths", "torque"}, result
+    assert result["differs"]["depths"]["environments"] == 1
