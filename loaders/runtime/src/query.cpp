@@ -61,13 +61,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   const core::Frame frame =
       core::frame_of(core::to_core(shell_pose), core::to_core(field_pose), origin, map.voxel_size(), options.proximity);
   const double metres_per_unit = frame.metres_per_unit;
-  const float proximity = frame.proximity;
-  const float radius_scale = frame.radius_scale;
   const double sign = shell_is_b ? -1.0 : 1.0;
-  Eigen::Matrix3f Mf;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) Mf(r, c) = frame.to_grid.M[3 * r + c];
-  const Eigen::Vector3f mf = core::to_eigen(frame.to_grid.m);
 
   // Normals as the batched core computes them (one definition: core::contact_normal).
   const core::Field core_field = field_of(map);
@@ -90,13 +84,14 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   };
   const VoxelmapTarget target{core_field, gradient_normals};
   const bool allowed = front && detail::coherent_query_allowed(options);
-  if (allowed && front->state().take_turn(Mf, mf, tree.extent)) {
-    // The voxelmap is fixed in its own grid: displacements are measured there too.
-    detail::traverse_coherent(tree, Mf, mf, Mf, mf, radius_scale, proximity, target, out.stats, scratch.buffers(),
-                              front->state(), emit);
+  // The voxelmap is fixed in its own grid: displacements are measured there too.
+  const Eigen::Matrix3f M = core::to_eigen(frame.to_grid);
+  const Eigen::Vector3f m = core::to_eigen(frame.to_grid.m);
+  if (allowed && front->state().take_turn(M, m, tree.extent)) {
+    detail::traverse_coherent(tree, frame, M, m, target, out.stats, scratch.buffers(), front->state(), emit);
   } else {
     if (front && !allowed) front->reset();
-    detail::traverse_tree(tree, Mf, mf, radius_scale, proximity, target, options, out.stats, scratch.buffers(), emit);
+    detail::traverse_tree(tree, frame, target, options, out.stats, scratch.buffers(), emit);
   }
 }
 

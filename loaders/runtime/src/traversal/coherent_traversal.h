@@ -85,9 +85,9 @@ namespace detail {
 /// anchor pose (Mr, mr against the front's) cannot have brought it within `proximity`, and re-examined otherwise —
 /// a pruned subtree is traversed again from its node, a point looked up again. The points closer than `proximity`
 /// are those a traversal from the root finds (its pruning only skips points whose lower bound is beyond reach),
-/// reported in increasing node order as it reports them. (M, m) maps the shell into the target's frame for
-/// lookups; (Mr, mr) into the frame in which the target is fixed, for displacements (the same for a voxelmap; the
-/// partner's frame for a function given in world coordinates).
+/// reported in increasing node order as it reports them. The frame maps the shell into the target's frame for
+/// lookups; (Mr, mr) into the frame in which the target is fixed, for displacements (the frame's own map for a
+/// voxelmap; the partner's frame for a function given in world coordinates).
 template <class Target, class Emit>
 class CoherentTraversal {
  public:
@@ -99,19 +99,19 @@ class CoherentTraversal {
   // quantisation). Bounds of the true distance (a subtree's, a point's lower bound) fall as fast as it moves.
   static constexpr float kSampledSlope = 1.7321f * 1.001f;
 
-  CoherentTraversal(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m,
-                    const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float radius_scale, float proximity,
-                    const Target& target, QueryStats& stats, QueryScratch::Buffers& b, Front& front, Emit& emit)
+  CoherentTraversal(const PointTree& tree, const core::Frame& frame, const Eigen::Matrix3f& Mr,
+                    const Eigen::Vector3f& mr, const Target& target, QueryStats& stats, QueryScratch::Buffers& b,
+                    Front& front, Emit& emit)
       : tree_(tree),
         nodes_(tree.nodes.data()),
         points_(tree.points.data()),
-        M_(M),
-        m_(m),
-        to_target_(core::to_core(M, m)),
+        M_(core::to_eigen(frame.to_grid)),
+        m_(core::to_eigen(frame.to_grid.m)),
+        to_target_(frame.to_grid),
         Mr_(Mr),
         mr_(mr),
-        radius_scale_(radius_scale),
-        proximity_(proximity),
+        radius_scale_(frame.radius_scale),
+        proximity_(frame.proximity),
         target_(target),
         stats_(stats),
         b_(b),
@@ -325,8 +325,8 @@ class CoherentTraversal {
   const PointTree& tree_;
   const PointTree::Node* nodes_;
   const Eigen::Vector3f* points_;
-  const Eigen::Matrix3f& M_;
-  const Eigen::Vector3f& m_;
+  const Eigen::Matrix3f M_;
+  const Eigen::Vector3f m_;
   const core::Affine to_target_;
   const Eigen::Matrix3f& Mr_;
   const Eigen::Vector3f& mr_;
@@ -343,12 +343,10 @@ class CoherentTraversal {
 };
 
 template <class Target, class Emit>
-void traverse_coherent(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m,
-                       const Eigen::Matrix3f& Mr, const Eigen::Vector3f& mr, float radius_scale, float proximity,
-                       const Target& target, QueryStats& stats, QueryScratch::Buffers& buffers,
-                       TraversalFront::State& front, Emit&& emit) {
-  CoherentTraversal<Target, std::remove_reference_t<Emit>>(tree, M, m, Mr, mr, radius_scale, proximity, target, stats,
-                                                           buffers, front, emit)
+void traverse_coherent(const PointTree& tree, const core::Frame& frame, const Eigen::Matrix3f& Mr,
+                       const Eigen::Vector3f& mr, const Target& target, QueryStats& stats,
+                       QueryScratch::Buffers& buffers, TraversalFront::State& front, Emit&& emit) {
+  CoherentTraversal<Target, std::remove_reference_t<Emit>>(tree, frame, Mr, mr, target, stats, buffers, front, emit)
       .run();
 }
 

@@ -23,6 +23,24 @@ inline Affine to_core(const Eigen::Matrix3f& M, const Eigen::Vector3f& m) {
   return a;
 }
 
+/// The map's matrix as Eigen's.
+inline Eigen::Matrix3f to_eigen(const Affine& a) {
+  Eigen::Matrix3f M;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) M(r, c) = a.M[3 * r + c];
+  return M;
+}
+
+/// A traversal's frame from a map u = M x + m into a target whose lengths are the shell's times `radius_scale`
+/// (an analytic partner's: metres).
+inline Frame frame_from(const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale, float proximity) {
+  Frame f;
+  f.to_grid = to_core(M, m);
+  f.radius_scale = radius_scale;
+  f.proximity = proximity;
+  return f;
+}
+
 /// The runtime's tree as the core's plain arrays: the same memory.
 inline Shell shell_of(const PointTree& tree) {
   static_assert(sizeof(Eigen::Vector3f) == sizeof(Vec3), "points and normals are read as the core's Vec3");

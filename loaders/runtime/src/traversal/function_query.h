@@ -98,8 +98,8 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   const Eigen::Vector3f m = pose.translation.cast<float>();
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  detail::traverse_tree(tree, M, m, float(pose.scale), float(options.proximity), target, options, out.stats,
-                        scratch.buffers(), detail::function_contacts(tree, pose, distance, options, out));
+  detail::traverse_tree(tree, core::frame_from(M, m, float(pose.scale), float(options.proximity)), target, options,
+                        out.stats, scratch.buffers(), detail::function_contacts(tree, pose, distance, options, out));
 }
 
 template <class SignedDistance, class LowerBound>
@@ -123,8 +123,8 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   }
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  detail::traverse_coherent(tree, M, m, Mr, mr, float(pose.scale), float(options.proximity), target, out.stats,
-                            scratch.buffers(), front.state(),
+  detail::traverse_coherent(tree, core::frame_from(M, m, float(pose.scale), float(options.proximity)), Mr, mr, target,
+                            out.stats, scratch.buffers(), front.state(),
                             detail::function_contacts(tree, pose, distance, options, out));
 }
 

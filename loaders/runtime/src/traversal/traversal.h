@@ -7,7 +7,8 @@
 // A target supplies `lower_bound(u)` (never above the true signed distance), `sample(u, hit)` (the distance, whether
 // it is exact and, where the target computes one with it, its gradient: a contact's normal then needs no second
 // sample), both in its units, and `kBoundBeforeDistance` (whether a point's bound is worth testing before its
-// distance). The shell is mapped into the target by u = M x + m; its lengths scale by `radius_scale`. The emitter
+// distance). The shell is mapped into the target by the query core's frame (core::Frame: u = M x + m, lengths times
+// `radius_scale`, the proximity in the target's units), the one the batch's walks take too. The emitter
 // takes each reported hit.
 #pragma once
 
@@ -126,15 +127,14 @@ class LevelTraversal {
   using Hit = Buffers::Hit;
   static constexpr size_t kBatch = 32;
 
-  LevelTraversal(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
-                 float proximity, const Target& target, const WalkLimits& limits, QueryStats& stats, Buffers& b,
-                 Emit& emit)
+  LevelTraversal(const PointTree& tree, const core::Frame& frame, const Target& target, const WalkLimits& limits,
+                 QueryStats& stats, Buffers& b, Emit& emit)
       : tree_(tree),
         nodes_(tree.nodes.data()),
         points_(tree.points.data()),
-        to_target_(core::to_core(M, m)),
-        radius_scale_(radius_scale),
-        proximity_(proximity),
+        to_target_(frame.to_grid),
+        radius_scale_(frame.radius_scale),
+        proximity_(frame.proximity),
         target_(target),
         limits_(limits),
         stats_(stats),
@@ -394,13 +394,10 @@ class LevelTraversal {
 };
 
 template <class Target, class Emit>
-void traverse_tree(const PointTree& tree, const Eigen::Matrix3f& M, const Eigen::Vector3f& m, float radius_scale,
-                   float proximity, const Target& target, const QueryOptions& options, QueryStats& stats,
-                   QueryScratch::Buffers& buffers, Emit&& emit) {
+void traverse_tree(const PointTree& tree, const core::Frame& frame, const Target& target, const QueryOptions& options,
+                   QueryStats& stats, QueryScratch::Buffers& buffers, Emit&& emit) {
   const WalkLimits limits = WalkLimits::of(options);
-  LevelTraversal<Target, std::remove_reference_t<Emit>>(tree, M, m, radius_scale, proximity, target, limits, stats,
-                                                        buffers, emit)
-      .run();
+  LevelTraversal<Target, std::remove_reference_t<Emit>>(tree, frame, target, limits, stats, buffers, emit).run();
 }
 
 /// Whether a query can use (and keep) a traversal front: full traversals only.
