@@ -128,11 +128,7 @@ struct DeviceScene {
   std::vector<std::shared_ptr<const runtime::CollisionObject>> keep;
 
   DeviceScene(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs) {
-    (void)scene_of(bodies, pairs);  // the same checks as the CPU path, and the walk's depth
-    for (const Body* b : bodies)
-      if (b->object->point_tree().level_count() > core::kMaxWalkLevels)
-        fail(IssueCode::BadOption, b->path + ": its tree has more levels than the batch takes (" +
-                                       std::to_string(core::kMaxWalkLevels) + ")");
+    (void)scene_of(bodies, pairs);  // the same checks as the CPU path
     std::vector<gpu::Scene::Pair> p;
     for (const auto& [a, b] : pairs) p.push_back({uint32_t(a), uint32_t(b)});
     for (const Body* b : bodies) keep.push_back(b->object);

@@ -27,7 +27,7 @@ __all__ = ["BatchScene", "BatchResult", "cuda_status"]
 
 # Why an environment has no result (the `error` output).
 _ENV_ERRORS = {
-    1: "its tree is deeper than the batch takes",
+    1: "its tree is deeper than the depth-first walk takes (48 levels; the device walks level by level)",
     2: "a pose has a non-finite entry",
     3: "a pose's last row is not 0 0 0 1",
     4: "a pose's rotation part is not orthonormal (|R^T R - I| > 1e-6)",

@@ -29,6 +29,35 @@ struct Scene::Device {
     if (p) allocations.push_back(p);
     return static_cast<T*>(p);
   }
+
+  // Uploads `asset`'s arrays, pointing `body` at them, and widens the frontier for its tree; the bytes taken.
+  size_t upload_body(const runtime::CollisionObject& asset, core::Body& body, std::string& error) {
+    size_t bytes = 0;
+    if (body.has_field) {
+      const runtime::SparseVoxelmap& map = asset.voxelmap();
+      const size_t bricks = map.brick_count();
+      // Value bricks with an apron: a sample's eight corners in one brick wherever the neighbours are stored.
+      const std::vector<int16_t> apron = core::apron_codes(body.field, map.value_brick_count());
+      size_t lattice = 1;
+      for (int a = 0; a < 3; ++a) lattice *= size_t(body.field.lattice_dims[a]);
+      body.field.bricks = upload(body.field.bricks, bricks, error);
+      body.field.codes = upload(apron.data(), apron.size(), error);
+      body.field.apron = true;
+      body.field.gather_safe = false;
+      body.field.lattice = upload(body.field.lattice, lattice, error);
+      bytes += bricks * sizeof(int32_t) + apron.size() * sizeof(int16_t) + lattice * sizeof(uint16_t);
+    }
+    if (body.has_shell) {
+      const core::Shell* shell = &body.shell;
+      frontier_capacity = std::max(frontier_capacity, core::frontier_capacity(&shell, 1));
+      const size_t n = body.shell.count;
+      body.shell.nodes = upload(body.shell.nodes, n, error);
+      body.shell.points = upload(body.shell.points, n, error);
+      body.shell.normals = upload(body.shell.normals, n, error);
+      bytes += n * (sizeof(core::Node) + 2 * sizeof(core::Vec3));
+    }
+    return bytes;
+  }
 };
 
 bool available(std::string* why) {
@@ -59,38 +88,8 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
   std::string error;
   for (const auto& asset : assets) {
     if (!asset) return Error{IssueCode::BadOption, "a scene's asset is null"};
-    if (asset->point_tree().level_count() > core::kMaxWalkLevels)
-      return Error{IssueCode::BadOption, "an asset's tree has " + std::to_string(asset->point_tree().level_count()) +
-                                             " levels, more than the device walk's " +
-                                             std::to_string(core::kMaxWalkLevels)};
-    core::Body body = core::body_of(*asset);  // host pointers, replaced by device ones below
-    if (body.has_shell) {
-      const core::Shell* shell = &body.shell;
-      d.frontier_capacity = std::max(d.frontier_capacity, core::frontier_capacity(&shell, 1));
-    }
-    size_t bytes = 0;
-    if (body.has_field) {
-      const runtime::SparseVoxelmap& map = asset->voxelmap();
-      const size_t bricks = map.brick_count();
-      // Value bricks with an apron: a sample's eight corners in one brick wherever the neighbours are stored.
-      const std::vector<int16_t> apron = core::apron_codes(body.field, map.value_brick_count());
-      const size_t codes = apron.size();
-      size_t lattice = 1;
-      for (int a = 0; a < 3; ++a) lattice *= size_t(body.field.lattice_dims[a]);
-      body.field.bricks = d.upload(body.field.bricks, bricks, error);
-      body.field.codes = d.upload(apron.data(), codes, error);
-      body.field.apron = true;
-      body.field.gather_safe = false;
-      body.field.lattice = d.upload(body.field.lattice, lattice, error);
-      bytes += bricks * sizeof(int32_t) + codes * sizeof(int16_t) + lattice * sizeof(uint16_t);
-    }
-    if (body.has_shell) {
-      const size_t n = body.shell.count;
-      body.shell.nodes = d.upload(body.shell.nodes, n, error);
-      body.shell.points = d.upload(body.shell.points, n, error);
-      body.shell.normals = d.upload(body.shell.normals, n, error);
-      bytes += n * (sizeof(core::Node) + 2 * sizeof(core::Vec3));
-    }
+    core::Body body = core::body_of(*asset);  // host pointers, replaced by device ones
+    const size_t bytes = d.upload_body(*asset, body, error);
     if (!error.empty()) return Error{IssueCode::OutOfMemory, "cannot upload an asset to the device: " + error};
     bodies.push_back(body);
     scene->asset_bytes_.push_back(bytes);
