@@ -245,6 +245,7 @@ void bind_batch(nb::module_& m) {
       .def(nb::init<const std::vector<const Body*>&, const std::vector<std::pair<int64_t, int64_t>>&>(), "bodies"_a,
            "pairs"_a)
       .def_prop_ro("device_bytes", [](const DeviceScene& s) { return s.scene->device_bytes(); })
+      .def_prop_ro("frontier_bytes", [](const DeviceScene& s) { return s.scene->frontier_bytes(); })
       .def("asset_device_bytes", [](const DeviceScene& s, size_t i) { return s.scene->asset_device_bytes(i); })
       .def("run", &DeviceScene::run, "envs"_a, "poses_a"_a, "poses_b"_a, "pair_index"_a, "proximity"_a, "stiffness"_a,
            "count"_a, "max_depth"_a, "force"_a, "torque"_a, "overflow"_a, "error"_a, "max_contacts"_a, "points"_a,

@@ -374,6 +374,10 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   found.first.resize(with_contacts ? k : 0);
   auto visit = [&](const runtime::BatchScene::Visit& v) {
     const size_t i = v.environment;
+    // parse_poses judged every pose already; the batch judges its matrices again, by the same rule.
+    if (v.error != 0)
+      fail(IssueCode::BadPose,
+           "pose " + std::to_string(i) + " is not a rigid transform (batch error " + std::to_string(v.error) + ")");
     const runtime::Wrench w = runtime::penalty_wrench(v.contacts, v.reference, stiffness);
     count.data[i] = int64_t(v.contacts.contacts.size());
     max_depth.data[i] = deepest_depth(v.contacts);

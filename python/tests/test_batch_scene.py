@@ -197,7 +197,7 @@ class RecordingDeviceScene:
     def __init__(self) -> None:
         self.calls: list[tuple[object, ...]] = []
 
-    def run(self, *args: object) -> None:
+    def run(self, **args: object) -> None:
         self.calls.append(args)
 
 
@@ -221,9 +221,26 @@ def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
     assert scene.contacts(poses_a, poses_b, pairs, stiffness=5.0, proximity=0.25, max_contacts=k, out=outputs,
                           stream=77, check=False) is outputs
     (args,) = recorder.calls
-    expected_outputs = [0x1000 * (n + 1) for n in range(len(names))]
-    contacts = expected_outputs[6:] or [0] * 5
-    assert args == (8, 0xa0000, 0xb0000, 0xc0000, 0.25, 5.0, *expected_outputs[:6], k, *contacts, 77)
+    expected = {"envs": 8, "poses_a": 0xa0000, "poses_b": 0xb0000, "pair_index": 0xc0000, "proximity": 0.25,
+                "stiffness": 5.0, "max_contacts": k, "stream": 77,
+                "points": 0, "normals": 0, "depths": 0, "point_index": 0, "point_of_b": 0}
+    expected |= {name: 0x1000 * (n + 1) for n, name in enumerate(names)}
+    assert args == expected
+    # The names are the compiled device scene's own (where this build has one): a keyword it lacks would fail.
+    device_scene = getattr(voxfmt._voxfmt, "_DeviceScene", None)
+    if device_scene is not None:
+        signature = device_scene.run.__doc__ or ""
+        for name in expected:
+            assert f"{name}: " in signature, (name, signature)
+
+
+def test_read_only_cuda_outputs_are_refused(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    poses = FakeCudaArray((8, 4, 4), "float32")
+    out = cuda_outputs(8)
+    out.force.__cuda_array_interface__["data"] = (0x2000, True)
+    with pytest.raises(voxfmt.OptionError, match="out.force: read-only"):
+        scene.contacts(poses, poses, out=out)
 
 
 def test_new_outputs_are_refused_for_arrays_no_framework_allocates(sphere: voxfmt.Body) -> None:
@@ -232,3 +249,5 @@ def test_new_outputs_are_refused_for_arrays_no_framework_allocates(sphere: voxfm
         scene.new_outputs(FakeCudaArray((8, 4, 4), "float32"), 4)
     with pytest.raises(voxfmt.OptionError, match="expected a CUDA array"):
         scene.new_outputs(np.zeros((8, 4, 4), np.float32))
+    with pytest.raises(voxfmt.OptionError, match="max_contacts"):
+        scene.new_outputs(FakeCudaArray((8, 4, 4), "float32"), -1)

@@ -201,6 +201,8 @@ class BatchScene:
         """Output arrays for contacts(..., out=) on CUDA poses (E, 4, 4): allocated by the poses' framework (PyTorch
         or CuPy) on their device, for E environments and `max_contacts` contacts each. What a CUDA graph is
         captured with (examples/gpu/cuda_graph.py)."""
+        if not 0 <= int(max_contacts) <= 1 << 24:
+            raise OptionError("BAD_OPTION", "max_contacts must be in 0..2^24")
         envs = int(_cuda_interface("poses", poses)["shape"][0])
         fw = _framework(poses)
         if fw.__name__ == "torch":
@@ -259,6 +261,8 @@ class BatchScene:
         if out is not None:
             for name, dtype, shape in _output_specs(envs, k):
                 _check_cuda_array(f"out.{name}", getattr(out, name), dtype, shape, device)
+                if _cuda_interface(f"out.{name}", getattr(out, name))["data"][1]:
+                    raise OptionError("BAD_OPTION", f"out.{name}: read-only (its __cuda_array_interface__ says so)")
         ok, why = cuda_status()
         if not ok:
             raise InternalError("INTERNAL", f"CUDA poses, but no CUDA device can be used: {why}")
@@ -267,11 +271,13 @@ class BatchScene:
                 out = self.new_outputs(poses_a, k)
             if stream is None:
                 stream = _stream_of(poses_a)
-            outputs = [_pointer(f"out.{name}", getattr(out, name)) for name, _, _ in _output_specs(envs, k)]
-            per_env, contacts = outputs[:6], outputs[6:] or [0] * 5
+            outputs = {name: _pointer(f"out.{name}", getattr(out, name)) for name, _, _ in _output_specs(envs, k)}
+            for name in ("points", "normals", "depths", "point_index", "point_of_b"):
+                outputs.setdefault(name, 0)
             self._device_scene(device).run(
-                envs, _pointer("poses_a", poses_a), _pointer("poses_b", poses_b), _pointer("pair_index", pair_index),
-                float(proximity), float(stiffness), *per_env, k, *contacts, int(stream))
+                envs=envs, poses_a=_pointer("poses_a", poses_a), poses_b=_pointer("poses_b", poses_b),
+                pair_index=_pointer("pair_index", pair_index), proximity=float(proximity), stiffness=float(stiffness),
+                max_contacts=k, stream=int(stream), **outputs)
         return out
 
 

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/query.h"
@@ -179,6 +180,12 @@ TEST(BatchScene, EachEnvironmentIsVisitedOnceWithTheQueryItsOptionsAndTrajectory
       },
       &trajectory));
   EXPECT_EQ(next, kEnvs);
+  // A visitor's exception stops the workers and reaches the caller (not std::terminate on a worker thread).
+  EXPECT_THROW(scene.value().each_environment(in, QueryOptions{}, 2,
+                                              [&](const BatchScene::Visit& v) {
+                                                if (v.environment == 77) throw std::runtime_error("visitor failed");
+                                              }),
+               std::runtime_error);
 }
 
 TEST(BatchScene, OneThreadOrSeveralDoublesOrFloatsTheSameAnswers) {

@@ -263,7 +263,8 @@ struct BlockBatch {
     }
     for (const double x : {0.0, 0.0, 0.0, 1.0}) m.push_back(x);
   }
-  // Every environment on one emulated block whose frontier holds `frontier` ranges (0: as a scene sizes it).
+  // Every environment on one emulated block whose frontier holds `frontier` ranges (0: as a scene sizes it); odd
+  // environments with the lanes in reverse order.
   void run(double proximity, double stiffness, bool gradient, uint32_t frontier = 0) {
     const uint32_t zero = 0;
     core::BatchInputs<double> in;
@@ -285,7 +286,8 @@ struct BlockBatch {
     std::vector<core::OpenRange> ranges(2 * size_t(frontier));
     auto state = std::make_unique<core::BlockState>();
     for (size_t e = 0; e < count.size(); ++e)
-      core::run_environment_block(core::EmulatedBlock{}, *state, in, out, e, core::Frontier{ranges.data(), frontier});
+      core::run_environment_block(core::EmulatedBlock{e % 2 == 1}, *state, in, out, e,
+                                  core::Frontier{ranges.data(), frontier});
   }
 };
 

@@ -25,6 +25,11 @@ void release(void* device_pointer);
 /// the device cannot say.
 unsigned resident_blocks(std::string& error);
 
+/// Lets the current device's default memory pool keep at least `bytes` between launches (its release threshold,
+/// raised, never lowered): the frontier a launch takes from it is then not returned to the driver and mapped again
+/// at every synchronisation.
+std::string keep_in_pool(size_t bytes);
+
 /// Runs every environment of `in` into `out` (device pointers) on `stream`, asynchronously: a block per
 /// environment (core::run_environment_block) on `resident` blocks, whose frontiers hold `capacity` ranges
 /// (core::frontier_capacity of the scene's shells). Empty, or the launch's error.

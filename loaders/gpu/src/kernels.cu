@@ -87,6 +87,22 @@ unsigned resident_blocks(std::string& error) {
   return unsigned(processors) * unsigned(per_processor > 0 ? per_processor : 1);
 }
 
+std::string keep_in_pool(size_t bytes) {
+  int device = 0;
+  cudaMemPool_t pool = nullptr;
+  uint64_t threshold = 0;
+  cudaError_t status = cudaGetDevice(&device);
+  if (status == cudaSuccess) status = cudaDeviceGetDefaultMemPool(&pool, device);
+  if (status == cudaSuccess) status = cudaMemPoolGetAttribute(pool, cudaMemPoolAttrReleaseThreshold, &threshold);
+  if (status == cudaSuccess && threshold < bytes) {
+    threshold = bytes;
+    status = cudaMemPoolSetAttribute(pool, cudaMemPoolAttrReleaseThreshold, &threshold);
+  }
+  if (status == cudaSuccess) return std::string();
+  cudaGetLastError();
+  return describe(status);
+}
+
 std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, unsigned resident,
                    uint32_t capacity, void* stream) {
   if (in.environments == 0) return std::string();

@@ -100,10 +100,16 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
   if (!error.empty()) return Error{IssueCode::OutOfMemory, "cannot upload the scene's tables: " + error};
   d.resident_blocks = device::resident_blocks(error);
   if (d.resident_blocks == 0) return Error{IssueCode::Internal, "cannot size the batch's grid: " + error};
+  error = device::keep_in_pool(scene->frontier_bytes());
+  if (!error.empty()) return Error{IssueCode::Internal, "cannot configure the device's memory pool: " + error};
   return scene;
 }
 
 Scene::~Scene() = default;
+
+size_t Scene::frontier_bytes() const {
+  return size_t(device_->resident_blocks) * 2 * device_->frontier_capacity * sizeof(core::OpenRange);
+}
 
 size_t Scene::device_bytes() const {
   size_t total = 0;

@@ -7,6 +7,7 @@
 #include <exception>
 #include <new>
 #include <string>
+#include <vector>
 
 #include "core/batch.h"
 #include "voxfmt/detail/cores.h"
@@ -125,6 +126,7 @@ Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOpti
   query.proximity = in.proximity;
   std::atomic<size_t> next{0};
   std::atomic<bool> out_of_memory{false};
+  std::vector<std::exception_ptr> raised(trajectory ? 1u : workers(in.count, threads));
   auto work = [&](unsigned worker) {
     try {
       ContactSet set;
@@ -152,10 +154,15 @@ Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOpti
     } catch (const std::bad_alloc&) {
       out_of_memory = true;
       next = in.count;  // the other workers stop at their next chunk
+    } catch (...) {
+      raised[worker] = std::current_exception();  // the visitor's: raised again on the caller's thread
+      next = in.count;
     }
   };
-  run_workers(trajectory ? 1u : workers(in.count, threads), work);
+  run_workers(unsigned(raised.size()), work);
   if (out_of_memory) return Error{IssueCode::OutOfMemory, "batch: out of memory while querying"};
+  for (const std::exception_ptr& e : raised)
+    if (e) std::rethrow_exception(e);
   return Status::success();
 }
 

@@ -241,11 +241,14 @@ VOXFMT_HD void run_environment_block(const Block& block, BlockState& s, const Ba
 }
 
 #if !defined(__CUDACC__)
-/// A block for the CPU: its lanes run one after another, each phase to its end before the next begins.
+/// A block for the CPU: its lanes run one after another, each phase to its end before the next begins; in
+/// `reverse`, from the last lane to the first (a phase whose lanes read each other's writes then answers
+/// differently, as it would on a GPU).
 struct EmulatedBlock {
+  bool reverse = false;
   template <class Phase>
   void each(Phase&& phase) const {
-    for (int lane = 0; lane < kBlockLanes; ++lane) phase(lane);
+    for (int n = 0; n < kBlockLanes; ++n) phase(reverse ? kBlockLanes - 1 - n : n);
   }
 };
 #endif

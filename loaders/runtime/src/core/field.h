@@ -183,8 +183,11 @@ VOXFMT_HD bool apron_corners(const Field& f, const int base[3], float v[8], bool
     return false;
   }
   const int16_t* brick = &f.codes[size_t(entry) * kApronBrickCodes];
-  constexpr uint8_t kWithin[8] = {0x00, 0x02, 0x04, 0x0e, 0x10, 0x32, 0x54, 0xfe};  // nonzero subsets of each
-  if ((kWithin[reach] & ~int(uint16_t(brick[kApronMask]))) != 0) return false;
+  // Byte `reach` of this word: the offsets within `reach` (its nonzero subsets), one bit each; a shift, not a table
+  // (a table indexed at run time lands in a GPU thread's local memory).
+  constexpr uint64_t kWithin = 0xfe5432100e040200ull;
+  const int within = int((kWithin >> (8 * reach)) & 0xff);
+  if ((within & ~int(uint16_t(brick[kApronMask]))) != 0) return false;
   const int local =
       ((base[2] & (kEdge - 1)) * kApronEdge + (base[1] & (kEdge - 1))) * kApronEdge + (base[0] & (kEdge - 1));
   constexpr int kRow = kApronEdge, kPlane = kApronEdge * kApronEdge;

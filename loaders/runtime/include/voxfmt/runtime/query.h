@@ -280,7 +280,8 @@ class BatchScene {
   };
   /// The worker loop under contacts(): every environment queried with `options` (any QueryOptions: a cut, a
   /// budget, a direction) on workers(in.count, threads) workers, its contacts handed to `visit`. BAD_OPTION for
-  /// poses missing or both kinds given, OUT_OF_MEMORY if a worker ran out.
+  /// poses missing or both kinds given, OUT_OF_MEMORY if a worker ran out; an exception `visit` throws stops the
+  /// workers and is thrown again here.
   Status each_environment(const BatchEnvironments& in, const QueryOptions& options, unsigned threads,
                           const std::function<void(const Visit&)>& visit, const Trajectory* trajectory = nullptr) const;
   /// How many workers each_environment runs for `environments` on `threads` (0: every usable core).
