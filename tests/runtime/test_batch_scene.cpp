@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <random>
 #include <stdexcept>
@@ -156,8 +157,8 @@ TEST(BatchScene, EachEnvironmentIsVisitedOnceWithTheQueryItsOptionsAndTrajectory
       EXPECT_EQ(v.contacts.contacts[i].depth, set.contacts[i].depth);
     }
   };
-  std::vector<int> visits(kEnvs, 0);
-  size_t touching = 0;
+  std::vector<int> visits(kEnvs, 0);  // one slot per environment: each written by the one worker that visits it
+  std::atomic<size_t> touching{0};
   ASSERT_TRUE(scene.value().each_environment(in, cut, 2, [&](const BatchScene::Visit& v) {
     ++visits[v.environment];
     EXPECT_EQ(v.error, 0);
@@ -165,7 +166,7 @@ TEST(BatchScene, EachEnvironmentIsVisitedOnceWithTheQueryItsOptionsAndTrajectory
     touching += !v.contacts.contacts.empty();
   }));
   EXPECT_EQ(std::count(visits.begin(), visits.end(), 1), int(kEnvs));
-  EXPECT_GT(touching, 30u);
+  EXPECT_GT(touching.load(), 30u);
   // One thread, so the check may query here; with the cut, and then as a trajectory (in order, coherent).
   ASSERT_TRUE(scene.value().each_environment(in, cut, 1, [&](const BatchScene::Visit& v) { expect_runtime(v, cut); }));
   QueryScratch trajectory_scratch;
