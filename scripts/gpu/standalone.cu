@@ -30,9 +30,9 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
   core::Body b;
   b.has_field = b.has_shell = true;
   b.field.bricks = bricks;
-  b.field.codes = codes;
   b.field.lattice = lattice;
-  b.field.apron = true;  // _export_core's codes are the value bricks with their apron, as gpu::Scene uploads them
+  // _export_core's codes are the value bricks with their apron, as gpu::Scene uploads them.
+  b.field = core::with_apron(b.field, codes);
   for (int a = 0; a < 3; ++a) {
     b.field.dims[a] = field_dims[a];
     b.field.brick_dims[a] = field_dims[3 + a];

@@ -242,9 +242,7 @@ struct BlockBatch {
       : body(core::body_of(object)), capacity(max_contacts) {
     if (with_apron) {
       apron = core::apron_codes(body.field, object.voxelmap().value_brick_count());
-      body.field.codes = apron.data();
-      body.field.apron = true;
-      body.field.gather_safe = false;
+      body.field = core::with_apron(body.field, apron.data());
     }
     for (const auto& [a, b] : poses) {
       append(a, poses_a);
@@ -296,10 +294,7 @@ TEST(QueryCore, BricksWithAnApronGiveEveryLookupBitForBit) {
   const SparseVoxelmap& map = bunny.object->voxelmap();
   const core::Field field = field_of(map);
   const std::vector<int16_t> apron = core::apron_codes(field, map.value_brick_count());
-  core::Field aproned = field;
-  aproned.codes = apron.data();
-  aproned.apron = true;
-  aproned.gather_safe = false;
+  const core::Field aproned = core::with_apron(field, apron.data());
   // Points everywhere, many near the surface (value bricks, their faces, edges and corners: where a cell reaches
   // into a neighbour, stored or coarse).
   std::mt19937 rng(29);

@@ -41,9 +41,7 @@ struct Scene::Device {
       size_t lattice = 1;
       for (int a = 0; a < 3; ++a) lattice *= size_t(body.field.lattice_dims[a]);
       body.field.bricks = upload(body.field.bricks, bricks, error);
-      body.field.codes = upload(apron.data(), apron.size(), error);
-      body.field.apron = true;
-      body.field.gather_safe = false;
+      body.field = core::with_apron(body.field, upload(apron.data(), apron.size(), error));
       body.field.lattice = upload(body.field.lattice, lattice, error);
       bytes += bricks * sizeof(int32_t) + apron.size() * sizeof(int16_t) + lattice * sizeof(uint16_t);
     }

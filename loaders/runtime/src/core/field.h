@@ -112,6 +112,15 @@ VOXFMT_HD float lattice_at(const Field& f, const Vec3& u, Vec3* gradient) {
   return y0 + t[2] * (y1 - y0);
 }
 
+/// `f` reading its value bricks with an apron from `apron_codes` (apron_codes' layout): never by vector gathers,
+/// which assume the runtime's 8^3 bricks.
+VOXFMT_HD Field with_apron(Field f, const int16_t* apron_codes) {
+  f.codes = apron_codes;
+  f.apron = true;
+  f.gather_safe = false;
+  return f;
+}
+
 /// Where voxel (i, j, k) of value brick `entry` keeps its code.
 VOXFMT_HD const int16_t* code_of(const Field& f, int i, int j, int k, int32_t entry) {
   if (f.apron) {
