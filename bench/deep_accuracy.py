@@ -10,7 +10,8 @@ pseudonormals, so MESH must be the closed mesh the asset was baked from, in the 
 Samples voxel centres whose value is beyond the band (|value| > band + 1/2 voxel), inside and outside, and reports
 in voxels: the largest and 99th-percentile error, the share beyond the target of 1 voxel + 1 % of the depth, the
 share under the exact depth by more than half a voxel; for the exact lattices the same, and how many of the
-sampled coarse bricks hold a voxel beyond the target (what refining those bricks alone would cost). The asset is
+sampled coarse bricks hold a voxel beyond the target (what refining those bricks alone would cost); and the
+asset's own lattice against exact distances at every lattice point (`--no-lattice` skips it). The asset is
 read through the runtime (`Body.signed_distance`: what every consumer sees) and h5py (the grid's numbers).
 """
 
@@ -78,6 +79,26 @@ def deep_voxels(body, origin, h, dims, band, samples: int) -> tuple[np.ndarray, 
     return ijk[deep], current[deep]
 
 
+def lattice_accuracy(path: str, origin, h: float, dims, V, F, igl) -> dict:
+    """The asset's own lattice against the exact unsigned distance at every lattice point (voxels above it: the
+    spec promises [u, (1 + e1) u + e0], the bake is exact within 16 voxels of the surface)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        stored = np.asarray(f["voxelmap/lattice"], float)  # [c, b, a]
+    axes = [np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(stored.shape[::-1], dims)]
+    grid = np.stack(np.meshgrid(*axes[::-1], indexing="ij"), -1)[..., ::-1]  # [c, b, a] -> (i, j, k)
+    exact = np.abs(igl.signed_distance(origin + h * grid.reshape(-1, 3), V, F,
+                                       sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0]) / h
+    over = stored.reshape(-1) / h - exact
+    far = exact > 16
+    return {"points": int(over.size), "max_over": round(float(over.max()), 3),
+            "p99_over": round(float(np.percentile(over, 99)), 3),
+            "min_over": round(float(over.min()), 6), "beyond_16_voxels": int(far.sum()),
+            "mean_over_beyond_16": round(float(over[far].mean()), 4) if far.any() else 0.0,
+            "over_1_voxel": int((over > 1).sum())}
+
+
 def figures(estimate: np.ndarray, exact: np.ndarray) -> dict:
     out = {}
     error = estimate - exact
@@ -102,6 +123,7 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
     ap.add_argument("--steps", default="8,4,2", help="exact lattices to try, voxels apart (default 8,4,2)")
     ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--no-lattice", action="store_true", help="skip the asset's lattice against exact distances")
     args = ap.parse_args()
     igl = import_igl("deep_accuracy")
     if igl is None:
@@ -115,6 +137,8 @@ def main() -> int:
     result = {"asset": args.asset, "mesh": args.mesh, "voxel_size": h, "dims": dims.tolist(), "band": band,
               "exact_us_per_point": round(exact_us, 2), "sign_disagreements": int((np.sign(current) != np.sign(exact)).sum()),
               "current": figures(current, exact), "exact_lattice": {}}
+    if not args.no_lattice:
+        result["stored_lattice"] = lattice_accuracy(args.asset, origin, h, dims, V, F, igl)
     steps = [int(s) for s in args.steps.split(",")]
     for step in steps:
         axes = [np.unique(np.minimum(np.arange(0, d + step, step), d - 1)) for d in dims]
@@ -148,6 +172,11 @@ def main() -> int:
     if e8:
         print(f"coarse bricks with a voxel beyond the target under an exact lattice: {e8['bricks_beyond_target']} "
               f"of {e8['sampled_bricks']} sampled")
+    s = result.get("stored_lattice")
+    if s:
+        print(f"the asset's lattice: {s['points']} points, above the exact distance by at most {s['max_over']:.3f} voxel "
+              f"(p99 {s['p99_over']:.3f}), {s['over_1_voxel']} by more than 1; beyond 16 voxels "
+              f"({s['beyond_16_voxels']} points) {s['mean_over_beyond_16']:.3f} on average")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(result, f, indent=1)

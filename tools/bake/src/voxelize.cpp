@@ -10,6 +10,7 @@
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
+#include <oneapi/tbb/parallel_reduce.h>
 #include <oneapi/tbb/parallel_sort.h>
 #include <unistd.h>
 
@@ -18,6 +19,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <optional>
 #include <tuple>
@@ -918,8 +920,9 @@ void bake_brick_row(const BrickRowsInput& in, const Voxelmap& vm, int64_t bj, in
 // ---- propagate_lattice: the exact unsigned distance to the surface at every lattice point (brick corner). A
 // point within r of the surface takes the nearest of the triangles its brick lists, which hold every triangle
 // within r of it. Farther away, nearest triangles are first carried from point to neighbouring point in sweeps
-// along each axis (vector propagation, Danielsson 1980): a distance to a real triangle, near the exact one. A
-// hierarchy over the triangles then finds the nearest triangle within that bound, which keeps its search small.
+// along each axis (vector propagation, Danielsson 1980), round after round until no point changes: a distance to
+// a real triangle, nearly always the nearest one. A hierarchy over the triangles then searches within that bound
+// for a nearer one, which keeps its search small.
 
 constexpr uint64_t kNoTriangle = ~uint64_t(0);
 // Within kExactReach voxels of the surface lattice values are exact; beyond, they may exceed the exact distance by
@@ -928,9 +931,15 @@ constexpr uint64_t kNoTriangle = ~uint64_t(0);
 constexpr double kExactReach = 16.0;
 constexpr double kFarSlack = 0.1;
 
+// Rounds of sweeps at most: one round leaves the far lattice up to 10 % off the exact distance on the bunny at
+// 1024 (p99 23 voxels), three p99 1 voxel, six 0.4; most points stop changing within a few rounds.
+constexpr int kMaxSweepRounds = 8;
+
 struct Lattice {
   std::array<int64_t, 3> dims{};
   std::vector<uint64_t> keys;  // (squared distance in voxels^2 as float bits, triangle), kNoTriangle if none yet
+  // 1 + the last sweep (0, 1, ... over the rounds, three per round) that changed the point; 0 if none did.
+  std::vector<uint8_t> changed;
   size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
 };
 
@@ -968,27 +977,44 @@ void lattice_near_surface(const GridGeometry& g, const std::vector<IndexTriangle
   });
 }
 
-// Carries nearest triangles along one axis, both ways, every line in parallel.
-void sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, int axis, Lattice& L) {
+// Carries nearest triangles along one axis, both ways, every line in parallel; `sweep` counts the sweeps so far
+// (three per round). Two neighbours compared in this axis's previous sweep and unchanged since are not compared
+// again: that changed neither. Returns how many points changed.
+size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, int axis, int sweep,
+                     Lattice& L) {
   const int64_t n = L.dims[size_t(axis)];
   const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
   const int64_t lines_u = L.dims[size_t(u_axis)], lines_v = L.dims[size_t(v_axis)];
-  tbb::parallel_for(int64_t(0), lines_u * lines_v, [&](int64_t line) {
-    int64_t at[3];
-    at[u_axis] = line % lines_u;
-    at[v_axis] = line / lines_u;
-    auto visit = [&](int64_t s, int64_t from) {
-      at[axis] = from;
-      const uint64_t neighbour = L.keys[L.index(at[0], at[1], at[2])];
-      at[axis] = s;
-      uint64_t& own = L.keys[L.index(at[0], at[1], at[2])];
-      if (neighbour == kNoTriangle || uint32_t(neighbour) == uint32_t(own)) return;
-      const uint32_t f = uint32_t(neighbour);
-      own = std::min(own, distance_key(triangles[f], lattice_point(g, at[0], at[1], at[2]), f));
-    };
-    for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
-    for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
-  });
+  const int settled_before = sweep - 2;  // a stamp below this: unchanged since this axis's previous sweep began
+  return tbb::parallel_reduce(
+      tbb::blocked_range<int64_t>(0, lines_u * lines_v), size_t(0),
+      [&](const tbb::blocked_range<int64_t>& lines, size_t changes) {
+        for (int64_t line = lines.begin(); line != lines.end(); ++line) {
+          int64_t at[3];
+          at[u_axis] = line % lines_u;
+          at[v_axis] = line / lines_u;
+          auto visit = [&](int64_t s, int64_t from) {
+            at[axis] = from;
+            const size_t from_index = L.index(at[0], at[1], at[2]);
+            at[axis] = s;
+            const size_t own_index = L.index(at[0], at[1], at[2]);
+            if (L.changed[from_index] < settled_before && L.changed[own_index] < settled_before) return;
+            const uint64_t neighbour = L.keys[from_index];
+            uint64_t& own = L.keys[own_index];
+            if (neighbour == kNoTriangle || uint32_t(neighbour) == uint32_t(own)) return;
+            const uint32_t f = uint32_t(neighbour);
+            const uint64_t carried = distance_key(triangles[f], lattice_point(g, at[0], at[1], at[2]), f);
+            if (carried >= own) return;
+            own = carried;
+            L.changed[own_index] = uint8_t(sweep + 1);
+            ++changes;
+          };
+          for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
+          for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
+        }
+        return changes;
+      },
+      std::plus<size_t>());
 }
 
 // Every point beyond r has an upper bound after the sweeps, the distance to a real triangle: the hierarchy searches
@@ -1024,8 +1050,14 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
   Lattice L;
   for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
   L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
+  L.changed.assign(L.keys.size(), 0);
   lattice_near_surface(g, triangles, lists, L);
-  for (int axis = 0; axis < 3; ++axis) sweep_lattice(g, triangles, axis, L);
+  for (int round = 0, sweep = 0; round < kMaxSweepRounds; ++round) {
+    size_t changes = 0;
+    for (int axis = 0; axis < 3; ++axis) changes += sweep_lattice(g, triangles, axis, sweep++, L);
+    if (changes == 0) break;
+  }
+  std::vector<uint8_t>().swap(L.changed);
   std::vector<std::array<Vec3, 3>> corners(triangles.size());
   for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
   const ClosestTriangle hierarchy(corners);
