@@ -190,7 +190,7 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
   // Spec §3.3: every lattice value is the exact unsigned distance at its voxel, or above it by at most its stated
   // error; and the sweeps carry nearest triangles until they settle, so that far from the surface it is nearer
   // the exact distance than the stated tenth of it (at this coarse resolution, lattice points 8 voxels apart on
-  // a 128-voxel bunny, propagation is at its roughest; at 1024 it is within 0.9 voxel, one round 49).
+  // a 128-voxel bunny, propagation is at its roughest; at 1024 it is within 0.9 voxel, one round 41).
   {
     const Voxelmap& vm = asset.voxelmap;
     const auto l = vm.lattice_dims();
