@@ -1069,6 +1069,43 @@ std::string write_tilted_cylinder(const std::string& path, int segments) {
   return write_off(path, cylinder);
 }
 
+TEST(Bake, FarLatticePointsKeepTheLatticesPromise) {
+  // Spec §3.3 far from the surface, where the bake keeps a carried distance without searching once the cells the
+  // surface touches bound it within the lattice's slack: a 48-voxel bunny in a margin of 250 voxels, so that most
+  // lattice points are hundreds of voxels away. Every value must lie in [u, (1 + e1) u + e0 h].
+  Settings options;
+  options.voxelmap.resolution = 48;
+  options.voxelmap.margin = 250;
+  options.point_shell.points = 500;
+  BuildReport report;
+  const Asset asset = build_asset(kMeshes + "/bunny00.off", options, report);
+  RepairReport again;
+  const ExactSurface surface(repair_mesh(import_mesh(kMeshes + "/bunny00.off"), again, false));
+  const Voxelmap& vm = asset.voxelmap;
+  const auto l = vm.lattice_dims();
+  const double h = vm.voxel_size;
+  size_t checked = 0, far = 0, below = 0, beyond_bound = 0;
+  double worst_ratio = 0;
+  for (size_t n = 0; n < vm.lattice_count(); n += 5) {
+    const uint32_t a = uint32_t(n % l[0]), b = uint32_t(n / l[0] % l[1]), c = uint32_t(n / (size_t(l[0]) * l[1]));
+    const double u = surface.distance(vm.voxel_center(Voxelmap::lattice_coordinate(a, vm.dims[0]),
+                                                      Voxelmap::lattice_coordinate(b, vm.dims[1]),
+                                                      Voxelmap::lattice_coordinate(c, vm.dims[2])));
+    const double value = vm.lattice[vm.lattice_index(a, b, c)];
+    ++checked;
+    far += u > 300 * h;
+    below += value < u * (1 - 1e-6);
+    beyond_bound += value > (1 + vm.lattice_error[1]) * u + vm.lattice_error[0] * h;
+    if (u > 16 * h) worst_ratio = std::max(worst_ratio, value / u);
+  }
+  std::printf("lattice of %zu points: %zu checked, %zu over 300 voxels from the surface, at most %.5f x the distance\n",
+              vm.lattice_count(), checked, far, worst_ratio);
+  EXPECT_GT(far, checked / 5);  // measured 24.8 %
+  EXPECT_EQ(below, 0u);
+  EXPECT_EQ(beyond_bound, 0u);
+  EXPECT_EQ(full_errors(asset), std::vector<std::string>());
+}
+
 TEST(Bake, BandAndSidesAreExactAtEveryVoxel) {
   // Every voxel, not a sample: a distance is stored exactly where the exact distance is within the band (up to
   // float rounding at its edge), and every voxel more than half a voxel from the surface has a layer on the

@@ -1017,9 +1017,98 @@ size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& tr
       std::plus<size_t>());
 }
 
-// Every point beyond r has an upper bound after the sweeps, the distance to a real triangle: the hierarchy searches
-// only within it for the nearest one.
-void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hierarchy, double r, Lattice& L) {
+// A lower bound of the distance to the surface anywhere in the grid, from cells of kCell voxels: the cells the
+// triangles' boxes touch, and for every cell the Euclidean distance (in cells) to the nearest of them. A point far
+// from the surface whose carried distance is already within kFarSlack of this bound needs no search; at 4096 that
+// is most of the lattice, and the search was half the bake.
+constexpr int64_t kCell = 16;
+
+struct SurfaceCells {
+  std::array<int64_t, 3> dims{};
+  std::vector<float> distance2;  // cells^2 to the nearest touched cell; empty if the bound is not available
+  size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
+  // Voxel coordinate x (>= -1) lies in cell floor((x + 1) / kCell), whose box is [kCell c - 1, kCell c + kCell - 1].
+  static int64_t cell_of(double x) { return int64_t(std::floor((x + 1) / double(kCell))); }
+  /// Voxels: at most the distance from voxel coordinates p to any triangle. A point and a surface point each lie
+  /// within half a cell's diagonal of their cells' centres, which are at least the cell distance apart.
+  double lower_bound(const Vec3& p) const {
+    const double cells = std::sqrt(double(distance2[index(cell_of(p[0]), cell_of(p[1]), cell_of(p[2]))]));
+    return (double(kCell) * cells - double(kCell) * std::sqrt(3.0)) * (1 - 1e-9) - 1e-6;
+  }
+};
+
+// Squared Euclidean distance transform of one line of cells (Felzenszwalb and Huttenlocher, "Distance Transforms
+// of Sampled Functions", 2012): the lower envelope of the parabolas rooted at the finite entries of f.
+void distance_transform_line(float* f, int64_t n, int64_t stride, std::vector<int64_t>& v, std::vector<double>& z,
+                             std::vector<double>& in) {
+  in.resize(size_t(n));
+  for (int64_t q = 0; q < n; ++q) in[size_t(q)] = double(f[q * stride]);
+  v.resize(size_t(n));
+  z.resize(size_t(n) + 1);
+  int64_t k = -1;
+  for (int64_t q = 0; q < n; ++q) {
+    if (!std::isfinite(in[size_t(q)])) continue;
+    double s = -std::numeric_limits<double>::infinity();
+    while (k >= 0) {
+      const int64_t p = v[size_t(k)];
+      s = ((in[size_t(q)] + double(q * q)) - (in[size_t(p)] + double(p * p))) / double(2 * (q - p));
+      if (s > z[size_t(k)]) break;
+      --k;
+    }
+    ++k;
+    v[size_t(k)] = q;
+    z[size_t(k)] = k == 0 ? -std::numeric_limits<double>::infinity() : s;
+    z[size_t(k) + 1] = std::numeric_limits<double>::infinity();
+  }
+  if (k < 0) return;  // no finite entry: the line stays infinite
+  for (int64_t q = 0, j = 0; q < n; ++q) {
+    while (z[size_t(j) + 1] < double(q)) ++j;
+    const int64_t p = v[size_t(j)];
+    f[q * stride] = float(double((q - p) * (q - p)) + in[size_t(p)]);
+  }
+}
+
+SurfaceCells surface_cells(const GridGeometry& g, const std::vector<IndexTriangle>& triangles) {
+  SurfaceCells cells;
+  for (int a = 0; a < 3; ++a) cells.dims[size_t(a)] = (int64_t(g.dims[size_t(a)]) + 1) / kCell + 1;
+  const float far = std::numeric_limits<float>::infinity();
+  std::vector<float> distance2(size_t(cells.dims[0] * cells.dims[1] * cells.dims[2]), far);
+  for (const IndexTriangle& t : triangles) {
+    int64_t lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = SurfaceCells::cell_of(std::min({t.a[a], t.b[a], t.c[a]}));
+      hi[a] = SurfaceCells::cell_of(std::max({t.a[a], t.b[a], t.c[a]}));
+      if (!(lo[a] >= 0 && hi[a] < cells.dims[size_t(a)])) return cells;  // outside the cells: no bound
+    }
+    for (int64_t c = lo[2]; c <= hi[2]; ++c)
+      for (int64_t b = lo[1]; b <= hi[1]; ++b)
+        for (int64_t a = lo[0]; a <= hi[0]; ++a) distance2[cells.index(a, b, c)] = 0;
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    const int64_t n = cells.dims[size_t(axis)];
+    const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
+    const int64_t lines_u = cells.dims[size_t(u_axis)], lines_v = cells.dims[size_t(v_axis)];
+    const int64_t stride = axis == 0 ? 1 : axis == 1 ? cells.dims[0] : cells.dims[0] * cells.dims[1];
+    tbb::parallel_for(tbb::blocked_range<int64_t>(0, lines_u * lines_v), [&](const tbb::blocked_range<int64_t>& r) {
+      std::vector<int64_t> v;
+      std::vector<double> z, in;
+      for (int64_t line = r.begin(); line != r.end(); ++line) {
+        int64_t at[3];
+        at[u_axis] = line % lines_u;
+        at[v_axis] = line / lines_u;
+        at[axis] = 0;
+        distance_transform_line(distance2.data() + cells.index(at[0], at[1], at[2]), n, stride, v, z, in);
+      }
+    });
+  }
+  cells.distance2 = std::move(distance2);
+  return cells;
+}
+
+// Every point beyond r has an upper bound after the sweeps, the distance to a real triangle: unless the surface's
+// cells already bound it within kFarSlack, the hierarchy searches only within it for the nearest one.
+void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hierarchy, const SurfaceCells& cells,
+                                double r, Lattice& L) {
   const double r2 = r * r;
   tbb::parallel_for(int64_t(0), L.dims[2], [&](int64_t c) {
     for (int64_t b = 0; b < L.dims[1]; ++b)
@@ -1029,11 +1118,15 @@ void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hi
         const uint32_t bits = uint32_t(key >> 32);
         std::memcpy(&d2f, &bits, sizeof d2f);
         if (key != kNoTriangle && double(d2f) < r2) continue;  // exact already
+        const Vec3 p = lattice_point(g, a, b, c);
+        if (key != kNoTriangle && !cells.distance2.empty()) {
+          const double below = cells.lower_bound(p);
+          if (below > kExactReach && double(d2f) <= (1 + kFarSlack) * (1 + kFarSlack) * below * below) continue;
+        }
         const double bound2 = key == kNoTriangle ? std::numeric_limits<double>::infinity() : double(d2f) * (1 + 1e-6);
         // A search with slack finds a distance d within (1 + slack) of the exact one: if d is beyond
         // kExactReach (1 + slack), the point is beyond kExactReach and may keep it; otherwise it is searched exactly.
         const double reach2 = kExactReach * kExactReach * (1 + kFarSlack) * (1 + kFarSlack);
-        const Vec3 p = lattice_point(g, a, b, c);
         auto [d2, f] = hierarchy.nearest(p, bound2, uint32_t(key), bound2 > reach2 ? kFarSlack : 0.0);
         if (bound2 > reach2 && d2 <= reach2) std::tie(d2, f) = hierarchy.nearest(p, d2 * (1 + 1e-9), f, 0.0);
         if (!(d2 < bound2)) continue;
@@ -1062,7 +1155,7 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
   for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
   const ClosestTriangle hierarchy(corners);
   std::vector<std::array<Vec3, 3>>().swap(corners);
-  search_lattice_beyond_band(g, hierarchy, r, L);
+  search_lattice_beyond_band(g, hierarchy, surface_cells(g, triangles), r, L);
   return L;
 }
 
