@@ -226,9 +226,8 @@ Voxelmap make_voxelmap(const Voxelmap& geometry, const SignedDistanceFunction& s
   for (uint32_t c = 0; c < l[2]; ++c)
     for (uint32_t b = 0; b < l[1]; ++b)
       for (uint32_t a = 0; a < l[0]; ++a)
-        vm.lattice[vm.lattice_index(a, b, c)] = float_not_below(std::abs(signed_distance(
-            vm.voxel_center(Voxelmap::lattice_coordinate(a, vm.dims[0]), Voxelmap::lattice_coordinate(b, vm.dims[1]),
-                            Voxelmap::lattice_coordinate(c, vm.dims[2])))));
+        vm.lattice[vm.lattice_index(a, b, c)] =
+            float_not_below(std::abs(signed_distance(vm.lattice_point_center(a, b, c))));
   const auto bd = vm.brick_dims();
   vm.bricks.resize(vm.brick_count());
   std::vector<int16_t> codes(Voxelmap::kBrickVoxels);

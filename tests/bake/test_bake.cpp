@@ -200,9 +200,7 @@ TEST(Bake, BunnyDistancesMatchExactSurface) {
     for (uint32_t c = 0; c < l[2]; ++c)
       for (uint32_t b = 0; b < l[1]; ++b)
         for (uint32_t a = 0; a < l[0]; ++a) {
-          const double u = surface.distance(vm.voxel_center(Voxelmap::lattice_coordinate(a, vm.dims[0]),
-                                                            Voxelmap::lattice_coordinate(b, vm.dims[1]),
-                                                            Voxelmap::lattice_coordinate(c, vm.dims[2])));
+          const double u = surface.distance(vm.lattice_point_center(a, b, c));
           const double value = vm.lattice[vm.lattice_index(a, b, c)];
           below += value < u * (1 - 1e-6);
           beyond_bound += value > (1 + vm.lattice_error[1]) * u + vm.lattice_error[0] * h;
@@ -1088,9 +1086,7 @@ TEST(Bake, FarLatticePointsKeepTheLatticesPromise) {
   double worst_ratio = 0;
   for (size_t n = 0; n < vm.lattice_count(); n += 5) {
     const uint32_t a = uint32_t(n % l[0]), b = uint32_t(n / l[0] % l[1]), c = uint32_t(n / (size_t(l[0]) * l[1]));
-    const double u = surface.distance(vm.voxel_center(Voxelmap::lattice_coordinate(a, vm.dims[0]),
-                                                      Voxelmap::lattice_coordinate(b, vm.dims[1]),
-                                                      Voxelmap::lattice_coordinate(c, vm.dims[2])));
+    const double u = surface.distance(vm.lattice_point_center(a, b, c));
     const double value = vm.lattice[vm.lattice_index(a, b, c)];
     ++checked;
     far += u > 300 * h;

@@ -93,6 +93,10 @@ struct Voxelmap {
   Vec3 voxel_center(uint32_t i, uint32_t j, uint32_t k) const {
     return {origin[0] + voxel_size * i, origin[1] + voxel_size * j, origin[2] + voxel_size * k};
   }
+  /// Centre of lattice point (a, b, c)'s voxel (spec §3.3), metres.
+  Vec3 lattice_point_center(uint32_t a, uint32_t b, uint32_t c) const {
+    return voxel_center(lattice_coordinate(a, dims[0]), lattice_coordinate(b, dims[1]), lattice_coordinate(c, dims[2]));
+  }
 
   // ---- codes
   static bool code_is_stored(int16_t code) { return (code & 1) != 0; }

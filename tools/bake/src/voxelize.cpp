@@ -935,12 +935,35 @@ constexpr double kFarSlack = 0.1;
 // 1024 (p99 23 voxels), three p99 1 voxel, six 0.4; most points stop changing within a few rounds.
 constexpr int kMaxSweepRounds = 8;
 
-struct Lattice {
+// A dense 3-D grid's shape: x fastest.
+struct GridShape {
   std::array<int64_t, 3> dims{};
+  size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
+};
+
+// The lines of a grid along one axis, for passes that run each line in order and the lines in parallel.
+struct AxisLines {
+  int axis, u_axis, v_axis;
+  int64_t length, lines_u, count;
+  AxisLines(const GridShape& s, int along)
+      : axis(along),
+        u_axis(along == 0 ? 1 : 0),
+        v_axis(along == 2 ? 1 : 2),
+        length(s.dims[size_t(along)]),
+        lines_u(s.dims[size_t(u_axis)]),
+        count(lines_u * s.dims[size_t(v_axis)]) {}
+  /// Line `line`'s first point (0 along the axis).
+  void first(int64_t line, int64_t at[3]) const {
+    at[u_axis] = line % lines_u;
+    at[v_axis] = line / lines_u;
+    at[axis] = 0;
+  }
+};
+
+struct Lattice : GridShape {
   std::vector<uint64_t> keys;  // (squared distance in voxels^2 as float bits, triangle), kNoTriangle if none yet
   // 1 + the last sweep (0, 1, ... over the rounds, three per round) that changed the point; 0 if none did.
   std::vector<uint8_t> changed;
-  size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
 };
 
 uint64_t distance_key(const IndexTriangle& t, const Vec3& p, uint32_t f) {
@@ -982,17 +1005,15 @@ void lattice_near_surface(const GridGeometry& g, const std::vector<IndexTriangle
 // again: that changed neither. Returns how many points changed.
 size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, int axis, int sweep,
                      Lattice& L) {
-  const int64_t n = L.dims[size_t(axis)];
-  const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
-  const int64_t lines_u = L.dims[size_t(u_axis)], lines_v = L.dims[size_t(v_axis)];
+  const AxisLines lines(L, axis);
+  const int64_t n = lines.length;
   const int settled_before = sweep - 2;  // a stamp below this: unchanged since this axis's previous sweep began
   return tbb::parallel_reduce(
-      tbb::blocked_range<int64_t>(0, lines_u * lines_v), size_t(0),
-      [&](const tbb::blocked_range<int64_t>& lines, size_t changes) {
-        for (int64_t line = lines.begin(); line != lines.end(); ++line) {
+      tbb::blocked_range<int64_t>(0, lines.count), size_t(0),
+      [&](const tbb::blocked_range<int64_t>& range, size_t changes) {
+        for (int64_t line = range.begin(); line != range.end(); ++line) {
           int64_t at[3];
-          at[u_axis] = line % lines_u;
-          at[v_axis] = line / lines_u;
+          lines.first(line, at);
           auto visit = [&](int64_t s, int64_t from) {
             at[axis] = from;
             const size_t from_index = L.index(at[0], at[1], at[2]);
@@ -1023,10 +1044,8 @@ size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& tr
 // is most of the lattice, and the search was half the bake.
 constexpr int64_t kCell = 16;
 
-struct SurfaceCells {
-  std::array<int64_t, 3> dims{};
+struct SurfaceCells : GridShape {
   std::vector<float> distance2;  // cells^2 to the nearest touched cell; empty if the bound is not available
-  size_t index(int64_t a, int64_t b, int64_t c) const { return size_t((c * dims[1] + b) * dims[0] + a); }
   // Voxel coordinate x (>= -1) lies in cell floor((x + 1) / kCell), whose box is [kCell c - 1, kCell c + kCell - 1].
   static int64_t cell_of(double x) { return int64_t(std::floor((x + 1) / double(kCell))); }
   /// Voxels: at most the distance from voxel coordinates p to any triangle. A point and a surface point each lie
@@ -1085,19 +1104,15 @@ SurfaceCells surface_cells(const GridGeometry& g, const std::vector<IndexTriangl
         for (int64_t a = lo[0]; a <= hi[0]; ++a) distance2[cells.index(a, b, c)] = 0;
   }
   for (int axis = 0; axis < 3; ++axis) {
-    const int64_t n = cells.dims[size_t(axis)];
-    const int u_axis = axis == 0 ? 1 : 0, v_axis = axis == 2 ? 1 : 2;
-    const int64_t lines_u = cells.dims[size_t(u_axis)], lines_v = cells.dims[size_t(v_axis)];
+    const AxisLines lines(cells, axis);
     const int64_t stride = axis == 0 ? 1 : axis == 1 ? cells.dims[0] : cells.dims[0] * cells.dims[1];
-    tbb::parallel_for(tbb::blocked_range<int64_t>(0, lines_u * lines_v), [&](const tbb::blocked_range<int64_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<int64_t>(0, lines.count), [&](const tbb::blocked_range<int64_t>& range) {
       std::vector<int64_t> v;
       std::vector<double> z, in;
-      for (int64_t line = r.begin(); line != r.end(); ++line) {
+      for (int64_t line = range.begin(); line != range.end(); ++line) {
         int64_t at[3];
-        at[u_axis] = line % lines_u;
-        at[v_axis] = line / lines_u;
-        at[axis] = 0;
-        distance_transform_line(distance2.data() + cells.index(at[0], at[1], at[2]), n, stride, v, z, in);
+        lines.first(line, at);
+        distance_transform_line(distance2.data() + cells.index(at[0], at[1], at[2]), lines.length, stride, v, z, in);
       }
     });
   }
