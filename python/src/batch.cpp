@@ -241,6 +241,22 @@ void bind_batch(nb::module_& m) {
     const bool ok = gpu::available(&why);
     return std::make_pair(ok, ok ? gpu::device_name() : why);
   });
+  // (device, "") or (-1, why): the device of an address, the current device, and making one current.
+  m.def("_cuda_device_of", [](uintptr_t address) {
+    std::string why;
+    const int device = gpu::device_of(reinterpret_cast<const void*>(address), &why);
+    return std::make_pair(device, why);
+  });
+  m.def("_cuda_current_device", [] {
+    std::string why;
+    const int device = gpu::current_device(&why);
+    return std::make_pair(device, why);
+  });
+  m.def("_cuda_make_current", [](int device) {
+    std::string why;
+    gpu::make_current(device, &why);
+    return why;
+  });
   nb::class_<DeviceScene>(m, "_DeviceScene")
       .def(nb::init<const std::vector<const Body*>&, const std::vector<std::pair<int64_t, int64_t>>&>(), "bodies"_a,
            "pairs"_a)

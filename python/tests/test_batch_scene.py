@@ -192,13 +192,38 @@ def test_a_well_formed_cuda_call_without_a_device_says_so(sphere: voxfmt.Body) -
 
 
 class RecordingDeviceScene:
-    """Stands in for the compiled device scene: records what a launch would be given."""
+    """Stands in for the compiled device scene: records what a launch would be given, and on which device."""
 
-    def __init__(self) -> None:
+    def __init__(self, cuda: "RecordedCuda | None" = None) -> None:
         self.calls: list[tuple[object, ...]] = []
+        self.cuda = cuda
+        self.launched_on: list[int] = []
 
     def run(self, **args: object) -> None:
         self.calls.append(args)
+        if self.cuda is not None:
+            self.launched_on.append(self.cuda.current_device)
+
+
+class RecordedCuda:
+    """Stands in for CUDA's answers (batch._cuda): which device holds an address (`held`, by address), the current
+    device, and the devices made current in turn."""
+
+    def __init__(self, held: dict[int, int], current: int = 0) -> None:
+        self.held = held
+        self.current_device = current
+        self.made_current: list[int] = []
+
+    def device_of(self, address: int) -> tuple[int, str]:
+        return (self.held[address], "") if address in self.held else (-1, "cudaErrorInvalidValue: not a CUDA address")
+
+    def current(self) -> tuple[int, str]:
+        return self.current_device, ""
+
+    def make_current(self, device: int) -> str:
+        self.made_current.append(device)
+        self.current_device = device
+        return ""
 
 
 @pytest.mark.parametrize("k", [0, 3])
@@ -213,6 +238,8 @@ def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
     recorder = RecordingDeviceScene()
     scene._device_scenes[0] = recorder
     names = [name for name, _, _ in batch._output_specs(8, k)]
+    addresses = [0xa0000, 0xb0000, 0xc0000] + [0x1000 * (n + 1) for n in range(len(names))]
+    monkeypatch.setattr(batch, "_cuda", RecordedCuda({address: 0 for address in addresses}))
     outputs = voxfmt.BatchResult(**{name: FakeCudaArray(shape, dtype, address=0x1000 * (n + 1))
                                     for n, (name, dtype, shape) in enumerate(batch._output_specs(8, k))})
     poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa0000)
@@ -232,6 +259,59 @@ def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
         signature = device_scene.run.__doc__ or ""
         for name in expected:
             assert f"{name}: " in signature, (name, signature)
+
+
+def cuda_call_on_recorded_devices(sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch, held: dict[int, int],
+                                  current: int) -> tuple[voxfmt.BatchScene, RecordedCuda]:
+    """A scene whose device scenes record their launches, CUDA's answers recorded (`held`: device by address)."""
+    from voxfmt import batch
+
+    monkeypatch.setattr(batch, "cuda_status", lambda: (True, "a recorded device"))
+    cuda = RecordedCuda(held, current)
+    monkeypatch.setattr(batch, "_cuda", cuda)
+    scene = voxfmt.BatchScene([sphere])
+    for device in range(4):
+        scene._device_scenes[device] = RecordingDeviceScene(cuda)
+    return scene, cuda
+
+
+def addressed_outputs(envs: int, first: int) -> voxfmt.BatchResult:
+    from voxfmt import batch
+
+    return voxfmt.BatchResult(**{name: FakeCudaArray(shape, dtype, address=first + 0x100 * n)
+                                 for n, (name, dtype, shape) in enumerate(batch._output_specs(envs, 0))})
+
+
+def test_arrays_that_name_no_device_are_launched_where_cuda_says_they_are(
+        sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Only __cuda_array_interface__ (Numba, JAX, ...): the device comes from CUDA by the poses' address, is made
+    # current for the launch (the caller's current device 0 restored after), and the scene of that device runs.
+    held = {0xa000: 2, 0xb000: 2} | {0x2000 + 0x100 * n: 2 for n in range(6)}
+    scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, held, current=0)
+    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa000)
+    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb000)
+    scene.contacts(poses_a, poses_b, out=addressed_outputs(8, 0x2000), check=False)
+    assert [len(scene._device_scenes[d].calls) for d in range(4)] == [0, 0, 1, 0]
+    assert scene._device_scenes[2].launched_on == [2]
+    assert cuda.made_current == [2, 0] and cuda.current_device == 0
+
+
+@pytest.mark.parametrize(("move", "message"), [
+    ({0xb000: 1}, r"poses_b: on CUDA device 1, the poses on 2"),
+    ({0x2300: 3}, r"out.torque: on CUDA device 3, the poses on 2"),
+    ({0xa000: None}, r"poses_a: CUDA cannot tell which device holds it \(cudaErrorInvalidValue"),
+])
+def test_arrays_elsewhere_or_unknown_to_cuda_are_coded_errors(
+        sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch, move: dict[int, int | None], message: str) -> None:
+    held = {0xa000: 2, 0xb000: 2} | {0x2000 + 0x100 * n: 2 for n in range(6)}
+    held |= move
+    held = {address: device for address, device in held.items() if device is not None}
+    scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, held, current=0)
+    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa000)
+    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb000)
+    with pytest.raises(voxfmt.OptionError, match=message):
+        scene.contacts(poses_a, poses_b, out=addressed_outputs(8, 0x2000), check=False)
+    assert all(not s.calls for s in scene._device_scenes.values()) and cuda.made_current == []
 
 
 def test_read_only_cuda_outputs_are_refused(sphere: voxfmt.Body) -> None:

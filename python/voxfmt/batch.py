@@ -71,13 +71,37 @@ def _on_cuda(array: Any) -> bool:
     return hasattr(array, "__cuda_array_interface__") or getattr(device, "type", None) == "cuda"
 
 
-def _device_index(array: Any) -> int:
-    """The CUDA device a PyTorch tensor or CuPy array lives on (the scene's assets are uploaded per device)."""
+def _declared_device(array: Any) -> int | None:
+    """The CUDA device an array names (a PyTorch tensor's ``device.index``, a CuPy array's ``device.id``), or None:
+    an array that shows only ``__cuda_array_interface__`` names none, and CUDA tells its device from its address."""
     device = getattr(array, "device", None)
     index = getattr(device, "index", None)  # torch.device
     if index is None:
         index = getattr(device, "id", None)  # cupy.cuda.Device
-    return int(index or 0)
+    return None if index is None else int(index)
+
+
+class _NativeCuda:
+    """The CUDA runtime's answers the batch needs beyond the launch: which device holds an address, which is
+    current, and making one current (the compiled module's; a test puts a recording one in its place)."""
+
+    @staticmethod
+    def _call(name: str, *args: Any) -> Any:
+        from . import _voxfmt
+
+        return getattr(_voxfmt, name)(*args)
+
+    def device_of(self, address: int) -> tuple[int, str]:
+        return self._call("_cuda_device_of", address)
+
+    def current(self) -> tuple[int, str]:
+        return self._call("_cuda_current_device")
+
+    def make_current(self, device: int) -> str:
+        return self._call("_cuda_make_current", device)
+
+
+_cuda = _NativeCuda()
 
 
 def _cuda_interface(name: str, array: Any) -> dict[str, Any]:
@@ -96,9 +120,10 @@ def _pointer(name: str, array: Any) -> int:
     return 0 if array is None else int(_cuda_interface(name, array)["data"][0])
 
 
-def _check_cuda_array(name: str, array: Any, dtype: str, shape: tuple[int, ...], device: int) -> None:
-    """A coded error (OptionError) unless `array` is a C-contiguous CUDA array of `dtype` and `shape` on `device`:
-    the kernel reads and writes the caller's memory itself, never a converted copy."""
+def _check_cuda_array(name: str, array: Any, dtype: str, shape: tuple[int, ...], device: int | None) -> None:
+    """A coded error (OptionError) unless `array` is a C-contiguous CUDA array of `dtype` and `shape`, on `device`
+    where both name theirs (_launch_device asks CUDA for the others): the kernel reads and writes the caller's
+    memory itself, never a converted copy."""
     interface = _cuda_interface(name, array)
     got = np.dtype(interface["typestr"])
     if got != np.dtype(dtype):
@@ -115,8 +140,27 @@ def _check_cuda_array(name: str, array: Any, dtype: str, shape: tuple[int, ...],
         if any(n > 1 and s != e for n, s, e in zip(shape, strides, reversed(expected))):
             raise OptionError("BAD_OPTION", f"{name}: not C-contiguous (strides {tuple(strides)}): pass a contiguous "
                               "array (.contiguous() in PyTorch, cupy.ascontiguousarray)")
-    if hasattr(array, "device") and _device_index(array) != device:
-        raise OptionError("BAD_OPTION", f"{name}: on CUDA device {_device_index(array)}, the poses on {device}")
+    named = _declared_device(array)
+    if named is not None and device is not None and named != device:
+        raise OptionError("BAD_OPTION", f"{name}: on CUDA device {named}, the poses on {device}")
+
+
+def _launch_device(arrays: dict[str, Any], device: int | None) -> int:
+    """The device of the launch: the one the poses name, else the one CUDA says holds the first array (poses_a);
+    every array that names no device must be there too (asked of CUDA by its address: an array on another device is
+    a coded error, never a launch that reads another device's memory)."""
+    for name, array in arrays.items():
+        if array is None or _declared_device(array) is not None:
+            continue
+        address = _pointer(name, array)
+        held, why = _cuda.device_of(address) if address else _cuda.current()
+        if held < 0:
+            raise OptionError("BAD_OPTION", f"{name}: CUDA cannot tell which device holds it ({why})")
+        if device is None:
+            device = int(held)
+        elif held != device:
+            raise OptionError("BAD_OPTION", f"{name}: on CUDA device {held}, the poses on {device}")
+    return int(device)  # type: ignore[arg-type]  (set: the first array, poses_a, names its device or CUDA did)
 
 
 def _output_specs(envs: int, k: int) -> list[tuple[str, str, tuple[int, ...]]]:
@@ -145,7 +189,7 @@ def _stream_of(array: Any) -> int:
 @contextlib.contextmanager
 def _current_device(array: Any, device: int) -> Iterator[None]:
     """`device` made current while the scene is uploaded and the kernel launched (the poses' device, whichever is
-    current in the caller's framework)."""
+    current in the caller's framework; for other arrays through CUDA itself, the previous device restored after)."""
     module = type(array).__module__.split(".")[0]
     if module == "torch":
         with __import__("torch").cuda.device(device):
@@ -154,7 +198,19 @@ def _current_device(array: Any, device: int) -> Iterator[None]:
         with __import__("cupy").cuda.Device(device):
             yield
     else:
-        yield
+        previous, why = _cuda.current()
+        if previous < 0:
+            raise InternalError("INTERNAL", f"no current CUDA device: {why}")
+        if previous == device:
+            yield
+            return
+        why = _cuda.make_current(device)
+        if why:
+            raise InternalError("INTERNAL", f"CUDA device {device} cannot be made current: {why}")
+        try:
+            yield
+        finally:
+            _cuda.make_current(previous)
 
 
 def _framework(array: Any) -> Any:
@@ -169,8 +225,8 @@ class BatchScene:
     """Assets and the pairs environments may hold. ``pairs`` are (A, B) indices into ``bodies`` (default: the first
     body against the second, or against itself when it is the only one); each environment
     names its pair with ``pair_index`` (default: pair 0 everywhere). The assets go to the current CUDA device once,
-    at the first call with CUDA poses on it, and are shared by every environment there (one scene per device: make
-    the poses' device current, as PyTorch's ``torch.cuda.device`` does, when you use several)."""
+    at the first call with CUDA poses on it, and are shared by every environment there (one scene per device: each
+    call makes the poses' device current while it uploads and launches, and checks that every array is there)."""
 
     def __init__(self, bodies: Sequence[Body], pairs: Sequence[tuple[int, int]] | None = None) -> None:
         self.bodies = list(bodies)
@@ -210,7 +266,7 @@ class BatchScene:
                 return fw.empty(shape, dtype=getattr(fw, dtype), device=poses.device)
         else:
             def empty(shape: tuple[int, ...], dtype: str) -> Any:
-                with fw.cuda.Device(_device_index(poses)):
+                with fw.cuda.Device(_declared_device(poses)):
                     return fw.empty(shape, dtype=dtype)
         specs = _output_specs(envs, int(max_contacts))
         return BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in specs})
@@ -252,7 +308,7 @@ class BatchScene:
         k = int(max_contacts)
         if not 0 <= k <= 1 << 24:
             raise OptionError("BAD_OPTION", "max_contacts must be in 0..2^24")
-        device = _device_index(poses_a)
+        device = _declared_device(poses_a)  # None: CUDA tells it below, once a device is known to be there
         envs = int(_cuda_interface("poses_a", poses_a)["shape"][0])
         _check_cuda_array("poses_a", poses_a, "float32", (envs, 4, 4), device)
         _check_cuda_array("poses_b", poses_b, "float32", (envs, 4, 4), device)
@@ -266,6 +322,10 @@ class BatchScene:
         ok, why = cuda_status()
         if not ok:
             raise InternalError("INTERNAL", f"CUDA poses, but no CUDA device can be used: {why}")
+        arrays = {"poses_a": poses_a, "poses_b": poses_b, "pair_index": pair_index}
+        if out is not None:
+            arrays |= {f"out.{name}": getattr(out, name) for name, _, _ in _output_specs(envs, k)}
+        device = _launch_device(arrays, device)
         with _current_device(poses_a, device):
             if out is None:
                 out = self.new_outputs(poses_a, k)

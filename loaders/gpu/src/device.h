@@ -17,6 +17,13 @@ std::string unavailable_reason();
 /// The name of the current CUDA device ("NVIDIA H100 80GB HBM3"), or empty.
 std::string device_name();
 
+/// The device holding `pointer`, or -1 and `error` (CUDA cannot say, or it is ordinary host memory).
+int device_of(const void* pointer, std::string& error);
+/// The current device, or -1 and `error`.
+int current_device(std::string& error);
+/// Makes `device` current; empty, or why not.
+std::string make_current(int device);
+
 /// Copies `bytes` from host memory to new device memory; nullptr (and `error`) on failure.
 void* copy_to_device(const void* host, size_t bytes, std::string& error);
 void release(void* device_pointer);

@@ -56,6 +56,39 @@ std::string device_name() {
   return properties.name;
 }
 
+int device_of(const void* pointer, std::string& error) {
+  cudaPointerAttributes attributes{};
+  const cudaError_t status = cudaPointerGetAttributes(&attributes, pointer);
+  if (status != cudaSuccess) {
+    error = describe(status);
+    cudaGetLastError();
+    return -1;
+  }
+  if (attributes.type == cudaMemoryTypeUnregistered || attributes.device < 0) {
+    error = "not memory CUDA knows of (an ordinary host address)";
+    return -1;
+  }
+  return attributes.device;
+}
+
+int current_device(std::string& error) {
+  int device = -1;
+  const cudaError_t status = cudaGetDevice(&device);
+  if (status != cudaSuccess) {
+    error = describe(status);
+    cudaGetLastError();
+    return -1;
+  }
+  return device;
+}
+
+std::string make_current(int device) {
+  const cudaError_t status = cudaSetDevice(device);
+  if (status == cudaSuccess) return std::string();
+  cudaGetLastError();
+  return describe(status);
+}
+
 void* copy_to_device(const void* host, size_t bytes, std::string& error) {
   void* device = nullptr;
   cudaError_t status = cudaMalloc(&device, bytes > 0 ? bytes : 1);

@@ -66,6 +66,26 @@ bool available(std::string* why) {
 
 std::string device_name() { return device::device_name(); }
 
+int device_of(const void* pointer, std::string* why) {
+  std::string error;
+  const int device = device::device_of(pointer, error);
+  if (why) *why = error;
+  return device;
+}
+
+int current_device(std::string* why) {
+  std::string error;
+  const int device = device::current_device(error);
+  if (why) *why = error;
+  return device;
+}
+
+bool make_current(int device, std::string* why) {
+  const std::string error = device::make_current(device);
+  if (why) *why = error;
+  return error.empty();
+}
+
 Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<const runtime::CollisionObject>>& assets,
                                              const std::vector<Pair>& pairs) {
   std::string why;

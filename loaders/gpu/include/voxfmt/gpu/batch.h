@@ -23,6 +23,14 @@ namespace voxfmt::gpu {
 bool available(std::string* why = nullptr);
 /// The name of the current CUDA device (e.g. "NVIDIA H100 80GB HBM3"), or empty.
 std::string device_name();
+/// The CUDA device whose memory `pointer` addresses (device or managed memory, or host memory mapped for CUDA):
+/// how arrays that show only their address (`__cuda_array_interface__`) tell their device. -1 and `why` when CUDA
+/// cannot say (ordinary host memory, no driver).
+int device_of(const void* pointer, std::string* why = nullptr);
+/// This thread's current CUDA device, or -1 (`why`) when none can be used.
+int current_device(std::string* why = nullptr);
+/// Makes `device` this thread's current CUDA device (what uploads and launches use); false and `why` on failure.
+bool make_current(int device, std::string* why = nullptr);
 
 /// E environments and their outputs: the CPU batch's (runtime::BatchScene), as device pointers. The device takes
 /// float32 poses only (`poses_a`, `poses_b`; the `_f64` ones must be null).
