@@ -1,0 +1,173 @@
+#!/usr/bin/env python3
+"""What better estimates in value bricks would give (issue "fidelity": measure before choosing a format change).
+
+    PYTHONPATH=build/python .venv/bin/python bench/estimate_oracle.py ASSET MESH [--json OUT]
+
+A value brick keeps a code per voxel, so its voxels beyond the band could hold any estimate at no cost in size;
+format 2.1 puts the lattice's interpolation there (spec §3.1). This script rebuilds the asset's field voxel by
+voxel (`Body.signed_distance` at every voxel centre), replaces the value bricks' estimates, and measures the field
+as the runtime samples it (trilinear between voxel centres) for
+  format 2.1       the asset's own estimates;
+  band sources     an upper bound any reader could trust: |d_b| + |v - b| with b a voxel with a stored distance
+                   or a lattice point (value l_b), the least such that sources carried from voxel to neighbouring
+                   voxel reach (what a producer could compute without the mesh);
+  exact            libigl's exact distance (what an exact transform would give).
+It reports depth_slope.py's figure (largest rise of depth per voxel along inward lines from 1/50 of the shell's
+points, 12 voxels deep, steps of a tenth of a voxel; 1 is the exact distance's), the share of lines steeper than
+1.2, and deep_accuracy.py's errors on the same sampled voxels. Needs libigl and SciPy; MESH as in deep_accuracy.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from deep_accuracy import deep_voxels, figures, import_igl, read_grid  # noqa: E402
+
+
+def dense_field(body, origin, h, dims) -> np.ndarray:
+    """Every voxel's value (voxels), [i, j, k]."""
+    field = np.empty(int(np.prod(dims)))
+    ii, jj, kk = np.meshgrid(*[np.arange(d) for d in dims], indexing="ij")
+    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], -1)
+    for s in range(0, len(ijk), 1 << 21):
+        field[s:s + (1 << 21)] = body.signed_distance(origin + h * ijk[s:s + (1 << 21)]) / h
+    return field.reshape(*dims)
+
+
+def value_brick_estimates(path: str, dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks [i, j, k] of the value bricks' estimates and of stored distances, and the lattice (voxels... metres)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        bricks = (dims + 7) // 8
+        table = f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
+        codes = f["voxelmap/brick_values"][...]
+        lattice = np.asarray(f["voxelmap/lattice"], float).transpose(2, 1, 0)  # [a, b, c]
+    estimate = np.zeros(tuple(dims), bool)
+    stored = np.zeros(tuple(dims), bool)
+    for bi, bj, bk in np.argwhere(table >= 0):
+        c = codes[table[bi, bj, bk]].reshape(8, 8, 8).transpose(2, 1, 0)  # [li, lj, lk]
+        i0, j0, k0 = bi * 8, bj * 8, bk * 8
+        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
+        estimate[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = (c % 2 == 0)[:w, :hh, :d]
+        stored[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = (c % 2 == 1)[:w, :hh, :d]
+    return estimate, stored, lattice
+
+
+def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) -> np.ndarray:
+    """The upper bound of the module's doc at the value bricks' estimates (magnitudes, voxels): sources carried from
+    voxel to 6-neighbour (vector propagation, Danielsson 1980), Jacobi rounds until none changes, each voxel keeping
+    the source b of least |d_b| + |v - b| it was offered: what a producer would compute."""
+    shape = tuple(int(d) for d in dims)
+    big = np.float32(1e30)
+    value = np.full(shape, big, np.float32)  # |d_b| of the voxel's source
+    best = np.full(shape, big, np.float32)  # |d_b| + |v - b|
+    source = np.zeros(shape + (3,), np.int16)
+    value[stored] = np.abs(field[stored])
+    corner = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(lattice.shape, dims)],
+                                  indexing="ij"), -1).reshape(-1, 3)
+    l = (lattice.reshape(-1) / h).astype(np.float32)
+    keep = l < value[corner[:, 0], corner[:, 1], corner[:, 2]]
+    value[corner[keep, 0], corner[keep, 1], corner[keep, 2]] = l[keep]
+    best[:] = value
+    grid = np.stack(np.meshgrid(*[np.arange(d, dtype=np.int16) for d in shape], indexing="ij"), -1)
+    source[:] = grid
+    for _ in range(rounds):
+        changed = 0
+        for axis in range(3):
+            for step in (1, -1):
+                to = [slice(None)] * 3
+                fr = [slice(None)] * 3
+                to[axis] = slice(1, None) if step == 1 else slice(None, -1)
+                fr[axis] = slice(None, -1) if step == 1 else slice(1, None)
+                to, fr = tuple(to), tuple(fr)
+                offer = source[fr]
+                cand = value[fr] + np.linalg.norm((grid[to] - offer).astype(np.float32), axis=-1)
+                better = cand < best[to] - 1e-6
+                changed += int(better.sum())
+                best[to] = np.where(better, cand, best[to])
+                value[to] = np.where(better, value[fr], value[to])
+                source[to] = np.where(better[..., None], offer, source[to])
+        if changed == 0:
+            break
+    return best[estimate].astype(np.float64)
+
+
+def slopes(field, body, origin, h) -> np.ndarray:
+    """The largest rise of depth per voxel along each inward line (depth_slope.py's walk)."""
+    from scipy.ndimage import map_coordinates
+
+    step = 0.1
+    s = np.arange(0, 12, step)
+    out = []
+    for p, n in zip(body.points[::50].astype(np.float64), body.normals[::50].astype(np.float64)):
+        q = (p[None, :] + s[:, None] * h * n[None, :] - origin) / h
+        depth = -map_coordinates(field, q.T, order=1, mode="nearest")
+        if (depth > 0).sum() >= 20:
+            out.append((np.diff(depth) / step).max())
+    return np.array(out)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("asset")
+    ap.add_argument("mesh")
+    ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
+    ap.add_argument("--json", help="write the figures here")
+    args = ap.parse_args()
+    igl = import_igl("estimate_oracle")
+    if igl is None:
+        return 2
+    body, origin, h, dims, band = read_grid(args.asset)
+    V, F = igl.read_triangle_mesh(args.mesh)
+    field = dense_field(body, origin, h, dims)
+    # The sampling must be the runtime's: check it on one line.
+    p = body.points[0].astype(np.float64) + np.outer(np.arange(0, 12, 0.5) * h, body.normals[0])
+    from scipy.ndimage import map_coordinates
+    gap = np.abs(body.signed_distance(p) / h - map_coordinates(field, ((p - origin) / h).T, order=1)).max()
+    assert gap < 1e-3, f"the dense field is not the runtime's ({gap} voxels apart)"
+    estimate, stored, lattice = value_brick_estimates(args.asset, dims)
+    where = np.argwhere(estimate)
+    sign = np.sign(field[estimate])
+    exact = igl.signed_distance(origin + h * where, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+    fields = {"format 2.1": field}
+    fields["band sources"] = field.copy()
+    fields["band sources"][estimate] = sign * np.maximum(band_sources(field, estimate, stored, lattice, h, dims),
+                                                         band - 0.5)
+    fields["exact"] = field.copy()
+    fields["exact"][estimate] = sign * np.maximum(np.abs(exact), band - 0.5)
+    ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
+    reference = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+    result = {"asset": args.asset, "mesh": args.mesh, "band": band, "value_brick_estimates": int(estimate.sum()),
+              "value_brick_estimates_below_exact": int((np.abs(fields["band sources"][estimate]) <
+                                                        np.abs(exact) - 1e-3).sum()),
+              "variants": {}}
+    print(f"estimate_oracle: {args.asset}: {estimate.sum()} value-brick voxels hold estimates")
+    print("| value-brick estimates | max slope | p99 | lines > 1.2 | inside: max error, beyond 1 voxel + 1 % "
+          "| outside: the same |")
+    print("|---|---|---|---|---|---|")
+    for name, f in fields.items():
+        s = slopes(f, body, origin, h)
+        acc = figures(f[ijk[:, 0], ijk[:, 1], ijk[:, 2]], reference)
+        result["variants"][name] = {"max_slope": round(float(s.max()), 3),
+                                    "p99_slope": round(float(np.percentile(s, 99)), 3),
+                                    "lines": int(s.size), "lines_over_1_2": round(float((s > 1.2).mean()), 4),
+                                    "accuracy": acc}
+        print(f"| {name} | {s.max():.2f} | {np.percentile(s, 99):.2f} | {100 * (s > 1.2).mean():.1f} % | "
+              f"{acc['inside']['max_error']:.2f}, {100 * acc['inside']['beyond_target_share']:.2f} % | "
+              f"{acc['outside']['max_error']:.2f}, {100 * acc['outside']['beyond_target_share']:.2f} % |")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(result, fh, indent=1)
+            fh.write("\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
