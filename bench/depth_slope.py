@@ -26,20 +26,30 @@ import voxfmt
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def max_slope(path: str) -> dict:
-    body = voxfmt.load(path)
+STEP = 0.1  # voxels between samples along a line
+
+
+def inward_lines(body, depth_of=None):
+    """Per inward line (from 1/50 of the shell's points, along their normals, 12 voxels deep, steps of STEP voxel)
+    reaching at least 20 samples inside: its depths (voxels) and their rises per voxel travelled. `depth_of(points)`
+    gives the depth (voxels) at points in metres (default: the body's own field)."""
     h = body.voxel_size
-    step = 0.1
-    s = np.arange(0, 12, step) * h
-    worst, at = 0.0, None
+    if depth_of is None:
+        def depth_of(points):
+            return -body.signed_distance(points) / h
+    s = np.arange(0, 12, STEP) * h
     for p, n in zip(body.points[::50].astype(np.float64), body.normals[::50].astype(np.float64)):
-        depth = -body.signed_distance(p[None, :] + s[:, None] * n[None, :]) / h
-        if (depth > 0).sum() < 20:
-            continue
-        slope = np.diff(depth) / step
+        depth = depth_of(p[None, :] + s[:, None] * n[None, :])
+        if (depth > 0).sum() >= 20:
+            yield depth, np.diff(depth) / STEP
+
+
+def max_slope(path: str) -> dict:
+    worst, at = 0.0, None
+    for depth, slope in inward_lines(voxfmt.load(path)):
         k = int(np.argmax(slope))
         if slope[k] > worst:
-            worst, at = float(slope[k]), {"travelled_voxels": round(k * step, 2), "depth_from": float(depth[k]),
+            worst, at = float(slope[k]), {"travelled_voxels": round(k * STEP, 2), "depth_from": float(depth[k]),
                                           "depth_to": float(depth[k + 1])}
     return {"max_slope": worst, "where": at}
 

@@ -28,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from deep_accuracy import deep_voxels, figures, import_igl, read_grid  # noqa: E402
+from depth_slope import inward_lines  # noqa: E402
 
 
 def dense_field(body, origin, h, dims) -> np.ndarray:
@@ -41,7 +42,8 @@ def dense_field(body, origin, h, dims) -> np.ndarray:
 
 
 def value_brick_estimates(path: str, dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Masks [i, j, k] of the value bricks' estimates and of stored distances, and the lattice (voxels... metres)."""
+    """Masks [i, j, k] of the value bricks' estimates and of their stored distances, and the lattice (metres,
+    [a, b, c])."""
     import h5py
 
     with h5py.File(path, "r") as f:
@@ -65,19 +67,16 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
     voxel to 6-neighbour (vector propagation, Danielsson 1980), Jacobi rounds until none changes, each voxel keeping
     the source b of least |d_b| + |v - b| it was offered: what a producer would compute."""
     shape = tuple(int(d) for d in dims)
-    big = np.float32(1e30)
-    value = np.full(shape, big, np.float32)  # |d_b| of the voxel's source
-    best = np.full(shape, big, np.float32)  # |d_b| + |v - b|
-    source = np.zeros(shape + (3,), np.int16)
+    value = np.full(shape, np.float32(1e30), np.float32)  # |d_b| of the voxel's source (each its own at first)
     value[stored] = np.abs(field[stored])
     corner = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(lattice.shape, dims)],
                                   indexing="ij"), -1).reshape(-1, 3)
     l = (lattice.reshape(-1) / h).astype(np.float32)
     keep = l < value[corner[:, 0], corner[:, 1], corner[:, 2]]
     value[corner[keep, 0], corner[keep, 1], corner[keep, 2]] = l[keep]
-    best[:] = value
+    best = value.copy()  # |d_b| + |v - b|
     grid = np.stack(np.meshgrid(*[np.arange(d, dtype=np.int16) for d in shape], indexing="ij"), -1)
-    source[:] = grid
+    source = grid.copy()
     for _ in range(rounds):
         changed = 0
         for axis in range(3):
@@ -100,18 +99,14 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
 
 
 def slopes(field, body, origin, h) -> np.ndarray:
-    """The largest rise of depth per voxel along each inward line (depth_slope.py's walk)."""
+    """The largest rise of depth per voxel along each of depth_slope.py's inward lines, in the dense field sampled
+    as the runtime samples it (trilinear between voxel centres)."""
     from scipy.ndimage import map_coordinates
 
-    step = 0.1
-    s = np.arange(0, 12, step)
-    out = []
-    for p, n in zip(body.points[::50].astype(np.float64), body.normals[::50].astype(np.float64)):
-        q = (p[None, :] + s[:, None] * h * n[None, :] - origin) / h
-        depth = -map_coordinates(field, q.T, order=1, mode="nearest")
-        if (depth > 0).sum() >= 20:
-            out.append((np.diff(depth) / step).max())
-    return np.array(out)
+    def depth_of(points):
+        return -map_coordinates(field, ((points - origin) / h).T, order=1, mode="nearest")
+
+    return np.array([slope.max() for _, slope in inward_lines(body, depth_of)])
 
 
 def main() -> int:
