@@ -30,7 +30,9 @@ __global__ void __launch_bounds__(core::kBlockLanes)
     core::run_environment_block(CudaBlock{}, state, in, out, e, frontier);
 }
 
-std::string describe(cudaError_t status) {
+// What went wrong, with CUDA's last error cleared: the process may go on (without a device, or on another one).
+std::string failure(cudaError_t status) {
+  cudaGetLastError();
   return std::string(cudaGetErrorName(status)) + ": " + cudaGetErrorString(status);
 }
 
@@ -39,10 +41,7 @@ std::string describe(cudaError_t status) {
 std::string unavailable_reason() {
   int devices = 0;
   const cudaError_t status = cudaGetDeviceCount(&devices);
-  if (status != cudaSuccess) {
-    cudaGetLastError();  // clear it: the process may go on without a device
-    return describe(status);
-  }
+  if (status != cudaSuccess) return failure(status);
   return devices > 0 ? std::string() : std::string("no CUDA device");
 }
 
@@ -60,8 +59,7 @@ int device_of(const void* pointer, std::string& error) {
   cudaPointerAttributes attributes{};
   const cudaError_t status = cudaPointerGetAttributes(&attributes, pointer);
   if (status != cudaSuccess) {
-    error = describe(status);
-    cudaGetLastError();
+    error = failure(status);
     return -1;
   }
   if (attributes.type == cudaMemoryTypeUnregistered || attributes.device < 0) {
@@ -75,8 +73,7 @@ int current_device(std::string& error) {
   int device = -1;
   const cudaError_t status = cudaGetDevice(&device);
   if (status != cudaSuccess) {
-    error = describe(status);
-    cudaGetLastError();
+    error = failure(status);
     return -1;
   }
   return device;
@@ -84,9 +81,7 @@ int current_device(std::string& error) {
 
 std::string make_current(int device) {
   const cudaError_t status = cudaSetDevice(device);
-  if (status == cudaSuccess) return std::string();
-  cudaGetLastError();
-  return describe(status);
+  return status == cudaSuccess ? std::string() : failure(status);
 }
 
 void* copy_to_device(const void* host, size_t bytes, std::string& error) {
@@ -94,8 +89,7 @@ void* copy_to_device(const void* host, size_t bytes, std::string& error) {
   cudaError_t status = cudaMalloc(&device, bytes > 0 ? bytes : 1);
   if (status == cudaSuccess && bytes > 0) status = cudaMemcpy(device, host, bytes, cudaMemcpyHostToDevice);
   if (status != cudaSuccess) {
-    error = describe(status);
-    cudaGetLastError();
+    error = failure(status);
     if (device) cudaFree(device);
     return nullptr;
   }
@@ -113,8 +107,7 @@ unsigned resident_blocks(std::string& error) {
   if (status == cudaSuccess)
     status = cudaOccupancyMaxActiveBlocksPerMultiprocessor(&per_processor, environments, core::kBlockLanes, 0);
   if (status != cudaSuccess) {
-    error = describe(status);
-    cudaGetLastError();
+    error = failure(status);
     return 0;
   }
   return unsigned(processors) * unsigned(per_processor > 0 ? per_processor : 1);
@@ -131,9 +124,7 @@ std::string keep_in_pool(size_t bytes) {
     threshold = bytes;
     status = cudaMemPoolSetAttribute(pool, cudaMemPoolAttrReleaseThreshold, &threshold);
   }
-  if (status == cudaSuccess) return std::string();
-  cudaGetLastError();
-  return describe(status);
+  return status == cudaSuccess ? std::string() : failure(status);
 }
 
 std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs& out, unsigned resident,
@@ -145,15 +136,12 @@ std::string launch(const core::BatchInputs<float>& in, const core::BatchOutputs&
   // held by the scene, never shared by two launches on two streams.
   void* frontiers = nullptr;
   cudaError_t status = cudaMallocAsync(&frontiers, size_t(blocks) * 2 * capacity * sizeof(core::OpenRange), s);
-  if (status != cudaSuccess) {
-    cudaGetLastError();
-    return describe(status);
-  }
+  if (status != cudaSuccess) return failure(status);
   environments<<<blocks, core::kBlockLanes, 0, s>>>(in, out, static_cast<core::OpenRange*>(frontiers), capacity);
   status = cudaGetLastError();
   const cudaError_t freed = cudaFreeAsync(frontiers, s);
   if (status == cudaSuccess) status = freed;
-  return status == cudaSuccess ? std::string() : describe(status);
+  return status == cudaSuccess ? std::string() : failure(status);
 }
 
 }  // namespace voxfmt::gpu::device
