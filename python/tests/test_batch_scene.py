@@ -282,15 +282,18 @@ def addressed_outputs(envs: int, first: int) -> voxfmt.BatchResult:
                                  for n, (name, dtype, shape) in enumerate(batch._output_specs(envs, 0))})
 
 
+# Poses at 0xa000 and 0xb000, the outputs from 0x2000 (addressed_outputs): all on device 2, as CUDA would say.
+POSES_BY_ADDRESS = (FakeCudaArray((8, 4, 4), "float32", address=0xa000),
+                    FakeCudaArray((8, 4, 4), "float32", address=0xb000))
+ALL_ON_DEVICE_2 = {0xa000: 2, 0xb000: 2} | {0x2000 + 0x100 * n: 2 for n in range(6)}
+
+
 def test_arrays_that_name_no_device_are_launched_where_cuda_says_they_are(
         sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch) -> None:
     # Only __cuda_array_interface__ (Numba, JAX, ...): the device comes from CUDA by the poses' address, is made
     # current for the launch (the caller's current device 0 restored after), and the scene of that device runs.
-    held = {0xa000: 2, 0xb000: 2} | {0x2000 + 0x100 * n: 2 for n in range(6)}
-    scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, held, current=0)
-    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa000)
-    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb000)
-    scene.contacts(poses_a, poses_b, out=addressed_outputs(8, 0x2000), check=False)
+    scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, ALL_ON_DEVICE_2, current=0)
+    scene.contacts(*POSES_BY_ADDRESS, out=addressed_outputs(8, 0x2000), check=False)
     assert [len(scene._device_scenes[d].calls) for d in range(4)] == [0, 0, 1, 0]
     assert scene._device_scenes[2].launched_on == [2]
     assert cuda.made_current == [2, 0] and cuda.current_device == 0
@@ -303,14 +306,10 @@ def test_arrays_that_name_no_device_are_launched_where_cuda_says_they_are(
 ])
 def test_arrays_elsewhere_or_unknown_to_cuda_are_coded_errors(
         sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch, move: dict[int, int | None], message: str) -> None:
-    held = {0xa000: 2, 0xb000: 2} | {0x2000 + 0x100 * n: 2 for n in range(6)}
-    held |= move
-    held = {address: device for address, device in held.items() if device is not None}
+    held = {address: device for address, device in (ALL_ON_DEVICE_2 | move).items() if device is not None}
     scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, held, current=0)
-    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa000)
-    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb000)
     with pytest.raises(voxfmt.OptionError, match=message):
-        scene.contacts(poses_a, poses_b, out=addressed_outputs(8, 0x2000), check=False)
+        scene.contacts(*POSES_BY_ADDRESS, out=addressed_outputs(8, 0x2000), check=False)
     assert all(not s.calls for s in scene._device_scenes.values()) and cuda.made_current == []
 
 
