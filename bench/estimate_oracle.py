@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What better estimates in value bricks would give (issue "fidelity": measure before choosing a format change).
 
-    PYTHONPATH=build/python .venv/bin/python bench/estimate_oracle.py ASSET MESH [--json OUT]
+    PYTHONPATH=build/python .venv/bin/python bench/estimate_oracle.py ASSET MESH [--json OUT] [--producer-values F]
 
 A value brick keeps a code per voxel, so its voxels beyond the band could hold any estimate at no cost in size;
 format 2.1 puts the lattice's interpolation there (spec §3.1). This script rebuilds the asset's field voxel by
@@ -11,6 +11,13 @@ as the runtime samples it (trilinear between voxel centres) for
   band sources     an upper bound any reader could trust: |d_b| + |v - b| with b a voxel with a stored distance
                    or a lattice point (value l_b), the least such that sources carried from voxel to neighbouring
                    voxel reach (what a producer could compute without the mesh);
+  chamfer sources  the same sources carried as a 26-neighbour chamfer transform (paths of voxel steps 1, sqrt 2,
+                   sqrt 3 through the whole grid, two raster passes): cheap, 1.08-Lipschitz, still an upper bound;
+  chamfer, capped by 2.1's
+                   the least of that and format 2.1's estimate (which a reader's bounds on 2.1 assume);
+  chamfer, value bricks only
+                   with --producer-values: bench/estimate_transform.cpp's values (paths inside value bricks only,
+                   coarse lattice points reached through each voxel's cell), what the producer above would store;
   exact            libigl's exact distance (what an exact transform would give).
 It reports depth_slope.py's figure (largest rise of depth per voxel along inward lines from 1/50 of the shell's
 points, 12 voxels deep, steps of a tenth of a voxel; 1 is the exact distance's), the share of lines steeper than
@@ -41,25 +48,50 @@ def dense_field(body, origin, h, dims) -> np.ndarray:
     return field.reshape(*dims)
 
 
+def brick_table(path: str, dims) -> np.ndarray:
+    """The brick table [bi, bj, bk] (>= 0: a value brick's index)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        bricks = (dims + 7) // 8
+        return f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
+
+
+def on_grid(table, per_brick: np.ndarray, dims, fill) -> np.ndarray:
+    """Arrays of 512 values a value brick (x fastest, the value bricks' order) as one array [i, j, k]."""
+    grid = np.full(tuple(int(d) for d in dims), fill, per_brick.dtype)
+    for bi, bj, bk in np.argwhere(table >= 0):
+        c = per_brick[table[bi, bj, bk]].reshape(8, 8, 8).transpose(2, 1, 0)  # [li, lj, lk]
+        i0, j0, k0 = bi * 8, bj * 8, bk * 8
+        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
+        grid[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = c[:w, :hh, :d]
+    return grid
+
+
 def value_brick_estimates(path: str, dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Masks [i, j, k] of the value bricks' estimates and of their stored distances, and the lattice (metres,
     [a, b, c])."""
     import h5py
 
     with h5py.File(path, "r") as f:
-        bricks = (dims + 7) // 8
-        table = f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
         codes = f["voxelmap/brick_values"][...]
         lattice = np.asarray(f["voxelmap/lattice"], float).transpose(2, 1, 0)  # [a, b, c]
-    estimate = np.zeros(tuple(dims), bool)
-    stored = np.zeros(tuple(dims), bool)
-    for bi, bj, bk in np.argwhere(table >= 0):
-        c = codes[table[bi, bj, bk]].reshape(8, 8, 8).transpose(2, 1, 0)  # [li, lj, lk]
-        i0, j0, k0 = bi * 8, bj * 8, bk * 8
-        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
-        estimate[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = (c % 2 == 0)[:w, :hh, :d]
-        stored[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = (c % 2 == 1)[:w, :hh, :d]
-    return estimate, stored, lattice
+    table = brick_table(path, dims)
+    kind = on_grid(table, (1 + codes % 2).astype(np.int8), dims, 0)  # 1 an estimate, 2 a stored distance
+    return kind == 1, kind == 2, lattice
+
+
+def source_values(field, stored, lattice, h, dims) -> np.ndarray:
+    """The sources' values [i, j, k] (voxels, float32): |d| at the stored distances, the lattice's value at its points
+    (the lesser where both), 1e30 elsewhere."""
+    value = np.full(tuple(int(d) for d in dims), np.float32(1e30), np.float32)
+    value[stored] = np.abs(field[stored])
+    corner = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(lattice.shape, dims)],
+                                  indexing="ij"), -1).reshape(-1, 3)
+    l = (lattice.reshape(-1) / h).astype(np.float32)
+    keep = l < value[corner[:, 0], corner[:, 1], corner[:, 2]]
+    value[corner[keep, 0], corner[keep, 1], corner[keep, 2]] = l[keep]
+    return value
 
 
 def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) -> np.ndarray:
@@ -67,13 +99,7 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
     voxel to 6-neighbour (vector propagation, Danielsson 1980), Jacobi rounds until none changes, each voxel keeping
     the source b of least |d_b| + |v - b| it was offered: what a producer would compute."""
     shape = tuple(int(d) for d in dims)
-    value = np.full(shape, np.float32(1e30), np.float32)  # |d_b| of the voxel's source (each its own at first)
-    value[stored] = np.abs(field[stored])
-    corner = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(lattice.shape, dims)],
-                                  indexing="ij"), -1).reshape(-1, 3)
-    l = (lattice.reshape(-1) / h).astype(np.float32)
-    keep = l < value[corner[:, 0], corner[:, 1], corner[:, 2]]
-    value[corner[keep, 0], corner[keep, 1], corner[keep, 2]] = l[keep]
+    value = source_values(field, stored, lattice, h, dims)  # |d_b| of the voxel's source (each its own at first)
     best = value.copy()  # |d_b| + |v - b|
     grid = np.stack(np.meshgrid(*[np.arange(d, dtype=np.int16) for d in shape], indexing="ij"), -1)
     source = grid.copy()
@@ -98,6 +124,67 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
     return best[estimate].astype(np.float64)
 
 
+def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4) -> tuple[np.ndarray, int]:
+    """The same sources, carried as a 26-neighbour chamfer transform: the least |d_b| + the length of a path of
+    voxel steps (1, sqrt 2, sqrt 3) from b, in raster passes forward and back until none changes (two, as a
+    producer would run it, when the second changes nothing). A path is no shorter than the straight line, so the
+    value stays an upper bound; and it is 1-Lipschitz in the chamfer metric (at most 1.08 times the Euclidean), so a
+    reader can check neighbouring values differ by at most their step. Returns the magnitudes at the estimates and
+    the passes it took."""
+    shape = tuple(int(d) for d in dims)
+    value = source_values(field, stored, lattice, h, dims)
+    step = np.sqrt(np.arange(4, dtype=np.float32))  # by the number of axes a step moves along
+    x = np.arange(shape[0], dtype=np.float32)
+    v = np.ascontiguousarray(value.transpose(2, 1, 0))  # [k, j, i]: rows along i contiguous
+
+    def shifted(a, di: int, axis: int):
+        """a[.., i + di, ..] along `axis` (1e30 beyond the grid)."""
+        out = np.full_like(a, np.float32(1e30))
+        src = [slice(None)] * a.ndim
+        dst = [slice(None)] * a.ndim
+        if di < 0:
+            src[axis], dst[axis] = slice(None, -1), slice(1, None)
+        elif di > 0:
+            src[axis], dst[axis] = slice(1, None), slice(None, -1)
+        out[tuple(dst)] = a[tuple(src)]
+        return out
+
+    def sweep(forward: bool) -> int:
+        """One raster pass (k, then j, then i ascending, or all descending); the voxels it lowered."""
+        back = -1 if forward else 1  # where the voxels already visited lie
+        ks = range(shape[2]) if forward else range(shape[2] - 1, -1, -1)
+        js = range(shape[1]) if forward else range(shape[1] - 1, -1, -1)
+        lowered = 0
+        for k in ks:
+            plane = v[k]  # [j, i]
+            before = plane.copy()
+            if 0 <= k + back < shape[2]:
+                for dj in (-1, 0, 1):
+                    prev = shifted(v[k + back], dj, 0)
+                    for di in (-1, 0, 1):
+                        np.minimum(plane, shifted(prev, di, 1) + step[1 + abs(di) + abs(dj)], out=plane)
+            for j in js:
+                row = plane[j]
+                if 0 <= j + back < shape[1]:
+                    for di in (-1, 0, 1):
+                        np.minimum(row, shifted(plane[j + back], di, 0) + step[1 + abs(di)], out=row)
+                # along i: row[i] = least row[i'] + |i - i'| over the i' visited before i
+                if forward:
+                    row[:] = np.minimum.accumulate(row - x) + x
+                else:
+                    row[:] = (np.minimum.accumulate((row + x)[::-1]) - x[::-1])[::-1]
+            lowered += int((plane < before - np.float32(1e-4)).sum())
+        return lowered
+
+    done = 0
+    for n in range(passes):
+        changed = sweep(forward=n % 2 == 0)
+        done = n + 1
+        if n >= 1 and changed == 0:
+            break
+    return v.transpose(2, 1, 0)[estimate].astype(np.float64), done
+
+
 def slopes(field, body, origin, h) -> np.ndarray:
     """The largest rise of depth per voxel along each of depth_slope.py's inward lines, in the dense field sampled
     as the runtime samples it (trilinear between voxel centres)."""
@@ -115,6 +202,8 @@ def main() -> int:
     ap.add_argument("mesh")
     ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
     ap.add_argument("--json", help="write the figures here")
+    ap.add_argument("--producer-values", help="also measure these values (bench/estimate_transform.cpp --values: "
+                    "float32 voxels, 512 a value brick): the chamfer transform as a producer runs it")
     args = ap.parse_args()
     igl = import_igl("estimate_oracle")
     if igl is None:
@@ -135,6 +224,20 @@ def main() -> int:
     fields["band sources"] = field.copy()
     fields["band sources"][estimate] = sign * np.maximum(band_sources(field, estimate, stored, lattice, h, dims),
                                                          band - 0.5)
+    chamfer, passes = chamfer_sources(field, estimate, stored, lattice, h, dims)
+    fields["chamfer sources"] = field.copy()
+    fields["chamfer sources"][estimate] = sign * np.maximum(chamfer, band - 0.5)
+    # Capped by format 2.1's estimate (the lattice's interpolation), so every bound a reader derives from 2.1's
+    # estimates still holds.
+    fields["chamfer, capped by 2.1's"] = field.copy()
+    fields["chamfer, capped by 2.1's"][estimate] = sign * np.maximum(np.minimum(chamfer, np.abs(field[estimate])),
+                                                                      band - 0.5)
+    producer = None
+    if args.producer_values:
+        per_brick = np.fromfile(args.producer_values, np.float32).reshape(-1, 512)
+        producer = on_grid(brick_table(args.asset, dims), per_brick, dims, np.float32(np.nan))[estimate]
+        fields["chamfer, value bricks only"] = field.copy()
+        fields["chamfer, value bricks only"][estimate] = sign * np.maximum(producer, band - 0.5)
     fields["exact"] = field.copy()
     fields["exact"][estimate] = sign * np.maximum(np.abs(exact), band - 0.5)
     ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
@@ -142,6 +245,11 @@ def main() -> int:
     result = {"asset": args.asset, "mesh": args.mesh, "band": band, "value_brick_estimates": int(estimate.sum()),
               "value_brick_estimates_below_exact": int((np.abs(fields["band sources"][estimate]) <
                                                         np.abs(exact) - 1e-3).sum()),
+              "chamfer_below_exact": int((chamfer < np.abs(exact) - 1e-3).sum()), "chamfer_passes": passes,
+              "value_bricks_only_above_chamfer": None if producer is None else {
+                  "max": round(float((producer - chamfer).max()), 4),
+                  "share_over_0_01": round(float((producer - chamfer > 0.01).mean()), 5),
+                  "below_exact": int((producer < np.abs(exact) - 1e-3).sum())},
               "variants": {}}
     print(f"estimate_oracle: {args.asset}: {estimate.sum()} value-brick voxels hold estimates")
     print("| value-brick estimates | max slope | p99 | lines > 1.2 | inside: max error, beyond 1 voxel + 1 % "

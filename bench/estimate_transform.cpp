@@ -1,0 +1,233 @@
+// What better value-brick estimates would cost a producer (issue "fidelity", a format 2.2 candidate): the
+// 26-neighbour chamfer transform of an asset's band sources over its value bricks, timed.
+//
+//   estimate-transform ASSET [--values OUT] [--json OUT] [--max-memory MiB]
+//
+// Sources are the stored distances (|d|) and the lattice points (their value): each value-brick voxel is seeded
+// with the least l_q + c(q - v) over its cell's eight lattice points q (c: the chamfer length of a path of voxel
+// steps 1, sqrt 2, sqrt 3), then raster passes forward and back over the value bricks' voxels lower each to the
+// least of its 13 neighbours visited before plus the step, until a pass lowers none. Paths stay inside value bricks
+// (coarse bricks are reached by the seed only). A path is no shorter than the straight line, so every value is an
+// upper bound of the exact distance, and once settled neighbouring values differ by at most their step: what a
+// reader could check without the mesh. One thread, the asset read first (not timed). `--values` writes the
+// values (voxels, float32, the value bricks' order, 512 each) for bench/estimate_oracle.py --producer-values.
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "voxfmt/io.h"
+
+namespace {
+
+using voxfmt::Voxelmap;
+constexpr float kFar = 1e30f;
+constexpr int kEdge = 8;
+const float kStep[4] = {0.0f, 1.0f, 1.41421356f, 1.73205081f};  // by the number of axes a step moves along
+
+float chamfer_length(int a, int b, int c) {
+  std::array<int, 3> s = {std::abs(a), std::abs(b), std::abs(c)};
+  std::sort(s.begin(), s.end());  // s[0] <= s[1] <= s[2]
+  return float(s[0]) * kStep[3] + float(s[1] - s[0]) * kStep[2] + float(s[2] - s[1]) * kStep[1];
+}
+
+class ChamferTransform {
+ public:
+  explicit ChamferTransform(const Voxelmap& vm) : vm_(vm), bricks_(vm.brick_dims()) {
+    for (int a = 0; a < 3; ++a) dims_[a] = int(vm.dims[a]);
+    values_.assign(vm.brick_values.size(), kFar);
+    rows_.assign(size_t(bricks_[1]) * bricks_[2], {});
+    for (uint32_t bk = 0; bk < bricks_[2]; ++bk)
+      for (uint32_t bj = 0; bj < bricks_[1]; ++bj)
+        for (uint32_t bi = 0; bi < bricks_[0]; ++bi)
+          if (vm.bricks[vm.brick_index(bi, bj, bk)] >= 0) rows_[size_t(bk) * bricks_[1] + bj].push_back(int(bi));
+  }
+
+  const std::vector<float>& values() const { return values_; }
+
+  /// Stored voxels their |d|; the others the least over their cell's lattice points of l_q + c(q - v).
+  void seed() {
+    std::vector<float> length(17 * 17 * 17);  // chamfer lengths of offsets -8 .. 8
+    for (int z = 0; z < 17; ++z)
+      for (int y = 0; y < 17; ++y)
+        for (int x = 0; x < 17; ++x) length[size_t((z * 17 + y) * 17 + x)] = chamfer_length(x - 8, y - 8, z - 8);
+    for (size_t b = 0; b < vm_.bricks.size(); ++b)
+      if (vm_.bricks[b] >= 0) seed_brick(b, length);
+  }
+
+  /// One raster pass over the value bricks' voxels, forward or back; how many it lowered (by over 1e-4 voxel).
+  size_t pass(bool forward) {
+    const int dir = forward ? 1 : -1;
+    size_t lowered = 0;
+    for (int kk = 0; kk < dims_[2]; ++kk) {
+      const int k = forward ? kk : dims_[2] - 1 - kk;
+      for (int jj = 0; jj < dims_[1]; ++jj) {
+        const int j = forward ? jj : dims_[1] - 1 - jj;
+        const std::vector<int>& columns = rows_[size_t(k / kEdge) * bricks_[1] + size_t(j / kEdge)];
+        for (size_t c = 0; c < columns.size(); ++c)
+          lowered += segment(forward ? columns[c] : columns[columns.size() - 1 - c], j, k, dir);
+      }
+    }
+    return lowered;
+  }
+
+ private:
+  void seed_brick(size_t b, const std::vector<float>& length) {
+    const int bi = int(b % bricks_[0]), bj = int(b / bricks_[0] % bricks_[1]),
+              bk = int(b / (size_t(bricks_[0]) * bricks_[1]));
+    float corner[8];
+    int cx[2], cy[2], cz[2];
+    for (int q = 0; q < 2; ++q) {
+      cx[q] = int(Voxelmap::lattice_coordinate(uint32_t(bi + q), vm_.dims[0]));
+      cy[q] = int(Voxelmap::lattice_coordinate(uint32_t(bj + q), vm_.dims[1]));
+      cz[q] = int(Voxelmap::lattice_coordinate(uint32_t(bk + q), vm_.dims[2]));
+    }
+    for (int q = 0; q < 8; ++q)
+      corner[q] =
+          float(vm_.lattice[vm_.lattice_index(bi + (q & 1), bj + (q >> 1 & 1), bk + (q >> 2))] / vm_.voxel_size);
+    const size_t first = size_t(vm_.bricks[b]) * Voxelmap::kBrickVoxels;
+    for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
+      const int16_t code = vm_.brick_values[first + size_t(l)];
+      if (Voxelmap::code_is_stored(code)) {
+        values_[first + size_t(l)] = float(std::abs(vm_.decode(code)) / vm_.voxel_size);
+        continue;
+      }
+      const int i = bi * kEdge + (l & 7), j = bj * kEdge + (l >> 3 & 7), k = bk * kEdge + (l >> 6);
+      float best = kFar;
+      for (int q = 0; q < 8; ++q)
+        best = std::min(
+            best,
+            corner[q] + length[size_t(((cz[q >> 2] - k + 8) * 17 + cy[q >> 1 & 1] - j + 8) * 17 + cx[q & 1] - i + 8)]);
+      values_[first + size_t(l)] = best;
+    }
+  }
+
+  /// The 8 values of the row segment of brick column bi at voxel row j of plane k, or null (coarse, outside).
+  float* row(int bi, int j, int k) {
+    if (bi < 0 || j < 0 || k < 0 || bi >= int(bricks_[0]) || j >= dims_[1] || k >= dims_[2]) return nullptr;
+    const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(j / kEdge), uint32_t(k / kEdge))];
+    if (e < 0) return nullptr;
+    return &values_[size_t(e) * Voxelmap::kBrickVoxels + size_t(((k % kEdge) * kEdge + j % kEdge) * kEdge)];
+  }
+
+  /// A row around segment bi: x = -1 .. 8 (far where no value brick holds it).
+  void around(int bi, int j, int k, float out[10]) {
+    const float* left = row(bi - 1, j, k);
+    const float* middle = row(bi, j, k);
+    const float* right = row(bi + 1, j, k);
+    out[0] = left ? left[kEdge - 1] : kFar;
+    out[9] = right ? right[0] : kFar;
+    if (middle)
+      std::memcpy(out + 1, middle, kEdge * sizeof(float));
+    else
+      std::fill(out + 1, out + 9, kFar);
+  }
+
+  /// Lowers one row segment from the 13 neighbours its pass visited before; how many it lowered.
+  size_t segment(int bi, int j, int k, int dir) {
+    float before[4][10];  // plane k - dir at rows j - 1, j, j + 1; this plane at row j - dir
+    around(bi, j - 1, k - dir, before[0]);
+    around(bi, j, k - dir, before[1]);
+    around(bi, j + 1, k - dir, before[2]);
+    around(bi, j - dir, k, before[3]);
+    float* values = row(bi, j, k);
+    float best[kEdge];
+    for (int x = 0; x < kEdge; ++x) {
+      float m = values[x];
+      for (int r = 0; r < 3; ++r)
+        for (int dx = -1; dx <= 1; ++dx) m = std::min(m, before[r][x + 1 + dx] + kStep[1 + (r != 1) + (dx != 0)]);
+      for (int dx = -1; dx <= 1; ++dx) m = std::min(m, before[3][x + 1 + dx] + kStep[1 + (dx != 0)]);
+      best[x] = m;
+    }
+    // Along the row: the voxel visited just before it (in the previous segment at the segment's start).
+    const float* previous = row(bi - dir, j, k);
+    float run = previous ? previous[dir > 0 ? kEdge - 1 : 0] : kFar;
+    size_t lowered = 0;
+    for (int n = 0; n < kEdge; ++n) {
+      const int x = dir > 0 ? n : kEdge - 1 - n;
+      run = std::min(best[x], run + kStep[1]);
+      lowered += run < values[x] - 1e-4f;
+      values[x] = run;
+    }
+    return lowered;
+  }
+
+  const Voxelmap& vm_;
+  std::array<uint32_t, 3> bricks_;
+  int dims_[3];
+  std::vector<float> values_;           ///< per value-brick voxel (voxels), the value bricks' order
+  std::vector<std::vector<int>> rows_;  ///< per (bj, bk): its value bricks' columns bi, ascending
+};
+
+double seconds_since(std::chrono::steady_clock::time_point& start) {
+  const auto now = std::chrono::steady_clock::now();
+  const double s = std::chrono::duration<double>(now - start).count();
+  start = now;
+  return s;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"The cost of a chamfer transform of band sources over an asset's value bricks (bench)"};
+  std::string asset_path, values_path, json_path;
+  app.add_option("asset", asset_path, "a baked asset")->required();
+  app.add_option("--values", values_path, "write the values here (float32, voxels, value bricks' order)");
+  app.add_option("--json", json_path, "write the figures here");
+  uint64_t max_memory_mib = voxfmt::ReadOptions::kDefaultReadMemoryBytes >> 20;
+  app.add_option("--max-memory", max_memory_mib, "MiB the read may take (a 4096^3 bake needs ~2.1 GB)");
+  CLI11_PARSE(app, argc, argv);
+  voxfmt::ReadOptions read;
+  read.max_memory_bytes = max_memory_mib << 20;
+  auto asset = voxfmt::read_asset(asset_path, nullptr, read);
+  if (!asset) {
+    std::cerr << "estimate-transform: " << asset.error().describe() << "\n";
+    return 2;
+  }
+  const Voxelmap& vm = asset->voxelmap;
+  size_t estimates = 0;
+  for (int16_t code : vm.brick_values) estimates += code != 0 && !Voxelmap::code_is_stored(code);
+  auto clock = std::chrono::steady_clock::now();
+  ChamferTransform transform(vm);
+  transform.seed();
+  const double seed_s = seconds_since(clock);
+  std::vector<std::pair<double, size_t>> passes;  // seconds, voxels lowered
+  for (size_t p = 0; p < 16; ++p) {
+    const size_t lowered = transform.pass(p % 2 == 0);
+    passes.push_back({seconds_since(clock), lowered});
+    if (p >= 1 && lowered == 0) break;  // settled: the last pass lowered nothing
+  }
+  double total = seed_s;
+  std::printf("estimate-transform: %s: %zu value bricks, %zu of their voxels estimates\n", asset_path.c_str(),
+              vm.brick_values.size() / Voxelmap::kBrickVoxels, estimates);
+  std::printf("| stage | s | voxels lowered |\n|---|---|---|\n| seed | %.3f | |\n", seed_s);
+  nlohmann::json figures = {{"asset", asset_path},
+                            {"value_brick_voxels", vm.brick_values.size()},
+                            {"estimates", estimates},
+                            {"seed_s", seed_s},
+                            {"passes", nlohmann::json::array()}};
+  for (size_t p = 0; p < passes.size(); ++p) {
+    total += passes[p].first;
+    std::printf("| pass %zu (%s) | %.3f | %zu |\n", p + 1, p % 2 == 0 ? "forward" : "back", passes[p].first,
+                passes[p].second);
+    figures["passes"].push_back({{"s", passes[p].first}, {"lowered", passes[p].second}});
+  }
+  const double per_voxel_ns = 1e9 * total / double(vm.brick_values.size());
+  std::printf("| all | %.3f | (%.1f ns a value-brick voxel) |\n", total, per_voxel_ns);
+  figures["total_s"] = total;
+  figures["ns_per_value_brick_voxel"] = per_voxel_ns;
+  if (!values_path.empty())
+    std::ofstream(values_path, std::ios::binary)
+        .write(reinterpret_cast<const char*>(transform.values().data()),
+               std::streamsize(transform.values().size() * sizeof(float)));
+  if (!json_path.empty()) std::ofstream(json_path) << figures.dump(1) << "\n";
+  return 0;
+}
