@@ -4,6 +4,7 @@
 //   write_sphere_asset OUT.vox.h5
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <functional>
 
 #include "voxfmt/io.h"
@@ -82,9 +83,11 @@ voxfmt::Asset make_sphere_asset() {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc != 2) {
-    std::fprintf(stderr, "usage: %s OUT.vox.h5\nWrites an analytic sphere (r = 0.25 m) as a voxfmt asset.\n", argv[0]);
-    return 2;
+  const bool help = argc == 2 && (std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0);
+  if (argc != 2 || help || argv[1][0] == '-') {
+    std::fprintf(help ? stdout : stderr,
+                 "usage: %s OUT.vox.h5\nWrites an analytic sphere (r = 0.25 m) as a voxfmt asset.\n", argv[0]);
+    return help ? 0 : 2;
   }
   const voxfmt::Status status = voxfmt::write_asset(argv[1], make_sphere_asset());
   if (!status) {
