@@ -126,8 +126,8 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
 
 def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4) -> tuple[np.ndarray, int]:
     """The same sources, carried as a 26-neighbour chamfer transform: the least |d_b| + the length of a path of
-    voxel steps (1, sqrt 2, sqrt 3) from b, in raster passes forward and back until none changes (two, as a
-    producer would run it, when the second changes nothing). A path is no shorter than the straight line, so the
+    voxel steps (1, sqrt 2, sqrt 3) from b, in raster passes forward and back until one lowers nothing (at most
+    `passes`; on the 306 bunny the second settles it). A path is no shorter than the straight line, so the
     value stays an upper bound; and it is 1-Lipschitz in the chamfer metric (at most 1.08 times the Euclidean), so a
     reader can check neighbouring values differ by at most their step. Returns the magnitudes at the estimates and
     the passes it took."""

@@ -205,7 +205,8 @@ int main(int argc, char** argv) {
   app.add_option("--values", values_path, "write the values here (float32, voxels, value bricks' order)");
   app.add_option("--json", json_path, "write the figures here");
   uint64_t max_memory_mib = voxfmt::ReadOptions::kDefaultReadMemoryBytes >> 20;
-  app.add_option("--max-memory", max_memory_mib, "MiB the read may take (a 4096^3 bake needs ~2.1 GB)");
+  app.add_option("--max-memory", max_memory_mib, "MiB the read may take (a 4096^3 bake needs ~2.1 GB)")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 30));
   CLI11_PARSE(app, argc, argv);
   voxfmt::ReadOptions read;
   read.max_memory_bytes = max_memory_mib << 20;
@@ -246,10 +247,18 @@ int main(int argc, char** argv) {
   std::printf("| all | %.3f | (%.1f ns a value-brick voxel) |\n", total, per_voxel_ns);
   figures["total_s"] = total;
   figures["ns_per_value_brick_voxel"] = per_voxel_ns;
-  if (!values_path.empty())
-    std::ofstream(values_path, std::ios::binary)
-        .write(reinterpret_cast<const char*>(transform.values().data()),
-               std::streamsize(transform.values().size() * sizeof(float)));
-  if (!json_path.empty()) std::ofstream(json_path) << figures.dump(1) << "\n";
+  if (!values_path.empty()) {
+    std::ofstream out(values_path, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(transform.values().data()),
+              std::streamsize(transform.values().size() * sizeof(float)));
+    if (!out.flush()) {
+      std::cerr << "estimate-transform: cannot write " << values_path << "\n";
+      return 1;
+    }
+  }
+  if (!json_path.empty() && !(std::ofstream(json_path) << figures.dump(1) << "\n").flush()) {
+    std::cerr << "estimate-transform: cannot write " << json_path << "\n";
+    return 1;
+  }
   return 0;
 }
