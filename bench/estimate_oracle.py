@@ -220,26 +220,26 @@ def main() -> int:
     where = np.argwhere(estimate)
     sign = np.sign(field[estimate])
     exact = igl.signed_distance(origin + h * where, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+
+    def with_estimates(magnitudes):
+        """Format 2.1's field with these magnitudes at the value-brick estimates, never inside the band."""
+        variant = field.copy()
+        variant[estimate] = sign * np.maximum(magnitudes, band - 0.5)
+        return variant
+
     fields = {"format 2.1": field}
-    fields["band sources"] = field.copy()
-    fields["band sources"][estimate] = sign * np.maximum(band_sources(field, estimate, stored, lattice, h, dims),
-                                                         band - 0.5)
+    fields["band sources"] = with_estimates(band_sources(field, estimate, stored, lattice, h, dims))
     chamfer, passes = chamfer_sources(field, estimate, stored, lattice, h, dims)
-    fields["chamfer sources"] = field.copy()
-    fields["chamfer sources"][estimate] = sign * np.maximum(chamfer, band - 0.5)
+    fields["chamfer sources"] = with_estimates(chamfer)
     # Capped by format 2.1's estimate (the lattice's interpolation), so every bound a reader derives from 2.1's
     # estimates still holds.
-    fields["chamfer, capped by 2.1's"] = field.copy()
-    fields["chamfer, capped by 2.1's"][estimate] = sign * np.maximum(np.minimum(chamfer, np.abs(field[estimate])),
-                                                                      band - 0.5)
+    fields["chamfer, capped by 2.1's"] = with_estimates(np.minimum(chamfer, np.abs(field[estimate])))
     producer = None
     if args.producer_values:
         per_brick = np.fromfile(args.producer_values, np.float32).reshape(-1, 512)
         producer = on_grid(brick_table(args.asset, dims), per_brick, dims, np.float32(np.nan))[estimate]
-        fields["chamfer, value bricks only"] = field.copy()
-        fields["chamfer, value bricks only"][estimate] = sign * np.maximum(producer, band - 0.5)
-    fields["exact"] = field.copy()
-    fields["exact"][estimate] = sign * np.maximum(np.abs(exact), band - 0.5)
+        fields["chamfer, value bricks only"] = with_estimates(producer)
+    fields["exact"] = with_estimates(np.abs(exact))
     ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
     reference = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
     result = {"asset": args.asset, "mesh": args.mesh, "band": band, "value_brick_estimates": int(estimate.sum()),
