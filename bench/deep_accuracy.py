@@ -119,6 +119,14 @@ def figures(estimate: np.ndarray, exact: np.ndarray) -> dict:
     return out
 
 
+def write_json(path: str | None, result: dict) -> None:
+    """The figures as JSON at path (none without one)."""
+    if path:
+        with open(path, "w") as f:
+            json.dump(result, f, indent=1)
+            f.write("\n")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("asset")
@@ -182,10 +190,7 @@ def main() -> int:
         print(f"the asset's lattice: {s['points']} points, above the exact distance by at most {s['max_over']:.3f} voxel "
               f"(p99 {s['p99_over']:.3f}), {s['over_1_voxel']} by more than 1; beyond 16 voxels "
               f"({s['beyond_16_voxels']} points) {s['mean_over_beyond_16']:.3f} on average")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(result, f, indent=1)
-            f.write("\n")
+    write_json(args.json, result)
     return 0
 
 

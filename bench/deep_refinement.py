@@ -18,7 +18,6 @@ flagged brick would take (512 codes, or (8/s + 1)^3 values).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -26,7 +25,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from deep_accuracy import deep_voxels, import_igl, interpolate, read_grid, table_values  # noqa: E402
+from deep_accuracy import deep_voxels, import_igl, interpolate, read_grid, table_values, write_json  # noqa: E402
 
 
 def main() -> int:
@@ -104,10 +103,7 @@ def main() -> int:
         result["rows"][name] = {"beyond_coarse": int((b & ~in_value).sum()), "beyond_value": int((b & in_value).sum()),
                                 "max_error_coarse": round(float(error.max()), 3), "bytes_per_flagged_brick": size}
         print(f"| {name} | {int((b & ~in_value).sum())} | {int((b & in_value).sum())} | {error.max():.2f} | {size} |")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(result, f, indent=1)
-            f.write("\n")
+    write_json(args.json, result)
     return 0
 
 

@@ -27,14 +27,13 @@ points, 12 voxels deep, steps of a tenth of a voxel; 1 is the exact distance's),
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from deep_accuracy import deep_voxels, figures, import_igl, read_grid  # noqa: E402
+from deep_accuracy import deep_voxels, figures, import_igl, read_grid, write_json  # noqa: E402
 from depth_slope import inward_lines  # noqa: E402
 
 
@@ -196,6 +195,19 @@ def slopes(field, body, origin, h) -> np.ndarray:
     return np.array([slope.max() for _, slope in inward_lines(body, depth_of)])
 
 
+def variant_figures(field, body, origin, h, ijk, reference) -> tuple[dict, str]:
+    """A field's figures (JSON): its slopes along the inward lines and its errors at the sampled deep voxels ijk
+    against the exact distances `reference`; and the same as the table's cells."""
+    s = slopes(field, body, origin, h)
+    acc = figures(field[ijk[:, 0], ijk[:, 1], ijk[:, 2]], reference)
+    out = {"max_slope": round(float(s.max()), 3), "p99_slope": round(float(np.percentile(s, 99)), 3),
+           "lines": int(s.size), "lines_over_1_2": round(float((s > 1.2).mean()), 4), "accuracy": acc}
+    cells = (f"{s.max():.2f} | {np.percentile(s, 99):.2f} | {100 * (s > 1.2).mean():.1f} % | "
+             f"{acc['inside']['max_error']:.2f}, {100 * acc['inside']['beyond_target_share']:.2f} % | "
+             f"{acc['outside']['max_error']:.2f}, {100 * acc['outside']['beyond_target_share']:.2f} % |")
+    return out, cells
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("asset")
@@ -256,19 +268,9 @@ def main() -> int:
           "| outside: the same |")
     print("|---|---|---|---|---|---|")
     for name, f in fields.items():
-        s = slopes(f, body, origin, h)
-        acc = figures(f[ijk[:, 0], ijk[:, 1], ijk[:, 2]], reference)
-        result["variants"][name] = {"max_slope": round(float(s.max()), 3),
-                                    "p99_slope": round(float(np.percentile(s, 99)), 3),
-                                    "lines": int(s.size), "lines_over_1_2": round(float((s > 1.2).mean()), 4),
-                                    "accuracy": acc}
-        print(f"| {name} | {s.max():.2f} | {np.percentile(s, 99):.2f} | {100 * (s > 1.2).mean():.1f} % | "
-              f"{acc['inside']['max_error']:.2f}, {100 * acc['inside']['beyond_target_share']:.2f} % | "
-              f"{acc['outside']['max_error']:.2f}, {100 * acc['outside']['beyond_target_share']:.2f} % |")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(result, fh, indent=1)
-            fh.write("\n")
+        result["variants"][name], cells = variant_figures(f, body, origin, h, ijk, reference)
+        print(f"| {name} | {cells}")
+    write_json(args.json, result)
     return 0
 
 

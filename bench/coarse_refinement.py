@@ -1,0 +1,161 @@
+#!/usr/bin/env python3
+"""What finer sources in coarse bricks would give (issue "fidelity": measure before choosing a format change).
+
+    PYTHONPATH=build/python .venv/bin/python bench/coarse_refinement.py ASSET MESH [--json OUT]
+
+A coarse brick stores no values: the runtime interpolates the lattice (exact distances at brick corners, 8 voxels
+apart; beyond 16 voxels up to 10 % over, spec §3.3). After estimate_oracle.py, the errors beyond 1 voxel + 1 % of
+depth are nearly all there (90 % of deep voxels are in coarse bricks on the 306 bunny). This script keeps the value
+bricks' estimates at the chamfer transform (what bench/estimate_transform.cpp computes) and replaces the coarse
+bricks' field by
+  exact 8-lattice        the lattice's interpolation with exact corners (no far slack);
+  4-lattice everywhere   exact distances on a lattice twice as fine (27 points a brick, 7 of them its own),
+                         interpolated trilinearly;
+  4-lattice where flagged
+                         the same in the bricks a producer can flag without a search: near the surface (a corner
+                         within NEAR voxels) or on a ridge of the distance (two corners' directions to their nearest
+                         surface points more than ANGLE apart: the medial axis, where interpolation cuts the peak);
+                         the exact 8-lattice elsewhere.
+and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
+exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
+deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
+here ignore that (a few bricks).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from deep_accuracy import deep_voxels, import_igl, read_grid, write_json  # noqa: E402
+from estimate_oracle import (brick_table, chamfer_sources, dense_field, value_brick_estimates,  # noqa: E402
+                             variant_figures)
+
+
+def exact_distance(igl, points, V, F) -> np.ndarray:
+    """libigl's signed distance (pseudonormals) at points, in chunks."""
+    out = np.empty(len(points))
+    for s in range(0, len(points), 1 << 18):
+        out[s:s + (1 << 18)] = igl.signed_distance(points[s:s + (1 << 18)], V, F,
+                                                   sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
+    return out
+
+
+def trilinear_weights(points_per_axis: int) -> np.ndarray:
+    """[512, points^3]: each voxel of a brick ([i, j, k], i slowest) as trilinear weights of a lattice of
+    `points_per_axis` points an axis ([a, b, c], a slowest) from the brick's corner to the next brick's, 8 voxels."""
+    cells = points_per_axis - 1
+    spacing = 8 / cells
+    local = np.arange(8)
+    cell = np.minimum(local // spacing, cells - 1).astype(int)
+    t = (local - cell * spacing) / spacing
+    axis = np.zeros((8, points_per_axis))  # [voxel, point] weights along one axis
+    axis[local, cell] = 1 - t
+    axis[local, cell + 1] += t
+    return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
+
+
+def write_bricks(field, bricks: np.ndarray, values: np.ndarray) -> None:
+    """field[8b + local] = values[n, local] for each brick b = bricks[n] (values [n, 512], [i, j, k] i-major), the
+    voxels beyond the grid dropped."""
+    dims = field.shape
+    block = values.reshape(-1, 8, 8, 8)
+    for n, (bi, bj, bk) in enumerate(bricks):
+        i0, j0, k0 = bi * 8, bj * 8, bk * 8
+        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
+        field[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = block[n, :w, :hh, :d]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("asset")
+    ap.add_argument("mesh")
+    ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
+    ap.add_argument("--flags", default="16:45,8:45,16:30",
+                    help="NEAR:ANGLE pairs for the flagged variants (default 16:45,8:45,16:30)")
+    ap.add_argument("--json", help="write the figures here")
+    args = ap.parse_args()
+    igl = import_igl("coarse_refinement")
+    if igl is None:
+        return 2
+    body, origin, h, dims, band = read_grid(args.asset)
+    V, F = igl.read_triangle_mesh(args.mesh)
+    field = dense_field(body, origin, h, dims)
+    estimate, stored, lattice = value_brick_estimates(args.asset, dims)
+    table = brick_table(args.asset, dims)
+    sign = np.sign(field)
+    chamfer, _ = chamfer_sources(field, np.ones(field.shape, bool), stored, lattice, h, dims)
+    base = field.copy()
+    base[estimate] = sign[estimate] * np.maximum(chamfer.reshape(field.shape)[estimate], band - 0.5)
+
+    coarse = np.argwhere(table < 0)
+    top = np.asarray(dims) - 1
+    m = np.stack(np.meshgrid(*[np.arange(3)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    points = np.minimum(coarse[:, None, :] * 8 + 4 * m[None], top).reshape(-1, 3)
+    print(f"coarse_refinement: {args.asset}: {len(coarse)} coarse bricks, {len(table.ravel()) - len(coarse)} value "
+          f"bricks; exact distances at {len(points)} points", flush=True)
+    fine = (exact_distance(igl, origin + h * points, V, F) / h).reshape(len(coarse), 27)
+    corners = fine.reshape(-1, 3, 3, 3)[:, ::2, ::2, ::2].reshape(-1, 8)
+    fine_values = fine @ trilinear_weights(3).T  # [n, 512]
+    exact8_values = corners @ trilinear_weights(2).T
+
+    # What a producer has at the lattice: its values (the asset's) and the nearest surface points (libigl's here;
+    # the bake's lattice keys hold the nearest triangles).
+    LD = np.asarray(lattice.shape)
+    lp = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(LD, dims)], indexing="ij"), -1)
+    P = origin + h * lp.reshape(-1, 3)
+    _, _, nearest = igl.point_mesh_squared_distance(P, V, F)
+    direction = P - nearest
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-12)[:, None]
+    direction = direction.reshape(*LD, 3)
+    corner_at = [np.minimum(coarse + [a, b, c], LD - 1) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
+    depth = np.min([lattice[tuple(q.T)] for q in corner_at], axis=0) / h
+    g = np.stack([direction[tuple(q.T)] for q in corner_at], 1)
+    least_cos = np.einsum("nik,njk->nij", g, g).reshape(len(coarse), -1).min(1)
+
+    def variant(values) -> np.ndarray:
+        f = base.copy()
+        write_bricks(f, coarse, values)
+        return f
+
+    own = (m % 2 == 1).any(1)  # the 19 points of a brick's 27 that are not the 8-lattice's
+
+    def added_values(refined) -> int:
+        """The 4-lattice points the refined bricks need beyond the 8-lattice, each once."""
+        needed = points.reshape(len(coarse), 27, 3)[refined][:, own].reshape(-1, 3)
+        return int(len(np.unique(needed, axis=0))) if len(needed) else 0
+
+    everywhere = np.ones(len(coarse), bool)
+    fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
+    fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
+    fields["4-lattice everywhere"] = (variant(fine_values), len(coarse), added_values(everywhere))
+    for pair in args.flags.split(","):
+        near, angle = (float(x) for x in pair.split(":"))
+        flag = (depth <= near) | (least_cos < np.cos(np.radians(angle)))
+        fields[f"4-lattice where a corner is within {near:g} voxels or directions differ by > {angle:g} deg"] = (
+            variant(np.where(flag[:, None], fine_values, exact8_values)), int(flag.sum()), added_values(flag))
+
+    ijk, _ = deep_voxels(body, origin, h, dims, band, args.samples)
+    reference = exact_distance(igl, origin + h * ijk, V, F) / h
+    file_bytes = os.path.getsize(args.asset)
+    result = {"asset": args.asset, "mesh": args.mesh, "band": band, "coarse_bricks": int(len(coarse)),
+              "value_bricks": int((table >= 0).sum()), "file_bytes": file_bytes, "variants": {}}
+    print("| coarse bricks | refined bricks | values added (float32) | max slope | p99 | lines > 1.2 | "
+          "inside: max error, beyond 1 voxel + 1 % | outside: the same |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, (f, refined, values) in fields.items():
+        figured, cells = variant_figures(f, body, origin, h, ijk, reference)
+        result["variants"][name] = {"refined_bricks": refined, "added_values": values, **figured}
+        added = 4 * values
+        print(f"| {name} | {refined} | {added / 1e6:.2f} MB ({100 * added / file_bytes:.1f} % of the file) | {cells}",
+              flush=True)
+    write_json(args.json, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
