@@ -32,8 +32,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from deep_accuracy import deep_voxels, import_igl, read_grid, write_json  # noqa: E402
-from estimate_oracle import (brick_table, chamfer_sources, dense_field, value_brick_estimates,  # noqa: E402
-                             variant_figures)
+from estimate_oracle import (brick_table, chamfer_sources, dense_field, lattice_voxels,  # noqa: E402
+                             value_brick_estimates, variant_figures, write_brick)
 
 
 def exact_distance(igl, points, V, F) -> np.ndarray:
@@ -57,17 +57,6 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     axis[local, cell] = 1 - t
     axis[local, cell + 1] += t
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
-
-
-def write_bricks(field, bricks: np.ndarray, values: np.ndarray) -> None:
-    """field[8b + local] = values[n, local] for each brick b = bricks[n] (values [n, 512], [i, j, k] i-major), the
-    voxels beyond the grid dropped."""
-    dims = field.shape
-    block = values.reshape(-1, 8, 8, 8)
-    for n, (bi, bj, bk) in enumerate(bricks):
-        i0, j0, k0 = bi * 8, bj * 8, bk * 8
-        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
-        field[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = block[n, :w, :hh, :d]
 
 
 def main() -> int:
@@ -106,8 +95,7 @@ def main() -> int:
     # What a producer has at the lattice: its values (the asset's) and the nearest surface points (libigl's here;
     # the bake's lattice keys hold the nearest triangles).
     LD = np.asarray(lattice.shape)
-    lp = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(LD, dims)], indexing="ij"), -1)
-    P = origin + h * lp.reshape(-1, 3)
+    P = origin + h * lattice_voxels(LD, dims).reshape(-1, 3)
     _, _, nearest = igl.point_mesh_squared_distance(P, V, F)
     direction = P - nearest
     direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-12)[:, None]
@@ -119,7 +107,8 @@ def main() -> int:
 
     def variant(values) -> np.ndarray:
         f = base.copy()
-        write_bricks(f, coarse, values)
+        for brick, block in zip(coarse, values.reshape(-1, 8, 8, 8)):
+            write_brick(f, brick, block)
         return f
 
     own = (m % 2 == 1).any(1)  # the 19 points of a brick's 27 that are not the 8-lattice's

@@ -60,11 +60,20 @@ def on_grid(table, per_brick: np.ndarray, dims, fill) -> np.ndarray:
     """Arrays of 512 values a value brick (x fastest, the value bricks' order) as one array [i, j, k]."""
     grid = np.full(tuple(int(d) for d in dims), fill, per_brick.dtype)
     for bi, bj, bk in np.argwhere(table >= 0):
-        c = per_brick[table[bi, bj, bk]].reshape(8, 8, 8).transpose(2, 1, 0)  # [li, lj, lk]
-        i0, j0, k0 = bi * 8, bj * 8, bk * 8
-        w, hh, d = min(8, dims[0] - i0), min(8, dims[1] - j0), min(8, dims[2] - k0)
-        grid[i0:i0 + w, j0:j0 + hh, k0:k0 + d] = c[:w, :hh, :d]
+        write_brick(grid, (bi, bj, bk), per_brick[table[bi, bj, bk]].reshape(8, 8, 8).transpose(2, 1, 0))
     return grid
+
+
+def write_brick(grid, brick, block) -> None:
+    """grid[8 brick + local] = block[local] ([i, j, k]), the voxels beyond the grid dropped."""
+    view = grid[tuple(slice(8 * b, 8 * b + 8) for b in brick)]
+    view[...] = block[:view.shape[0], :view.shape[1], :view.shape[2]]
+
+
+def lattice_voxels(shape, dims) -> np.ndarray:
+    """[a, b, c, 3]: each lattice point's voxel (brick corners, the last along an axis clamped to the grid)."""
+    return np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(shape, dims)], indexing="ij"),
+                    -1)
 
 
 def value_brick_estimates(path: str, dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -85,8 +94,7 @@ def source_values(field, stored, lattice, h, dims) -> np.ndarray:
     (the lesser where both), 1e30 elsewhere."""
     value = np.full(tuple(int(d) for d in dims), np.float32(1e30), np.float32)
     value[stored] = np.abs(field[stored])
-    corner = np.stack(np.meshgrid(*[np.minimum(np.arange(n) * 8, d - 1) for n, d in zip(lattice.shape, dims)],
-                                  indexing="ij"), -1).reshape(-1, 3)
+    corner = lattice_voxels(lattice.shape, dims).reshape(-1, 3)
     l = (lattice.reshape(-1) / h).astype(np.float32)
     keep = l < value[corner[:, 0], corner[:, 1], corner[:, 2]]
     value[corner[keep, 0], corner[keep, 1], corner[keep, 2]] = l[keep]
