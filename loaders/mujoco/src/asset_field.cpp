@@ -10,20 +10,8 @@
 namespace voxfmt::mujoco {
 namespace {
 
-constexpr int kEdge = 8;  // voxels per brick edge
+using runtime::core::kEdge;
 constexpr int kRow = AssetField::kBlockEdge, kSlice = kRow * kRow;
-
-// Trilinear interpolation of the 8 corner values c (x fastest) at t in [0,1]^3, and its gradient in cell units.
-inline float trilinear(const float c[8], const float t[3], Eigen::Vector3f& gradient) {
-  const float x0 = c[0] + t[0] * (c[1] - c[0]), x1 = c[2] + t[0] * (c[3] - c[2]);
-  const float x2 = c[4] + t[0] * (c[5] - c[4]), x3 = c[6] + t[0] * (c[7] - c[6]);
-  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
-  const float dx0 = c[1] - c[0], dx1 = c[3] - c[2], dx2 = c[5] - c[4], dx3 = c[7] - c[6];
-  gradient[0] = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
-  gradient[1] = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
-  gradient[2] = y1 - y0;
-  return y0 + t[2] * (y1 - y0);
-}
 
 voxfmt::Error no_distance_field() {
   return voxfmt::Error(voxfmt::IssueCode::InvalidAsset,
@@ -66,26 +54,23 @@ voxfmt::Result<std::shared_ptr<const AssetField>> AssetField::from_object(const 
   return std::shared_ptr<const AssetField>(std::move(field));
 }
 
-// The runtime's own numbers: its lattice (16-bit steps), brick table and band edge, so that every lattice cell
-// and block is the runtime's field.
+// The runtime's own numbers: its layout and lattice, so that every lattice cell and block is the runtime's field.
 void AssetField::set_geometry(const runtime::CollisionObject& object) {
   const runtime::SparseVoxelmap& map = object.voxelmap();
-  const runtime::core::Field f = field_of(map);
+  field_ = field_of(map);
   voxel_size_ = map.voxel_size();
   inverse_voxel_size_ = 1.0 / map.voxel_size();
   origin_ = map.origin();
   size_t lattice_points = 1;
   for (int a = 0; a < 3; ++a) {
-    dims_[a] = f.dims[a];
-    brick_dims_[a] = f.brick_dims[a];
-    lattice_dims_[a] = f.lattice_dims[a];
-    grid_max_[a] = float(dims_[a] - 1);
-    lattice_points *= size_t(lattice_dims_[a]);
+    grid_max_[a] = float(field_.dims[a] - 1);
+    lattice_points *= size_t(field_.lattice_dims[a]);
   }
-  band_edge_ = f.band_edge;
-  table_.assign(f.bricks, f.bricks + map.brick_count());
-  lattice_.resize(lattice_points);
-  for (size_t n = 0; n < lattice_points; ++n) lattice_[n] = float(f.lattice[n]) * f.lattice_step;
+  table_.assign(field_.bricks, field_.bricks + map.brick_count());
+  lattice_.assign(field_.lattice, field_.lattice + lattice_points);
+  field_.lattice = lattice_.data();
+  field_.bricks = nullptr;
+  field_.codes = nullptr;
   bounds_min_ = object.bounds_min();
   bounds_max_ = object.bounds_max();
   centre_ = 0.5 * (bounds_min_ + bounds_max_);
@@ -96,7 +81,8 @@ void AssetField::set_geometry(const runtime::CollisionObject& object) {
 // A block for every value brick, and for every coarse brick with a value brick among its + neighbours (its cells
 // along that face reach into the value brick's voxels).
 void AssetField::fill_blocks(const voxfmt::runtime::SparseVoxelmap& map) {
-  const int bx = brick_dims_[0], by = brick_dims_[1], bz = brick_dims_[2];
+  const int bx = field_.brick_dims[0], by = field_.brick_dims[1], bz = field_.brick_dims[2];
+  const int* dims = field_.dims;
   auto brick = [&](int i, int j, int k) { return (size_t(k) * size_t(by) + size_t(j)) * size_t(bx) + size_t(i); };
   std::vector<char> blocked(table_.size(), 0);
   for (int k = 0; k < bz; ++k)
@@ -116,13 +102,13 @@ void AssetField::fill_blocks(const voxfmt::runtime::SparseVoxelmap& map) {
     for (int j = 0; j < by; ++j)
       for (int i = 0; i < bx; ++i) {
         const size_t b = brick(i, j, k);
-        if (!blocked[b]) continue;  // keeps the coarse brick's kFarOutside / kFarInside
+        if (!blocked[b]) continue;  // keeps the coarse brick's kCoarseOutside / kCoarseInside
         float* out = &blocks_[next];
         for (int z = 0; z < kBlockEdge; ++z)
           for (int y = 0; y < kBlockEdge; ++y)
             for (int x = 0; x < kBlockEdge; ++x)
-              *out++ = map.value_at(std::min(i * kEdge + x, dims_[0] - 1), std::min(j * kEdge + y, dims_[1] - 1),
-                                    std::min(k * kEdge + z, dims_[2] - 1));
+              *out++ = map.value_at(std::min(i * kEdge + x, dims[0] - 1), std::min(j * kEdge + y, dims[1] - 1),
+                                    std::min(k * kEdge + z, dims[2] - 1));
         table_[b] = int32_t(next);
         next += size_t(kBlockValues);
       }
@@ -130,7 +116,8 @@ void AssetField::fill_blocks(const voxfmt::runtime::SparseVoxelmap& map) {
 }
 
 size_t AssetField::memory_bytes() const {
-  return table_.capacity() * sizeof(int32_t) + blocks_.capacity() * sizeof(float) + lattice_.capacity() * sizeof(float);
+  return table_.capacity() * sizeof(int32_t) + blocks_.capacity() * sizeof(float) +
+         lattice_.capacity() * sizeof(uint16_t);
 }
 
 [[gnu::always_inline]] inline float AssetField::lookup(const Eigen::Vector3f& u, Eigen::Vector3f& gradient) const {
@@ -138,39 +125,24 @@ size_t AssetField::memory_bytes() const {
   int base[3];
   float t[3];
   for (int a = 0; a < 3; ++a) {
-    base[a] = std::min(int(u[a]), dims_[a] - 2);
+    base[a] = std::min(int(u[a]), field_.dims[a] - 2);
     t[a] = u[a] - float(base[a]);
   }
-  const int bi = base[0] >> 3, bj = base[1] >> 3, bk = base[2] >> 3;
-  const int32_t entry =
-      table_[(size_t(bk) * size_t(brick_dims_[1]) + size_t(bj)) * size_t(brick_dims_[0]) + size_t(bi)];
+  const int32_t entry = table_[(size_t(base[2] >> 3) * size_t(field_.brick_dims[1]) + size_t(base[1] >> 3)) *
+                                   size_t(field_.brick_dims[0]) +
+                               size_t(base[0] >> 3)];
+  runtime::core::Vec3 g;
+  float distance;
   if (entry >= 0) {
     const float* v = &blocks_[size_t(entry) + size_t(((base[2] & 7) * kRow + (base[1] & 7)) * kRow + (base[0] & 7))];
     const float c[8] = {v[0],      v[1],          v[kRow],          v[kRow + 1],
                         v[kSlice], v[kSlice + 1], v[kSlice + kRow], v[kSlice + kRow + 1]};
-    return trilinear(c, t, gradient);
+    distance = runtime::core::trilinear(c, t, &g);
+  } else {
+    distance = runtime::core::coarse_sample(field_, runtime::core::make_vec3(u[0], u[1], u[2]), entry, &g);
   }
-  // A coarse brick away from the surface: the lattice's cell is the brick (from its first voxel to the next
-  // brick's), interpolated at u; at least the band's edge, signed by the brick.
-  float s[3], inverse[3];
-  const int lower[3] = {bi, bj, bk};
-  for (int a = 0; a < 3; ++a) {
-    // A brick's lattice cell is 8 voxels long, but the last one may be shorter.
-    const int x0 = lower[a] * kEdge, x1 = std::min(x0 + kEdge, dims_[a] - 1);
-    inverse[a] = x1 - x0 == kEdge ? 1.0f / kEdge : 1.0f / float(x1 - x0);
-    s[a] = std::min((u[a] - float(x0)) * inverse[a], 1.0f);
-  }
-  const size_t row = size_t(lattice_dims_[0]), plane = row * size_t(lattice_dims_[1]);
-  const float* p = &lattice_[size_t(bk) * plane + size_t(bj) * row + size_t(bi)];
-  const float c[8] = {p[0], p[1], p[row], p[row + 1], p[plane], p[plane + 1], p[plane + row], p[plane + row + 1]};
-  const float magnitude = trilinear(c, s, gradient);
-  const float sign = entry == kFarInside ? -1.0f : 1.0f;
-  if (magnitude < band_edge_) {
-    gradient.setZero();
-    return sign * band_edge_;
-  }
-  for (int a = 0; a < 3; ++a) gradient[a] *= sign * inverse[a];
-  return sign * magnitude;
+  gradient = Eigen::Vector3f(g.x, g.y, g.z);
+  return distance;
 }
 
 double AssetField::evaluate_raw(const double point[3], Eigen::Vector3f& direction) const {

@@ -3,7 +3,8 @@
 // voxelmap is re-laid for them at load: each brick near the surface (a value brick, and a coarse brick whose
 // cells reach into one) becomes a 9x9x9 block of the runtime's voxel values (SparseVoxelmap::value_at) that
 // repeats its neighbours' first layer, so a lookup reads one table entry and one block; every other cell is the
-// asset's lattice interpolated, as the runtime does. Free of MuJoCo types, so it is tested on its own.
+// asset's lattice. Both are interpolated by the query core's functions (core::trilinear, core::coarse_sample), so
+// the field is the runtime's. Free of MuJoCo types, so it is tested on its own.
 #pragma once
 
 #include <Eigen/Core>
@@ -14,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "core/field.h"
 #include "voxfmt/asset.h"
 #include "voxfmt/result.h"
 
@@ -77,16 +79,14 @@ class AssetField {
   double voxel_size_ = 1.0;
   double inverse_voxel_size_ = 1.0;
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
-  std::array<int, 3> dims_{};
-  std::array<int, 3> brick_dims_{};
-  std::array<int, 3> lattice_dims_{};
   Eigen::Vector3f grid_max_ = Eigen::Vector3f::Zero();  ///< the last voxel centre, grid coordinates
-  float band_edge_ = 0.0f;  ///< voxels without a stored distance are at least this far (distance_band - 1/2)
-  /// Per brick: >= 0 the first value of its block in blocks_; kFarOutside / kFarInside: the lattice's cell.
+  /// The runtime's field: its layout and, in lattice_, its lattice; no brick table or codes (table_ and blocks_
+  /// replace them), so only the lattice's functions may read it.
+  runtime::core::Field field_;
+  /// Per brick: >= 0 the first value of its block in blocks_; core::kCoarseOutside / kCoarseInside: the lattice's.
   std::vector<int32_t> table_;
-  std::vector<float> blocks_;   ///< voxel units
-  std::vector<float> lattice_;  ///< unsigned distance at the lattice points, voxel units
-  static constexpr int32_t kFarOutside = -1, kFarInside = -2;
+  std::vector<float> blocks_;      ///< voxel units
+  std::vector<uint16_t> lattice_;  ///< the runtime's lattice (field_.lattice)
 
   double volume_ = 0.0;
   Eigen::Vector3d center_of_mass_ = Eigen::Vector3d::Zero();

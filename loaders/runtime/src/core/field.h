@@ -56,6 +56,21 @@ VOXFMT_HD void cell_values(const Field& f, const int lower[3], float p[8]) {
   for (int c = 0; c < 8; ++c) p[c] = float(q[offset[c]]);
 }
 
+/// Trilinear interpolation of 8 corner values `v` (x fastest, then y, then z) at `t` in [0,1]^3, and if asked its
+/// gradient per unit of t: the one interpolation of the voxels, the lattice and the MuJoCo plugin's blocks.
+VOXFMT_HD float trilinear(const float v[8], const float t[3], Vec3* gradient) {
+  const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
+  const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
+  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
+  if (gradient) {
+    const float dx0 = v[1] - v[0], dx1 = v[3] - v[2], dx2 = v[5] - v[4], dx3 = v[7] - v[6];
+    const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
+    const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
+    *gradient = make_vec3(gx, gy, y1 - y0);
+  }
+  return y0 + t[2] * (y1 - y0);
+}
+
 /// The lattice cell voxel (i, j, k) lies in: that of its brick, from the brick's first voxel to the next brick's.
 VOXFMT_HD void cell_of(int i, int j, int k, int lower[3]) {
   lower[0] = i >> kEdgeBits, lower[1] = j >> kEdgeBits, lower[2] = k >> kEdgeBits;
@@ -70,10 +85,7 @@ VOXFMT_HD float coarse_value_in(const Field& f, int i, int j, int k, int32_t ent
     const int x0 = (c[a] >> kEdgeBits) * kEdge, x1 = lattice_coordinate(f, (c[a] >> kEdgeBits) + 1, a);
     t[a] = x1 > x0 ? float(c[a] - x0) / float(x1 - x0) : 0.0f;
   }
-  const float x00 = p[0] + t[0] * (p[1] - p[0]), x10 = p[2] + t[0] * (p[3] - p[2]);
-  const float x01 = p[4] + t[0] * (p[5] - p[4]), x11 = p[6] + t[0] * (p[7] - p[6]);
-  const float y0 = x00 + t[1] * (x10 - x00), y1 = x01 + t[1] * (x11 - x01);
-  const float magnitude = max_f((y0 + t[2] * (y1 - y0)) * f.lattice_step, f.band_edge);
+  const float magnitude = max_f(trilinear(p, t, nullptr) * f.lattice_step, f.band_edge);
   return entry == kCoarseInside ? -magnitude : magnitude;
 }
 
@@ -100,16 +112,20 @@ VOXFMT_HD float lattice_at(const Field& f, const Vec3& u, Vec3* gradient) {
   float v[8];
   cell_values(f, lower, v);
   for (int c = 0; c < 8; ++c) v[c] *= f.lattice_step;
-  const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
-  const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
-  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
-  if (gradient) {
-    const float dx0 = v[1] - v[0], dx1 = v[3] - v[2], dx2 = v[5] - v[4], dx3 = v[7] - v[6];
-    const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
-    const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
-    *gradient = make_vec3(gx * inverse[0], gy * inverse[1], (y1 - y0) * inverse[2]);
-  }
-  return y0 + t[2] * (y1 - y0);
+  const float value = trilinear(v, t, gradient);
+  if (gradient) *gradient = make_vec3(gradient->x * inverse[0], gradient->y * inverse[1], gradient->z * inverse[2]);
+  return value;
+}
+
+/// The field at `u` in a coarse brick (`entry` kCoarseOutside or kCoarseInside): its voxels' values are the
+/// lattice's interpolation, which is trilinear across the whole brick, so interpolating the lattice at u directly
+/// gives the same field; at least the band's edge (flat there: a zero gradient), signed by the brick.
+VOXFMT_HD float coarse_sample(const Field& f, const Vec3& u, int32_t entry, Vec3* gradient) {
+  const float magnitude = lattice_at(f, u, gradient);
+  const bool clamped = magnitude < f.band_edge;
+  const float sign = entry == kCoarseInside ? -1.0f : 1.0f;
+  if (gradient) *gradient = clamped ? make_vec3(0, 0, 0) : sign * *gradient;
+  return sign * max_f(magnitude, f.band_edge);
 }
 
 /// `f` reading its value bricks with an apron from `apron_codes` (apron_codes' layout): never by vector gathers,
@@ -247,13 +263,7 @@ VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient) {
   int32_t entry = 0;
   if (!brick_corners(f, base, v, exact, entry)) {
     if (entry < 0) {
-      // Inside a coarse brick the voxels' values are the lattice's interpolation, which is trilinear across the
-      // whole brick: interpolating the lattice at u directly gives the same field.
-      const float magnitude = lattice_at(f, u, gradient);
-      const bool clamped = magnitude < f.band_edge;
-      const float sign = entry == kCoarseInside ? -1.0f : 1.0f;
-      result.distance = sign * max_f(magnitude, f.band_edge);
-      if (gradient) *gradient = clamped ? make_vec3(0, 0, 0) : sign * *gradient;
+      result.distance = coarse_sample(f, u, entry, gradient);
       return result;
     }
     for (int corner = 0; corner < 8; ++corner) {  // across bricks: corner by corner
@@ -263,17 +273,8 @@ VOXFMT_HD Sample sample_grid(const Field& f, const Vec3& u, Vec3* gradient) {
       v[corner] = voxel_value(f, x, y, z, exact);
     }
   }
-  const float x0 = v[0] + t[0] * (v[1] - v[0]), x1 = v[2] + t[0] * (v[3] - v[2]);
-  const float x2 = v[4] + t[0] * (v[5] - v[4]), x3 = v[6] + t[0] * (v[7] - v[6]);
-  const float y0 = x0 + t[1] * (x1 - x0), y1 = x2 + t[1] * (x3 - x2);
-  result.distance = y0 + t[2] * (y1 - y0);
+  result.distance = trilinear(v, t, gradient);
   result.exact = exact;
-  if (gradient) {
-    const float dx0 = v[1] - v[0], dx1 = v[3] - v[2], dx2 = v[5] - v[4], dx3 = v[7] - v[6];
-    const float gx = (1 - t[2]) * (dx0 + t[1] * (dx1 - dx0)) + t[2] * (dx2 + t[1] * (dx3 - dx2));
-    const float gy = (1 - t[2]) * (x1 - x0) + t[2] * (x3 - x2);
-    *gradient = make_vec3(gx, gy, y1 - y0);
-  }
   return result;
 }
 
