@@ -15,7 +15,10 @@ bricks' field by
                          the same in the bricks a producer can flag without a search: near the surface (a corner
                          within NEAR voxels) or on a ridge of the distance (two corners' directions to their nearest
                          surface points more than ANGLE apart: the medial axis, where interpolation cuts the peak);
-                         the exact 8-lattice elsewhere.
+                         the exact 8-lattice elsewhere;
+  2-lattice on ridges    the flagged variant, but every 2 voxels (125 points a brick) in the ridge bricks
+                         (--ridge ANGLE), where a 4-voxel interpolation still cuts the peak; and that only in
+                         the ridge bricks where the 4-lattice misses it by more than --ridge-tolerance.
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -66,6 +69,11 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=60000, help="deep voxels sampled (default 60000)")
     ap.add_argument("--flags", default="16:45,8:45,16:30",
                     help="NEAR:ANGLE pairs for the flagged variants (default 16:45,8:45,16:30)")
+    ap.add_argument("--ridge", default="16:45",
+                    help="NEAR:ANGLE of the 2-lattice variant: ridge bricks (ANGLE) every 2 voxels, the other bricks "
+                         "within NEAR voxels every 4 (default 16:45; '' skips it)")
+    ap.add_argument("--ridge-tolerance", type=float, default=1.0,
+                    help="voxels: a ridge brick keeps its 2-lattice where the 4-lattice is further off (default 1)")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args()
     igl = import_igl("coarse_refinement")
@@ -111,22 +119,45 @@ def main() -> int:
             write_brick(f, brick, block)
         return f
 
-    own = (m % 2 == 1).any(1)  # the 19 points of a brick's 27 that are not the 8-lattice's
+    points4 = points.reshape(len(coarse), 27, 3)
 
-    def added_values(refined) -> int:
-        """The 4-lattice points the refined bricks need beyond the 8-lattice, each once."""
-        needed = points.reshape(len(coarse), 27, 3)[refined][:, own].reshape(-1, 3)
+    def added_values(*sources) -> int:
+        """The points that bricks' sources ([bricks, points, 3] each) need beyond the 8-lattice, each once."""
+        needed = np.concatenate([q.reshape(-1, 3) for q in sources])
+        needed = needed[~((needed % 8 == 0) | (needed == top)).all(1)]
         return int(len(np.unique(needed, axis=0))) if len(needed) else 0
 
-    everywhere = np.ones(len(coarse), bool)
+    def flags(pair: str):
+        near, angle = (float(x) for x in pair.split(":"))
+        return near, angle, depth <= near, least_cos < np.cos(np.radians(angle))
+
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
-    fields["4-lattice everywhere"] = (variant(fine_values), len(coarse), added_values(everywhere))
+    fields["4-lattice everywhere"] = (variant(fine_values), len(coarse), added_values(points4))
     for pair in args.flags.split(","):
-        near, angle = (float(x) for x in pair.split(":"))
-        flag = (depth <= near) | (least_cos < np.cos(np.radians(angle)))
+        near, angle, close, ridge = flags(pair)
+        flag = close | ridge
         fields[f"4-lattice where a corner is within {near:g} voxels or directions differ by > {angle:g} deg"] = (
-            variant(np.where(flag[:, None], fine_values, exact8_values)), int(flag.sum()), added_values(flag))
+            variant(np.where(flag[:, None], fine_values, exact8_values)), int(flag.sum()), added_values(points4[flag]))
+    if args.ridge:
+        near, angle, close, ridge = flags(args.ridge)
+        m5 = np.stack(np.meshgrid(*[np.arange(5)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        points2 = np.minimum(coarse[ridge][:, None, :] * 8 + 2 * m5[None], top)  # [ridge bricks, 125, 3]
+        fine2 = (exact_distance(igl, origin + h * points2.reshape(-1, 3), V, F) / h).reshape(len(points2), 125)
+        values = np.where((close | ridge)[:, None], fine_values, exact8_values)
+        ridge_values = fine2 @ trilinear_weights(5).T
+        four = values[ridge]
+        values[ridge] = ridge_values
+        fields[f"2-lattice where directions differ by > {angle:g} deg, 4-lattice within {near:g} voxels"] = (
+            variant(values), int((close | ridge).sum()), added_values(points4[close & ~ridge], points2))
+        # A producer that computed the 2-lattice keeps it only where the 4-lattice's interpolation misses it.
+        off = np.abs(ridge_values - four).max(1) > args.ridge_tolerance
+        values[np.flatnonzero(ridge)[~off]] = four[~off]
+        on_four = close | ridge
+        on_four[np.flatnonzero(ridge)[off]] = False
+        fields[f"the same, 2-lattice only where the 4-lattice is > {args.ridge_tolerance:g} voxel off "
+               f"({int(off.sum())} of {len(off)} ridge bricks)"] = (
+            variant(values), int((close | ridge).sum()), added_values(points4[on_four], points2[off]))
 
     ijk, _ = deep_voxels(body, origin, h, dims, band, args.samples)
     reference = exact_distance(igl, origin + h * ijk, V, F) / h
