@@ -74,6 +74,8 @@ def main() -> int:
                          "within NEAR voxels every 4 (default 16:45; '' skips it)")
     ap.add_argument("--ridge-tolerance", type=float, default=1.0,
                     help="voxels: a ridge brick keeps its 2-lattice where the 4-lattice is further off (default 1)")
+    ap.add_argument("--reach", type=int, choices=(1, 2), default=1,
+                    help="the value bricks' chamfer transform: steps to the 26 neighbours (1) or the 5^3 (2)")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args()
     igl = import_igl("coarse_refinement")
@@ -85,7 +87,7 @@ def main() -> int:
     estimate, stored, lattice = value_brick_estimates(args.asset, dims)
     table = brick_table(args.asset, dims)
     sign = np.sign(field)
-    chamfer, _ = chamfer_sources(field, np.ones(field.shape, bool), stored, lattice, h, dims)
+    chamfer, _ = chamfer_sources(field, np.ones(field.shape, bool), stored, lattice, h, dims, reach=args.reach)
     base = field.copy()
     base[estimate] = sign[estimate] * np.maximum(chamfer.reshape(field.shape)[estimate], band - 0.5)
 

@@ -131,16 +131,18 @@ def band_sources(field, estimate, stored, lattice, h, dims, rounds: int = 64) ->
     return best[estimate].astype(np.float64)
 
 
-def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4) -> tuple[np.ndarray, int]:
+def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4,
+                    reach: int = 1) -> tuple[np.ndarray, int]:
     """The same sources, carried as a 26-neighbour chamfer transform: the least |d_b| + the length of a path of
     voxel steps (1, sqrt 2, sqrt 3) from b, in raster passes forward and back until one lowers nothing (at most
     `passes`; on the 306 bunny the second settles it). A path is no shorter than the straight line, so the
     value stays an upper bound; and it is 1-Lipschitz in the chamfer metric (at most 1.08 times the Euclidean), so a
-    reader can check neighbouring values differ by at most their step. Returns the magnitudes at the estimates and
-    the passes it took."""
+    reader can check neighbouring values differ by at most their step. `reach` 2 takes steps to the 5^3 neighbours
+    instead (lengths sqrt(a^2 + b^2 + c^2), a metric within ~2 % of the Euclidean). Returns the magnitudes at the
+    estimates and the passes it took."""
     shape = tuple(int(d) for d in dims)
     value = source_values(field, stored, lattice, h, dims)
-    step = np.sqrt(np.arange(4, dtype=np.float32))  # by the number of axes a step moves along
+    offsets = range(-reach, reach + 1)
     x = np.arange(shape[0], dtype=np.float32)
     v = np.ascontiguousarray(value.transpose(2, 1, 0))  # [k, j, i]: rows along i contiguous
 
@@ -150,11 +152,14 @@ def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4) 
         src = [slice(None)] * a.ndim
         dst = [slice(None)] * a.ndim
         if di < 0:
-            src[axis], dst[axis] = slice(None, -1), slice(1, None)
+            src[axis], dst[axis] = slice(None, di), slice(-di, None)
         elif di > 0:
-            src[axis], dst[axis] = slice(1, None), slice(None, -1)
+            src[axis], dst[axis] = slice(di, None), slice(None, -di)
         out[tuple(dst)] = a[tuple(src)]
         return out
+
+    def step(*d: int) -> np.float32:
+        return np.float32(np.sqrt(sum(x * x for x in d)))
 
     def sweep(forward: bool) -> int:
         """One raster pass (k, then j, then i ascending, or all descending); the voxels it lowered."""
@@ -165,16 +170,19 @@ def chamfer_sources(field, estimate, stored, lattice, h, dims, passes: int = 4) 
         for k in ks:
             plane = v[k]  # [j, i]
             before = plane.copy()
-            if 0 <= k + back < shape[2]:
-                for dj in (-1, 0, 1):
-                    prev = shifted(v[k + back], dj, 0)
-                    for di in (-1, 0, 1):
-                        np.minimum(plane, shifted(prev, di, 1) + step[1 + abs(di) + abs(dj)], out=plane)
+            for dk in range(1, reach + 1):
+                if not 0 <= k + back * dk < shape[2]:
+                    continue
+                for dj in offsets:
+                    prev = shifted(v[k + back * dk], dj, 0)
+                    for di in offsets:
+                        np.minimum(plane, shifted(prev, di, 1) + step(di, dj, dk), out=plane)
             for j in js:
                 row = plane[j]
-                if 0 <= j + back < shape[1]:
-                    for di in (-1, 0, 1):
-                        np.minimum(row, shifted(plane[j + back], di, 0) + step[1 + abs(di)], out=row)
+                for dj in range(1, reach + 1):
+                    if 0 <= j + back * dj < shape[1]:
+                        for di in offsets:
+                            np.minimum(row, shifted(plane[j + back * dj], di, 0) + step(di, dj), out=row)
                 # along i: row[i] = least row[i'] + |i - i'| over the i' visited before i
                 if forward:
                     row[:] = np.minimum.accumulate(row - x) + x
