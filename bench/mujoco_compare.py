@@ -610,7 +610,6 @@ def main() -> int:
     bakes_file = folder / "bakes.json"
     bake_s: dict[str, float] = json.loads(bakes_file.read_text()) if bakes_file.exists() else {}
     for name, (v, f) in assets.meshes.items():
-        extent = v.max(axis=0) - v.min(axis=0)
         if name == "bunny":
             assets.exact[name] = ExactMesh(v, f, reach=0.02)  # deeper than any penetration seen
         elif name == "peg":

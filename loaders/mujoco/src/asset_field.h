@@ -9,7 +9,6 @@
 
 #include <Eigen/Core>
 
-#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
