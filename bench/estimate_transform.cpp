@@ -229,8 +229,8 @@ class ChamferTransform {
   const Voxelmap& vm_;
   std::array<uint32_t, 3> bricks_;
   int dims_[3];
-  std::vector<float> values_;           ///< per value-brick voxel (voxels), the value bricks' order
-  std::vector<std::vector<int>> rows_;  ///< per (bj, bk): its value bricks' columns bi, ascending
+  std::vector<float> values_;                            ///< per value-brick voxel (voxels), the value bricks' order
+  std::vector<std::vector<int>> rows_;                   ///< per (bj, bk): its value bricks' columns bi, ascending
   float step_[Reach + 1][2 * Reach + 1][2 * Reach + 1];  ///< step lengths by dk, dj + Reach, dx + Reach
 };
 
@@ -298,9 +298,9 @@ int main(int argc, char** argv) {
   nlohmann::json figures = {{"asset", asset_path},
                             {"value_brick_voxels", vm.brick_values.size()},
                             {"estimates", estimates},
-                            {"reach", reach},
                             {"seed_s", seed_s},
                             {"passes", nlohmann::json::array()}};
+  figures["reach"] = reach;
   for (size_t p = 0; p < passes.size(); ++p) {
     total += passes[p].first;
     std::printf("| pass %zu (%s) | %.3f | %zu |\n", p + 1, p % 2 == 0 ? "forward" : "back", passes[p].first,
