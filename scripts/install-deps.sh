@@ -10,7 +10,7 @@ PACKAGES=(
   libeigen3-dev
   libassimp-dev
   libopenvdb-dev libtbb-dev libblosc-dev libboost-iostreams-dev
-  libnanovdb-dev libnanovdb-tools libopenvdb-tools zlib1g-dev
+  libnanovdb-dev libnanovdb-tools libopenvdb-tools zlib1g-dev libdeflate-dev
   libhdf5-dev hdf5-tools
   libcgal-dev libcgal-demo libgmp-dev libmpfr-dev
   libbullet-dev libbullet-extras-dev libfcl-dev

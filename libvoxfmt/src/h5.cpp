@@ -1,6 +1,6 @@
 #include "h5.h"
 
-#include <zlib.h>
+#include <libdeflate.h>
 
 #include <algorithm>
 #include <atomic>
@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <functional>
+#include <memory>
 #include <new>
 #include <sstream>
 
@@ -647,8 +648,9 @@ bool little_endian_host() {
   return first == 1;
 }
 
-// Compresses every chunk of a 2-D or 3-D dataset exactly as HDF5's shuffle + deflate pipeline would, on all
-// cores, and writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). Chunks whose
+// Compresses every chunk of a 2-D or 3-D dataset into what HDF5's shuffle + deflate pipeline reads, on all cores,
+// and writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). libdeflate writes the
+// zlib streams: the same format as zlib's, about twice as fast at the same level. Chunks whose
 // every value is bitwise `*fill` are skipped. A 2-D dataset is handled as a 3-D one of depth 1.
 template <class T>
 bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector<hsize_t> chunk, const T* data,
@@ -676,6 +678,9 @@ bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector
   compress_chunks = [&] {
     std::vector<T> block(elements);
     std::vector<unsigned char> shuffled(elements * sizeof(T));
+    const std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor(
+        libdeflate_alloc_compressor(level), libdeflate_free_compressor);
+    if (!compressor) throw std::bad_alloc();
     for (size_t c = next++; c < chunk_count && !failed; c = next++) {
       const hsize_t c0 = c / (grid[1] * grid[2]), c1 = c / grid[2] % grid[1], c2 = c % grid[2];
       // Edge chunks are stored full-size; the part outside the dataset is padding (the fill value, else zeros).
@@ -691,11 +696,15 @@ bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector
           std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
         continue;
       const unsigned char* bytes = reinterpret_cast<const unsigned char*>(block.data());
-      for (size_t e = 0; e < elements; ++e)
-        for (size_t k = 0; k < sizeof(T); ++k) shuffled[k * elements + e] = bytes[e * sizeof(T) + k];
-      uLongf size = compressBound(uLong(shuffled.size()));
-      compressed[c].resize(size);
-      if (compress2(compressed[c].data(), &size, shuffled.data(), uLong(shuffled.size()), level) != Z_OK) failed = true;
+      for (size_t k = 0; k < sizeof(T); ++k) {  // byte plane by byte plane: the writes stay sequential
+        unsigned char* plane = shuffled.data() + k * elements;
+        for (size_t e = 0; e < elements; ++e) plane[e] = bytes[e * sizeof(T) + k];
+      }
+      const size_t bound = libdeflate_zlib_compress_bound(compressor.get(), shuffled.size());
+      compressed[c].resize(bound);
+      const size_t size =
+          libdeflate_zlib_compress(compressor.get(), shuffled.data(), shuffled.size(), compressed[c].data(), bound);
+      if (size == 0) failed = true;
       compressed[c].resize(size);
     }
   };
