@@ -552,6 +552,167 @@ bool Reader::read_rows(const OpenDataset& d, uint64_t first, uint64_t count, T* 
   return true;
 }
 
+namespace {
+bool host_is_little_endian() {
+  const uint16_t probe = 1;
+  unsigned char first = 0;
+  std::memcpy(&first, &probe, 1);
+  return first == 1;
+}
+
+// Compressed bytes read from the file before they are inflated together: a bound on the memory a read adds.
+constexpr uint64_t kRawBytesPerBatch = uint64_t(16) << 20;
+
+// A chunked dataset as three axes (the first ones of extent 1 where the rank is lower; the last is the fastest),
+// with the value of chunks never written.
+template <class T>
+struct ChunkGrid {
+  size_t rank = 0;
+  uint64_t dims[3] = {1, 1, 1}, chunk[3] = {1, 1, 1}, grid[3] = {1, 1, 1};
+  uint64_t count = 1, elements = 1;  // chunks; elements a chunk
+  T fill{};
+  uint64_t bytes() const { return elements * sizeof(T); }
+  void corner(uint64_t c, uint64_t (&at)[3]) const {
+    at[0] = c / (grid[1] * grid[2]) * chunk[0];
+    at[1] = c / grid[2] % grid[1] * chunk[1];
+    at[2] = c % grid[2] * chunk[2];
+  }
+};
+
+// The chunk grid of a dataset stored as voxfmt writes it (shuffle then deflate, the native type, a defined fill
+// value), else nothing.
+template <class T>
+std::optional<ChunkGrid<T>> shuffled_deflate_grid(const OpenDataset& d) {
+  ChunkGrid<T> g;
+  g.rank = d.shape.size();
+  if (!host_is_little_endian() || g.rank == 0 || g.rank > 3 || d.chunk.size() != g.rank) return std::nullopt;
+  Handle plist(H5Dget_create_plist(d.handle.get()), H5Pclose);
+  Handle type(H5Dget_type(d.handle.get()), H5Tclose);
+  H5D_fill_value_t fill_status;
+  H5D_fill_time_t fill_time;
+  if (!plist.valid() || !type.valid() || H5Pget_nfilters(plist.get()) != 2 ||
+      H5Tequal(type.get(), TypeTraits<T>::memory_type()) <= 0 ||
+      H5Pget_filter2(plist.get(), 0, nullptr, nullptr, nullptr, 0, nullptr, nullptr) != H5Z_FILTER_SHUFFLE ||
+      H5Pget_filter2(plist.get(), 1, nullptr, nullptr, nullptr, 0, nullptr, nullptr) != H5Z_FILTER_DEFLATE ||
+      H5Pfill_value_defined(plist.get(), &fill_status) < 0 || fill_status == H5D_FILL_VALUE_UNDEFINED ||
+      H5Pget_fill_time(plist.get(), &fill_time) < 0 || fill_time == H5D_FILL_TIME_NEVER ||
+      H5Pget_fill_value(plist.get(), TypeTraits<T>::memory_type(), &g.fill) < 0) {
+    H5Eclear2(H5E_DEFAULT);
+    return std::nullopt;
+  }
+  for (size_t a = 0; a < g.rank; ++a) {
+    g.dims[3 - g.rank + a] = d.shape[a];
+    g.chunk[3 - g.rank + a] = d.chunk[a];
+  }
+  // Checked axis by axis, so that no product overflows whatever a file declares.
+  for (int a = 0; a < 3; ++a) {
+    if (g.chunk[a] == 0 || g.chunk[a] > kMaxChunkBytes || g.dims[a] > kMaxElements) return std::nullopt;
+    g.grid[a] = (g.dims[a] + g.chunk[a] - 1) / g.chunk[a];
+    g.count *= g.grid[a];
+    g.elements *= g.chunk[a];
+    if (g.bytes() > kMaxChunkBytes || g.count > kMaxChunksPerFile) return std::nullopt;
+  }
+  return g;
+}
+
+// Reads the raw (still filtered) chunks [first, end) into `raw`; an empty one was never written.
+template <class T>
+bool read_raw_batch(hid_t dset, const ChunkGrid<T>& g, uint64_t first, uint64_t end,
+                    std::vector<std::vector<unsigned char>>& raw) {
+  // A deflate stream of n bytes is at most n plus 5 bytes a stored block of 64 KiB, plus the zlib wrapper.
+  const uint64_t largest_stream = g.bytes() + 5 * (g.bytes() / 65535 + 1) + 16;
+  raw.assign(size_t(end - first), {});
+  for (uint64_t c = first; c < end; ++c) {
+    uint64_t at[3];
+    g.corner(c, at);
+    hsize_t offset[3];
+    for (size_t a = 0; a < g.rank; ++a) offset[a] = at[3 - g.rank + a];
+    unsigned mask = 0;
+    uint32_t filters = 0;
+    haddr_t address = HADDR_UNDEF;
+    hsize_t size = 0;
+    if (H5Dget_chunk_info_by_coord(dset, offset, &mask, &address, &size) < 0) return false;
+    if (address == HADDR_UNDEF) continue;  // never written: the fill value
+    if (mask != 0 || size == 0 || size > largest_stream) return false;
+    std::vector<unsigned char>& bytes = raw[size_t(c - first)];
+    bytes.resize(size_t(size));
+    if (H5Dread_chunk(dset, H5P_DEFAULT, offset, &filters, bytes.data()) < 0 || filters != 0) return false;
+  }
+  return true;
+}
+
+// Inflates, unshuffles and places chunks [first, end) into `out`, on every core; false if a stream does not
+// inflate to exactly a chunk.
+template <class T>
+bool inflate_batch(const ChunkGrid<T>& g, const std::vector<std::vector<unsigned char>>& raw, uint64_t first,
+                   uint64_t end, T* out) {
+  std::atomic<uint64_t> next{first};
+  std::atomic<bool> failed{false};
+  run_workers(std::min<unsigned>(8u, usable_cores()), [&](unsigned) {
+    std::unique_ptr<libdeflate_decompressor, void (*)(libdeflate_decompressor*)> inflater(
+        libdeflate_alloc_decompressor(), libdeflate_free_decompressor);
+    std::vector<unsigned char> shuffled, block;
+    try {
+      shuffled.resize(size_t(g.bytes()));
+      block.resize(size_t(g.bytes()));
+    } catch (const std::bad_alloc&) {
+      failed = true;
+    }
+    if (!inflater) failed = true;
+    for (uint64_t c = next++; c < end && !failed; c = next++) {
+      const std::vector<unsigned char>& stream = raw[size_t(c - first)];
+      if (!stream.empty()) {
+        if (libdeflate_zlib_decompress(inflater.get(), stream.data(), stream.size(), shuffled.data(), size_t(g.bytes()),
+                                       nullptr) != LIBDEFLATE_SUCCESS) {
+          failed = true;
+          break;
+        }
+        for (size_t k = 0; k < sizeof(T); ++k)
+          for (uint64_t e = 0; e < g.elements; ++e) block[e * sizeof(T) + k] = shuffled[k * g.elements + e];
+      }
+      uint64_t at[3];
+      g.corner(c, at);
+      const uint64_t n = std::min(g.chunk[2], g.dims[2] - at[2]);  // edge chunks hold padding past the dataset
+      for (uint64_t a = 0; a < g.chunk[0] && at[0] + a < g.dims[0]; ++a)
+        for (uint64_t b = 0; b < g.chunk[1] && at[1] + b < g.dims[1]; ++b) {
+          T* row = out + ((at[0] + a) * g.dims[1] + at[1] + b) * g.dims[2] + at[2];
+          if (stream.empty())
+            std::fill(row, row + n, g.fill);
+          else
+            std::memcpy(row, block.data() + (a * g.chunk[1] + b) * g.chunk[2] * sizeof(T), size_t(n) * sizeof(T));
+        }
+    }
+  });
+  return !failed;
+}
+}  // namespace
+
+// HDF5 runs a dataset's filters on the calling thread, chunk after chunk, with zlib. A dataset stored as voxfmt
+// writes it is read here by its raw chunks (HDF5 still finds and reads them) and inflated by libdeflate on all
+// cores. Any other storage, and any chunk not as expected (a skipped filter, a size no deflate stream of it could
+// have, a stream that does not inflate to exactly the chunk), returns false: the caller then reads through HDF5,
+// which judges the file as it always has.
+template <class T>
+bool Reader::read_raw_chunks(const OpenDataset& d, T* out) {
+  const std::optional<ChunkGrid<T>> g = shuffled_deflate_grid<T>(d);
+  if (!g) return false;
+  // Batches of as many chunks as one piece of read_rows may cover (the work between two progress reports), and
+  // at most kRawBytesPerBatch of raw chunks read ahead.
+  const uint64_t most = std::max<uint64_t>(1, std::min(kChunksPerPiece, kElementsPerPiece / g->elements));
+  const uint64_t per_batch = std::max<uint64_t>(1, std::min(most, kRawBytesPerBatch / g->bytes()));
+  std::vector<std::vector<unsigned char>> raw;
+  for (uint64_t first = 0; first < g->count; first += per_batch) {
+    const uint64_t end = std::min(g->count, first + per_batch);
+    if (!read_raw_batch(d.handle.get(), *g, first, end, raw)) {
+      H5Eclear2(H5E_DEFAULT);
+      return false;
+    }
+    if (!inflate_batch(*g, raw, first, end, out)) return false;
+    progress();
+  }
+  return true;
+}
+
 template <class T>
 std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& group_path, const std::string& name,
                                               const Shape& shape, std::vector<uint64_t>* shape_out) {
@@ -564,7 +725,8 @@ std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& gr
     report(IssueCode::ReadFailed, d->path, "not enough memory for " + std::to_string(d->elements()) + " elements");
     return std::nullopt;
   }
-  if (!read_rows<T>(*d, 0, d->shape.empty() ? 1 : d->shape[0], values.data())) return std::nullopt;
+  if (!read_raw_chunks<T>(*d, values.data()) && !read_rows<T>(*d, 0, d->shape.empty() ? 1 : d->shape[0], values.data()))
+    return std::nullopt;
   if (shape_out) *shape_out = d->shape;
   return values;
 }

@@ -209,6 +209,10 @@ class Reader {
   std::optional<std::string> checked_text(std::string bytes, const std::string& path);
   /// Filters and chunk grid of a dataset, checked before its data is decoded.
   bool check_storage(hid_t dset, const std::vector<uint64_t>& dims, const std::string& path);
+  /// Reads a whole dataset by its raw chunks and inflates them on all cores, if it is stored as voxfmt writes
+  /// (shuffle then deflate, the native type); false otherwise, or at anything unusual, reporting nothing.
+  template <class T>
+  bool read_raw_chunks(const OpenDataset& dataset, T* out);
 
   std::string file_;
   std::vector<Issue>& issues_;

@@ -1142,6 +1142,29 @@ class TestPythonToCpp(PythonToCppBase, unittest.TestCase):
         """§1: `voxfmt build`'s chunks: 32^3 entries of bricks and lattice, 64 bricks of brick_values."""
         self._accept("build_chunks", grid=sf.FINE_GRID, grid_chunks=(32, 32, 32), value_chunk_rows=64)
 
+    def test_chunks_never_written_read_as_the_fill_value(self):
+        """HDF5: a chunk never written reads as the dataset's fill value. The brick table in chunks of 2^3
+        entries whose fill is the commonest entry, and only the chunks holding another entry written."""
+        written = {}
+
+        def sparse_bricks(f):
+            table = f["/voxelmap/bricks"][()]
+            values, counts = np.unique(table, return_counts=True)
+            fill = values[np.argmax(counts)]
+            del f["/voxelmap/bricks"]
+            ds = f["/voxelmap"].create_dataset("bricks", shape=table.shape, dtype=table.dtype, chunks=(2, 2, 2),
+                                               shuffle=True, compression="gzip", fillvalue=fill)
+            for k in range(0, table.shape[0], 2):
+                for j in range(0, table.shape[1], 2):
+                    for i in range(0, table.shape[2], 2):
+                        block = table[k:k + 2, j:j + 2, i:i + 2]
+                        if (block != fill).any():
+                            ds[k:k + 2, j:j + 2, i:i + 2] = block
+            written["chunks"] = (ds.id.get_num_chunks(), int(np.prod([-(-s // 2) for s in table.shape])))
+
+        self._accept("fill_chunks", grid=sf.FINE_GRID, post=sparse_bricks)
+        self.assertLess(written["chunks"][0], written["chunks"][1], "every chunk was written: nothing is tested")
+
     def test_fine_grid_all_variants_combined(self):
         self._accept("fine_combined", grid=sf.FINE_GRID, string_mode="vlen", byteorder=">", fletcher32=True,
                      brick_order="reversed", padding_code=5, extra_objects=True)
