@@ -803,13 +803,6 @@ bool Writer::numeric_attribute(hid_t object, const std::string& name, const std:
 
 namespace {
 
-bool little_endian_host() {
-  const uint16_t probe = 1;
-  unsigned char first = 0;
-  std::memcpy(&first, &probe, 1);
-  return first == 1;
-}
-
 // Compresses every chunk of a 2-D or 3-D dataset into what HDF5's shuffle + deflate pipeline reads, on all cores,
 // and writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). libdeflate writes the
 // zlib streams: the same format as zlib's, about twice as fast at the same level. Chunks whose
@@ -910,7 +903,7 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
       H5Dclose);
   if (!dset.valid()) return fail("cannot create dataset " + name);
   if (count == 0) return true;
-  if (chunked && deflate_level > 0 && (dims.size() == 2 || dims.size() == 3) && little_endian_host()) {
+  if (chunked && deflate_level > 0 && (dims.size() == 2 || dims.size() == 3) && host_is_little_endian()) {
     if (!write_chunks_in_parallel(dset.get(), dims, chunk, data, std::min(deflate_level, 9), fill))
       return fail("cannot write dataset " + name);
     return true;
