@@ -564,18 +564,65 @@ bool host_is_little_endian() {
 constexpr uint64_t kRawBytesPerBatch = uint64_t(16) << 20;
 
 // A chunked dataset as three axes (the first ones of extent 1 where the rank is lower; the last is the fastest),
-// with the value of chunks never written.
+// with the value of chunks never written. The reader and the writer walk chunks, rows and byte planes through it.
 template <class T>
 struct ChunkGrid {
   size_t rank = 0;
   uint64_t dims[3] = {1, 1, 1}, chunk[3] = {1, 1, 1}, grid[3] = {1, 1, 1};
   uint64_t count = 1, elements = 1;  // chunks; elements a chunk
   T fill{};
+
+  // False where the shape is beyond the spec's limits; checked axis by axis, so that no product overflows
+  // whatever a file declares.
+  template <class Extent>
+  bool set_shape(size_t dataset_rank, const Extent* dataset_dims, const Extent* chunk_dims) {
+    if (dataset_rank == 0 || dataset_rank > 3) return false;
+    rank = dataset_rank;
+    for (size_t a = 0; a < rank; ++a) {
+      dims[3 - rank + a] = dataset_dims[a];
+      chunk[3 - rank + a] = chunk_dims[a];
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (chunk[a] == 0 || chunk[a] > kMaxChunkBytes || dims[a] > kMaxElements) return false;
+      grid[a] = (dims[a] + chunk[a] - 1) / chunk[a];
+      count *= grid[a];
+      elements *= chunk[a];
+      if (bytes() > kMaxChunkBytes || count > kMaxChunksPerFile) return false;
+    }
+    return true;
+  }
   uint64_t bytes() const { return elements * sizeof(T); }
   void corner(uint64_t c, uint64_t (&at)[3]) const {
     at[0] = c / (grid[1] * grid[2]) * chunk[0];
     at[1] = c / grid[2] % grid[1] * chunk[1];
     at[2] = c % grid[2] * chunk[2];
+  }
+  // The chunk's corner as HDF5 names it: `rank` coordinates.
+  void offset(uint64_t c, hsize_t (&out)[3]) const {
+    uint64_t at[3];
+    corner(c, at);
+    for (size_t a = 0; a < rank; ++a) out[a] = at[3 - rank + a];
+  }
+  // Calls row(first element in the dataset, first element in the chunk, length) for every row of chunk c that
+  // lies in the dataset: edge chunks are stored full-size, the part past the dataset is padding.
+  template <class Row>
+  void for_each_row(uint64_t c, Row&& row) const {
+    uint64_t at[3];
+    corner(c, at);
+    const uint64_t n = std::min(chunk[2], dims[2] - at[2]);
+    for (uint64_t a = 0; a < chunk[0] && at[0] + a < dims[0]; ++a)
+      for (uint64_t b = 0; b < chunk[1] && at[1] + b < dims[1]; ++b)
+        row(((at[0] + a) * dims[1] + at[1] + b) * dims[2] + at[2], (a * chunk[1] + b) * chunk[2], n);
+  }
+  // HDF5's shuffle filter: byte k of every element into plane k. Plane by plane, so the writes stay sequential.
+  void shuffle(const T* block, unsigned char* planes) const {
+    const unsigned char* bytes = reinterpret_cast<const unsigned char*>(block);
+    for (size_t k = 0; k < sizeof(T); ++k)
+      for (uint64_t e = 0; e < elements; ++e) planes[k * elements + e] = bytes[e * sizeof(T) + k];
+  }
+  void unshuffle(const unsigned char* planes, unsigned char* block) const {
+    for (size_t k = 0; k < sizeof(T); ++k)
+      for (uint64_t e = 0; e < elements; ++e) block[e * sizeof(T) + k] = planes[k * elements + e];
   }
 };
 
@@ -584,8 +631,9 @@ struct ChunkGrid {
 template <class T>
 std::optional<ChunkGrid<T>> shuffled_deflate_grid(const OpenDataset& d) {
   ChunkGrid<T> g;
-  g.rank = d.shape.size();
-  if (!host_is_little_endian() || g.rank == 0 || g.rank > 3 || d.chunk.size() != g.rank) return std::nullopt;
+  if (!host_is_little_endian() || d.chunk.size() != d.shape.size() ||
+      !g.set_shape(d.shape.size(), d.shape.data(), d.chunk.data()))
+    return std::nullopt;
   Handle plist(H5Dget_create_plist(d.handle.get()), H5Pclose);
   Handle type(H5Dget_type(d.handle.get()), H5Tclose);
   H5D_fill_value_t fill_status;
@@ -600,18 +648,6 @@ std::optional<ChunkGrid<T>> shuffled_deflate_grid(const OpenDataset& d) {
     H5Eclear2(H5E_DEFAULT);
     return std::nullopt;
   }
-  for (size_t a = 0; a < g.rank; ++a) {
-    g.dims[3 - g.rank + a] = d.shape[a];
-    g.chunk[3 - g.rank + a] = d.chunk[a];
-  }
-  // Checked axis by axis, so that no product overflows whatever a file declares.
-  for (int a = 0; a < 3; ++a) {
-    if (g.chunk[a] == 0 || g.chunk[a] > kMaxChunkBytes || g.dims[a] > kMaxElements) return std::nullopt;
-    g.grid[a] = (g.dims[a] + g.chunk[a] - 1) / g.chunk[a];
-    g.count *= g.grid[a];
-    g.elements *= g.chunk[a];
-    if (g.bytes() > kMaxChunkBytes || g.count > kMaxChunksPerFile) return std::nullopt;
-  }
   return g;
 }
 
@@ -623,10 +659,8 @@ bool read_raw_batch(hid_t dset, const ChunkGrid<T>& g, uint64_t first, uint64_t 
   const uint64_t largest_stream = g.bytes() + 5 * (g.bytes() / 65535 + 1) + 16;
   raw.assign(size_t(end - first), {});
   for (uint64_t c = first; c < end; ++c) {
-    uint64_t at[3];
-    g.corner(c, at);
     hsize_t offset[3];
-    for (size_t a = 0; a < g.rank; ++a) offset[a] = at[3 - g.rank + a];
+    g.offset(c, offset);
     unsigned mask = 0;
     uint32_t filters = 0;
     haddr_t address = HADDR_UNDEF;
@@ -667,20 +701,14 @@ bool inflate_batch(const ChunkGrid<T>& g, const std::vector<std::vector<unsigned
           failed = true;
           break;
         }
-        for (size_t k = 0; k < sizeof(T); ++k)
-          for (uint64_t e = 0; e < g.elements; ++e) block[e * sizeof(T) + k] = shuffled[k * g.elements + e];
+        g.unshuffle(shuffled.data(), block.data());
       }
-      uint64_t at[3];
-      g.corner(c, at);
-      const uint64_t n = std::min(g.chunk[2], g.dims[2] - at[2]);  // edge chunks hold padding past the dataset
-      for (uint64_t a = 0; a < g.chunk[0] && at[0] + a < g.dims[0]; ++a)
-        for (uint64_t b = 0; b < g.chunk[1] && at[1] + b < g.dims[1]; ++b) {
-          T* row = out + ((at[0] + a) * g.dims[1] + at[1] + b) * g.dims[2] + at[2];
-          if (stream.empty())
-            std::fill(row, row + n, g.fill);
-          else
-            std::memcpy(row, block.data() + (a * g.chunk[1] + b) * g.chunk[2] * sizeof(T), size_t(n) * sizeof(T));
-        }
+      g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
+        if (stream.empty())
+          std::fill(out + at, out + at + n, g.fill);
+        else
+          std::memcpy(out + at, block.data() + from * sizeof(T), size_t(n) * sizeof(T));
+      });
     }
   });
   return !failed;
@@ -803,24 +831,14 @@ bool Writer::numeric_attribute(hid_t object, const std::string& name, const std:
 
 namespace {
 
-// Compresses every chunk of a 2-D or 3-D dataset into what HDF5's shuffle + deflate pipeline reads, on all cores,
-// and writes the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). libdeflate writes the
-// zlib streams: the same format as zlib's, about twice as fast at the same level. Chunks whose
-// every value is bitwise `*fill` are skipped. A 2-D dataset is handled as a 3-D one of depth 1.
+// Compresses every chunk of a dataset into what HDF5's shuffle + deflate pipeline reads, on all cores, and writes
+// the results with H5Dwrite_chunk (HDF5 itself filters chunks on one thread). libdeflate writes the zlib streams:
+// the same format as zlib's, about twice as fast at the same level. Chunks whose every value is bitwise `*fill` are
+// skipped.
 template <class T>
-bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector<hsize_t> chunk, const T* data,
-                              int level, const T* fill) {
-  const size_t rank = dims.size();
-  if (rank == 2) {
-    dims.insert(dims.begin(), 1);
-    chunk.insert(chunk.begin(), 1);
-  }
-  const hsize_t grid[3] = {(dims[0] + chunk[0] - 1) / chunk[0], (dims[1] + chunk[1] - 1) / chunk[1],
-                           (dims[2] + chunk[2] - 1) / chunk[2]};
-  const size_t chunk_count = size_t(grid[0] * grid[1] * grid[2]);
-  const size_t elements = size_t(chunk[0] * chunk[1] * chunk[2]);
-  std::vector<std::vector<unsigned char>> compressed(chunk_count);
-  std::atomic<size_t> next{0};
+bool write_chunks_in_parallel(hid_t dset, const ChunkGrid<T>& g, const T* data, int level, const T* fill) {
+  std::vector<std::vector<unsigned char>> compressed(size_t(g.count));
+  std::atomic<uint64_t> next{0};
   std::atomic<bool> failed{false};
   std::function<void()> compress_chunks;
   auto worker = [&]() noexcept {
@@ -831,46 +849,38 @@ bool write_chunks_in_parallel(hid_t dset, std::vector<hsize_t> dims, std::vector
     }
   };
   compress_chunks = [&] {
-    std::vector<T> block(elements);
-    std::vector<unsigned char> shuffled(elements * sizeof(T));
+    std::vector<T> block(size_t(g.elements));
+    std::vector<unsigned char> shuffled(size_t(g.bytes()));
     const std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor(
         libdeflate_alloc_compressor(level), libdeflate_free_compressor);
     if (!compressor) throw std::bad_alloc();
-    for (size_t c = next++; c < chunk_count && !failed; c = next++) {
-      const hsize_t c0 = c / (grid[1] * grid[2]), c1 = c / grid[2] % grid[1], c2 = c % grid[2];
-      // Edge chunks are stored full-size; the part outside the dataset is padding (the fill value, else zeros).
-      std::fill(block.begin(), block.end(), fill ? *fill : T{});
-      for (hsize_t a = 0; a < chunk[0] && c0 * chunk[0] + a < dims[0]; ++a)
-        for (hsize_t b = 0; b < chunk[1] && c1 * chunk[1] + b < dims[1]; ++b) {
-          const hsize_t row = ((c0 * chunk[0] + a) * dims[1] + (c1 * chunk[1] + b)) * dims[2] + c2 * chunk[2];
-          const hsize_t n = std::min<hsize_t>(chunk[2], dims[2] - c2 * chunk[2]);
-          std::memcpy(&block[(a * chunk[1] + b) * chunk[2]], data + row, n * sizeof(T));
-        }
+    for (uint64_t c = next++; c < g.count && !failed; c = next++) {
+      std::fill(block.begin(), block.end(), g.fill);  // the padding of edge chunks
+      g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
+        std::memcpy(block.data() + from, data + at, size_t(n) * sizeof(T));
+      });
       // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
       if (fill &&
           std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
         continue;
-      const unsigned char* bytes = reinterpret_cast<const unsigned char*>(block.data());
-      for (size_t k = 0; k < sizeof(T); ++k) {  // byte plane by byte plane: the writes stay sequential
-        unsigned char* plane = shuffled.data() + k * elements;
-        for (size_t e = 0; e < elements; ++e) plane[e] = bytes[e * sizeof(T) + k];
-      }
+      g.shuffle(block.data(), shuffled.data());
+      std::vector<unsigned char>& stream = compressed[size_t(c)];
       const size_t bound = libdeflate_zlib_compress_bound(compressor.get(), shuffled.size());
-      compressed[c].resize(bound);
+      stream.resize(bound);
       const size_t size =
-          libdeflate_zlib_compress(compressor.get(), shuffled.data(), shuffled.size(), compressed[c].data(), bound);
+          libdeflate_zlib_compress(compressor.get(), shuffled.data(), shuffled.size(), stream.data(), bound);
       if (size == 0) failed = true;
-      compressed[c].resize(size);
+      stream.resize(size);
     }
   };
   run_workers(std::min(8u, usable_cores()), [&](unsigned) { worker(); });
   if (failed) return false;
-  for (size_t c = 0; c < chunk_count; ++c) {
-    if (compressed[c].empty()) continue;
-    const hsize_t offset[3] = {c / (grid[1] * grid[2]) * chunk[0], c / grid[2] % grid[1] * chunk[1],
-                               c % grid[2] * chunk[2]};
-    if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset + (3 - rank), compressed[c].size(), compressed[c].data()) < 0)
-      return false;
+  for (uint64_t c = 0; c < g.count; ++c) {
+    const std::vector<unsigned char>& stream = compressed[size_t(c)];
+    if (stream.empty()) continue;
+    hsize_t offset[3];
+    g.offset(c, offset);
+    if (H5Dwrite_chunk(dset, H5P_DEFAULT, 0, offset, stream.size(), stream.data()) < 0) return false;
   }
   return true;
 }
@@ -903,8 +913,11 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
       H5Dclose);
   if (!dset.valid()) return fail("cannot create dataset " + name);
   if (count == 0) return true;
-  if (chunked && deflate_level > 0 && (dims.size() == 2 || dims.size() == 3) && host_is_little_endian()) {
-    if (!write_chunks_in_parallel(dset.get(), dims, chunk, data, std::min(deflate_level, 9), fill))
+  ChunkGrid<T> grid;
+  if (chunked && deflate_level > 0 && host_is_little_endian() &&
+      grid.set_shape(dims.size(), dims.data(), chunk.data())) {
+    grid.fill = fill ? *fill : T{};
+    if (!write_chunks_in_parallel(dset.get(), grid, data, std::min(deflate_level, 9), fill))
       return fail("cannot write dataset " + name);
     return true;
   }
