@@ -25,71 +25,72 @@ const T* flat(const std::vector<std::array<T, K>>& rows) {
   return rows.empty() ? nullptr : rows.front().data();
 }
 
-bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
+bool write_root_attributes(h5::Writer& w, const Asset& a) {
   const hid_t root = w.file();
   const uint32_t version[2] = {kFormatVersion.major, kFormatVersion.minor};
-  bool ok = w.string_attribute(root, "format", "voxfmt") &&
-            w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
-            w.string_attribute(root, "units", "m") && w.string_attribute(root, "frame", "right-handed") &&
-            w.string_attribute(root, "up_axis", a.up_axis) &&
-            w.numeric_attribute<double>(root, "bounds_min", {3}, a.bounds_min.data()) &&
-            w.numeric_attribute<double>(root, "bounds_max", {3}, a.bounds_max.data());
-  if (!ok) return false;
+  return w.string_attribute(root, "format", "voxfmt") &&
+         w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
+         w.string_attribute(root, "units", "m") && w.string_attribute(root, "frame", "right-handed") &&
+         w.string_attribute(root, "up_axis", a.up_axis) &&
+         w.numeric_attribute<double>(root, "bounds_min", {3}, a.bounds_min.data()) &&
+         w.numeric_attribute<double>(root, "bounds_max", {3}, a.bounds_max.data());
+}
 
-  const Voxelmap& vm = a.voxelmap;
-  auto vg = w.create_group(root, "voxelmap");
+bool write_voxelmap(h5::Writer& w, const Voxelmap& vm, const WriteOptions& opt) {
+  auto vg = w.create_group(w.file(), "voxelmap");
   if (!vg) return false;
   const auto bd = vm.brick_dims();
   const auto ld = vm.lattice_dims();
   const uint32_t brick_edge = Voxelmap::kBrickEdge;
   const uint64_t edge = std::max(1u, opt.chunk_edge);
-  ok = w.numeric_attribute<double>(vg->get(), "origin", {3}, vm.origin.data()) &&
-       w.numeric_attribute<double>(vg->get(), "voxel_size", {}, &vm.voxel_size) &&
-       w.numeric_attribute<uint32_t>(vg->get(), "dims", {3}, vm.dims.data()) &&
-       w.string_attribute(vg->get(), "index_order", "zyx") &&
-       w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
-       (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
-       (!vm.shell_thickness || w.numeric_attribute<double>(vg->get(), "shell_thickness", {}, &*vm.shell_thickness)) &&
-       w.numeric_attribute<uint32_t>(vg->get(), "brick_edge", {}, &brick_edge) &&
-       w.numeric_attribute<double>(vg->get(), "distance_quantum", {}, &vm.distance_quantum) &&
-       w.numeric_attribute<double>(vg->get(), "estimate_quantum", {}, &vm.estimate_quantum) &&
-       w.numeric_attribute<double>(vg->get(), "lattice_error", {2}, vm.lattice_error.data()) &&
-       w.dataset<int32_t>(vg->get(), "bricks", {bd[2], bd[1], bd[0]}, vm.bricks.data(), opt.deflate_level,
-                          {edge, edge, edge}) &&
-       w.dataset<int16_t>(vg->get(), "brick_values", {vm.value_brick_count(), Voxelmap::kBrickVoxels},
-                          vm.brick_values.data(), opt.deflate_level, {kBricksPerChunk, Voxelmap::kBrickVoxels}) &&
-       w.dataset<float>(vg->get(), "lattice", {ld[2], ld[1], ld[0]}, vm.lattice.data(), opt.deflate_level,
-                        {edge, edge, edge});
-  if (!ok) return false;
+  return w.numeric_attribute<double>(vg->get(), "origin", {3}, vm.origin.data()) &&
+         w.numeric_attribute<double>(vg->get(), "voxel_size", {}, &vm.voxel_size) &&
+         w.numeric_attribute<uint32_t>(vg->get(), "dims", {3}, vm.dims.data()) &&
+         w.string_attribute(vg->get(), "index_order", "zyx") &&
+         w.numeric_attribute<double>(vg->get(), "distance_band", {}, &vm.distance_band) &&
+         (!vm.margin || w.numeric_attribute<uint32_t>(vg->get(), "margin", {}, &*vm.margin)) &&
+         (!vm.shell_thickness || w.numeric_attribute<double>(vg->get(), "shell_thickness", {}, &*vm.shell_thickness)) &&
+         w.numeric_attribute<uint32_t>(vg->get(), "brick_edge", {}, &brick_edge) &&
+         w.numeric_attribute<double>(vg->get(), "distance_quantum", {}, &vm.distance_quantum) &&
+         w.numeric_attribute<double>(vg->get(), "estimate_quantum", {}, &vm.estimate_quantum) &&
+         w.numeric_attribute<double>(vg->get(), "lattice_error", {2}, vm.lattice_error.data()) &&
+         w.dataset<int32_t>(vg->get(), "bricks", {bd[2], bd[1], bd[0]}, vm.bricks.data(), opt.deflate_level,
+                            {edge, edge, edge}) &&
+         w.dataset<int16_t>(vg->get(), "brick_values", {vm.value_brick_count(), Voxelmap::kBrickVoxels},
+                            vm.brick_values.data(), opt.deflate_level, {kBricksPerChunk, Voxelmap::kBrickVoxels}) &&
+         w.dataset<float>(vg->get(), "lattice", {ld[2], ld[1], ld[0]}, vm.lattice.data(), opt.deflate_level,
+                          {edge, edge, edge});
+}
 
-  const PointShell& ps = a.point_shell;
-  auto pg = w.create_group(root, "pointshell");
+bool write_point_shell(h5::Writer& w, const PointShell& ps) {
+  auto pg = w.create_group(w.file(), "pointshell");
   if (!pg) return false;
   const uint64_t n = ps.points.size();
-  ok = w.dataset<double>(pg->get(), "points", {n, 3}, flat(ps.points)) &&
-       w.dataset<float>(pg->get(), "normals", {n, 3}, flat(ps.normals)) &&
-       w.dataset<double>(pg->get(), "sphere_centers", {n, 3}, flat(ps.sphere_centers)) &&
-       w.dataset<double>(pg->get(), "sphere_radii", {n}, ps.sphere_radii.data()) &&
-       w.dataset<uint32_t>(pg->get(), "child_begin", {n}, ps.child_begin.data()) &&
-       w.dataset<uint32_t>(pg->get(), "child_count", {n}, ps.child_count.data()) &&
-       w.dataset<uint32_t>(pg->get(), "level_offsets", {ps.level_offsets.size()}, ps.level_offsets.data()) &&
-       (!ps.point_spacing || w.numeric_attribute<double>(pg->get(), "point_spacing", {}, &*ps.point_spacing)) &&
-       (!ps.branching || w.numeric_attribute<double>(pg->get(), "branching", {}, &*ps.branching));
-  if (!ok) return false;
+  return w.dataset<double>(pg->get(), "points", {n, 3}, flat(ps.points)) &&
+         w.dataset<float>(pg->get(), "normals", {n, 3}, flat(ps.normals)) &&
+         w.dataset<double>(pg->get(), "sphere_centers", {n, 3}, flat(ps.sphere_centers)) &&
+         w.dataset<double>(pg->get(), "sphere_radii", {n}, ps.sphere_radii.data()) &&
+         w.dataset<uint32_t>(pg->get(), "child_begin", {n}, ps.child_begin.data()) &&
+         w.dataset<uint32_t>(pg->get(), "child_count", {n}, ps.child_count.data()) &&
+         w.dataset<uint32_t>(pg->get(), "level_offsets", {ps.level_offsets.size()}, ps.level_offsets.data()) &&
+         (!ps.point_spacing || w.numeric_attribute<double>(pg->get(), "point_spacing", {}, &*ps.point_spacing)) &&
+         (!ps.branching || w.numeric_attribute<double>(pg->get(), "branching", {}, &*ps.branching));
+}
 
-  auto mg = w.create_group(root, "mass_properties");
+bool write_mass_properties(h5::Writer& w, const MassProperties& mass) {
+  auto mg = w.create_group(w.file(), "mass_properties");
   if (!mg) return false;
-  ok = w.numeric_attribute<double>(mg->get(), "volume", {}, &a.mass.volume) &&
-       w.numeric_attribute<double>(mg->get(), "center_of_mass", {3}, a.mass.center_of_mass.data()) &&
-       w.numeric_attribute<double>(mg->get(), "inertia", {3, 3}, a.mass.inertia.data());
-  if (!ok) return false;
+  return w.numeric_attribute<double>(mg->get(), "volume", {}, &mass.volume) &&
+         w.numeric_attribute<double>(mg->get(), "center_of_mass", {3}, mass.center_of_mass.data()) &&
+         w.numeric_attribute<double>(mg->get(), "inertia", {3, 3}, mass.inertia.data());
+}
 
-  const Provenance& p = a.provenance;
+bool write_provenance(h5::Writer& w, const Provenance& p) {
   nlohmann::json deps = nlohmann::json::object();
   for (const auto& [name, version_string] : p.dependency_versions) deps[name] = version_string;
   nlohmann::json warnings = nlohmann::json::array();
   for (const BuildWarning& bw : p.build_warnings) warnings.push_back({{"code", bw.code}, {"message", bw.message}});
-  auto prov = w.create_group(root, "provenance");
+  auto prov = w.create_group(w.file(), "provenance");
   if (!prov) return false;
   return w.string_attribute(prov->get(), "generator", p.generator) &&
          w.string_attribute(prov->get(), "generator_version", p.generator_version) &&
@@ -101,6 +102,11 @@ bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
          w.string_attribute(prov->get(), "build_warnings",
                             warnings.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace)) &&
          (p.created_utc.empty() || w.string_attribute(prov->get(), "created_utc", p.created_utc));
+}
+
+bool write_contents(h5::Writer& w, const Asset& a, const WriteOptions& opt) {
+  return write_root_attributes(w, a) && write_voxelmap(w, a.voxelmap, opt) && write_point_shell(w, a.point_shell) &&
+         write_mass_properties(w, a.mass) && write_provenance(w, a.provenance);
 }
 
 // The first error-severity finding as an INVALID_ASSET error naming the rule it breaks.
@@ -147,6 +153,46 @@ Status write_bytes(const std::string& file, const std::vector<char>& bytes, cons
     return Error{IssueCode::WriteFailed, path + ": cannot finish file: " + std::strerror(errno), path};
   return Status::success();
 }
+
+// HDF5 builds the file in memory (the core driver, no backing store) and we write its bytes to `temp` ourselves.
+// HDF5 1.10 does not survive its own disk errors: after a failed write (a full disk, a file-size limit) the file
+// cannot be closed, and the library crashes closing it again at exit.
+Status write_in_memory_then_to(const std::string& temp, const std::string& path, const Asset& asset,
+                               const WriteOptions& options) {
+  h5::Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+  if (!fapl.valid() || H5Pset_fapl_core(fapl.get(), 4 << 20, false) < 0)
+    return Error{IssueCode::WriteFailed, path + ": cannot set up HDF5 (" + h5::last_hdf5_reason() + ")", path};
+  hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get());
+  if (file < 0)
+    return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
+  h5::Writer writer(file);
+  bool ok = false;
+  std::string reason;
+  std::vector<char> image;
+  try {
+    ok = write_contents(writer, asset, options);
+    reason = writer.failure();
+    if (ok && H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) {
+      ok = false;
+      reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
+    }
+    const ssize_t size = ok ? H5Fget_file_image(file, nullptr, 0) : -1;
+    if (ok && size > 0) {
+      image.resize(size_t(size));
+      ok = H5Fget_file_image(file, image.data(), image.size()) == size;
+    } else {
+      ok = false;
+    }
+    if (!ok && reason.empty()) reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
+  } catch (const std::exception& e) {  // allocation or thread failures: still close the file
+    ok = false;
+    reason = std::string("write failed: ") + e.what();
+  }
+  H5Fclose(file);  // in memory: nothing to fail on
+  if (!ok) return Error{IssueCode::WriteFailed, path + ": " + reason, path};
+  return write_bytes(temp, image, path);
+}
+
 }  // namespace
 
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
@@ -164,43 +210,7 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
 
   h5::silence_hdf5_errors();
   AtomicWrite steps;
-  steps.write = [&](const std::string& temp) -> Status {
-    // HDF5 builds the file in memory (the core driver, no backing store) and we write its bytes ourselves. HDF5
-    // 1.10 does not survive its own disk errors: after a failed write (a full disk, a file-size limit) the file
-    // cannot be closed, and the library crashes closing it again at exit.
-    h5::Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
-    if (!fapl.valid() || H5Pset_fapl_core(fapl.get(), 4 << 20, false) < 0)
-      return Error{IssueCode::WriteFailed, path + ": cannot set up HDF5 (" + h5::last_hdf5_reason() + ")", path};
-    hid_t file = H5Fcreate(temp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get());
-    if (file < 0)
-      return Error{IssueCode::WriteFailed, path + ": cannot create file (" + h5::last_hdf5_reason() + ")", path};
-    h5::Writer writer(file);
-    bool ok = false;
-    std::string reason;
-    std::vector<char> image;
-    try {
-      ok = write_contents(writer, asset, options);
-      reason = writer.failure();
-      if (ok && H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) {
-        ok = false;
-        reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
-      }
-      const ssize_t size = ok ? H5Fget_file_image(file, nullptr, 0) : -1;
-      if (ok && size > 0) {
-        image.resize(size_t(size));
-        ok = H5Fget_file_image(file, image.data(), image.size()) == size;
-      } else {
-        ok = false;
-      }
-      if (!ok && reason.empty()) reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
-    } catch (const std::exception& e) {  // allocation or thread failures: still close the file
-      ok = false;
-      reason = std::string("write failed: ") + e.what();
-    }
-    H5Fclose(file);  // in memory: nothing to fail on
-    if (!ok) return Error{IssueCode::WriteFailed, path + ": " + reason, path};
-    return write_bytes(temp, image, path);
-  };
+  steps.write = [&](const std::string& temp) { return write_in_memory_then_to(temp, path, asset, options); };
   steps.before_commit = [&]() -> Status {
     wait_for_check();
     if (semantic_error) return *semantic_error;
