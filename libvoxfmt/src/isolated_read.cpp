@@ -105,6 +105,53 @@ struct ReadOutcome {
   std::optional<Value> value;
 };
 
+// A counter in memory the parent shares with its children: the child bumps it after each piece it reads
+// (h5::Reader's progress hook), the parent's watchdog watches it.
+class SharedCounter {
+ public:
+  SharedCounter()
+      : memory_(
+            ::mmap(nullptr, sizeof(std::atomic<uint64_t>), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0)) {
+    if (memory_ != MAP_FAILED) counter_ = new (memory_) std::atomic<uint64_t>(0);
+  }
+  ~SharedCounter() {
+    if (memory_ != MAP_FAILED) ::munmap(memory_, sizeof(std::atomic<uint64_t>));
+  }
+  SharedCounter(const SharedCounter&) = delete;
+  SharedCounter& operator=(const SharedCounter&) = delete;
+  std::atomic<uint64_t>* get() const { return counter_; }  // null if the memory could not be mapped
+
+ private:
+  void* memory_;
+  std::atomic<uint64_t>* counter_ = nullptr;
+};
+
+// Why a child's read gave no value, as the READ_FAILED (or OUT_OF_MEMORY) finding the caller gets.
+Issue failed_read(const ChildOutcome& outcome) {
+  auto refuse = [](const std::string& why, IssueCode code = IssueCode::ReadFailed) {
+    return Issue{code, Severity::Error, "/", why};
+  };
+  switch (outcome.kind) {
+    case ChildOutcome::CannotStart:
+      return refuse("cannot start the isolated read: " + outcome.detail);
+    case ChildOutcome::Died:
+      return refuse("the file is damaged: HDF5 died of signal " + std::to_string(outcome.signal) + " (" +
+                    strsignal(outcome.signal) + ") reading it (read in isolation: nothing else was affected)");
+    case ChildOutcome::TimedOut:
+      if (outcome.asleep)
+        return refuse("the read made no progress: it waited " + std::to_string(int(kAsleepLimitS)) +
+                      " s twice without reading (not a regular file? read in isolation, stopped)");
+      return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
+                    " s of its CPU time (read in isolation, stopped)");
+    case ChildOutcome::OutOfMemory:
+      return refuse("not enough memory to read the asset", IssueCode::OutOfMemory);
+    case ChildOutcome::Finished:
+    case ChildOutcome::Malformed:
+      break;
+  }
+  return refuse("the isolated read failed (out of memory, or it sent back malformed data)");
+}
+
 // Reads `path` with `read` in a child process (through `visit`, a visitor of Value for either wire). Returns the
 // value (with the child's findings appended to `issues`), or nothing with a READ_FAILED finding when the child
 // died, hung or sent something malformed.
@@ -116,30 +163,23 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   // would wait forever for HDF5's lock, which that thread holds in the parent only.
   static std::mutex one_at_a_time;
   std::lock_guard<std::mutex> lock(one_at_a_time);
-  // The child bumps a counter in shared memory after each piece it reads (h5::Reader's progress hook); the
-  // parent stops it only when neither that counter nor the pipe has moved while the child used kIdleLimitS of
-  // CPU time (a starved child is not a hung one; see Watchdog). A real read never
-  // pauses that long between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a
-  // parse that loops in HDF5 stops moving at once. What a file may make us read is bounded by the spec's limits.
-  void* shared =
-      ::mmap(nullptr, sizeof(std::atomic<uint64_t>), PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
-  if (shared == MAP_FAILED) {
+  // The parent stops the child only when neither the shared counter nor the pipe has moved while the child used
+  // kIdleLimitS of CPU time (a starved child is not a hung one; see Watchdog). A real read never pauses that long
+  // between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a parse that loops in
+  // HDF5 stops moving at once. What a file may make us read is bounded by the spec's limits.
+  const SharedCounter counter;
+  if (!counter.get()) {
     issues.push_back(Issue{IssueCode::ReadFailed, Severity::Error, "/",
                            std::string("cannot start the isolated read: ") + std::strerror(errno)});
     return std::nullopt;
   }
-  auto* counter = new (shared) std::atomic<uint64_t>(0);
-  struct Unmap {
-    void* p;
-    ~Unmap() { ::munmap(p, sizeof(std::atomic<uint64_t>)); }
-  } unmap{shared};
   ReadOutcome<Value> read_back;
   auto attempt = [&] {
     read_back = ReadOutcome<Value>{};
     return run_isolated(
-        Watchdog{0, kIdleLimitS, counter, kAsleepLimitS}, read_back,
+        Watchdog{0, kIdleLimitS, counter.get(), kAsleepLimitS}, read_back,
         [&] {
-          g_progress = counter;  // in the child
+          g_progress = counter.get();  // in the child
           ReadOutcome<Value> r;
           r.value = read(path, r.issues);
           return r;
@@ -157,31 +197,12 @@ std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& 
   // A child asleep on a lock inherited from another thread (the process's other libraries start threads: OpenVDB's
   // log4cplus starts four) says nothing about the file: read it once more. A second sleep is the file's (a FIFO).
   if (outcome.kind == ChildOutcome::TimedOut && outcome.asleep) outcome = attempt();
-  auto refuse = [&](const std::string& why, IssueCode code = IssueCode::ReadFailed) {
-    issues.push_back(Issue{code, Severity::Error, "/", why});
+  if (outcome.kind != ChildOutcome::Finished) {
+    issues.push_back(failed_read(outcome));
     return std::nullopt;
-  };
-  switch (outcome.kind) {
-    case ChildOutcome::Finished:
-      issues.insert(issues.end(), read_back.issues.begin(), read_back.issues.end());
-      return std::move(read_back.value);
-    case ChildOutcome::CannotStart:
-      return refuse("cannot start the isolated read: " + outcome.detail);
-    case ChildOutcome::Died:
-      return refuse("the file is damaged: HDF5 died of signal " + std::to_string(outcome.signal) + " (" +
-                    strsignal(outcome.signal) + ") reading it (read in isolation: nothing else was affected)");
-    case ChildOutcome::TimedOut:
-      if (outcome.asleep)
-        return refuse("the read made no progress: it waited " + std::to_string(int(kAsleepLimitS)) +
-                      " s twice without reading (not a regular file? read in isolation, stopped)");
-      return refuse("the file is damaged: HDF5 made no progress reading it for " + std::to_string(int(kIdleLimitS)) +
-                    " s of its CPU time (read in isolation, stopped)");
-    case ChildOutcome::OutOfMemory:
-      return refuse("not enough memory to read the asset", IssueCode::OutOfMemory);
-    case ChildOutcome::Malformed:
-      break;
   }
-  return refuse("the isolated read failed (out of memory, or it sent back malformed data)");
+  issues.insert(issues.end(), read_back.issues.begin(), read_back.issues.end());
+  return std::move(read_back.value);
 }
 #endif  // !_WIN32
 
