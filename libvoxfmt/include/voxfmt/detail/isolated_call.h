@@ -322,10 +322,54 @@ struct ChildOutcome {
   bool ok() const { return kind == Finished; }
 };
 
+/// The child's side of run_isolated: produces the value, sends it through `fd` and exits (none of the parent's
+/// exit handlers). It dies plainly on a crash: the caller's crash handlers (a fuzzer's, a sanitizer's) would take
+/// it for one of the caller's.
+template <class Value, class Produce, class Visit>
+[[noreturn]] void produce_and_send(int fd, Produce& produce, Visit& visit) {
+  for (int signal_number : {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT}) ::signal(signal_number, SIG_DFL);
+  if (__sanitizer_set_death_callback) __sanitizer_set_death_callback(nullptr);  // a report here is the library's
+  bool ok = false;
+  try {
+    Value produced = produce();
+    WireWriter w(fd);
+    visit(w, produced);
+    ok = w.flush();
+  } catch (...) {
+  }
+  _exit(ok ? 0 : 3);
+}
+
+/// Waits for the child to exit, its status in `status`. When everything arrived (`sent`), a child that then sleeps
+/// instead of exiting (a lock, as in Watchdog) is stopped after `watchdog.asleep_s`: returns false then.
+inline bool wait_for_child(pid_t child, const Watchdog& watchdog, bool sent, int& status) {
+  if (!sent || watchdog.asleep_s <= 0) {
+    while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+    }
+    return true;
+  }
+  const auto start = std::chrono::steady_clock::now();
+  for (;;) {
+    const pid_t done = ::waitpid(child, &status, WNOHANG);
+    if (done == child || (done < 0 && errno != EINTR)) return true;
+    char state = 0;
+    child_cpu_seconds(child, &state);
+    if (state == 'S' &&
+        std::chrono::steady_clock::now() - start > std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                                       std::chrono::duration<double>(watchdog.asleep_s))) {
+      ::kill(child, SIGKILL);
+      while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+      }
+      return false;
+    }
+    ::usleep(1000);
+  }
+}
+
 /// Runs `produce()` in a forked child and fills `value` with what it returned, both sides through
 /// `visit(wire, value)` (one visitor for WireWriter and WireReader, so they cannot drift apart). The child is
-/// stopped when the `watchdog` fires; it dies plainly on a crash (the caller's crash handlers — a fuzzer's, a
-/// sanitizer's — would take it for one of the caller's); an exception in it is `Malformed`.
+/// stopped when the `watchdog` fires; it dies plainly on a crash (produce_and_send); an exception in it is
+/// `Malformed`.
 template <class Value, class Produce, class Visit>
 ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& produce, Visit&& visit) {
   ChildOutcome outcome;
@@ -345,18 +389,8 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
     return {ChildOutcome::CannotStart, 0, std::string("cannot start a child process: ") + std::strerror(errno)};
   }
   if (child == 0) {
-    for (int signal_number : {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT}) ::signal(signal_number, SIG_DFL);
-    if (__sanitizer_set_death_callback) __sanitizer_set_death_callback(nullptr);  // a report here is the library's
     ::close(fds[0]);
-    bool ok = false;
-    try {
-      Value produced = produce();
-      WireWriter w(fds[1]);
-      visit(w, produced);
-      ok = w.flush();
-    } catch (...) {
-    }
-    _exit(ok ? 0 : 3);  // none of the parent's exit handlers
+    produce_and_send<Value>(fds[1], produce, visit);
   }
   ::close(fds[1]);
   WireReader r(fds[0], watchdog, child);
@@ -369,29 +403,7 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
   ::close(fds[0]);
   if (!r.ok() || out_of_memory) ::kill(child, SIGKILL);
   int status = 0;
-  if (r.ok() && watchdog.asleep_s > 0) {
-    // Everything arrived; a child that then sleeps instead of exiting (a lock, as above) is stopped, and what it
-    // sent stands.
-    const auto start = std::chrono::steady_clock::now();
-    for (;;) {
-      const pid_t done = ::waitpid(child, &status, WNOHANG);
-      if (done == child || (done < 0 && errno != EINTR)) break;
-      char state = 0;
-      child_cpu_seconds(child, &state);
-      if (state == 'S' &&
-          std::chrono::steady_clock::now() - start > std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                                         std::chrono::duration<double>(watchdog.asleep_s))) {
-        ::kill(child, SIGKILL);
-        while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
-        }
-        return outcome;
-      }
-      ::usleep(1000);
-    }
-  } else {
-    while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
-    }
-  }
+  if (!wait_for_child(child, watchdog, r.ok(), status)) return outcome;  // stopped asleep after sending: it stands
   if (out_of_memory) return {ChildOutcome::OutOfMemory, 0, {}};
   if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) return outcome;
   if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
