@@ -339,40 +339,39 @@ void add_contact_arrays(BatchDict& out, const FoundContacts& found, const OutArr
   out["point_of_b"] = of_b.array;
 }
 
-// K pose pairs through runtime::BatchScene's worker loop. With a tracker: in order on one thread, each query
-// coherent with the one before (a trajectory).
-BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
-                         std::optional<int64_t> threads, bool with_contacts, double stiffness,
-                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
-                         Tracker* tracker, std::optional<int64_t> max_level, const std::string& cut_level) {
-  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
-  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
-  if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
-  // Either side may be one (4, 4) pose for all K.
+// Both sides' K poses as row-major 4x4 matrices; either side may be one (4, 4) pose for all K.
+struct BatchPoses {
+  std::vector<double> a, b;
+  size_t count = 0;
+};
+
+BatchPoses batch_poses(nb::handle poses_a, nb::handle poses_b) {
   const InArray first_a = as_float64(poses_a, "poses_a");
   const size_t k_a = first_a.ndim() == 3 ? first_a.shape(0) : 0;
   std::vector<Pose> pa = parse_poses(poses_a, "poses_a", 0);
   const std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k_a);
   if (k_a == 0 && pb.size() != pa.size()) pa.assign(pb.size(), pa.front());
-  const size_t k = pb.size();
-  const std::vector<double> ma = matrices_of(pa), mb = matrices_of(pb);
-  runtime::BatchEnvironments in;
-  in.count = k;
-  in.poses_a_f64 = ma.data();
-  in.poses_b_f64 = mb.data();
-  in.proximity = options.proximity;
-  Result<runtime::BatchScene> scene = runtime::BatchScene::create({a.object, b.object}, {{0u, 1u}});
-  if (!scene) throw CodedError(scene.error());
+  return {matrices_of(pa), matrices_of(pb), pb.size()};
+}
 
-  OutArray<int64_t> count({k});
-  OutArray<double> max_depth({k});
-  OutArray<double> force({k, 3});
-  OutArray<double> torque({k, 3});
-  const unsigned workers = runtime::BatchScene::workers(k, threads ? unsigned(*threads) : 0u);
+// contacts_batch's outputs, filled environment by environment from the batch's worker threads.
+struct BatchOutputs {
+  size_t k;
+  double stiffness;
+  bool with_contacts;
+  OutArray<int64_t> count{{k}};
+  OutArray<double> max_depth{{k}};
+  OutArray<double> force{{k, 3}};
+  OutArray<double> torque{{k, 3}};
   FoundContacts found;
-  found.by_worker.resize(workers);
-  found.first.resize(with_contacts ? k : 0);
-  auto visit = [&](const runtime::BatchScene::Visit& v) {
+
+  BatchOutputs(size_t environments, double k_stiffness, bool contacts, unsigned workers)
+      : k(environments), stiffness(k_stiffness), with_contacts(contacts) {
+    found.by_worker.resize(workers);
+    found.first.resize(with_contacts ? k : 0);
+  }
+
+  void record(const runtime::BatchScene::Visit& v) {
     const size_t i = v.environment;
     // parse_poses judged every pose already; the batch judges its matrices again, by the same rule.
     if (v.error != 0)
@@ -389,7 +388,39 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
     std::vector<runtime::Contact>& mine = found.by_worker[v.worker];
     found.first[i] = {v.worker, mine.size()};
     mine.insert(mine.end(), v.contacts.contacts.begin(), v.contacts.contacts.end());
-  };
+  }
+
+  BatchDict to_dict() const {
+    BatchDict out;
+    out["count"] = count.array;
+    out["max_depth"] = max_depth.array;
+    out["force"] = force.array;
+    out["torque"] = torque.array;
+    if (with_contacts) add_contact_arrays(out, found, count, k);
+    return out;
+  }
+};
+
+// K pose pairs through runtime::BatchScene's worker loop. With a tracker: in order on one thread, each query
+// coherent with the one before (a trajectory).
+BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
+                         std::optional<int64_t> threads, bool with_contacts, double stiffness,
+                         std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
+                         Tracker* tracker, std::optional<int64_t> max_level, const std::string& cut_level) {
+  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
+  if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
+  if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
+  const BatchPoses poses = batch_poses(poses_a, poses_b);
+  runtime::BatchEnvironments in;
+  in.count = poses.count;
+  in.poses_a_f64 = poses.a.data();
+  in.poses_b_f64 = poses.b.data();
+  in.proximity = options.proximity;
+  Result<runtime::BatchScene> scene = runtime::BatchScene::create({a.object, b.object}, {{0u, 1u}});
+  if (!scene) throw CodedError(scene.error());
+
+  const unsigned thread_count = threads ? unsigned(*threads) : 0u;
+  BatchOutputs outputs(poses.count, stiffness, with_contacts, runtime::BatchScene::workers(poses.count, thread_count));
   std::unique_lock<std::mutex> tracker_lock;
   std::optional<runtime::BatchScene::Trajectory> trajectory;
   if (tracker) {
@@ -399,18 +430,12 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   Status done = Status::success();
   {
     nb::gil_scoped_release release;
-    done = scene.value().each_environment(in, options, threads ? unsigned(*threads) : 0u, visit,
-                                          trajectory ? &*trajectory : nullptr);
+    done = scene.value().each_environment(
+        in, options, thread_count, [&](const runtime::BatchScene::Visit& v) { outputs.record(v); },
+        trajectory ? &*trajectory : nullptr);
   }
   if (!done) throw CodedError(done.error());
-
-  BatchDict out;
-  out["count"] = count.array;
-  out["max_depth"] = max_depth.array;
-  out["force"] = force.array;
-  out["torque"] = torque.array;
-  if (with_contacts) add_contact_arrays(out, found, count, k);
-  return out;
+  return outputs.to_dict();
 }
 
 // ---------------------------------------------------------------------------------------------------------------
