@@ -7,7 +7,6 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
-#include <functional>
 #include <memory>
 #include <new>
 #include <sstream>
@@ -675,43 +674,57 @@ bool read_raw_batch(hid_t dset, const ChunkGrid<T>& g, uint64_t first, uint64_t 
   return true;
 }
 
+// Runs `body(chunk, scratch)` for chunks [first, end) on up to 8 cores, each worker with its own scratch from
+// `make_scratch()` (buffers, a (de)compressor); stops early once a call returns false or anything throws. True if
+// every chunk's call returned true.
+template <class MakeScratch, class Body>
+bool for_each_chunk_in_parallel(uint64_t first, uint64_t end, MakeScratch&& make_scratch, Body&& body) {
+  std::atomic<uint64_t> next{first};
+  std::atomic<bool> failed{false};
+  run_workers(std::min(8u, usable_cores()), [&](unsigned) {
+    try {
+      auto scratch = make_scratch();
+      for (uint64_t c = next++; c < end && !failed; c = next++)
+        if (!body(c, scratch)) failed = true;
+    } catch (...) {  // bad_alloc: a worker thread must not let it escape
+      failed = true;
+    }
+  });
+  return !failed;
+}
+
 // Inflates, unshuffles and places chunks [first, end) into `out`, on every core; false if a stream does not
 // inflate to exactly a chunk.
 template <class T>
 bool inflate_batch(const ChunkGrid<T>& g, const std::vector<std::vector<unsigned char>>& raw, uint64_t first,
                    uint64_t end, T* out) {
-  std::atomic<uint64_t> next{first};
-  std::atomic<bool> failed{false};
-  run_workers(std::min<unsigned>(8u, usable_cores()), [&](unsigned) {
-    std::unique_ptr<libdeflate_decompressor, void (*)(libdeflate_decompressor*)> inflater(
-        libdeflate_alloc_decompressor(), libdeflate_free_decompressor);
+  struct Scratch {
+    std::unique_ptr<libdeflate_decompressor, void (*)(libdeflate_decompressor*)> inflater;
     std::vector<unsigned char> shuffled, block;
-    try {
-      shuffled.resize(size_t(g.bytes()));
-      block.resize(size_t(g.bytes()));
-    } catch (const std::bad_alloc&) {
-      failed = true;
+  };
+  auto make_scratch = [&] {
+    Scratch s{{libdeflate_alloc_decompressor(), libdeflate_free_decompressor}, {}, {}};
+    if (!s.inflater) throw std::bad_alloc();
+    s.shuffled.resize(size_t(g.bytes()));
+    s.block.resize(size_t(g.bytes()));
+    return s;
+  };
+  return for_each_chunk_in_parallel(first, end, make_scratch, [&](uint64_t c, Scratch& s) {
+    const std::vector<unsigned char>& stream = raw[size_t(c - first)];
+    if (!stream.empty()) {
+      if (libdeflate_zlib_decompress(s.inflater.get(), stream.data(), stream.size(), s.shuffled.data(),
+                                     size_t(g.bytes()), nullptr) != LIBDEFLATE_SUCCESS)
+        return false;
+      g.unshuffle(s.shuffled.data(), s.block.data());
     }
-    if (!inflater) failed = true;
-    for (uint64_t c = next++; c < end && !failed; c = next++) {
-      const std::vector<unsigned char>& stream = raw[size_t(c - first)];
-      if (!stream.empty()) {
-        if (libdeflate_zlib_decompress(inflater.get(), stream.data(), stream.size(), shuffled.data(), size_t(g.bytes()),
-                                       nullptr) != LIBDEFLATE_SUCCESS) {
-          failed = true;
-          break;
-        }
-        g.unshuffle(shuffled.data(), block.data());
-      }
-      g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
-        if (stream.empty())
-          std::fill(out + at, out + at + n, g.fill);
-        else
-          std::memcpy(out + at, block.data() + from * sizeof(T), size_t(n) * sizeof(T));
-      });
-    }
+    g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
+      if (stream.empty())
+        std::fill(out + at, out + at + n, g.fill);
+      else
+        std::memcpy(out + at, s.block.data() + from * sizeof(T), size_t(n) * sizeof(T));
+    });
+    return true;
   });
-  return !failed;
 }
 }  // namespace
 
@@ -838,43 +851,37 @@ namespace {
 template <class T>
 bool write_chunks_in_parallel(hid_t dset, const ChunkGrid<T>& g, const T* data, int level, const T* fill) {
   std::vector<std::vector<unsigned char>> compressed(size_t(g.count));
-  std::atomic<uint64_t> next{0};
-  std::atomic<bool> failed{false};
-  std::function<void()> compress_chunks;
-  auto worker = [&]() noexcept {
-    try {
-      compress_chunks();
-    } catch (...) {
-      failed = true;
-    }
+  struct Scratch {
+    std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor;
+    std::vector<T> block;
+    std::vector<unsigned char> shuffled;
   };
-  compress_chunks = [&] {
-    std::vector<T> block(size_t(g.elements));
-    std::vector<unsigned char> shuffled(size_t(g.bytes()));
-    const std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor(
-        libdeflate_alloc_compressor(level), libdeflate_free_compressor);
-    if (!compressor) throw std::bad_alloc();
-    for (uint64_t c = next++; c < g.count && !failed; c = next++) {
-      std::fill(block.begin(), block.end(), g.fill);  // the padding of edge chunks
-      g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
-        std::memcpy(block.data() + from, data + at, size_t(n) * sizeof(T));
-      });
-      // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
-      if (fill &&
-          std::all_of(block.begin(), block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
-        continue;
-      g.shuffle(block.data(), shuffled.data());
-      std::vector<unsigned char>& stream = compressed[size_t(c)];
-      const size_t bound = libdeflate_zlib_compress_bound(compressor.get(), shuffled.size());
-      stream.resize(bound);
-      const size_t size =
-          libdeflate_zlib_compress(compressor.get(), shuffled.data(), shuffled.size(), stream.data(), bound);
-      if (size == 0) failed = true;
-      stream.resize(size);
-    }
+  auto make_scratch = [&] {
+    Scratch s{{libdeflate_alloc_compressor(level), libdeflate_free_compressor}, {}, {}};
+    if (!s.compressor) throw std::bad_alloc();
+    s.block.resize(size_t(g.elements));
+    s.shuffled.resize(size_t(g.bytes()));
+    return s;
   };
-  run_workers(std::min(8u, usable_cores()), [&](unsigned) { worker(); });
-  if (failed) return false;
+  const bool compressed_all = for_each_chunk_in_parallel(0, g.count, make_scratch, [&](uint64_t c, Scratch& s) {
+    std::fill(s.block.begin(), s.block.end(), g.fill);  // the padding of edge chunks
+    g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
+      std::memcpy(s.block.data() + from, data + at, size_t(n) * sizeof(T));
+    });
+    // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
+    if (fill &&
+        std::all_of(s.block.begin(), s.block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
+      return true;
+    g.shuffle(s.block.data(), s.shuffled.data());
+    std::vector<unsigned char>& stream = compressed[size_t(c)];
+    const size_t bound = libdeflate_zlib_compress_bound(s.compressor.get(), s.shuffled.size());
+    stream.resize(bound);
+    const size_t size =
+        libdeflate_zlib_compress(s.compressor.get(), s.shuffled.data(), s.shuffled.size(), stream.data(), bound);
+    stream.resize(size);
+    return size != 0;
+  });
+  if (!compressed_all) return false;
   for (uint64_t c = 0; c < g.count; ++c) {
     const std::vector<unsigned char>& stream = compressed[size_t(c)];
     if (stream.empty()) continue;
