@@ -1,27 +1,36 @@
 // What better value-brick estimates would cost a producer (issue "fidelity", a format 2.2 candidate): the
 // 26-neighbour chamfer transform of an asset's band sources over its value bricks, timed.
 //
-//   estimate-transform ASSET [--values OUT] [--json OUT] [--max-memory MiB]
+//   estimate-transform ASSET [--values OUT] [--json OUT] [--max-memory MiB] [--threads N] [--every-brick]
 //
 // Sources are the stored distances (|d|) and the lattice points (their value): each value-brick voxel is seeded
 // with the least l_q + c(q - v) over its cell's eight lattice points q (c: the chamfer length of a path of voxel
 // steps 1, sqrt 2, sqrt 3), then raster passes forward and back over the value bricks' voxels lower each to the
-// least of its 13 neighbours visited before plus the step, until a pass lowers none. Paths stay inside value bricks
-// (coarse bricks are reached by the seed only). A path is no shorter than the straight line, so every value is an
-// upper bound of the exact distance, and once settled neighbouring values differ by at most their step: what a
-// reader could check without the mesh. One thread, the asset read first (not timed). `--values` writes the
-// values (voxels, float32, the value bricks' order, 512 each) for bench/estimate_oracle.py --producer-values.
-// `--reach 2` takes steps to the 5^3 neighbours instead (lengths sqrt(a^2 + b^2 + c^2): a metric within ~2 % of
-// the Euclidean, not 8 %), 62 neighbours visited before where 1 has 13.
+// least of its 13 neighbours visited before plus the step, until a pass changes none. Paths stay inside value
+// bricks (coarse bricks are reached by the seed only). A path is no shorter than the straight line, so every value
+// is an upper bound of the exact distance, and once settled neighbouring values differ by at most their step: what a
+// reader could check without the mesh.
+//
+// Passes after the second skip the bricks no voxel near them was lowered recently (`--every-brick` visits all).
+// `--threads N` shares the seed's bricks out and runs each pass on N slabs of brick layers at once (the same values).
+// Beside it, what it would replace: format 2.1's estimates (the lattice's interpolation, `fill_brick_estimates`) on
+// as many threads. The asset is read first (not timed). `--values` writes the values (voxels, float32, the value
+// bricks' order, 512 each) for bench/estimate_oracle.py --producer-values. `--reach 2` takes steps to the 5^3
+// neighbours instead (lengths sqrt(a^2 + b^2 + c^2): a metric within ~2 % of the Euclidean, not 8 %), 62
+// neighbours visited before where 1 has 13.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iostream>
+#include <memory>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -80,6 +89,10 @@ class ChamferTransform {
         for (int dx = -Reach; dx <= Reach; ++dx) step_[dk][dj + Reach][dx + Reach] = step_length(dx, dj, dk);
     for (int a = 0; a < 3; ++a) dims_[a] = int(vm.dims[a]);
     values_.assign(vm.brick_values.size(), kFar);
+    lowered_in_size_ = vm.brick_values.size() / Voxelmap::kBrickVoxels;
+    lowered_in_ = std::make_unique<std::atomic<int>[]>(lowered_in_size_);
+    own_lowered_in_.assign(lowered_in_size_, 0);
+    split(1);
     rows_.assign(size_t(bricks_[1]) * bricks_[2], {});
     for (uint32_t bk = 0; bk < bricks_[2]; ++bk)
       for (uint32_t bj = 0; bj < bricks_[1]; ++bj)
@@ -89,30 +102,115 @@ class ChamferTransform {
 
   const std::vector<float>& values() const { return values_; }
 
-  /// Stored voxels their |d|; the others the least over their cell's lattice points of l_q + c(q - v).
-  void seed() {
+  /// Stored voxels their |d|; the others the least over their cell's lattice points of l_q + c(q - v). Bricks are
+  /// independent: `threads` take every threads-th one.
+  void seed(unsigned threads) {
     const std::vector<float> length = offset_lengths<Reach>();
-    for (size_t b = 0; b < vm_.bricks.size(); ++b)
-      if (vm_.bricks[b] >= 0) seed_brick(b, length);
+    auto seed_every = [&](unsigned first) {
+      for (size_t b = first; b < vm_.bricks.size(); b += threads)
+        if (vm_.bricks[b] >= 0) seed_brick(b, length);
+    };
+    std::vector<std::thread> workers;
+    for (unsigned t = 1; t < threads; ++t) workers.emplace_back(seed_every, t);
+    seed_every(0);
+    for (std::thread& w : workers) w.join();
   }
 
-  /// One raster pass over the value bricks' voxels, forward or back; how many it lowered (by over 1e-4 voxel).
-  size_t pass(bool forward) {
-    const int dir = forward ? 1 : -1;
-    size_t lowered = 0;
-    for (int kk = 0; kk < dims_[2]; ++kk) {
-      const int k = forward ? kk : dims_[2] - 1 - kk;
-      for (int jj = 0; jj < dims_[1]; ++jj) {
-        const int j = forward ? jj : dims_[1] - 1 - jj;
-        const std::vector<int>& columns = rows_[size_t(k / kEdge) * bricks_[1] + size_t(j / kEdge)];
-        for (size_t c = 0; c < columns.size(); ++c)
-          lowered += segment(forward ? columns[c] : columns[columns.size() - 1 - c], j, k, dir);
-      }
+  /// Splits the passes over `threads` slabs of brick layers along z, each run by its own thread. A slab reads its
+  /// neighbours' voxels as they were when the pass began (copies of the layers next to it), so the passes are the
+  /// same whatever the threads' timing, and settle where a single thread's do (the least path lengths).
+  void split(unsigned threads) {
+    slabs_.clear();
+    const int layers = int(bricks_[2]);
+    threads = std::max(1u, std::min<unsigned>(threads, unsigned(std::max(1, layers / 2))));
+    for (unsigned t = 0; t < threads; ++t)
+      slabs_.push_back({int(t * layers / threads), int((t + 1) * layers / threads)});
+    shadow_slot_.assign(lowered_in_size_, -1);
+    shadowed_.clear();
+    for (size_t t = 1; t < slabs_.size(); ++t)
+      for (int bk : {slabs_[t].lo - 1, slabs_[t].lo})
+        for (uint32_t bj = 0; bj < bricks_[1]; ++bj)
+          for (uint32_t bi = 0; bi < bricks_[0]; ++bi) {
+            const int32_t e = vm_.bricks[vm_.brick_index(bi, bj, uint32_t(bk))];
+            if (e < 0) continue;
+            shadow_slot_[size_t(e)] = int32_t(shadowed_.size());
+            shadowed_.push_back(size_t(e));
+          }
+    shadow_.assign(shadowed_.size() * Voxelmap::kBrickVoxels, kFar);
+  }
+
+  struct Outcome {
+    size_t lowered = 0;  ///< voxels lowered by over 1e-4 voxel
+    size_t changed = 0;  ///< voxels lowered at all
+    float largest_drop = 0;
+  };
+
+  /// Pass `number` (1, 2, ...: odd forward, even back) over the value bricks' voxels. With `skip_settled`, passes
+  /// after the second visit only the bricks within one brick of a voxel lowered recently: a voxel takes the least
+  /// over neighbours its pass visits before it, which it last compared two passes ago (the same direction), so only
+  /// a neighbour lowered since can lower it (three passes ago for a neighbour in another slab, read from a copy).
+  Outcome pass(int number, bool skip_settled) {
+    for (size_t n = 0; n < shadowed_.size(); ++n)
+      std::memcpy(&shadow_[n * Voxelmap::kBrickVoxels], &values_[shadowed_[n] * Voxelmap::kBrickVoxels],
+                  Voxelmap::kBrickVoxels * sizeof(float));
+    std::vector<Outcome> outcomes(slabs_.size());
+    std::vector<std::thread> workers;
+    for (size_t t = 1; t < slabs_.size(); ++t)
+      workers.emplace_back([&, t] { outcomes[t] = pass_slab(number, skip_settled, slabs_[t]); });
+    outcomes[0] = pass_slab(number, skip_settled, slabs_[0]);
+    for (std::thread& w : workers) w.join();
+    Outcome all;
+    for (const Outcome& o : outcomes) {
+      all.lowered += o.lowered;
+      all.changed += o.changed;
+      all.largest_drop = std::max(all.largest_drop, o.largest_drop);
     }
-    return lowered;
+    return all;
   }
 
  private:
+  struct Slab {
+    int lo, hi;  ///< brick layers [lo, hi) along z
+  };
+
+  Outcome pass_slab(int number, bool skip_settled, const Slab& slab) {
+    const bool forward = number % 2 == 1;
+    const int dir = forward ? 1 : -1;
+    const int recent = slabs_.size() > 1 ? 2 : 1;  // how many passes back a lowering can still be news
+    const int first = slab.lo * kEdge, end = std::min(slab.hi * kEdge, dims_[2]);
+    Outcome outcome;
+    for (int kk = first; kk < end; ++kk) {
+      const int k = forward ? kk : end - 1 - (kk - first);
+      for (int jj = 0; jj < dims_[1]; ++jj) {
+        const int j = forward ? jj : dims_[1] - 1 - jj;
+        const std::vector<int>& columns = rows_[size_t(k / kEdge) * bricks_[1] + size_t(j / kEdge)];
+        for (size_t c = 0; c < columns.size(); ++c) {
+          const int bi = forward ? columns[c] : columns[columns.size() - 1 - c];
+          const size_t e = size_t(vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(j / kEdge), uint32_t(k / kEdge))]);
+          if (skip_settled && number > 2 && lowered_in_[e].load(std::memory_order_relaxed) + recent < number) continue;
+          const size_t changed = segment(bi, j, k, dir, slab, outcome);
+          if (changed > 0) mark_lowered(bi, j / kEdge, k / kEdge, number);
+        }
+      }
+    }
+    return outcome;
+  }
+
+  /// Brick (bi, bj, bk) lowered a voxel in pass `number`: it and its value-brick neighbours are stamped with it.
+  void mark_lowered(int bi, int bj, int bk, int number) {
+    int& own = own_lowered_in_[size_t(vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))])];
+    if (own == number) return;  // its neighbours are stamped already
+    own = number;
+    for (int dk = -1; dk <= 1; ++dk)
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          const int i = bi + di, j = bj + dj, k = bk + dk;
+          if (i < 0 || j < 0 || k < 0 || i >= int(bricks_[0]) || j >= int(bricks_[1]) || k >= int(bricks_[2])) continue;
+          const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(i), uint32_t(j), uint32_t(k))];
+          if (e >= 0) lowered_in_[size_t(e)].store(number, std::memory_order_relaxed);
+        }
+  }
+
   void seed_brick(size_t b, const std::vector<float>& length) {
     const int bi = int(b % bricks_[0]), bj = int(b / bricks_[0] % bricks_[1]),
               bk = int(b / (size_t(bricks_[0]) * bricks_[1]));
@@ -143,12 +241,14 @@ class ChamferTransform {
     }
   }
 
-  /// Value brick (bi, bj, bk)'s values, or null (coarse, outside the grid).
-  float* brick(int bi, int bj, int bk) {
+  /// Value brick (bi, bj, bk)'s values as `slab` sees them, or null (coarse, outside the grid).
+  float* brick(int bi, int bj, int bk, const Slab& slab) {
     if (bi < 0 || bj < 0 || bk < 0 || bi >= int(bricks_[0]) || bj >= int(bricks_[1]) || bk >= int(bricks_[2]))
       return nullptr;
     const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
-    return e < 0 ? nullptr : &values_[size_t(e) * Voxelmap::kBrickVoxels];
+    if (e < 0) return nullptr;
+    if (bk < slab.lo || bk >= slab.hi) return &shadow_[size_t(shadow_slot_[size_t(e)]) * Voxelmap::kBrickVoxels];
+    return &values_[size_t(e) * Voxelmap::kBrickVoxels];
   }
 
   /// Voxel row (j, k) around brick column bi: the bricks bi - 1, bi, bi + 1 holding it and the row's offset in them.
@@ -156,10 +256,10 @@ class ChamferTransform {
     const float* brick[3] = {nullptr, nullptr, nullptr};
     int offset = 0;
   };
-  Row row_at(int bi, int j, int k) {
+  Row row_at(int bi, int j, int k, const Slab& slab) {
     Row r;
     if (j < 0 || k < 0 || j >= dims_[1] || k >= dims_[2]) return r;
-    for (int n = 0; n < 3; ++n) r.brick[n] = brick(bi - 1 + n, j / kEdge, k / kEdge);
+    for (int n = 0; n < 3; ++n) r.brick[n] = brick(bi - 1 + n, j / kEdge, k / kEdge, slab);
     r.offset = ((k % kEdge) * kEdge + j % kEdge) * kEdge;
     return r;
   }
@@ -178,16 +278,16 @@ class ChamferTransform {
       std::fill(out + Reach, out + Reach + kEdge, kFar);
   }
 
-  /// Lowers one row segment from the neighbours its pass visited before; how many it lowered.
-  size_t segment(int bi, int j, int k, int dir) {
+  /// Lowers one row segment from the neighbours its pass visited before, counted in `outcome`; how many changed.
+  size_t segment(int bi, int j, int k, int dir, const Slab& slab, Outcome& outcome) {
     // The rows visited before: planes k - dir .. k - Reach dir at rows j - Reach .. j + Reach; this plane at rows
     // j - dir .. j - Reach dir. Inside a brick they share the segment's brick row (one lookup of the three bricks).
-    const Row own = row_at(bi, j, k);
+    const Row own = row_at(bi, j, k, slab);
     const int jl = j % kEdge, kl = k % kEdge;
     const bool plane_inside = dir > 0 ? kl >= Reach : kl < kEdge - Reach && k + Reach < dims_[2];
     const bool rows_inside = jl >= Reach && jl < kEdge - Reach && j + Reach < dims_[1];
     auto shifted = [&](int dj, int dk) {
-      if (!(rows_inside && (dk == 0 || plane_inside))) return row_at(bi, j + dj, k + dk);
+      if (!(rows_inside && (dk == 0 || plane_inside))) return row_at(bi, j + dj, k + dk, slab);
       Row r = own;
       r.offset += (dk * kEdge + dj) * kEdge;
       return r;
@@ -216,20 +316,30 @@ class ChamferTransform {
     // Along the row: the voxel visited just before it (in the previous segment at the segment's start).
     const float* previous = own.brick[dir > 0 ? 0 : 2];
     float run = previous ? previous[own.offset + (dir > 0 ? kEdge - 1 : 0)] : kFar;
-    size_t lowered = 0;
+    size_t changed = 0;
     for (int n = 0; n < kEdge; ++n) {
       const int x = dir > 0 ? n : kEdge - 1 - n;
       run = std::min(best[x], run + kStep[1]);
-      lowered += run < values[x] - 1e-4f;
+      changed += run < values[x];
+      outcome.lowered += run < values[x] - 1e-4f;
+      outcome.largest_drop = std::max(outcome.largest_drop, values[x] - run);
       values[x] = run;
     }
-    return lowered;
+    outcome.changed += changed;
+    return changed;
   }
 
   const Voxelmap& vm_;
   std::array<uint32_t, 3> bricks_;
   int dims_[3];
-  std::vector<float> values_;                            ///< per value-brick voxel (voxels), the value bricks' order
+  std::vector<float> values_;                       ///< per value-brick voxel (voxels), the value bricks' order
+  std::unique_ptr<std::atomic<int>[]> lowered_in_;  ///< per value brick: the last pass that lowered it or a neighbour
+  size_t lowered_in_size_ = 0;
+  std::vector<int> own_lowered_in_;  ///< per value brick: the last pass that lowered one of its own voxels
+  std::vector<Slab> slabs_;
+  std::vector<int32_t> shadow_slot_;                     ///< per value brick: its copy in shadow_, or -1
+  std::vector<size_t> shadowed_;                         ///< the value bricks copied, by slot
+  std::vector<float> shadow_;                            ///< their values when the pass began
   std::vector<std::vector<int>> rows_;                   ///< per (bj, bk): its value bricks' columns bi, ascending
   float step_[Reach + 1][2 * Reach + 1][2 * Reach + 1];  ///< step lengths by dk, dj + Reach, dx + Reach
 };
@@ -243,21 +353,49 @@ double seconds_since(std::chrono::steady_clock::time_point& start) {
 
 struct Timing {
   double seed_s = 0;
-  std::vector<std::pair<double, size_t>> passes;  // seconds, voxels lowered
+  struct Pass {
+    double s;
+    size_t lowered;
+    float largest_drop;  // voxels
+  };
+  std::vector<Pass> passes;
 };
+
+/// Format 2.1's estimates of every value brick (what the seed would replace), on `threads` threads; seconds.
+double time_format21_estimates(const Voxelmap& vm, unsigned threads) {
+  std::vector<int16_t> codes = vm.brick_values;
+  const auto start = std::chrono::steady_clock::now();
+  const auto b = vm.brick_dims();
+  auto fill_every = [&](unsigned first) {
+    for (size_t n = first; n < vm.bricks.size(); n += threads)
+      if (vm.bricks[n] >= 0)
+        voxfmt::fill_brick_estimates(vm, uint32_t(n % b[0]), uint32_t(n / b[0] % b[1]),
+                                     uint32_t(n / (size_t(b[0]) * b[1])),
+                                     &codes[size_t(vm.bricks[n]) * Voxelmap::kBrickVoxels]);
+  };
+  std::vector<std::thread> workers;
+  for (unsigned t = 1; t < threads; ++t) workers.emplace_back(fill_every, t);
+  fill_every(0);
+  for (std::thread& w : workers) w.join();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
 
 /// The transform of `vm`'s value bricks, timed; its values in `values`.
 template <int Reach>
-Timing transform(const Voxelmap& vm, std::vector<float>& values) {
+Timing transform(const Voxelmap& vm, unsigned threads, bool skip_settled, std::vector<float>& values) {
   Timing timing;
   auto clock = std::chrono::steady_clock::now();
   ChamferTransform<Reach> transform(vm);
-  transform.seed();
+  transform.seed(threads);
+  transform.split(threads);
   timing.seed_s = seconds_since(clock);
-  for (size_t p = 0; p < 16; ++p) {
-    const size_t lowered = transform.pass(p % 2 == 0);
-    timing.passes.push_back({seconds_since(clock), lowered});
-    if (p >= 1 && lowered == 0) break;  // settled: the last pass lowered nothing
+  // Settled once a pass changes nothing (two in a row with slabs: a slab sees its neighbours' last changes a pass
+  // late).
+  const int quiet_needed = threads > 1 ? 2 : 1;
+  for (int p = 1, quiet = 0; p <= 32 && quiet < quiet_needed; ++p) {
+    const auto outcome = transform.pass(p, skip_settled);
+    timing.passes.push_back({seconds_since(clock), outcome.lowered, outcome.largest_drop});
+    quiet = outcome.changed == 0 && p >= 2 ? quiet + 1 : 0;
   }
   values = transform.values();
   return timing;
@@ -276,6 +414,15 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 30));
   int reach = 1;
   app.add_option("--reach", reach, "steps to the 26 neighbours (1) or the 5^3 (2)")->check(CLI::IsMember({1, 2}));
+  unsigned threads = 1;
+  app.add_option(
+         "--threads", threads,
+         "threads: the seed's bricks shared out, the passes over as many slabs of brick layers (the same values)")
+      ->check(CLI::Range(1u, 64u));
+  bool every_brick = false;
+  app.add_flag("--every-brick", every_brick,
+               "passes after the second visit every value brick (default: only those near a voxel lowered since the "
+               "pass before)");
   CLI11_PARSE(app, argc, argv);
   voxfmt::ReadOptions read;
   read.max_memory_bytes = max_memory_mib << 20;
@@ -288,27 +435,35 @@ int main(int argc, char** argv) {
   size_t estimates = 0;
   for (int16_t code : vm.brick_values) estimates += code != 0 && !Voxelmap::code_is_stored(code);
   std::vector<float> values;
-  const Timing timing = reach == 2 ? transform<2>(vm, values) : transform<1>(vm, values);
+  const Timing timing =
+      reach == 2 ? transform<2>(vm, threads, !every_brick, values) : transform<1>(vm, threads, !every_brick, values);
   const double seed_s = timing.seed_s;
   const auto& passes = timing.passes;
   double total = seed_s;
   std::printf("estimate-transform: %s: %zu value bricks, %zu of their voxels estimates\n", asset_path.c_str(),
               vm.brick_values.size() / Voxelmap::kBrickVoxels, estimates);
-  std::printf("| stage | s | voxels lowered |\n|---|---|---|\n| seed | %.3f | |\n", seed_s);
+  std::printf("| stage | s | voxels lowered | largest drop (voxels) |\n|---|---|---|---|\n| seed | %.3f | | |\n",
+              seed_s);
   nlohmann::json figures = {{"asset", asset_path},
                             {"value_brick_voxels", vm.brick_values.size()},
                             {"estimates", estimates},
                             {"seed_s", seed_s},
                             {"passes", nlohmann::json::array()}};
   figures["reach"] = reach;
+  figures["threads"] = threads;
+  figures["skip_settled"] = !every_brick;
   for (size_t p = 0; p < passes.size(); ++p) {
-    total += passes[p].first;
-    std::printf("| pass %zu (%s) | %.3f | %zu |\n", p + 1, p % 2 == 0 ? "forward" : "back", passes[p].first,
-                passes[p].second);
-    figures["passes"].push_back({{"s", passes[p].first}, {"lowered", passes[p].second}});
+    total += passes[p].s;
+    std::printf("| pass %zu (%s) | %.3f | %zu | %.4f |\n", p + 1, p % 2 == 0 ? "forward" : "back", passes[p].s,
+                passes[p].lowered, double(passes[p].largest_drop));
+    figures["passes"].push_back(
+        {{"s", passes[p].s}, {"lowered", passes[p].lowered}, {"largest_drop", passes[p].largest_drop}});
   }
   const double per_voxel_ns = 1e9 * total / double(vm.brick_values.size());
-  std::printf("| all | %.3f | (%.1f ns a value-brick voxel) |\n", total, per_voxel_ns);
+  std::printf("| all | %.3f | (%.1f ns a value-brick voxel) | |\n", total, per_voxel_ns);
+  const double format21_s = time_format21_estimates(vm, threads);
+  std::printf("| format 2.1's estimates, %u thread(s) (what the seed replaces) | %.3f | | |\n", threads, format21_s);
+  figures["format21_estimates_s"] = format21_s;
   figures["total_s"] = total;
   figures["ns_per_value_brick_voxel"] = per_voxel_ns;
   if (!values_path.empty()) {
