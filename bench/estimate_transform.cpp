@@ -2,6 +2,7 @@
 // 26-neighbour chamfer transform of an asset's band sources over its value bricks, timed.
 //
 //   estimate-transform ASSET [--values OUT] [--json OUT] [--max-memory MiB] [--threads N] [--every-brick]
+//                      [--fixed16] [--reach 1|2]
 //
 // Sources are the stored distances (|d|) and the lattice points (their value): each value-brick voxel is seeded
 // with the least l_q + c(q - v) over its cell's eight lattice points q (c: the chamfer length of a path of voxel
@@ -13,6 +14,7 @@
 //
 // Passes after the second skip the bricks no voxel near them was lowered recently (`--every-brick` visits all).
 // `--threads N` shares the seed's bricks out and runs each pass on N slabs of brick layers at once (the same values).
+// `--fixed16` holds the values as 16-bit sixteenths of a voxel (steps and seeds rounded up: still upper bounds).
 // Beside it, what it would replace: format 2.1's estimates (the lattice's interpolation, `fill_brick_estimates`) on
 // as many threads. The asset is read first (not timed). `--values` writes the values (voxels, float32, the value
 // bricks' order, 512 each) for bench/estimate_oracle.py --producer-values. `--reach 2` takes steps to the 5^3
@@ -80,15 +82,40 @@ std::vector<float> offset_lengths() {
   return length;
 }
 
-template <int Reach>
+/// How a transform holds its values: float voxels, or 16-bit fixed point in sixteenths of a voxel (the step lengths
+/// and seeds rounded up, so values stay upper bounds; half the memory of floats).
+template <class V>
+struct Units;
+template <>
+struct Units<float> {
+  static constexpr float kFar = 1e30f;
+  static constexpr float kNoise = 1e-4f;  // a lowering smaller than this is not counted as one
+  static float from_voxels(float v) { return v; }
+  static float to_voxels(float v) { return v; }
+  static float lower(float m, float a, float step) { return std::min(m, a + step); }
+};
+template <>
+struct Units<int16_t> {
+  static constexpr int kPerVoxel = 16;
+  static constexpr int16_t kFar = 32767;
+  static constexpr int kNoise = 0;
+  static int16_t from_voxels(float v) { return int16_t(std::min(32767.0f, std::ceil(v * float(kPerVoxel)))); }
+  static float to_voxels(int16_t v) { return float(v) / float(kPerVoxel); }
+  static int16_t lower(int16_t m, int16_t a, int16_t step) { return int16_t(std::min(int(m), int(a) + int(step))); }
+};
+
+template <int Reach, class V>
 class ChamferTransform {
+  using U = Units<V>;
+
  public:
   explicit ChamferTransform(const Voxelmap& vm) : vm_(vm), bricks_(vm.brick_dims()) {
     for (int dk = 0; dk <= Reach; ++dk)
       for (int dj = -Reach; dj <= Reach; ++dj)
-        for (int dx = -Reach; dx <= Reach; ++dx) step_[dk][dj + Reach][dx + Reach] = step_length(dx, dj, dk);
+        for (int dx = -Reach; dx <= Reach; ++dx)
+          step_[dk][dj + Reach][dx + Reach] = U::from_voxels(step_length(dx, dj, dk));
     for (int a = 0; a < 3; ++a) dims_[a] = int(vm.dims[a]);
-    values_.assign(vm.brick_values.size(), kFar);
+    values_.assign(vm.brick_values.size(), U::kFar);
     lowered_in_size_ = vm.brick_values.size() / Voxelmap::kBrickVoxels;
     lowered_in_ = std::make_unique<std::atomic<int>[]>(lowered_in_size_);
     own_lowered_in_.assign(lowered_in_size_, 0);
@@ -100,7 +127,12 @@ class ChamferTransform {
           if (vm.bricks[vm.brick_index(bi, bj, bk)] >= 0) rows_[size_t(bk) * bricks_[1] + bj].push_back(int(bi));
   }
 
-  const std::vector<float>& values() const { return values_; }
+  /// The values in voxels.
+  std::vector<float> values() const {
+    std::vector<float> voxels(values_.size());
+    std::transform(values_.begin(), values_.end(), voxels.begin(), [](V v) { return U::to_voxels(v); });
+    return voxels;
+  }
 
   /// Stored voxels their |d|; the others the least over their cell's lattice points of l_q + c(q - v). Bricks are
   /// independent: `threads` take every threads-th one.
@@ -136,7 +168,7 @@ class ChamferTransform {
             shadow_slot_[size_t(e)] = int32_t(shadowed_.size());
             shadowed_.push_back(size_t(e));
           }
-    shadow_.assign(shadowed_.size() * Voxelmap::kBrickVoxels, kFar);
+    shadow_.assign(shadowed_.size() * Voxelmap::kBrickVoxels, U::kFar);
   }
 
   struct Outcome {
@@ -152,7 +184,7 @@ class ChamferTransform {
   Outcome pass(int number, bool skip_settled) {
     for (size_t n = 0; n < shadowed_.size(); ++n)
       std::memcpy(&shadow_[n * Voxelmap::kBrickVoxels], &values_[shadowed_[n] * Voxelmap::kBrickVoxels],
-                  Voxelmap::kBrickVoxels * sizeof(float));
+                  Voxelmap::kBrickVoxels * sizeof(V));
     std::vector<Outcome> outcomes(slabs_.size());
     std::vector<std::thread> workers;
     for (size_t t = 1; t < slabs_.size(); ++t)
@@ -228,7 +260,7 @@ class ChamferTransform {
     for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
       const int16_t code = vm_.brick_values[first + size_t(l)];
       if (Voxelmap::code_is_stored(code)) {
-        values_[first + size_t(l)] = float(std::abs(vm_.decode(code)) / vm_.voxel_size);
+        values_[first + size_t(l)] = U::from_voxels(float(std::abs(vm_.decode(code)) / vm_.voxel_size));
         continue;
       }
       const int i = bi * kEdge + (l & 7), j = bj * kEdge + (l >> 3 & 7), k = bk * kEdge + (l >> 6);
@@ -237,12 +269,12 @@ class ChamferTransform {
         best = std::min(
             best,
             corner[q] + length[size_t(((cz[q >> 2] - k + 8) * 17 + cy[q >> 1 & 1] - j + 8) * 17 + cx[q & 1] - i + 8)]);
-      values_[first + size_t(l)] = best;
+      values_[first + size_t(l)] = U::from_voxels(best);
     }
   }
 
   /// Value brick (bi, bj, bk)'s values as `slab` sees them, or null (coarse, outside the grid).
-  float* brick(int bi, int bj, int bk, const Slab& slab) {
+  V* brick(int bi, int bj, int bk, const Slab& slab) {
     if (bi < 0 || bj < 0 || bk < 0 || bi >= int(bricks_[0]) || bj >= int(bricks_[1]) || bk >= int(bricks_[2]))
       return nullptr;
     const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
@@ -253,7 +285,7 @@ class ChamferTransform {
 
   /// Voxel row (j, k) around brick column bi: the bricks bi - 1, bi, bi + 1 holding it and the row's offset in them.
   struct Row {
-    const float* brick[3] = {nullptr, nullptr, nullptr};
+    const V* brick[3] = {nullptr, nullptr, nullptr};
     int offset = 0;
   };
   Row row_at(int bi, int j, int k, const Slab& slab) {
@@ -267,15 +299,15 @@ class ChamferTransform {
   static constexpr int kAround = kEdge + 2 * Reach;
 
   /// A row's values x = -Reach .. 7 + Reach around segment bi (far where no value brick holds them).
-  static void around(const Row& r, float out[kAround]) {
+  static void around(const Row& r, V out[kAround]) {
     for (int n = 0; n < Reach; ++n) {
-      out[n] = r.brick[0] ? r.brick[0][r.offset + kEdge - Reach + n] : kFar;
-      out[kEdge + Reach + n] = r.brick[2] ? r.brick[2][r.offset + n] : kFar;
+      out[n] = r.brick[0] ? r.brick[0][r.offset + kEdge - Reach + n] : U::kFar;
+      out[kEdge + Reach + n] = r.brick[2] ? r.brick[2][r.offset + n] : U::kFar;
     }
     if (r.brick[1])
-      std::memcpy(out + Reach, r.brick[1] + r.offset, kEdge * sizeof(float));
+      std::memcpy(out + Reach, r.brick[1] + r.offset, kEdge * sizeof(V));
     else
-      std::fill(out + Reach, out + Reach + kEdge, kFar);
+      std::fill(out + Reach, out + Reach + kEdge, U::kFar);
   }
 
   /// Lowers one row segment from the neighbours its pass visited before, counted in `outcome`; how many changed.
@@ -293,8 +325,8 @@ class ChamferTransform {
       return r;
     };
     constexpr int kRows = (2 * Reach + 1) * Reach + Reach;
-    float before[kRows][kAround];
-    const float* steps[kRows];  // per row, its steps by dx + Reach
+    V before[kRows][kAround];
+    const V* steps[kRows];  // per row, its steps by dx + Reach
     int row = 0;
     for (int dk = 1; dk <= Reach; ++dk)
       for (int dj = -Reach; dj <= Reach; ++dj, ++row) {
@@ -305,24 +337,24 @@ class ChamferTransform {
       around(shifted(-dj * dir, 0), before[row]);
       steps[row] = step_[0][dj + Reach];
     }
-    float* values = const_cast<float*>(own.brick[1]) + own.offset;
-    float best[kEdge];
+    V* values = const_cast<V*>(own.brick[1]) + own.offset;
+    V best[kEdge];
     for (int x = 0; x < kEdge; ++x) {
-      float m = values[x];
+      V m = values[x];
       for (int r = 0; r < kRows; ++r)
-        for (int dx = -Reach; dx <= Reach; ++dx) m = std::min(m, before[r][x + Reach + dx] + steps[r][dx + Reach]);
+        for (int dx = -Reach; dx <= Reach; ++dx) m = U::lower(m, before[r][x + Reach + dx], steps[r][dx + Reach]);
       best[x] = m;
     }
     // Along the row: the voxel visited just before it (in the previous segment at the segment's start).
-    const float* previous = own.brick[dir > 0 ? 0 : 2];
-    float run = previous ? previous[own.offset + (dir > 0 ? kEdge - 1 : 0)] : kFar;
+    const V* previous = own.brick[dir > 0 ? 0 : 2];
+    V run = previous ? previous[own.offset + (dir > 0 ? kEdge - 1 : 0)] : U::kFar;
     size_t changed = 0;
     for (int n = 0; n < kEdge; ++n) {
       const int x = dir > 0 ? n : kEdge - 1 - n;
-      run = std::min(best[x], run + kStep[1]);
+      run = U::lower(best[x], run, step_[0][Reach][Reach + 1]);
       changed += run < values[x];
-      outcome.lowered += run < values[x] - 1e-4f;
-      outcome.largest_drop = std::max(outcome.largest_drop, values[x] - run);
+      outcome.lowered += values[x] - run > U::kNoise;
+      outcome.largest_drop = std::max(outcome.largest_drop, U::to_voxels(values[x]) - U::to_voxels(run));
       values[x] = run;
     }
     outcome.changed += changed;
@@ -332,16 +364,16 @@ class ChamferTransform {
   const Voxelmap& vm_;
   std::array<uint32_t, 3> bricks_;
   int dims_[3];
-  std::vector<float> values_;                       ///< per value-brick voxel (voxels), the value bricks' order
+  std::vector<V> values_;                           ///< per value-brick voxel (in U's units), the value bricks' order
   std::unique_ptr<std::atomic<int>[]> lowered_in_;  ///< per value brick: the last pass that lowered it or a neighbour
   size_t lowered_in_size_ = 0;
   std::vector<int> own_lowered_in_;  ///< per value brick: the last pass that lowered one of its own voxels
   std::vector<Slab> slabs_;
-  std::vector<int32_t> shadow_slot_;                     ///< per value brick: its copy in shadow_, or -1
-  std::vector<size_t> shadowed_;                         ///< the value bricks copied, by slot
-  std::vector<float> shadow_;                            ///< their values when the pass began
-  std::vector<std::vector<int>> rows_;                   ///< per (bj, bk): its value bricks' columns bi, ascending
-  float step_[Reach + 1][2 * Reach + 1][2 * Reach + 1];  ///< step lengths by dk, dj + Reach, dx + Reach
+  std::vector<int32_t> shadow_slot_;                 ///< per value brick: its copy in shadow_, or -1
+  std::vector<size_t> shadowed_;                     ///< the value bricks copied, by slot
+  std::vector<V> shadow_;                            ///< their values when the pass began
+  std::vector<std::vector<int>> rows_;               ///< per (bj, bk): its value bricks' columns bi, ascending
+  V step_[Reach + 1][2 * Reach + 1][2 * Reach + 1];  ///< step lengths by dk, dj + Reach, dx + Reach
 };
 
 double seconds_since(std::chrono::steady_clock::time_point& start) {
@@ -381,11 +413,11 @@ double time_format21_estimates(const Voxelmap& vm, unsigned threads) {
 }
 
 /// The transform of `vm`'s value bricks, timed; its values in `values`.
-template <int Reach>
+template <int Reach, class V>
 Timing transform(const Voxelmap& vm, unsigned threads, bool skip_settled, std::vector<float>& values) {
   Timing timing;
   auto clock = std::chrono::steady_clock::now();
-  ChamferTransform<Reach> transform(vm);
+  ChamferTransform<Reach, V> transform(vm);
   transform.seed(threads);
   transform.split(threads);
   timing.seed_s = seconds_since(clock);
@@ -423,6 +455,9 @@ int main(int argc, char** argv) {
   app.add_flag("--every-brick", every_brick,
                "passes after the second visit every value brick (default: only those near a voxel lowered since the "
                "pass before)");
+  bool fixed16 = false;
+  app.add_flag("--fixed16", fixed16,
+               "hold the values as 16-bit sixteenths of a voxel (steps and seeds rounded up) instead of floats");
   CLI11_PARSE(app, argc, argv);
   voxfmt::ReadOptions read;
   read.max_memory_bytes = max_memory_mib << 20;
@@ -435,8 +470,10 @@ int main(int argc, char** argv) {
   size_t estimates = 0;
   for (int16_t code : vm.brick_values) estimates += code != 0 && !Voxelmap::code_is_stored(code);
   std::vector<float> values;
-  const Timing timing =
-      reach == 2 ? transform<2>(vm, threads, !every_brick, values) : transform<1>(vm, threads, !every_brick, values);
+  const Timing timing = fixed16 ? (reach == 2 ? transform<2, int16_t>(vm, threads, !every_brick, values)
+                                              : transform<1, int16_t>(vm, threads, !every_brick, values))
+                                : (reach == 2 ? transform<2, float>(vm, threads, !every_brick, values)
+                                              : transform<1, float>(vm, threads, !every_brick, values));
   const double seed_s = timing.seed_s;
   const auto& passes = timing.passes;
   double total = seed_s;
@@ -452,6 +489,7 @@ int main(int argc, char** argv) {
   figures["reach"] = reach;
   figures["threads"] = threads;
   figures["skip_settled"] = !every_brick;
+  figures["values"] = fixed16 ? "int16, 1/16 voxel" : "float32";
   for (size_t p = 0; p < passes.size(); ++p) {
     total += passes[p].s;
     std::printf("| pass %zu (%s) | %.3f | %zu | %.4f |\n", p + 1, p % 2 == 0 ? "forward" : "back", passes[p].s,

@@ -6,7 +6,8 @@ A box (not a cube) is baked small; its value bricks' values from `estimate-trans
 26 neighbours, and to the 5^3) must be settled (the last pass lowered none), upper bounds of the exact distance (a
 path is no shorter than the straight line), within the metric's 8 % (3 %) of it plus the lattice's slack, and each
 the least of its seed and its value-brick neighbours' values plus their step (the rule a reader could check), and
-the same whether the passes skip settled bricks or visit all, on one thread or two (slabs of brick layers). Exits non-zero with the first failure.
+the same whether the passes skip settled bricks or visit all, on one thread or two (slabs of brick layers); held
+as 16-bit fixed point, never below the floats. Exits non-zero with the first failure.
 """
 
 from __future__ import annotations
@@ -90,6 +91,14 @@ def check(transform: str, asset: Path, work: Path, reach: int, metric: float) ->
     subprocess.run([transform, str(asset), "--reach", str(reach), "--values", str(every), "--every-brick",
                     "--threads", "2"], check=True, stdout=subprocess.DEVNULL)
     assert values.read_bytes() == every.read_bytes(), "skipping settled bricks changed the values"
+    # Held as 16-bit sixteenths of a voxel (steps and seeds rounded up): never below the floats' values, and settled.
+    fixed = work / f"box.reach{reach}.fixed16.f32"
+    subprocess.run([transform, str(asset), "--reach", str(reach), "--values", str(fixed), "--fixed16", "--json",
+                    str(work / "box.fixed16.json")], check=True, stdout=subprocess.DEVNULL)
+    floats, sixteenths = np.fromfile(values, np.float32), np.fromfile(fixed, np.float32)
+    near = floats < 1e29
+    assert (sixteenths[near] >= floats[near] - 1e-6).all(), "16-bit values below the float ones"
+    assert json.loads((work / "box.fixed16.json").read_text())["passes"][-1]["lowered"] == 0, "16-bit not settled"
 
     with h5py.File(asset, "r") as f:
         attrs = f["voxelmap"].attrs
