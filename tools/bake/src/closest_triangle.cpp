@@ -12,6 +12,27 @@ namespace voxfmt::bake {
 namespace {
 
 constexpr uint32_t kLeafSize = 4;
+// Splits by the surface-area heuristic above this depth, by the median below it: at most kSurfaceAreaDepth + 32
+// levels for any number of triangles, within nearest()'s stack of 64.
+constexpr int kSurfaceAreaDepth = 24;
+constexpr int kBins = 16;
+
+struct Box {
+  double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                  std::numeric_limits<double>::infinity()};
+  double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                  -std::numeric_limits<double>::infinity()};
+  void add(const Box& b) {
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], b.lo[a]), hi[a] = std::max(hi[a], b.hi[a]);
+  }
+  void add(const std::array<Vec3, 2>& b) {
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], b[0][a]), hi[a] = std::max(hi[a], b[1][a]);
+  }
+  double half_area() const {
+    const double x = hi[0] - lo[0], y = hi[1] - lo[1], z = hi[2] - lo[2];
+    return x < 0 ? 0 : x * y + y * z + z * x;
+  }
+};
 
 // Squared distance from p to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
 double distance2_to_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
@@ -39,20 +60,73 @@ double distance2_to_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const 
 
 ClosestTriangle::ClosestTriangle(const std::vector<std::array<Vec3, 3>>& corners) {
   std::vector<Vec3> centroids(corners.size());
+  std::vector<std::array<Vec3, 2>> boxes(corners.size());  // lowest and highest corner
   for (size_t t = 0; t < corners.size(); ++t)
-    for (int a = 0; a < 3; ++a) centroids[t][a] = (corners[t][0][a] + corners[t][1][a] + corners[t][2][a]) / 3;
+    for (int a = 0; a < 3; ++a) {
+      centroids[t][a] = (corners[t][0][a] + corners[t][1][a] + corners[t][2][a]) / 3;
+      boxes[t][0][a] = std::min({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
+      boxes[t][1][a] = std::max({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
+    }
   order_.resize(corners.size());
   std::iota(order_.begin(), order_.end(), 0u);
   tris_ = corners;  // indexed by triangle until the tree is built
   nodes_.reserve(2 * corners.size() / kLeafSize + 2);
-  if (!corners.empty()) build(0, uint32_t(corners.size()), centroids);
+  if (!corners.empty()) build(0, uint32_t(corners.size()), centroids, boxes, 0);
   std::vector<std::array<Vec3, 3>> ordered;
   ordered.reserve(corners.size());
   for (uint32_t t : order_) ordered.push_back(corners[t]);
   tris_.swap(ordered);
 }
 
-uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids) {
+// The binned surface-area split of order_[begin, end) (Wald 2007): the plane between two of kBins bins along an
+// axis of the centroids' box that least sums each side's box area times its triangles. The first index of the
+// second half after partitioning, or `end` when every split leaves a side empty.
+uint32_t ClosestTriangle::surface_area_split(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
+                                             const std::vector<std::array<Vec3, 2>>& boxes, const Vec3& centroid_lo,
+                                             const Vec3& centroid_hi) {
+  double best_cost = std::numeric_limits<double>::infinity();
+  int best_axis = -1, best_bin = 0;
+  auto bin_of = [&](uint32_t t, int axis) {
+    const double extent = centroid_hi[axis] - centroid_lo[axis];
+    return std::min(kBins - 1, int(kBins * ((centroids[t][axis] - centroid_lo[axis]) / extent)));
+  };
+  for (int axis = 0; axis < 3; ++axis) {
+    if (!(centroid_hi[axis] > centroid_lo[axis])) continue;
+    Box bins[kBins];
+    uint32_t counts[kBins] = {};
+    for (uint32_t i = begin; i < end; ++i) {
+      const int b = bin_of(order_[i], axis);
+      bins[b].add(boxes[order_[i]]);
+      ++counts[b];
+    }
+    double right_area[kBins];  // of bins b .. kBins - 1
+    uint32_t right_count[kBins];
+    Box right;
+    uint32_t count = 0;
+    for (int b = kBins - 1; b > 0; --b) {
+      right.add(bins[b]);
+      count += counts[b];
+      right_area[b] = right.half_area();
+      right_count[b] = count;
+    }
+    Box left;
+    count = 0;
+    for (int b = 0; b + 1 < kBins; ++b) {  // the plane after bin b
+      left.add(bins[b]);
+      count += counts[b];
+      if (count == 0 || right_count[b + 1] == 0) continue;
+      const double cost = left.half_area() * count + right_area[b + 1] * right_count[b + 1];
+      if (cost < best_cost) best_cost = cost, best_axis = axis, best_bin = b;
+    }
+  }
+  if (best_axis < 0) return end;
+  return uint32_t(std::partition(order_.begin() + begin, order_.begin() + end,
+                                 [&](uint32_t t) { return bin_of(t, best_axis) <= best_bin; }) -
+                  order_.begin());
+}
+
+uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
+                                const std::vector<std::array<Vec3, 2>>& boxes, int depth) {
   const uint32_t id = uint32_t(nodes_.size());
   nodes_.push_back({});
   Node node{};
@@ -64,29 +138,31 @@ uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<
   for (uint32_t i = begin; i < end; ++i) {
     const uint32_t t = order_[i];
     for (int a = 0; a < 3; ++a) {
-      for (const Vec3& corner : tris_[t]) {
-        node.lo[a] = std::min(node.lo[a], corner[a]);
-        node.hi[a] = std::max(node.hi[a], corner[a]);
-      }
+      node.lo[a] = std::min(node.lo[a], boxes[t][0][a]);
+      node.hi[a] = std::max(node.hi[a], boxes[t][1][a]);
       centroid_lo[a] = std::min(centroid_lo[a], centroids[t][a]);
       centroid_hi[a] = std::max(centroid_hi[a], centroids[t][a]);
     }
   }
   if (end - begin <= kLeafSize) {
+    depth_ = std::max(depth_, depth);
     node.first = begin;
     node.count = end - begin;
     nodes_[id] = node;
     return id;
   }
-  // Median split along the longest axis of the centroids' box.
-  const Vec3 extent = centroid_hi - centroid_lo;
-  const int axis = extent[0] >= extent[1] && extent[0] >= extent[2] ? 0 : extent[1] >= extent[2] ? 1 : 2;
-  const uint32_t mid = begin + (end - begin) / 2;
-  std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end, [&](uint32_t a, uint32_t b) {
-    return centroids[a][axis] < centroids[b][axis] || (centroids[a][axis] == centroids[b][axis] && a < b);
-  });
-  build(begin, mid, centroids);
-  node.first = build(mid, end, centroids);
+  uint32_t mid =
+      depth < kSurfaceAreaDepth ? surface_area_split(begin, end, centroids, boxes, centroid_lo, centroid_hi) : end;
+  if (mid == begin || mid == end) {  // deep, or no split separates the centroids: the median along the longest axis
+    const Vec3 extent = centroid_hi - centroid_lo;
+    const int axis = extent[0] >= extent[1] && extent[0] >= extent[2] ? 0 : extent[1] >= extent[2] ? 1 : 2;
+    mid = begin + (end - begin) / 2;
+    std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end, [&](uint32_t a, uint32_t b) {
+      return centroids[a][axis] < centroids[b][axis] || (centroids[a][axis] == centroids[b][axis] && a < b);
+    });
+  }
+  build(begin, mid, centroids, boxes, depth + 1);
+  node.first = build(mid, end, centroids, boxes, depth + 1);
   node.count = 0;
   nodes_[id] = node;
   return id;
@@ -125,7 +201,7 @@ std::pair<double, uint32_t> ClosestTriangle::nearest(const Vec3& p, double bound
     }
     const uint32_t left = uint32_t(&n - nodes_.data()) + 1, right = n.first;
     const double dl = box_distance2(nodes_[left]), dr = box_distance2(nodes_[right]);
-    if (top + 2 > 64) continue;  // deeper than any median-split tree of 2^32 triangles
+    if (top + 2 > 64) continue;  // deeper than any tree build() makes (kSurfaceAreaDepth + 32 levels)
     const double open_below = best * shrink;
     if (dl <= dr) {
       if (dr < open_below) stack[top++] = right;

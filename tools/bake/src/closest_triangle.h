@@ -18,6 +18,8 @@ class ClosestTriangle {
   /// is, returns {bound2, `hint`}. With `slack` > 0 the result may be up to (1 + slack) times the nearest
   /// distance: boxes that could only improve it by less are not opened (far from the surface that is most).
   std::pair<double, uint32_t> nearest(const Vec3& p, double bound2, uint32_t hint, double slack = 0) const;
+  /// Levels below the root of the deepest leaf (the search's stack holds 64 nodes, so at most 62).
+  int depth() const { return depth_; }
 
  private:
   struct Node {
@@ -25,8 +27,14 @@ class ClosestTriangle {
     uint32_t first;       // inner: index of the second child (the first follows the node); leaf: first triangle
     uint32_t count;       // 0 for an inner node
   };
-  uint32_t build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids);
+  // centroids and boxes (lowest, highest corner) by triangle.
+  uint32_t build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
+                 const std::vector<std::array<Vec3, 2>>& boxes, int depth);
+  uint32_t surface_area_split(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
+                              const std::vector<std::array<Vec3, 2>>& boxes, const Vec3& centroid_lo,
+                              const Vec3& centroid_hi);
   std::vector<Node> nodes_;
+  int depth_ = 0;
   std::vector<uint32_t> order_;            // triangle indices in leaf order
   std::vector<std::array<Vec3, 3>> tris_;  // corners in leaf order
 };
