@@ -116,11 +116,13 @@ def scaling_run(args, resolution, tmp):
         "file_mb": os.path.getsize(asset) / 1e6,
         "stages_s": report["timings_s"],
     })
-    r, run["validate_s"], run["validate_peak_rss_mb"] = timed([args.voxfmt, "validate", "--level", "full", asset])
+    validate = [args.voxfmt, "validate", "--level", "full", "--max-memory", str(args.max_memory), asset]
+    r, run["validate_s"], run["validate_peak_rss_mb"] = timed(validate)
     run["valid"] = r.returncode == 0
     if not run["valid"]:
         run["validate_output"] = r.stdout.strip()[-400:]
-    r = subprocess.run([os.path.join(args.bin, "asset-check"), asset, args.mesh, "--samples", str(args.samples)],
+    r = subprocess.run([os.path.join(args.bin, "asset-check"), asset, args.mesh, "--samples", str(args.samples),
+                        "--max-memory", str(args.max_memory)],
                        capture_output=True, text=True)
     if r.returncode == 0:
         run.update(json.loads(r.stdout))
@@ -177,6 +179,8 @@ def scaling_bench(args):
     print(f"bench_bake --scaling: {os.path.basename(args.mesh)}, --points {args.points}, {os.cpu_count()} cores",
           file=sys.stderr)
     print(header, file=sys.stderr)
+    if args.tmp:
+        os.makedirs(args.tmp, exist_ok=True)  # a fresh machine's scratch folder
     with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
         for resolution in resolutions:
             run = scaling_run(args, resolution, tmp)
@@ -228,6 +232,8 @@ def broken_bench(args):
         sys.exit(f"bench_bake: {os.path.join(args.bin, 'bake-floor')} not found; build first (bash scripts/build.sh)")
     resolutions = [int(x) for x in args.resolutions.split(",")] if args.resolutions else [128, 256, 512, 1024]
     runs = []
+    if args.tmp:
+        os.makedirs(args.tmp, exist_ok=True)  # a fresh machine's scratch folder
     with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
         meshes = []
         for kind in ("clean", "broken"):
@@ -266,6 +272,8 @@ def broken_bench(args):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--max-memory", type=int, default=8192,
+                        help="MiB validate and asset-check may read (a 4096^3 bake needs ~2.1 GB; default 8192)")
     parser.add_argument("--bin", default=BIN, help="where voxfmt, bake-floor and asset-check are (build/bin)")
     parser.add_argument("--voxfmt", default=None, help="the voxfmt to time (default: BIN/voxfmt)")
     parser.add_argument("--mesh", default=os.path.join(ROOT, "build", "cgal-data", "data", "meshes", "bunny00.off"))

@@ -34,10 +34,16 @@ int main(int argc, char** argv) {
   app.add_option("asset", asset_path, "The baked asset (.vox.h5)")->required();
   app.add_option("mesh", mesh_path, "The mesh it was baked from")->required();
   app.add_option("--samples", samples, "Voxels sampled for each accuracy figure")->capture_default_str();
+  uint64_t max_memory_mib = voxfmt::ReadOptions::kDefaultReadMemoryBytes >> 20;
+  app.add_option("--max-memory", max_memory_mib, "MiB a read may take (a 4096^3 bake needs ~2.1 GB)")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 30))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  voxfmt::runtime::LoadOptions load;
+  load.read.max_memory_bytes = max_memory_mib << 20;
 
   const auto start = std::chrono::steady_clock::now();
-  const auto object = voxfmt::runtime::CollisionObject::load(asset_path);
+  const auto object = voxfmt::runtime::CollisionObject::load(asset_path, load);
   const double load_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!object) {
     std::cerr << "asset-check: " << object.error().message << "\n";
@@ -45,7 +51,7 @@ int main(int argc, char** argv) {
   }
   const size_t runtime_bytes = object.value()->memory_bytes();
 
-  const auto asset = voxfmt::read_asset(asset_path);
+  const auto asset = voxfmt::read_asset(asset_path, nullptr, load.read);
   const auto mesh = voxfmt::bake::read_mesh(mesh_path);
   if (!asset || !mesh) {
     std::cerr << "asset-check: cannot read " << (asset ? mesh_path : asset_path) << "\n";
