@@ -73,11 +73,27 @@ def prepare(folder: Path, poses: int, seed: int, bunny_mesh: str, threads: int) 
     print(json.dumps(cpu, indent=1))
 
 
-def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | None) -> None:
+def variant_row(gpu: dict) -> dict:
+    """One build's figures (scripts/gpu-check.sh runs several block sizes, and the default without the apron)."""
+    at = {r["envs"]: r for r in gpu["latency"]}
+    agreed = all(a["identical"] == a["environments"] for a in gpu["agreement"].values())
+    return {"block_lanes": gpu.get("block_lanes"), "apron": gpu.get("apron"), "gpu_poses_per_s": gpu["gpu_poses_per_s"],
+            "p50_us_4096": at.get(4096, {}).get("p50_us"), "kernel_p50_us_4096": at.get(4096, {}).get("kernel_p50_us"),
+            "p50_us_16384": at.get(16384, {}).get("p50_us"),
+            "kernel_p50_us_16384": at.get(16384, {}).get("kernel_p50_us"),
+            "device_memory_mb": gpu["device_memory_mb"], "device_array_mb": gpu.get("device_array_mb"),
+            "every_output_equal": agreed}
+
+
+def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | None,
+           variants: list[Path] | None = None) -> None:
     gpu = json.loads(gpu_json.read_text())
     cpu = json.loads((folder / "cpu.json").read_text())
+    rows = [variant_row(gpu)] + [variant_row(json.loads(v.read_text())) for v in variants or []]
     result = {
         "device": gpu["device"],
+        "block_lanes": gpu.get("block_lanes"),
+        "apron": gpu.get("apron"),
         "gpu_poses_per_s": gpu["gpu_poses_per_s"],
         "cpu_poses_per_s": cpu["cpu_poses_per_s"],
         "cpu_threads": cpu["threads"],
@@ -87,6 +103,7 @@ def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | N
         "latency": gpu["latency"],
         "throughput": gpu["throughput"],
         "agreement": gpu["agreement"],
+        "variants": rows,
         "cpu": cpu,
     }
     if out_json:
@@ -105,6 +122,17 @@ def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | N
               for r in result["latency"]]
     lines += ["", "| environments | poses/s |", "|--:|--:|"]
     lines += [f"| {r['envs']:,} | {r['poses_per_s']:,.0f} |" for r in result["throughput"]]
+    if len(rows) > 1:
+        def us(v: float | None) -> str:
+            return "–" if v is None else f"{v:,.0f}"
+        lines += ["", "Builds measured in the same run (the first is the default):", "",
+                  "| lanes a block | apron | peak poses/s | 4,096 envs p50 / kernel µs | 16,384 envs p50 / kernel µs "
+                  "| device MB (measured / arrays) | every output equal |", "|--:|:-:|--:|--:|--:|--:|:-:|"]
+        lines += [f"| {r['block_lanes']} | {'yes' if r['apron'] else 'no'} | {r['gpu_poses_per_s']:,.0f} | "
+                  f"{us(r['p50_us_4096'])} / {us(r['kernel_p50_us_4096'])} | "
+                  f"{us(r['p50_us_16384'])} / {us(r['kernel_p50_us_16384'])} | "
+                  f"{r['device_memory_mb']:.1f} / {r['device_array_mb'] or 0:.1f} | "
+                  f"{'yes' if r['every_output_equal'] else 'NO'} |" for r in rows]
     text = "\n".join(lines) + "\n"
     if out_md:
         out_md.write_text(text)
@@ -122,11 +150,12 @@ def main() -> int:
     parser.add_argument("--input", type=Path, default=Path("out/gpu-input"))
     parser.add_argument("--json", type=Path)
     parser.add_argument("--markdown", type=Path)
+    parser.add_argument("--variants", type=Path, nargs="*", help="other builds' JSON files from the same run")
     args = parser.parse_args()
     if args.prepare:
         prepare(args.prepare, args.poses, args.seed, args.bunny, args.threads)
     if args.report:
-        report(args.report, args.input, args.json, args.markdown)
+        report(args.report, args.input, args.json, args.markdown, args.variants)
     if not args.prepare and not args.report:
         parser.error("nothing to do: --prepare FOLDER and/or --report GPU.json")
     return 0

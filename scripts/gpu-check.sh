@@ -1,21 +1,50 @@
 #!/usr/bin/env bash
 # The GPU check, run on a CUDA machine that has nvcc, Python and CuPy but none of voxfmt's libraries (the device
 # machine of docs/gpu.md): builds the standalone runner (scripts/gpu/standalone.cu + loaders/gpu/src/kernels.cu,
-# the kernel voxfmt links), runs scripts/gpu/check.py over the inputs bench/gpu_batch.py --prepare wrote here, and
-# leaves its JSON in $OUT (default out/gpu-check).
-#   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input
+# the kernel voxfmt links) at each block size of $LANES, runs scripts/gpu/check.py over the inputs
+# bench/gpu_batch.py --prepare wrote here with each (and the default size without the bricks' apron), and leaves
+# the JSON files in $OUT (default out/gpu-check): gpu-batch.json is the default build's (128 lanes, the apron).
+# Then compute-sanitizer's memcheck over a few hundred poses, where the machine has it.
+#   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input; LANES="32 64 128 256" by default
 set -euo pipefail
 cd "$(dirname "$0")/.."
 input=${1:-out/gpu-input}
 OUT=${OUT:-out/gpu-check}
+LANES=${LANES:-32 64 128 256}
 mkdir -p "$OUT"
 [ -f "$input/gpu-batch-input.npz" ] || { echo "gpu-check: no $input/gpu-batch-input.npz (bench/gpu_batch.py --prepare)" >&2; exit 2; }
 nvcc=${NVCC:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$OUT/device.txt" || true
+nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv,noheader | tee "$OUT/device.txt" || true
 "$nvcc" --version | tail -n 1
+build=$(mktemp -d)
 start=$SECONDS
-"$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -Iloaders/runtime/src -Iloaders/runtime/include \
-  scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu -o "$OUT/libvoxfmt_gpu_check.so"
-echo "gpu-check: built the runner in $((SECONDS - start)) s"
-python3 scripts/gpu/check.py --input "$input/gpu-batch-input.npz" --library "$OUT/libvoxfmt_gpu_check.so" \
-  --json "$OUT/gpu-batch.json"
+for lanes in $LANES; do
+  "$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -DVOXFMT_BLOCK_LANES="$lanes" \
+    -Xptxas -v -Iloaders/runtime/src -Iloaders/runtime/include scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu \
+    -o "$build/lanes$lanes.so" >"$build/lanes$lanes.log" 2>&1 &
+done
+wait
+for lanes in $LANES; do
+  echo "lanes $lanes: $(grep -h 'registers' "$build/lanes$lanes.log" | tail -n 1)"
+done | tee "$OUT/ptxas.txt"
+echo "gpu-check: built the runners in $((SECONDS - start)) s"
+check() {  # LIBRARY JSON [check.py options]
+  local library=$1 json=$2
+  shift 2
+  echo "== $(basename "$library") $*"
+  timeout 300 python3 scripts/gpu/check.py --input "$input/gpu-batch-input.npz" --library "$library" --json "$json" "$@"
+}
+status=0
+check "$build/lanes128.so" "$OUT/gpu-batch.json" || status=1
+for lanes in $LANES; do
+  [ "$lanes" = 128 ] || check "$build/lanes$lanes.so" "$OUT/gpu-batch-lanes$lanes.json" --reps 20 || status=1
+done
+check "$build/lanes128.so" "$OUT/gpu-batch-no-apron.json" --no-apron --reps 20 || status=1
+if command -v compute-sanitizer >/dev/null; then
+  echo "== compute-sanitizer memcheck, 512 poses"
+  timeout 240 compute-sanitizer --tool memcheck --error-exitcode 9 python3 scripts/gpu/check.py \
+    --input "$input/gpu-batch-input.npz" --library "$build/lanes128.so" --json "$build/memcheck.json" \
+    --agreement-poses 512 --max-envs 64 --reps 1 >"$OUT/memcheck.txt" 2>&1 || status=1
+  tail -n 5 "$OUT/memcheck.txt"
+fi
+exit $status

@@ -53,18 +53,30 @@ def agreement(ref: dict[str, np.ndarray], got: dict[str, np.ndarray]) -> dict[st
             "errors": int((np.asarray(got["error"]) != 0).sum())}
 
 
+def plain_codes(apron_codes: np.ndarray) -> np.ndarray:
+    """The runtime's 8^3 value bricks from bricks with an apron (9^3 codes, k, j, i from the slowest, then the
+    mask): what the device reads without the apron."""
+    bricks = np.asarray(apron_codes).reshape(-1, 736)[:, :729].reshape(-1, 9, 9, 9)
+    return np.ascontiguousarray(bricks[:, :8, :8, :8]).reshape(-1)
+
+
 class CudaBackend:
     """The standalone runner through ctypes, on CuPy arrays."""
 
-    def __init__(self, library: str, data: dict[str, np.ndarray]) -> None:
+    def __init__(self, library: str, data: dict[str, np.ndarray], apron: bool = True) -> None:
         import cupy
 
         self.cp = cupy
         self.lib = ctypes.CDLL(library)
         self.lib.voxfmt_gpu_check_run.restype = ctypes.c_int
+        self.lanes = int(self.lib.voxfmt_gpu_check_lanes())
+        self.apron = apron
+        arrays = {k: data[k] for k in ("bricks", "codes", "lattice", "nodes", "points", "normals")}
+        if not apron:
+            arrays["codes"] = plain_codes(data["codes"])
         cupy.cuda.Device().synchronize()
         free_before = cupy.cuda.runtime.memGetInfo()[0]
-        self.d = {k: cupy.asarray(data[k]) for k in ("bricks", "codes", "lattice", "nodes", "points", "normals")}
+        self.d = {k: cupy.asarray(v) for k, v in arrays.items()}
         cupy.cuda.Device().synchronize()
         self.device_bytes = int(free_before - cupy.cuda.runtime.memGetInfo()[0])  # measured, pool rounding and all
         self.array_bytes = int(sum(a.nbytes for a in self.d.values()))
@@ -91,7 +103,7 @@ class CudaBackend:
         hptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
         kernel_ms = ctypes.c_float(0.0)
         status = self.lib.voxfmt_gpu_check_run(
-            ptr(self.d["bricks"]), ptr(self.d["codes"]), ptr(self.d["lattice"]), hptr(self.host["field_floats"]),
+            ptr(self.d["bricks"]), ptr(self.d["codes"]), ctypes.c_int(int(self.apron)), ptr(self.d["lattice"]), hptr(self.host["field_floats"]),
             hptr(self.host["field_dims"]), ptr(self.d["nodes"]), ptr(self.d["points"]), ptr(self.d["normals"]),
             hptr(self.host["body_doubles"]), ctypes.c_uint32(self.count), ctypes.c_uint32(self.levels), ptr(pa), ptr(pb),
             ctypes.c_size_t(n), ctypes.c_double(proximity), ctypes.c_double(stiffness), ptr(out["count"]),
@@ -121,6 +133,7 @@ class CpuBackend:
         self.scene = voxfmt.BatchScene([voxfmt.load(asset)])
         self.device = "cpu (voxfmt.BatchScene)"
         self.device_bytes = self.array_bytes = 0
+        self.lanes, self.apron = 0, False
 
     def upload(self, poses: np.ndarray) -> np.ndarray:
         return poses
@@ -146,24 +159,27 @@ def main() -> int:
     parser.add_argument("--library", help="the standalone runner (cuda backend)")
     parser.add_argument("--asset", help="the asset file (cpu backend)")
     parser.add_argument("--max-envs", type=int, default=THROUGHPUT_ENVS[-1])
+    parser.add_argument("--agreement-poses", type=int, help="compare only the first N poses (default: all)")
+    parser.add_argument("--no-apron", action="store_true", help="upload the runtime's plain bricks (cuda backend)")
     parser.add_argument("--reps", type=int, default=50, help="timed calls per latency size")
     parser.add_argument("--json", required=True)
     args = parser.parse_args()
     data = dict(np.load(args.input))
     stiffness, k = float(data["stiffness"]), int(data["max_contacts"])
-    backend = CudaBackend(args.library, data) if args.backend == "cuda" else CpuBackend(args.asset)
+    backend = CudaBackend(args.library, data, not args.no_apron) if args.backend == "cuda" else CpuBackend(args.asset)
     pa_all, pb_all = data["poses_a"], data["poses_b"]
     count = len(pa_all)
 
     # Agreement on every pose of the bench, touching and near, every output.
     report: dict[str, Any] = {"device": backend.device, "device_memory_mb": backend.device_bytes / 1e6,
-                              "device_array_mb": backend.array_bytes / 1e6, "agreement": {}, "latency": [],
-                              "throughput": []}
-    pa, pb = backend.upload(pa_all), backend.upload(pb_all)
+                              "device_array_mb": backend.array_bytes / 1e6, "block_lanes": backend.lanes,
+                              "apron": backend.apron, "agreement": {}, "latency": [], "throughput": []}
+    compared = slice(0, args.agreement_poses)
+    pa, pb = backend.upload(pa_all[compared]), backend.upload(pb_all[compared])
     for case in ("touching", "near"):
         proximity = float(data[f"{case}_proximity"])
         got = backend.run(pa, pb, stiffness, proximity, k)[0]()
-        ref = {name: data[f"{case}_{name}"] for name in PER_ENV + CONTACTS}
+        ref = {name: data[f"{case}_{name}"][compared] for name in PER_ENV + CONTACTS}
         report["agreement"][case] = agreement(ref, got) | {"proximity_m": proximity, "max_contacts": k}
     # Latency: host clock from the launch to results in host memory; the kernel's time by CUDA events.
     for envs in [e for e in LATENCY_ENVS if e <= args.max_envs]:

@@ -13,11 +13,16 @@ namespace core = voxfmt::runtime::core;
 
 extern "C" {
 
+/// The lanes of the kernel's blocks (-DVOXFMT_BLOCK_LANES).
+int voxfmt_gpu_check_lanes() { return core::kBlockLanes; }
+
 /// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers (the contact
 /// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 17,
-/// field_dims 9, body_doubles 8, as _export_core gives them): host. With `kernel_ms` (host), the kernel's time by
-/// CUDA events around the launch, waited for. Returns 0, or -1 with the reason in `error_text`.
-int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint16_t* lattice,
+/// field_dims 9, body_doubles 8, as _export_core gives them): host. `codes` are the value bricks with their apron
+/// (as _export_core gives them and gpu::Scene uploads them) when `apron`, else the runtime's plain 8^3 bricks. With
+/// `kernel_ms` (host), the kernel's time by CUDA events around the launch, waited for. Returns 0, or -1 with the reason
+/// in `error_text`.
+int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, int apron, const uint16_t* lattice,
                          const float* field_floats, const int32_t* field_dims, const void* nodes, const float* points,
                          const float* normals, const double* body_doubles, uint32_t count, uint32_t levels,
                          const float* poses_a, const float* poses_b, size_t envs, double proximity, double stiffness,
@@ -31,8 +36,8 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, const uint
   b.has_field = b.has_shell = true;
   b.field.bricks = bricks;
   b.field.lattice = lattice;
-  // _export_core's codes are the value bricks with their apron, as gpu::Scene uploads them.
-  b.field = core::with_apron(b.field, codes);
+  b.field.codes = codes;
+  if (apron) b.field = core::with_apron(b.field, codes);
   for (int a = 0; a < 3; ++a) {
     b.field.dims[a] = field_dims[a];
     b.field.brick_dims[a] = field_dims[3 + a];

@@ -14,7 +14,13 @@
 
 namespace voxfmt::runtime::core {
 
-constexpr int kBlockLanes = 128;
+// The lanes of a block; another count only to measure one (scripts/gpu-check.sh builds several).
+#ifndef VOXFMT_BLOCK_LANES
+#define VOXFMT_BLOCK_LANES 128
+#endif
+constexpr int kBlockLanes = VOXFMT_BLOCK_LANES;
+static_assert(kBlockLanes >= 32 && kBlockLanes <= 256 && (kBlockLanes & (kBlockLanes - 1)) == 0,
+              "whole warps, a power of two, a lane index in a byte");
 
 /// The children of a node the walk opened: the next level's nodes first .. first + count - 1, the bounds the
 /// parent carries to them, and where they start among the level's nodes.
@@ -73,6 +79,7 @@ struct BlockState {
   uint32_t next_parents, next_children;
   uint32_t frontier_full;
   LaneFind lane[kBlockLanes];
+  uint8_t hit_lane[kBlockLanes];  ///< the tile's lanes that hit, in lane order
   /// Inclusive sums over the lanes of (hits, opened nodes, their children), two buffers a scan alternates.
   uint32_t sums[2][3][kBlockLanes];
 };
@@ -162,6 +169,7 @@ VOXFMT_HD void examine_lane(BlockState& s, const OpenRange* ranges, uint32_t bas
 VOXFMT_HD void place_lane(BlockState& s, OpenRange* next, uint32_t capacity, int sums, int lane) {
   const LaneFind& l = s.lane[lane];
   if (l.hit) {
+    s.hit_lane[s.sums[sums][0][lane] - 1] = uint8_t(lane);
     const uint32_t i = s.result.count + s.sums[sums][0][lane] - 1;
     if (i < s.out.capacity) write_contact(s.out, i, l.contact, l.node, s.query.point_of_b);
   }
@@ -177,11 +185,18 @@ VOXFMT_HD void place_lane(BlockState& s, OpenRange* next, uint32_t capacity, int
   }
 }
 
-/// The tile's reductions, by one lane in node order (the runtime's order of sums).
+/// The tile's reductions, by one lane in node order (the runtime's order of sums): over its hits only, the sums in
+/// registers (in shared memory each addition would wait for the last one's store).
 VOXFMT_HD void add_tile(BlockState& s, int sums) {
-  for (int i = 0; i < kBlockLanes; ++i)
-    if (s.lane[i].hit) add_contact(s.lane[i].contact, s.result, s.force, s.torque);
   const uint32_t hits = s.sums[sums][0][kBlockLanes - 1];
+  double force[3] = {s.force[0], s.force[1], s.force[2]}, torque[3] = {s.torque[0], s.torque[1], s.torque[2]};
+  EnvResult result = s.result;
+  for (uint32_t h = 0; h < hits; ++h) add_contact(s.lane[s.hit_lane[h]].contact, result, force, torque);
+  for (int k = 0; k < 3; ++k) {
+    s.force[k] = force[k];
+    s.torque[k] = torque[k];
+  }
+  s.result.max_depth = result.max_depth;
   const uint32_t room = s.result.count < s.out.capacity ? s.out.capacity - s.result.count : 0;
   s.result.overflow += hits > room ? hits - room : 0;
   s.result.count += hits;
@@ -221,13 +236,13 @@ VOXFMT_HD void run_environment_block(const Block& block, BlockState& s, const Ba
       block.each([&](int lane) { examine_lane(s, ranges, base, lane); });
       const int sums = sum_lanes(block, s);
       block.each([&](int lane) { place_lane(s, next, frontier.capacity, sums, lane); });
+      const bool last_tile = base + kBlockLanes >= children;
       block.each([&](int lane) {
-        if (lane == 0) add_tile(s, sums);
+        if (lane != 0) return;
+        add_tile(s, sums);
+        if (last_tile) next_level(s);
       });
     }
-    block.each([&](int lane) {
-      if (lane == 0) next_level(s);
-    });
   }
   block.each([&](int lane) {
     if (lane != 0) return;

@@ -52,8 +52,8 @@ class Scene {
   size_t device_bytes() const;
   /// Device memory a launch of 0 or more environments takes besides (the walk's frontiers, one per resident block,
   /// as wide as the scene's widest tree level; from the device's default memory pool, which keeps it between
-  /// launches). CGAL's bunny at 35,000 points: 4,557 ranges of 20 bytes, twice, a block: 96 MB on an H200 if it
-  /// keeps 528 blocks (4 a multiprocessor at 128 registers a thread: computed, not measured).
+  /// launches). CGAL's bunny at 35,000 points: 4,557 ranges of 20 bytes, twice, a block: 120 MB on an H200, which
+  /// keeps 660 blocks (5 a multiprocessor at 96 registers a thread, as Nsight Compute read it there).
   size_t frontier_bytes() const;
   size_t asset_device_bytes(size_t asset) const { return asset_bytes_.at(asset); }
   size_t pair_count() const { return pairs_; }
