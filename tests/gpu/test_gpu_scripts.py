@@ -40,6 +40,11 @@ def test_prepare_check_and_report_agree(tmp_path: Path) -> None:
     assert "| lanes a block |" in (tmp_path / "result.md").read_text()
     for key in ("device", "gpu_poses_per_s", "cpu_poses_per_s", "device_memory_mb", "latency", "agreement"):
         assert key in result, key
+    # The Python path's device check, its flow on NumPy poses (on a GPU machine: CuPy and PyTorch poses).
+    run("scripts/gpu/python_check.py", "--asset", cpu["asset"], "--poses", str(folder / "gpu-batch-input.npz"),
+        "--frameworks", "numpy", "--json", str(tmp_path / "python.json"))
+    python = json.loads((tmp_path / "python.json").read_text())
+    assert [(r["environments"], r["identical"]) for r in python["agreement"].values()] == [(600, 600)] * 2
 
 
 def test_parallel_probes_press_into_the_bunny(tmp_path: Path) -> None:
@@ -57,6 +62,29 @@ def test_the_cuda_graph_example_replays_what_direct_calls_give(tmp_path: Path) -
     if "no CUDA graph without a CUDA device" in out:
         return
     assert "replays equal to direct calls: 20 of 20" in out, out
+
+
+def test_the_python_checks_comparison_finds_any_differing_output() -> None:
+    sys.path.insert(0, str(REPO / "scripts/gpu"))
+    from types import SimpleNamespace
+
+    import numpy as np
+    import python_check
+
+    rng = np.random.default_rng(1)
+    ref = SimpleNamespace(count=np.array([2, 0, 5], np.int32), max_depth=rng.random(3, np.float32),
+                          force=rng.random((3, 3), np.float32), torque=rng.random((3, 3), np.float32),
+                          overflow=np.array([0, 0, 3], np.int32), error=np.zeros(3, np.int32),
+                          points=rng.random((3, 2, 3), np.float32), normals=rng.random((3, 2, 3), np.float32),
+                          depths=rng.random((3, 2), np.float32), point_index=rng.integers(0, 9, (3, 2), np.int32),
+                          point_of_b=rng.integers(0, 2, (3, 2), np.uint8))
+    got = SimpleNamespace(**{k: v.copy() for k, v in vars(ref).items()})
+    got.normals[1, 0] = 9.0  # environment 1 has no contacts: its rows are not compared
+    assert python_check.compare(ref, got, 2) == {"environments": 3, "identical": 3, "differs": {}}
+    got.force[2, 0] = np.nextafter(got.force[2, 0], np.float32(2))  # one ulp
+    got.point_index[0, 1] += 1
+    assert python_check.compare(ref, got, 2) == {"environments": 3, "identical": 1,
+                                                 "differs": {"force": 1, "point_index": 1}}
 
 
 def test_the_device_checks_agreement_finds_any_differing_output() -> None:
