@@ -57,6 +57,20 @@ float step_length(int dx, int dy, int dz) { return std::sqrt(float(dx * dx + dy 
 
 /// Shortest path lengths of steps to the (2 Reach + 1)^3 neighbours over the offsets -8 .. 8 (17^3, x fastest):
 /// the closed form for Reach 1, relaxation until settled for more.
+/// body(n) for every value brick n of the brick table on `threads` threads, each taking every threads-th one
+/// (bricks are independent here).
+template <class Body>
+void for_each_value_brick(const Voxelmap& vm, unsigned threads, const Body& body) {
+  auto every = [&](unsigned first) {
+    for (size_t n = first; n < vm.bricks.size(); n += threads)
+      if (vm.bricks[n] >= 0) body(n);
+  };
+  std::vector<std::thread> workers;
+  for (unsigned t = 1; t < threads; ++t) workers.emplace_back(every, t);
+  every(0);
+  for (std::thread& w : workers) w.join();
+}
+
 template <int Reach>
 std::vector<float> offset_lengths() {
   std::vector<float> length(17 * 17 * 17);
@@ -138,14 +152,7 @@ class ChamferTransform {
   /// independent: `threads` take every threads-th one.
   void seed(unsigned threads) {
     const std::vector<float> length = offset_lengths<Reach>();
-    auto seed_every = [&](unsigned first) {
-      for (size_t b = first; b < vm_.bricks.size(); b += threads)
-        if (vm_.bricks[b] >= 0) seed_brick(b, length);
-    };
-    std::vector<std::thread> workers;
-    for (unsigned t = 1; t < threads; ++t) workers.emplace_back(seed_every, t);
-    seed_every(0);
-    for (std::thread& w : workers) w.join();
+    for_each_value_brick(vm_, threads, [&](size_t b) { seed_brick(b, length); });
   }
 
   /// Splits the passes over `threads` slabs of brick layers along z, each run by its own thread. A slab reads its
@@ -398,17 +405,10 @@ double time_format21_estimates(const Voxelmap& vm, unsigned threads) {
   std::vector<int16_t> codes = vm.brick_values;
   const auto start = std::chrono::steady_clock::now();
   const auto b = vm.brick_dims();
-  auto fill_every = [&](unsigned first) {
-    for (size_t n = first; n < vm.bricks.size(); n += threads)
-      if (vm.bricks[n] >= 0)
-        voxfmt::fill_brick_estimates(vm, uint32_t(n % b[0]), uint32_t(n / b[0] % b[1]),
-                                     uint32_t(n / (size_t(b[0]) * b[1])),
-                                     &codes[size_t(vm.bricks[n]) * Voxelmap::kBrickVoxels]);
-  };
-  std::vector<std::thread> workers;
-  for (unsigned t = 1; t < threads; ++t) workers.emplace_back(fill_every, t);
-  fill_every(0);
-  for (std::thread& w : workers) w.join();
+  for_each_value_brick(vm, threads, [&](size_t n) {
+    voxfmt::fill_brick_estimates(vm, uint32_t(n % b[0]), uint32_t(n / b[0] % b[1]), uint32_t(n / (size_t(b[0]) * b[1])),
+                                 &codes[size_t(vm.bricks[n]) * Voxelmap::kBrickVoxels]);
+  });
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
