@@ -4,13 +4,15 @@
 # the kernel voxfmt links) at each block size of $LANES, runs scripts/gpu/check.py over the inputs
 # bench/gpu_batch.py --prepare wrote here with each (and the default size without the bricks' apron), and leaves
 # the JSON files in $OUT (default out/gpu-check): gpu-batch.json is the default build's (128 lanes, the apron).
-# Then compute-sanitizer's memcheck over a few hundred poses, where the machine has it.
+# Then compute-sanitizer's memcheck, racecheck and synccheck over a few hundred poses, where the machine has it
+# (sanitizers.txt). Eight files in all, what a borrowed device machine returns.
 #   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input; LANES="32 64 128 256" by default
 set -euo pipefail
 cd "$(dirname "$0")/.."
 input=${1:-out/gpu-input}
 OUT=${OUT:-out/gpu-check}
 LANES=${LANES:-32 64 128 256}
+case " $LANES " in *" 128 "*) ;; *) LANES="$LANES 128" ;; esac  # the default, always measured
 mkdir -p "$OUT"
 [ -f "$input/gpu-batch-input.npz" ] || { echo "gpu-check: no $input/gpu-batch-input.npz (bench/gpu_batch.py --prepare)" >&2; exit 2; }
 nvcc=${NVCC:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
@@ -41,10 +43,13 @@ for lanes in $LANES; do
 done
 check "$build/lanes128.so" "$OUT/gpu-batch-no-apron.json" --no-apron --reps 20 || status=1
 if command -v compute-sanitizer >/dev/null; then
-  echo "== compute-sanitizer memcheck, 512 poses"
-  timeout 240 compute-sanitizer --tool memcheck --error-exitcode 9 python3 scripts/gpu/check.py \
-    --input "$input/gpu-batch-input.npz" --library "$build/lanes128.so" --json "$build/memcheck.json" \
-    --agreement-poses 512 --max-envs 64 --reps 1 >"$OUT/memcheck.txt" 2>&1 || status=1
-  tail -n 5 "$OUT/memcheck.txt"
+  : >"$OUT/sanitizers.txt"
+  for tool in memcheck racecheck synccheck; do
+    echo "== compute-sanitizer $tool, 256 poses" | tee -a "$OUT/sanitizers.txt"
+    timeout 240 compute-sanitizer --tool "$tool" --error-exitcode 9 python3 scripts/gpu/check.py \
+      --input "$input/gpu-batch-input.npz" --library "$build/lanes128.so" --json "$build/$tool.json" \
+      --agreement-poses 256 --max-envs 16 --reps 1 >>"$OUT/sanitizers.txt" 2>&1 || status=1
+    grep -E "ERROR SUMMARY|RACECHECK SUMMARY" "$OUT/sanitizers.txt" | tail -n 1
+  done
 fi
 exit $status
