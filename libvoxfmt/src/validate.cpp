@@ -55,7 +55,8 @@ std::string fmt(double v) {
   return s.str();
 }
 
-void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c) {
+/// The voxelmap's scalar attributes; false where its dims leave nothing else to check.
+bool check_voxelmap_attributes(const Voxelmap& vm, const FormatVersion& version, Checker& c) {
   const std::string g = "/voxelmap";
   c.finite(vm.origin, g + "/@origin");
   if (!std::isfinite(vm.voxel_size))
@@ -71,44 +72,51 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
           "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) + "]");
   if (!detail::grid_size_allowed(vm.dims, version)) {
     c.add(IssueCode::ValueOutOfRange, g + "/@dims", "dims must be >= 1 each with " + detail::grid_size_limit(version));
-    return;
+    return false;
   }
-  // A 1.x file's bricks are this library's conversion (spec §3.4): its quanta and lattice errors are not the
-  // file's, and a conversion its other errors stopped leaves none to check.
-  if (version.major == 1 && vm.bricks.empty()) return;
-  if (version.major != 1) {
-    // The quanta must let every band distance and every estimate near the band be coded in 15 bits.
-    const double band_m = vm.distance_band * vm.voxel_size;
-    auto quantum = [&](double q, const char* name) {
-      const std::string path = g + "/@" + name;
-      if (!std::isfinite(q))
-        c.add(IssueCode::NonFiniteValue, path, std::string(name) + " is not finite");
-      else if (!(q > 0) || q * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
-        c.add(IssueCode::ValueOutOfRange, path,
-              std::string(name) + " " + fmt(q) + " m must be > 0 and code the band's " + fmt(band_m) + " m in " +
-                  std::to_string(Voxelmap::kMaxSteps) + " steps");
-    };
-    quantum(vm.distance_quantum, "distance_quantum");
-    quantum(vm.estimate_quantum, "estimate_quantum");
-    if (!std::isfinite(vm.lattice_error[0]) || !std::isfinite(vm.lattice_error[1]))
-      c.add(IssueCode::NonFiniteValue, g + "/@lattice_error", "lattice error is not finite");
-    else if (!(vm.lattice_error[0] >= 0 && vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
-      c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
-            "lattice error must have [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
-  }
+  return true;
+}
+
+/// 2.x: the quanta must let every band distance and every estimate near the band be coded in 15 bits; the
+/// lattice's stated error.
+void check_quanta(const Voxelmap& vm, Checker& c) {
+  const std::string g = "/voxelmap";
+  const double band_m = vm.distance_band * vm.voxel_size;
+  auto quantum = [&](double q, const char* name) {
+    const std::string path = g + "/@" + name;
+    if (!std::isfinite(q))
+      c.add(IssueCode::NonFiniteValue, path, std::string(name) + " is not finite");
+    else if (!(q > 0) || q * Voxelmap::kMaxSteps < band_m * (1 - 1e-9))
+      c.add(IssueCode::ValueOutOfRange, path,
+            std::string(name) + " " + fmt(q) + " m must be > 0 and code the band's " + fmt(band_m) + " m in " +
+                std::to_string(Voxelmap::kMaxSteps) + " steps");
+  };
+  quantum(vm.distance_quantum, "distance_quantum");
+  quantum(vm.estimate_quantum, "estimate_quantum");
+  if (!std::isfinite(vm.lattice_error[0]) || !std::isfinite(vm.lattice_error[1]))
+    c.add(IssueCode::NonFiniteValue, g + "/@lattice_error", "lattice error is not finite");
+  else if (!(vm.lattice_error[0] >= 0 && vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
+    c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
+          "lattice error must have [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
+}
+
+/// The arrays' shapes, the brick table's entries and its rows of brick_values; false where what it found leaves
+/// nothing else to check.
+bool check_brick_table(const Voxelmap& vm, Checker& c) {
+  const std::string g = "/voxelmap";
   if (vm.bricks.size() != vm.brick_count()) {
     c.add(IssueCode::WrongShape, g + "/bricks",
           "holds " + std::to_string(vm.bricks.size()) + " bricks, dims say " + std::to_string(vm.brick_count()));
-    return;
+    return false;
   }
   if (vm.brick_values.size() % Voxelmap::kBrickVoxels != 0) {
     c.add(IssueCode::WrongShape, g + "/brick_values", "is not [n, 512]");
-    return;
+    return false;
   }
   if (vm.lattice.size() != vm.lattice_count()) {
     c.add(IssueCode::WrongShape, g + "/lattice",
           "holds " + std::to_string(vm.lattice.size()) + " points, dims say " + std::to_string(vm.lattice_count()));
-    return;
+    return false;
   }
   const int64_t value_bricks = int64_t(vm.value_brick_count());
   for (size_t b = 0; b < vm.bricks.size(); ++b) {
@@ -118,7 +126,7 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
     c.add(IssueCode::ValueOutOfRange, g + "/bricks",
           "brick " + std::to_string(b) + " holds " + std::to_string(entry) + ": neither a value brick below " +
               std::to_string(value_bricks) + " nor -1 (coarse, outside) or -2 (coarse, inside)");
-    return;
+    return false;
   }
   // Each row of brick_values is one brick's (spec §3.2): a row's estimates belong to its brick's place.
   std::vector<uint8_t> uses(size_t(value_bricks), 0);
@@ -128,12 +136,18 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
     if (uses[size_t(entry)]++ == 0) continue;
     c.add(IssueCode::ValueOutOfRange, g + "/bricks",
           "bricks share row " + std::to_string(entry) + " of brick_values (each row is one brick's)");
-    return;
+    return false;
   }
   const auto unused = std::find(uses.begin(), uses.end(), uint8_t(0));
   if (unused != uses.end())
     c.add(IssueCode::ValueOutOfRange, g + "/brick_values",
           "row " + std::to_string(unused - uses.begin()) + " belongs to no brick (each row is one brick's)");
+  return true;
+}
+
+/// No lattice value beyond the grid's diagonal with the lattice's error.
+void check_lattice_ceiling(const Voxelmap& vm, Checker& c) {
+  const std::string g = "/voxelmap";
   // No voxel is farther from the surface than the grid's diagonal (the surface lies inside the grid), so no
   // lattice value may exceed (1 + e1) times it plus e0 (spec §3.3); a huge one would overflow a runtime's sums.
   const double h = vm.voxel_size;
@@ -150,6 +164,16 @@ void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c
               "most " + fmt(ceiling) + " m, the grid's diagonal with the lattice's error)");
     break;
   }
+}
+
+void check_voxelmap(const Voxelmap& vm, const FormatVersion& version, Checker& c) {
+  if (!check_voxelmap_attributes(vm, version, c)) return;
+  // A 1.x file's bricks are this library's conversion (spec §3.4): its quanta and lattice errors are not the
+  // file's, and a conversion its other errors stopped leaves none to check.
+  if (version.major == 1 && vm.bricks.empty()) return;
+  if (version.major != 1) check_quanta(vm, c);
+  if (!check_brick_table(vm, c)) return;
+  check_lattice_ceiling(vm, c);
 }
 
 void check_tree(const PointShell& ps, Checker& c) {
@@ -353,7 +377,27 @@ class VoxelmapRules {
     }
   }
 
+  /// One brick's voxels as the rules read them: each one's Near, and flat copies in voxels for the branch-free pass
+  /// (positions past the grid take part in no pair).
+  struct BrickVoxels {
+    uint32_t first[3], count[3];
+    Near near[Voxelmap::kBrickVoxels];
+    float value[Voxelmap::kBrickVoxels], nearest[Voxelmap::kBrickVoxels];
+    uint8_t stored[Voxelmap::kBrickVoxels], valid[Voxelmap::kBrickVoxels];
+  };
+
   void brick(uint32_t bi, uint32_t bj, uint32_t bk, Findings& f) const {
+    BrickVoxels v;
+    read_brick(bi, bj, bk, v, f);
+    if (!closed_ || (f.sign && f.jump)) return;  // across a closed hole the sign changes away from the surface
+    const bool bad = some_inner_pair_breaks_a_rule(v);
+    check_faces(v, f);
+    if (bad) search_inner_pairs(v, f);
+  }
+
+  /// The brick's voxels into `v`, and the rules of single voxels: stored distances within the band, estimates
+  /// those the lattice gives.
+  void read_brick(uint32_t bi, uint32_t bj, uint32_t bk, BrickVoxels& v, Findings& f) const {
     const int16_t* codes =
         vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
     // The estimates this brick's codes must hold, computed as the producer does (fill_brick_estimates keeps each
@@ -361,23 +405,22 @@ class VoxelmapRules {
     double expected[Voxelmap::kBrickVoxels];
     brick_estimate_magnitudes(vm_, bi, bj, bk, expected);
     const uint32_t first[3] = {bi * E, bj * E, bk * E};
-    const uint32_t count[3] = {std::min(E, vm_.dims[0] - first[0]), std::min(E, vm_.dims[1] - first[1]),
-                               std::min(E, vm_.dims[2] - first[2])};
-    Near near[Voxelmap::kBrickVoxels];
-    // Flat copies in voxels for the pair pass below; positions past the grid take part in no pair.
-    float value[Voxelmap::kBrickVoxels], nearest[Voxelmap::kBrickVoxels];
-    uint8_t stored[Voxelmap::kBrickVoxels], valid[Voxelmap::kBrickVoxels];
-    for (uint32_t v = 0; v < Voxelmap::kBrickVoxels; ++v) {
-      const uint32_t li = v % E, lj = v / E % E, lk = v / (E * E);
-      valid[v] = li < count[0] && lj < count[1] && lk < count[2];
-      const int16_t code = codes[v];
+    for (int a = 0; a < 3; ++a) {
+      v.first[a] = first[a];
+      v.count[a] = std::min(E, vm_.dims[size_t(a)] - first[a]);
+    }
+    for (uint32_t n = 0; n < Voxelmap::kBrickVoxels; ++n) {
+      const uint32_t li = n % E, lj = n / E % E, lk = n / (E * E);
+      const bool valid = li < v.count[0] && lj < v.count[1] && lk < v.count[2];
+      const int16_t code = codes[n];
       const bool is_stored = Voxelmap::code_is_stored(code);
       const double d = vm_.decode(code);
-      near[v] = Near{d, is_stored ? std::abs(d) : edge_m_, is_stored};
-      value[v] = valid[v] ? float(d * inverse_h_) : 1.0f;
-      nearest[v] = valid[v] ? float(near[v].nearest * inverse_h_) : 1e9f;
-      stored[v] = valid[v] && is_stored;
-      if (!valid[v]) continue;
+      v.near[n] = Near{d, is_stored ? std::abs(d) : edge_m_, is_stored};
+      v.valid[n] = valid;
+      v.value[n] = valid ? float(d * inverse_h_) : 1.0f;
+      v.nearest[n] = valid ? float(v.near[n].nearest * inverse_h_) : 1e9f;
+      v.stored[n] = valid && is_stored;
+      if (!valid) continue;
       if (is_stored) {
         if (!f.outside && std::abs(d) > band_m_ + 0.5 * vm_.distance_quantum) {
           f.add(IssueCode::DistanceOutsideBand, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
@@ -385,20 +428,24 @@ class VoxelmapRules {
                                                     fmt(band_m_) + " m");
           f.outside = true;
         }
-      } else if (!f.estimate && (code == 0 || std::abs(std::abs(d) - expected[v]) >
-                                                  0.5 * vm_.estimate_quantum * (1 + 1e-6) + 1e-12 * expected[v])) {
+      } else if (!f.estimate && (code == 0 || std::abs(std::abs(d) - expected[n]) >
+                                                  0.5 * vm_.estimate_quantum * (1 + 1e-6) + 1e-12 * expected[n])) {
         // The nearest step (spec §3.2): within half a step of the lattice's value, but for the rounding of the
         // interpolation itself.
         f.add(IssueCode::EstimateMismatch, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
                                                " holds the estimate " + fmt(d) + " m, the lattice gives " +
-                                               fmt(code < 0 ? -expected[v] : expected[v]) + " m");
+                                               fmt(code < 0 ? -expected[n] : expected[n]) + " m");
         f.estimate = true;
       }
     }
-    if (!closed_ || (f.sign && f.jump)) return;  // across a closed hole the sign changes away from the surface
-    // Pairs inside the brick, one axis at a time, branch-free: the common case finds nothing; the brick is searched
-    // pair by pair only if some pair breaks a rule.
+  }
+
+  /// Pairs inside the brick, one axis at a time, branch-free: the common case finds nothing; the brick is searched
+  /// pair by pair (search_inner_pairs) only if some pair breaks a rule.
+  bool some_inner_pair_breaks_a_rule(const BrickVoxels& b) const {
     const float sign_limit = float(sign_limit_ / h_), jump_limit = float(jump_limit_ / h_);
+    const float *value = b.value, *nearest = b.nearest;
+    const uint8_t *stored = b.stored, *valid = b.valid;
     int bad = 0;
     auto pairs_along = [&](uint32_t stride, uint32_t ni, uint32_t nj, uint32_t nk) {
       for (uint32_t lk = 0; lk < nk; ++lk)
@@ -414,46 +461,54 @@ class VoxelmapRules {
     pairs_along(1, E - 1, E, E);
     pairs_along(E, E, E - 1, E);
     pairs_along(E * E, E, E, E - 1);
-    // Across the brick's faces through the table: toward a value brick only on the upper faces (that brick's lower
-    // faces would repeat them), toward a coarse one on both.
+    return bad != 0;
+  }
+
+  /// Pairs across the brick's faces through the table: toward a value brick only on the upper faces (that brick's
+  /// lower faces would repeat them), toward a coarse one on both.
+  void check_faces(const BrickVoxels& b, Findings& f) const {
     for (int axis = 0; axis < 3; ++axis) {
       const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
       for (uint32_t side = 0; side < 2; ++side) {
-        const uint32_t l_axis = side == 0 ? 0 : count[axis] - 1;
-        const int64_t neighbour_axis = int64_t(first[axis] + l_axis) + (side == 0 ? -1 : 1);
+        const uint32_t l_axis = side == 0 ? 0 : b.count[axis] - 1;
+        const int64_t neighbour_axis = int64_t(b.first[axis] + l_axis) + (side == 0 ? -1 : 1);
         if (neighbour_axis < 0 || neighbour_axis >= int64_t(vm_.dims[size_t(axis)])) continue;
-        uint32_t probe[3] = {first[0], first[1], first[2]};
+        uint32_t probe[3] = {b.first[0], b.first[1], b.first[2]};
         probe[axis] = uint32_t(neighbour_axis);
         const bool coarse_neighbour = vm_.bricks[vm_.brick_index(probe[0] / E, probe[1] / E, probe[2] / E)] < 0;
         if (side == 0 && !coarse_neighbour) continue;
-        for (uint32_t lv = 0; lv < count[w]; ++lv)
-          for (uint32_t lu = 0; lu < count[u]; ++lu) {
+        for (uint32_t lv = 0; lv < b.count[w]; ++lv)
+          for (uint32_t lu = 0; lu < b.count[u]; ++lu) {
             uint32_t l[3];
             l[axis] = l_axis;
             l[u] = lu;
             l[w] = lv;
-            uint32_t at[3] = {first[0] + l[0], first[1] + l[1], first[2] + l[2]}, other[3] = {at[0], at[1], at[2]};
+            uint32_t at[3] = {b.first[0] + l[0], b.first[1] + l[1], b.first[2] + l[2]};
+            uint32_t other[3] = {at[0], at[1], at[2]};
             other[axis] = uint32_t(neighbour_axis);
-            const Near& a = near[Voxelmap::local_index(l[0], l[1], l[2])];
-            const Near b = near_of(other[0], other[1], other[2]);
-            if (pair_breaks_a_rule(a, b)) report_pair(at, a, other, b, f);
+            const Near& near = b.near[Voxelmap::local_index(l[0], l[1], l[2])];
+            const Near across = near_of(other[0], other[1], other[2]);
+            if (pair_breaks_a_rule(near, across)) report_pair(at, near, other, across, f);
           }
       }
     }
-    if (!bad) return;
-    for (uint32_t lk = 0; lk < count[2]; ++lk)
-      for (uint32_t lj = 0; lj < count[1]; ++lj)
-        for (uint32_t li = 0; li < count[0]; ++li) {
+  }
+
+  /// The brick's inner pairs one by one, to report the first that breaks each rule.
+  void search_inner_pairs(const BrickVoxels& b, Findings& f) const {
+    for (uint32_t lk = 0; lk < b.count[2]; ++lk)
+      for (uint32_t lj = 0; lj < b.count[1]; ++lj)
+        for (uint32_t li = 0; li < b.count[0]; ++li) {
           const uint32_t l[3] = {li, lj, lk};
-          const uint32_t at[3] = {first[0] + li, first[1] + lj, first[2] + lk};
-          const Near& a = near[Voxelmap::local_index(li, lj, lk)];
+          const uint32_t at[3] = {b.first[0] + li, b.first[1] + lj, b.first[2] + lk};
+          const Near& a = b.near[Voxelmap::local_index(li, lj, lk)];
           for (int axis = 0; axis < 3; ++axis) {
-            if (l[axis] + 1 >= count[axis]) continue;
+            if (l[axis] + 1 >= b.count[axis]) continue;
             uint32_t n[3] = {l[0], l[1], l[2]}, other[3] = {at[0], at[1], at[2]};
             ++n[axis];
             ++other[axis];
-            const Near& b = near[Voxelmap::local_index(n[0], n[1], n[2])];
-            if (pair_breaks_a_rule(a, b)) report_pair(at, a, other, b, f);
+            const Near& c = b.near[Voxelmap::local_index(n[0], n[1], n[2])];
+            if (pair_breaks_a_rule(a, c)) report_pair(at, a, other, c, f);
           }
         }
   }
