@@ -179,8 +179,10 @@ TEST(ClosestTriangle, FindsTheNearestInTreesOfEveryShape) {
   }
   for (int t = 0; t < 100; ++t) stacked.push_back({Vec3{0, 0, 0}, Vec3{1, 0, 0}, Vec3{0, 1, double(t) * 1e-3}});
   for (const auto* tris : {&scattered, &run, &stacked}) {
-    const ClosestTriangle tree(*tris);
+    const ClosestTriangle tree(*tris, std::numeric_limits<uint32_t>::max());  // on this thread alone
     EXPECT_LE(tree.depth(), 62) << "triangles " << tris->size();
+    // Split at the top first and built below on all threads (down to a few triangles a subtree): the same tree.
+    for (uint32_t parallel_from : {5u, 64u, 1000u}) EXPECT_TRUE(ClosestTriangle(*tris, parallel_from) == tree);
     for (int q = 0; q < 300; ++q) {
       const double scale = q % 3 == 0 ? 1.0 : q % 3 == 1 ? 1e3 : 1e-4;
       const Vec3 p{scale * unit(random), scale * unit(random), scale * unit(random)};

@@ -5,6 +5,8 @@
 #include <limits>
 #include <numeric>
 
+#include <oneapi/tbb/parallel_for.h>
+
 #include "vec3_math.h"
 
 namespace voxfmt::bake {
@@ -58,32 +60,107 @@ double distance2_to_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const 
 
 }  // namespace
 
-ClosestTriangle::ClosestTriangle(const std::vector<std::array<Vec3, 3>>& corners) {
-  std::vector<Vec3> centroids(corners.size());
-  std::vector<std::array<Vec3, 2>> boxes(corners.size());  // lowest and highest corner
-  for (size_t t = 0; t < corners.size(); ++t)
+struct ClosestTriangle::Inputs {
+  std::vector<Vec3> centroids;
+  std::vector<std::array<Vec3, 2>> boxes;
+};
+
+// A node of the tree's top, split before the subtrees below it are built: each child is another top node
+// (its index) or a subtree built on its own (-1 - its index).
+struct ClosestTriangle::Top {
+  Node node;
+  int32_t child[2];
+};
+
+ClosestTriangle::ClosestTriangle(const std::vector<std::array<Vec3, 3>>& corners, uint32_t parallel_from) {
+  Inputs in{std::vector<Vec3>(corners.size()), std::vector<std::array<Vec3, 2>>(corners.size())};
+  tbb::parallel_for(size_t(0), corners.size(), [&](size_t t) {
     for (int a = 0; a < 3; ++a) {
-      centroids[t][a] = (corners[t][0][a] + corners[t][1][a] + corners[t][2][a]) / 3;
-      boxes[t][0][a] = std::min({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
-      boxes[t][1][a] = std::max({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
+      in.centroids[t][a] = (corners[t][0][a] + corners[t][1][a] + corners[t][2][a]) / 3;
+      in.boxes[t][0][a] = std::min({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
+      in.boxes[t][1][a] = std::max({corners[t][0][a], corners[t][1][a], corners[t][2][a]});
     }
+  });
   order_.resize(corners.size());
   std::iota(order_.begin(), order_.end(), 0u);
-  tris_ = corners;  // indexed by triangle until the tree is built
-  nodes_.reserve(2 * corners.size() / kLeafSize + 2);
-  if (!corners.empty()) build(0, uint32_t(corners.size()), centroids, boxes, 0);
-  std::vector<std::array<Vec3, 3>> ordered;
-  ordered.reserve(corners.size());
-  for (uint32_t t : order_) ordered.push_back(corners[t]);
-  tris_.swap(ordered);
+  if (!corners.empty()) build_tree(in, parallel_from);
+  tris_.reserve(corners.size());
+  for (uint32_t t : order_) tris_.push_back(corners[t]);
+}
+
+void ClosestTriangle::build_tree(const Inputs& in, uint32_t parallel_from) {
+  // The top, split on this thread (a top node always has children: it holds more than a leaf)...
+  parallel_from = std::max(parallel_from, kLeafSize + 1);
+  std::vector<Top> tops;
+  struct Range {
+    uint32_t begin, end;
+    int depth;
+  };
+  std::vector<Range> ranges;
+  auto split_top = [&](auto& self, uint32_t begin, uint32_t end, int depth) -> int32_t {
+    if (end - begin < parallel_from) {
+      ranges.push_back({begin, end, depth});
+      return -int32_t(ranges.size());
+    }
+    uint32_t mid = 0;
+    const Node node = split(begin, end, in, depth, mid);
+    const int32_t id = int32_t(tops.size());
+    tops.push_back({node, {0, 0}});
+    const int32_t first = self(self, begin, mid, depth + 1);
+    tops[size_t(id)].child[0] = first;
+    tops[size_t(id)].child[1] = self(self, mid, end, depth + 1);
+    return id;
+  };
+  const int32_t root = split_top(split_top, 0, uint32_t(order_.size()), 0);
+  // ... the subtrees below it on all threads (disjoint ranges of order_) ...
+  std::vector<std::vector<Node>> subtrees(ranges.size());
+  std::vector<int> deepest(ranges.size(), 0);
+  tbb::parallel_for(size_t(0), ranges.size(), [&](size_t r) {
+    subtrees[r].reserve(2 * (ranges[r].end - ranges[r].begin) / kLeafSize + 2);
+    build(ranges[r].begin, ranges[r].end, in, ranges[r].depth, subtrees[r], deepest[r]);
+  });
+  // ... and all of it laid out depth first, each subtree's inner nodes' child indices moved to where it lands.
+  size_t count = tops.size();
+  for (const std::vector<Node>& t : subtrees) count += t.size();
+  nodes_.reserve(count);
+  auto place = [&](auto& self, int32_t code) -> uint32_t {
+    const uint32_t at = uint32_t(nodes_.size());
+    if (code < 0) {
+      std::vector<Node>& subtree = subtrees[size_t(-1 - code)];
+      for (Node n : subtree) {
+        if (n.count == 0) n.first += at;
+        nodes_.push_back(n);
+      }
+      std::vector<Node>().swap(subtree);
+      return at;
+    }
+    nodes_.push_back({});
+    Node node = tops[size_t(code)].node;
+    self(self, tops[size_t(code)].child[0]);
+    node.first = self(self, tops[size_t(code)].child[1]);
+    nodes_[at] = node;
+    return at;
+  };
+  place(place, root);
+  depth_ = *std::max_element(deepest.begin(), deepest.end());
+}
+
+bool ClosestTriangle::operator==(const ClosestTriangle& other) const {
+  auto same = [](const Node& a, const Node& b) {
+    return std::equal(a.lo, a.lo + 3, b.lo) && std::equal(a.hi, a.hi + 3, b.hi) && a.first == b.first &&
+           a.count == b.count;
+  };
+  return order_ == other.order_ && depth_ == other.depth_ &&
+         std::equal(nodes_.begin(), nodes_.end(), other.nodes_.begin(), other.nodes_.end(), same);
 }
 
 // The binned surface-area split of order_[begin, end) (Wald 2007): the plane between two of kBins bins along an
 // axis of the centroids' box that least sums each side's box area times its triangles. The first index of the
 // second half after partitioning, or `end` when every split leaves a side empty.
-uint32_t ClosestTriangle::surface_area_split(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
-                                             const std::vector<std::array<Vec3, 2>>& boxes, const Vec3& centroid_lo,
+uint32_t ClosestTriangle::surface_area_split(uint32_t begin, uint32_t end, const Inputs& in, const Vec3& centroid_lo,
                                              const Vec3& centroid_hi) {
+  const std::vector<Vec3>& centroids = in.centroids;
+  const std::vector<std::array<Vec3, 2>>& boxes = in.boxes;
   double best_cost = std::numeric_limits<double>::infinity();
   int best_axis = -1, best_bin = 0;
   auto bin_of = [&](uint32_t t, int axis) {
@@ -125,10 +202,8 @@ uint32_t ClosestTriangle::surface_area_split(uint32_t begin, uint32_t end, const
                   order_.begin());
 }
 
-uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<Vec3>& centroids,
-                                const std::vector<std::array<Vec3, 2>>& boxes, int depth) {
-  const uint32_t id = uint32_t(nodes_.size());
-  nodes_.push_back({});
+ClosestTriangle::Node ClosestTriangle::split(uint32_t begin, uint32_t end, const Inputs& in, int depth, uint32_t& mid) {
+  const std::vector<Vec3>& centroids = in.centroids;
   Node node{};
   Vec3 centroid_lo{}, centroid_hi{};
   for (int a = 0; a < 3; ++a) {
@@ -138,21 +213,18 @@ uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<
   for (uint32_t i = begin; i < end; ++i) {
     const uint32_t t = order_[i];
     for (int a = 0; a < 3; ++a) {
-      node.lo[a] = std::min(node.lo[a], boxes[t][0][a]);
-      node.hi[a] = std::max(node.hi[a], boxes[t][1][a]);
+      node.lo[a] = std::min(node.lo[a], in.boxes[t][0][a]);
+      node.hi[a] = std::max(node.hi[a], in.boxes[t][1][a]);
       centroid_lo[a] = std::min(centroid_lo[a], centroids[t][a]);
       centroid_hi[a] = std::max(centroid_hi[a], centroids[t][a]);
     }
   }
   if (end - begin <= kLeafSize) {
-    depth_ = std::max(depth_, depth);
     node.first = begin;
     node.count = end - begin;
-    nodes_[id] = node;
-    return id;
+    return node;
   }
-  uint32_t mid =
-      depth < kSurfaceAreaDepth ? surface_area_split(begin, end, centroids, boxes, centroid_lo, centroid_hi) : end;
+  mid = depth < kSurfaceAreaDepth ? surface_area_split(begin, end, in, centroid_lo, centroid_hi) : end;
   if (mid == begin || mid == end) {  // deep, or no split separates the centroids: the median along the longest axis
     const Vec3 extent = centroid_hi - centroid_lo;
     const int axis = extent[0] >= extent[1] && extent[0] >= extent[2] ? 0 : extent[1] >= extent[2] ? 1 : 2;
@@ -161,10 +233,23 @@ uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const std::vector<
       return centroids[a][axis] < centroids[b][axis] || (centroids[a][axis] == centroids[b][axis] && a < b);
     });
   }
-  build(begin, mid, centroids, boxes, depth + 1);
-  node.first = build(mid, end, centroids, boxes, depth + 1);
   node.count = 0;
-  nodes_[id] = node;
+  return node;
+}
+
+uint32_t ClosestTriangle::build(uint32_t begin, uint32_t end, const Inputs& in, int depth, std::vector<Node>& out,
+                                int& deepest) {
+  const uint32_t id = uint32_t(out.size());
+  out.push_back({});
+  uint32_t mid = 0;
+  Node node = split(begin, end, in, depth, mid);
+  if (node.count == 0) {
+    build(begin, mid, in, depth + 1, out, deepest);
+    node.first = build(mid, end, in, depth + 1, out, deepest);
+  } else {
+    deepest = std::max(deepest, depth);
+  }
+  out[id] = node;
   return id;
 }
 
