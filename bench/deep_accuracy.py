@@ -4,8 +4,11 @@ would be if the lattice held exact distances, every 8, 4 or 2 voxels (issue "fid
 
     PYTHONPATH=build/python .venv/bin/python bench/deep_accuracy.py ASSET MESH [--samples N] [--steps 8,4,2] [--json OUT]
 
-Needs libigl (`pip install libigl`, in pyproject's `bench` extra) for exact distances to the mesh: signed by
-pseudonormals, so MESH must be the closed mesh the asset was baked from, in the asset's units.
+Needs libigl (`pip install libigl`, in pyproject's `bench` extra) for exact distances to the mesh, in the asset's
+units. `--sign pseudonormal` (the default) signs them by pseudonormals, so MESH must be the closed mesh the asset
+was baked from; `--sign asset` gives each sampled voxel the side the asset records (spec 3.1: the producer's
+winding or shell rule) and the exact unsigned distance, so the magnitudes of an open or self-intersecting part are
+measured too (in shell mode the exact distance is u - T/2).
 
 Samples voxel centres whose value is beyond the band (|value| > band + 1/2 voxel), inside and outside, and reports
 in voxels: the largest and 99th-percentile error, the share beyond the target of 1 voxel + 1 % of the depth, the
@@ -68,6 +71,26 @@ def read_grid(path: str):
         origin, h = np.asarray(attrs["origin"], float), float(attrs["voxel_size"])
         dims, band = np.asarray(attrs["dims"], int), float(attrs["distance_band"])
     return body, origin, h, dims, band
+
+
+def read_shell_thickness(path: str) -> float:
+    """The asset's shell thickness T (metres; 0 unless it was baked in shell mode)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        attrs = f["voxelmap"].attrs
+        return float(attrs["shell_thickness"]) if "shell_thickness" in attrs else 0.0
+
+
+def exact_distances(points: np.ndarray, V, F, igl, sign: str, current: np.ndarray, shell: float) -> np.ndarray:
+    """Exact signed distances (metres) at points: by pseudonormals, or the asset's sides with the unsigned distance
+    (less half the shell in shell mode)."""
+    if sign == "pseudonormal":
+        return igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
+    unsigned = np.abs(igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0])
+    if shell > 0:
+        return unsigned - shell / 2
+    return np.where(current < 0, -unsigned, unsigned)
 
 
 def deep_voxels(body, origin, h, dims, band, samples: int) -> tuple[np.ndarray, np.ndarray]:
@@ -137,17 +160,22 @@ def main() -> int:
     ap.add_argument("--no-lattice", action="store_true", help="skip the asset's lattice against exact distances")
     ap.add_argument("--lattice-samples", type=int, default=0,
                     help="compare this many random lattice points (default: every one)")
+    ap.add_argument("--sign", choices=("pseudonormal", "asset"), default="pseudonormal",
+                    help="sides of the exact distances: the mesh's pseudonormals (a closed mesh) or the asset's own "
+                    "(an open or self-intersecting one; default pseudonormal)")
     args = ap.parse_args()
     igl = import_igl("deep_accuracy")
     if igl is None:
         return 2
     body, origin, h, dims, band = read_grid(args.asset)
+    shell = read_shell_thickness(args.asset)
     V, F = igl.read_triangle_mesh(args.mesh)
     ijk, current = deep_voxels(body, origin, h, dims, band, args.samples)
     start = time.perf_counter()
-    exact = igl.signed_distance(origin + h * ijk, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0] / h
+    exact = exact_distances(origin + h * ijk, V, F, igl, args.sign, current, shell) / h
     exact_us = (time.perf_counter() - start) / len(ijk) * 1e6
-    result = {"asset": args.asset, "mesh": args.mesh, "voxel_size": h, "dims": dims.tolist(), "band": band,
+    result = {"asset": args.asset, "mesh": args.mesh, "sign": args.sign, "shell_thickness": shell,
+              "voxel_size": h, "dims": dims.tolist(), "band": band,
               "exact_us_per_point": round(exact_us, 2), "sign_disagreements": int((np.sign(current) != np.sign(exact)).sum()),
               "current": figures(current, exact), "exact_lattice": {}}
     if not args.no_lattice:
@@ -158,6 +186,8 @@ def main() -> int:
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1)
         points = origin + h * grid.reshape(-1, 3)
         unsigned = np.abs(igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0])
+        if shell > 0:  # the lattice holds |u - T/2| in shell mode
+            unsigned = np.abs(unsigned - shell / 2)
         table = (unsigned / h).reshape(grid.shape[:3])
         # The runtime's rule beyond the band: the interpolated magnitude, at least the band's edge, signed.
         estimate = np.sign(current) * np.maximum(interpolate(ijk, step, dims, table_values(table)), band - 0.5)
