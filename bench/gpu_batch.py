@@ -77,7 +77,7 @@ def variant_row(gpu: dict) -> dict:
     """One build's figures (scripts/gpu-check.sh runs several block sizes, and the default without the apron)."""
     at = {r["envs"]: r for r in gpu["latency"]}
     agreed = all(a["identical"] == a["environments"] for a in gpu["agreement"].values())
-    return {"block_lanes": gpu.get("block_lanes"), "apron": gpu.get("apron"), "gpu_poses_per_s": gpu["gpu_poses_per_s"],
+    return {"block_lanes": gpu.get("block_lanes"), "min_blocks": gpu.get("min_blocks", 0), "apron": gpu.get("apron"), "gpu_poses_per_s": gpu["gpu_poses_per_s"],
             "p50_us_4096": at.get(4096, {}).get("p50_us"), "kernel_p50_us_4096": at.get(4096, {}).get("kernel_p50_us"),
             "p50_us_16384": at.get(16384, {}).get("p50_us"),
             "kernel_p50_us_16384": at.get(16384, {}).get("kernel_p50_us"),
@@ -125,9 +125,11 @@ def report(gpu_json: Path, folder: Path, out_json: Path | None, out_md: Path | N
         def us(v: float | None) -> str:
             return "–" if v is None else f"{v:,.0f}"
         lines += ["", "Builds measured in the same run (the first is the default):", "",
-                  "| lanes a block | apron | peak poses/s | 4,096 envs p50 / kernel µs | 16,384 envs p50 / kernel µs "
-                  "| device MB (measured / arrays) | every output equal |", "|--:|:-:|--:|--:|--:|--:|:-:|"]
-        lines += [f"| {r['block_lanes']} | {'yes' if r['apron'] else 'no'} | {r['gpu_poses_per_s']:,.0f} | "
+                  "| lanes a block | register cap (blocks a multiprocessor) | apron | peak poses/s "
+                  "| 4,096 envs p50 / kernel µs | 16,384 envs p50 / kernel µs "
+                  "| device MB (measured / arrays) | every output equal |", "|--:|--:|:-:|--:|--:|--:|--:|:-:|"]
+        lines += [f"| {r['block_lanes']} | {r['min_blocks'] or 'none'} | {'yes' if r['apron'] else 'no'} | "
+                  f"{r['gpu_poses_per_s']:,.0f} | "
                   f"{us(r['p50_us_4096'])} / {us(r['kernel_p50_us_4096'])} | "
                   f"{us(r['p50_us_16384'])} / {us(r['kernel_p50_us_16384'])} | "
                   f"{r['device_memory_mb']:.1f} / {r['device_array_mb'] or 0:.1f} | "

@@ -1,18 +1,20 @@
 #!/usr/bin/env bash
 # The GPU check, run on a CUDA machine that has nvcc, Python and CuPy but none of voxfmt's libraries (the device
 # machine of docs/gpu.md): builds the standalone runner (scripts/gpu/standalone.cu + loaders/gpu/src/kernels.cu,
-# the kernel voxfmt links) at each block size of $LANES, runs scripts/gpu/check.py over the inputs
-# bench/gpu_batch.py --prepare wrote here with each (and the default size without the bricks' apron), and leaves
-# the JSON files in $OUT (default out/gpu-check): gpu-batch.json is the default build's (128 lanes, the apron).
-# Then compute-sanitizer's memcheck, racecheck and synccheck over a few hundred poses, where the machine has it
-# (sanitizers.txt). Eight files in all, what a borrowed device machine returns.
-#   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input; LANES="32 64 128 256" by default
+# the kernel voxfmt links) at each block size of $LANES and each register cap of $CAPS (LANES:BLOCKS, the blocks a
+# multiprocessor should hold), runs scripts/gpu/check.py over the inputs bench/gpu_batch.py --prepare wrote here
+# with each (and the default size without the bricks' apron), and leaves the JSON files in $OUT (default
+# out/gpu-check): gpu-batch.json is the default build's (128 lanes, the apron, no cap). Then compute-sanitizer's
+# memcheck, racecheck and synccheck over a few hundred poses, where the machine has it (sanitizers.txt). Nine
+# files in all, what a borrowed device machine returns.
+#   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input; LANES="32 64 128 256", CAPS="128:7"
 set -euo pipefail
 cd "$(dirname "$0")/.."
 input=${1:-out/gpu-input}
 OUT=${OUT:-out/gpu-check}
 LANES=${LANES:-32 64 128 256}
 case " $LANES " in *" 128 "*) ;; *) LANES="$LANES 128" ;; esac  # the default, always measured
+CAPS=${CAPS:-128:7}  # 72 registers at 128 lanes on an H200 (96 uncapped)
 mkdir -p "$OUT"
 [ -f "$input/gpu-batch-input.npz" ] || { echo "gpu-check: no $input/gpu-batch-input.npz (bench/gpu_batch.py --prepare)" >&2; exit 2; }
 nvcc=${NVCC:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
@@ -25,10 +27,20 @@ for lanes in $LANES; do
     -Xptxas -v -Iloaders/runtime/src -Iloaders/runtime/include scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu \
     -o "$build/lanes$lanes.so" >"$build/lanes$lanes.log" 2>&1 &
 done
+for cap in $CAPS; do
+  lanes=${cap%:*} blocks=${cap#*:}
+  "$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -DVOXFMT_BLOCK_LANES="$lanes" \
+    -DVOXFMT_BLOCK_MIN_BLOCKS="$blocks" -Xptxas -v -Iloaders/runtime/src -Iloaders/runtime/include \
+    scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu \
+    -o "$build/lanes$lanes-min$blocks.so" >"$build/lanes$lanes-min$blocks.log" 2>&1 &
+done
 wait
 for lanes in $LANES; do
   echo "lanes $lanes: $(grep -h 'registers' "$build/lanes$lanes.log" | tail -n 1)"
 done | tee "$OUT/ptxas.txt"
+for cap in $CAPS; do
+  echo "lanes ${cap%:*}, ${cap#*:} blocks: $(grep -h 'registers' "$build/lanes${cap%:*}-min${cap#*:}.log" | tail -n 1)"
+done | tee -a "$OUT/ptxas.txt"
 echo "gpu-check: built the runners in $((SECONDS - start)) s"
 check() {  # LIBRARY JSON [check.py options]
   local library=$1 json=$2
@@ -40,6 +52,10 @@ status=0
 check "$build/lanes128.so" "$OUT/gpu-batch.json" || status=1
 for lanes in $LANES; do
   [ "$lanes" = 128 ] || check "$build/lanes$lanes.so" "$OUT/gpu-batch-lanes$lanes.json" --reps 20 || status=1
+done
+for cap in $CAPS; do
+  name=lanes${cap%:*}-min${cap#*:}
+  check "$build/$name.so" "$OUT/gpu-batch-$name.json" --reps 20 || status=1
 done
 check "$build/lanes128.so" "$OUT/gpu-batch-no-apron.json" --no-apron --reps 20 || status=1
 if command -v compute-sanitizer >/dev/null; then

@@ -70,6 +70,7 @@ class CudaBackend:
         self.lib = ctypes.CDLL(library)
         self.lib.voxfmt_gpu_check_run.restype = ctypes.c_int
         self.lanes = int(self.lib.voxfmt_gpu_check_lanes())
+        self.min_blocks = int(self.lib.voxfmt_gpu_check_min_blocks())
         self.apron = apron
         arrays = {k: data[k] for k in ("bricks", "codes", "lattice", "nodes", "points", "normals")}
         if not apron:
@@ -133,7 +134,7 @@ class CpuBackend:
         self.scene = voxfmt.BatchScene([voxfmt.load(asset)])
         self.device = "cpu (voxfmt.BatchScene)"
         self.device_bytes = self.array_bytes = 0
-        self.lanes, self.apron = 0, False
+        self.lanes, self.min_blocks, self.apron = 0, 0, False
 
     def upload(self, poses: np.ndarray) -> np.ndarray:
         return poses
@@ -172,7 +173,7 @@ def main() -> int:
 
     # Agreement on every pose of the bench, touching and near, every output.
     report: dict[str, Any] = {"device": backend.device, "device_memory_mb": backend.device_bytes / 1e6,
-                              "device_array_mb": backend.array_bytes / 1e6, "block_lanes": backend.lanes,
+                              "device_array_mb": backend.array_bytes / 1e6, "block_lanes": backend.lanes, "min_blocks": backend.min_blocks,
                               "apron": backend.apron, "agreement": {}, "latency": [], "throughput": []}
     compared = slice(0, args.agreement_poses)
     pa, pb = backend.upload(pa_all[compared]), backend.upload(pb_all[compared])

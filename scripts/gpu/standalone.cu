@@ -16,6 +16,15 @@ extern "C" {
 /// The lanes of the kernel's blocks (-DVOXFMT_BLOCK_LANES).
 int voxfmt_gpu_check_lanes() { return core::kBlockLanes; }
 
+/// The blocks a multiprocessor should hold that the kernel was built for (-DVOXFMT_BLOCK_MIN_BLOCKS; 0: no cap).
+int voxfmt_gpu_check_min_blocks() {
+#ifdef VOXFMT_BLOCK_MIN_BLOCKS
+  return VOXFMT_BLOCK_MIN_BLOCKS;
+#else
+  return 0;
+#endif
+}
+
 /// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers (the contact
 /// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 17,
 /// field_dims 9, body_doubles 8, as _export_core gives them): host. `codes` are the value bricks with their apron

@@ -32,12 +32,13 @@ def test_prepare_check_and_report_agree(tmp_path: Path) -> None:
         assert device["agreement"][case] == {"environments": 600, "identical": 600, "differs": {}, "errors": 0,
                                              "proximity_m": proximity, "max_contacts": 8}, case
     assert [r["envs"] for r in device["latency"]] == [1, 64]
+    assert device["min_blocks"] == 0  # no register cap on the CPU path
     run("bench/gpu_batch.py", "--report", str(tmp_path / "device.json"), "--input", str(folder), "--json",
         str(tmp_path / "result.json"), "--markdown", str(tmp_path / "result.md"), "--variants",
         str(tmp_path / "device.json"))
     result = json.loads((tmp_path / "result.json").read_text())
     assert [v["every_output_equal"] for v in result["variants"]] == [True, True]
-    assert "| lanes a block |" in (tmp_path / "result.md").read_text()
+    assert "| lanes a block | register cap (blocks a multiprocessor) |" in (tmp_path / "result.md").read_text()
     for key in ("device", "gpu_poses_per_s", "cpu_poses_per_s", "device_memory_mb", "latency", "agreement"):
         assert key in result, key
     # The Python path's device check, its flow on NumPy poses (on a GPU machine: CuPy and PyTorch poses).

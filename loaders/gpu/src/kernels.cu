@@ -20,7 +20,18 @@ struct CudaBlock {
   }
 };
 
-__global__ void __launch_bounds__(core::kBlockLanes)
+// Blocks a multiprocessor should hold at once: a register cap for the compiler; 0 leaves the registers to it. Another
+// value only to measure one (scripts/gpu-check.sh builds 128 lanes with 7: 72 registers).
+#ifndef VOXFMT_BLOCK_MIN_BLOCKS
+#define VOXFMT_BLOCK_MIN_BLOCKS 0
+#endif
+#if VOXFMT_BLOCK_MIN_BLOCKS > 0
+#define VOXFMT_ENVIRONMENT_BOUNDS __launch_bounds__(core::kBlockLanes, VOXFMT_BLOCK_MIN_BLOCKS)
+#else
+#define VOXFMT_ENVIRONMENT_BOUNDS __launch_bounds__(core::kBlockLanes)
+#endif
+
+__global__ void VOXFMT_ENVIRONMENT_BOUNDS
     environments(core::BatchInputs<float> in, core::BatchOutputs out, core::OpenRange* frontiers, uint32_t capacity) {
   // Raw storage: BlockState's members have default initialisers, which __shared__ variables may not run.
   __shared__ __align__(16) unsigned char storage[sizeof(core::BlockState)];
