@@ -6,7 +6,8 @@
 //   bake_brick_rows      exact band distances per brick (nearest triangle, pseudonormal sign), the sign carried
 //                        along each row of bricks to the voxels and bricks beyond the band; value bricks coded.
 //                        A row's nearest triangles come from its triangles' voxels or, where many small
-//                        triangles reach each voxel, from a search of the hierarchy per voxel: the same keys
+//                        triangles reach each voxel, from a search of the hierarchy per voxel: the same
+//                        distances (a tie may name another of the tied triangles)
 //   propagate_lattice    the unsigned distance at every brick corner: exact near the surface, nearest triangles
 //                        carried across the lattice farther away
 //   fill estimates       the codes of value-brick voxels without a stored distance, from the lattice
