@@ -77,7 +77,8 @@ def variant_row(gpu: dict) -> dict:
     """One build's figures (scripts/gpu-check.sh runs several block sizes, and the default without the apron)."""
     at = {r["envs"]: r for r in gpu["latency"]}
     agreed = all(a["identical"] == a["environments"] for a in gpu["agreement"].values())
-    return {"block_lanes": gpu.get("block_lanes"), "min_blocks": gpu.get("min_blocks", 0), "apron": gpu.get("apron"), "gpu_poses_per_s": gpu["gpu_poses_per_s"],
+    return {"block_lanes": gpu.get("block_lanes"), "min_blocks": gpu.get("min_blocks", 0), "apron": gpu.get("apron"),
+            "gpu_poses_per_s": gpu["gpu_poses_per_s"],
             "p50_us_4096": at.get(4096, {}).get("p50_us"), "kernel_p50_us_4096": at.get(4096, {}).get("kernel_p50_us"),
             "p50_us_16384": at.get(16384, {}).get("p50_us"),
             "kernel_p50_us_16384": at.get(16384, {}).get("kernel_p50_us"),

@@ -22,25 +22,19 @@ nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=c
 "$nvcc" --version | tail -n 1
 build=$(mktemp -d)
 start=$SECONDS
-for lanes in $LANES; do
-  "$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -DVOXFMT_BLOCK_LANES="$lanes" \
-    -Xptxas -v -Iloaders/runtime/src -Iloaders/runtime/include scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu \
-    -o "$build/lanes$lanes.so" >"$build/lanes$lanes.log" 2>&1 &
-done
-for cap in $CAPS; do
-  lanes=${cap%:*} blocks=${cap#*:}
+# Every build as NAME:LANES:BLOCKS (BLOCKS 0: no register cap), each built in the background into $build/NAME.so.
+builds=$(for lanes in $LANES; do echo "lanes$lanes:$lanes:0"; done
+         for cap in $CAPS; do echo "lanes${cap%:*}-min${cap#*:}:${cap%:*}:${cap#*:}"; done)
+for spec in $builds; do
+  IFS=: read -r name lanes blocks <<<"$spec"
   "$nvcc" -std=c++17 -O3 --fmad=false -arch=native -shared -Xcompiler -fPIC -DVOXFMT_BLOCK_LANES="$lanes" \
     -DVOXFMT_BLOCK_MIN_BLOCKS="$blocks" -Xptxas -v -Iloaders/runtime/src -Iloaders/runtime/include \
-    scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu \
-    -o "$build/lanes$lanes-min$blocks.so" >"$build/lanes$lanes-min$blocks.log" 2>&1 &
+    scripts/gpu/standalone.cu loaders/gpu/src/kernels.cu -o "$build/$name.so" >"$build/$name.log" 2>&1 &
 done
 wait
-for lanes in $LANES; do
-  echo "lanes $lanes: $(grep -h 'registers' "$build/lanes$lanes.log" | tail -n 1)"
+for spec in $builds; do
+  echo "${spec%%:*}: $(grep -h 'registers' "$build/${spec%%:*}.log" | tail -n 1)"
 done | tee "$OUT/ptxas.txt"
-for cap in $CAPS; do
-  echo "lanes ${cap%:*}, ${cap#*:} blocks: $(grep -h 'registers' "$build/lanes${cap%:*}-min${cap#*:}.log" | tail -n 1)"
-done | tee -a "$OUT/ptxas.txt"
 echo "gpu-check: built the runners in $((SECONDS - start)) s"
 check() {  # LIBRARY JSON [check.py options]
   local library=$1 json=$2
@@ -50,12 +44,9 @@ check() {  # LIBRARY JSON [check.py options]
 }
 status=0
 check "$build/lanes128.so" "$OUT/gpu-batch.json" || status=1
-for lanes in $LANES; do
-  [ "$lanes" = 128 ] || check "$build/lanes$lanes.so" "$OUT/gpu-batch-lanes$lanes.json" --reps 20 || status=1
-done
-for cap in $CAPS; do
-  name=lanes${cap%:*}-min${cap#*:}
-  check "$build/$name.so" "$OUT/gpu-batch-$name.json" --reps 20 || status=1
+for spec in $builds; do
+  name=${spec%%:*}
+  [ "$name" = lanes128 ] || check "$build/$name.so" "$OUT/gpu-batch-$name.json" --reps 20 || status=1
 done
 check "$build/lanes128.so" "$OUT/gpu-batch-no-apron.json" --no-apron --reps 20 || status=1
 if command -v compute-sanitizer >/dev/null; then

@@ -173,7 +173,8 @@ def main() -> int:
 
     # Agreement on every pose of the bench, touching and near, every output.
     report: dict[str, Any] = {"device": backend.device, "device_memory_mb": backend.device_bytes / 1e6,
-                              "device_array_mb": backend.array_bytes / 1e6, "block_lanes": backend.lanes, "min_blocks": backend.min_blocks,
+                              "device_array_mb": backend.array_bytes / 1e6, "block_lanes": backend.lanes,
+                              "min_blocks": backend.min_blocks,
                               "apron": backend.apron, "agreement": {}, "latency": [], "throughput": []}
     compared = slice(0, args.agreement_poses)
     pa, pb = backend.upload(pa_all[compared]), backend.upload(pb_all[compared])

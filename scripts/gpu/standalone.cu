@@ -17,13 +17,7 @@ extern "C" {
 int voxfmt_gpu_check_lanes() { return core::kBlockLanes; }
 
 /// The blocks a multiprocessor should hold that the kernel was built for (-DVOXFMT_BLOCK_MIN_BLOCKS; 0: no cap).
-int voxfmt_gpu_check_min_blocks() {
-#ifdef VOXFMT_BLOCK_MIN_BLOCKS
-  return VOXFMT_BLOCK_MIN_BLOCKS;
-#else
-  return 0;
-#endif
-}
+int voxfmt_gpu_check_min_blocks() { return VOXFMT_BLOCK_MIN_BLOCKS; }
 
 /// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers (the contact
 /// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 17,

@@ -8,6 +8,12 @@
 
 #include "core/block_walk.h"
 
+// Blocks a multiprocessor should hold at once: a register cap for the compiler; 0 leaves the registers to it. Another
+// value only to measure one (scripts/gpu-check.sh builds 128 lanes with 7: 72 registers on sm_90).
+#ifndef VOXFMT_BLOCK_MIN_BLOCKS
+#define VOXFMT_BLOCK_MIN_BLOCKS 0
+#endif
+
 namespace voxfmt::gpu::device {
 
 namespace core = runtime::core;

@@ -20,12 +20,7 @@ struct CudaBlock {
   }
 };
 
-// Blocks a multiprocessor should hold at once: a register cap for the compiler; 0 leaves the registers to it. Another
-// value only to measure one (scripts/gpu-check.sh builds 128 lanes with 7: 72 registers).
-#ifndef VOXFMT_BLOCK_MIN_BLOCKS
-#define VOXFMT_BLOCK_MIN_BLOCKS 0
-#endif
-#if VOXFMT_BLOCK_MIN_BLOCKS > 0
+#if VOXFMT_BLOCK_MIN_BLOCKS > 0  // a register cap (device.h)
 #define VOXFMT_ENVIRONMENT_BOUNDS __launch_bounds__(core::kBlockLanes, VOXFMT_BLOCK_MIN_BLOCKS)
 #else
 #define VOXFMT_ENVIRONMENT_BOUNDS __launch_bounds__(core::kBlockLanes)
