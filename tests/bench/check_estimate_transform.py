@@ -7,7 +7,10 @@ A box (not a cube) is baked small; its value bricks' values from `estimate-trans
 path is no shorter than the straight line), within the metric's 8 % (3 %) of it plus the lattice's slack, and each
 the least of its seed and its value-brick neighbours' values plus their step (the rule a reader could check), and
 the same whether the passes skip settled bricks or visit all, on one thread or two (slabs of brick layers); held
-as 16-bit fixed point, never below the floats. Exits non-zero with the first failure.
+as 16-bit fixed point, never below the floats. Run brick by brick (`--by-brick`), the same values to the byte. In
+place on the codes (`--in-codes`, steps of the estimate quantum, stored distances fixed): the tool's own check finds
+no estimate off, this script's integer recomputation of the rule agrees, every estimate is an upper bound, and two
+threads give the values of one. Exits non-zero with the first failure.
 """
 
 from __future__ import annotations
@@ -75,7 +78,92 @@ def main() -> int:
     # The 26-neighbour metric is within 8 % of the Euclidean; the 5^3 one within 3 %.
     for reach, metric in ((1, 1.09), (2, 1.03)):
         check(transform, asset, work, reach, metric)
+    check_by_brick(transform, asset, work)
+    check_in_codes(transform, asset, work)
     return 0
+
+
+def run_values(transform: str, asset: Path, out: Path, *options: str) -> dict:
+    """Runs the tool with `options`, its values written to `out`; its JSON figures."""
+    figures = out.with_suffix(".json")
+    subprocess.run([transform, str(asset), "--values", str(out), "--json", str(figures), *options], check=True,
+                   stdout=subprocess.DEVNULL)
+    return json.loads(figures.read_text())
+
+
+def check_by_brick(transform: str, asset: Path, work: Path) -> None:
+    """Brick by brick, on one thread or two, floats or 16-bit: the raster passes' values to the byte."""
+    for fixed in ((), ("--fixed16",)):
+        raster = work / "raster.f32"
+        run_values(transform, asset, raster, *fixed)
+        for threads in ("1", "2"):
+            by_brick = work / f"by-brick-{threads}.f32"
+            figures = run_values(transform, asset, by_brick, "--by-brick", "--threads", threads, *fixed)
+            assert figures["by_brick"] and figures["passes"], "no brick-wise rounds"
+            assert by_brick.read_bytes() == raster.read_bytes(), f"by brick ({threads} threads, {fixed}) differs"
+    print("check_estimate_transform: brick by brick: the raster passes' values, 1 and 2 threads, float and 16-bit")
+
+
+def check_in_codes(transform: str, asset: Path, work: Path) -> None:
+    """In place on the codes: settled, checked, an upper bound, and the rule recomputed here in integers."""
+    one, two = work / "codes-1.f32", work / "codes-2.f32"
+    figures = run_values(transform, asset, one, "--in-codes")
+    assert figures["check_wrong"] == 0, f"the tool's check found {figures['check_wrong']} estimates off the rule"
+    run_values(transform, asset, two, "--in-codes", "--threads", "2")
+    assert one.read_bytes() == two.read_bytes(), "two threads changed the values"
+    with h5py.File(asset, "r") as f:
+        attrs = f["voxelmap"].attrs
+        origin, h, dims = np.asarray(attrs["origin"], float), float(attrs["voxel_size"]), np.asarray(attrs["dims"])
+        q, dq = float(attrs["estimate_quantum"]), float(attrs["distance_quantum"])
+        bricks = (dims + 7) // 8
+        table = f["voxelmap/bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
+        codes = f["voxelmap/brick_values"][...].astype(np.int64)
+        lattice = np.asarray(f["voxelmap/lattice"], float).transpose(2, 1, 0)  # metres, [a, b, c]
+    per_brick = np.fromfile(one, np.float32).reshape(-1, 512)
+    # Magnitudes in steps of q on the grid (-1 outside value bricks), which voxels are estimates.
+    units = np.full(tuple(dims), -1, np.int64)
+    estimate = np.zeros(tuple(dims), bool)
+    for bi, bj, bk in np.argwhere(table >= 0):
+        e = table[bi, bj, bk]
+        w, hh, d = (min(8, dims[a] - 8 * b) for a, b in enumerate((bi, bj, bk)))
+        block = (slice(8 * bi, 8 * bi + w), slice(8 * bj, 8 * bj + hh), slice(8 * bk, 8 * bk + d))
+        c = codes[e].reshape(8, 8, 8).transpose(2, 1, 0)[:w, :hh, :d]
+        v = per_brick[e].reshape(8, 8, 8).transpose(2, 1, 0)[:w, :hh, :d].astype(np.float64)
+        stored = c % 2 == 1
+        units[block] = np.where(stored, np.ceil(np.abs(c >> 1) * dq / q - 1e-9), np.rint(v * h / q))
+        estimate[block] = ~stored
+    ijk = np.argwhere(estimate)
+    got = units[estimate]
+    exact = box_distance(origin + h * ijk) / h
+    assert (got * q / h >= exact - 1e-3).all(), "an estimate below the exact distance"
+    per_voxel = h / q
+    axis = [int(np.ceil(np.sqrt(k) * per_voxel - 1e-9)) for k in range(4)]
+
+    def path(offset: np.ndarray) -> np.ndarray:
+        s = np.sort(np.abs(offset), axis=-1)
+        return s[:, 0] * axis[3] + (s[:, 1] - s[:, 0]) * axis[2] + (s[:, 2] - s[:, 1]) * axis[1]
+
+    best = np.full(len(ijk), 1 << 30, np.int64)
+    cell = ijk // 8
+    for corner in range(8):
+        point = cell + np.array([corner & 1, corner >> 1 & 1, corner >> 2])
+        at = np.minimum(point * 8, dims - 1)
+        l_steps = np.minimum(16383, np.ceil(lattice[point[:, 0], point[:, 1], point[:, 2]] / q - 1e-9)).astype(np.int64)
+        best = np.minimum(best, l_steps + path(at - ijk))
+    best = np.minimum(best, 16383)
+    padded = np.pad(units, 1, constant_values=-1)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                if dx == dy == dz == 0:
+                    continue
+                n = padded[ijk[:, 0] + 1 + dx, ijk[:, 1] + 1 + dy, ijk[:, 2] + 1 + dz]
+                best = np.where(n >= 0, np.minimum(best, n + axis[abs(dx) + abs(dy) + abs(dz)]), best)
+    off = best != got
+    assert not off.any(), f"{off.sum()} estimates are not the least of seed and neighbours, e.g. {got[off][:3]} vs " \
+                          f"{best[off][:3]}"
+    print(f"check_estimate_transform: in place on the codes: {len(ijk)} estimates, each the least of its seed and "
+          f"neighbours in steps of q, none below the exact distance, the same on two threads")
 
 
 def check(transform: str, asset: Path, work: Path, reach: int, metric: float) -> None:
