@@ -448,55 +448,34 @@ struct BlockRound {
   size_t lowered = 0;  ///< voxels lowered (by more than Units::kNoise)
 };
 
-/// The same transform (steps to the 26 neighbours, the same least path lengths) run brick by brick: a value brick
-/// and a one-voxel apron of its neighbours' values are copied into a 10^3 block, swept forward and back there until
-/// a sweep lowers nothing, and written back; a neighbour whose voxel next to a lowered one would be lowered by it
-/// is visited again. Rounds visit the pending bricks in raster order, forward then back; with threads, each takes
-/// a slab of brick layers, and a round sweeps the slabs' inner layers, then their first, then their last, so that
-/// no two threads touch neighbouring bricks at once. The least path lengths do not depend on the order the
-/// relaxations run in, so the values are the raster passes' to the byte, whatever the threads.
-template <class V>
-class BlockTransform {
-  using U = Units<V>;
-  static constexpr int kPad = kEdge + 2;
+/// Which brick along an axis a local coordinate -1 .. 8 lies in: -1, 0 (this one) or 1.
+inline int side(int local) { return local < 0 ? -1 : local >= kEdge ? 1 : 0; }
 
+/// What the brick-wise transforms share: which value bricks are pending, and rounds that visit them in raster order,
+/// forward then back, until none is. With threads, each takes a slab of brick layers holding about as many value
+/// bricks, and a round sweeps the slabs' inner layers, then their first, then their last, so that no two threads
+/// touch neighbouring bricks at once.
+class BrickRounds {
  public:
-  BlockTransform(const Voxelmap& vm, std::vector<V> seeded) : vm_(vm), values_(std::move(seeded)) {
+  explicit BrickRounds(const Voxelmap& vm)
+      : vm_(vm), pending_(std::make_unique<std::atomic<uint8_t>[]>(vm.value_brick_count())) {
     const auto b = vm.brick_dims();
-    for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]), dims_[a] = int(vm.dims[a]);
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int dx = -1; dx <= 1; ++dx) step_[dk + 1][dj + 1][dx + 1] = U::from_voxels(step_length(dx, dj, dk));
-    const size_t count = values_.size() / Voxelmap::kBrickVoxels;
-    where_.resize(count);
-    for (int bk = 0; bk < bricks_[2]; ++bk)
-      for (int bj = 0; bj < bricks_[1]; ++bj)
-        for (int bi = 0; bi < bricks_[0]; ++bi) {
-          const int32_t e = vm.bricks[vm.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
-          if (e >= 0) where_[size_t(e)] = {bi, bj, bk};
-        }
-    pending_ = std::make_unique<std::atomic<uint8_t>[]>(count);
-    for (size_t e = 0; e < count; ++e) pending_[e].store(1, std::memory_order_relaxed);
+    for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]);
+    for (size_t e = 0; e < vm.value_brick_count(); ++e) pending_[e].store(1, std::memory_order_relaxed);
   }
 
-  using Round = BlockRound;
-
-  /// Rounds until no brick is pending; each round's time, visits and lowerings.
-  std::vector<Round> run(unsigned threads) {
-    // Slabs of at least three brick layers, one a thread.
-    const int layers = bricks_[2];
-    threads = std::max(1u, std::min<unsigned>(threads, unsigned(layers / 3)));
-    std::vector<std::pair<int, int>> slabs;  // [lo, hi)
-    for (unsigned t = 0; t < threads; ++t)
-      slabs.push_back({int(t * layers / threads), int((t + 1) * layers / threads)});
-    std::vector<Round> rounds;
+  /// Rounds until no brick is pending: visit(e, bi, bj, bk) sweeps value brick e (its flag already cleared) and
+  /// returns the voxels it lowered.
+  template <class Visit>
+  std::vector<BlockRound> run(unsigned threads, const Visit& visit) {
+    const std::vector<std::pair<int, int>> slabs = balanced_slabs(threads);
+    threads = unsigned(slabs.size());
+    std::vector<BlockRound> rounds;
     for (int number = 0; number < 64; ++number) {
       const int dir = number % 2 == 0 ? 1 : -1;
-      auto clock = std::chrono::steady_clock::now();
-      std::vector<Round> by_thread(threads);
-      // A slab's inner layers, then its first, then its last: the layers two threads sweep at once are never next
-      // to each other. One slab: all its layers at once.
-      const int phases = threads == 1 ? 1 : 3;
+      const auto clock = std::chrono::steady_clock::now();
+      std::vector<BlockRound> by_thread(threads);
+      const int phases = threads == 1 ? 1 : 3;  // one slab: all its layers at once
       for (int phase = 0; phase < phases; ++phase) {
         auto work = [&](unsigned t) {
           const auto [lo, hi] = slabs[t];
@@ -506,20 +485,113 @@ class BlockTransform {
             if (phase == 1) last = lo;
             if (phase == 2) first = hi - 1;
           }
-          for (int n = 0; n <= last - first; ++n) sweep_layer(dir > 0 ? first + n : last - n, dir, by_thread[t]);
+          for (int n = 0; n <= last - first; ++n) sweep_layer(dir > 0 ? first + n : last - n, dir, by_thread[t], visit);
         };
         std::vector<std::thread> workers;
         for (unsigned t = 1; t < threads; ++t) workers.emplace_back(work, t);
         work(0);
         for (std::thread& w : workers) w.join();
       }
-      Round round;
-      for (const Round& r : by_thread) round.visits += r.visits, round.lowered += r.lowered;
+      BlockRound round;
+      for (const BlockRound& r : by_thread) round.visits += r.visits, round.lowered += r.lowered;
       if (round.visits == 0) break;
       round.s = std::chrono::duration<double>(std::chrono::steady_clock::now() - clock).count();
       rounds.push_back(round);
     }
     return rounds;
+  }
+
+  /// The 26 neighbours of brick (bi, bj, bk) that are value bricks not pending, by offset + 1 (-1 for the others and
+  /// the brick itself): those a lowered voxel next to them may have to wake. Whether there is any.
+  bool awake_neighbours(int bi, int bj, int bk, int32_t (&neighbour)[3][3][3]) const {
+    bool any = false;
+    for (int dk = -1; dk <= 1; ++dk)
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int di = -1; di <= 1; ++di) {
+          int32_t& n = neighbour[dk + 1][dj + 1][di + 1];
+          const int i = bi + di, j = bj + dj, k = bk + dk;
+          n = -1;
+          if ((di | dj | dk) == 0 || i < 0 || j < 0 || k < 0 || i >= bricks_[0] || j >= bricks_[1] || k >= bricks_[2])
+            continue;
+          n = vm_.bricks[vm_.brick_index(uint32_t(i), uint32_t(j), uint32_t(k))];
+          if (n >= 0 && pending_[size_t(n)].load(std::memory_order_relaxed)) n = -1;
+          any |= n >= 0;
+        }
+    return any;
+  }
+
+  /// Value brick e is to be swept again.
+  void wake(int32_t e) { pending_[size_t(e)].store(1, std::memory_order_relaxed); }
+
+ private:
+  /// Up to `threads` slabs [lo, hi) of brick layers, each of at least three layers, holding about as many value
+  /// bricks each.
+  std::vector<std::pair<int, int>> balanced_slabs(unsigned threads) const {
+    const int layers = bricks_[2];
+    threads = std::max(1u, std::min<unsigned>(threads, unsigned(layers / 3)));
+    std::vector<size_t> below(size_t(layers) + 1, 0);  // value bricks in the layers below each
+    for (int bk = 0; bk < layers; ++bk) {
+      size_t here = 0;
+      for (int bj = 0; bj < bricks_[1]; ++bj)
+        for (int bi = 0; bi < bricks_[0]; ++bi)
+          here += vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))] >= 0;
+      below[size_t(bk) + 1] = below[size_t(bk)] + here;
+    }
+    std::vector<std::pair<int, int>> slabs;
+    int lo = 0;
+    for (unsigned t = 0; t + 1 < threads; ++t) {
+      const size_t target = below[size_t(layers)] * (t + 1) / threads;
+      int hi = lo + 3;
+      while (hi < layers - 3 * int(threads - 1 - t) && below[size_t(hi)] < target) ++hi;
+      slabs.push_back({lo, hi});
+      lo = hi;
+    }
+    slabs.push_back({lo, layers});
+    return slabs;
+  }
+
+  /// Visits the pending value bricks of brick layer bk in raster order (reversed for dir < 0).
+  template <class Visit>
+  void sweep_layer(int bk, int dir, BlockRound& round, const Visit& visit) {
+    const int per_layer = bricks_[0] * bricks_[1];
+    for (int n = 0; n < per_layer; ++n) {
+      const int m = dir > 0 ? n : per_layer - 1 - n;
+      const int bi = m % bricks_[0], bj = m / bricks_[0];
+      const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
+      if (e < 0 || !pending_[size_t(e)].load(std::memory_order_relaxed)) continue;
+      pending_[size_t(e)].store(0, std::memory_order_relaxed);
+      round.lowered += visit(size_t(e), bi, bj, bk);
+      ++round.visits;
+    }
+  }
+
+  const Voxelmap& vm_;
+  int bricks_[3];
+  std::unique_ptr<std::atomic<uint8_t>[]> pending_;  ///< per value brick: to be swept again
+};
+
+/// The same transform (steps to the 26 neighbours, the same least path lengths) run brick by brick: a value brick
+/// and a one-voxel apron of its neighbours' values are copied into a 10^3 block, swept forward and back there until
+/// a sweep lowers nothing, and written back; a neighbour whose voxel next to a lowered one would be lowered by it
+/// is visited again (BrickRounds). The least path lengths do not depend on the order the relaxations run in, so the
+/// values are the raster passes' to the byte, whatever the threads.
+template <class V>
+class BlockTransform {
+  using U = Units<V>;
+  static constexpr int kPad = kEdge + 2;
+
+ public:
+  BlockTransform(const Voxelmap& vm, std::vector<V> seeded) : vm_(vm), values_(std::move(seeded)), rounds_(vm) {
+    const auto b = vm.brick_dims();
+    for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]), dims_[a] = int(vm.dims[a]);
+    for (int dk = -1; dk <= 1; ++dk)
+      for (int dj = -1; dj <= 1; ++dj)
+        for (int dx = -1; dx <= 1; ++dx) step_[dk + 1][dj + 1][dx + 1] = U::from_voxels(step_length(dx, dj, dk));
+  }
+
+  /// Rounds until no brick is pending; each round's time, visits and lowerings.
+  std::vector<BlockRound> run(unsigned threads) {
+    return rounds_.run(threads, [this](size_t e, int bi, int bj, int bk) { return visit(e, bi, bj, bk); });
   }
 
   /// The values in voxels.
@@ -530,18 +602,6 @@ class BlockTransform {
   }
 
  private:
-  /// Visits the pending value bricks of brick layer bk in raster order (reversed for dir < 0).
-  void sweep_layer(int bk, int dir, Round& round) {
-    const int per_layer = bricks_[0] * bricks_[1];
-    for (int n = 0; n < per_layer; ++n) {
-      const int m = dir > 0 ? n : per_layer - 1 - n;
-      const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(m % bricks_[0]), uint32_t(m / bricks_[0]), uint32_t(bk))];
-      if (e < 0 || !pending_[size_t(e)].load(std::memory_order_relaxed)) continue;
-      round.lowered += visit(size_t(e));
-      ++round.visits;
-    }
-  }
-
   const V* brick_at(int bi, int bj, int bk) const {
     if (bi < 0 || bj < 0 || bk < 0 || bi >= bricks_[0] || bj >= bricks_[1] || bk >= bricks_[2]) return nullptr;
     const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
@@ -553,9 +613,7 @@ class BlockTransform {
 
   /// Sweeps brick e in its block until settled, writes it back and marks the neighbours it lowered a voxel next
   /// to; the voxels lowered by more than U::kNoise.
-  size_t visit(size_t e) {
-    pending_[e].store(0, std::memory_order_relaxed);
-    const int bi = where_[e][0], bj = where_[e][1], bk = where_[e][2];
+  size_t visit(size_t e, int bi, int bj, int bk) {
     V block[kPad][kPad][kPad];  // [z][y][x], local coordinates + 1
     fill(bi, bj, bk, block);
     V before[kEdge][kEdge][kEdge];
@@ -566,21 +624,8 @@ class BlockTransform {
     for (int n = 0; n < 64; ++n)
       if (!this->sweep(bj, bk, block, n % 2 == 0 ? 1 : -1) && n >= 1) break;
     V* own = &values_[e * Voxelmap::kBrickVoxels];
-    // The value-brick neighbours not yet pending: those a lowered voxel next to them may have to wake.
     int32_t neighbour[3][3][3];
-    bool any_awake = false;
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int di = -1; di <= 1; ++di) {
-          int32_t& n = neighbour[dk + 1][dj + 1][di + 1];
-          const int i = bi + di, j = bj + dj, k = bk + dk;
-          n = -1;
-          if ((di | dj | dk) == 0 || i < 0 || j < 0 || k < 0 || i >= bricks_[0] || j >= bricks_[1] || k >= bricks_[2])
-            continue;
-          n = vm_.bricks[vm_.brick_index(uint32_t(i), uint32_t(j), uint32_t(k))];
-          if (n >= 0 && pending_[size_t(n)].load(std::memory_order_relaxed)) n = -1;
-          any_awake |= n >= 0;
-        }
+    const bool any_awake = rounds_.awake_neighbours(bi, bj, bk, neighbour);
     size_t lowered = 0;
     for (int z = 0; z < kEdge; ++z)
       for (int y = 0; y < kEdge; ++y) {
@@ -598,7 +643,7 @@ class BlockTransform {
 
   /// Face voxel (x, y, z) of the block's brick was lowered: wakes the awake neighbour bricks holding a voxel next to
   /// it that its new value lowers (the block's apron holds their values, which no thread writes during this phase).
-  void wake_lowerable(const V (&block)[kPad][kPad][kPad], int x, int y, int z, int32_t (&neighbour)[3][3][3]) const {
+  void wake_lowerable(const V (&block)[kPad][kPad][kPad], int x, int y, int z, int32_t (&neighbour)[3][3][3]) {
     const V v = block[z + 1][y + 1][x + 1];
     for (int ez = -1; ez <= 1; ++ez)
       for (int ey = -1; ey <= 1; ++ey)
@@ -606,15 +651,9 @@ class BlockTransform {
           int32_t& n = neighbour[side(z + ez) + 1][side(y + ey) + 1][side(x + ex) + 1];
           if (n < 0) continue;  // the brick itself, no value brick, or pending already
           const V w = block[z + 1 + ez][y + 1 + ey][x + 1 + ex];
-          if (U::lower(w, v, step_[ez + 1][ey + 1][ex + 1]) < w) {
-            pending_[size_t(n)].store(1, std::memory_order_relaxed);
-            n = -1;
-          }
+          if (U::lower(w, v, step_[ez + 1][ey + 1][ex + 1]) < w) rounds_.wake(n), n = -1;
         }
   }
-
-  /// Which brick along an axis a local coordinate -1 .. 8 lies in: -1, 0 (this one) or 1.
-  static int side(int local) { return local < 0 ? -1 : local >= kEdge ? 1 : 0; }
 
   /// The block of brick (bi, bj, bk): its values and a one-voxel apron of its value-brick neighbours' (far
   /// elsewhere, and in rows past the grid).
@@ -677,9 +716,8 @@ class BlockTransform {
   const Voxelmap& vm_;
   std::vector<V> values_;
   int bricks_[3], dims_[3];
-  std::vector<std::array<int, 3>> where_;            ///< per value brick: (bi, bj, bk)
-  std::unique_ptr<std::atomic<uint8_t>[]> pending_;  ///< per value brick: to be swept again
-  V step_[3][3][3];                                  ///< step lengths by dk + 1, dj + 1, dx + 1
+  BrickRounds rounds_;
+  V step_[3][3][3];  ///< step lengths by dk + 1, dj + 1, dx + 1
 };
 
 /// What a producer of a format 2.2 would run: the brick-wise transform on the value bricks' 16-bit codes in place,
@@ -693,7 +731,7 @@ class CodeTransform {
   static constexpr int16_t kFar = 32767;
   static constexpr int kMaxSteps = 16383;  // the largest magnitude an estimate code holds
 
-  CodeTransform(const Voxelmap& vm, std::vector<int16_t>& codes) : vm_(vm), codes_(codes) {
+  CodeTransform(const Voxelmap& vm, std::vector<int16_t>& codes) : vm_(vm), codes_(codes), rounds_(vm) {
     const auto b = vm.brick_dims();
     for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]), dims_[a] = int(vm.dims[a]);
     const double per_voxel = vm.voxel_size / vm.estimate_quantum;
@@ -712,48 +750,16 @@ class CodeTransform {
       for (int y = 0; y < 17; ++y)
         for (int x = 0; x < 17; ++x)
           reversed_[size_t((z * 17 + y) * 17 + 16 - x)] = int16_t(path_steps(x - 8, y - 8, z - 8));
-    pending_ = std::make_unique<std::atomic<uint8_t>[]>(vm.value_brick_count());
   }
 
   /// Seeds every estimate from its cell's lattice points; bricks shared out over `threads`.
   void seed(unsigned threads) {
     for_each_value_brick(vm_, threads, [&](size_t b) { seed_brick(b); });
-    for (size_t e = 0; e < vm_.value_brick_count(); ++e) pending_[e].store(1, std::memory_order_relaxed);
   }
 
-  /// Rounds until settled (as BlockTransform::run: slabs of brick layers, inner layers, then first, then last).
+  /// Rounds until settled (BrickRounds), each brick swept as BlockTransform sweeps it, fixed voxels kept.
   std::vector<BlockRound> run(unsigned threads) {
-    const std::vector<std::pair<int, int>> slabs = balanced_slabs(threads);
-    threads = unsigned(slabs.size());
-    std::vector<BlockRound> rounds;
-    for (int number = 0; number < 64; ++number) {
-      const int dir = number % 2 == 0 ? 1 : -1;
-      const auto clock = std::chrono::steady_clock::now();
-      std::vector<BlockRound> by_thread(threads);
-      const int phases = threads == 1 ? 1 : 3;
-      for (int phase = 0; phase < phases; ++phase) {
-        auto work = [&](unsigned t) {
-          const auto [lo, hi] = slabs[t];
-          int first = lo, last = hi - 1;
-          if (phases == 3) {
-            if (phase == 0) first = lo + 1, last = hi - 2;
-            if (phase == 1) last = lo;
-            if (phase == 2) first = hi - 1;
-          }
-          for (int n = 0; n <= last - first; ++n) sweep_layer(dir > 0 ? first + n : last - n, dir, by_thread[t]);
-        };
-        std::vector<std::thread> workers;
-        for (unsigned t = 1; t < threads; ++t) workers.emplace_back(work, t);
-        work(0);
-        for (std::thread& w : workers) w.join();
-      }
-      BlockRound round;
-      for (const BlockRound& r : by_thread) round.visits += r.visits, round.lowered += r.lowered;
-      if (round.visits == 0) break;
-      round.s = std::chrono::duration<double>(std::chrono::steady_clock::now() - clock).count();
-      rounds.push_back(round);
-    }
-    return rounds;
+    return rounds_.run(threads, [this](size_t e, int bi, int bj, int bk) { return visit(e, bi, bj, bk); });
   }
 
   /// The estimates that are not the least of their seed and their neighbours' values plus their step (what a
@@ -810,32 +816,6 @@ class CodeTransform {
   };
 
   bool in_grid(int i, int j, int k) const { return i < dims_[0] && j < dims_[1] && k < dims_[2]; }
-
-  /// Up to `threads` slabs [lo, hi) of brick layers, each of at least three layers, holding about as many value
-  /// bricks each.
-  std::vector<std::pair<int, int>> balanced_slabs(unsigned threads) const {
-    const int layers = bricks_[2];
-    threads = std::max(1u, std::min<unsigned>(threads, unsigned(layers / 3)));
-    std::vector<size_t> below(size_t(layers) + 1, 0);  // value bricks in the layers below each
-    for (int bk = 0; bk < layers; ++bk) {
-      size_t here = 0;
-      for (int bj = 0; bj < bricks_[1]; ++bj)
-        for (int bi = 0; bi < bricks_[0]; ++bi)
-          here += vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))] >= 0;
-      below[size_t(bk) + 1] = below[size_t(bk)] + here;
-    }
-    std::vector<std::pair<int, int>> slabs;
-    int lo = 0;
-    for (unsigned t = 0; t + 1 < threads; ++t) {
-      const size_t target = below[size_t(layers)] * (t + 1) / threads;
-      int hi = lo + 3;
-      while (hi < layers - 3 * int(threads - 1 - t) && below[size_t(hi)] < target) ++hi;
-      slabs.push_back({lo, hi});
-      lo = hi;
-    }
-    slabs.push_back({lo, layers});
-    return slabs;
-  }
 
   /// The length, in steps of q, of the shortest path of voxel steps along (a, b, c).
   int path_steps(int a, int b, int c) const {
@@ -944,19 +924,7 @@ class CodeTransform {
     }
   }
 
-  void sweep_layer(int bk, int dir, BlockRound& round) {
-    const int per_layer = bricks_[0] * bricks_[1];
-    for (int n = 0; n < per_layer; ++n) {
-      const int m = dir > 0 ? n : per_layer - 1 - n;
-      const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(m % bricks_[0]), uint32_t(m / bricks_[0]), uint32_t(bk))];
-      if (e < 0 || !pending_[size_t(e)].load(std::memory_order_relaxed)) continue;
-      round.lowered += visit(size_t(e), m % bricks_[0], m / bricks_[0], bk);
-      ++round.visits;
-    }
-  }
-
   size_t visit(size_t e, int bi, int bj, int bk) {
-    pending_[e].store(0, std::memory_order_relaxed);
     Block block;
     fill(bi, bj, bk, block);
     int16_t before[kEdge][kEdge][kEdge];
@@ -965,19 +933,7 @@ class CodeTransform {
     for (int n = 0; n < 64; ++n)
       if (!sweep(block, n % 2 == 0 ? 1 : -1) && n >= 1) break;
     int32_t neighbour[3][3][3];
-    bool any_awake = false;
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int di = -1; di <= 1; ++di) {
-          int32_t& n = neighbour[dk + 1][dj + 1][di + 1];
-          const int i = bi + di, j = bj + dj, k = bk + dk;
-          n = -1;
-          if ((di | dj | dk) == 0 || i < 0 || j < 0 || k < 0 || i >= bricks_[0] || j >= bricks_[1] || k >= bricks_[2])
-            continue;
-          n = vm_.bricks[vm_.brick_index(uint32_t(i), uint32_t(j), uint32_t(k))];
-          if (n >= 0 && pending_[size_t(n)].load(std::memory_order_relaxed)) n = -1;
-          any_awake |= n >= 0;
-        }
+    const bool any_awake = rounds_.awake_neighbours(bi, bj, bk, neighbour);
     int16_t* codes = &codes_[e * Voxelmap::kBrickVoxels];
     size_t lowered = 0;
     for (int z = 0; z < kEdge; ++z)
@@ -994,18 +950,14 @@ class CodeTransform {
     return lowered;
   }
 
-  void wake_lowerable(const Block& block, int x, int y, int z, int32_t (&neighbour)[3][3][3]) const {
+  void wake_lowerable(const Block& block, int x, int y, int z, int32_t (&neighbour)[3][3][3]) {
     const int v = block.v[z + 1][y + 1][x + 1];
-    auto side = [](int local) { return local < 0 ? -1 : local >= kEdge ? 1 : 0; };
     for (int ez = -1; ez <= 1; ++ez)
       for (int ey = -1; ey <= 1; ++ey)
         for (int ex = -1; ex <= 1; ++ex) {
           int32_t& n = neighbour[side(z + ez) + 1][side(y + ey) + 1][side(x + ex) + 1];
           if (n < 0) continue;
-          if (v + step_[ez + 1][ey + 1][ex + 1] < block.v[z + 1 + ez][y + 1 + ey][x + 1 + ex]) {
-            pending_[size_t(n)].store(1, std::memory_order_relaxed);
-            n = -1;
-          }
+          if (v + step_[ez + 1][ey + 1][ex + 1] < block.v[z + 1 + ez][y + 1 + ey][x + 1 + ex]) rounds_.wake(n), n = -1;
         }
   }
 
@@ -1046,11 +998,11 @@ class CodeTransform {
   const Voxelmap& vm_;
   std::vector<int16_t>& codes_;
   int bricks_[3], dims_[3];
-  int axis_step_[4];                                 ///< steps of q along 0 .. 3 axes at once, rounded up
-  int16_t step_[3][3][3];                            ///< the same by dk + 1, dj + 1, dx + 1
-  std::vector<int16_t> stored_;                      ///< |c >> 1| of a stored code in steps of q, rounded up
-  std::vector<int16_t> reversed_;                    ///< path lengths to offsets -8 .. 8, rows reversed
-  std::unique_ptr<std::atomic<uint8_t>[]> pending_;  ///< per value brick: to be swept again
+  int axis_step_[4];               ///< steps of q along 0 .. 3 axes at once, rounded up
+  int16_t step_[3][3][3];          ///< the same by dk + 1, dj + 1, dx + 1
+  std::vector<int16_t> stored_;    ///< |c >> 1| of a stored code in steps of q, rounded up
+  std::vector<int16_t> reversed_;  ///< path lengths to offsets -8 .. 8, rows reversed
+  BrickRounds rounds_;
 };
 
 double seconds_since(std::chrono::steady_clock::time_point& start) {

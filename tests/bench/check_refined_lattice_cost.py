@@ -18,16 +18,12 @@ from pathlib import Path
 import h5py
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from check_estimate_transform import write_box  # noqa: E402
+from check_estimate_transform import bake_box  # noqa: E402
 
 
 def main() -> int:
     voxfmt_cli, tool, work = sys.argv[1], sys.argv[2], Path(sys.argv[3])
-    work.mkdir(parents=True, exist_ok=True)
-    write_box(work / "box.off")
-    asset = work / "box.vox.h5"
-    subprocess.run([voxfmt_cli, "build", str(work / "box.off"), "-o", str(asset), "--resolution", "40",
-                    "--points", "2000", "-q"], check=True)
+    asset = bake_box(voxfmt_cli, work)
     figures_path = work / "refined.json"
     subprocess.run([tool, str(asset), str(work / "box.off"), "--threads", "2", "--json", str(figures_path)],
                    check=True, stdout=subprocess.DEVNULL)
