@@ -42,15 +42,18 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 
+#include "voxfmt/detail/estimate_transform.h"
 #include "voxfmt/io.h"
 
 namespace {
 
 using voxfmt::Voxelmap;
+using voxfmt::detail::brick_coordinates;
+using voxfmt::detail::brick_side;
+using voxfmt::detail::BrickRound;
+using voxfmt::detail::BrickRounds;
+using voxfmt::detail::least_of_rows;
 constexpr float kFar = 1e30f;
 constexpr int kEdge = 8;
 const float kStep[4] = {0.0f, 1.0f, 1.41421356f, 1.73205081f};  // by the number of axes a step moves along
@@ -66,20 +69,6 @@ float step_length(int dx, int dy, int dz) { return std::sqrt(float(dx * dx + dy 
 
 /// Shortest path lengths of steps to the (2 Reach + 1)^3 neighbours over the offsets -8 .. 8 (17^3, x fastest):
 /// the closed form for Reach 1, relaxation until settled for more.
-/// body(n) for every value brick n of the brick table on `threads` threads, each taking every threads-th one
-/// (bricks are independent here).
-template <class Body>
-void for_each_value_brick(const Voxelmap& vm, unsigned threads, const Body& body) {
-  auto every = [&](unsigned first) {
-    for (size_t n = first; n < vm.bricks.size(); n += threads)
-      if (vm.bricks[n] >= 0) body(n);
-  };
-  std::vector<std::thread> workers;
-  for (unsigned t = 1; t < threads; ++t) workers.emplace_back(every, t);
-  every(0);
-  for (std::thread& w : workers) w.join();
-}
-
 template <int Reach>
 std::vector<float> offset_lengths() {
   std::vector<float> length(17 * 17 * 17);
@@ -168,7 +157,7 @@ class ChamferTransform {
     std::vector<float> reversed(length.size());
     for (size_t r = 0; r < 17 * 17; ++r)
       for (size_t t = 0; t < 17; ++t) reversed[r * 17 + t] = length[r * 17 + 16 - t];
-    for_each_value_brick(vm_, threads, [&](size_t b) { seed_brick(b, reversed); });
+    voxfmt::detail::for_each_value_brick_shared(vm_, threads, [&](size_t b) { seed_brick(b, reversed); });
   }
 
   /// Splits the passes over `threads` slabs of brick layers along z, each run by its own thread. A slab reads its
@@ -267,8 +256,7 @@ class ChamferTransform {
   }
 
   void seed_brick(size_t b, const std::vector<float>& reversed) {
-    const int bi = int(b % bricks_[0]), bj = int(b / bricks_[0] % bricks_[1]),
-              bk = int(b / (size_t(bricks_[0]) * bricks_[1]));
+    const auto [bi, bj, bk] = brick_coordinates(vm_, b);
     float corner[8];
     int cx[2], cy[2], cz[2];
     for (int q = 0; q < 2; ++q) {
@@ -404,172 +392,6 @@ class ChamferTransform {
   V step_[Reach + 1][2 * Reach + 1][2 * Reach + 1];  ///< step lengths by dk, dj + Reach, dx + Reach
 };
 
-/// best[x] = the least of own[x] and from[r][x] + step[r] over the `rows` rows r, x = 0 .. 7 (as Units::lower,
-/// whose minimum of a value and a far one plus a step is the value: the 16-bit sums saturate).
-template <class V>
-inline void least_of_rows(const V* own, const V* const* from, const V* step, V* best, int rows = 12) {
-  for (int x = 0; x < kEdge; ++x) {
-    V v = own[x];
-    for (int r = 0; r < rows; ++r) v = Units<V>::lower(v, from[r][x], step[r]);
-    best[x] = v;
-  }
-}
-
-#if defined(__SSE2__)
-// The same in SSE2 (8 lanes: two float vectors, one of 16-bit integers): min(a + s, b) picks a + s only when it
-// is less, as std::min does.
-template <>
-inline void least_of_rows<float>(const float* own, const float* const* from, const float* step, float* best, int rows) {
-  __m128 lo = _mm_loadu_ps(own), hi = _mm_loadu_ps(own + 4);
-  for (int r = 0; r < rows; ++r) {
-    const __m128 s = _mm_set1_ps(step[r]);
-    lo = _mm_min_ps(_mm_add_ps(_mm_loadu_ps(from[r]), s), lo);
-    hi = _mm_min_ps(_mm_add_ps(_mm_loadu_ps(from[r] + 4), s), hi);
-  }
-  _mm_storeu_ps(best, lo);
-  _mm_storeu_ps(best + 4, hi);
-}
-
-template <>
-inline void least_of_rows<int16_t>(const int16_t* own, const int16_t* const* from, const int16_t* step, int16_t* best,
-                                   int rows) {
-  __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(own));
-  for (int r = 0; r < rows; ++r)
-    v = _mm_min_epi16(
-        v, _mm_adds_epi16(_mm_loadu_si128(reinterpret_cast<const __m128i*>(from[r])), _mm_set1_epi16(step[r])));
-  _mm_storeu_si128(reinterpret_cast<__m128i*>(best), v);
-}
-#endif
-
-/// A round of a brick-wise transform.
-struct BlockRound {
-  double s = 0;
-  size_t visits = 0;   ///< bricks swept
-  size_t lowered = 0;  ///< voxels lowered (by more than Units::kNoise)
-};
-
-/// Which brick along an axis a local coordinate -1 .. 8 lies in: -1, 0 (this one) or 1.
-inline int side(int local) { return local < 0 ? -1 : local >= kEdge ? 1 : 0; }
-
-/// What the brick-wise transforms share: which value bricks are pending, and rounds that visit them in raster order,
-/// forward then back, until none is. With threads, each takes a slab of brick layers holding about as many value
-/// bricks, and a round sweeps the slabs' inner layers, then their first, then their last, so that no two threads
-/// touch neighbouring bricks at once.
-class BrickRounds {
- public:
-  explicit BrickRounds(const Voxelmap& vm)
-      : vm_(vm), pending_(std::make_unique<std::atomic<uint8_t>[]>(vm.value_brick_count())) {
-    const auto b = vm.brick_dims();
-    for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]);
-    for (size_t e = 0; e < vm.value_brick_count(); ++e) pending_[e].store(1, std::memory_order_relaxed);
-  }
-
-  /// Rounds until no brick is pending: visit(e, bi, bj, bk) sweeps value brick e (its flag already cleared) and
-  /// returns the voxels it lowered.
-  template <class Visit>
-  std::vector<BlockRound> run(unsigned threads, const Visit& visit) {
-    const std::vector<std::pair<int, int>> slabs = balanced_slabs(threads);
-    threads = unsigned(slabs.size());
-    std::vector<BlockRound> rounds;
-    for (int number = 0; number < 64; ++number) {
-      const int dir = number % 2 == 0 ? 1 : -1;
-      const auto clock = std::chrono::steady_clock::now();
-      std::vector<BlockRound> by_thread(threads);
-      const int phases = threads == 1 ? 1 : 3;  // one slab: all its layers at once
-      for (int phase = 0; phase < phases; ++phase) {
-        auto work = [&](unsigned t) {
-          const auto [lo, hi] = slabs[t];
-          int first = lo, last = hi - 1;  // layers of this phase, inclusive
-          if (phases == 3) {
-            if (phase == 0) first = lo + 1, last = hi - 2;
-            if (phase == 1) last = lo;
-            if (phase == 2) first = hi - 1;
-          }
-          for (int n = 0; n <= last - first; ++n) sweep_layer(dir > 0 ? first + n : last - n, dir, by_thread[t], visit);
-        };
-        std::vector<std::thread> workers;
-        for (unsigned t = 1; t < threads; ++t) workers.emplace_back(work, t);
-        work(0);
-        for (std::thread& w : workers) w.join();
-      }
-      BlockRound round;
-      for (const BlockRound& r : by_thread) round.visits += r.visits, round.lowered += r.lowered;
-      if (round.visits == 0) break;
-      round.s = std::chrono::duration<double>(std::chrono::steady_clock::now() - clock).count();
-      rounds.push_back(round);
-    }
-    return rounds;
-  }
-
-  /// The 26 neighbours of brick (bi, bj, bk) that are value bricks not pending, by offset + 1 (-1 for the others and
-  /// the brick itself): those a lowered voxel next to them may have to wake. Whether there is any.
-  bool awake_neighbours(int bi, int bj, int bk, int32_t (&neighbour)[3][3][3]) const {
-    bool any = false;
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int di = -1; di <= 1; ++di) {
-          int32_t& n = neighbour[dk + 1][dj + 1][di + 1];
-          const int i = bi + di, j = bj + dj, k = bk + dk;
-          n = -1;
-          if ((di | dj | dk) == 0 || i < 0 || j < 0 || k < 0 || i >= bricks_[0] || j >= bricks_[1] || k >= bricks_[2])
-            continue;
-          n = vm_.bricks[vm_.brick_index(uint32_t(i), uint32_t(j), uint32_t(k))];
-          if (n >= 0 && pending_[size_t(n)].load(std::memory_order_relaxed)) n = -1;
-          any |= n >= 0;
-        }
-    return any;
-  }
-
-  /// Value brick e is to be swept again.
-  void wake(int32_t e) { pending_[size_t(e)].store(1, std::memory_order_relaxed); }
-
- private:
-  /// Up to `threads` slabs [lo, hi) of brick layers, each of at least three layers, holding about as many value
-  /// bricks each.
-  std::vector<std::pair<int, int>> balanced_slabs(unsigned threads) const {
-    const int layers = bricks_[2];
-    threads = std::max(1u, std::min<unsigned>(threads, unsigned(layers / 3)));
-    std::vector<size_t> below(size_t(layers) + 1, 0);  // value bricks in the layers below each
-    for (int bk = 0; bk < layers; ++bk) {
-      size_t here = 0;
-      for (int bj = 0; bj < bricks_[1]; ++bj)
-        for (int bi = 0; bi < bricks_[0]; ++bi)
-          here += vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))] >= 0;
-      below[size_t(bk) + 1] = below[size_t(bk)] + here;
-    }
-    std::vector<std::pair<int, int>> slabs;
-    int lo = 0;
-    for (unsigned t = 0; t + 1 < threads; ++t) {
-      const size_t target = below[size_t(layers)] * (t + 1) / threads;
-      int hi = lo + 3;
-      while (hi < layers - 3 * int(threads - 1 - t) && below[size_t(hi)] < target) ++hi;
-      slabs.push_back({lo, hi});
-      lo = hi;
-    }
-    slabs.push_back({lo, layers});
-    return slabs;
-  }
-
-  /// Visits the pending value bricks of brick layer bk in raster order (reversed for dir < 0).
-  template <class Visit>
-  void sweep_layer(int bk, int dir, BlockRound& round, const Visit& visit) {
-    const int per_layer = bricks_[0] * bricks_[1];
-    for (int n = 0; n < per_layer; ++n) {
-      const int m = dir > 0 ? n : per_layer - 1 - n;
-      const int bi = m % bricks_[0], bj = m / bricks_[0];
-      const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
-      if (e < 0 || !pending_[size_t(e)].load(std::memory_order_relaxed)) continue;
-      pending_[size_t(e)].store(0, std::memory_order_relaxed);
-      round.lowered += visit(size_t(e), bi, bj, bk);
-      ++round.visits;
-    }
-  }
-
-  const Voxelmap& vm_;
-  int bricks_[3];
-  std::unique_ptr<std::atomic<uint8_t>[]> pending_;  ///< per value brick: to be swept again
-};
-
 /// The same transform (steps to the 26 neighbours, the same least path lengths) run brick by brick: a value brick
 /// and a one-voxel apron of its neighbours' values are copied into a 10^3 block, swept forward and back there until
 /// a sweep lowers nothing, and written back; a neighbour whose voxel next to a lowered one would be lowered by it
@@ -590,7 +412,7 @@ class BlockTransform {
   }
 
   /// Rounds until no brick is pending; each round's time, visits and lowerings.
-  std::vector<BlockRound> run(unsigned threads) {
+  std::vector<BrickRound> run(unsigned threads) {
     return rounds_.run(threads, [this](size_t e, int bi, int bj, int bk) { return visit(e, bi, bj, bk); });
   }
 
@@ -648,7 +470,7 @@ class BlockTransform {
     for (int ez = -1; ez <= 1; ++ez)
       for (int ey = -1; ey <= 1; ++ey)
         for (int ex = -1; ex <= 1; ++ex) {
-          int32_t& n = neighbour[side(z + ez) + 1][side(y + ey) + 1][side(x + ex) + 1];
+          int32_t& n = neighbour[brick_side(z + ez) + 1][brick_side(y + ey) + 1][brick_side(x + ex) + 1];
           if (n < 0) continue;  // the brick itself, no value brick, or pending already
           const V w = block[z + 1 + ez][y + 1 + ey][x + 1 + ex];
           if (U::lower(w, v, step_[ez + 1][ey + 1][ex + 1]) < w) rounds_.wake(n), n = -1;
@@ -720,291 +542,6 @@ class BlockTransform {
   V step_[3][3][3];  ///< step lengths by dk + 1, dj + 1, dx + 1
 };
 
-/// What a producer of a format 2.2 would run: the brick-wise transform on the value bricks' 16-bit codes in place,
-/// in steps of the estimate quantum q, all in integers. Stored distances are sources (|d| in steps of q, rounded up)
-/// and are never lowered; each estimate becomes the least of its seed (over its cell's lattice points p,
-/// ceil(l_p / q) plus the length of a path of voxel steps to p) and its value-brick neighbours' values plus their
-/// step (1, sqrt 2, sqrt 3 voxels in steps of q, rounded up), keeping its sign; voxels past the grid take no part.
-/// No array beside the codes, and a reader can check every estimate from its neighbours (`check`).
-class CodeTransform {
- public:
-  static constexpr int16_t kFar = 32767;
-  static constexpr int kMaxSteps = 16383;  // the largest magnitude an estimate code holds
-
-  CodeTransform(const Voxelmap& vm, std::vector<int16_t>& codes) : vm_(vm), codes_(codes), rounds_(vm) {
-    const auto b = vm.brick_dims();
-    for (int a = 0; a < 3; ++a) bricks_[a] = int(b[a]), dims_[a] = int(vm.dims[a]);
-    const double per_voxel = vm.voxel_size / vm.estimate_quantum;
-    for (int k = 0; k < 4; ++k) axis_step_[k] = int(std::ceil(std::sqrt(double(k)) * per_voxel - 1e-9));
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int dx = -1; dx <= 1; ++dx)
-          step_[dk + 1][dj + 1][dx + 1] = int16_t(axis_step_[(dx != 0) + (dj != 0) + (dk != 0)]);
-    stored_.resize(16385);
-    for (int x = 0; x <= 16384; ++x)
-      stored_[size_t(x)] =
-          int16_t(std::min<double>(kMaxSteps, std::ceil(x * vm.distance_quantum / vm.estimate_quantum - 1e-9)));
-    // Path lengths to offsets -8 .. 8, each row of 17 reversed (a row of voxels reads them in increasing order).
-    reversed_.resize(17 * 17 * 17);
-    for (int z = 0; z < 17; ++z)
-      for (int y = 0; y < 17; ++y)
-        for (int x = 0; x < 17; ++x)
-          reversed_[size_t((z * 17 + y) * 17 + 16 - x)] = int16_t(path_steps(x - 8, y - 8, z - 8));
-  }
-
-  /// Seeds every estimate from its cell's lattice points; bricks shared out over `threads`.
-  void seed(unsigned threads) {
-    for_each_value_brick(vm_, threads, [&](size_t b) { seed_brick(b); });
-  }
-
-  /// Rounds until settled (BrickRounds), each brick swept as BlockTransform sweeps it, fixed voxels kept.
-  std::vector<BlockRound> run(unsigned threads) {
-    return rounds_.run(threads, [this](size_t e, int bi, int bj, int bk) { return visit(e, bi, bj, bk); });
-  }
-
-  /// The estimates that are not the least of their seed and their neighbours' values plus their step (what a
-  /// validator would count); bricks shared out over `threads`.
-  size_t check(unsigned threads) const {
-    std::atomic<size_t> wrong{0};
-    for_each_value_brick(vm_, threads, [&](size_t b) {
-      const int bi = int(b % size_t(bricks_[0])), bj = int(b / size_t(bricks_[0]) % size_t(bricks_[1])),
-                bk = int(b / (size_t(bricks_[0]) * size_t(bricks_[1])));
-      Block block;
-      fill(bi, bj, bk, block);
-      int16_t seeds[kEdge][kEdge][kEdge];
-      seed_values(bi, bj, bk, seeds);
-      size_t here = 0;
-      for (int z = 1; z <= kEdge; ++z)
-        for (int y = 1; y <= kEdge; ++y) {
-          const int16_t* from[26];
-          int16_t steps[26];
-          int r = 0;
-          for (int dk = -1; dk <= 1; ++dk)
-            for (int dj = -1; dj <= 1; ++dj)
-              for (int dx = -1; dx <= 1; ++dx)
-                if ((dx | dj | dk) != 0)
-                  from[r] = &block.v[z + dk][y + dj][1 + dx], steps[r++] = step_[dk + 1][dj + 1][dx + 1];
-          int16_t best[kEdge];
-          least_of_rows(seeds[z - 1][y - 1], from, steps, best, 26);
-          for (int x = 0; x < kEdge; ++x) here += !block.fixed[z - 1][y - 1][x] && best[x] != block.v[z][y][x + 1];
-        }
-      wrong += here;
-    });
-    return wrong;
-  }
-
-  /// Per value-brick voxel (the value bricks' order): |d| / h where stored, the estimate's magnitude in voxels,
-  /// 1e30 past the grid.
-  std::vector<float> values() const {
-    std::vector<float> out(codes_.size(), 1e30f);
-    for (size_t b = 0; b < vm_.bricks.size(); ++b) {
-      if (vm_.bricks[b] < 0) continue;
-      const int bi = int(b % size_t(bricks_[0])), bj = int(b / size_t(bricks_[0]) % size_t(bricks_[1])),
-                bk = int(b / (size_t(bricks_[0]) * size_t(bricks_[1])));
-      const size_t first = size_t(vm_.bricks[b]) * Voxelmap::kBrickVoxels;
-      for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l)
-        if (in_grid(bi * kEdge + (l & 7), bj * kEdge + (l >> 3 & 7), bk * kEdge + (l >> 6)))
-          out[first + size_t(l)] = float(std::abs(vm_.decode(codes_[first + size_t(l)])) / vm_.voxel_size);
-    }
-    return out;
-  }
-
- private:
-  struct Block {
-    int16_t v[kEdge + 2][kEdge + 2][kEdge + 2];  ///< [z][y][x], local + 1: magnitudes in steps of q
-    bool fixed[kEdge][kEdge][kEdge];             ///< the brick's stored voxels and those past the grid
-  };
-
-  bool in_grid(int i, int j, int k) const { return i < dims_[0] && j < dims_[1] && k < dims_[2]; }
-
-  /// The length, in steps of q, of the shortest path of voxel steps along (a, b, c).
-  int path_steps(int a, int b, int c) const {
-    std::array<int, 3> s = {std::abs(a), std::abs(b), std::abs(c)};
-    std::sort(s.begin(), s.end());
-    return s[0] * axis_step_[3] + (s[1] - s[0]) * axis_step_[2] + (s[2] - s[1]) * axis_step_[1];
-  }
-
-  int16_t magnitude(int16_t code) const {
-    const int m = std::abs(code >> 1);
-    const int16_t as_stored = stored_[size_t(m)];
-    return Voxelmap::code_is_stored(code) ? as_stored : int16_t(m);
-  }
-
-  /// The seeds of brick (bi, bj, bk)'s voxels: the least over the cell's lattice points p of ceil(l_p / q) plus
-  /// the path to p, at most kMaxSteps.
-  void seed_values(int bi, int bj, int bk, int16_t (&seeds)[kEdge][kEdge][kEdge]) const {
-    int corner[8], cx[2], cy[2], cz[2];
-    for (int q = 0; q < 2; ++q) {
-      cx[q] = int(Voxelmap::lattice_coordinate(uint32_t(bi + q), vm_.dims[0]));
-      cy[q] = int(Voxelmap::lattice_coordinate(uint32_t(bj + q), vm_.dims[1]));
-      cz[q] = int(Voxelmap::lattice_coordinate(uint32_t(bk + q), vm_.dims[2]));
-    }
-    for (int q = 0; q < 8; ++q)
-      corner[q] = int(std::min<double>(
-          kMaxSteps, std::ceil(vm_.lattice[vm_.lattice_index(uint32_t(bi + (q & 1)), uint32_t(bj + (q >> 1 & 1)),
-                                                             uint32_t(bk + (q >> 2)))] /
-                                   vm_.estimate_quantum -
-                               1e-9)));
-    for (int lk = 0; lk < kEdge; ++lk)
-      for (int lj = 0; lj < kEdge; ++lj) {
-        const int j = bj * kEdge + lj, k = bk * kEdge + lk;
-        // 16-bit sums (at most 16383 + 8 * 28): SSE2's minimum of 16-bit lanes.
-        const int16_t* lengths[8];
-        int16_t values[8];
-        for (int q = 0; q < 8; ++q) {
-          lengths[q] = &reversed_[size_t(((cz[q >> 2] - k + 8) * 17 + cy[q >> 1 & 1] - j + 8) * 17 + 8 -
-                                         (cx[q & 1] - bi * kEdge))];
-          values[q] = int16_t(corner[q]);
-        }
-        const int16_t far[kEdge] = {kMaxSteps, kMaxSteps, kMaxSteps, kMaxSteps,
-                                    kMaxSteps, kMaxSteps, kMaxSteps, kMaxSteps};
-        least_of_rows(far, lengths, values, seeds[lk][lj], 8);
-      }
-  }
-
-  void seed_brick(size_t b) {
-    const int bi = int(b % size_t(bricks_[0])), bj = int(b / size_t(bricks_[0]) % size_t(bricks_[1])),
-              bk = int(b / (size_t(bricks_[0]) * size_t(bricks_[1])));
-    int16_t seeds[kEdge][kEdge][kEdge];
-    seed_values(bi, bj, bk, seeds);
-    int16_t* codes = &codes_[size_t(vm_.bricks[b]) * Voxelmap::kBrickVoxels];
-    for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
-      const int x = l & 7, y = l >> 3 & 7, z = l >> 6;
-      if (Voxelmap::code_is_stored(codes[l]) || !in_grid(bi * kEdge + x, bj * kEdge + y, bk * kEdge + z)) continue;
-      codes[l] = int16_t((codes[l] < 0 ? -2 : 2) * seeds[z][y][x]);
-    }
-  }
-
-  const int16_t* brick_at(int bi, int bj, int bk) const {
-    if (bi < 0 || bj < 0 || bk < 0 || bi >= bricks_[0] || bj >= bricks_[1] || bk >= bricks_[2]) return nullptr;
-    const int32_t e = vm_.bricks[vm_.brick_index(uint32_t(bi), uint32_t(bj), uint32_t(bk))];
-    return e < 0 ? nullptr : &codes_[size_t(e) * Voxelmap::kBrickVoxels];
-  }
-
-  /// Brick (bi, bj, bk)'s magnitudes and a one-voxel apron of its value-brick neighbours' (far elsewhere and past
-  /// the grid), and which of its voxels are fixed.
-  void fill(int bi, int bj, int bk, Block& block) const {
-    std::fill(&block.v[0][0][0], &block.v[0][0][0] + (kEdge + 2) * (kEdge + 2) * (kEdge + 2), kFar);
-    for (int dk = -1; dk <= 1; ++dk)
-      for (int dj = -1; dj <= 1; ++dj)
-        for (int di = -1; di <= 1; ++di) {
-          const int16_t* src = brick_at(bi + di, bj + dj, bk + dk);
-          if (!src) continue;
-          // Along each axis the block's range [lo, lo + n) reads the neighbour's local coordinates from `from`.
-          int lo[3], n[3], from[3];
-          const int d[3] = {di, dj, dk};
-          for (int a = 0; a < 3; ++a) {
-            lo[a] = d[a] < 0 ? 0 : d[a] == 0 ? 1 : kEdge + 1;
-            n[a] = d[a] == 0 ? kEdge : 1;
-            from[a] = d[a] < 0 ? kEdge - 1 : 0;
-          }
-          const int i0 = (bi + di) * kEdge + from[0], j0 = (bj + dj) * kEdge + from[1],
-                    k0 = (bk + dk) * kEdge + from[2];
-          if (in_grid(i0 + n[0] - 1, j0 + n[1] - 1, k0 + n[2] - 1)) {  // all of it (most bricks)
-            for (int z = 0; z < n[2]; ++z)
-              for (int y = 0; y < n[1]; ++y) {
-                const int16_t* row = src + ((from[2] + z) * kEdge + from[1] + y) * kEdge + from[0];
-                int16_t* to = &block.v[lo[2] + z][lo[1] + y][lo[0]];
-                for (int x = 0; x < n[0]; ++x) to[x] = magnitude(row[x]);
-              }
-            continue;
-          }
-          for (int z = 0; z < n[2]; ++z)
-            for (int y = 0; y < n[1]; ++y)
-              for (int x = 0; x < n[0]; ++x)
-                if (in_grid(i0 + x, j0 + y, k0 + z))
-                  block.v[lo[2] + z][lo[1] + y][lo[0] + x] =
-                      magnitude(src[((from[2] + z) * kEdge + from[1] + y) * kEdge + from[0] + x]);
-        }
-    const int16_t* own = brick_at(bi, bj, bk);
-    for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
-      const int x = l & 7, y = l >> 3 & 7, z = l >> 6;
-      block.fixed[z][y][x] =
-          Voxelmap::code_is_stored(own[l]) || !in_grid(bi * kEdge + x, bj * kEdge + y, bk * kEdge + z);
-    }
-  }
-
-  size_t visit(size_t e, int bi, int bj, int bk) {
-    Block block;
-    fill(bi, bj, bk, block);
-    int16_t before[kEdge][kEdge][kEdge];
-    for (int z = 0; z < kEdge; ++z)
-      for (int y = 0; y < kEdge; ++y) std::memcpy(before[z][y], &block.v[z + 1][y + 1][1], kEdge * sizeof(int16_t));
-    for (int n = 0; n < 64; ++n)
-      if (!sweep(block, n % 2 == 0 ? 1 : -1) && n >= 1) break;
-    int32_t neighbour[3][3][3];
-    const bool any_awake = rounds_.awake_neighbours(bi, bj, bk, neighbour);
-    int16_t* codes = &codes_[e * Voxelmap::kBrickVoxels];
-    size_t lowered = 0;
-    for (int z = 0; z < kEdge; ++z)
-      for (int y = 0; y < kEdge; ++y)
-        for (int x = 0; x < kEdge; ++x) {
-          const int16_t now = block.v[z + 1][y + 1][x + 1];
-          if (now == before[z][y][x]) continue;
-          int16_t& code = codes[(z * kEdge + y) * kEdge + x];
-          code = int16_t((code < 0 ? -2 : 2) * now);
-          ++lowered;
-          if (any_awake && (x == 0 || y == 0 || z == 0 || x == kEdge - 1 || y == kEdge - 1 || z == kEdge - 1))
-            wake_lowerable(block, x, y, z, neighbour);
-        }
-    return lowered;
-  }
-
-  void wake_lowerable(const Block& block, int x, int y, int z, int32_t (&neighbour)[3][3][3]) {
-    const int v = block.v[z + 1][y + 1][x + 1];
-    for (int ez = -1; ez <= 1; ++ez)
-      for (int ey = -1; ey <= 1; ++ey)
-        for (int ex = -1; ex <= 1; ++ex) {
-          int32_t& n = neighbour[side(z + ez) + 1][side(y + ey) + 1][side(x + ex) + 1];
-          if (n < 0) continue;
-          if (v + step_[ez + 1][ey + 1][ex + 1] < block.v[z + 1 + ez][y + 1 + ey][x + 1 + ex]) rounds_.wake(n), n = -1;
-        }
-  }
-
-  /// One sweep over the brick's voxels, forward (dir 1) or back; whether it lowered any. Fixed voxels keep their
-  /// values (and pass them on).
-  bool sweep(Block& block, int dir) const {
-    bool changed = false;
-    for (int n = 0; n < kEdge; ++n) {
-      const int z = dir > 0 ? n + 1 : kEdge - n;
-      for (int m = 0; m < kEdge; ++m) {
-        const int y = dir > 0 ? m + 1 : kEdge - m;
-        const int16_t* from[12];
-        int16_t steps[12];
-        int r = 0;
-        for (int dj = -1; dj <= 1; ++dj)
-          for (int dx = -1; dx <= 1; ++dx, ++r)
-            from[r] = &block.v[z - dir][y + dj][1 + dx], steps[r] = step_[2][dj + 1][dx + 1];
-        for (int dx = -1; dx <= 1; ++dx, ++r) from[r] = &block.v[z][y - dir][1 + dx], steps[r] = step_[1][2][dx + 1];
-        int16_t best[kEdge];
-        least_of_rows(&block.v[z][y][1], from, steps, best);
-        int16_t* row = block.v[z][y];
-        const bool* fixed = block.fixed[z - 1][y - 1];
-        int run = row[dir > 0 ? 0 : kEdge + 1];
-        for (int s = 0; s < kEdge; ++s) {
-          const int x = dir > 0 ? s : kEdge - 1 - s;
-          if (!fixed[x]) {
-            const int16_t v = int16_t(std::min<int>(best[x], run + axis_step_[1]));
-            changed |= v < row[x + 1];
-            row[x + 1] = v;
-          }
-          run = row[x + 1];
-        }
-      }
-    }
-    return changed;
-  }
-
-  const Voxelmap& vm_;
-  std::vector<int16_t>& codes_;
-  int bricks_[3], dims_[3];
-  int axis_step_[4];               ///< steps of q along 0 .. 3 axes at once, rounded up
-  int16_t step_[3][3][3];          ///< the same by dk + 1, dj + 1, dx + 1
-  std::vector<int16_t> stored_;    ///< |c >> 1| of a stored code in steps of q, rounded up
-  std::vector<int16_t> reversed_;  ///< path lengths to offsets -8 .. 8, rows reversed
-  BrickRounds rounds_;
-};
-
 double seconds_since(std::chrono::steady_clock::time_point& start) {
   const auto now = std::chrono::steady_clock::now();
   const double s = std::chrono::duration<double>(now - start).count();
@@ -1027,9 +564,9 @@ struct Timing {
 double time_format21_estimates(const Voxelmap& vm, unsigned threads) {
   std::vector<int16_t> codes = vm.brick_values;
   const auto start = std::chrono::steady_clock::now();
-  const auto b = vm.brick_dims();
-  for_each_value_brick(vm, threads, [&](size_t n) {
-    voxfmt::fill_brick_estimates(vm, uint32_t(n % b[0]), uint32_t(n / b[0] % b[1]), uint32_t(n / (size_t(b[0]) * b[1])),
+  voxfmt::detail::for_each_value_brick_shared(vm, threads, [&](size_t n) {
+    const auto [bi, bj, bk] = brick_coordinates(vm, n);
+    voxfmt::fill_brick_estimates(vm, uint32_t(bi), uint32_t(bj), uint32_t(bk),
                                  &codes[size_t(vm.bricks[n]) * Voxelmap::kBrickVoxels]);
   });
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -1071,6 +608,24 @@ Timing block_transform(const Voxelmap& vm, unsigned threads, std::vector<float>&
   return timing;
 }
 
+/// Per value-brick voxel of `codes` (the value bricks' order): |d| / h where stored, the estimate's magnitude in
+/// voxels, 1e30 past the grid.
+std::vector<float> code_values(const Voxelmap& vm, const std::vector<int16_t>& codes) {
+  std::vector<float> out(codes.size(), 1e30f);
+  for (size_t b = 0; b < vm.bricks.size(); ++b) {
+    if (vm.bricks[b] < 0) continue;
+    const auto [bi, bj, bk] = brick_coordinates(vm, b);
+    const size_t first = size_t(vm.bricks[b]) * Voxelmap::kBrickVoxels;
+    for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
+      const uint32_t i = uint32_t(bi * kEdge + (l & 7)), j = uint32_t(bj * kEdge + (l >> 3 & 7)),
+                     k = uint32_t(bk * kEdge + (l >> 6));
+      if (i < vm.dims[0] && j < vm.dims[1] && k < vm.dims[2])
+        out[first + size_t(l)] = float(std::abs(vm.decode(codes[first + size_t(l)])) / vm.voxel_size);
+    }
+  }
+  return out;
+}
+
 /// The in-place transform of a copy of `vm`'s codes (the copy not timed), timed: its rounds as passes; its values
 /// in `values`, and in `check_s` / `wrong` the time of a check of every estimate and what it found.
 Timing code_transform(const Voxelmap& vm, unsigned threads, std::vector<float>& values, double& check_s,
@@ -1078,15 +633,15 @@ Timing code_transform(const Voxelmap& vm, unsigned threads, std::vector<float>& 
   std::vector<int16_t> codes = vm.brick_values;
   Timing timing;
   auto clock = std::chrono::steady_clock::now();
-  CodeTransform transform(vm, codes);
+  voxfmt::detail::EstimateTransform transform(vm, codes);
   transform.seed(threads);
   timing.seed_s = seconds_since(clock);
-  for (const auto& round : transform.run(threads))
+  for (const auto& round : transform.settle(threads))
     timing.passes.push_back({round.s, round.lowered, 0.0f, round.visits});
   seconds_since(clock);
-  wrong = transform.check(threads);
+  wrong = transform.count_unsettled(threads);
   check_s = seconds_since(clock);
-  values = transform.values();
+  values = code_values(vm, codes);
   return timing;
 }
 
