@@ -2,6 +2,7 @@
 """What finer sources in coarse bricks would give (issue "fidelity": measure before choosing a format change).
 
     PYTHONPATH=build/python .venv/bin/python bench/coarse_refinement.py ASSET MESH [--json OUT]
+        [--feet 0,1 --feet-blend 8:24,4:16 --no-refined]
 
 A coarse brick stores no values: the runtime interpolates the lattice (exact distances at brick corners, 8 voxels
 apart; beyond 16 voxels up to 10 % over, spec §3.3). After estimate_oracle.py, the errors beyond 1 voxel + 1 % of
@@ -19,6 +20,13 @@ bricks' field by
   2-lattice on ridges    the flagged variant, but every 2 voxels (125 points a brick) in the ridge bricks
                          (--ridge ANGLE), where a 4-voxel interpolation still cuts the peak; and that only in
                          the ridge bricks where the 4-lattice misses it by more than --ridge-tolerance.
+and, with --feet, the coarse bricks' field from what the bake's lattice stage already holds instead of new points:
+  feet                   each voxel's least distance to the nearest surface points ("feet") of the lattice points
+                         around it (never below the exact distance; exact at a ridge whose sheets both have a
+                         foot), over the brick's 8 corners or (a penalty > 0, continuous) the 4^3 points around;
+  feet blended           the exact 8-lattice's interpolation up to NEAR voxels deep, the feet beyond FAR, blended
+                         linearly between (--feet-blend): near the surface the corners' feet lie far to the side,
+                         and the interpolation of a nearly flat distance is exact;
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -62,6 +70,34 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
 
 
+def feet_values(coarse, table, feet, LD, top, penalty: float) -> np.ndarray:
+    """[coarse bricks, 512] signed values: the least distance from each voxel to the nearest surface points `feet`
+    (voxel coordinates, [lattice points, 3]) of the lattice points around it. Penalty 0: the brick's 8 corners
+    (not continuous from one brick to the next); > 0: the 4^3 points around, each plus `penalty` times how far the
+    voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous."""
+    feet = feet.reshape(*LD, 3)
+    local = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(512, 3)
+    offsets = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if penalty == 0 else \
+        [(a, b, c) for a in range(-1, 3) for b in range(-1, 3) for c in range(-1, 3)]
+    out = np.empty((len(coarse), 512))
+    for s in range(0, len(coarse), 2000):
+        bricks = coarse[s:s + 2000]
+        x = (bricks[:, None, :] * 8 + local[None]).astype(float)
+        best = np.full((len(bricks), 512), np.inf)
+        for off in offsets:
+            q = bricks + off
+            valid = ((q >= 0) & (q < LD)).all(1)
+            q = np.clip(q, 0, LD - 1)
+            d = np.linalg.norm(x - feet[tuple(q.T)][:, None, :], axis=2)
+            if penalty > 0:
+                p = np.minimum(q * 8, top)
+                d += penalty * np.maximum(np.abs(x - p[:, None, :]).max(2) - 8, 0)
+            best = np.minimum(best, np.where(valid[:, None], d, np.inf))
+        sign = np.where(table[tuple(bricks.T)] == -2, -1.0, 1.0)
+        out[s:s + 2000] = sign[:, None] * best
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("asset")
@@ -76,6 +112,12 @@ def main() -> int:
                     help="voxels: a ridge brick keeps its 2-lattice where the 4-lattice is further off (default 1)")
     ap.add_argument("--reach", type=int, choices=(1, 2), default=1,
                     help="the value bricks' chamfer transform: steps to the 26 neighbours (1) or the 5^3 (2)")
+    ap.add_argument("--feet", default="",
+                    help="comma-separated penalties for the feet variants (0: the least distance to the 8 corners' "
+                         "nearest surface points; > 0: over the 4^3 points around, each beyond its 8 cells penalised "
+                         "by that many voxels a voxel; default '' skips them)")
+    ap.add_argument("--feet-blend", default="8:24", help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
+    ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args()
     igl = import_igl("coarse_refinement")
@@ -135,8 +177,22 @@ def main() -> int:
 
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
-    fields["4-lattice everywhere"] = (variant(fine_values), len(coarse), added_values(points4))
-    for pair in args.flags.split(","):
+    for penalty in [float(x) for x in args.feet.split(",") if x]:
+        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty)
+        name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
+        fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
+        # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
+        # surface, where the corners' feet lie far to the side, the interpolation; blended between the depths.
+        for blend in [b for b in args.feet_blend.split(",") if b]:
+            near, far = (float(x) for x in blend.split(":"))
+            w = np.clip((np.abs(exact8_values) - near) / (far - near), 0, 1)
+            fields[f"the interpolation up to {near:g} voxels deep, the feet of the {name} beyond {far:g}, blended"] = (
+                variant(exact8_values + w * (values - exact8_values)), 0, 0)
+    if args.no_refined:
+        args.flags, args.ridge = "", ""
+    else:
+        fields["4-lattice everywhere"] = (variant(fine_values), len(coarse), added_values(points4))
+    for pair in [p for p in args.flags.split(",") if p]:
         near, angle, close, ridge = flags(pair)
         flag = close | ridge
         fields[f"4-lattice where a corner is within {near:g} voxels or directions differ by > {angle:g} deg"] = (
