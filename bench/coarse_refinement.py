@@ -2,7 +2,7 @@
 """What finer sources in coarse bricks would give (issue "fidelity": measure before choosing a format change).
 
     PYTHONPATH=build/python .venv/bin/python bench/coarse_refinement.py ASSET MESH [--json OUT]
-        [--feet 0,1 --feet-blend 8:24,4:16 --no-refined]
+        [--feet 0,1 --feet-disc 0,3 --feet-blend 8:24,4:16 --no-refined]
 
 A coarse brick stores no values: the runtime interpolates the lattice (exact distances at brick corners, 8 voxels
 apart; beyond 16 voxels up to 10 % over, spec §3.3). After estimate_oracle.py, the errors beyond 1 voxel + 1 % of
@@ -27,6 +27,8 @@ and, with --feet, the coarse bricks' field from what the bake's lattice stage al
   feet blended           the exact 8-lattice's interpolation up to NEAR voxels deep, the feet beyond FAR, blended
                          linearly between (--feet-blend): near the surface the corners' feet lie far to the side,
                          and the interpolation of a nearly flat distance is exact;
+  feet, discs            with --feet-disc R: the distance to a disc of radius R around each foot in its tangent
+                         plane instead of to the foot (no sideways over-estimate on a flat sheet);
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -70,11 +72,13 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
 
 
-def feet_values(coarse, table, feet, LD, top, penalty: float) -> np.ndarray:
+def feet_values(coarse, table, feet, LD, top, penalty: float, disc: float = 0) -> np.ndarray:
     """[coarse bricks, 512] signed values: the least distance from each voxel to the nearest surface points `feet`
     (voxel coordinates, [lattice points, 3]) of the lattice points around it. Penalty 0: the brick's 8 corners
     (not continuous from one brick to the next); > 0: the 4^3 points around, each plus `penalty` times how far the
-    voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous."""
+    voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous.
+    disc > 0: the distance to a disc of that radius (voxels) around each foot in its tangent plane (normal: the
+    direction from the foot to its lattice point) instead of to the foot alone."""
     feet = feet.reshape(*LD, 3)
     local = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(512, 3)
     offsets = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if penalty == 0 else \
@@ -88,9 +92,18 @@ def feet_values(coarse, table, feet, LD, top, penalty: float) -> np.ndarray:
             q = bricks + off
             valid = ((q >= 0) & (q < LD)).all(1)
             q = np.clip(q, 0, LD - 1)
-            d = np.linalg.norm(x - feet[tuple(q.T)][:, None, :], axis=2)
+            foot = feet[tuple(q.T)]
+            d = np.linalg.norm(x - foot[:, None, :], axis=2)
+            p = np.minimum(q * 8, top)
+            if disc > 0:
+                normal = p - foot
+                length = np.linalg.norm(normal, axis=1, keepdims=True)
+                normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-12), 0.0)
+                plane = np.einsum("nva,na->nv", x - foot[:, None, :], normal)
+                lateral = np.sqrt(np.maximum(d * d - plane * plane, 0))
+                to_disc = np.sqrt(plane * plane + np.maximum(lateral - disc, 0) ** 2)
+                d = np.where(length > 1e-6, to_disc, d)
             if penalty > 0:
-                p = np.minimum(q * 8, top)
                 d += penalty * np.maximum(np.abs(x - p[:, None, :]).max(2) - 8, 0)
             best = np.minimum(best, np.where(valid[:, None], d, np.inf))
         sign = np.where(table[tuple(bricks.T)] == -2, -1.0, 1.0)
@@ -116,6 +129,9 @@ def main() -> int:
                     help="comma-separated penalties for the feet variants (0: the least distance to the 8 corners' "
                          "nearest surface points; > 0: over the 4^3 points around, each beyond its 8 cells penalised "
                          "by that many voxels a voxel; default '' skips them)")
+    ap.add_argument("--feet-disc", default="0",
+                    help="comma-separated disc radii (voxels) for the feet variants: 0 the feet alone, R > 0 a disc of "
+                         "radius R around each in its tangent plane (default 0)")
     ap.add_argument("--feet-blend", default="8:24", help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
     ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
     ap.add_argument("--json", help="write the figures here")
@@ -177,9 +193,11 @@ def main() -> int:
 
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
-    for penalty in [float(x) for x in args.feet.split(",") if x]:
-        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty)
+    discs = [float(x) for x in args.feet_disc.split(",") if x]
+    for penalty, disc in [(float(x), r) for x in args.feet.split(",") if x for r in discs]:
+        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, disc)
         name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
+        name += f", discs of {disc:g} voxels" if disc > 0 else ""
         fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
         # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
         # surface, where the corners' feet lie far to the side, the interpolation; blended between the depths.
