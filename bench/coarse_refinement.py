@@ -28,7 +28,10 @@ and, with --feet, the coarse bricks' field from what the bake's lattice stage al
                          linearly between (--feet-blend): near the surface the corners' feet lie far to the side,
                          and the interpolation of a nearly flat distance is exact;
   feet, discs            with --feet-disc R: the distance to a disc of radius R around each foot in its tangent
-                         plane instead of to the foot (no sideways over-estimate on a flat sheet);
+                         plane instead of to the foot (no sideways over-estimate on a flat sheet); with
+                         --feet-curvature T each disc at most as wide as keeps the sphere of the surface's curvature
+                         at its foot within T voxels (libigl's principal curvatures), and --feet-edges-plain none
+                         on a triangle's edge or vertex;
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -72,13 +75,14 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
 
 
-def feet_values(coarse, table, feet, LD, top, penalty: float, disc: float = 0) -> np.ndarray:
+def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0) -> np.ndarray:
     """[coarse bricks, 512] signed values: the least distance from each voxel to the nearest surface points `feet`
     (voxel coordinates, [lattice points, 3]) of the lattice points around it. Penalty 0: the brick's 8 corners
     (not continuous from one brick to the next); > 0: the 4^3 points around, each plus `penalty` times how far the
     voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous.
     disc > 0: the distance to a disc of that radius (voxels) around each foot in its tangent plane (normal: the
-    direction from the foot to its lattice point) instead of to the foot alone."""
+    direction from the foot to its lattice point) instead of to the foot alone; an array [LD]: a radius a lattice
+    point."""
     feet = feet.reshape(*LD, 3)
     local = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(512, 3)
     offsets = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if penalty == 0 else \
@@ -95,13 +99,14 @@ def feet_values(coarse, table, feet, LD, top, penalty: float, disc: float = 0) -
             foot = feet[tuple(q.T)]
             d = np.linalg.norm(x - foot[:, None, :], axis=2)
             p = np.minimum(q * 8, top)
-            if disc > 0:
+            radius = disc[tuple(q.T)][:, None] if np.ndim(disc) else disc
+            if np.any(radius > 0):
                 normal = p - foot
                 length = np.linalg.norm(normal, axis=1, keepdims=True)
                 normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-12), 0.0)
                 plane = np.einsum("nva,na->nv", x - foot[:, None, :], normal)
                 lateral = np.sqrt(np.maximum(d * d - plane * plane, 0))
-                to_disc = np.sqrt(plane * plane + np.maximum(lateral - disc, 0) ** 2)
+                to_disc = np.sqrt(plane * plane + np.maximum(lateral - radius, 0) ** 2)
                 d = np.where(length > 1e-6, to_disc, d)
             if penalty > 0:
                 d += penalty * np.maximum(np.abs(x - p[:, None, :]).max(2) - 8, 0)
@@ -132,6 +137,11 @@ def main() -> int:
     ap.add_argument("--feet-disc", default="0",
                     help="comma-separated disc radii (voxels) for the feet variants: 0 the feet alone, R > 0 a disc of "
                          "radius R around each in its tangent plane (default 0)")
+    ap.add_argument("--feet-curvature", type=float, default=0,
+                    help="voxels: each disc at most as wide as keeps the surface's sphere of curvature at its foot "
+                         "within this of the disc (default 0: the radius alone)")
+    ap.add_argument("--feet-edges-plain", action="store_true",
+                    help="with --feet-curvature: no disc for a foot on a triangle's edge or vertex")
     ap.add_argument("--feet-blend", default="8:24", help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
     ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
     ap.add_argument("--json", help="write the figures here")
@@ -164,7 +174,7 @@ def main() -> int:
     # the bake's lattice keys hold the nearest triangles).
     LD = np.asarray(lattice.shape)
     P = origin + h * lattice_voxels(LD, dims).reshape(-1, 3)
-    _, _, nearest = igl.point_mesh_squared_distance(P, V, F)
+    _, foot_triangle, nearest = igl.point_mesh_squared_distance(P, V, F)
     direction = P - nearest
     direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-12)[:, None]
     direction = direction.reshape(*LD, 3)
@@ -194,10 +204,28 @@ def main() -> int:
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
     discs = [float(x) for x in args.feet_disc.split(",") if x]
+    if args.feet_curvature > 0 and any(discs):
+        # Each foot's disc no wider than keeps a sphere of the surface's radius of curvature there (libigl's
+        # principal curvatures, the larger, at its triangle's vertices) within the tolerance of the disc.
+        _, _, k1, k2, _ = igl.principal_curvature(V.astype(np.float64), F)
+        kappa = np.maximum(np.abs(k1), np.abs(k2))[F[foot_triangle]].max(1) * h  # per voxel
+        sized = np.sqrt(2 * args.feet_curvature / np.maximum(kappa, 1e-9))
+        if args.feet_edges_plain:
+            # A foot on an edge or a vertex has no tangent plane of its own (its direction is any in the normal
+            # cone): no disc there.
+            corners = [V[F[foot_triangle, c]].astype(np.float64) for c in range(3)]
+            bary = igl.barycentric_coordinates(nearest.astype(np.float64), *corners)
+            sized = np.where(np.asarray(bary).min(1) > 1e-6, sized, 0.0)
+            print(f"coarse_refinement: {100 * float((sized == 0).mean()):.1f} % of the feet on an edge or a vertex")
+        sized = sized.reshape(*LD)
     for penalty, disc in [(float(x), r) for x in args.feet.split(",") if x for r in discs]:
-        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, disc)
+        radius = np.minimum(sized, disc) if args.feet_curvature > 0 and disc > 0 else disc
+        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, radius)
         name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
         name += f", discs of {disc:g} voxels" if disc > 0 else ""
+        name += f" at most, each within {args.feet_curvature:g} voxel of its sphere of curvature" \
+            if args.feet_curvature > 0 and disc > 0 else ""
+        name += " (none on an edge or a vertex)" if args.feet_edges_plain and args.feet_curvature > 0 and disc > 0 else ""
         fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
         # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
         # surface, where the corners' feet lie far to the side, the interpolation; blended between the depths.
