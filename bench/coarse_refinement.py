@@ -30,8 +30,9 @@ and, with --feet, the coarse bricks' field from what the bake's lattice stage al
   feet, discs            with --feet-disc R: the distance to a disc of radius R around each foot in its tangent
                          plane instead of to the foot (no sideways over-estimate on a flat sheet); with
                          --feet-curvature T each disc at most as wide as keeps the sphere of the surface's curvature
-                         at its foot within T voxels (libigl's principal curvatures), and --feet-edges-plain none
-                         on a triangle's edge or vertex;
+                         at its foot within T voxels (libigl's principal curvatures), --feet-edges-plain none
+                         on a triangle's edge or vertex, --feet-pseudonormal each disc normal to the surface's
+                         pseudonormal at its foot;
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -75,14 +76,14 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
 
 
-def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0) -> np.ndarray:
+def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0, normals=None) -> np.ndarray:
     """[coarse bricks, 512] signed values: the least distance from each voxel to the nearest surface points `feet`
     (voxel coordinates, [lattice points, 3]) of the lattice points around it. Penalty 0: the brick's 8 corners
     (not continuous from one brick to the next); > 0: the 4^3 points around, each plus `penalty` times how far the
     voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous.
     disc > 0: the distance to a disc of that radius (voxels) around each foot in its tangent plane (normal: the
-    direction from the foot to its lattice point) instead of to the foot alone; an array [LD]: a radius a lattice
-    point."""
+    direction from the foot to its lattice point, or `normals` [lattice points, 3] where given) instead of to the
+    foot alone; an array [LD]: a radius a lattice point."""
     feet = feet.reshape(*LD, 3)
     local = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(512, 3)
     offsets = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if penalty == 0 else \
@@ -104,6 +105,8 @@ def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0) -> np.nd
                 normal = p - foot
                 length = np.linalg.norm(normal, axis=1, keepdims=True)
                 normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-12), 0.0)
+                if normals is not None:
+                    normal = normals.reshape(-1, 3)[np.ravel_multi_index(tuple(q.T), tuple(LD))]
                 plane = np.einsum("nva,na->nv", x - foot[:, None, :], normal)
                 lateral = np.sqrt(np.maximum(d * d - plane * plane, 0))
                 to_disc = np.sqrt(plane * plane + np.maximum(lateral - radius, 0) ** 2)
@@ -142,6 +145,8 @@ def main() -> int:
                          "within this of the disc (default 0: the radius alone)")
     ap.add_argument("--feet-edges-plain", action="store_true",
                     help="with --feet-curvature: no disc for a foot on a triangle's edge or vertex")
+    ap.add_argument("--feet-pseudonormal", action="store_true",
+                    help="the discs' planes normal to the surface's pseudonormal at each foot")
     ap.add_argument("--feet-blend", default="8:24", help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
     ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
     ap.add_argument("--json", help="write the figures here")
@@ -204,6 +209,12 @@ def main() -> int:
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
     discs = [float(x) for x in args.feet_disc.split(",") if x]
+    disc_normals = None
+    if args.feet_pseudonormal:
+        # The surface's own normal at each foot (libigl's pseudonormal: a face's, or the angle-weighted normal of the
+        # faces around an edge or a vertex), not the direction to the lattice point.
+        disc_normals = igl.signed_distance(P, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[3]
+        disc_normals = disc_normals / np.maximum(np.linalg.norm(disc_normals, axis=1, keepdims=True), 1e-12)
     if args.feet_curvature > 0 and any(discs):
         # Each foot's disc no wider than keeps a sphere of the surface's radius of curvature there (libigl's
         # principal curvatures, the larger, at its triangle's vertices) within the tolerance of the disc.
@@ -220,11 +231,12 @@ def main() -> int:
         sized = sized.reshape(*LD)
     for penalty, disc in [(float(x), r) for x in args.feet.split(",") if x for r in discs]:
         radius = np.minimum(sized, disc) if args.feet_curvature > 0 and disc > 0 else disc
-        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, radius)
+        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, radius, disc_normals)
         name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
         name += f", discs of {disc:g} voxels" if disc > 0 else ""
         name += f" at most, each within {args.feet_curvature:g} voxel of its sphere of curvature" \
             if args.feet_curvature > 0 and disc > 0 else ""
+        name += ", planes by pseudonormals" if args.feet_pseudonormal and disc > 0 else ""
         name += " (none on an edge or a vertex)" if args.feet_edges_plain and args.feet_curvature > 0 and disc > 0 else ""
         fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
         # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
