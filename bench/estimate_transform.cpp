@@ -23,9 +23,9 @@
 //
 // `--by-brick` reaches the same values brick by brick (a brick and a one-voxel apron swept in a 10^3 block until
 // settled, its neighbours woken where it lowered a voxel next to them; threads on slabs of brick layers), and
-// `--in-codes` is what a format 2.2 producer would run (libvoxfmt's voxfmt/detail/estimate_transform.h): that, in place on a copy of the 16-bit codes in steps of the
-// estimate quantum (stored distances fixed, voxels past the grid left out), then a check of every estimate against
-// its seed and neighbours (what a validator would run), timed.
+// `--in-codes` is what a format 2.2 producer would run (libvoxfmt's voxfmt/detail/estimate_transform.h): that, in place
+// on a copy of the 16-bit codes in steps of the estimate quantum (stored distances fixed, voxels past the grid left
+// out), then a check of every estimate against its seed and neighbours (what a validator would run), timed.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
