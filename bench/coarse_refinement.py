@@ -76,14 +76,14 @@ def trilinear_weights(points_per_axis: int) -> np.ndarray:
     return np.einsum("ia,jb,kc->ijkabc", axis, axis, axis).reshape(512, -1)
 
 
-def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0, normals=None) -> np.ndarray:
+def feet_values(coarse, table, feet, normals, LD, top, penalty: float, disc=0.0) -> np.ndarray:
     """[coarse bricks, 512] signed values: the least distance from each voxel to the nearest surface points `feet`
     (voxel coordinates, [lattice points, 3]) of the lattice points around it. Penalty 0: the brick's 8 corners
     (not continuous from one brick to the next); > 0: the 4^3 points around, each plus `penalty` times how far the
     voxel is (L-infinity, voxels) beyond the 8 cells around the point (0 for the brick's corners), continuous.
-    disc > 0: the distance to a disc of that radius (voxels) around each foot in its tangent plane (normal: the
-    direction from the foot to its lattice point, or `normals` [lattice points, 3] where given) instead of to the
-    foot alone; an array [LD]: a radius a lattice point."""
+    disc > 0: the distance to a disc of that radius (voxels) around each foot in its tangent plane (`normals`,
+    [lattice points, 3], unit; a zero normal: the foot alone) instead of to the foot alone; an array [LD]: a radius
+    a lattice point."""
     feet = feet.reshape(*LD, 3)
     local = np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(512, 3)
     offsets = [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if penalty == 0 else \
@@ -102,15 +102,11 @@ def feet_values(coarse, table, feet, LD, top, penalty: float, disc=0.0, normals=
             p = np.minimum(q * 8, top)
             radius = disc[tuple(q.T)][:, None] if np.ndim(disc) else disc
             if np.any(radius > 0):
-                normal = p - foot
-                length = np.linalg.norm(normal, axis=1, keepdims=True)
-                normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-12), 0.0)
-                if normals is not None:
-                    normal = normals.reshape(-1, 3)[np.ravel_multi_index(tuple(q.T), tuple(LD))]
+                normal = normals.reshape(-1, 3)[np.ravel_multi_index(tuple(q.T), tuple(LD))]
                 plane = np.einsum("nva,na->nv", x - foot[:, None, :], normal)
                 lateral = np.sqrt(np.maximum(d * d - plane * plane, 0))
                 to_disc = np.sqrt(plane * plane + np.maximum(lateral - radius, 0) ** 2)
-                d = np.where(length > 1e-6, to_disc, d)
+                d = np.where(np.linalg.norm(normal, axis=1)[:, None] > 0.5, to_disc, d)
             if penalty > 0:
                 d += penalty * np.maximum(np.abs(x - p[:, None, :]).max(2) - 8, 0)
             best = np.minimum(best, np.where(valid[:, None], d, np.inf))
@@ -147,7 +143,8 @@ def main() -> int:
                     help="with --feet-curvature: no disc for a foot on a triangle's edge or vertex")
     ap.add_argument("--feet-pseudonormal", action="store_true",
                     help="the discs' planes normal to the surface's pseudonormal at each foot")
-    ap.add_argument("--feet-blend", default="8:24", help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
+    ap.add_argument("--feet-blend", default="8:24",
+                    help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
     ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
     ap.add_argument("--json", help="write the figures here")
     args = ap.parse_args()
@@ -209,7 +206,7 @@ def main() -> int:
     fields = {"format 2.1 lattice (chamfer in value bricks)": (base, 0, 0)}
     fields["exact 8-lattice"] = (variant(exact8_values), 0, 0)
     discs = [float(x) for x in args.feet_disc.split(",") if x]
-    disc_normals = None
+    disc_normals = direction  # towards each lattice point from its foot
     if args.feet_pseudonormal:
         # The surface's own normal at each foot (libigl's pseudonormal: a face's, or the angle-weighted normal of the
         # faces around an edge or a vertex), not the direction to the lattice point.
@@ -224,20 +221,21 @@ def main() -> int:
         if args.feet_edges_plain:
             # A foot on an edge or a vertex has no tangent plane of its own (its direction is any in the normal
             # cone): no disc there.
-            corners = [V[F[foot_triangle, c]].astype(np.float64) for c in range(3)]
-            bary = igl.barycentric_coordinates(nearest.astype(np.float64), *corners)
+            triangle = [V[F[foot_triangle, c]].astype(np.float64) for c in range(3)]
+            bary = igl.barycentric_coordinates(nearest.astype(np.float64), *triangle)
             sized = np.where(np.asarray(bary).min(1) > 1e-6, sized, 0.0)
             print(f"coarse_refinement: {100 * float((sized == 0).mean()):.1f} % of the feet on an edge or a vertex")
         sized = sized.reshape(*LD)
     for penalty, disc in [(float(x), r) for x in args.feet.split(",") if x for r in discs]:
         radius = np.minimum(sized, disc) if args.feet_curvature > 0 and disc > 0 else disc
-        values = feet_values(coarse, table, (nearest - origin) / h, LD, top, penalty, radius, disc_normals)
+        values = feet_values(coarse, table, (nearest - origin) / h, disc_normals, LD, top, penalty, radius)
         name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
-        name += f", discs of {disc:g} voxels" if disc > 0 else ""
-        name += f" at most, each within {args.feet_curvature:g} voxel of its sphere of curvature" \
-            if args.feet_curvature > 0 and disc > 0 else ""
-        name += ", planes by pseudonormals" if args.feet_pseudonormal and disc > 0 else ""
-        name += " (none on an edge or a vertex)" if args.feet_edges_plain and args.feet_curvature > 0 and disc > 0 else ""
+        if disc > 0:
+            name += f", discs of {disc:g} voxels"
+            if args.feet_curvature > 0:
+                name += f" at most, each within {args.feet_curvature:g} voxel of its sphere of curvature"
+                name += " (none on an edge or a vertex)" if args.feet_edges_plain else ""
+            name += ", planes by pseudonormals" if args.feet_pseudonormal else ""
         fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
         # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
         # surface, where the corners' feet lie far to the side, the interpolation; blended between the depths.

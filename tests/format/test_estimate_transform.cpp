@@ -48,10 +48,10 @@ std::vector<int16_t> relaxed_plainly(const Voxelmap& vm) {
   auto at = [&](int i, int j, int k) { return (size_t(k) * size_t(n[1]) + size_t(j)) * size_t(n[0]) + size_t(i); };
   std::vector<int> value(size_t(n[0]) * size_t(n[1]) * size_t(n[2]), -1);  // -1: not in a value brick
   std::vector<char> fixed(value.size(), 0);
-  auto code_at = [&](int i, int j, int k) -> int16_t* {
+  auto code_at = [&](int i, int j, int k) -> const int16_t* {
     const int32_t e = vm.bricks[vm.brick_index(uint32_t(i / 8), uint32_t(j / 8), uint32_t(k / 8))];
     if (e < 0) return nullptr;
-    return const_cast<int16_t*>(&vm.brick_values[size_t(e) * 512 + size_t(((k % 8) * 8 + j % 8) * 8 + i % 8)]);
+    return &vm.brick_values[size_t(e) * 512 + size_t(((k % 8) * 8 + j % 8) * 8 + i % 8)];
   };
   for (int k = 0; k < n[2]; ++k)
     for (int j = 0; j < n[1]; ++j)
