@@ -54,23 +54,24 @@ def main() -> int:
     files = {}
     for name, mesh in (("peg", shapes.peg_mesh(s)), (f"block-{args.clearance}", shapes.hole_block_mesh(s))):
         stem = out / f"{name}-{args.voxel}"
-        shapes.write_off(stem.with_suffix(".off"), *mesh)
-        shapes.write_obj(stem.with_suffix(".obj"), *mesh)
-        asset = stem.with_suffix(".vox.h5")
+        shapes.write_off(Path(f"{stem}.off"), *mesh)
+        shapes.write_obj(Path(f"{stem}.obj"), *mesh)
+        asset = Path(f"{stem}.vox.h5")
         if not asset.exists():
-            voxfmt.bake(stem.with_suffix(".off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
+            voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
         files[name.split("-")[0]] = stem
 
     voxfmt.mujoco.load_plugin()
     start = (0.0003, 0.0, s.block_height + 0.002)
-    peg = voxfmt.mujoco.part(files["peg"].with_suffix(".vox.h5"), "peg", pos=start, density=7800.0)
-    block = voxfmt.mujoco.part(files["block"].with_suffix(".vox.h5"), "block", static=True)
+    peg = voxfmt.mujoco.part(f"{files['peg']}.vox.h5", "peg", pos=start, density=7800.0)
+    block = voxfmt.mujoco.part(f"{files['block']}.vox.h5", "block", static=True)
     xml = voxfmt.mujoco.insert(SCENE, peg, block)
     if args.hull:  # the same bodies and masses, with MuJoCo's mesh geoms
         xml = xml.replace(f'type="sdf" mesh="{peg.instance}"', 'type="mesh" mesh="peg_mesh"')
         xml = xml.replace(f'type="sdf" mesh="{block.instance}"', 'type="mesh" mesh="block_mesh"')
-        xml = xml.replace("<asset>", f'<asset><mesh name="peg_mesh" file="{files["peg"].with_suffix(".obj")}"/>'
-                                     f'<mesh name="block_mesh" file="{files["block"].with_suffix(".obj")}"/>')
+        peg_obj, block_obj = (f"{files[name]}.obj" for name in ("peg", "block"))
+        xml = xml.replace("<asset>", f'<asset><mesh name="peg_mesh" file="{peg_obj}"/>'
+                                     f'<mesh name="block_mesh" file="{block_obj}"/>')
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
     if args.viewer:

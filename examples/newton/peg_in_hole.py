@@ -51,10 +51,10 @@ def main() -> int:
     parts = {}
     for name, mesh in (("peg", shapes.peg_mesh(s)), (f"block-{args.clearance}", shapes.hole_block_mesh(s))):
         stem = out / f"{name}-{args.voxel}"
-        shapes.write_off(stem.with_suffix(".off"), *mesh)
-        asset = stem.with_suffix(".vox.h5")
+        shapes.write_off(Path(f"{stem}.off"), *mesh)
+        asset = Path(f"{stem}.vox.h5")
         if not asset.exists():
-            voxfmt.bake(stem.with_suffix(".off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
+            voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
         parts[name.split("-")[0]] = (asset, mesh)
 
     builder = newton.ModelBuilder()

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <stdexcept>
 
 namespace voxfmt::detail {
 
@@ -58,7 +59,12 @@ std::vector<std::pair<int, int>> BrickRounds::balanced_slabs(unsigned threads) c
 // ---- EstimateTransform
 
 EstimateTransform::EstimateTransform(const Voxelmap& vm, std::vector<int16_t>& codes)
-    : vm_(vm), codes_(codes), rounds_(vm) {
+    : EstimateTransform(vm, static_cast<const std::vector<int16_t>&>(codes)) {
+  writable_ = &codes;
+}
+
+EstimateTransform::EstimateTransform(const Voxelmap& vm, const std::vector<int16_t>& codes)
+    : vm_(vm), codes_(codes), writable_(nullptr), rounds_(vm) {
   const auto b = vm.brick_dims();
   for (int a = 0; a < 3; ++a) bricks_[a] = int(b[size_t(a)]), dims_[a] = int(vm.dims[size_t(a)]);
   const double per_voxel = vm.voxel_size / vm.estimate_quantum;
@@ -75,14 +81,17 @@ EstimateTransform::EstimateTransform(const Voxelmap& vm, std::vector<int16_t>& c
   for (int z = 0; z < 17; ++z)
     for (int y = 0; y < 17; ++y)
       for (int x = 0; x < 17; ++x)
-        reversed_[size_t((z * 17 + y) * 17 + 16 - x)] = int16_t(path_steps(x - 8, y - 8, z - 8));
+        reversed_[size_t((z * 17 + y) * 17 + 16 - x)] =
+            int16_t(std::min(path_steps(x - 8, y - 8, z - 8), int(Voxelmap::kMaxSteps)));
 }
 
 void EstimateTransform::seed(unsigned threads) {
+  if (!writable_) throw std::logic_error("EstimateTransform: seed() on codes given read-only");
   for_each_value_brick_shared(vm_, threads, [&](size_t b) { seed_brick(b); });
 }
 
 std::vector<BrickRound> EstimateTransform::settle(unsigned threads) {
+  if (!writable_) throw std::logic_error("EstimateTransform: settle() on codes given read-only");
   return rounds_.run(threads, [this](size_t e, int bi, int bj, int bk) { return visit(e, bi, bj, bk); });
 }
 
@@ -144,14 +153,15 @@ void EstimateTransform::seed_values(int bi, int bj, int bk, int16_t (&seeds)[kEd
   for (int q = 0; q < 8; ++q) {
     const double l =
         vm_.lattice[vm_.lattice_index(uint32_t(bi + (q & 1)), uint32_t(bj + (q >> 1 & 1)), uint32_t(bk + (q >> 2)))];
-    corner[q] = int16_t(std::min<double>(Voxelmap::kMaxSteps, std::ceil(l / vm_.estimate_quantum - 1e-9)));
+    corner[q] =
+        int16_t(std::max(0.0, std::min<double>(Voxelmap::kMaxSteps, std::ceil(l / vm_.estimate_quantum - 1e-9))));
   }
   int16_t far[kEdge];
   std::fill(far, far + kEdge, int16_t(Voxelmap::kMaxSteps));
   for (int lk = 0; lk < kEdge; ++lk)
     for (int lj = 0; lj < kEdge; ++lj) {
       const int j = bj * kEdge + lj, k = bk * kEdge + lk;
-      // 16-bit sums (at most 16383 + 8 * 28, then capped): SSE2's minimum of 16-bit lanes.
+      // 16-bit sums (both terms at most kMaxSteps, then capped): SSE2's minimum of 16-bit lanes.
       const int16_t* lengths[8];
       for (int q = 0; q < 8; ++q)
         lengths[q] = &reversed_[size_t(((cz[q >> 2] - k + 8) * 17 + cy[q >> 1 & 1] - j + 8) * 17 + 8 -
@@ -164,7 +174,7 @@ void EstimateTransform::seed_brick(size_t b) {
   const auto [bi, bj, bk] = brick_coordinates(vm_, b);
   int16_t seeds[kEdge][kEdge][kEdge];
   seed_values(bi, bj, bk, seeds);
-  int16_t* codes = &codes_[size_t(vm_.bricks[b]) * Voxelmap::kBrickVoxels];
+  int16_t* codes = &(*writable_)[size_t(vm_.bricks[b]) * Voxelmap::kBrickVoxels];
   for (int l = 0; l < int(Voxelmap::kBrickVoxels); ++l) {
     const int x = l & 7, y = l >> 3 & 7, z = l >> 6;
     if (Voxelmap::code_is_stored(codes[l]) || !in_grid(bi * kEdge + x, bj * kEdge + y, bk * kEdge + z)) continue;
@@ -232,7 +242,7 @@ size_t EstimateTransform::visit(size_t e, int bi, int bj, int bk) {
     if (!sweep(block, n % 2 == 0 ? 1 : -1) && n >= 1) break;
   int32_t neighbour[3][3][3];
   const bool any_awake = rounds_.awake_neighbours(bi, bj, bk, neighbour);
-  int16_t* codes = &codes_[e * Voxelmap::kBrickVoxels];
+  int16_t* codes = &(*writable_)[e * Voxelmap::kBrickVoxels];
   size_t lowered = 0;
   for (int z = 0; z < kEdge; ++z)
     for (int y = 0; y < kEdge; ++y)

@@ -71,6 +71,7 @@ void visit_asset(Wire& w, A& a) {
   w.pod(vm.distance_quantum);
   w.pod(vm.estimate_quantum);
   w.pod(vm.lattice_error);
+  w.pod(vm.estimates);
   w.array(vm.bricks);
   w.array(vm.brick_values);
   w.array(vm.lattice);

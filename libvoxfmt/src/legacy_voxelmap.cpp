@@ -243,7 +243,7 @@ void read_dense_voxelmap(h5::Reader& r, hid_t g, const std::string& p, const For
   // |d| >= 0.9 (|layer| - 1/2) h).
   const bool chamfer = version.minor == 0;
   vm.lattice_error = chamfer ? std::array<double, 2>{1.0, 1.0 / 9.0} : std::array<double, 2>{1.0 + std::sqrt(3.0), 0.0};
-  fill_estimates(vm);
+  fill_interpolated_estimates(vm);
 }
 
 }  // namespace voxfmt::detail

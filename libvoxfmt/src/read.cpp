@@ -99,6 +99,7 @@ void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, Validat
     return;
   }
   read_bricks(r, g, p, vm);
+  vm.estimates = version.minor >= 2 ? Voxelmap::Estimates::Settled : Voxelmap::Estimates::Interpolated;
   report_unknown(r, g, p, {"bricks", "brick_values", "lattice"},
                  {"origin", "voxel_size", "dims", "index_order", "distance_band", "margin", "shell_thickness",
                   "brick_edge", "distance_quantum", "estimate_quantum", "lattice_error"},

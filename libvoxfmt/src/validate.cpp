@@ -4,12 +4,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <new>
 #include <optional>
 #include <sstream>
 
 #include "load.h"
 #include "voxfmt/detail/cores.h"
+#include "voxfmt/detail/estimate_transform.h"
 
 namespace voxfmt {
 
@@ -301,11 +303,11 @@ std::string voxel_name(uint64_t i, uint64_t j, uint64_t k) {
   return "voxel (" + std::to_string(i) + ", " + std::to_string(j) + ", " + std::to_string(k) + ")";
 }
 
-// Spec §3 for format 2.0, checked brick by brick: stored distances within the band, estimates as the lattice gives
-// them, and no voxel on the wrong side: two 6-neighbours of opposite sign must be near enough to the surface for it
-// to pass between them (|d1| + |d2| <= h, a voxel without a stored distance being at least (band - 1/2) h from
-// it), and stored neighbours no more than the voxel diagonal apart. Value bricks are shared among threads; each
-// reports its own first findings, merged in brick order.
+// Spec §3 for format 2.x, checked brick by brick: stored distances within the band, estimates by the file's rule
+// (settled, or the lattice interpolated), and no voxel on the wrong side: two 6-neighbours of opposite sign must be
+// near enough to the surface for it to pass between them (|d1| + |d2| <= h, a voxel without a stored distance being at
+// least (band - 1/2) h from it), and stored neighbours no more than the voxel diagonal apart. Value bricks are shared
+// among threads; each reports its own first findings, merged in brick order.
 class VoxelmapRules {
  public:
   VoxelmapRules(const Voxelmap& vm, bool closed_surface)
@@ -316,7 +318,10 @@ class VoxelmapRules {
         band_m_(vm.distance_band * vm.voxel_size),
         edge_m_((vm.distance_band - 0.5) * vm.voxel_size),
         sign_limit_(vm.voxel_size * (1 + 1e-6) + vm.distance_quantum),
-        jump_limit_(vm.voxel_size * std::sqrt(3.0)) {}
+        jump_limit_(vm.voxel_size * std::sqrt(3.0)) {
+    if (vm.estimates == Voxelmap::Estimates::Settled)
+      settled_ = std::make_unique<detail::EstimateTransform>(vm, vm.brick_values);
+  }
 
   // Checks the value bricks among `bricks` (table indices) in order, appending findings to `issues`.
   void check(const std::vector<size_t>& bricks, size_t begin, size_t end, std::vector<Issue>& issues) {
@@ -400,10 +405,10 @@ class VoxelmapRules {
   void read_brick(uint32_t bi, uint32_t bj, uint32_t bk, BrickVoxels& v, Findings& f) const {
     const int16_t* codes =
         vm_.brick_values.data() + size_t(vm_.bricks[vm_.brick_index(bi, bj, bk)]) * Voxelmap::kBrickVoxels;
-    // The estimates this brick's codes must hold, computed as the producer does (fill_brick_estimates keeps each
-    // code's sign and leaves stored codes alone).
+    // Interpolated estimates (2.0, 2.1): those this brick's codes must hold, computed as fill_brick_estimates does
+    // (it keeps each code's sign and leaves stored codes alone). Settled ones (2.2) are checked below.
     double expected[Voxelmap::kBrickVoxels];
-    brick_estimate_magnitudes(vm_, bi, bj, bk, expected);
+    if (!settled_) brick_estimate_magnitudes(vm_, bi, bj, bk, expected);
     const uint32_t first[3] = {bi * E, bj * E, bk * E};
     for (int a = 0; a < 3; ++a) {
       v.first[a] = first[a];
@@ -428,16 +433,28 @@ class VoxelmapRules {
                                                     fmt(band_m_) + " m");
           f.outside = true;
         }
-      } else if (!f.estimate && (code == 0 || std::abs(std::abs(d) - expected[n]) >
-                                                  0.5 * vm_.estimate_quantum * (1 + 1e-6) + 1e-12 * expected[n])) {
+      } else if (!f.estimate &&
+                 (code == 0 || (!settled_ && std::abs(std::abs(d) - expected[n]) >
+                                                 0.5 * vm_.estimate_quantum * (1 + 1e-6) + 1e-12 * expected[n]))) {
         // The nearest step (spec §3.2): within half a step of the lattice's value, but for the rounding of the
         // interpolation itself.
-        f.add(IssueCode::EstimateMismatch, voxel_name(first[0] + li, first[1] + lj, first[2] + lk) +
-                                               " holds the estimate " + fmt(d) + " m, the lattice gives " +
-                                               fmt(code < 0 ? -expected[n] : expected[n]) + " m");
+        f.add(IssueCode::EstimateMismatch,
+              voxel_name(first[0] + li, first[1] + lj, first[2] + lk) + " holds the estimate " + fmt(d) + " m, " +
+                  (code == 0 ? std::string("and an estimate is never 0")
+                             : "the lattice gives " + fmt(code < 0 ? -expected[n] : expected[n]) + " m"));
         f.estimate = true;
       }
     }
+    if (settled_ && !f.estimate)
+      if (const size_t unsettled = settled_->count_unsettled(int(bi), int(bj), int(bk))) {
+        // The least path lengths are unique (steps are positive), so a settled brick holds exactly the producer's.
+        f.add(IssueCode::EstimateMismatch,
+              "brick (" + std::to_string(bi) + ", " + std::to_string(bj) + ", " + std::to_string(bk) + ") holds " +
+                  std::to_string(unsettled) +
+                  " estimates that are not the least of their lattice paths and their neighbours' values plus "
+                  "their step (spec §3.1)");
+        f.estimate = true;
+      }
   }
 
   /// Pairs inside the brick, one axis at a time, branch-free: the common case finds nothing; the brick is searched
@@ -516,6 +533,7 @@ class VoxelmapRules {
   const Voxelmap& vm_;
   bool closed_;
   double h_, inverse_h_, band_m_, edge_m_, sign_limit_, jump_limit_;
+  std::unique_ptr<detail::EstimateTransform> settled_;  ///< settled estimates' rule (2.2); null: interpolated
 };
 
 void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {

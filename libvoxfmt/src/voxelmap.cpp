@@ -1,5 +1,8 @@
 #include "voxfmt/voxelmap.h"
 
+#include "voxfmt/detail/cores.h"
+#include "voxfmt/detail/estimate_transform.h"
+
 #include <limits>
 
 namespace voxfmt {
@@ -207,10 +210,21 @@ void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t
       }
 }
 
-void fill_estimates(Voxelmap& vm) {
-  vm.for_each_value_brick([&](uint32_t bi, uint32_t bj, uint32_t bk, const int16_t* read_only) {
-    fill_brick_estimates(vm, bi, bj, bk, const_cast<int16_t*>(read_only));
-  });
+void fill_interpolated_estimates(Voxelmap& vm) {
+  const auto bd = vm.brick_dims();
+  for (size_t b = 0; b < vm.bricks.size(); ++b)
+    if (vm.bricks[b] >= 0)
+      fill_brick_estimates(vm, uint32_t(b % bd[0]), uint32_t(b / bd[0] % bd[1]), uint32_t(b / (size_t(bd[0]) * bd[1])),
+                           vm.brick_values.data() + size_t(vm.bricks[b]) * Voxelmap::kBrickVoxels);
+  vm.estimates = Voxelmap::Estimates::Interpolated;
+}
+
+void fill_estimates(Voxelmap& vm, unsigned threads) {
+  if (threads == 0) threads = usable_cores();
+  detail::EstimateTransform transform(vm, vm.brick_values);
+  transform.seed(threads);
+  transform.settle(threads);
+  vm.estimates = Voxelmap::Estimates::Settled;
 }
 
 Voxelmap make_voxelmap(const Voxelmap& geometry, const SignedDistanceFunction& signed_distance) {

@@ -27,7 +27,9 @@ const T* flat(const std::vector<std::array<T, K>>& rows) {
 
 bool write_root_attributes(h5::Writer& w, const Asset& a) {
   const hid_t root = w.file();
-  const uint32_t version[2] = {kFormatVersion.major, kFormatVersion.minor};
+  // The oldest version whose rules the file follows (spec §7): 2.1 for interpolated estimates.
+  const bool settled = a.voxelmap.estimates == Voxelmap::Estimates::Settled;
+  const uint32_t version[2] = {kFormatVersion.major, settled ? kFormatVersion.minor : 1u};
   return w.string_attribute(root, "format", "voxfmt") &&
          w.numeric_attribute<uint32_t>(root, "format_version", {2}, version) &&
          w.string_attribute(root, "units", "m") && w.string_attribute(root, "frame", "right-handed") &&

@@ -202,7 +202,7 @@ nb::dict export_core(const Body& body) {
                                   &b.field.band_edge,      &b.field.lattice_step,    &b.field.cover_max.x,
                                   &b.field.cover_max.y,    &b.field.cover_max.z,     &b.field.object_min.x,
                                   &b.field.object_min.y,   &b.field.object_min.z,    &b.field.object_max.x,
-                                  &b.field.object_max.y,   &b.field.object_max.z};
+                                  &b.field.object_max.y,   &b.field.object_max.z,    &b.field.value_estimate_slack};
   OutArray<float> numbers({std::size(field_numbers)});
   for (size_t i = 0; i < std::size(field_numbers); ++i) numbers.data[i] = *field_numbers[i];
   d["field_floats"] = numbers.array;

@@ -12,8 +12,10 @@ Two grids, float32, metres, in the asset's frame (index (i, j, k) at the asset's
   asset's own inside/outside (so open meshes keep their signs). ``width`` is the band the asset stores completely:
   ``distance_band - 1/2`` voxels (2.5 voxels for ``voxfmt build``'s default band), or a width you give.
 - ``coarse``: one unsigned distance every 8 voxels (the asset's lattice), whose trilinear interpolation is the
-  runtime's estimate between bricks: the far field's magnitude where the level set is clamped, whose sign the level
-  set's tiles carry (:func:`sample_distance` combines them as the runtime does).
+  runtime's estimate in coarse bricks: the far field's magnitude where the level set is clamped, whose sign the level
+  set's tiles carry (:func:`sample_distance` combines them as the runtime does there; beyond the band of bricks near
+  the surface, a format 2.2 asset's own estimates are settled, never below the exact distance, where the
+  interpolation may lie up to 4 sqrt(3) voxels below it).
 
 ``voxfmt export ASSET --nvdb OUT.nvdb`` writes the same grids to a file (``wp.Volume.load_from_nvdb`` reads it).
 Needs ``warp-lang`` (``pip install 'voxfmt[warp]'``); tested with the version in :data:`WARP_VERSION`.
@@ -91,7 +93,7 @@ def volume(asset: Any, device: Any = None, *, grid: str = "distance", width: flo
 def sample_distance(distance: wp.uint64, coarse: wp.uint64, width: float, x: wp.vec3) -> float:
     """Signed distance (metres, negative inside) at world point ``x``: the level set where it is not clamped, else
     the coarse grid's estimate, at least ``width`` (the level set says the surface is no nearer), with the level
-    set's sign: the runtime's own rule for voxels without a stored distance."""
+    set's sign: the runtime's own rule for voxels of coarse bricks."""
     d = wp.volume_sample_f(distance, wp.volume_world_to_index(distance, x), wp.Volume.LINEAR)
     if wp.abs(d) < width * 0.999:
         return d

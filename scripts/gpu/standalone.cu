@@ -20,7 +20,7 @@ int voxfmt_gpu_check_lanes() { return core::kBlockLanes; }
 int voxfmt_gpu_check_min_blocks() { return VOXFMT_BLOCK_MIN_BLOCKS; }
 
 /// Runs `envs` environments of one asset against itself (pair (0, 0)). Arrays: device pointers (the contact
-/// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 17,
+/// outputs, `max_contacts` rows per environment, may be null when it is 0); the numbers (field_floats 18,
 /// field_dims 9, body_doubles 8, as _export_core gives them): host. `codes` are the value bricks with their apron
 /// (as _export_core gives them and gpu::Scene uploads them) when `apron`, else the runtime's plain 8^3 bricks. With
 /// `kernel_ms` (host), the kernel's time by CUDA events around the launch, waited for. Returns 0, or -1 with the reason
@@ -58,6 +58,7 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, int apron,
   b.field.cover_max = core::make_vec3(f[8], f[9], f[10]);
   b.field.object_min = core::make_vec3(f[11], f[12], f[13]);
   b.field.object_max = core::make_vec3(f[14], f[15], f[16]);
+  b.field.value_estimate_slack = f[17];
   b.shell.nodes = static_cast<const core::Node*>(nodes);
   b.shell.points = reinterpret_cast<const core::Vec3*>(points);
   b.shell.normals = reinterpret_cast<const core::Vec3*>(normals);

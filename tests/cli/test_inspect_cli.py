@@ -101,7 +101,7 @@ class InspectExports(unittest.TestCase):
                            capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         with h5py.File(cls.asset, "r") as f:
-            assert f.attrs["format_version"].tolist() == [2, 1], f.attrs["format_version"]
+            assert f.attrs["format_version"].tolist() == [2, 2], f.attrs["format_version"]
             cls.voxelmap = spec_support.decode_voxelmap(f)
             cls.dims = list(cls.voxelmap.dims)
             cls.layers = cls.voxelmap.layers  # floor(-value/h + 1/2) of every voxel, [D, H, W]

@@ -18,7 +18,9 @@ def run(*args: str, timeout: int = 300) -> subprocess.CompletedProcess[str]:
 
 
 def test_peg_example_inserts_where_hulls_jam(tmp_path: Path) -> None:
-    sdf = run("examples/mujoco/peg_in_hole.py", "--clearance", "0.2", "--voxel", "0.3", "--seconds", "0.3",
+    # The peg strikes the hole's floor about 1.3 mm deep at 0.2 s (MuJoCo's soft contact, 2.1 and 2.2 assets alike)
+    # and is back within 0.5 mm of it by 0.35 s.
+    sdf = run("examples/mujoco/peg_in_hole.py", "--clearance", "0.2", "--voxel", "0.3", "--seconds", "0.4",
               "--out", str(tmp_path))
     assert sdf.returncode == 0, sdf.stderr
     assert "voxfmt, clearance 0.2 mm" in sdf.stdout and "(fully in)" in sdf.stdout, sdf.stdout

@@ -70,12 +70,19 @@ def test_the_far_field_comes_from_the_coarse_grid_within_the_estimate_bound(asse
     h = body.voxel_size
     near = np.abs(d) < h
     assert np.abs(w[near] - d[near]).max() < 1e-6
-    # Beyond the band both are estimates from the same lattice: within the spec's interpolation bound (4 sqrt(3)
-    # voxels), and far closer on average.
+    # Beyond the band, in coarse bricks, both are the same lattice interpolated: mostly equal. In
+    # value bricks the asset's estimates are settled (format 2.2), never below the exact distance u, while the
+    # interpolation may lie below u by up to its bound (4 sqrt(3) voxels); both lie above u by at most 8 sqrt(3).
+    core = voxfmt._voxfmt._export_core(body)
+    origin, dims = np.asarray(core["body_doubles"])[:3], np.asarray(core["field_dims"])
+    voxel = np.clip(np.rint((points - origin) / h).astype(np.int64), 0, dims[:3] - 1)
+    brick = voxel // 8
+    entry = np.asarray(core["bricks"])[(brick[:, 2] * dims[4] + brick[:, 1]) * dims[3] + brick[:, 0]]
     far = np.abs(d) > 3 * h
-    error = np.abs(w[far] - d[far]) / h
-    assert error.max() < 4 * np.sqrt(3)
-    assert error.mean() < 0.1
+    error = np.abs(w - d) / h
+    assert np.count_nonzero(far & (entry < 0)) > 1000 and np.count_nonzero(far & (entry >= 0)) > 100
+    assert np.median(error[far & (entry < 0)]) < 1e-4  # a point's 8 voxels may reach into a value brick
+    assert error[far].max() < 8 * np.sqrt(3)
     assert np.all(np.sign(w) == np.sign(d))
 
 

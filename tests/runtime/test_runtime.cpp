@@ -153,7 +153,7 @@ TEST(SparseVoxelmap, LatticePointBoundsNeverExceedTheExactDistanceAndTightenFarB
     core::nearest_voxel(u, v);
     bool stored = true;
     const float value = core::voxel_value(f, v[0], v[1], v[2], stored);
-    const float estimate = core::value_lower_bound(f, value, stored) -
+    const float estimate = core::value_lower_bound(f, value, stored, core::entry_of(f, v[0], v[1], v[2]) < 0) -
                            core::length(u - core::make_vec3(float(v[0]), float(v[1]), float(v[2])));
     const float bound = core::lower_bound(f, u);
     const Eigen::Vector3d p = map.origin() + map.voxel_size() * Eigen::Vector3d(u.x, u.y, u.z);

@@ -604,6 +604,26 @@ def _numeric_dtype(code, byteorder):
     return np.dtype(byteorder + DTYPE_CODES[code])
 
 
+def settle_estimates(f):
+    """§3.1, 2.2: rewrite the value-brick estimates of the open file `f` settled (the interpolated ones of 2.0 and
+    2.1 do not follow 2.2's rule)."""
+    import spec_support  # not at the top: spec_support reads files, this module writes them
+
+    vm = spec_support.decode_voxelmap(f)
+    steps = spec_support.settled_estimate_steps(vm)
+    dense = np.where(vm.value_brick & ~vm.stored, np.where(vm.code < 0, -2, 2) * steps, vm.code)
+    codes = np.array(f["/voxelmap/brick_values"][()], dtype=np.int64)
+    e = BRICK_EDGE
+    d, h, w = dense.shape
+    for (bk, bj, bi), n in np.ndenumerate(vm.bricks):
+        if n >= 0:
+            block = codes[n].reshape(e, e, e)
+            z, y, x = min(e, d - bk * e), min(e, h - bj * e), min(e, w - bi * e)
+            block[:z, :y, :x] = dense[bk * e:bk * e + z, bj * e:bj * e + y, bi * e:bi * e + x]
+            codes[n] = block.reshape(-1)
+    f["/voxelmap/brick_values"][...] = codes.astype(np.int16)
+
+
 def write_fixture_h5py(path, *, legacy=False, grid=FIXTURE_GRID, values=None, dtypes=None, omit=(),
                        string_mode="fixed_nullterm", byteorder="<", format_version=None, grid_layout="chunked",
                        grid_chunks=(8, 8, 8), value_chunk_rows=4, shuffle=True, compression="gzip", fletcher32=False,
@@ -638,6 +658,8 @@ def write_fixture_h5py(path, *, legacy=False, grid=FIXTURE_GRID, values=None, dt
     vals = fixture_values(legacy=legacy, grid=grid, **encode)
     if format_version is not None:
         vals["/format_version"] = np.asarray(format_version, dtype=np.uint32)
+    settle = (not legacy and tuple(int(x) for x in vals["/format_version"]) >= (2, 2)
+              and "/voxelmap/brick_values" not in (values or {}))
     if values:
         vals.update(values)
     dtypes = dict(dtypes or {})
@@ -685,6 +707,8 @@ def write_fixture_h5py(path, *, legacy=False, grid=FIXTURE_GRID, values=None, dt
                     if fletcher32:
                         kw["fletcher32"] = True
                 parent.create_dataset(name, data=data, dtype=np.dtype(dt), **kw)
+        if settle and "/voxelmap/brick_values" in f:
+            settle_estimates(f)
         if extra_objects:
             for opath, (kind, dt, value) in EXTRA_OBJECTS.items():
                 if kind == "group":

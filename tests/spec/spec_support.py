@@ -416,6 +416,52 @@ def decode_voxelmap(source):
     return out
 
 
+def settled_estimate_steps(vm):
+    """§3.1, settled estimates (2.2): the magnitude, in steps of estimate_quantum, every value-brick voxel without a
+    stored distance holds: the least of its seed (over its cell's 8 lattice points, ceil(l / q) plus the steps of a
+    path to the point's voxel, at most 16383) and each of its 26 neighbours' magnitudes in value bricks plus that
+    step's length (a stored distance's magnitude rounded up to a step). int64 [D, H, W]; -1 outside value bricks.
+    Relaxed plainly, all voxels at once, until nothing changes."""
+    far, top = 1 << 40, 16383
+    h, q = vm.voxel_size, vm.estimate_quantum
+    w, hh, d = (int(x) for x in vm.dims)
+    step = [int(np.ceil(np.sqrt(k) * (h / q) - 1e-9)) for k in range(4)]
+
+    def path(a, b, c):
+        s = np.sort(np.abs(np.stack(np.broadcast_arrays(a, b, c))), axis=0)
+        return np.minimum(s[0] * step[3] + (s[1] - s[0]) * step[2] + (s[2] - s[1]) * step[1], top)
+
+    corner_steps = np.clip(np.ceil(vm.lattice / q - 1e-9), 0, top).astype(np.int64)
+    (bx, _, x0, x1), (by, _, y0, y1), (bz, _, z0, z1) = (lattice_axis_weights(w), lattice_axis_weights(hh),
+                                                         lattice_axis_weights(d))
+    ix, iy, iz = np.arange(w)[None, None, :], np.arange(hh)[None, :, None], np.arange(d)[:, None, None]
+    seed = np.full((d, hh, w), top, dtype=np.int64)
+    for cz in (0, 1):
+        for cy in (0, 1):
+            for cx in (0, 1):
+                corner = corner_steps[(bz + cz)[:, None, None], (by + cy)[None, :, None], (bx + cx)[None, None, :]]
+                to = path((x1 if cx else x0)[None, None, :] - ix, (y1 if cy else y0)[None, :, None] - iy,
+                          (z1 if cz else z0)[:, None, None] - iz)
+                seed = np.minimum(seed, corner + to)
+    source = np.minimum(np.ceil(np.abs(vm.code >> 1) * vm.distance_quantum / q - 1e-9), top).astype(np.int64)
+    estimate = vm.value_brick & ~vm.stored
+    m = np.where(vm.stored, source, np.where(estimate, seed, far))
+    while True:
+        padded = np.pad(m, 1, constant_values=far)
+        best = m.copy()
+        for dz in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    if dz == dy == dx == 0:
+                        continue
+                    n = padded[1 + dz:1 + dz + d, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + w]
+                    best = np.minimum(best, n + step[abs(dx) + abs(dy) + abs(dz)])
+        lowered = estimate & (best < m)
+        if not np.any(lowered):
+            return np.where(vm.value_brick, m, -1)
+        m = np.where(lowered, best, m)
+
+
 def decode_legacy_voxelmap(source):
     """Decode a 1.0/1.1 voxelmap (§3.4: dense `layers` and `distances`) into a DecodedVoxelmap as a 2.0 reader
     sees it: a brick with a stored distance or with layers of both signs is a value brick (numbered in table

@@ -569,15 +569,22 @@ class VoxelmapChecks(SpecFileChecks):
         off = np.abs(vm.lattice - u) > 2 * f32_ulp(u)
         self.assertFalse(np.any(off), "lattice not the exact distance at [c,b,a] %s" % first(off))
 
-    def test_estimate_codes_are_the_lattice_interpolation(self):
-        """§3.2: an even code is the estimate of §3.1, sign * max(L, (band - 1/2) h), rounded to the nearest
-        estimate_quantum; L interpolated trilinearly with §3.3's weights. Never 0."""
+    def test_estimate_codes_follow_the_files_rule(self):
+        """§3.2: an even code is the estimate of §3.1, never 0. 2.2: settled, exactly (§3.1's least paths);
+        2.0, 2.1: sign * max(L, (band - 1/2) h), rounded to the nearest estimate_quantum, L interpolated trilinearly
+        with §3.3's weights."""
         vm = self.decoded()
         est = vm.value_brick & ~vm.stored
         self.assertTrue(np.any(est), "the fixture has value-brick voxels without a stored distance")
         zero = est & (vm.code >> 1 == 0)
         self.assertFalse(np.any(zero), "an estimate code is 0 at [k,j,i] %s" % first(zero))
         sign = np.where(self.exact() < 0, -1.0, 1.0)
+        if vm.format_version >= (2, 2):
+            want = sign * ss.settled_estimate_steps(vm) * vm.estimate_quantum
+            bad = est & (vm.values != want)
+            self.assertFalse(np.any(bad), "coded estimates are not the settled ones at [k,j,i] %s: coded %s, settled %s"
+                             % (first(bad), vm.values[bad][:5].tolist(), want[bad][:5].tolist()))
+            return
         err = np.abs(vm.values - sign * vm.lattice_estimate)
         tol = vm.estimate_quantum / 2 * (1 + 1e-9) + 1e-12 * vm.voxel_size
         bad = est & (err > tol)
@@ -599,8 +606,10 @@ class VoxelmapChecks(SpecFileChecks):
                         "a stored distance beyond the band")
 
     def test_estimate_accuracy_bound(self):
-        """§3.1, accuracy of estimates: u <= m + B h + e/2 and u >= (m - eps0 h) / (1 + eps1) - B h - e/2, with
-        m = |estimate|, B the weighted distance to the cell's lattice points, e = estimate_quantum."""
+        """§3.1, accuracy of estimates, with m = |estimate|, e = estimate_quantum, q = distance_quantum. Coarse
+        bricks and 2.0/2.1 value bricks: u <= m + B h + e/2 and u >= (m - eps0 h) / (1 + eps1) - B h - e/2, B the
+        weighted distance to the cell's lattice points. 2.2 value bricks: u <= m + q/2 (but for the lattice's
+        float rounding, 10^-6 u) and u >= (m - eps0 h - 5 e) / (1 + eps1) - 8 sqrt(3) h."""
         vm = self.decoded()
         u = np.abs(self.exact())
         m = np.abs(vm.values)
@@ -610,6 +619,11 @@ class VoxelmapChecks(SpecFileChecks):
         slack = 1e-12 * h
         over = ns & (u > m + vm.spread * h + e / 2 + slack)
         under = ns & (u < (m - eps0 * h) / (1 + eps1) - vm.spread * h - e / 2 - slack)
+        if vm.format_version >= (2, 2):
+            settled = ns & vm.value_brick
+            over = (over & ~settled) | (settled & (u > m + vm.distance_quantum / 2 + 1e-6 * u + slack))
+            under = (under & ~settled) | (settled & (u < (m - eps0 * h - 5 * e) / (1 + eps1) - 8 * np.sqrt(3) * h
+                                                     - slack))
         self.assertFalse(np.any(over), "estimate too small for the exact distance at [k,j,i] %s" % first(over))
         self.assertFalse(np.any(under), "estimate too large for the exact distance at [k,j,i] %s" % first(under))
 
@@ -855,9 +869,9 @@ class TestH5pyLegacyFixtureSelfCheck(LegacyVoxelmapChecks, unittest.TestCase):
 
 @ss.requires_writer
 class TestCppToPython(VoxelmapChecks, unittest.TestCase):
-    """The C++ sample writer's file (format 2.1, its voxelmap from voxfmt::make_voxelmap), read with h5py."""
+    """The C++ sample writer's file (format 2.2, its voxelmap from voxfmt::make_voxelmap), read with h5py."""
 
-    format_version = (2, 1)
+    format_version = (2, 2)
 
     @classmethod
     def setUpClass(cls):
@@ -1236,7 +1250,7 @@ class TestLegacyUpgrade(unittest.TestCase):
         want = ss.decode_legacy_voxelmap(old)
         got = ss.decode_voxelmap(new)
         with h5py.File(new, "r") as f:
-            self.assertEqual(f.attrs["format_version"].tolist(), [2, 1])
+            self.assertEqual(f.attrs["format_version"].tolist(), [2, 2])
             self.assertNotIn("layers", f["/voxelmap"])
             self.assertNotIn("distances", f["/voxelmap"])
         self.assertEqual(got.dims, want.dims)
@@ -1248,10 +1262,14 @@ class TestLegacyUpgrade(unittest.TestCase):
         np.testing.assert_array_equal(np.minimum(got.bricks, 0), np.minimum(want.bricks, 0),
                                       "value bricks where §3.4 puts them, coarse bricks with their layers' sign")
         np.testing.assert_array_equal(got.lattice, want.lattice, "lattice (|v| + 1/2) h, or the stored |d|")
-        est = ~got.stored
-        err = np.abs(got.values - want.values)[est]
-        self.assertLessEqual(float(err.max()), got.estimate_quantum / 2 * (1 + 1e-9) + 1e-12 * got.voxel_size,
-                             "estimates are the lattice's, rounded to estimate_quantum")
+        est = ~got.stored & got.value_brick
+        settled = ss.settled_estimate_steps(got) * got.estimate_quantum
+        np.testing.assert_array_equal(np.abs(got.values[est]), settled[est], "value-brick estimates settled (§3.1)")
+        coarse = ~got.value_brick
+        err = np.abs(got.values - want.values)[coarse]
+        self.assertLessEqual(float(err.max(initial=0.0)),
+                             got.estimate_quantum / 2 * (1 + 1e-9) + 1e-12 * got.voxel_size,
+                             "coarse estimates are the lattice's")
         self.assertEqual(list(want.lattice_error), [1.0, 1.0 / 9.0] if version == (1, 0) else
                          [1.0 + math.sqrt(3.0), 0.0])
 
@@ -1276,6 +1294,29 @@ class TestLegacyUpgrade(unittest.TestCase):
         for key in ("dims", "stored_distances", "bricks", "value_bricks", "coarse_bricks"):
             self.assertEqual(a[key], b[key], key)
         np.testing.assert_allclose(a["lattice_error"], b["lattice_error"], rtol=1e-12)
+
+    def test_upgrade_settles_a_2_1_file_and_leaves_a_2_2_file_alone(self):
+        """§7: upgrade writes 2.2 from a 2.1 file (interpolated estimates): the same bricks, lattice and stored
+        codes, its value-brick estimates settled (§3.1); the 2.2 file it wrote is current."""
+        old = sf.write_fixture_h5py(os.path.join(self.tmp, "fine21.vox.h5"), grid=sf.FINE_GRID, format_version=[2, 1])
+        new = os.path.join(self.tmp, "fine21-2.2.vox.h5")
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", old, "-o", new, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        report = ss.parse_json_stdout(self, proc)
+        self.assertEqual([(f["status"], f["from"]) for f in report["files"]], [("upgraded", [2, 1])])
+        want, got = ss.decode_voxelmap(old), ss.decode_voxelmap(new)
+        self.assertEqual(got.format_version, (2, 2))
+        np.testing.assert_array_equal(got.bricks, want.bricks)
+        np.testing.assert_array_equal(got.lattice, want.lattice)
+        np.testing.assert_array_equal(got.code[got.stored], want.code[want.stored])
+        est = got.value_brick & ~got.stored
+        changed = int(np.count_nonzero(got.code[est] != want.code[est]))
+        self.assertGreater(changed, 0, "2.1's estimates were not settled")
+        np.testing.assert_array_equal(np.abs(got.code[est] >> 1), ss.settled_estimate_steps(got)[est])
+        np.testing.assert_array_equal(np.sign(got.code[est]), np.sign(want.code[est]))
+        again = ss.run([ss.VOXFMT_BIN, "upgrade", new, "-o", new + ".again", "--json"])
+        self.assertEqual(again.returncode, 0, describe(again))
+        self.assertEqual([f["status"] for f in ss.parse_json_stdout(self, again)["files"]], ["current"])
 
 
 if __name__ == "__main__":

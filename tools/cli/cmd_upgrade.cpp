@@ -1,6 +1,7 @@
-// `voxfmt upgrade IN... -o OUT`: rewrite assets of format 1.x in the current format (spec §3.4: the dense grids read
-// as bricks). One file to a file, or files and folders (searched for *.vox.h5) into a folder, keeping their relative
-// paths. Each output is validated like any written asset and replaces its target atomically.
+// `voxfmt upgrade IN... -o OUT`: rewrite assets of an older format in the current one (1.x: the dense grids read as
+// bricks, spec §3.4; 2.0 and 2.1: the estimates settled, §3.1). One file to a file, or files and folders (searched for
+// *.vox.h5) into a folder, keeping their relative paths. Each output is validated like any written asset and replaces
+// its target atomically.
 #include <unistd.h>
 
 #include <filesystem>
@@ -73,7 +74,10 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(item.input, &warnings, o.read);
   Status written = Status::success();
-  if (asset && asset.value().version.major == kFormatVersion.major && !o.force) {
+  const auto current = [](const FormatVersion& v) {
+    return v.major == kFormatVersion.major && v.minor >= kFormatVersion.minor;
+  };
+  if (asset && current(asset.value().version) && !o.force) {
     ++tally.current;
     entry["status"] = "current";
     entry["format_version"] = {asset.value().version.major, asset.value().version.minor};
@@ -81,6 +85,9 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
     const FormatVersion from = asset.value().version;
     std::error_code ec;
     if (fs::path(item.output).has_parent_path()) fs::create_directories(fs::path(item.output).parent_path(), ec);
+    // 2.0 and 2.1 estimates are the lattice interpolated; 2.2 settles them from the same stored data.
+    Voxelmap& vm = asset.value().voxelmap;
+    if (vm.estimates != Voxelmap::Estimates::Settled) fill_estimates(vm);
     written = write_asset(item.output, asset.value());
     if (written) {
       ++tally.upgraded;
@@ -141,7 +148,9 @@ int run(const Options& o) {
 void add_upgrade_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
-      "upgrade", "Rewrite assets of an older format version (1.0, 1.1: dense grids) in the current one (bricks)");
+      "upgrade",
+      "Rewrite assets of an older format version in the current one (1.x: dense grids to bricks; 2.0, 2.1: "
+      "estimates settled)");
   cmd->add_option("inputs", o->inputs, "Asset files, or folders searched for *.vox.h5")->required();
   cmd->add_option("-o,--output", o->output,
                   "Output file (one input file), or folder (several inputs, or a folder: relative paths are kept)")
@@ -153,7 +162,7 @@ void add_upgrade_command(CLI::App& app, int& exit_code) {
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt upgrade old/bunny.vox.h5 -o bunny.vox.h5     # one file\n"
-      "  voxfmt upgrade assets/ -o assets-2.0/               # a library, folder structure kept\n");
+      "  voxfmt upgrade assets/ -o assets-2.2/               # a library, folder structure kept\n");
   cmd->callback([o, &exit_code] { exit_code = run(*o); });
 }
 

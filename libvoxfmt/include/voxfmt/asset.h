@@ -25,7 +25,7 @@ struct FormatVersion {
 };
 
 /// The format version this library writes and fully understands.
-inline constexpr FormatVersion kFormatVersion{2, 1};
+inline constexpr FormatVersion kFormatVersion{2, 2};
 
 /// The voxel sizes a valid file may have (spec §3): beyond them the numbers mean nothing physical.
 inline constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;

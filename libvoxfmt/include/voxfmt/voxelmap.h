@@ -57,6 +57,11 @@ struct Voxelmap {
   /// Unsigned distance (metres) at the lattice points, [BD+1][BH+1][BW+1]; lattice point (a, b, c) is voxel
   /// (min(8a, W-1), min(8b, H-1), min(8c, D-1)).
   std::vector<float> lattice;
+  /// The rule the value bricks' estimates follow (spec §3.1): the lattice interpolated at the voxel (formats 2.0 and
+  /// 2.1), or settled (2.2): the least of the lattice's paths and the neighbours' values plus their step. A writer
+  /// writes the format version of its rule.
+  enum class Estimates : uint8_t { Interpolated, Settled };
+  Estimates estimates = Estimates::Settled;
 
   // ---- sizes and positions
   std::array<uint32_t, 3> brick_dims() const {
@@ -157,13 +162,17 @@ using SignedDistanceFunction = std::function<double(const Vec3&)>;
 /// point. For small grids made in code (analytic test shapes, examples); the bake builds large ones sparsely.
 Voxelmap make_voxelmap(const Voxelmap& geometry, const SignedDistanceFunction& signed_distance);
 
-/// Fills the estimate codes of every voxel of the value bricks that has no stored distance, from the lattice
-/// (spec §3.3), keeping each code's sign. The brick table, the stored codes and the lattice must be complete.
-void fill_estimates(Voxelmap& vm);
-/// The same for one value brick (bi, bj, bk) whose codes are `codes`; bricks can be filled concurrently.
+/// Fills the estimate codes of every voxel of the value bricks that has no stored distance, settled (spec §3.1,
+/// 2.2), keeping each code's sign, on `threads` threads (0: the usable cores), and sets vm.estimates. The brick
+/// table, the stored codes and the lattice must be complete.
+void fill_estimates(Voxelmap& vm, unsigned threads = 0);
+/// Format 2.1's estimates: the lattice interpolated at every value-brick voxel without a stored distance, keeping
+/// each code's sign; sets vm.estimates (what a 1.x file reads as, spec §3.4).
+void fill_interpolated_estimates(Voxelmap& vm);
+/// The same for one value brick (bi, bj, bk) whose codes are `codes`.
 void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, int16_t* codes);
-/// The estimate magnitudes (metres, before rounding to a step) of the voxels of brick (bi, bj, bk), x fastest,
-/// kBrickVoxels of them (positions past the grid: 0).
+/// The interpolated estimate magnitudes (metres, before rounding to a step; format 2.1) of the voxels of brick
+/// (bi, bj, bk), x fastest, kBrickVoxels of them (positions past the grid: 0).
 void brick_estimate_magnitudes(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t bk, double* magnitudes);
 
 }  // namespace voxfmt

@@ -202,7 +202,8 @@ VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
   if (_mm256_movemask_epi8(in_coarse) != 0)
     value = _mm256_blendv_ps(coarse_values8(f, cell, l.entry), value, _mm256_castsi256_ps(in_value));
   // value_lower_bound.
-  const __m256 estimate_slack = _mm256_set1_ps(f.estimate_slack);
+  const __m256 estimate_slack = _mm256_blendv_ps(_mm256_set1_ps(f.estimate_slack),
+                                                 _mm256_set1_ps(f.value_estimate_slack), _mm256_castsi256_ps(in_value));
   const __m256 positive_estimate =
       max_f8(band_edge, _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(value, _mm256_set1_ps(f.estimate_offset)),
                                                     _mm256_set1_ps(f.estimate_shrink)),

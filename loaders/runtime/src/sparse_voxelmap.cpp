@@ -44,6 +44,13 @@ SparseVoxelmap SparseVoxelmap::from_voxelmap(voxfmt::Voxelmap vm, const voxfmt::
   const double largest_voxels = double(largest) / h;
   f.lattice_step = float(std::max(1.0 / 16, largest_voxels / 65000.0));
   f.estimate_slack += 0.5f * f.lattice_step;
+  // A settled estimate m is at most the path through the voxel's nearest lattice point p (at most 4 voxels along
+  // each axis: 4 steps, each rounded up by less than a step of q, and l_p rounded up by one): with
+  // l_p <= (1 + e1)(u + |v - p|) + e0, u >= (m - e0) / (1 + e1) - 8 sqrt(3) - 5 q.
+  f.value_estimate_slack =
+      vm.estimates == voxfmt::Voxelmap::Estimates::Settled
+          ? float(2 * core::kInterpolationBound + 5 * vm.estimate_quantum / h + 1e-5 * vm.distance_band)
+          : f.estimate_slack;
   map.lattice_.resize(vm.lattice.size());
   const double to_steps = 1.0 / (h * double(f.lattice_step));
   for (size_t n = 0; n < vm.lattice.size(); ++n)

@@ -1359,17 +1359,6 @@ void fill_lattice(const BrickRowsInput& in, Voxelmap& vm) {
   vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
 }
 
-// fill_estimates (libvoxfmt), brick by brick in parallel: the value bricks' voxels without a stored distance.
-void estimate_beyond_band(Voxelmap& vm) {
-  const auto bd = vm.brick_dims();
-  tbb::parallel_for(size_t(0), vm.bricks.size(), [&](size_t n) {
-    const int32_t entry = vm.bricks[n];
-    if (entry < 0) return;
-    fill_brick_estimates(vm, uint32_t(n % bd[0]), uint32_t(n / bd[0] % bd[1]), uint32_t(n / (size_t(bd[0]) * bd[1])),
-                         vm.brick_values.data() + size_t(entry) * kBrickVoxels);
-  });
-}
-
 }  // namespace
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
@@ -1428,7 +1417,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   }
   fill_lattice(in, vm);
   lap(BakeStage::VoxelmapLattice);
-  estimate_beyond_band(vm);
+  fill_estimates(vm);
   lap(BakeStage::VoxelmapEstimates);
   return vm;
 }

@@ -1,8 +1,8 @@
-// The chamfer transform of a voxelmap's value-brick estimates, in place on their 16-bit codes (issue "fidelity": the
-// estimates a format 2.2 would store; today bench/estimate_transform's `--in-codes`, measured there). Brick by brick:
-// a brick and a one-voxel apron of its neighbours are swept in a 10^3 block until settled, and a neighbour is woken
-// only where a voxel it could lower was lowered. The least path lengths do not depend on the order the relaxations
-// run in, so the codes are the same whatever the threads.
+// The chamfer transform of a voxelmap's value-brick estimates, in place on their 16-bit codes: format 2.2's settled
+// estimates (spec §3.1), which fill_estimates writes and validation checks (bench/estimate_transform measures it).
+// Brick by brick: a brick and a one-voxel apron of its neighbours are swept in a 10^3 block until settled, and a
+// neighbour is woken only where a voxel it could lower was lowered. The least path lengths do not depend on the order
+// the relaxations run in, so the codes are the same whatever the threads.
 #pragma once
 
 #include <algorithm>
@@ -129,6 +129,8 @@ class EstimateTransform {
  public:
   /// Over `codes`: value-brick codes in the layout of vm.brick_values (vm's brick table, lattice and quanta).
   EstimateTransform(const Voxelmap& vm, std::vector<int16_t>& codes);
+  /// To check `codes` only (count_unsettled): seed and settle must not be called.
+  EstimateTransform(const Voxelmap& vm, const std::vector<int16_t>& codes);
 
   /// Seeds every estimate from its cell's lattice points; bricks shared out over `threads`.
   void seed(unsigned threads);
@@ -161,7 +163,8 @@ class EstimateTransform {
   bool sweep(Block& block, int dir) const;
 
   const Voxelmap& vm_;
-  std::vector<int16_t>& codes_;
+  const std::vector<int16_t>& codes_;
+  std::vector<int16_t>* writable_;  ///< codes_, where seed and settle may write them (null: checking only)
   int bricks_[3], dims_[3];
   int axis_step_[4];               ///< steps of q along 0 .. 3 axes at once, rounded up
   int16_t step_[3][3][3];          ///< the same by dk + 1, dj + 1, dx + 1

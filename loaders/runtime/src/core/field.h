@@ -164,13 +164,13 @@ VOXFMT_HD float voxel_value(const Field& f, int i, int j, int k, bool& exact) {
   return entry_value(f, i, j, k, entry_of(f, i, j, k), exact);
 }
 
-/// The lowest signed distance a voxel whose value is `value` can have.
-VOXFMT_HD float value_lower_bound(const Field& f, float value, bool stored) {
+/// The lowest signed distance a voxel whose value is `value` can have; `coarse`: the voxel is in a coarse brick.
+VOXFMT_HD float value_lower_bound(const Field& f, float value, bool stored, bool coarse) {
   if (stored) return value - f.stored_slack;
   // A voxel without a stored distance is at least the band's edge from the surface, and its estimate bounds the
-  // exact distance both ways (spec §3.3).
-  return value > 0 ? max_f(f.band_edge, (value - f.estimate_offset) * f.estimate_shrink - f.estimate_slack)
-                   : value - f.estimate_slack;
+  // exact distance both ways (spec §3.1).
+  const float slack = coarse ? f.estimate_slack : f.value_estimate_slack;
+  return value > 0 ? max_f(f.band_edge, (value - f.estimate_offset) * f.estimate_shrink - slack) : value - slack;
 }
 
 /// True if `u` lies within the grid's voxels (a voxel's cell extends half a voxel around its centre).
@@ -374,7 +374,7 @@ VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3
   }
   // The distance is 1-Lipschitz: u is no nearer the surface than the voxel's bound less u's offset from it.
   const float offset = length(u - make_vec3(float(v[0]), float(v[1]), float(v[2])));
-  const float bound = value_lower_bound(f, value, stored) - offset;
+  const float bound = value_lower_bound(f, value, stored, entry < 0) - offset;
   // A voxel without a stored distance is at least the band's edge from the surface: where its value says outside
   // and u is nearer to it than that, u is outside too, and the lattice points of the voxel's cell bound u's
   // distance directly.

@@ -46,6 +46,9 @@ struct FieldLayout {
   float estimate_slack = 0;
   float estimate_offset = 0;
   float estimate_shrink = 1;
+  /// The slack of a value brick's estimate: estimate_slack where it is interpolated (2.1); where it is settled (2.2),
+  /// the reach of the paths to the nearest lattice point and back (8 sqrt(3)) and their rounding.
+  float value_estimate_slack = 0;
   float band_edge = 0;             ///< distance_band - 1/2: voxels without a stored distance are at least this far
   float lattice_step = 1.0f / 16;  ///< the lattice's unit (16-bit unsigned distances), voxels
   Vec3 cover_max{-1, -1, -1};      ///< upper end of the grid's voxels, grid coordinates (an empty grid: none)
