@@ -113,7 +113,14 @@ int main(int argc, char** argv) {
       estimate_sum += std::abs(m - u);
       ++estimate_n;
       wrong_sign += (v < 0) != (d < 0);
-      out_of_bound += u > m + B + q || u < (m - vm.lattice_error[0]) / (1 + vm.lattice_error[1]) - B - q;
+      // Spec §3.1's bounds: the interpolated lattice's (coarse bricks, and value bricks before 2.2), or a settled
+      // estimate's (never below u; above it by at most the path through the nearest lattice point).
+      const bool settled =
+          vm.estimates == voxfmt::Voxelmap::Estimates::Settled && vm.bricks[vm.brick_index(i / 8, j / 8, k / 8)] >= 0;
+      const double e0 = vm.lattice_error[0], e1 = vm.lattice_error[1];
+      out_of_bound += settled ? u > m + 0.5 * vm.distance_quantum / h + 1e-6 * u ||
+                                    u < (m - e0 - 10 * q) / (1 + e1) - 8 * std::sqrt(3.0)  // q: half a step
+                              : u > m + B + q || u < (m - e0) / (1 + e1) - B - q;
     }
   }
   std::cout << "{\"load_s\": " << load_s << ", \"runtime_mb\": " << double(runtime_bytes) / 1e6

@@ -993,6 +993,18 @@ TEST_F(FullValidation, EstimateMismatch) {
   EXPECT_EQ(codes(a), std::vector<std::string>{"ESTIMATE_MISMATCH"});
 }
 
+TEST_F(FullValidation, AnEstimateOneStepBelowTheSettledOneIsFound) {
+  // Settled estimates are exact integers (spec §3.1, 2.2): a single step too low breaks the rule at that voxel.
+  Asset a = *asset_;
+  Voxelmap& vm = a.voxelmap;
+  ASSERT_EQ(vm.estimates, Voxelmap::Estimates::Settled);
+  int16_t* c = find_code(vm, [&](int16_t code, const std::vector<int16_t*>&) {
+    return !Voxelmap::code_is_stored(code) && (code >> 1) > 40;
+  });
+  *c = int16_t(*c - 2);
+  EXPECT_EQ(codes(a), std::vector<std::string>{"ESTIMATE_MISMATCH"});
+}
+
 TEST_F(FullValidation, SignMismatch) {
   Asset a = *asset_;
   Voxelmap& vm = a.voxelmap;
