@@ -123,6 +123,9 @@ def write_cases(folder: str | os.PathLike[str]) -> dict[str, Case]:
     codes[(codes % 2) == 0] = 0
     add("estimates_zero", ("ESTIMATE_MISMATCH",), 1, "every estimate code 0", grid=sf.FINE_GRID,
         values={"/voxelmap/brick_values": codes})
+    add("estimates_interpolated_in_2_2", ("ESTIMATE_MISMATCH",), 1,
+        "a 2.2 file holding 2.1's interpolated estimates, not settled ones (spec §3.1)", grid=sf.FINE_GRID,
+        format_version=[2, 2], values={"/voxelmap/brick_values": enc["/voxelmap/brick_values"]})
     shared = enc["/voxelmap/bricks"].copy()
     rows = np.argwhere(shared >= 0)
     shared[tuple(rows[1])] = shared[tuple(rows[0])]
