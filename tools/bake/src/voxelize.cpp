@@ -13,6 +13,7 @@
 //   fill estimates       the codes of value-brick voxels without a stored distance, from the lattice
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/enumerable_thread_specific.h>
+#include <oneapi/tbb/global_control.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/parallel_reduce.h>
 #include <oneapi/tbb/parallel_sort.h>
@@ -1417,7 +1418,8 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   }
   fill_lattice(in, vm);
   lap(BakeStage::VoxelmapLattice);
-  fill_estimates(vm);
+  // As many threads as the bake's other stages may use (--threads limits TBB's parallelism).
+  fill_estimates(vm, unsigned(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
   lap(BakeStage::VoxelmapEstimates);
   return vm;
 }
