@@ -211,11 +211,12 @@ void fill_brick_estimates(const Voxelmap& vm, uint32_t bi, uint32_t bj, uint32_t
 }
 
 void fill_interpolated_estimates(Voxelmap& vm) {
-  const auto bd = vm.brick_dims();
   for (size_t b = 0; b < vm.bricks.size(); ++b)
-    if (vm.bricks[b] >= 0)
-      fill_brick_estimates(vm, uint32_t(b % bd[0]), uint32_t(b / bd[0] % bd[1]), uint32_t(b / (size_t(bd[0]) * bd[1])),
+    if (vm.bricks[b] >= 0) {
+      const auto [bi, bj, bk] = detail::brick_coordinates(vm, b);
+      fill_brick_estimates(vm, uint32_t(bi), uint32_t(bj), uint32_t(bk),
                            vm.brick_values.data() + size_t(vm.bricks[b]) * Voxelmap::kBrickVoxels);
+    }
   vm.estimates = Voxelmap::Estimates::Interpolated;
 }
 

@@ -10,7 +10,8 @@
 //                        distances (a tie may name another of the tied triangles)
 //   propagate_lattice    the unsigned distance at every brick corner: exact near the surface, nearest triangles
 //                        carried across the lattice farther away
-//   fill estimates       the codes of value-brick voxels without a stored distance, from the lattice
+//   fill estimates       the codes of value-brick voxels without a stored distance: settled from the lattice
+//                        seeds and their neighbours (spec §3.1, format 2.2)
 #include <oneapi/tbb/blocked_range.h>
 #include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/global_control.h>
