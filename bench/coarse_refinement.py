@@ -32,7 +32,12 @@ and, with --feet, the coarse bricks' field from what the bake's lattice stage al
                          --feet-curvature T each disc at most as wide as keeps the sphere of the surface's curvature
                          at its foot within T voxels (libigl's principal curvatures), --feet-edges-plain none
                          on a triangle's edge or vertex, --feet-pseudonormal each disc normal to the surface's
-                         pseudonormal at its foot;
+                         pseudonormal at its foot, --feet-checked T each disc the widest of R, 3R/4, R/2, R/4 whose
+                         rim (16 samples at the radius and at half of it) lies within T voxels of the surface or
+                         behind it as seen from the lattice point: a disc behind the surface cannot under-estimate
+                         (a straight line to it crosses the surface), so only discs in front of it are cut;
+                         --feet-checked-by asset judges the rims by the asset's own field (its band) instead of
+                         the mesh;
 and reports estimate_oracle.py's figures (slope along inward lines, errors on sampled deep voxels against libigl's
 exact distance), the flagged bricks and the values they would add. Needs libigl and SciPy; MESH as in
 deep_accuracy.py. At the grid's far faces the last lattice cell is shorter than 8 voxels; the 4-lattice's weights
@@ -115,6 +120,32 @@ def feet_values(coarse, table, feet, normals, LD, top, penalty: float, disc=0.0)
     return out
 
 
+def checked_disc_radii(signed_distance, feet, normals, side, disc: float, h: float, tolerance: float) -> np.ndarray:
+    """Per foot (metres, [n, 3], with unit plane normals [n, 3] and the side of its lattice point, +1 outside): the
+    widest of disc, 3/4, 1/2, 1/4 of it (voxels) whose rim, 8 samples at the radius and 8 at half of it, lies no
+    more than `tolerance` voxels in front of the surface as seen from the lattice point, by `signed_distance(points)`
+    (metres, positive outside); 0 where none does."""
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    e1 = np.cross(normals, helper)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-12)
+    e2 = np.cross(normals, e1)
+    angles = np.arange(8) * np.pi / 4
+    rim = np.cos(angles)[None, :, None] * e1[:, None] + np.sin(angles)[None, :, None] * e2[:, None]  # [n, 8, 3]
+    radii = np.zeros(len(feet))
+    open_ = np.ones(len(feet), bool)  # no wider disc has passed yet
+    for r in (disc, 0.75 * disc, 0.5 * disc, 0.25 * disc):
+        todo = np.flatnonzero(open_)
+        if not len(todo):
+            break
+        samples = np.concatenate([feet[todo, None] + h * r * rim[todo], feet[todo, None] + 0.5 * h * r * rim[todo]], 1)
+        signed = signed_distance(samples.reshape(-1, 3))
+        in_front = (side[todo, None] * signed.reshape(len(todo), 16)).max(1) / h
+        ok = in_front <= tolerance
+        radii[todo[ok]] = r
+        open_[todo[ok]] = False
+    return radii
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("asset")
@@ -143,6 +174,13 @@ def main() -> int:
                     help="with --feet-curvature: no disc for a foot on a triangle's edge or vertex")
     ap.add_argument("--feet-pseudonormal", action="store_true",
                     help="the discs' planes normal to the surface's pseudonormal at each foot")
+    ap.add_argument("--feet-checked", type=float, default=None,
+                    help="voxels: each disc the widest of R, 3R/4, R/2, R/4 whose rim samples lie no more than this in "
+                         "front of the surface as seen from the lattice point (pseudonormal signs: a closed mesh); "
+                         "none of them: no disc")
+    ap.add_argument("--feet-checked-by", choices=("mesh", "asset"), default="mesh",
+                    help="--feet-checked's signed distances: exact, from the mesh (libigl), or the asset's own field "
+                         "(its stored band, where the rims lie: no search; default mesh)")
     ap.add_argument("--feet-blend", default="8:24",
                     help="comma-separated NEAR:FAR depths (voxels) of the blended feet variants (default 8:24)")
     ap.add_argument("--no-refined", action="store_true", help="skip the finer-lattice variants")
@@ -226,8 +264,25 @@ def main() -> int:
             sized = np.where(np.asarray(bary).min(1) > 1e-6, sized, 0.0)
             print(f"coarse_refinement: {100 * float((sized == 0).mean()):.1f} % of the feet on an edge or a vertex")
         sized = sized.reshape(*LD)
+    checked = {}
+    if args.feet_checked is not None:
+        side = np.sign(igl.signed_distance(P, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0])
+        for disc in [r for r in discs if r > 0]:
+            if args.feet_checked_by == "asset":  # the asset's own band: what a producer or a reader has
+                def signed_distance(points):
+                    return body.signed_distance(points.astype(np.float64))
+            else:
+                def signed_distance(points):
+                    return igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
+            checked[disc] = checked_disc_radii(signed_distance, nearest, disc_normals.reshape(-1, 3), side, disc, h,
+                                               args.feet_checked).reshape(*LD)
+            widths = checked[disc]
+            print(f"coarse_refinement: discs of {disc:g} checked: " + ", ".join(
+                f"{100 * float((widths == w).mean()):.1f} % {w:g}" for w in np.unique(widths)[::-1]), flush=True)
     for penalty, disc in [(float(x), r) for x in args.feet.split(",") if x for r in discs]:
         radius = np.minimum(sized, disc) if args.feet_curvature > 0 and disc > 0 else disc
+        if disc in checked:
+            radius = checked[disc]
         values = feet_values(coarse, table, (nearest - origin) / h, disc_normals, LD, top, penalty, radius)
         name = "8 corners" if penalty == 0 else f"4^3 points around, penalty {penalty:g}"
         if disc > 0:
@@ -236,6 +291,8 @@ def main() -> int:
                 name += f" at most, each within {args.feet_curvature:g} voxel of its sphere of curvature"
                 name += " (none on an edge or a vertex)" if args.feet_edges_plain else ""
             name += ", planes by pseudonormals" if args.feet_pseudonormal else ""
+            name += (f", each checked behind the surface within {args.feet_checked:g} voxel by the "
+                     f"{args.feet_checked_by}'s distances") if disc in checked else ""
         fields[f"feet: least distance to the nearest surface points of the {name}"] = (variant(values), 0, 0)
         # Deep, where the feet are near the exact distance and the interpolation cuts ridges, the feet; near the
         # surface, where the corners' feet lie far to the side, the interpolation; blended between the depths.
