@@ -68,6 +68,7 @@ std::string inspect_json(const std::string& file, const Asset& a, const AssetSum
         {"origin", vec(vm.origin)},
         {"distance_band", vm.distance_band},
         {"stored_distances", s.stored_distances},
+        {"estimates", vm.estimates == Voxelmap::Estimates::Settled ? "settled" : "interpolated"},
         {"layer_min", s.layer_min},
         {"layer_max", s.layer_max},
         {"bricks", vm.brick_count()},

@@ -132,6 +132,7 @@ class InspectExports(unittest.TestCase):
         self.assertEqual((vm["bricks"], vm["value_bricks"], vm["coarse_bricks"]),
                          (v.brick_count, v.value_brick_count, v.coarse_brick_count))
         np.testing.assert_allclose(vm["lattice_error"], v.lattice_error, rtol=1e-12)
+        self.assertEqual(vm["estimates"], "settled")  # a bake writes format 2.2's rule (spec 3.1)
         self.assertLess(self.layers.min(), 0)  # the tetrahedron's grid has outside...
         self.assertGreater(self.layers.max(), 0)  # ...and inside voxels
 
@@ -194,6 +195,24 @@ class InspectExports(unittest.TestCase):
         self.assertLess(self.layers[D // 3, H - 1, 0], 0)
         corner = pixels[10 + 14 + 8, 10]
         self.assertGreater(corner[2], corner[0], "top-left voxel (outside) is blue")
+
+    def test_estimates_rule_follows_the_file_version(self):
+        """inspect names each file's estimate rule (spec 3.1): a 2.1 file's are interpolated, the same file upgraded
+        to 2.2 holds settled ones; text and JSON agree."""
+        import spec_fixture  # tests/spec: writes files from the spec alone
+
+        old = spec_fixture.write_fixture_h5py(os.path.join(self.dir, "sphere21.vox.h5"), format_version=[2, 1])
+        new = os.path.join(self.dir, "sphere22.vox.h5")
+        r = subprocess.run([VOXFMT, "upgrade", old, "-o", new], capture_output=True, text=True, timeout=60)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        for path, rule, version in ((old, "interpolated", [2, 1]), (new, "settled", [2, 2])):
+            r = subprocess.run([VOXFMT, "inspect", path, "--json"], capture_output=True, text=True, timeout=60)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            summary = json.loads(r.stdout)
+            self.assertEqual((summary["format_version"], summary["voxelmap"]["estimates"]), (version, rule))
+            r = subprocess.run([VOXFMT, "inspect", path], capture_output=True, text=True, timeout=60)
+            line = next(line for line in r.stdout.splitlines() if line.strip().startswith("estimates"))
+            self.assertIn(rule, line)
 
     def test_bad_arguments_exit_2_with_a_message(self):
         png = os.path.join(self.dir, "bad.png")

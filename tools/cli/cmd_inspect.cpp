@@ -63,6 +63,10 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
   row("voxel size") << vm.voxel_size << " m\n";
   row("origin") << v3(vm.origin) << "\n";
   row("distance band") << "±" << vm.distance_band << " voxels, " << s.stored_distances << " distances stored\n";
+  row("estimates") << (vm.estimates == Voxelmap::Estimates::Settled
+                           ? "settled: never below the exact distance (spec 3.1, format 2.2)"
+                           : "interpolated from the lattice (format 2.1 and older; voxfmt upgrade settles them)")
+                   << "\n";
   row("layers") << s.layer_min << " .. " << s.layer_max << " (inside > 0)\n";
   o << "point shell\n";
   row("points") << ps.size() << " in " << ps.level_count() << " levels (tree depth "
