@@ -1361,6 +1361,14 @@ void fill_lattice(const BrickRowsInput& in, Voxelmap& vm) {
   vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
 }
 
+// The nearest-triangle hierarchy over the grid's triangles (it keeps its own copy of their corners), shared by the
+// band's dense rows and the lattice.
+ClosestTriangle triangle_hierarchy(const std::vector<IndexTriangle>& triangles) {
+  std::vector<std::array<Vec3, 3>> corners(triangles.size());
+  for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
+  return ClosestTriangle(corners);
+}
+
 }  // namespace
 
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& options, std::vector<StageTiming>* timings,
@@ -1391,10 +1399,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
     boundary->prepare(lists.bricks, g.bricks);
   }
   std::vector<Vec3>().swap(vertices);
-  std::vector<std::array<Vec3, 3>> corners(triangles.size());
-  for (size_t f = 0; f < triangles.size(); ++f) corners[f] = {triangles[f].a, triangles[f].b, triangles[f].c};
-  const ClosestTriangle hierarchy(corners);
-  std::vector<std::array<Vec3, 3>>().swap(corners);
+  const ClosestTriangle hierarchy = triangle_hierarchy(triangles);
   const BrickRowsInput in{mesh,
                           g,
                           triangles,
