@@ -128,6 +128,15 @@ class BrowserReportTest(unittest.TestCase):
         self.assertRegex(self.driver.find_element(By.ID, "card-error-code").text, r"^[A-Z0-9_]+$")
         self.assertIn("invalid", self.driver.find_element(By.ID, "card-validation").text)
 
+    def test_4b_built_asset_card_names_its_format_and_estimates(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("tet.obj")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        # The provenance table comes from the asset's detail script, loaded after the card opens.
+        rows = WebDriverWait(self.driver, 20).until(
+            lambda d: {r.find_element(By.TAG_NAME, "th").text: r.find_element(By.TAG_NAME, "td").text
+                       for r in d.find_elements(By.CSS_SELECTOR, "#card-provenance tr")} or None)
+        self.assertEqual((rows.get("format"), rows.get("estimates")), ("2.2", "settled"))
+
     def test_5_3d_view_draws(self):
         self.driver.find_element(By.ID, "filter-name").send_keys("tet.obj")
         self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()

@@ -372,6 +372,7 @@
     const pr = i.provenance || {};
     $('card-provenance').append(el('h3', {}, 'Provenance'), table([
       ['format', Array.isArray(i.format_version) ? i.format_version.join('.') : ''],
+      ['estimates', i.voxelmap ? text(i.voxelmap.estimates) : ''],
       ['generator', text(pr.generator) + ' ' + text(pr.generator_version)],
       ['source', text(pr.source_file)], ['created', text(pr.created_utc)],
       ['dependencies', pr.dependency_versions ? Object.entries(pr.dependency_versions).map(([k, v]) => k + ' ' + v).join(', ') : ''],
