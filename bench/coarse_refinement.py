@@ -267,13 +267,13 @@ def main() -> int:
     checked = {}
     if args.feet_checked is not None:
         side = np.sign(igl.signed_distance(P, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0])
+        if args.feet_checked_by == "asset":  # the asset's own band: what a producer or a reader has
+            def signed_distance(points):
+                return body.signed_distance(points.astype(np.float64))
+        else:
+            def signed_distance(points):
+                return igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
         for disc in [r for r in discs if r > 0]:
-            if args.feet_checked_by == "asset":  # the asset's own band: what a producer or a reader has
-                def signed_distance(points):
-                    return body.signed_distance(points.astype(np.float64))
-            else:
-                def signed_distance(points):
-                    return igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
             checked[disc] = checked_disc_radii(signed_distance, nearest, disc_normals.reshape(-1, 3), side, disc, h,
                                                args.feet_checked).reshape(*LD)
             widths = checked[disc]

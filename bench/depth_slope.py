@@ -31,6 +31,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 STEP = 0.1  # voxels between samples along a line
+CORNERS = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])  # a cell's 8 voxels from its base voxel
 
 
 def inward_lines(body, depth_of=None, with_points=False):
@@ -73,17 +74,17 @@ def brick_kinds(path: str):
     only, coarse bricks only, or both."""
     import h5py
 
+    from estimate_oracle import brick_table  # it imports this module at its top
+
     with h5py.File(path, "r") as f:
         vm = f["voxelmap"]
         origin = np.asarray(vm.attrs["origin"], dtype=np.float64)
         h = float(vm.attrs["voxel_size"])
         dims = np.asarray(vm.attrs["dims"], dtype=np.int64)
-        bricks = (dims + 7) // 8
-        table = vm["bricks"][...].reshape(bricks[2], bricks[1], bricks[0]).transpose(2, 1, 0)
-    corner = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])
+    table = brick_table(path, dims)
 
     def kind_of(a, b):
-        voxels = np.concatenate([np.floor((x - origin) / h).astype(np.int64) + corner for x in (a, b)])
+        voxels = np.concatenate([np.floor((x - origin) / h).astype(np.int64) + CORNERS for x in (a, b)])
         voxels = np.clip(voxels, 0, dims - 1) // 8
         value = table[tuple(voxels.T)] >= 0
         return "value" if value.all() else "coarse" if not value.any() else "both"
@@ -102,15 +103,14 @@ def exact_voxels_depth(path: str, mesh: str):
         origin = np.asarray(f["voxelmap"].attrs["origin"], dtype=np.float64)
         h = float(f["voxelmap"].attrs["voxel_size"])
     V, F = igl.read_triangle_mesh(mesh)
-    corner = np.array([[c & 1, c >> 1 & 1, c >> 2 & 1] for c in range(8)])
 
     def depth_of(points):
         u = (points - origin) / h
         base = np.floor(u)
         t = u - base
-        centres = origin + h * (base[:, None, :] + corner[None]).reshape(-1, 3)
+        centres = origin + h * (base[:, None, :] + CORNERS[None]).reshape(-1, 3)
         exact = igl.signed_distance(centres, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
-        weights = np.prod(np.where(corner[None] == 1, t[:, None, :], 1 - t[:, None, :]), axis=2)
+        weights = np.prod(np.where(CORNERS[None] == 1, t[:, None, :], 1 - t[:, None, :]), axis=2)
         return -(exact.reshape(-1, 8) * weights).sum(1) / h
 
     return depth_of
