@@ -22,8 +22,8 @@ MESHES = {
 MESH_COUNT = len(MESHES) + 1  # and parts/tet.obj
 
 
-def run(*args, check=True):
-    p = subprocess.run([VOXFMT, *args], capture_output=True, text=True)
+def run(*args, check=True, cwd=None):
+    p = subprocess.run([VOXFMT, *args], capture_output=True, text=True, cwd=cwd)
     if check and p.returncode not in (0, 1):  # batch exits 1 when a mesh failed
         raise AssertionError("voxfmt %s: exit %d\n%s%s" % (" ".join(args), p.returncode, p.stdout, p.stderr))
     return p

@@ -200,6 +200,17 @@ class BrowserAssetCardTest(unittest.TestCase):
                 open_page(driver, os.path.join(tmp, "card", "index.html"))
                 self.assertEqual(driver.find_element(By.ID, "card-name").text, "tet.vox.h5")
                 self.assertIn("valid", driver.find_element(By.ID, "card-validation").text)
+                # The library's parts have nothing to show for one asset: no chart frames, no empty headings.
+                for part in ("plots", "summary", "library", "plot-time", "plot-size"):
+                    self.assertFalse(driver.find_element(By.ID, part).is_displayed(), part)
+                headings = [h.text for h in driver.find_elements(By.CSS_SELECTOR, "#card h3")]
+                self.assertIn("Asset", headings)
+                self.assertNotIn("Input", headings)
+                self.assertNotIn("Bake settings", headings)
+                self.assertRegex(driver.find_element(By.ID, "card").text, r"grid\s+\d+ × \d+ × \d+ voxels")
+                for heading in driver.find_elements(By.CSS_SELECTOR, "#card h3"):
+                    following = heading.find_element(By.XPATH, "following-sibling::*[1]")
+                    self.assertNotEqual(following.tag_name, "h3", heading.text + " has nothing under it")
                 self.assertEqual([e for e in driver.get_log("browser") if e["level"] == "SEVERE"], [])
             finally:
                 driver.quit()

@@ -173,7 +173,18 @@ class ReportTest(unittest.TestCase):
         self.assertEqual(data["kind"], "asset")
         self.assertEqual(len(data["rows"]), 1)
         self.assertTrue(data["rows"][0]["validation"]["valid"])
+        # No manifest record: the grid, points and volume come from the asset.
+        self.assertEqual(len(data["rows"][0]["voxelmap"]["dims"]), 3)
+        self.assertGreater(data["rows"][0]["pointshell"]["points_per_level"][-1], 0)
+        self.assertGreater(data["rows"][0]["volume"], 0)
         self.assertIn("scene", load_asset(out, data["rows"][0]))
+        # Bare relative names, run from the asset's own folder (its parent path is empty).
+        here = os.path.join(self.tmp, "here")
+        os.makedirs(here, exist_ok=True)
+        shutil.copy(asset, os.path.join(here, "tet.vox.h5"))
+        p = fx.run("inspect", "tet.vox.h5", "--html", "card", cwd=here, check=False)
+        self.assertEqual(p.returncode, 0, p.stderr)
+        self.assertEqual(load_data(os.path.join(here, "card"))["library"], os.path.abspath(here))
         p = fx.run("inspect", os.path.join(self.library, "damaged.obj.vox.h5"), "--html", os.path.join(self.tmp, "bad"),
                    check=False)
         self.assertNotEqual(p.returncode, 0)

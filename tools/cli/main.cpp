@@ -2,11 +2,21 @@
 #include <CLI/CLI.hpp>
 
 #include <csignal>
+#include <exception>
 #include <iostream>
+#include <new>
+#include <string>
 
 #include "commands.h"
 #include "voxfmt/asset.h"
 #include "voxfmt/version.h"
+
+namespace {
+const char* command_name(const CLI::App& app) {
+  const auto used = app.get_subcommands();
+  return used.empty() ? "" : used.front()->get_name().c_str();
+}
+}  // namespace
 
 int main(int argc, char** argv) {
   // A file-size limit (ulimit -f) must make a write fail with EFBIG, reported as WRITE_FAILED with the temporary
@@ -32,6 +42,12 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     app.exit(e);
     return voxfmt::cli::kExitUsageOrIo;
+  } catch (const std::bad_alloc&) {
+    return voxfmt::cli::report_error(command_name(app), {voxfmt::IssueCode::OutOfMemory, "out of memory"});
+  } catch (const std::exception& e) {
+    // Every command returns coded errors; an exception here is our bug, still reported as one coded line.
+    return voxfmt::cli::report_error(command_name(app),
+                                     {voxfmt::IssueCode::Internal, std::string("unexpected error: ") + e.what()});
   }
   return exit_code;
 }

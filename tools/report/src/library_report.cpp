@@ -8,10 +8,12 @@
 #include <atomic>
 #include <chrono>
 #include <ctime>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <new>
 #include <optional>
 #include <sstream>
 #include <thread>
@@ -233,6 +235,12 @@ Status describe_asset(const std::string& path, const ReadAsset& read_result, con
   nlohmann::json inspect = nlohmann::json::parse(inspect_json(path, asset.value(), summary, warnings), nullptr, false);
   row["validation"] = {{"valid", true}, {"findings", issues_json(warnings)}, {"count", warnings.size()}};
   row["memory_bytes"] = summary.memory_bytes;
+  // An asset alone has no manifest record: the card's grid, points and volume come from the file itself.
+  for (const char* key : {"voxelmap", "pointshell"})
+    if (!row.contains(key) && inspect.contains(key)) row[key] = inspect[key];
+  const nlohmann::json mass =
+      inspect.is_object() ? inspect.value("mass_properties", nlohmann::json()) : nlohmann::json();
+  if (!row.contains("volume") && mass.is_object() && mass.contains("volume")) row["volume"] = mass["volume"];
   nlohmann::json detail = {{"inspect", inspect}};
   const std::string name = std::to_string(id);
   if (pictures) {
@@ -303,6 +311,17 @@ void remove_stale_leftovers(const fs::path& out) {
   }
 }
 
+// The temporary folder is removed on every failure, an unexpected exception included.
+Status fill_or_error(const std::function<Status(const fs::path&)>& fill, const fs::path& temporary) {
+  try {
+    return fill(temporary);
+  } catch (const std::bad_alloc&) {
+    return Error(IssueCode::OutOfMemory, temporary.string() + ": out of memory while writing the report");
+  } catch (const std::exception& e) {
+    return Error(IssueCode::Internal, temporary.string() + ": unexpected error while writing the report: " + e.what());
+  }
+}
+
 // Builds the report in a temporary folder beside OUT, then swaps it in (OUT moved aside, the new one renamed to
 // OUT, the old one removed): a killed run leaves either report whole under OUT's name, never half of one.
 Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(const fs::path&)>& fill) {
@@ -325,7 +344,7 @@ Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(
   if (!fs::create_directories(temporary / "img", ec) || !fs::create_directories(temporary / "assets", ec))
     return Error(IssueCode::WriteFailed, temporary.string() + ": cannot create the folder (" + ec.message() + ")",
                  temporary.string());
-  Status filled = fill(temporary);
+  Status filled = fill_or_error(fill, temporary);
   for (size_t r = 0; filled && r < kResourceCount; ++r)
     filled = write_text(temporary / kResources[r].name, std::string(kResources[r].data, kResources[r].size));
   if (!filled) {
@@ -476,7 +495,8 @@ Result<ReportInfo> write_asset_report(const std::string& asset, const std::strin
     row["file_size_bytes"] = fs::file_size(asset, ec);
     if (Status s = describe_asset(asset, read_result, dir, 0, read, true, row); !s) return s;
     LibraryReportOptions defaults;
-    const nlohmann::json data = report_data("asset", fs::path(asset).parent_path().string(), defaults, 0,
+    // absolute first: a bare file name ("b.vox.h5") has an empty parent, which fs::absolute refuses
+    const nlohmann::json data = report_data("asset", fs::absolute(asset).parent_path().string(), defaults, 0,
                                             nlohmann::json::array({row}), nullptr);
     return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
   });

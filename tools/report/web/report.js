@@ -310,6 +310,12 @@
   function table(pairs) {
     return el('table', {}, pairs.filter((p) => p && p[1] !== '' && p[1] !== null && p[1] !== undefined).map(([k, v]) => el('tr', {}, el('th', {}, k), el('td', {}, v))));
   }
+  // A heading and its table, or nothing when no row has a value (an asset alone has no manifest record: no input,
+  // no bake settings).
+  function titled(title, pairs) {
+    const t = table(pairs);
+    return t.rows.length ? [el('h3', {}, title), t] : null;
+  }
 
   let viewer = null;
   function closeCard() {
@@ -336,18 +342,15 @@
         own(r, 'views') ? el('figure', {}, el('img', { src: r.views, alt: 'front, side and top views of the point shell', width: 384, height: 128 }), el('figcaption', {}, 'point shell: front · side · top')) : null,
         own(r, 'slice') ? el('figure', {}, el('img', { src: r.slice, alt: 'middle slice of the voxelmap' }), el('figcaption', {}, 'mid slice: inside red, outside blue, surface black')) : null),
       own(r, 'detail') ? el('div', { id: 'viewer' }, el('button', { type: 'button', id: 'open-3d', onclick: () => open3d(row) }, 'Open the 3D view')) : null,
-      el('h3', {}, 'Input'),
-      table([['file', text(r.input)], ['triangles', count(r.input_triangles)], ['vertices', count(r.input_vertices)], ['bytes', bytes(r.input_bytes)],
+      titled('Input', [['file', text(r.input)], ['triangles', count(r.input_triangles)], ['vertices', count(r.input_vertices)], ['bytes', bytes(r.input_bytes)],
         ['closed', r.closed === undefined ? '' : r.closed ? 'yes' : 'no (baked as a shell)'], ['sha256', text(r.source_sha256)]]),
       warnings.length ? [el('h3', {}, 'Bake warnings'), el('ul', { class: 'findings', id: 'card-warnings' }, warnings)] : null,
-      el('h3', {}, 'Asset'),
-      table([['file', text(r.output)], ['file size', bytes(r.file_size_bytes)], ['memory (loaded)', bytes(r.memory_bytes)],
+      titled('Asset', [['file', text(r.output)], ['file size', bytes(r.file_size_bytes)], ['memory (loaded)', bytes(r.memory_bytes)],
         ['grid', row.dims ? row.dims.join(' × ') + ' voxels' : ''], ['voxel size', r.voxelmap && num(r.voxelmap.voxel_size) ? (r.voxelmap.voxel_size * 1000).toPrecision(4) + ' mm' : ''],
         ['stored distances', count(row.stored)],
         ['points per level', r.pointshell && Array.isArray(r.pointshell.points_per_level) ? r.pointshell.points_per_level.join(', ') : ''],
         ['volume', num(r.volume) !== null ? r.volume.toPrecision(4) + ' m³' : '']]),
-      el('h3', {}, 'Bake settings'),
-      table(Object.entries(p).map(([k, v]) => [k.replace(/_/g, ' '), text(v)])),
+      titled('Bake settings', Object.entries(p).map(([k, v]) => [k.replace(/_/g, ' '), text(v)])),
       r.timings_s && typeof r.timings_s === 'object' ? [el('h3', {}, 'Time per stage'),
         table([...Object.entries(r.timings_s).map(([k, v]) => [k, seconds(v)]), ['total', seconds(r.total_s)], ['wall (with the process)', seconds(r.wall_s)], ['peak memory', bytes(r.peak_memory_bytes)]])] : null,
       validation(r),
@@ -633,7 +636,7 @@
   // ---- start
   document.addEventListener('keydown', (e) => { if (e.key === 'Escape' && !single) closeCard(); });
   if (single) {
-    for (const id of ['summary', 'plots', 'library']) $(id).hidden = true;
+    $('page').hidden = true;  // the library's summary, plots and table; the card stands alone
     const card = $('card');
     card.style.position = 'static';
     card.style.width = 'auto';
