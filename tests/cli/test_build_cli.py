@@ -126,6 +126,12 @@ class BuildBadOutput(unittest.TestCase):
         self.expect_write_failed(self.build(out), "does not exist")
         self.assertFalse(os.path.exists(os.path.dirname(out)))
 
+    def test_empty_path_is_a_usage_error(self):
+        r = self.build("")
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertIn("--output: an empty path", r.stderr)
+        self.assertEqual(self.partials(self.dir.name), [])
+
     def test_path_that_is_a_folder(self):
         out = os.path.join(self.dir.name, "folder.vox.h5")
         os.mkdir(out)

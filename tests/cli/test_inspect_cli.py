@@ -227,6 +227,10 @@ class InspectExports(unittest.TestCase):
             (["--level", "1"], "--ply"),
             (["--slice", "x=1", "--png", os.path.join(self.dir, "no-such-dir", "x.png")], "no-such-dir"),
             (["--vdb", os.path.join(self.dir, "no-such-dir", "x.vdb")], "no-such-dir"),
+            # An empty path given explicitly is refused, not read as "not asked for" (which printed the summary).
+            (["--html", ""], "empty path"),
+            (["--ply", ""], "empty path"),
+            (["--vdb", ""], "empty path"),
         ]
         for args, message in cases:
             r = self.inspect(*args)

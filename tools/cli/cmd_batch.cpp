@@ -489,6 +489,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                   "(@FILE, or *.txt/*.lst/*.list: one path per line, relative to the list)")
       ->required();
   cmd->add_option("-o,--output", o->output_dir, "Output directory; OUTDIR/<path below the input root>.vox.h5 per mesh")
+      ->check(non_empty_path())
       ->required();
   cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")
       ->capture_default_str()

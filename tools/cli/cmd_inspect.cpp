@@ -163,7 +163,8 @@ void add_export_options(CLI::App* cmd, Options& options) {
                         "AXIS=INDEX"));
   auto* png = cmd->add_option("--png", options.png,
                               "Write the --slice picture here (PNG: colour map inside red / outside blue, surface "
-                              "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)");
+                              "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)")
+                  ->check(non_empty_path());
   slice->needs(png);
   png->needs(slice);
   cmd->add_option("--field", options.field, "What the slice colours: layers (every voxel) or distances (the band)")
@@ -175,17 +176,20 @@ void add_export_options(CLI::App* cmd, Options& options) {
       ->check(CLI::Range(1, 64))
       ->needs(slice);
   auto* ply = cmd->add_option("--ply", options.ply,
-                              "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)");
+                              "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)")
+                  ->check(non_empty_path());
   cmd->add_option("--level", options.level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
       ->check(CLI::NonNegativeNumber)
       ->needs(ply);
   cmd->add_flag("--inward-normals", options.inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
   cmd->add_option("--vdb", options.vdb,
                   "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
-                  "\"layers\" (int32), for Houdini, Blender or vdb_view");
+                  "\"layers\" (int32), for Houdini, Blender or vdb_view")
+      ->check(non_empty_path());
   cmd->add_option("--html", options.html,
                   "Write the asset's report card (facts, validation, pictures, 3D view) as a folder with index.html "
-                  "(the card `voxfmt report` shows)");
+                  "(the card `voxfmt report` shows)")
+      ->check(non_empty_path());
 }
 
 int run(const Options& options) {

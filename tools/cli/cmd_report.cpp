@@ -59,12 +59,15 @@ void add_report_command(CLI::App& app, int& exit_code) {
       "Write an HTML report of a baked library (a `voxfmt batch` output folder): summary, table, a card "
       "with pictures per asset, a 3D view; opens from the file system, no server");
   cmd->add_option("library", options->report.library, "Library folder (holding manifest.jsonl)")->required();
-  cmd->add_option("-o,--output", options->report.out, "Report folder (default: LIBRARY/report)");
+  cmd->add_option("-o,--output", options->report.out, "Report folder (default: LIBRARY/report)")
+      ->check(non_empty_path());
   cmd->add_option("--manifest", options->report.manifest,
-                  "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)");
+                  "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)")
+      ->check(non_empty_path());
   cmd->add_option("--against", options->report.against,
                   "Another bake of the library to compare with (assets that appeared, disappeared, changed status, "
-                  "grew, shrank or bake more slowly)");
+                  "grew, shrank or bake more slowly)")
+      ->check(non_empty_path());
   cmd->add_option("--size-threshold", options->report.size_threshold,
                   "With --against: relative file-size change that is listed")
       ->capture_default_str()

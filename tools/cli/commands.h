@@ -27,6 +27,13 @@ inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
 }
 
+/// Refuses an empty path given explicitly (`--html ''`), which would otherwise read as "not asked for" and
+/// silently write nothing.
+inline CLI::Validator non_empty_path() {
+  return CLI::Validator(
+      [](std::string& path) { return path.empty() ? std::string("an empty path names no file or folder") : ""; }, "");
+}
+
 void add_build_command(CLI::App& app, int& exit_code);
 void add_batch_command(CLI::App& app, int& exit_code);
 void add_inspect_command(CLI::App& app, int& exit_code);
