@@ -11,6 +11,7 @@
 #include <new>
 #include <sstream>
 
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "voxfmt/detail/cores.h"
@@ -174,6 +175,11 @@ void Reader::report(IssueCode code, const std::string& path, const std::string& 
 
 bool Reader::open() {
   silence_hdf5_errors();
+  struct stat info {};
+  if (::stat(file_.c_str(), &info) == 0 && S_ISDIR(info.st_mode)) {  // fopen opens a folder; its read fails later
+    report(IssueCode::FileNotFound, "/", "cannot open file: it is a folder, not an asset file");
+    return false;
+  }
   if (FILE* f = std::fopen(file_.c_str(), "rb")) {
     std::fclose(f);
   } else {

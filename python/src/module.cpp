@@ -791,7 +791,7 @@ void bind_contacts(nb::module_& m) {
 
 // load, contacts, wrench, contacts_batch and the Tracker of a pair.
 void bind_queries(nb::module_& m) {
-  m.def("load", &load, "path"_a, nb::kw_only(), "density"_a = 1.0, "max_memory_mib"_a = nb::none(),
+  m.def("load", &load, "path"_a.none(), nb::kw_only(), "density"_a = 1.0, "max_memory_mib"_a = nb::none(),
         nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0, max_memory_mib: int | None = None) "
                 "-> Body"),
         "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, a validation\n"
@@ -878,7 +878,7 @@ void bind_pipeline(nb::module_& m) {
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),
         "time_budget_us"_a.none(), "proximity"_a);
   m.def("_library_version", [] { return std::string(VOXFMT_VERSION_STRING); });
-  m.def("read_mesh", &read_mesh, "path"_a, nb::kw_only(), "unit_scale"_a = 1.0,
+  m.def("read_mesh", &read_mesh, "path"_a.none(), nb::kw_only(), "unit_scale"_a = 1.0,
         nb::sig("def read_mesh(path: str | os.PathLike[str], *, unit_scale: float = 1.0) -> "
                 "tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.uint32]]"),
         "A mesh file as `voxfmt build` imports it (any format assimp reads, all meshes of a scene merged with their\n"

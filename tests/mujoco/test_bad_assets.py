@@ -25,7 +25,7 @@ def bad_files(tmp_path_factory: pytest.TempPathFactory, sphere_asset: Path) -> d
         "missing": (folder / "missing.vox.h5", "FILE_NOT_FOUND"),
         "not HDF5": (folder / "text.vox.h5", "NOT_HDF5"),
         "truncated": (folder / "truncated.vox.h5", "NOT_HDF5"),
-        "a folder": (folder, ""),
+        "a folder": (folder, "FILE_NOT_FOUND"),
     }
     (folder / "text.vox.h5").write_text("not an asset\n")
     (folder / "truncated.vox.h5").write_bytes(good[: len(good) // 3])
