@@ -175,9 +175,12 @@ void Reader::report(IssueCode code, const std::string& path, const std::string& 
 
 bool Reader::open() {
   silence_hdf5_errors();
+  // Only a regular file: fopen opens a folder (whose read then fails deep in HDF5) and waits forever on a FIFO.
   struct stat info {};
-  if (::stat(file_.c_str(), &info) == 0 && S_ISDIR(info.st_mode)) {  // fopen opens a folder; its read fails later
-    report(IssueCode::FileNotFound, "/", "cannot open file: it is a folder, not an asset file");
+  if (::stat(file_.c_str(), &info) == 0 && !S_ISREG(info.st_mode)) {
+    report(IssueCode::FileNotFound, "/",
+           S_ISDIR(info.st_mode) ? "cannot open file: it is a folder, not an asset file"
+                                 : "cannot open file: not a regular file (a pipe, socket or device)");
     return false;
   }
   if (FILE* f = std::fopen(file_.c_str(), "rb")) {

@@ -40,6 +40,15 @@ class BuildBadInput(unittest.TestCase):
         r = self.expect_error(os.path.join(self.dir.name, "nope.off"), "INPUT_NOT_FOUND")
         self.assertIn("nope.off", r.stderr)
 
+    def test_a_folder_or_a_pipe_is_not_a_mesh(self):
+        pipe = os.path.join(self.dir.name, "pipe.obj")
+        os.mkfifo(pipe)
+        folder = os.path.join(self.dir.name, "folder.obj")
+        os.mkdir(folder)
+        for path in (pipe, folder):
+            r = self.expect_error(path, "INPUT_NOT_FOUND")
+            self.assertIn("not a regular file", r.stderr)
+
     def test_unsupported_format(self):
         self.expect_error(self.write("mesh.xyzzy", "hello\n"), "UNSUPPORTED_FORMAT")
 

@@ -4,6 +4,7 @@ in a child interpreter, which must report the error and exit normally."""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -26,7 +27,9 @@ def bad_files(tmp_path_factory: pytest.TempPathFactory, sphere_asset: Path) -> d
         "not HDF5": (folder / "text.vox.h5", "NOT_HDF5"),
         "truncated": (folder / "truncated.vox.h5", "NOT_HDF5"),
         "a folder": (folder, "FILE_NOT_FOUND"),
+        "a pipe": (folder / "pipe.vox.h5", "FILE_NOT_FOUND"),
     }
+    os.mkfifo(folder / "pipe.vox.h5")
     (folder / "text.vox.h5").write_text("not an asset\n")
     (folder / "truncated.vox.h5").write_bytes(good[: len(good) // 3])
     # A byte flipped in the middle of the data: whatever HDF5 or the validation makes of it, an error.

@@ -142,18 +142,22 @@ def test_flipped_string_bytes_never_raise_anything_but_voxfmt_errors(good: str, 
     assert refused > len(flips) // 2, "most flips must damage the file: the test no longer hits the strings"
 
 
-def test_a_folder_is_not_an_asset_for_any_consumer(tmp_path: Path) -> None:
-    # fopen opens a folder on Linux; HDF5's read of it then failed with a dump of its internal state (NOT_HDF5).
-    folder = str(tmp_path)
-    for command in (["validate", folder], ["inspect", folder], ["export", folder, "--nvdb", folder + ".nvdb"]):
-        cli = subprocess.run([VOXFMT, *command], capture_output=True, text=True, timeout=60)
-        assert cli.returncode == 2 and "FILE_NOT_FOUND" in cli.stdout + cli.stderr, (command, cli.stderr)
-        assert "a folder" in cli.stdout + cli.stderr, (command, cli.stdout, cli.stderr)
-    assert [i.code for i in voxfmt.validate(folder).issues] == ["FILE_NOT_FOUND"]
-    for read in (voxfmt.load, voxfmt.inspect):
-        with pytest.raises(voxfmt.AssetError) as caught:
-            read(folder)
-        assert caught.value.code == "FILE_NOT_FOUND", read
+def test_a_folder_or_a_pipe_is_not_an_asset_for_any_consumer(tmp_path: Path) -> None:
+    # fopen opens a folder on Linux (HDF5's read of it then failed with a dump of its internal state, NOT_HDF5)
+    # and waits forever for a FIFO's writer.
+    folder, pipe = tmp_path / "folder.vox.h5", tmp_path / "pipe.vox.h5"
+    folder.mkdir()
+    os.mkfifo(pipe)
+    for path, words in ((str(folder), "a folder"), (str(pipe), "not a regular file")):
+        for command in (["validate", path], ["inspect", path], ["export", path, "--nvdb", str(tmp_path / "x.nvdb")]):
+            cli = subprocess.run([VOXFMT, *command], capture_output=True, text=True, timeout=60)
+            assert cli.returncode == 2 and "FILE_NOT_FOUND" in cli.stdout + cli.stderr, (command, cli.stderr)
+            assert words in cli.stdout + cli.stderr, (command, cli.stdout, cli.stderr)
+        assert [i.code for i in voxfmt.validate(path).issues] == ["FILE_NOT_FOUND"]
+        for read in (voxfmt.load, voxfmt.inspect):
+            with pytest.raises(voxfmt.AssetError) as caught:
+                read(path)
+            assert caught.value.code == "FILE_NOT_FOUND", read
     for not_a_path in (None, 3):
         with pytest.raises(voxfmt.OptionError):
             voxfmt.load(not_a_path)  # type: ignore[arg-type]

@@ -217,7 +217,10 @@ TriangleMesh import_isolated(const std::string& path, const ImportSettings& opti
 
 TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
+  if (!std::filesystem::is_regular_file(path, ec))
+    throw BakeError(IssueCode::InputNotFound,
+                    path + (std::filesystem::exists(path, ec) ? ": not a regular file (a folder, pipe or device)"
+                                                              : ": no such file"));
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
 #if !defined(_WIN32)
