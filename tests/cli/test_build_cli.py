@@ -10,6 +10,18 @@ MESHES = os.environ.get("VOXFMT_SAMPLE_MESHES", "")
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
+class CommandLine(unittest.TestCase):
+    def test_no_command_prints_the_overview_and_an_unknown_one_is_named(self):
+        r = subprocess.run([VOXFMT], capture_output=True, text=True, timeout=30)
+        self.assertEqual(r.returncode, 2)
+        self.assertIn("Usage: voxfmt [OPTIONS] SUBCOMMAND", r.stderr)
+        self.assertIn("build", r.stderr)
+        r = subprocess.run([VOXFMT, "biuld", "x.obj"], capture_output=True, text=True, timeout=30)
+        self.assertEqual(r.returncode, 2)
+        self.assertIn("unknown command 'biuld'", r.stderr)  # it said "A subcommand is required"
+        self.assertIn("build batch inspect", r.stderr)
+
+
 class BuildBadInput(unittest.TestCase):
     def setUp(self):
         self.dir = tempfile.TemporaryDirectory()

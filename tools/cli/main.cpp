@@ -1,11 +1,14 @@
 // voxfmt: the one command-line front end of the toolchain.
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <csignal>
 #include <exception>
 #include <iostream>
 #include <new>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "commands.h"
 #include "voxfmt/asset.h"
@@ -23,6 +26,7 @@ int main(int argc, char** argv) {
   // removed, not kill the process with SIGXFSZ and leave the temporary behind. (CPython ignores it too.)
   std::signal(SIGXFSZ, SIG_IGN);
   CLI::App app{"voxfmt — bake, inspect, validate and export Voxmap-PointShell collision assets (.vox.h5)"};
+  app.name("voxfmt");  // the help says "voxfmt", not the path it was started by
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("voxfmt ") + VOXFMT_VERSION_STRING + " (asset format " +
                                         std::to_string(voxfmt::kFormatVersion.major) + "." +
@@ -35,6 +39,18 @@ int main(int argc, char** argv) {
   voxfmt::cli::add_upgrade_command(app, exit_code);
   voxfmt::cli::add_export_command(app, exit_code);
   voxfmt::cli::add_report_command(app, exit_code);
+  if (argc < 2) {  // no command: the overview, not CLI11's one line
+    std::cerr << app.help();
+    return voxfmt::cli::kExitUsageOrIo;
+  }
+  const std::vector<const CLI::App*> commands = std::as_const(app).get_subcommands(nullptr);
+  const auto named = [&](const CLI::App* command) { return command->get_name() == argv[1]; };
+  if (argv[1][0] != '-' && std::none_of(commands.begin(), commands.end(), named)) {
+    std::cerr << "voxfmt: unknown command '" << argv[1] << "' (commands:";
+    for (const CLI::App* command : commands) std::cerr << " " << command->get_name();
+    std::cerr << "; voxfmt --help)\n";
+    return voxfmt::cli::kExitUsageOrIo;
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {
