@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <iostream>
 #include <map>
 #include <random>
@@ -172,6 +173,25 @@ TEST(SparseVoxelmap, LatticePointBoundsNeverExceedTheExactDistanceAndTightenFarB
   std::cout << "lattice point bounds: " << tested << " points (" << in_value_bricks << " in value bricks), tighter at "
             << tighter << ", by " << gain / double(tested) << " voxels on average; the exact distance at least "
             << least_gap << " voxel above it\n";
+}
+
+// A simulation that blew up hands the field NaN: it must read no voxel (int() of a NaN index is undefined, and
+// Python's signed_distance crashed on it) and say NaN, which no contact test takes for a contact.
+TEST(SparseVoxelmap, ANonFinitePointReadsNoVoxel) {
+  const SparseVoxelmap& map = Bunny::get().object->voxelmap();
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  for (const Eigen::Vector3f& u : {Eigen::Vector3f(nan, 10, 10), Eigen::Vector3f(10, nan, 10),
+                                   Eigen::Vector3f(10, 10, nan), Eigen::Vector3f(nan, nan, nan)}) {
+    Eigen::Vector3f gradient(1, 1, 1);
+    const FieldSample s = map.sample(u, &gradient);
+    EXPECT_TRUE(std::isnan(s.distance));
+    EXPECT_EQ(gradient, Eigen::Vector3f::Zero());
+    EXPECT_FALSE(map.distance_lower_bound(u) > 0.0f);  // NaN, never a bound that prunes
+  }
+  for (const Eigen::Vector3f& u : {Eigen::Vector3f(inf, 10, 10), Eigen::Vector3f(10, -inf, 10)}) {
+    EXPECT_GT(map.sample(u).distance, 1e6f);
+    EXPECT_GT(map.distance_lower_bound(u), 1e6f);
+  }
 }
 
 TEST(SparseVoxelmap, SampleMatchesExactDistanceNearTheSurface) {

@@ -307,6 +307,11 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   if (covers(f, u)) return sample_inside(f, u, gradient);
   Sample result;
   result.bound = true;
+  if (!(u.x == u.x && u.y == u.y && u.z == u.z)) {  // NaN (a blown-up simulation): clamping keeps it, int() of it
+    result.distance = u.x + u.y + u.z;              // is undefined; so no voxel is read, and the distance is NaN
+    if (gradient) *gradient = make_vec3(0, 0, 0);
+    return result;
+  }
   const Vec3 q = make_vec3(clamp_f(u.x, -0.5f, f.cover_max.x), clamp_f(u.y, -0.5f, f.cover_max.y),
                            clamp_f(u.z, -0.5f, f.cover_max.z));
   Vec3 face_gradient = make_vec3(0, 0, 0);
