@@ -222,6 +222,29 @@ class Batch(unittest.TestCase):
         self.assertIn("no meshes", r.stderr)
         self.assertFalse(self.assets())
 
+    def test_nothing_that_is_not_a_manifest_or_a_mesh_is_overwritten_or_waited_for(self):
+        # --manifest naming a mesh or notes: refused, the file untouched (compaction used to rewrite it).
+        mesh = os.path.join(self.lib, "a/model.obj")
+        notes = self.write("notes.txt", "my notes\n")
+        for path, before in ((mesh, TET_OBJ), (notes, "my notes\n")):
+            r, _ = self.batch(mesh, "--manifest", path, expect=2)
+            self.assertIn("not a manifest, not overwritten", r.stderr)
+            with open(path) as f:
+                self.assertEqual(f.read(), before)
+        # A record torn by a crash is still a manifest: the run goes on.
+        torn = self.write("torn.jsonl", '{"output": "x.vox')
+        self.batch(mesh, "--manifest", torn, expect=0)
+        # A FIFO given as a mesh (explicitly or in a list) or as the manifest is refused at once, not waited for.
+        fifo = os.path.join(self.root, "pipe.obj")
+        os.mkfifo(fifo)
+        listed = self.write("pipes.txt", "pipe.obj\n")
+        for args in ([fifo, mesh], ["@" + listed], [mesh, "--manifest", fifo]):
+            r, _ = self.batch(*args, expect=2)
+            self.assertIn("not a regular file", r.stderr)
+        os.makedirs(os.path.join(self.root, "folder.txt"))
+        r, _ = self.batch("@" + os.path.join(self.root, "folder.txt"), mesh, expect=2)
+        self.assertIn("is a folder, not a list file", r.stderr)
+
     def children_of_this_test(self):
         found = []
         for pid in filter(str.isdigit, os.listdir("/proc")):

@@ -1318,6 +1318,35 @@ class TestLegacyUpgrade(unittest.TestCase):
         self.assertEqual(again.returncode, 0, describe(again))
         self.assertEqual([f["status"] for f in ss.parse_json_stdout(self, again)["files"]], ["current"])
 
+    def test_upgrade_writes_only_under_its_output(self):
+        """A link in the input folder is upgraded under OUTPUT by its own name, never through the link onto the
+        file it points to; two inputs that would write one output are refused; an output folder inside the input
+        is not read again as input."""
+        root = os.path.join(self.tmp, "links")
+        os.makedirs(os.path.join(root, "in"))
+        target = sf.write_fixture_h5py(os.path.join(root, "a.vox.h5"), format_version=[2, 1])
+        with open(target, "rb") as f:
+            before = f.read()
+        os.symlink("../a.vox.h5", os.path.join(root, "in", "s.vox.h5"))
+        out = os.path.join(root, "out")
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "in"), "-o", out, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertEqual([f["output"] for f in ss.parse_json_stdout(self, proc)["files"]],
+                         [os.path.join(out, "s.vox.h5")])
+        with open(target, "rb") as f:
+            self.assertEqual(f.read(), before, "the link's target was rewritten")
+        for name in ("p", "q"):
+            os.makedirs(os.path.join(root, name))
+            shutil.copy(target, os.path.join(root, name, "x.vox.h5"))
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "p"), os.path.join(root, "q"), "-o", out])
+        self.assertEqual(proc.returncode, 2, describe(proc))
+        self.assertIn("two inputs would write the same output", proc.stderr)
+        inside = os.path.join(root, "p", "new")
+        for _ in range(2):
+            proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "p"), "-o", inside, "--force", "-q"])
+            self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertFalse(os.path.exists(os.path.join(inside, "new")), "the output was read again as input")
+
 
 if __name__ == "__main__":
     unittest.main()

@@ -19,6 +19,19 @@ bool is_list_file(const std::string& argument) {
   return ext == ".txt" || ext == ".lst" || ext == ".list";
 }
 
+// A path as an error message shows it: a 10 MB line of a list file is not repeated whole.
+std::string shown(const std::string& path) {
+  constexpr size_t kLongest = 240;
+  return path.size() <= kLongest ? path : path.substr(0, kLongest) + "... (" + std::to_string(path.size()) + " bytes)";
+}
+
+// A mesh named explicitly must be a regular file: opening a FIFO to hash it would wait forever, before any child
+// or --timeout exists. (Folder scans skip anything else already.)
+void require_regular(const fs::path& path, const std::string& where) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) throw UsageError(where + ": not a regular file (a pipe, socket or device)");
+}
+
 class Collector {
  public:
   explicit Collector(const std::string& output_dir) {
@@ -30,7 +43,8 @@ class Collector {
     if (!argument.empty() && argument[0] == '@') return list(argument.substr(1));
     std::error_code ec;
     if (fs::is_directory(argument, ec)) return directory(argument);
-    if (!fs::exists(argument, ec)) throw UsageError(argument + ": no such file or directory");
+    if (!fs::exists(argument, ec)) throw UsageError(shown(argument) + ": no such file or directory");
+    require_regular(argument, shown(argument));
     if (is_list_file(argument)) return list(argument);
     add(argument, fs::path(argument).filename().generic_string());
   }
@@ -76,8 +90,10 @@ class Collector {
   }
 
   void list(const std::string& file) {
-    std::ifstream in(file);
-    if (!in) throw UsageError(file + ": cannot read list file");
+    std::error_code ec;
+    if (fs::is_directory(file, ec)) throw UsageError(shown(file) + ": is a folder, not a list file");
+    std::ifstream in(file);  // a pipe is fine here: `batch @<(find ...)`
+    if (!in) throw UsageError(shown(file) + ": cannot read list file");
     const fs::path base = fs::path(file).parent_path();
     std::string line;
     for (size_t number = 1; std::getline(in, line); ++number) {
@@ -86,13 +102,13 @@ class Collector {
       const size_t last = line.find_last_not_of(" \t\r");
       const fs::path entry = line.substr(first, last - first + 1);
       const fs::path path = entry.is_absolute() ? entry : base / entry;
-      std::error_code ec;
       if (fs::is_directory(path, ec)) {
         directory(path);
         continue;
       }
-      if (!fs::exists(path, ec))
-        throw UsageError(file + ":" + std::to_string(number) + ": " + path.string() + ": no such file or directory");
+      const std::string where = shown(file) + ":" + std::to_string(number) + ": " + shown(path.string());
+      if (!fs::exists(path, ec)) throw UsageError(where + ": no such file or directory");
+      require_regular(path, where);
       const fs::path relative = entry.lexically_normal();
       const bool inside = !entry.is_absolute() && !relative.empty() && *relative.begin() != "..";
       add(path, inside ? relative.generic_string() : entry.filename().generic_string());

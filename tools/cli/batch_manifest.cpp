@@ -55,15 +55,28 @@ Manifest::Manifest(const std::string& path) : path_(path) {
     fail(lock, "cannot lock");
   }
 
+  // Only a regular file (a FIFO would block the read forever), and only a manifest: compaction rewrites the file,
+  // so a file given by mistake (notes, a mesh, any JSON of another tool) is refused, never overwritten.
+  struct stat info {};
+  if (::stat(path.c_str(), &info) == 0 && !S_ISREG(info.st_mode))
+    throw std::runtime_error(path + ": not a regular file (a folder, pipe or device): not a manifest");
   {
     std::ifstream in(path);
     std::string line;
+    size_t foreign = 0;
     while (std::getline(in, line)) {
+      if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
       const nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
-      if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string())
-        continue;  // a line torn by a crash, or not ours
+      if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string()) {
+        // A line torn by a crash is an object cut short; anything else is not ours.
+        foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
+        continue;
+      }
       last_[record["output"].get<std::string>()] = record;
     }
+    if (last_.empty() && foreign > 0)
+      throw std::runtime_error(path + ": holds no batch record but " + std::to_string(foreign) +
+                               " other line(s): not a manifest, not overwritten (choose another --manifest)");
   }
 
   // Compaction, atomically: the old manifest stays until the new one is complete. Temporaries of killed runs

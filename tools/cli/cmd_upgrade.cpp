@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
+#include <map>
 
 #include "commands.h"
 #include "json_report.h"
@@ -44,20 +45,40 @@ Result<std::vector<Item>> plan(const Options& o) {
   const bool single_file =
       o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
   if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
+  const fs::path output_folder = fs::weakly_canonical(o.output, ec);
   for (const std::string& input : o.inputs) {
     if (fs::is_directory(input, ec)) {
       for (auto it = fs::recursive_directory_iterator(input, ec); !ec && it != fs::recursive_directory_iterator();
-           it.increment(ec))
+           it.increment(ec)) {
+        if (it->is_directory(ec) && fs::weakly_canonical(it->path(), ec) == output_folder) {
+          it.disable_recursion_pending();  // our own output inside the input: not an input
+          continue;
+        }
+        // The path as listed, not resolved: a link to a file elsewhere is written under OUTPUT by its own name,
+        // never through the link to where it points.
         if (it->is_regular_file(ec) && is_asset_name(it->path()))
-          items.push_back({it->path().string(), (fs::path(o.output) / fs::relative(it->path(), input, ec)).string()});
+          items.push_back({it->path().string(), (fs::path(o.output) / it->path().lexically_relative(input)).string()});
+      }
       if (ec) return Error{IssueCode::FileNotFound, input + ": cannot list the folder: " + ec.message(), input};
     } else if (fs::is_regular_file(input, ec)) {
       items.push_back({input, (fs::path(o.output) / fs::path(input).filename()).string()});
     } else {
-      return Error{IssueCode::FileNotFound, input + ": no such file or folder", input};
+      return Error{IssueCode::FileNotFound,
+                   input + (fs::exists(input, ec) ? ": not a regular file (a pipe, socket or device)"
+                                                  : ": no such file or folder"),
+                   input};
     }
   }
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
+  std::map<fs::path, const Item*> by_output;
+  for (const Item& item : items) {
+    const auto [it, added] = by_output.emplace(fs::weakly_canonical(item.output, ec), &item);
+    if (!added)
+      return Error{IssueCode::BadOption,
+                   "two inputs would write the same output " + item.output + ": " + it->second->input + " and " +
+                       item.input + " (upgrade them into different folders)",
+                   item.output};
+  }
   return items;
 }
 
