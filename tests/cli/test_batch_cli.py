@@ -231,9 +231,14 @@ class Batch(unittest.TestCase):
             self.assertIn("not a manifest, not overwritten", r.stderr)
             with open(path) as f:
                 self.assertEqual(f.read(), before)
-        # A record torn by a crash is still a manifest: the run goes on.
+        # A record torn by a crash is still a manifest: the run goes on. Through a link, the link stays one.
         torn = self.write("torn.jsonl", '{"output": "x.vox')
-        self.batch(mesh, "--manifest", torn, expect=0)
+        link = os.path.join(self.root, "link.jsonl")
+        os.symlink("torn.jsonl", link)
+        self.batch(mesh, "--manifest", link, expect=0)
+        self.assertTrue(os.path.islink(link))
+        with open(torn) as f:
+            self.assertIn("model.obj.vox.h5", f.read())
         # A FIFO given as a mesh (explicitly or in a list) or as the manifest is refused at once, not waited for.
         fifo = os.path.join(self.root, "pipe.obj")
         os.mkfifo(fifo)

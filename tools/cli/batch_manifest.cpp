@@ -42,7 +42,19 @@ std::string json_line(const nlohmann::json& value) {
   return value.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
-Manifest::Manifest(const std::string& path) : path_(path) {
+namespace {
+// A manifest reached through a link is its target: compaction replaces the file, which must not turn a shared
+// link into a private copy.
+std::string link_target(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_symlink(path, ec)) return path;
+  const fs::path target = fs::weakly_canonical(path, ec);
+  return ec ? path : target.string();
+}
+}  // namespace
+
+Manifest::Manifest(const std::string& given) : path_(link_target(given)) {
+  const std::string& path = path_;
   const std::string lock = path + ".lock";
   lock_fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (lock_fd_ < 0) fail(lock, "cannot create lock file");
