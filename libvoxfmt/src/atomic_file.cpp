@@ -41,14 +41,39 @@ Status check_output_path(const std::string& path) {
   std::error_code ec;
   if (path.empty()) return write_failed(path, "no output path given");
   if (fs::is_directory(path, ec)) return write_failed(path, "is a folder, not a file");
+  // The rename would replace a pipe or a device (as root, /dev/null) with a regular file.
+  if (fs::exists(path, ec) && !fs::is_regular_file(path, ec))
+    return write_failed(path, "is not a regular file (a pipe, socket or device): not replaced");
   const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
   if (!fs::exists(folder, ec)) return write_failed(path, "folder " + folder.string() + " does not exist");
   if (!fs::is_directory(folder, ec)) return write_failed(path, folder.string() + " is not a folder");
   return Status::success();
 }
 
-Status write_file_atomically(const std::string& path, const AtomicWrite& steps) {
+Status check_output_path(const std::string& path, const std::string& input) {
   if (Status usable = check_output_path(path); !usable) return usable;
+  std::error_code ec;
+  if (std::filesystem::equivalent(path, input, ec))
+    return Error{IssueCode::BadOption, path + ": is the input " + input + ": writing it would replace it", path};
+  return Status::success();
+}
+
+Status write_file_atomically(const std::string& given, const AtomicWrite& steps) {
+  if (Status usable = check_output_path(given); !usable) return usable;
+  // Through a symbolic link, the file it names is replaced, not the link (a rename would replace the link).
+  // Link by link, as the kernel would: the target need not exist yet.
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::path target = given;
+  for (int hops = 0; fs::is_symlink(target, ec); ++hops) {
+    const fs::path next = fs::read_symlink(target, ec);
+    if (ec || hops == 40) return write_failed(given, "cannot follow the link" + (ec ? ": " + ec.message() : ""));
+    target = next.is_absolute() ? next : target.parent_path() / next;
+  }
+  const std::string path = target.string();
+  if (path != given) {
+    if (Status usable = check_output_path(path); !usable) return usable;
+  }
   static std::atomic<unsigned> counter{0};
   const std::string temp =
       path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);

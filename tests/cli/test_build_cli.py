@@ -1,6 +1,7 @@
 """`voxfmt build` on bad input: a clear error naming the problem, a non-zero exit, and no output file."""
 import json
 import os
+import stat
 import subprocess
 import tempfile
 import unittest
@@ -146,6 +147,25 @@ class BuildBadOutput(unittest.TestCase):
         out = os.path.join(self.dir.name, "missing", "out.vox.h5")
         self.expect_write_failed(self.build(out), "does not exist")
         self.assertFalse(os.path.exists(os.path.dirname(out)))
+
+    def test_a_pipe_the_mesh_itself_or_a_link_are_not_replaced(self):
+        pipe = os.path.join(self.dir.name, "pipe.vox.h5")
+        os.mkfifo(pipe)
+        self.expect_write_failed(self.build(pipe), "not a regular file")
+        self.assertTrue(stat.S_ISFIFO(os.stat(pipe).st_mode))
+        r = self.build(self.mesh)  # -o the mesh itself
+        self.assertEqual(r.returncode, 2, r.stderr)
+        self.assertIn("BAD_OPTION", r.stderr)
+        with open(self.mesh) as f:
+            self.assertEqual(f.read(), self.TET)
+        # Through a link the file it names is written; the link stays.
+        target = os.path.join(self.dir.name, "target.vox.h5")
+        link = os.path.join(self.dir.name, "link.vox.h5")
+        os.symlink("target.vox.h5", link)
+        self.assertEqual(self.build(link).returncode, 0)
+        self.assertTrue(os.path.islink(link))
+        with open(target, "rb") as f:
+            self.assertEqual(f.read(8), b"\x89HDF\r\n\x1a\n")
 
     def test_empty_path_is_a_usage_error(self):
         r = self.build("")

@@ -228,6 +228,8 @@ class InspectExports(unittest.TestCase):
             (["--slice", "x=1", "--png", os.path.join(self.dir, "no-such-dir", "x.png")], "no-such-dir"),
             (["--vdb", os.path.join(self.dir, "no-such-dir", "x.vdb")], "no-such-dir"),
             # An empty path given explicitly is refused, not read as "not asked for" (which printed the summary).
+            (["--ply", self.asset], "would replace it"),
+            (["--ply", os.path.join(self.dir, "same"), "--vdb", os.path.join(self.dir, "same")], "the same file"),
             (["--html", ""], "empty path"),
             (["--ply", ""], "empty path"),
             (["--vdb", ""], "empty path"),

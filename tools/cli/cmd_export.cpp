@@ -27,7 +27,8 @@ int run_export(const Options& o) {
   using clock = std::chrono::steady_clock;
   const auto start = clock::now();
   // A typo in the output costs no read of a large asset.
-  if (const Status writable = check_output_path(o.nvdb); !writable) return report_error("export", writable.error());
+  if (const Status writable = check_output_path(o.nvdb, o.file); !writable)
+    return report_error("export", writable.error());
   runtime::LoadOptions load;
   load.load_point_shell = false;
   load.read = o.read;  // every rule of validate --level full, judged once by the read

@@ -1,11 +1,14 @@
 // `voxfmt inspect FILE [--json]`: a readable summary of one asset.
 #include <cstdio>
+#include <filesystem>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
+#include <utility>
 
 #include "commands.h"
 #include "json_report.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/report.h"
 #include "voxfmt/exports/exports.h"
 #include "voxfmt/io.h"
@@ -192,7 +195,26 @@ void add_export_options(CLI::App* cmd, Options& options) {
       ->check(non_empty_path());
 }
 
+// Each file output apart from the asset and from the others: none may replace the asset or another output.
+Status check_outputs(const Options& options) {
+  const std::pair<const char*, const std::string*> outputs[] = {
+      {"--png", &options.png}, {"--ply", &options.ply}, {"--vdb", &options.vdb}};
+  std::error_code ec;
+  for (size_t i = 0; i < std::size(outputs); ++i) {
+    const std::string& path = *outputs[i].second;
+    if (path.empty()) continue;
+    if (Status usable = check_output_path(path, options.file); !usable) return usable;
+    for (size_t j = 0; j < i; ++j)
+      if (!outputs[j].second->empty() &&
+          std::filesystem::weakly_canonical(path, ec) == std::filesystem::weakly_canonical(*outputs[j].second, ec))
+        return Error{IssueCode::BadOption,
+                     std::string(outputs[j].first) + " and " + outputs[i].first + " name the same file " + path, path};
+  }
+  return Status::success();
+}
+
 int run(const Options& options) {
+  if (Status usable = check_outputs(options); !usable) return report_error("inspect", usable.error());
   if (!options.html.empty()) {
     const Result<report::ReportInfo> info = report::write_asset_report(options.file, options.html, options.read);
     if (!info) return report_error("inspect", info.error());

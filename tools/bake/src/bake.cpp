@@ -476,7 +476,8 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress) {
   const auto start = std::chrono::steady_clock::now();
-  if (Status usable = check_output_path(output_path); !usable) return usable.error();  // before a long bake
+  // before a long bake; never onto the mesh itself
+  if (Status usable = check_output_path(output_path, mesh_path); !usable) return usable.error();
   Result<Baked> baked = bake_mesh(mesh_path, settings, progress);
   if (!baked) return baked.error();
   const BakeStageInfo& write = stage_info(BakeStage::Write);

@@ -25,6 +25,9 @@ struct AtomicWrite {
 /// Whether a file could be written at `path` (its folder exists and is a folder, the path is not a folder), as
 /// WRITE_FAILED naming the problem. Cheap: long jobs call it before their work, so a typo costs no bake.
 Status check_output_path(const std::string& path);
+/// check_output_path, and BAD_OPTION where `path` names the file `input` (the same file by any name): the output
+/// would replace what it is made from.
+Status check_output_path(const std::string& path, const std::string& input);
 
 /// Writes `path` atomically. Errors are WRITE_FAILED (naming `path` and the reason) unless `write` or
 /// `before_commit` return their own.
