@@ -118,6 +118,10 @@ def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
     assert unchecked.error.tolist() == [0, 4, 0]
     with pytest.raises(voxfmt.OptionError, match="pair"):
         scene.contacts(pa, pa, np.array([0, 3, 0], dtype=np.int32))
+    # Never another pair by a cast: 2**32 + 0 would wrap to pair 0, 0.9 floor to it.
+    for index in (np.array([0, 2**32, 0], dtype=np.int64), np.array([0.0, 0.9, 0.0])):
+        with pytest.raises(voxfmt.OptionError, match="pair_index"):
+            scene.contacts(pa, pa, index)
     with pytest.raises(voxfmt.OptionError):
         voxfmt.BatchScene([sphere], pairs=[(0, 2)])
     with pytest.raises(voxfmt.OptionError):

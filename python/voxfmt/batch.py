@@ -221,6 +221,19 @@ def _framework(array: Any) -> Any:
     raise OptionError("BAD_OPTION", f"CUDA arrays of {module} are not supported: use PyTorch or CuPy, or pass out=")
 
 
+def _pair_indices(pair_index: Any) -> np.ndarray:
+    """pair_index as the int32 array the batch reads, without changing a value: a cast would wrap 2**32 + 1 to 1
+    and floor a float 0.9 to 0, silently running another pair. (An int32 that names no pair is the
+    environment's error, as on CUDA.)"""
+    index = np.asarray(pair_index)
+    if index.dtype == np.bool_ or not np.issubdtype(index.dtype, np.integer):
+        raise OptionError("BAD_OPTION", f"pair_index: expected integers, got {index.dtype}")
+    limits = np.iinfo(np.int32)
+    if index.size and (int(index.min()) < limits.min or int(index.max()) > limits.max):
+        raise OptionError("BAD_OPTION", f"pair_index: {int(index.max())} names no pair (beyond int32)")
+    return np.ascontiguousarray(index, dtype=np.int32)
+
+
 class BatchScene:
     """Assets and the pairs environments may hold. ``pairs`` are (A, B) indices into ``bodies`` (default: the first
     body against the second, or against itself when it is the only one); each environment
@@ -296,7 +309,7 @@ class BatchScene:
             if out is not None:
                 raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
             raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),
-                             None if pair_index is None else np.ascontiguousarray(pair_index, dtype=np.int32),
+                             None if pair_index is None else _pair_indices(pair_index),
                              float(proximity), float(stiffness), int(max_contacts), threads)
             result = BatchResult(**raw)
         if check:
