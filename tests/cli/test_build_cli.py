@@ -94,6 +94,11 @@ class BuildBadInput(unittest.TestCase):
         # A 1 m square, 2 voxels (1/16 m) thick: volume = area x thickness.
         self.assertAlmostEqual(summary["volume"], 1.0 / 16, delta=1e-9)
 
+    def test_a_point_shell_beyond_the_memory_limit_is_refused_up_front(self):
+        tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")
+        r = self.expect_error(tet, "OUT_OF_MEMORY", "--resolution", "16", "--points", "50000000", "--max-memory", "64")
+        self.assertIn("point shell (50000000 points)", r.stderr)
+
     def test_bad_option_is_a_usage_error(self):
         tet = self.write("tet.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")
         r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--resolution", "10", "--voxel-size", "0.1"],

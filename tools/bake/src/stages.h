@@ -75,6 +75,8 @@ struct VoxelmapReport {
 };
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings,
                         std::vector<StageTiming>* timings = nullptr, VoxelmapReport* report = nullptr);
+/// The bytes a bake may use at its peak: `max_memory_bytes` (--max-memory), or 0: 3/4 of this machine's memory.
+double memory_limit_bytes(uint64_t max_memory_bytes);
 
 // ---------------------------------------------------------------- 4. point shell
 

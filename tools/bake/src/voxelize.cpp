@@ -121,8 +121,7 @@ void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const Voxelma
   const double value_bricks = std::min(double(g.brick_count()), area_voxels / 30.0 + 64);
   const double bytes = double(g.brick_count()) * 4 + double(g.lattice_count()) * (8 + 4) +
                        value_bricks * (2 * kBrickVoxels * 2 + 8 * 64) + double(mesh.triangles.size()) * 400;
-  const double limit =
-      options.max_memory_bytes > 0 ? double(options.max_memory_bytes) : 0.75 * double(physical_memory_bytes());
+  const double limit = memory_limit_bytes(options.max_memory_bytes);
   if (bytes <= limit) return;
   char text[400];
   std::snprintf(
@@ -1428,6 +1427,10 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   fill_estimates(vm, unsigned(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
   lap(BakeStage::VoxelmapEstimates);
   return vm;
+}
+
+double memory_limit_bytes(uint64_t max_memory_bytes) {
+  return max_memory_bytes > 0 ? double(max_memory_bytes) : 0.75 * double(physical_memory_bytes());
 }
 
 }  // namespace voxfmt::bake

@@ -51,8 +51,9 @@ struct VoxelmapSettings {
   /// distance - thickness/2), for thin walls, sheets and open scans. 0: the surface's inside; a surface that
   /// encloses nothing at the resolution is then baked as a shell of two voxels, with a SHELL_MODE warning.
   double shell_thickness = 0.0;
-  /// Bytes the voxelmap may need at its peak; a bake that would need more is refused up front with OUT_OF_MEMORY
-  /// and the estimate. 0: three quarters of this machine's memory.
+  /// Bytes the voxelmap (and, by the same limit, the point shell of `points`) may need at its peak; a bake that
+  /// would need more is refused up front with OUT_OF_MEMORY and the estimate. 0: three quarters of this machine's
+  /// memory.
   uint64_t max_memory_bytes = 0;
 };
 
