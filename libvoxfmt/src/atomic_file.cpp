@@ -1,6 +1,7 @@
 #include "voxfmt/detail/atomic_file.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -36,17 +37,40 @@ Error write_failed(const std::string& path, const std::string& reason) {
 
 }  // namespace
 
-Status check_output_path(const std::string& path) {
+// Where writing `given` lands: through symbolic links, link by link as the kernel follows them (the target need
+// not exist yet), since the rename would replace the link itself. Only links of this user (or root's) are
+// followed: a link planted by another user in a shared folder (/tmp) could otherwise aim a root process's output
+// at any file, which the kernel's protected_symlinks forbids for open() but not for a rename.
+Result<std::string> output_target(const std::string& given) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (path.empty()) return write_failed(path, "no output path given");
-  if (fs::is_directory(path, ec)) return write_failed(path, "is a folder, not a file");
+  fs::path target = given;
+  for (int hops = 0; fs::is_symlink(target, ec); ++hops) {
+    struct stat link {};
+    if (::lstat(target.c_str(), &link) != 0 || hops == 40) return write_failed(given, "cannot follow the link");
+    if (link.st_uid != ::geteuid() && link.st_uid != 0)
+      return write_failed(given, target.string() + " is another user's symbolic link: not followed");
+    const fs::path next = fs::read_symlink(target, ec);
+    if (ec) return write_failed(given, "cannot follow the link: " + ec.message());
+    target = next.is_absolute() ? next : target.parent_path() / next;
+  }
+  return target.string();
+}
+
+Status check_output_path(const std::string& given) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (given.empty()) return write_failed(given, "no output path given");
+  const Result<std::string> resolved = output_target(given);
+  if (!resolved) return resolved.error();
+  const std::string& path = resolved.value();
+  if (fs::is_directory(path, ec)) return write_failed(given, "is a folder, not a file");
   // The rename would replace a pipe or a device (as root, /dev/null) with a regular file.
   if (fs::exists(path, ec) && !fs::is_regular_file(path, ec))
-    return write_failed(path, "is not a regular file (a pipe, socket or device): not replaced");
+    return write_failed(given, "is not a regular file (a pipe, socket or device): not replaced");
   const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
-  if (!fs::exists(folder, ec)) return write_failed(path, "folder " + folder.string() + " does not exist");
-  if (!fs::is_directory(folder, ec)) return write_failed(path, folder.string() + " is not a folder");
+  if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
+  if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
   return Status::success();
 }
 
@@ -60,20 +84,9 @@ Status check_output_path(const std::string& path, const std::string& input) {
 
 Status write_file_atomically(const std::string& given, const AtomicWrite& steps) {
   if (Status usable = check_output_path(given); !usable) return usable;
-  // Through a symbolic link, the file it names is replaced, not the link (a rename would replace the link).
-  // Link by link, as the kernel would: the target need not exist yet.
-  namespace fs = std::filesystem;
-  std::error_code ec;
-  fs::path target = given;
-  for (int hops = 0; fs::is_symlink(target, ec); ++hops) {
-    const fs::path next = fs::read_symlink(target, ec);
-    if (ec || hops == 40) return write_failed(given, "cannot follow the link" + (ec ? ": " + ec.message() : ""));
-    target = next.is_absolute() ? next : target.parent_path() / next;
-  }
-  const std::string path = target.string();
-  if (path != given) {
-    if (Status usable = check_output_path(path); !usable) return usable;
-  }
+  const Result<std::string> resolved = output_target(given);
+  if (!resolved) return resolved.error();
+  const std::string& path = resolved.value();
   static std::atomic<unsigned> counter{0};
   const std::string temp =
       path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);

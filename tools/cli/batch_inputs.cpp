@@ -44,8 +44,8 @@ class Collector {
     std::error_code ec;
     if (fs::is_directory(argument, ec)) return directory(argument);
     if (!fs::exists(argument, ec)) throw UsageError(shown(argument) + ": no such file or directory");
-    require_regular(argument, shown(argument));
     if (is_list_file(argument)) return list(argument);
+    require_regular(argument, shown(argument));
     add(argument, fs::path(argument).filename().generic_string());
   }
 

@@ -44,17 +44,44 @@ std::string json_line(const nlohmann::json& value) {
 
 namespace {
 // A manifest reached through a link is its target: compaction replaces the file, which must not turn a shared
-// link into a private copy.
-std::string link_target(const std::string& path) {
-  std::error_code ec;
-  if (!fs::is_symlink(path, ec)) return path;
-  const fs::path target = fs::weakly_canonical(path, ec);
-  return ec ? path : target.string();
+// link into a private copy (the same rule as every output's, voxfmt/detail/atomic_file.h).
+std::string manifest_target(const std::string& given) {
+  const Result<std::string> target = output_target(given);
+  if (!target) throw std::runtime_error(target.error().message);
+  return target.value();
+}
+
+// The records of the manifest at `path`, latest per output. Only a regular file (a FIFO would block the read
+// forever), and only a manifest: compaction rewrites the file, so a file given by mistake (notes, a mesh, any
+// JSON of another tool) is refused, never overwritten.
+std::map<std::string, nlohmann::json> read_records(const std::string& path) {
+  struct stat info {};
+  if (::stat(path.c_str(), &info) == 0 && !S_ISREG(info.st_mode))
+    throw std::runtime_error(path + ": not a regular file (a folder, pipe or device): not a manifest");
+  std::map<std::string, nlohmann::json> last;
+  std::ifstream in(path);
+  std::string line;
+  size_t foreign = 0;
+  while (std::getline(in, line)) {
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    const nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
+    if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string()) {
+      // A line torn by a crash is an object cut short; anything else is not ours.
+      foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
+      continue;
+    }
+    last[record["output"].get<std::string>()] = record;
+  }
+  if (last.empty() && foreign > 0)
+    throw std::runtime_error(path + ": holds no batch record but " + std::to_string(foreign) +
+                             " other line(s): not a manifest, not overwritten (choose another --manifest)");
+  return last;
 }
 }  // namespace
 
-Manifest::Manifest(const std::string& given) : path_(link_target(given)) {
+Manifest::Manifest(const std::string& given) : path_(manifest_target(given)) {
   const std::string& path = path_;
+  read_records(path);  // refused before its lock file is created beside it
   const std::string lock = path + ".lock";
   lock_fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (lock_fd_ < 0) fail(lock, "cannot create lock file");
@@ -66,30 +93,7 @@ Manifest::Manifest(const std::string& given) : path_(link_target(given)) {
       throw std::runtime_error(path + ": another voxfmt batch is writing this manifest (" + lock + " is locked)");
     fail(lock, "cannot lock");
   }
-
-  // Only a regular file (a FIFO would block the read forever), and only a manifest: compaction rewrites the file,
-  // so a file given by mistake (notes, a mesh, any JSON of another tool) is refused, never overwritten.
-  struct stat info {};
-  if (::stat(path.c_str(), &info) == 0 && !S_ISREG(info.st_mode))
-    throw std::runtime_error(path + ": not a regular file (a folder, pipe or device): not a manifest");
-  {
-    std::ifstream in(path);
-    std::string line;
-    size_t foreign = 0;
-    while (std::getline(in, line)) {
-      if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-      const nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
-      if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string()) {
-        // A line torn by a crash is an object cut short; anything else is not ours.
-        foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
-        continue;
-      }
-      last_[record["output"].get<std::string>()] = record;
-    }
-    if (last_.empty() && foreign > 0)
-      throw std::runtime_error(path + ": holds no batch record but " + std::to_string(foreign) +
-                               " other line(s): not a manifest, not overwritten (choose another --manifest)");
-  }
+  last_ = read_records(path);  // again, under the lock: what another run appended before it ended
 
   // Compaction, atomically: the old manifest stays until the new one is complete. Temporaries of killed runs
   // are removed by the batch's clean-up of *.partial-* files.

@@ -206,7 +206,8 @@ Status check_outputs(const Options& options) {
     if (Status usable = check_output_path(path, options.file); !usable) return usable;
     for (size_t j = 0; j < i; ++j)
       if (!outputs[j].second->empty() &&
-          std::filesystem::weakly_canonical(path, ec) == std::filesystem::weakly_canonical(*outputs[j].second, ec))
+          std::filesystem::weakly_canonical(std::filesystem::absolute(path, ec), ec) ==
+              std::filesystem::weakly_canonical(std::filesystem::absolute(*outputs[j].second, ec), ec))
         return Error{IssueCode::BadOption,
                      std::string(outputs[j].first) + " and " + outputs[i].first + " name the same file " + path, path};
   }

@@ -72,7 +72,7 @@ Result<std::vector<Item>> plan(const Options& o) {
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
   std::map<fs::path, const Item*> by_output;
   for (const Item& item : items) {
-    const auto [it, added] = by_output.emplace(fs::weakly_canonical(item.output, ec), &item);
+    const auto [it, added] = by_output.emplace(fs::absolute(item.output, ec).lexically_normal(), &item);
     if (!added)
       return Error{IssueCode::BadOption,
                    "two inputs would write the same output " + item.output + ": " + it->second->input + " and " +

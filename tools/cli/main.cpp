@@ -17,7 +17,7 @@
 namespace {
 const char* command_name(const CLI::App& app) {
   const auto used = app.get_subcommands();
-  return used.empty() ? "" : used.front()->get_name().c_str();
+  return used.empty() ? "(no command)" : used.front()->get_name().c_str();
 }
 }  // namespace
 

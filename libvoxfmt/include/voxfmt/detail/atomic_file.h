@@ -25,6 +25,9 @@ struct AtomicWrite {
 /// Whether a file could be written at `path` (its folder exists and is a folder, the path is not a folder), as
 /// WRITE_FAILED naming the problem. Cheap: long jobs call it before their work, so a typo costs no bake.
 Status check_output_path(const std::string& path);
+/// Where writing `path` lands: through the symbolic links it names (this user's or root's only), to the file the
+/// rename will replace; `path` itself where it is no link.
+Result<std::string> output_target(const std::string& path);
 /// check_output_path, and BAD_OPTION where `path` names the file `input` (the same file by any name): the output
 /// would replace what it is made from.
 Status check_output_path(const std::string& path, const std::string& input);
