@@ -35,7 +35,29 @@ Error write_failed(const std::string& path, const std::string& reason) {
   return Error{IssueCode::WriteFailed, path + ": " + reason, path};
 }
 
+// The checks of check_output_path on `path`, which output_target resolved from `given`.
+Status check_resolved_output(const std::string& given, const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (const std::string kind = not_a_regular_file(path); !kind.empty())
+    return write_failed(given, kind + (fs::is_directory(path, ec) ? "" : ": not replaced"));
+  const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+  if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
+  if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
+  return Status::success();
+}
+
 }  // namespace
+
+std::string not_a_regular_file(const std::string& path) {
+  struct stat info {};
+  if (::stat(path.c_str(), &info) != 0 || S_ISREG(info.st_mode)) return "";
+  const char* kind = S_ISDIR(info.st_mode)    ? "a folder"
+                     : S_ISFIFO(info.st_mode) ? "a pipe"
+                     : S_ISSOCK(info.st_mode) ? "a socket"
+                                              : "a device";
+  return std::string("is ") + kind + ", not a regular file";
+}
 
 // Where writing `given` lands: through symbolic links, link by link as the kernel follows them (the target need
 // not exist yet), since the rename would replace the link itself. Only links of this user (or root's) are
@@ -58,20 +80,10 @@ Result<std::string> output_target(const std::string& given) {
 }
 
 Status check_output_path(const std::string& given) {
-  namespace fs = std::filesystem;
-  std::error_code ec;
   if (given.empty()) return write_failed(given, "no output path given");
   const Result<std::string> resolved = output_target(given);
   if (!resolved) return resolved.error();
-  const std::string& path = resolved.value();
-  if (fs::is_directory(path, ec)) return write_failed(given, "is a folder, not a file");
-  // The rename would replace a pipe or a device (as root, /dev/null) with a regular file.
-  if (fs::exists(path, ec) && !fs::is_regular_file(path, ec))
-    return write_failed(given, "is not a regular file (a pipe, socket or device): not replaced");
-  const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
-  if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
-  if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
-  return Status::success();
+  return check_resolved_output(given, resolved.value());
 }
 
 Status check_output_path(const std::string& path, const std::string& input) {
@@ -83,10 +95,11 @@ Status check_output_path(const std::string& path, const std::string& input) {
 }
 
 Status write_file_atomically(const std::string& given, const AtomicWrite& steps) {
-  if (Status usable = check_output_path(given); !usable) return usable;
+  if (given.empty()) return write_failed(given, "no output path given");
   const Result<std::string> resolved = output_target(given);
   if (!resolved) return resolved.error();
   const std::string& path = resolved.value();
+  if (Status usable = check_resolved_output(given, path); !usable) return usable;
   static std::atomic<unsigned> counter{0};
   const std::string temp =
       path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);

@@ -11,9 +11,9 @@
 #include <new>
 #include <sstream>
 
-#include <sys/stat.h>
 #include <unistd.h>
 
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/cores.h"
 
 namespace voxfmt::h5 {
@@ -176,11 +176,8 @@ void Reader::report(IssueCode code, const std::string& path, const std::string& 
 bool Reader::open() {
   silence_hdf5_errors();
   // Only a regular file: fopen opens a folder (whose read then fails deep in HDF5) and waits forever on a FIFO.
-  struct stat info {};
-  if (::stat(file_.c_str(), &info) == 0 && !S_ISREG(info.st_mode)) {
-    report(IssueCode::FileNotFound, "/",
-           S_ISDIR(info.st_mode) ? "cannot open file: it is a folder, not an asset file"
-                                 : "cannot open file: not a regular file (a pipe, socket or device)");
+  if (const std::string kind = not_a_regular_file(file_); !kind.empty()) {
+    report(IssueCode::FileNotFound, "/", "cannot open file: it " + kind);
     return false;
   }
   if (FILE* f = std::fopen(file_.c_str(), "rb")) {

@@ -1346,6 +1346,15 @@ class TestLegacyUpgrade(unittest.TestCase):
             proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "p"), "-o", inside, "--force", "-q"])
             self.assertEqual(proc.returncode, 0, describe(proc))
         self.assertFalse(os.path.exists(os.path.join(inside, "new")), "the output was read again as input")
+        alias = os.path.join(root, "alias")  # the same folder by another name is still the output
+        os.symlink(inside, alias)
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "p"), "-o", alias + "/", "--force", "-q"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertFalse(os.path.exists(os.path.join(inside, "new")), "the output was read again as input")
+        # In place, a link and the file it names are two outputs: each is written as itself.
+        os.symlink("x.vox.h5", os.path.join(root, "q", "y.vox.h5"))
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "q"), "-o", os.path.join(root, "q"), "--force"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
 
 
 if __name__ == "__main__":

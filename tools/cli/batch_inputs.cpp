@@ -6,6 +6,7 @@
 #include <map>
 
 #include "voxfmt/bake/bake.h"
+#include "voxfmt/detail/atomic_file.h"
 
 namespace voxfmt::cli {
 
@@ -28,8 +29,7 @@ std::string shown(const std::string& path) {
 // A mesh named explicitly must be a regular file: opening a FIFO to hash it would wait forever, before any child
 // or --timeout exists. (Folder scans skip anything else already.)
 void require_regular(const fs::path& path, const std::string& where) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) throw UsageError(where + ": not a regular file (a pipe, socket or device)");
+  if (const std::string kind = not_a_regular_file(path.string()); !kind.empty()) throw UsageError(where + ": " + kind);
 }
 
 class Collector {

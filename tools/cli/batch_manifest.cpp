@@ -53,11 +53,10 @@ std::string manifest_target(const std::string& given) {
 
 // The records of the manifest at `path`, latest per output. Only a regular file (a FIFO would block the read
 // forever), and only a manifest: compaction rewrites the file, so a file given by mistake (notes, a mesh, any
-// JSON of another tool) is refused, never overwritten.
-std::map<std::string, nlohmann::json> read_records(const std::string& path) {
-  struct stat info {};
-  if (::stat(path.c_str(), &info) == 0 && !S_ISREG(info.st_mode))
-    throw std::runtime_error(path + ": not a regular file (a folder, pipe or device): not a manifest");
+// JSON of another tool) is refused, never overwritten. `check_only` stops at the first record: it is a manifest.
+std::map<std::string, nlohmann::json> read_records(const std::string& path, bool check_only = false) {
+  if (const std::string kind = not_a_regular_file(path); !kind.empty())
+    throw std::runtime_error(path + ": " + kind + ": not a manifest");
   std::map<std::string, nlohmann::json> last;
   std::ifstream in(path);
   std::string line;
@@ -71,6 +70,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path) {
       continue;
     }
     last[record["output"].get<std::string>()] = record;
+    if (check_only) break;
   }
   if (last.empty() && foreign > 0)
     throw std::runtime_error(path + ": holds no batch record but " + std::to_string(foreign) +
@@ -81,7 +81,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path) {
 
 Manifest::Manifest(const std::string& given) : path_(manifest_target(given)) {
   const std::string& path = path_;
-  read_records(path);  // refused before its lock file is created beside it
+  read_records(path, /*check_only=*/true);  // refused before its lock file is created beside it
   const std::string lock = path + ".lock";
   lock_fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (lock_fd_ < 0) fail(lock, "cannot create lock file");

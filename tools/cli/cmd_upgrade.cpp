@@ -11,6 +11,7 @@
 
 #include "commands.h"
 #include "json_report.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/io.h"
 
 namespace voxfmt::cli {
@@ -37,6 +38,16 @@ bool is_asset_name(const fs::path& p) {
   return name.size() > 7 && name.compare(name.size() - 7, 7, ".vox.h5") == 0;
 }
 
+// Where a path lies, as the plan compares them: a folder as what it is (an alias of OUT is OUT), a file by its
+// own name in its resolved folder (a link upgraded in place is written as itself, not as the file it names).
+fs::path place(const fs::path& path) {
+  std::error_code ec;
+  fs::path normal = fs::absolute(path, ec).lexically_normal();
+  if (!normal.has_filename()) normal = normal.parent_path();  // "out/" is "out"
+  if (fs::is_directory(normal, ec)) return fs::weakly_canonical(normal, ec);
+  return fs::weakly_canonical(normal.parent_path(), ec) / normal.filename();
+}
+
 // The files to upgrade and where each goes. A single file input with an output that is not an existing folder
 // is a file-to-file upgrade; otherwise the output is a folder.
 Result<std::vector<Item>> plan(const Options& o) {
@@ -45,12 +56,12 @@ Result<std::vector<Item>> plan(const Options& o) {
   const bool single_file =
       o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
   if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
-  const fs::path output_folder = fs::weakly_canonical(o.output, ec);
+  const fs::path output_folder = place(o.output);
   for (const std::string& input : o.inputs) {
     if (fs::is_directory(input, ec)) {
       for (auto it = fs::recursive_directory_iterator(input, ec); !ec && it != fs::recursive_directory_iterator();
            it.increment(ec)) {
-        if (it->is_directory(ec) && fs::weakly_canonical(it->path(), ec) == output_folder) {
+        if (it->is_directory(ec) && place(it->path()) == output_folder) {
           it.disable_recursion_pending();  // our own output inside the input: not an input
           continue;
         }
@@ -63,16 +74,14 @@ Result<std::vector<Item>> plan(const Options& o) {
     } else if (fs::is_regular_file(input, ec)) {
       items.push_back({input, (fs::path(o.output) / fs::path(input).filename()).string()});
     } else {
-      return Error{IssueCode::FileNotFound,
-                   input + (fs::exists(input, ec) ? ": not a regular file (a pipe, socket or device)"
-                                                  : ": no such file or folder"),
-                   input};
+      const std::string kind = not_a_regular_file(input);
+      return Error{IssueCode::FileNotFound, input + ": " + (kind.empty() ? "no such file or folder" : kind), input};
     }
   }
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
   std::map<fs::path, const Item*> by_output;
   for (const Item& item : items) {
-    const auto [it, added] = by_output.emplace(fs::absolute(item.output, ec).lexically_normal(), &item);
+    const auto [it, added] = by_output.emplace(place(item.output), &item);
     if (!added)
       return Error{IssueCode::BadOption,
                    "two inputs would write the same output " + item.output + ": " + it->second->input + " and " +

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "stages.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/isolated_call.h"
 #include "voxfmt/io.h"
 
@@ -217,10 +218,9 @@ TriangleMesh import_isolated(const std::string& path, const ImportSettings& opti
 
 TriangleMesh import_mesh(const std::string& path, const ImportSettings& options) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec))
-    throw BakeError(IssueCode::InputNotFound,
-                    path + (std::filesystem::exists(path, ec) ? ": not a regular file (a folder, pipe or device)"
-                                                              : ": no such file"));
+  if (const std::string kind = not_a_regular_file(path); !kind.empty())
+    throw BakeError(IssueCode::InputNotFound, path + ": " + kind);
+  if (!std::filesystem::exists(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
 #if !defined(_WIN32)

@@ -22,6 +22,11 @@ struct AtomicWrite {
   std::function<Status()> before_commit;
 };
 
+/// "" where `path` is a regular file (links followed) or names nothing; otherwise what it is, as every error says
+/// it ("is a folder, not a regular file", "is a pipe, ..."). Readers and writers alike take only regular files: a
+/// FIFO blocks a read forever, a folder's read fails deep in a library, a rename would replace a device.
+std::string not_a_regular_file(const std::string& path);
+
 /// Whether a file could be written at `path` (its folder exists and is a folder, the path is not a folder), as
 /// WRITE_FAILED naming the problem. Cheap: long jobs call it before their work, so a typo costs no bake.
 Status check_output_path(const std::string& path);
