@@ -4,6 +4,7 @@ import os
 import stat
 import subprocess
 import tempfile
+import time
 import unittest
 
 VOXFMT = os.environ.get("VOXFMT_BIN")
@@ -74,6 +75,17 @@ class BuildBadInput(unittest.TestCase):
         # import runs in a child process, so that is IMPORT_FAILED, not the end of voxfmt.
         r = self.expect_error(self.write("short.off", "OFF\n100 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), "IMPORT_FAILED")
         self.assertIn("short.off", r.stderr)
+
+    def test_a_header_that_declares_billions_of_vertices_is_stopped_in_proportion_to_the_file(self):
+        # The parser believes the header and allocates ~1 GB a second; before, it ran on to the 30 s time limit.
+        ply = ("ply\nformat ascii 1.0\nelement vertex 2000000000\nproperty float x\nproperty float y\n"
+               "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+               "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+        for path in (self.write("huge.ply", ply), self.write("huge.off", "OFF\n2000000000 1 0\n0 0 0\n1 0 0\n")):
+            started = time.monotonic()
+            r = self.expect_error(path, "IMPORT_FAILED")
+            self.assertIn("the importer needed more than", r.stderr)
+            self.assertLess(time.monotonic() - started, 25, "stopped by the time limit, not the memory limit")
 
     def test_empty_scene(self):
         self.expect_error(self.write("empty.off", "OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n"), "EMPTY_SCENE")

@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <thread>
+#include <vector>
 
 #include "voxfmt/detail/isolated_call.h"
 
@@ -34,6 +35,32 @@ TEST(Isolation, AChildThatSpinsWithoutProgressIsStoppedAfterItsIdleCpuTime) {
   EXPECT_EQ(outcome.kind, ChildOutcome::TimedOut);
   EXPECT_GE(seconds_since(start), 0.5);
   EXPECT_LT(seconds_since(start), 0.5 * Watchdog::kBlockedFactor);
+}
+
+// Touches `megabytes` of fresh memory, 1 MB at a time, then holds it for up to 10 s (a parser believing a header).
+int grow_and_hold(size_t megabytes) {
+  std::vector<std::vector<char>> blocks;
+  for (size_t i = 0; i < megabytes; ++i) blocks.emplace_back(size_t(1) << 20, char(i));
+  std::this_thread::sleep_for(std::chrono::seconds(megabytes > 100 ? 10 : 0));
+  return int(blocks.size());
+}
+
+TEST(Isolation, AChildWhoseMemoryGrowsBeyondItsLimitIsStopped) {
+  int value = 0;
+  const auto start = Clock::now();
+  const ChildOutcome outcome = run_isolated(
+      Watchdog{30, 0, nullptr, 0, 64.0 * (1 << 20)}, value, [] { return grow_and_hold(256); }, visit_int);
+  EXPECT_EQ(outcome.kind, ChildOutcome::OutOfMemory);
+  EXPECT_TRUE(outcome.over_limit);
+  EXPECT_LT(seconds_since(start), 9.0);
+  // Memory the parent holds at the fork is shared, not the child's: a parent with 128 MB resident starts a child
+  // that adds 16 MB under a 64 MB limit.
+  std::vector<char> parent(size_t(128) << 20, 1);
+  const ChildOutcome small = run_isolated(
+      Watchdog{30, 0, nullptr, 0, 64.0 * (1 << 20)}, value, [] { return grow_and_hold(16); }, visit_int);
+  EXPECT_EQ(small.kind, ChildOutcome::Finished);
+  EXPECT_EQ(value, 16);
+  EXPECT_EQ(parent[parent.size() - 1], 1);
 }
 
 TEST(Isolation, AChildThatDoesNotRunIsNotTakenForAHungOne) {

@@ -161,13 +161,17 @@ TriangleMesh import_isolated(const std::string& path, const ImportSettings& opti
   const auto file_size = std::filesystem::file_size(path, ec);
   const double limit_s =
       options.time_limit_s > 0 ? options.time_limit_s : 30.0 + (ec ? 0.0 : double(file_size) / 5e6);  // ~1 s per 50 MB
+  // Memory in proportion to the file: a parser that believes a header announcing 2e9 vertices in a 300-byte file
+  // would allocate until the time limit (~1 GB a second). No mesh format holds a triangle in fewer than a few
+  // bytes, nor needs more than ~100 bytes of memory for it, even compressed (3MF, FBX, zipped COLLADA).
+  const double memory_limit = 1024.0 * 1024 * 1024 + 256.0 * double(ec ? 0 : file_size);
   ImportOutcome result;
   // A parse of a local file never sleeps: a child asleep for kAsleepS without CPU holds a lock inherited from another
   // thread at the fork (clang's ASan allocator has no fork handler), which says nothing about the file: once more.
   constexpr double kAsleepS = 5.0;
   auto attempt = [&] {
     return detail::run_isolated(
-        detail::Watchdog{limit_s, 0, nullptr, kAsleepS}, result,
+        detail::Watchdog{limit_s, 0, nullptr, kAsleepS, memory_limit}, result,
         [&] {
           ImportOutcome r;
           try {
@@ -205,6 +209,12 @@ TriangleMesh import_isolated(const std::string& path, const ImportSettings& opti
       throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer did not finish within " +
                                                    std::to_string(int(limit_s)) + " s (a malformed file; stopped)");
     case detail::ChildOutcome::OutOfMemory:
+      if (outcome.over_limit)
+        throw BakeError(IssueCode::ImportFailed,
+                        path + ": cannot read mesh: the importer needed more than " +
+                            std::to_string(int64_t(memory_limit / 1048576)) + " MB for a file of " +
+                            std::to_string(ec ? 0 : file_size) +
+                            " bytes (a header that declares more than the file holds?); stopped");
       throw BakeError(IssueCode::OutOfMemory, path + ": out of memory receiving the imported mesh");
     case detail::ChildOutcome::Malformed:
       break;

@@ -114,18 +114,24 @@ class WireWriter {
 /// `asleep_s` (0: off) stops sooner a child that sleeps (state S: waiting on a lock or a pipe, not starved and not
 /// in disk I/O) without CPU or progress for that long: a parse of a local file never waits like that, but a child
 /// forked while another thread held a lock it needs does (clang 14's ASan allocator has no fork handler).
+/// `max_added_bytes` (0: off) stops a child whose resident memory grows by more than that beyond what it shared
+/// with the parent at the fork (Linux: /proc): a parser that believes a header announcing 2e9 vertices allocates
+/// about 1 GB a second. (RLIMIT_AS cannot do this: a sanitizer reserves terabytes of address space up front.)
 struct Watchdog {
   double total_s = 0;
   double idle_s = 0;
   const std::atomic<uint64_t>* progress = nullptr;
   double asleep_s = 0;
+  double max_added_bytes = 0;
   static constexpr double kBlockedFactor = 12;
 };
 
 /// CPU seconds (user + system) a child process has used so far; negative where it cannot be read. `state`, when
-/// given, gets the process's state letter from /proc (R running, S sleeping, D disk wait, ...; 0 if unknown).
-inline double child_cpu_seconds(pid_t pid, char* state = nullptr) {
+/// given, gets the process's state letter from /proc (R running, S sleeping, D disk wait, ...; 0 if unknown);
+/// `resident_bytes` its resident memory (0 if unknown).
+inline double child_cpu_seconds(pid_t pid, char* state = nullptr, double* resident_bytes = nullptr) {
   if (state) *state = 0;
+  if (resident_bytes) *resident_bytes = 0;
   char path[64];
   std::snprintf(path, sizeof path, "/proc/%d/stat", int(pid));
   std::FILE* f = std::fopen(path, "r");
@@ -134,14 +140,18 @@ inline double child_cpu_seconds(pid_t pid, char* state = nullptr) {
   const size_t n = std::fread(line, 1, sizeof line - 1, f);
   std::fclose(f);
   line[n] = 0;
-  // Fields after the command name (which may hold spaces and parentheses): state is field 3, utime 14, stime 15.
+  // Fields after the command name (which may hold spaces and parentheses): state is field 3, utime 14, stime 15,
+  // rss 24 (pages).
   const char* p = std::strrchr(line, ')');
   if (!p) return -1;
-  unsigned long long utime = 0, stime = 0;
+  unsigned long long utime = 0, stime = 0, pages = 0;
   char letter = 0;
-  if (std::sscanf(p + 1, " %c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &letter, &utime, &stime) != 3)
-    return -1;
+  const int read =
+      std::sscanf(p + 1, " %c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu %*d %*d %*d %*d %*d %*d %*u %*u %llu",
+                  &letter, &utime, &stime, &pages);
+  if (read < 3) return -1;
   if (state) *state = letter;
+  if (resident_bytes && read == 4) *resident_bytes = double(pages) * double(::sysconf(_SC_PAGESIZE));
   const long ticks = ::sysconf(_SC_CLK_TCK);
   return ticks > 0 ? double(utime + stime) / double(ticks) : -1;
 }
@@ -154,12 +164,18 @@ class WireReader {
   WireReader(int fd, const Watchdog& watchdog, pid_t child = 0)
       : fd_(fd), watchdog_(watchdog), child_(child), start_(Clock::now()) {
     seen_ = watchdog.progress ? watchdog.progress->load() : 0;
+    if (watchdog.max_added_bytes > 0 && child > 0) {
+      child_cpu();
+      shared_at_fork_ = resident_;  // just forked: the pages it shares with the parent
+    }
     progressed();
   }
   bool ok() const { return ok_; }
   bool timed_out() const { return timed_out_; }
   /// Timed out because the child slept without progress for the watchdog's `asleep_s`.
   bool asleep() const { return asleep_; }
+  /// Stopped because the child's memory grew beyond the watchdog's `max_added_bytes`.
+  bool over_memory() const { return over_memory_; }
   template <class T>
   void pod(T& value) {
     get(&value, sizeof(T));
@@ -221,7 +237,7 @@ class WireReader {
   double child_cpu() {
     const auto now = Clock::now();
     if (now - cpu_polled_ >= std::chrono::milliseconds(100) || cpu_ < 0) {
-      cpu_ = child_cpu_seconds(child_, &state_);
+      cpu_ = child_cpu_seconds(child_, &state_, &resident_);
       cpu_polled_ = now;
     }
     return cpu_;
@@ -248,6 +264,13 @@ class WireReader {
       left = std::min<long long>(left, std::chrono::ceil<std::chrono::milliseconds>(end - now).count());
     };
     if (watchdog_.total_s > 0) until(start_, watchdog_.total_s);
+    if (watchdog_.max_added_bytes > 0 && child_ > 0) {
+      child_cpu();  // reads its resident memory too
+      if (resident_ - shared_at_fork_ > watchdog_.max_added_bytes) {
+        over_memory_ = true;
+        return 0;
+      }
+    }
     if (watchdog_.idle_s > 0) {
       const double cpu = cpu_at_progress_ >= 0 ? child_cpu() : -1;
       if (cpu >= 0) {
@@ -282,7 +305,7 @@ class WireReader {
       const long long left = left_ms();
       if (left <= 0) {
         ok_ = false;
-        timed_out_ = true;
+        timed_out_ = !over_memory_;
         return;
       }
       pollfd pfd{fd_, POLLIN, 0};
@@ -305,6 +328,8 @@ class WireReader {
   double cpu_at_progress_ = -1, cpu_ = -1;
   Clock::time_point cpu_polled_{};
   char state_ = 0;
+  double resident_ = 0, shared_at_fork_ = 0;
+  bool over_memory_ = false;
   std::optional<Clock::time_point> asleep_since_;
   double asleep_cpu_ = -1;
   bool asleep_ = false;
@@ -316,9 +341,10 @@ class WireReader {
 // How an isolated call ended.
 struct ChildOutcome {
   enum Kind { Finished, CannotStart, Died, TimedOut, OutOfMemory, Malformed } kind = Finished;
-  int signal = 0;       ///< Died: the signal
-  std::string detail;   ///< CannotStart: the reason
-  bool asleep = false;  ///< TimedOut: the child slept without progress (Watchdog::asleep_s), it did not spin
+  int signal = 0;           ///< Died: the signal
+  std::string detail;       ///< CannotStart: the reason
+  bool asleep = false;      ///< TimedOut: the child slept without progress (Watchdog::asleep_s), it did not spin
+  bool over_limit = false;  ///< OutOfMemory: the child grew beyond Watchdog::max_added_bytes (else: the parent)
   bool ok() const { return kind == Finished; }
 };
 
@@ -405,6 +431,7 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
   int status = 0;
   if (!wait_for_child(child, watchdog, r.ok(), status)) return outcome;  // stopped asleep after sending: it stands
   if (out_of_memory) return {ChildOutcome::OutOfMemory, 0, {}};
+  if (r.over_memory()) return {ChildOutcome::OutOfMemory, 0, {}, false, true};
   if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) return outcome;
   if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
   if (r.timed_out()) return {ChildOutcome::TimedOut, 0, {}, r.asleep()};
