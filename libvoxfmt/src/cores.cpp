@@ -7,6 +7,7 @@
 #if defined(__linux__)
 #include <sched.h>
 #endif
+#include <unistd.h>
 
 namespace voxfmt {
 
@@ -17,6 +18,11 @@ unsigned usable_cores() {
   if (sched_getaffinity(0, sizeof mask, &mask) == 0) return std::max(1, CPU_COUNT(&mask));
 #endif
   return std::max(1u, std::thread::hardware_concurrency());
+}
+
+uint64_t physical_memory_bytes() {
+  const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? uint64_t(pages) * uint64_t(page) : uint64_t(8) << 30;
 }
 
 void run_workers(unsigned workers, const std::function<void(unsigned worker)>& work) {

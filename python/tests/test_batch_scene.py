@@ -107,6 +107,16 @@ def test_overflow_is_counted_and_the_rest_kept(sphere: voxfmt.Body) -> None:
     assert np.array_equal(few.force, full.force)
 
 
+def test_outputs_beyond_the_machines_memory_are_refused_up_front(sphere: voxfmt.Body) -> None:
+    # 40,000 environments x 2^24 contacts would be 22 TB of zeroed outputs: a MemoryError or the kernel's kill.
+    scene = voxfmt.BatchScene([sphere])
+    poses = np.tile(np.eye(4, dtype=np.float32), (40000, 1, 1))
+    with pytest.raises(voxfmt.InternalError, match="40000 environments x 16777216 contacts") as caught:
+        scene.contacts(poses, poses, max_contacts=1 << 24)
+    assert caught.value.code == "OUT_OF_MEMORY"
+    assert scene.contacts(poses[:2], poses[:2], max_contacts=1 << 10).depths.shape == (2, 1 << 10)
+
+
 def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
     scene = voxfmt.BatchScene([sphere])
     pa = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))

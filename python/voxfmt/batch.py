@@ -302,7 +302,8 @@ class BatchScene:
         float64 on the CPU), pair_index (E,) int32 or None. On CUDA arrays the call is queued on `stream` (default:
         the framework's current stream) and returns at once; with ``check=True`` it then waits to check the
         environments' ``error`` (raising PoseError or OptionError); pass check=False (and ``out``) inside a CUDA
-        graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks."""
+        graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks; outputs
+        larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY)."""
         if _on_cuda(poses_a) or _on_cuda(poses_b):
             result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream)
         else:

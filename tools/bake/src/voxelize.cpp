@@ -35,6 +35,7 @@
 #include "closest_triangle.h"
 #include "stages.h"
 #include "vec3_math.h"
+#include "voxfmt/detail/cores.h"
 #include "winding_number.h"
 
 namespace voxfmt::bake {
@@ -105,11 +106,6 @@ double surface_area(const TriangleMesh& mesh) {
     area += 0.5 * length(cross(b - a, c - a));
   }
   return area;
-}
-
-uint64_t physical_memory_bytes() {
-  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  return pages > 0 && page > 0 ? uint64_t(pages) * uint64_t(page) : uint64_t(8) << 30;
 }
 
 // What the sparse bake holds at its peak, estimated before it starts: the brick table and the lattice (with its

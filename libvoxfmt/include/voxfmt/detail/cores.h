@@ -1,6 +1,7 @@
 // How many CPUs the process may use, and work shared among threads: one policy for every fork-join in the project.
 #pragma once
 
+#include <cstdint>
 #include <functional>
 
 namespace voxfmt {
@@ -14,5 +15,9 @@ unsigned usable_cores();
 /// error: the caller runs that share after its own, so the work is done either way, only slower. `work` must not throw;
 /// catch inside and report through the shared state.
 void run_workers(unsigned workers, const std::function<void(unsigned worker)>& work);
+
+/// This machine's physical memory in bytes (8 GiB where it cannot be read): what a long job checks its estimate
+/// against before it starts, so that it is refused with figures instead of killed halfway.
+uint64_t physical_memory_bytes();
 
 }  // namespace voxfmt
