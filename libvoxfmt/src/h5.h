@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "voxfmt/detail/utf8.h"
 #include "voxfmt/result.h"
 
 namespace voxfmt::h5 {
@@ -70,11 +71,6 @@ inline constexpr uint64_t kMaxChunksPerFile = uint64_t(1) << 18;
 /// progress after a bounded amount of work and HDF5's per-chunk bookkeeping stays small.
 inline constexpr uint64_t kElementsPerPiece = uint64_t(1) << 22;
 inline constexpr uint64_t kChunksPerPiece = 1024;
-
-/// `text` with every byte that is not part of valid UTF-8 written as \xNN: names and values from a file may
-/// hold anything, and every message a reader makes must be text (Python decodes it).
-std::string utf8_escaped(const std::string& text);
-bool is_utf8(const std::string& text);
 
 /// Joins an HDF5 group path and a member name: ("/", "a") -> "/a", ("/g", "a") -> "/g/a".
 std::string join_path(const std::string& group_path, const std::string& name);

@@ -12,6 +12,7 @@
 #include "load.h"
 #include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/estimate_transform.h"
+#include "voxfmt/detail/utf8.h"
 
 namespace voxfmt {
 
@@ -286,8 +287,28 @@ void check_mass(const MassProperties& m, Checker& c) {
       }
 }
 
+// Spec §1: every stored string is UTF-8. A reader checks the file's bytes; this checks what a writer was given (a
+// file name from the file system may hold any bytes).
+void check_text(const std::string& text, const std::string& where, Checker& c) {
+  if (!is_utf8(text)) c.add(IssueCode::StringNotUtf8, where, "string is not valid UTF-8: '" + utf8_escaped(text) + "'");
+}
+
 void check_provenance(const Provenance& p, Checker& c) {
   const std::string g = "/provenance";
+  for (const auto& [name, text] : {std::pair{"generator", &p.generator},
+                                   {"generator_version", &p.generator_version},
+                                   {"source_file", &p.source_file},
+                                   {"build_parameters", &p.build_parameters_json},
+                                   {"created_utc", &p.created_utc}})
+    check_text(*text, g + "/@" + name, c);
+  for (const auto& [library, version] : p.dependency_versions) {
+    check_text(library, g + "/dependency_versions", c);
+    check_text(version, g + "/dependency_versions/@" + utf8_escaped(library), c);
+  }
+  for (const BuildWarning& w : p.build_warnings) {
+    check_text(w.code, g + "/build_warnings", c);
+    check_text(w.message, g + "/build_warnings", c);
+  }
   const nlohmann::json params = nlohmann::json::parse(p.build_parameters_json, nullptr, false);
   if (params.is_discarded() || !params.is_object())
     c.add(IssueCode::InvalidJson, g + "/@build_parameters", "build_parameters is not a JSON object");

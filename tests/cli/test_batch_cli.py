@@ -132,6 +132,31 @@ class Batch(unittest.TestCase):
         self.assertEqual((summary["built"], summary["failed"]), (1, 0))
         self.assert_valid()
 
+    def test_a_file_name_that_is_not_utf8_is_kept_exactly(self):
+        # JSON holds UTF-8 only: the name used to reach the manifest as U+FFFD, so no record matched its asset, and
+        # the asset itself was invalid (its provenance named the file in raw bytes).
+        lib = os.path.join(self.root.encode(), b"odd")
+        os.makedirs(lib)
+        with open(os.path.join(lib, b"m\xff.obj"), "w") as f:
+            f.write(TET_OBJ)
+        out = os.path.join(self.root, "odd-out")
+        r, summary = self.batch(lib.decode("utf-8", "surrogateescape"), out=out, expect=0)
+        self.assertEqual(summary["built"], 1)
+        asset = os.path.join(out.encode(), b"m\xff.obj.vox.h5")
+        v = subprocess.run([VOXFMT.encode(), b"validate", asset], capture_output=True, timeout=60)
+        self.assertEqual(v.returncode, 0, v.stdout)
+        with open(os.path.join(out, "manifest.jsonl")) as f:
+            record = json.loads(f.readline())
+        self.assertTrue(record["output"].endswith("m\\xFF.obj.vox.h5"), record["output"])
+        self.assertEqual(bytes.fromhex(record["output_hex"]), os.path.join(out.encode(), b"m\xff.obj.vox.h5"))
+        r, summary = self.batch(lib.decode("utf-8", "surrogateescape"), out=out, expect=0)
+        self.assertEqual((summary["built"], summary["up_to_date"]), (0, 1))
+        with open(os.path.join(out, "manifest.jsonl")) as f:
+            self.assertEqual(len(f.readlines()), 1, "the manifest's record matched: nothing was appended")
+        report = subprocess.run([VOXFMT, "report", out, "--json"], capture_output=True, text=True, timeout=120)
+        self.assertEqual(report.returncode, 0, report.stderr)
+        self.assertEqual(json.loads(report.stdout)["unreadable_assets"], 0)
+
     def test_shards_cover_the_library_disjointly(self):
         for i in range(8):  # enough meshes that both shards get some
             self.write("lib/many/tet%d.obj" % i, TET_OBJ.replace("v 0 0 1", "v 0 0 %d" % (i + 1)))

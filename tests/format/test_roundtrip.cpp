@@ -127,6 +127,18 @@ TEST(Write, RefusesAnInvalidAssetAndWritesNothing) {
   EXPECT_TRUE(std::filesystem::is_empty(dir));
 }
 
+TEST(Write, RefusesTextThatIsNotUtf8) {
+  // Spec §1: every stored string is UTF-8; a reader refuses any other (STRING_NOT_UTF8), so no writer makes one.
+  const std::string dir = test::scratch_dir("not-utf8");
+  Asset a = test::make_full_asset();
+  a.provenance.source_file = "b\xff.off";  // a file name from the file system may hold any bytes
+  const Status status = write_asset(dir + "/bad.vox.h5", a, test::structural());
+  ASSERT_FALSE(status);
+  EXPECT_EQ(status.error().object, "/provenance/@source_file");
+  EXPECT_NE(status.error().message.find("b\\xFF.off"), std::string::npos) << status.error().message;
+  EXPECT_TRUE(std::filesystem::is_empty(dir));
+}
+
 TEST(Write, BeforeCommitCanAbortAndLeavesTheOldFile) {
   const std::string dir = test::scratch_dir("before-commit");
   const std::string path = dir + "/a.vox.h5";

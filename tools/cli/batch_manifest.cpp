@@ -14,6 +14,7 @@
 #include <stdexcept>
 
 #include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/detail/json_path.h"
 #include "voxfmt/result.h"
 
 namespace voxfmt::cli {
@@ -69,7 +70,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
       foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
       continue;
     }
-    last[record["output"].get<std::string>()] = record;
+    last[path_of(record, "output")] = record;
     if (check_only) break;
   }
   if (last.empty() && foreign > 0)
@@ -177,7 +178,7 @@ void Manifest::append(const nlohmann::json& record) {
   // One write() per line: O_APPEND puts it at the end as a whole; fdatasync makes it survive a crash.
   write_all(fd_, json_line(record) + "\n", path_);
   if (::fdatasync(fd_) != 0) fail(path_, "cannot flush");
-  if (record.contains("output") && record["output"].is_string()) last_[record["output"].get<std::string>()] = record;
+  if (record.contains("output") && record["output"].is_string()) last_[path_of(record, "output")] = record;
 }
 
 }  // namespace voxfmt::cli

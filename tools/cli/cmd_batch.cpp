@@ -38,6 +38,7 @@
 #include "json_report.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/detail/cores.h"
+#include "voxfmt/detail/json_path.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 
@@ -126,13 +127,14 @@ class Runner {
 };
 
 nlohmann::json Runner::base_record(const BatchItem& item) const {
-  return {{"input", item.input},
-          {"output", item.output},
-          {"status", "ok"},
-          {"error", nullptr},
-          {"input_bytes", item.input_bytes},
-          {"build_parameters", parameters_},
-          {"tool_version", VOXFMT_VERSION_STRING}};
+  nlohmann::json record = {{"status", "ok"},
+                           {"error", nullptr},
+                           {"input_bytes", item.input_bytes},
+                           {"build_parameters", parameters_},
+                           {"tool_version", VOXFMT_VERSION_STRING}};
+  set_path(record, "input", item.input);
+  set_path(record, "output", item.output);
+  return record;
 }
 
 // Same source bytes, build parameters and tool version: by the manifest (its record for this output, and the

@@ -26,6 +26,7 @@
 #include "stages.h"
 #include "vec3_math.h"
 #include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/detail/utf8.h"
 #include "voxfmt/io.h"
 #include "voxfmt/version.h"
 #include "winding_number.h"
@@ -296,13 +297,14 @@ Provenance provenance_of(const std::string& mesh_path, const Settings& options,
   Provenance p;
   p.generator = "voxfmt build";
   p.generator_version = VOXFMT_VERSION_STRING;
-  p.source_file = std::filesystem::path(mesh_path).filename().string();
+  // The format stores text as UTF-8 (spec §1); a file name may hold any bytes, and is then kept escaped (\xNN).
+  p.source_file = utf8_escaped(std::filesystem::path(mesh_path).filename().string());
   Result<std::string> sha = sha256_file(mesh_path);
   if (!sha) throw BakeError(sha.error().code, sha.error().message);
   p.source_sha256 = sha.value();
   p.build_parameters_json = build_parameters_json(options);
   p.dependency_versions = dependency_versions();
-  p.build_warnings = warnings;
+  for (const BuildWarning& w : warnings) p.build_warnings.push_back({w.code, utf8_escaped(w.message)});
   p.created_utc = utc_now();
   return p;
 }

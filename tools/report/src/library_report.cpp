@@ -22,6 +22,7 @@
 #include "report.h"
 #include "report_resources.h"
 #include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/detail/json_path.h"
 #include "voxfmt/detail/report.h"
 #include "voxfmt/version.h"
 
@@ -125,7 +126,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
         continue;
       }
       // Across files (the shards' and the whole library's), the record that finished last wins.
-      const std::string output = record["output"].get<std::string>();
+      const std::string output = path_of(record, "output");
       auto [it, inserted] = last.try_emplace(output);
       const auto finished = [](const nlohmann::json& r) {
         const auto f = r.find("finished_utc");
@@ -400,11 +401,13 @@ nlohmann::json report_data(const char* kind, const std::string& library, const L
 // system error on a hostile path becomes the row's asset_error; a write error is returned.
 Status library_row(const LibraryReportOptions& options, nlohmann::json record, size_t i, const fs::path& dir,
                    nlohmann::json& row) {
-  const std::string output = text_of(record, "output");
+  const std::string output = path_of(record, "output");
   const std::string relative = library_relative(options.library, output);
   row = std::move(record);
   row.erase("command");  // the bake's argv: long, and the build parameters say the same
   row.erase("output_mtime_ns");
+  row.erase("input_hex");  // the exact bytes of a path that is not UTF-8: "input" and "output" show it escaped
+  row.erase("output_hex");
   for (const char* key : kReportKeys) row.erase(key);
   row["id"] = i;
   row["name"] = mesh_name(row);
