@@ -77,6 +77,9 @@ def test_bake_errors(tmp_path: Path, sphere_mesh: Path) -> None:
         {"resolution": "high"},
         {"self_intersection_check": "no"},
         {"progress": 3},
+        {"seed": -1},  # a uint64: never wrapped to 2^64 - 1
+        {"resolution": 64, "voxel_size": 0.01},  # exclude each other, as on the command line
+        {"points": 500, "point_spacing": 0.01},
     ):
         raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, **options)
     assert not out.exists()

@@ -121,8 +121,8 @@ def bake(
     mesh_path: Path,
     out_path: Path,
     *,
-    resolution: int = _BAKE_DEFAULTS["resolution"],
-    points: int = _BAKE_DEFAULTS["points"],
+    resolution: int | None = None,
+    points: int | None = None,
     progress: Callable[[str, float], object] | None = None,
     **options: Any,
 ) -> dict[str, Any]:
@@ -131,6 +131,7 @@ def bake(
     The asset is validated in full in memory and replaces ``out_path`` atomically. Returns the build summary,
     the same dict as ``voxfmt build --json`` prints. ``options`` are the other ``voxfmt build`` options, dashes
     as underscores: voxel_size (metres, instead of resolution), point_spacing (metres, instead of points),
+    each excluding the other as on the command line (resolution 128 and points 10000 when neither is given),
     branching, margin, band, shell_thickness, unit_scale, up_axis, self_intersection_check (bool; the CLI's
     --no-self-intersection-check is ``False``), seed, deflate, threads (0 = all cores).
 
@@ -146,8 +147,13 @@ def bake(
         )
     if progress is not None and not callable(progress):
         raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
+    chosen = {"resolution": resolution, "points": points}
+    for (name, value), instead in zip(chosen.items(), ("voxel_size", "point_spacing")):
+        if value is not None and instead in options:
+            raise OptionError("BAD_OPTION", f"{name} and {instead} exclude each other (as on the command line): give one")
+    chosen = {name: _BAKE_DEFAULTS[name] if value is None else value for name, value in chosen.items()}
     settings = _BakeSettings()
-    for name, value in {"resolution": resolution, "points": points, **options}.items():
+    for name, value in {**chosen, **options}.items():
         setattr(settings, name, _bake_setting(name, value))
     summary = _bake(_path(mesh_path, "mesh_path"), _path(out_path, "out_path"), settings, progress)
     result: dict[str, Any] = json.loads(summary)

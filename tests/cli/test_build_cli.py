@@ -114,10 +114,10 @@ class BuildBadInput(unittest.TestCase):
 
     def test_bad_option_is_a_usage_error(self):
         tet = self.write("tet.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")
-        r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--resolution", "10", "--voxel-size", "0.1"],
-                           capture_output=True, text=True)
-        self.assertEqual(r.returncode, 2)
-        self.assertFalse(os.path.exists(self.out))
+        for bad in (["--resolution", "10", "--voxel-size", "0.1"], ["--seed", "-1"]):  # -1 wrapped to 2^64 - 1
+            r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, *bad], capture_output=True, text=True)
+            self.assertEqual(r.returncode, 2, bad)
+            self.assertFalse(os.path.exists(self.out))
 
     def test_good_input_writes_a_valid_asset(self):
         tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")

@@ -41,7 +41,9 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
       ->check(CLI::IsMember({"+X", "-X", "+Y", "-Y", "+Z", "-Z"}));
   cmd.add_flag("!--no-self-intersection-check", b.check_self_intersections,
                "Skip the self-intersection check (faster on huge meshes)");
-  cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")->capture_default_str();
+  cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);  // a uint64: "-1" would wrap to 2^64 - 1
   cmd.add_option("--deflate", b.deflate, "gzip level 0-9 for the voxel grids")
       ->capture_default_str()
       ->check(CLI::Range(0, 9));
