@@ -157,6 +157,16 @@ class Batch(unittest.TestCase):
         self.assertEqual(report.returncode, 0, report.stderr)
         self.assertEqual(json.loads(report.stdout)["unreadable_assets"], 0)
 
+    def test_a_report_folder_that_would_hold_assets_is_refused_before_the_bake(self):
+        self.write("lib/report/model.obj", TET_OBJ)
+        r, _ = self.batch(self.lib, "--report", expect=2)
+        self.assertIn("report/model.obj would be baked into", r.stderr)
+        self.assertEqual(self.assets(), [], "refused before any bake")
+        html = os.path.join(self.root, "html")
+        r, summary = self.batch(self.lib, "--report-dir", html, expect=1)  # flat.off fails, as ever
+        self.assertEqual(summary["built"], 4)
+        self.assertTrue(os.path.isfile(os.path.join(html, "index.html")))
+
     def test_shards_cover_the_library_disjointly(self):
         for i in range(8):  # enough meshes that both shards get some
             self.write("lib/many/tet%d.obj" % i, TET_OBJ.replace("v 0 0 1", "v 0 0 %d" % (i + 1)))

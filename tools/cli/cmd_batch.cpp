@@ -61,7 +61,10 @@ struct Options {
   bool json = false;
   bool quiet = false;
   bool report = false;
+  std::string report_dir;  ///< empty: OUTDIR/report
   bake::Settings bake;
+
+  fs::path report_folder() const { return report_dir.empty() ? fs::path(output_dir) / "report" : fs::path(report_dir); }
 };
 
 volatile std::sig_atomic_t g_interrupted = 0;
@@ -285,6 +288,15 @@ void Runner::select_inputs() {
   if (all.empty())
     throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
   all_count_ = all.size();
+  if (o_.report) {  // refused now, not after the bake: the report would not replace a folder of assets
+    const fs::path folder = fs::absolute(o_.report_folder()).lexically_normal();
+    for (const BatchItem& item : all) {
+      const fs::path inside = fs::absolute(item.output).lexically_normal().lexically_relative(folder);
+      if (!inside.empty() && *inside.begin() != "..")
+        throw UsageError(item.key + " would be baked into " + folder.string() +
+                         ", the report's folder: choose another with --report-dir");
+    }
+  }
   for (BatchItem& item : all)
     if (shard_.contains(item.key)) mine_.push_back(std::move(item));
 }
@@ -468,6 +480,7 @@ int report_after_batch(const Options& o) {
   }
   report::LibraryReportOptions options;
   options.library = o.output_dir;
+  options.out = o.report_dir;
   options.manifest = o.manifest;
   options.threads = int(o.jobs);
   if (!o.json && !o.quiet) options.progress = report_progress();
@@ -516,6 +529,9 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
   cmd->add_flag("--report", o->report, "Then write the library's HTML report into OUTDIR/report (`voxfmt report`)");
+  cmd->add_option("--report-dir", o->report_dir, "The report's folder instead of OUTDIR/report (implies --report)")
+      ->check(non_empty_path())
+      ->each([o](const std::string&) { o->report = true; });
   cmd->footer(
       "\nExamples:\n"
       "  voxfmt batch meshes/ -o assets/                       # every mesh below meshes/, on every core\n"
