@@ -194,6 +194,18 @@ TEST(SparseVoxelmap, ANonFinitePointReadsNoVoxel) {
   }
 }
 
+// A point sent far away (1e20 voxels: 1e18 m at 1 cm voxels) squares beyond float's range; its distance does not.
+TEST(SparseVoxelmap, AFarPointsDistanceIsFiniteAndAboutItsDistance) {
+  const SparseVoxelmap& map = Bunny::get().object->voxelmap();
+  for (const Eigen::Vector3f& u :
+       {Eigen::Vector3f(1e20f, 10, 10), Eigen::Vector3f(-1e20f, 1e20f, 0), Eigen::Vector3f(1e37f, 1e37f, 1e37f)}) {
+    const double distance = map.sample(u).distance, expected = u.cast<double>().norm();
+    EXPECT_TRUE(std::isfinite(distance)) << u.transpose();
+    EXPECT_NEAR(distance / expected, 1.0, 1e-5) << u.transpose();
+    EXPECT_TRUE(std::isfinite(map.distance_lower_bound(u))) << u.transpose();
+  }
+}
+
 TEST(SparseVoxelmap, SampleMatchesExactDistanceNearTheSurface) {
   const Bunny& bunny = Bunny::get();
   const SparseVoxelmap& map = bunny.object->voxelmap();

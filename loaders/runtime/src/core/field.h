@@ -184,7 +184,7 @@ VOXFMT_HD float bounds_distance(const Field& f, const Vec3& u) {
   const Vec3 outside = make_vec3(max_f(max_f(f.object_min.x - u.x, u.x - f.object_max.x), 0.0f),
                                  max_f(max_f(f.object_min.y - u.y, u.y - f.object_max.y), 0.0f),
                                  max_f(max_f(f.object_min.z - u.z, u.z - f.object_max.z), 0.0f));
-  return length(outside);
+  return hypot_f(outside, 0.0f);
 }
 
 /// The 8 corner values of the cell at `base` when they lie in one value brick (one table entry, two cache lines
@@ -318,7 +318,7 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   const float d = sample_inside(f, q, gradient ? &face_gradient : nullptr).distance;
   const Vec3 away = u - q;
   const float box = bounds_distance(f, u);
-  const float continued = d > 0.0f ? sqrt_f(dot(away, away) + d * d) : 0.0f;
+  const float continued = d > 0.0f ? hypot_f(away, d) : 0.0f;
   result.distance = max_f(box, continued);
   if (gradient) {
     if (continued >= box) {

@@ -51,6 +51,15 @@ VOXFMT_HD double sqrt_d(double v) {
 #endif
 }
 
+/// sqrt(|a|^2 + d^2) without overflow: the float sum where it is finite (every ordinary result, unchanged bit for
+/// bit), else in double: a point sent 1e18 m away squares beyond float's range, while the root fits.
+VOXFMT_HD float hypot_f(const Vec3& a, float d) {
+  const float plain = sqrt_f(dot(a, a) + d * d);
+  if (plain <= 3.40282347e+38f) return plain;
+  const double x = a.x, y = a.y, z = a.z, w = d;
+  return float(sqrt_d(x * x + y * y + z * z + w * w));
+}
+
 /// A rigid map with uniform scale, u = M x + m (row-major M): a shell's asset frame into a target's grid. The
 /// sums run in the order Eigen's float matrix-vector product uses (a + (b + c)), so the runtime's Eigen code and
 /// this agree bit for bit (tests/runtime/test_query_core.cpp).
