@@ -132,6 +132,32 @@ class ReportTest(unittest.TestCase):
         with open(os.path.join(self.report, "data.js")) as f:
             self.assertTrue(f.read().startswith('window.VOXFMT_REPORT = JSON.parse("'))
 
+    def test_fields_of_the_wrong_type_are_dropped_not_shown(self):
+        # A hand-edited manifest: a number as the status, a string as a time, warnings that are not objects.
+        library = os.path.join(self.tmp, "mistyped")
+        os.makedirs(library)
+        records = [
+            {"output": "a.vox.h5", "status": 5, "error": "boom", "timings_s": "abc", "total_s": "x", "volume": [1],
+             "warnings": {"a": 1}, "voxelmap": 7, "finished_utc": 9},
+            {"output": "b.vox.h5", "status": "failed", "error": {"code": 7, "message": ["m"]}, "input": 12},
+            {"output": "c.vox.h5", "status": "ok", "error": None, "warnings": [1, {"code": 3}, "s"],
+             "timings_s": {"import": "1"}, "total_s": 2.5},
+        ]
+        with open(os.path.join(library, "manifest.jsonl"), "w") as f:
+            f.write("".join(json.dumps(r) + "\n" for r in records))
+        p = fx.run("report", library, "--json")
+        summary = json.loads(p.stdout)
+        self.assertEqual((summary["meshes"], summary["built"], summary["failed"]), (3, 1, 1))
+        rows = {r["output_name"]: r for r in load_data(os.path.join(library, "report"))["rows"]}
+        for key in ("status", "error", "timings_s", "total_s", "volume", "warnings", "voxelmap", "finished_utc"):
+            self.assertNotIn(key, rows["a.vox.h5"], key)
+        self.assertNotIn("error", rows["b.vox.h5"])
+        self.assertNotIn("input", rows["b.vox.h5"])
+        self.assertEqual(rows["b.vox.h5"]["name"], "b")  # from the output, as for any record without an input
+        for key in ("warnings", "timings_s"):
+            self.assertNotIn(key, rows["c.vox.h5"], key)
+        self.assertEqual(rows["c.vox.h5"]["total_s"], 2.5)
+
     def test_run_twice_replaces_the_report(self):
         out = os.path.join(self.tmp, "again")
         for target in (out, out + "/", out + "/"):  # a trailing slash names the same folder

@@ -11,6 +11,7 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <new>
@@ -99,6 +100,43 @@ bool nested_too_deep(const std::string& line) {
   return false;
 }
 
+// A manifest is JSON a person may edit: a field of the wrong type (a number as the status, a string as a time, a
+// warning that is no object) is dropped, so the page shows what it can read and counts nothing by mistake.
+void drop_mistyped_fields(nlohmann::json& row) {
+  const auto number = [](const nlohmann::json& v) { return v.is_number(); };
+  const auto text = [](const nlohmann::json& v) { return v.is_string(); };
+  const auto object = [](const nlohmann::json& v) { return v.is_object(); };
+  const auto coded = [](const nlohmann::json& v) {
+    return v.is_object() && v.contains("code") && v["code"].is_string() &&
+           (!v.contains("message") || v["message"].is_string());
+  };
+  const std::vector<std::pair<const char*, std::function<bool(const nlohmann::json&)>>> rules = {
+      {"input", text},
+      {"output", text},
+      {"status", [](const nlohmann::json& v) { return v == "ok" || v == "up_to_date" || v == "failed"; }},
+      {"error", [&](const nlohmann::json& v) { return v.is_null() || coded(v); }},
+      {"timings_s", [&](const nlohmann::json& v) { return v.is_object() && std::all_of(v.begin(), v.end(), number); }},
+      {"warnings", [&](const nlohmann::json& v) { return v.is_array() && std::all_of(v.begin(), v.end(), coded); }},
+      {"build_parameters", [](const nlohmann::json& v) { return v.is_object() || v.is_string(); }},
+      {"voxelmap", object},
+      {"pointshell", object},
+      {"total_s", number},
+      {"wall_s", number},
+      {"input_bytes", number},
+      {"file_size_bytes", number},
+      {"peak_memory_bytes", number},
+      {"input_vertices", number},
+      {"input_triangles", number},
+      {"volume", number},
+      {"tool_version", text},
+      {"finished_utc", text},
+      {"source_sha256", text}};
+  for (const auto& [key, valid] : rules) {
+    const auto it = row.find(key);
+    if (it != row.end() && !valid(*it)) row.erase(it);
+  }
+}
+
 Result<ManifestRecords> read_manifest(const std::string& library, const std::string& manifest_file) {
   std::vector<fs::path> files;
   if (!manifest_file.empty()) {
@@ -125,6 +163,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
         ++m.skipped_lines;
         continue;
       }
+      drop_mistyped_fields(record);
       // Across files (the shards' and the whole library's), the record that finished last wins.
       const std::string output = path_of(record, "output");
       auto [it, inserted] = last.try_emplace(output);
