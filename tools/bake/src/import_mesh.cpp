@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -153,25 +154,67 @@ struct ImportOutcome {
   TriangleMesh mesh;
 };
 
+// What one isolated import may take, in proportion to its file.
+struct ImportLimits {
+  uint64_t file_size = 0;
+  double seconds = 0;  // ~1 s per 50 MB beyond 30 s, unless the caller sets it
+  // A parser that believes a header announcing 2e9 vertices in a 300-byte file allocates until the time limit (~1 GB
+  // a second). No mesh format holds a triangle in fewer than a few bytes, nor needs more than ~100 bytes of memory
+  // for it, even compressed (3MF, FBX, zipped COLLADA).
+  double bytes = 0;
+};
+
+ImportLimits import_limits(const std::string& path, const ImportSettings& options) {
+  std::error_code ec;
+  ImportLimits limits;
+  limits.file_size = std::filesystem::file_size(path, ec);
+  if (ec) limits.file_size = 0;
+  limits.seconds = options.time_limit_s > 0 ? options.time_limit_s : 30.0 + double(limits.file_size) / 5e6;
+  limits.bytes = 1024.0 * 1024 * 1024 + 256.0 * double(limits.file_size);
+  return limits;
+}
+
+// The error of an import that did not finish in its child.
+[[noreturn]] void throw_failed_import(const detail::ChildOutcome& outcome, const std::string& path,
+                                      const ImportLimits& limits) {
+  switch (outcome.kind) {
+    case detail::ChildOutcome::CannotStart:
+      throw BakeError(IssueCode::Internal, path + ": cannot import the mesh in isolation: " + outcome.detail);
+    case detail::ChildOutcome::Died:
+      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer died of signal " +
+                                                   std::to_string(outcome.signal) + " (" + strsignal(outcome.signal) +
+                                                   ") on it (a malformed file; read in isolation)");
+    case detail::ChildOutcome::TimedOut:
+      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer did not finish within " +
+                                                   std::to_string(int(limits.seconds)) +
+                                                   " s (a malformed file; stopped)");
+    case detail::ChildOutcome::OutOfMemory:
+      if (outcome.over_limit)
+        throw BakeError(IssueCode::ImportFailed,
+                        path + ": cannot read mesh: the importer needed more than " +
+                            std::to_string(int64_t(limits.bytes / 1048576)) + " MB for a file of " +
+                            std::to_string(limits.file_size) +
+                            " bytes (a header that declares more than the file holds?); stopped");
+      throw BakeError(IssueCode::OutOfMemory, path + ": out of memory receiving the imported mesh");
+    default:
+      throw BakeError(IssueCode::ImportFailed,
+                      path + ": cannot read mesh: the isolated import failed (out of memory, or malformed data)");
+  }
+}
+
 // assimp's importers trust their input (Debian's build aborts in an assertion on an OFF file that announces more
 // vertices than it holds; its history of CVEs is long), so, as for assets (voxfmt/detail/isolated_call.h), the
-// parse runs in a child process: a crash or a hang there is IMPORT_FAILED, not the end of `voxfmt build`.
+// parse runs in a child process: a crash, a hang or memory out of proportion there is IMPORT_FAILED, not the end
+// of `voxfmt build`.
 TriangleMesh import_isolated(const std::string& path, const ImportSettings& options) {
-  std::error_code ec;
-  const auto file_size = std::filesystem::file_size(path, ec);
-  const double limit_s =
-      options.time_limit_s > 0 ? options.time_limit_s : 30.0 + (ec ? 0.0 : double(file_size) / 5e6);  // ~1 s per 50 MB
-  // Memory in proportion to the file: a parser that believes a header announcing 2e9 vertices in a 300-byte file
-  // would allocate until the time limit (~1 GB a second). No mesh format holds a triangle in fewer than a few
-  // bytes, nor needs more than ~100 bytes of memory for it, even compressed (3MF, FBX, zipped COLLADA).
-  const double memory_limit = 1024.0 * 1024 * 1024 + 256.0 * double(ec ? 0 : file_size);
+  const ImportLimits limits = import_limits(path, options);
   ImportOutcome result;
   // A parse of a local file never sleeps: a child asleep for kAsleepS without CPU holds a lock inherited from another
   // thread at the fork (clang's ASan allocator has no fork handler), which says nothing about the file: once more.
   constexpr double kAsleepS = 5.0;
   auto attempt = [&] {
     return detail::run_isolated(
-        detail::Watchdog{limit_s, 0, nullptr, kAsleepS, memory_limit}, result,
+        detail::Watchdog{limits.seconds, 0, nullptr, kAsleepS, limits.bytes}, result,
         [&] {
           ImportOutcome r;
           try {
@@ -195,32 +238,9 @@ TriangleMesh import_isolated(const std::string& path, const ImportSettings& opti
   };
   detail::ChildOutcome outcome = attempt();
   if (outcome.kind == detail::ChildOutcome::TimedOut && outcome.asleep) outcome = attempt();
-  switch (outcome.kind) {
-    case detail::ChildOutcome::Finished:
-      if (result.failed) throw BakeError(result.code, result.message);
-      return std::move(result.mesh);
-    case detail::ChildOutcome::CannotStart:
-      throw BakeError(IssueCode::Internal, path + ": cannot import the mesh in isolation: " + outcome.detail);
-    case detail::ChildOutcome::Died:
-      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer died of signal " +
-                                                   std::to_string(outcome.signal) + " (" + strsignal(outcome.signal) +
-                                                   ") on it (a malformed file; read in isolation)");
-    case detail::ChildOutcome::TimedOut:
-      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: the importer did not finish within " +
-                                                   std::to_string(int(limit_s)) + " s (a malformed file; stopped)");
-    case detail::ChildOutcome::OutOfMemory:
-      if (outcome.over_limit)
-        throw BakeError(IssueCode::ImportFailed,
-                        path + ": cannot read mesh: the importer needed more than " +
-                            std::to_string(int64_t(memory_limit / 1048576)) + " MB for a file of " +
-                            std::to_string(ec ? 0 : file_size) +
-                            " bytes (a header that declares more than the file holds?); stopped");
-      throw BakeError(IssueCode::OutOfMemory, path + ": out of memory receiving the imported mesh");
-    case detail::ChildOutcome::Malformed:
-      break;
-  }
-  throw BakeError(IssueCode::ImportFailed,
-                  path + ": cannot read mesh: the isolated import failed (out of memory, or malformed data)");
+  if (outcome.kind != detail::ChildOutcome::Finished) throw_failed_import(outcome, path, limits);
+  if (result.failed) throw BakeError(result.code, result.message);
+  return std::move(result.mesh);
 }
 #endif
 
