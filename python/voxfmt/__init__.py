@@ -149,7 +149,7 @@ def bake(
         raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
     chosen = {"resolution": resolution, "points": points}
     for (name, value), instead in zip(chosen.items(), ("voxel_size", "point_spacing")):
-        if value is not None and instead in options:
+        if value is not None and options.get(instead) is not None:
             raise OptionError("BAD_OPTION", f"{name} and {instead} exclude each other (as on the command line): give one")
     chosen = {name: _BAKE_DEFAULTS[name] if value is None else value for name, value in chosen.items()}
     settings = _BakeSettings()

@@ -162,6 +162,12 @@ class Batch(unittest.TestCase):
         r, _ = self.batch(self.lib, "--report", expect=2)
         self.assertIn("report/model.obj would be baked into", r.stderr)
         self.assertEqual(self.assets(), [], "refused before any bake")
+        notes = os.path.join(self.root, "notes")  # a folder of someone's: never replaced, and said before the bakes
+        self.write("notes/thesis.tex", "x")
+        r, _ = self.batch(self.lib, "--report-dir", notes, expect=2)
+        self.assertIn("holds files a report does not write", r.stderr)
+        self.assertIn("--report-dir", r.stderr)
+        self.assertEqual(self.assets(), [], "refused before any bake")
         html = os.path.join(self.root, "html")
         r, summary = self.batch(self.lib, "--report-dir", html, expect=1)  # flat.off fails, as ever
         self.assertEqual(summary["built"], 4)

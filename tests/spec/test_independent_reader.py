@@ -1351,10 +1351,16 @@ class TestLegacyUpgrade(unittest.TestCase):
         proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "p"), "-o", alias + "/", "--force", "-q"])
         self.assertEqual(proc.returncode, 0, describe(proc))
         self.assertFalse(os.path.exists(os.path.join(inside, "new")), "the output was read again as input")
-        # In place, a link and the file it names are two outputs: each is written as itself.
+        # In place, a link and the file it names are two outputs, not one refused twice (the link's is written
+        # through it, to the file it names); the link stays a link.
         os.symlink("x.vox.h5", os.path.join(root, "q", "y.vox.h5"))
         proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "q"), "-o", os.path.join(root, "q"), "--force"])
         self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertTrue(os.path.islink(os.path.join(root, "q", "y.vox.h5")))
+        # A trailing slash names a folder to make, for one file too.
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", target, "-o", os.path.join(root, "fresh") + "/"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertTrue(os.path.isfile(os.path.join(root, "fresh", "a.vox.h5")))
 
 
 if __name__ == "__main__":

@@ -288,7 +288,9 @@ void Runner::select_inputs() {
   if (all.empty())
     throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
   all_count_ = all.size();
-  if (o_.report) {  // refused now, not after the bake: the report would not replace a folder of assets
+  if (o_.report && shard_.count == 1) {  // refused now, not after the bakes (a shard's batch writes no report)
+    if (const Status usable = report::check_report_folder(o_.report_folder().string()); !usable)
+      throw UsageError(usable.error().message + " (--report-dir)");
     const fs::path folder = fs::absolute(o_.report_folder()).lexically_normal();
     for (const BatchItem& item : all) {
       const fs::path inside = fs::absolute(item.output).lexically_normal().lexically_relative(folder);

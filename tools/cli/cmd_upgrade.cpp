@@ -39,7 +39,8 @@ bool is_asset_name(const fs::path& p) {
 }
 
 // Where a path lies, as the plan compares them: a folder as what it is (an alias of OUT is OUT), a file by its
-// own name in its resolved folder (a link upgraded in place is written as itself, not as the file it names).
+// own name in its resolved folder (a link upgraded in place is an output of its own, not refused as the file it
+// names; writing it goes through the link to that file, as every output does).
 fs::path place(const fs::path& path) {
   std::error_code ec;
   fs::path normal = fs::absolute(path, ec).lexically_normal();
@@ -53,8 +54,9 @@ fs::path place(const fs::path& path) {
 Result<std::vector<Item>> plan(const Options& o) {
   std::vector<Item> items;
   std::error_code ec;
-  const bool single_file =
-      o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) && !fs::is_directory(o.output, ec);
+  const bool single_file = o.inputs.size() == 1 && fs::is_regular_file(o.inputs[0], ec) &&
+                           !fs::is_directory(o.output, ec) &&
+                           (o.output.empty() || o.output.back() != '/');  // "new/": a folder to make
   if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
   const fs::path output_folder = place(o.output);
   for (const std::string& input : o.inputs) {

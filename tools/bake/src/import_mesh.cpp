@@ -156,8 +156,8 @@ struct ImportOutcome {
 
 // What one isolated import may take, in proportion to its file.
 struct ImportLimits {
-  uint64_t file_size = 0;
-  double seconds = 0;  // ~1 s per 50 MB beyond 30 s, unless the caller sets it
+  uint64_t input_bytes = 0;  // the file's, and for a .gltf its folder's (its buffers and textures lie there)
+  double seconds = 0;        // ~1 s per 50 MB beyond 30 s, unless the caller sets it
   // A parser that believes a header announcing 2e9 vertices in a 300-byte file allocates until the time limit (~1 GB
   // a second). No mesh format holds a triangle in fewer than a few bytes, nor needs more than ~100 bytes of memory
   // for it, even compressed (3MF, FBX, zipped COLLADA).
@@ -165,12 +165,20 @@ struct ImportLimits {
 };
 
 ImportLimits import_limits(const std::string& path, const ImportSettings& options) {
+  namespace fs = std::filesystem;
   std::error_code ec;
   ImportLimits limits;
-  limits.file_size = std::filesystem::file_size(path, ec);
-  if (ec) limits.file_size = 0;
-  limits.seconds = options.time_limit_s > 0 ? options.time_limit_s : 30.0 + double(limits.file_size) / 5e6;
-  limits.bytes = 1024.0 * 1024 * 1024 + 256.0 * double(limits.file_size);
+  limits.input_bytes = fs::file_size(path, ec);
+  if (ec) limits.input_bytes = 0;
+  const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
+  if (lowercase(fs::path(path).extension().string()) == ".gltf")
+    for (auto it = fs::directory_iterator(folder, ec); !ec && it != fs::directory_iterator(); it.increment(ec)) {
+      std::error_code unreadable;
+      const uintmax_t size = it->is_regular_file(unreadable) ? it->file_size(unreadable) : 0;
+      if (!unreadable && it->path().filename() != fs::path(path).filename()) limits.input_bytes += size;
+    }
+  limits.seconds = options.time_limit_s > 0 ? options.time_limit_s : 30.0 + double(limits.input_bytes) / 5e6;
+  limits.bytes = 1024.0 * 1024 * 1024 + 256.0 * double(limits.input_bytes);
   return limits;
 }
 
@@ -192,9 +200,9 @@ ImportLimits import_limits(const std::string& path, const ImportSettings& option
       if (outcome.over_limit)
         throw BakeError(IssueCode::ImportFailed,
                         path + ": cannot read mesh: the importer needed more than " +
-                            std::to_string(int64_t(limits.bytes / 1048576)) + " MB for a file of " +
-                            std::to_string(limits.file_size) +
-                            " bytes (a header that declares more than the file holds?); stopped");
+                            std::to_string(int64_t(limits.bytes / 1048576)) + " MiB for " +
+                            std::to_string(limits.input_bytes) +
+                            " bytes of input (a header that declares more than the file holds?); stopped");
       throw BakeError(IssueCode::OutOfMemory, path + ": out of memory receiving the imported mesh");
     default:
       throw BakeError(IssueCode::ImportFailed,

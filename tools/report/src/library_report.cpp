@@ -364,16 +364,32 @@ Status fill_or_error(const std::function<Status(const fs::path&)>& fill, const f
 
 // Builds the report in a temporary folder beside OUT, then swaps it in (OUT moved aside, the new one renamed to
 // OUT, the old one removed): a killed run leaves either report whole under OUT's name, never half of one.
-Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(const fs::path&)>& fill) {
+// OUT as the report's folder: absolute, and "report/" is "report".
+fs::path report_folder(const fs::path& given) {
   std::error_code ec;
-  out = fs::absolute(out, ec).lexically_normal();
-  if (out.filename().empty()) out = out.parent_path();  // "report/" names the folder "report"
+  fs::path out = fs::absolute(given, ec).lexically_normal();
+  return out.filename().empty() ? out.parent_path() : out;
+}
+
+}  // namespace
+
+Status check_report_folder(const std::string& given) {
+  const fs::path out = report_folder(given);
   if (out == out.root_path())
     return Error(IssueCode::BadOption, out.string() + ": a report needs a folder of its own", out.string());
   if (!replaceable(out))
     return Error(IssueCode::BadOption,
-                 out.string() + " exists and holds files a report does not write: not replaced (choose another -o)",
+                 out.string() + " exists and holds files a report does not write: not replaced (choose another folder)",
                  out.string());
+  return Status::success();
+}
+
+namespace {
+
+Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(const fs::path&)>& fill) {
+  std::error_code ec;
+  if (Status usable = check_report_folder(out.string()); !usable) return usable.error();
+  out = report_folder(out);
   const fs::path parent = out.parent_path();
   fs::create_directories(parent, ec);
   remove_stale_leftovers(out);
@@ -414,7 +430,7 @@ nlohmann::json compact_rows(const std::string& library, const std::vector<nlohma
   nlohmann::json rows = nlohmann::json::array();
   for (const nlohmann::json& r : records) {
     nlohmann::json row = {{"name", mesh_name(r)},
-                          {"output", library_relative(library, text_of(r, "output"))},
+                          {"output", utf8_escaped(library_relative(library, path_of(r, "output")))},
                           {"status", text_of(r, "status")}};
     for (const char* key : {"file_size_bytes", "total_s", "error", "warnings", "voxelmap", "tool_version"})
       if (r.contains(key)) row[key] = r[key];
@@ -450,7 +466,7 @@ Status library_row(const LibraryReportOptions& options, nlohmann::json record, s
   for (const char* key : kReportKeys) row.erase(key);
   row["id"] = i;
   row["name"] = mesh_name(row);
-  row["output_name"] = relative;
+  row["output_name"] = utf8_escaped(relative);  // as --against's rows name it: text either way
   const std::string status = text_of(row, "status");
   if (status != "ok" && status != "up_to_date") return Status::success();
   try {

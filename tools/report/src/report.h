@@ -40,6 +40,10 @@ struct ReportInfo {
 /// or a damaged manifest line never fails the report: the asset's card carries the coded error.
 Result<ReportInfo> write_library_report(const LibraryReportOptions& options);
 
+/// Whether a report could be written into `out`: BAD_OPTION where it is a file system's root or a folder that holds
+/// anything a report does not write (never replaced). Cheap: `batch --report` checks before its bakes.
+Status check_report_folder(const std::string& out);
+
 /// The same page for one asset (`voxfmt inspect ASSET --html OUT`), its card open. Fails like read_asset when
 /// the asset cannot be read, WRITE_FAILED when OUT cannot be written.
 Result<ReportInfo> write_asset_report(const std::string& asset, const std::string& out, const ReadOptions& read);
