@@ -25,6 +25,8 @@ uint64_t physical_memory_bytes() {
   return pages > 0 && page > 0 ? uint64_t(pages) * uint64_t(page) : uint64_t(8) << 30;
 }
 
+uint64_t default_memory_limit_bytes() { return physical_memory_bytes() / 4 * 3; }
+
 void run_workers(unsigned workers, const std::function<void(unsigned worker)>& work) {
   workers = std::max(workers, 1u);
   std::vector<std::thread> threads;

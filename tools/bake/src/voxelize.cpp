@@ -1426,7 +1426,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
 }
 
 double memory_limit_bytes(uint64_t max_memory_bytes) {
-  return max_memory_bytes > 0 ? double(max_memory_bytes) : 0.75 * double(physical_memory_bytes());
+  return max_memory_bytes > 0 ? double(max_memory_bytes) : double(default_memory_limit_bytes());
 }
 
 }  // namespace voxfmt::bake

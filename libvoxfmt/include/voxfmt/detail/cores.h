@@ -20,4 +20,8 @@ void run_workers(unsigned workers, const std::function<void(unsigned worker)>& w
 /// against before it starts, so that it is refused with figures instead of killed halfway.
 uint64_t physical_memory_bytes();
 
+/// The bytes a job may plan to use when its user names no limit: 3/4 of physical memory, leaving the rest to the
+/// system and the caller's own process. The one default for the bake's --max-memory and the batch outputs' guard.
+uint64_t default_memory_limit_bytes();
+
 }  // namespace voxfmt
