@@ -298,7 +298,7 @@ std::optional<std::string> Reader::checked_text(std::string bytes, const std::st
   // Bytes from the file become text only once they are known to be UTF-8 (spec §1): every consumer, Python's
   // str among them, can then take them as they are.
   if (is_utf8(bytes)) return bytes;
-  report(IssueCode::StringNotUtf8, path, "string is not valid UTF-8: '" + utf8_escaped(bytes) + "'");
+  report(IssueCode::StringNotUtf8, path, not_utf8_message(bytes));
   return std::nullopt;
 }
 

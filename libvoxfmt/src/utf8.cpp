@@ -53,4 +53,16 @@ std::string utf8_escaped(const std::string& text) {
   return out;
 }
 
+std::string not_utf8_message(const std::string& text) {
+  return "string is not valid UTF-8: '" + utf8_escaped(text) + "'";
+}
+
+std::string lowercase_hex(std::string_view bytes) {
+  static constexpr char digits[] = "0123456789abcdef";
+  std::string out;
+  out.reserve(2 * bytes.size());
+  for (const unsigned char c : bytes) out += {digits[c >> 4], digits[c & 15]};
+  return out;
+}
+
 }  // namespace voxfmt

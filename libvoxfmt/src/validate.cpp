@@ -290,7 +290,7 @@ void check_mass(const MassProperties& m, Checker& c) {
 // Spec §1: every stored string is UTF-8. A reader checks the file's bytes; this checks what a writer was given (a
 // file name from the file system may hold any bytes).
 void check_text(const std::string& text, const std::string& where, Checker& c) {
-  if (!is_utf8(text)) c.add(IssueCode::StringNotUtf8, where, "string is not valid UTF-8: '" + utf8_escaped(text) + "'");
+  if (!is_utf8(text)) c.add(IssueCode::StringNotUtf8, where, not_utf8_message(text));
 }
 
 void check_provenance(const Provenance& p, Checker& c) {

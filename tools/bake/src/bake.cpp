@@ -371,13 +371,7 @@ Result<std::string> sha256_file(const std::string& path) {
   unsigned char digest[EVP_MAX_MD_SIZE];
   unsigned int length = 0;
   EVP_DigestFinal_ex(ctx.get(), digest, &length);
-  static const char* hex = "0123456789abcdef";
-  std::string out;
-  for (unsigned i = 0; i < length; ++i) {
-    out += hex[digest[i] >> 4];
-    out += hex[digest[i] & 15];
-  }
-  return out;
+  return lowercase_hex(std::string_view(reinterpret_cast<const char*>(digest), length));
 }
 
 std::map<std::string, std::string> dependency_versions() {

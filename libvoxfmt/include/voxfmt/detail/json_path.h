@@ -16,10 +16,7 @@ inline void set_path(nlohmann::json& record, const std::string& key, const std::
   record[key] = utf8_escaped(path);
   record.erase(key + "_hex");
   if (is_utf8(path)) return;
-  static const char* digits = "0123456789abcdef";
-  std::string hex;
-  for (unsigned char c : path) hex += {digits[c >> 4], digits[c & 15]};
-  record[key + "_hex"] = hex;
+  record[key + "_hex"] = lowercase_hex(path);
 }
 
 /// The path set_path stored under `key` (its exact bytes where "<key>_hex" holds them); "" where there is none.

@@ -1,8 +1,9 @@
 // UTF-8, which the format requires of every string it stores (spec §1) and every message must be (Python decodes
-// them): names from a file system or a file may hold any bytes.
+// them): names from a file system or a file may hold any bytes. And hex, for bytes that text cannot carry.
 #pragma once
 
 #include <string>
+#include <string_view>
 
 namespace voxfmt {
 
@@ -10,5 +11,9 @@ namespace voxfmt {
 bool is_utf8(const std::string& text);
 /// `text` with every byte that is not part of valid UTF-8 written as \xNN.
 std::string utf8_escaped(const std::string& text);
+/// The one message for STRING_NOT_UTF8, whether a reader found the bytes in a file or a writer was given them.
+std::string not_utf8_message(const std::string& text);
+/// `bytes` as lowercase hex, two digits a byte (a digest, a path's exact bytes in JSON).
+std::string lowercase_hex(std::string_view bytes);
 
 }  // namespace voxfmt
