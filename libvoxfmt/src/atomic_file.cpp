@@ -35,12 +35,26 @@ Error write_failed(const std::string& path, const std::string& reason) {
   return Error{IssueCode::WriteFailed, path + ": " + reason, path};
 }
 
+constexpr const char* kFolder = "a folder";
+
+// What `path` is where it exists but is not a regular file ("a folder", "a pipe", ...); nullptr otherwise.
+const char* special_file_kind(const std::string& path) {
+  struct stat info {};
+  if (::stat(path.c_str(), &info) != 0 || S_ISREG(info.st_mode)) return nullptr;
+  return S_ISDIR(info.st_mode)    ? kFolder
+         : S_ISFIFO(info.st_mode) ? "a pipe"
+         : S_ISSOCK(info.st_mode) ? "a socket"
+                                  : "a device";
+}
+
+std::string not_regular_message(const char* kind) { return std::string("is ") + kind + ", not a regular file"; }
+
 // The checks of check_output_path on `path`, which output_target resolved from `given`.
 Status check_resolved_output(const std::string& given, const std::string& path) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (const std::string kind = not_a_regular_file(path); !kind.empty())
-    return write_failed(given, kind + (fs::is_directory(path, ec) ? "" : ": not replaced"));
+  if (const char* kind = special_file_kind(path))
+    return write_failed(given, not_regular_message(kind) + (kind == kFolder ? "" : ": not replaced"));
   const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
   if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
   if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
@@ -50,13 +64,8 @@ Status check_resolved_output(const std::string& given, const std::string& path) 
 }  // namespace
 
 std::string not_a_regular_file(const std::string& path) {
-  struct stat info {};
-  if (::stat(path.c_str(), &info) != 0 || S_ISREG(info.st_mode)) return "";
-  const char* kind = S_ISDIR(info.st_mode)    ? "a folder"
-                     : S_ISFIFO(info.st_mode) ? "a pipe"
-                     : S_ISSOCK(info.st_mode) ? "a socket"
-                                              : "a device";
-  return std::string("is ") + kind + ", not a regular file";
+  const char* kind = special_file_kind(path);
+  return kind ? not_regular_message(kind) : "";
 }
 
 // Where writing `given` lands: through symbolic links, link by link as the kernel follows them (the target need
