@@ -1,9 +1,9 @@
 // libFuzzer target: arbitrary bytes as a mesh file of one format (the extension is a compile definition, one
 // executable per format), baked at a small resolution the way `voxfmt build` bakes. The import parses in the
 // isolated child (assimp's and CGAL's readers trust their input: a crash there is an IMPORT_FAILED result, not a
-// finding); what is fuzzed is this project's code on whatever mesh comes out: repair, the voxelmap's distances
-// and layers, the point shell and tree, mass properties. A bake must fail with an error code or give an asset
-// that passes full validation; anything else aborts, so the fuzzer keeps the input.
+// finding); what is fuzzed is this project's code: the header check before the import, and on whatever mesh comes
+// out, repair, the voxelmap's distances and layers, the point shell and tree, mass properties. A bake must fail
+// with an error code or give an asset that passes full validation; anything else aborts, so the fuzzer keeps it.
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "mesh_header.h"
 #include "stages.h"
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/isolated_call.h"
@@ -261,6 +262,7 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
   if (!std::filesystem::exists(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
+  check_declared_counts(path);
 #if !defined(_WIN32)
   if (read_isolation()) return import_isolated(path, options);
 #endif
