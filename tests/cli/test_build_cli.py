@@ -103,6 +103,16 @@ class BuildBadInput(unittest.TestCase):
             r = self.build(self.write(name, text))
             self.assertEqual(r.returncode, 0, name + ": " + r.stderr)
 
+    def test_a_grid_a_few_voxels_across_is_baked_with_a_warning(self):
+        # A closed tetrahedron: at --resolution 2 its shape is lost (COARSE_GRID); at 8 and beyond nothing is said.
+        tetra = self.write("tetra.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")
+        for resolution, warned in (("2", True), ("8", False)):
+            r = self.build(tetra, "--resolution", resolution)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            codes = [w["code"] for w in json.loads(r.stdout)["warnings"]]
+            self.assertEqual("COARSE_GRID" in codes, warned, resolution)
+            os.remove(self.out)
+
     def test_empty_scene(self):
         self.expect_error(self.write("empty.off", "OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n"), "EMPTY_SCENE")
 

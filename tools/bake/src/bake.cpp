@@ -21,6 +21,7 @@
 #include <iterator>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <type_traits>
 
 #include "stages.h"
@@ -256,6 +257,21 @@ BuildWarning shell_mode_warning(const TriangleMesh& mesh, const InsidePlan& plan
   return {"SHELL_MODE", text};
 }
 
+// A grid of a few voxels across keeps the object's place but not its shape: every contact is then as coarse as a
+// voxel, which a resolution typed short (--resolution 1) gives without a word. Fewer than 8 is said.
+std::optional<BuildWarning> coarse_grid_warning(const TriangleMesh& mesh, double voxel_size) {
+  constexpr double kFewestVoxels = 8;
+  const auto [lo, hi] = bounding_box(mesh);
+  const double longest = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]}), voxels = longest / voxel_size;
+  if (!(voxels < kFewestVoxels)) return std::nullopt;
+  char text[320];
+  std::snprintf(text, sizeof text,
+                "the object spans %.3g voxels of %.6g m along its longest side: its shape is lost and its contacts "
+                "are only as exact as a voxel; use %g or more (--resolution, the default is 128, or --voxel-size)",
+                voxels, voxel_size, kFewestVoxels);
+  return BuildWarning{"COARSE_GRID", text};
+}
+
 // The voxelmap, point shell and tree again, as a shell of `thickness` (one after the other: the bake is nearly
 // done, and a shell's voxelmap is quick).
 void rebuild_as_shell(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, Geometry& g,
@@ -434,6 +450,8 @@ Asset build_asset(const std::string& mesh_path, const Settings& options, BuildRe
       plan.shell_thickness = 2 * geometry.voxelmap.voxel_size;
       rebuild_as_shell(mesh, options, plan, geometry, times);
     }
+    if (auto coarse = coarse_grid_warning(mesh, geometry.voxelmap.voxel_size))
+      report.repair.warnings.push_back(*coarse);
     return assemble(mesh_path, mesh, options, plan, std::move(geometry), report.repair.warnings);
   });
   report.timings = times.timings();
