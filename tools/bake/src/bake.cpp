@@ -266,9 +266,9 @@ std::optional<BuildWarning> coarse_grid_warning(const TriangleMesh& mesh, double
   if (!(voxels < kFewestVoxels)) return std::nullopt;
   char text[320];
   std::snprintf(text, sizeof text,
-                "the object spans %.3g voxels of %.6g m along its longest side: its shape is lost and its contacts "
+                "the object spans %.3g %s of %.6g m along its longest side: its shape is lost and its contacts "
                 "are only as exact as a voxel; use %g or more (--resolution, the default is 128, or --voxel-size)",
-                voxels, voxel_size, kFewestVoxels);
+                voxels, voxels == 1 ? "voxel" : "voxels", voxel_size, kFewestVoxels);
   return BuildWarning{"COARSE_GRID", text};
 }
 
