@@ -6,9 +6,11 @@
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
+#include <random>
 #include <string>
 
 #include "baked_bunny.h"
+#include "triangle_set.h"  // private: the terrain's nearest-triangle search
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/bullet/world.h"
@@ -279,6 +281,41 @@ TEST(Partners, UnsupportedPairsAreReportedOnce) {
   ASSERT_EQ(messages.size(), 1u);
   EXPECT_NE(messages[0].find("Unknown"), std::string::npos) << messages[0];
   EXPECT_GE(world.vps()->counters().unsupported_pairs, 20u);
+}
+
+// The grid search a terrain's triangles get (cells and triangles skipped by their boxes, each triangle once, a reach
+// from the block's faces) finds the nearest of every triangle: the same distance as looking at each, above the
+// terrain, below it, beside it, beyond its box and on its edges.
+TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
+  TriangleSet searched, every;
+  const int n = 24;
+  const auto height = [](int i, int k) {
+    return 0.02f * std::sin(0.7f * float(i)) + 0.015f * std::cos(0.5f * float(k));
+  };
+  const auto vertex = [&](int i, int k) { return Eigen::Vector3f(0.01f * float(i), height(i, k), 0.01f * float(k)); };
+  for (int i = 0; i + 1 < n; ++i)
+    for (int k = 0; k + 1 < n; ++k)
+      for (TriangleSet* set : {&searched, &every}) {  // counter-clockwise seen from above
+        set->add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
+        set->add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
+      }
+  searched.build();  // `every` is not built: it looks at every triangle
+  std::mt19937 random(7);
+  std::uniform_real_distribution<float> across(-0.03f, 0.26f), up(-0.06f, 0.08f);
+  int below = 0;
+  for (int p = 0; p < 4000; ++p) {
+    const Eigen::Vector3f x(across(random), up(random), across(random));
+    Eigen::Vector3f outward_searched, outward_every;
+    const float d = searched.distance(x, outward_searched), expected = every.distance(x, outward_every);
+    ASSERT_NEAR(std::abs(d), std::abs(expected), 1e-6f * (1.0f + std::abs(expected))) << p;
+    if (std::abs(expected) > 1e-4f) ASSERT_EQ(d < 0, expected < 0) << p;
+    below += expected < 0;
+    // Outside, the bound is below the distance. (Behind the terrain by more than a cell its ring map bounds the
+    // distance's size, not its sign: such a point counts as tunnelled through, as distance() counts one beyond its
+    // rings.)
+    if (expected >= 0) EXPECT_LE(searched.lower_bound(x), d + 1e-6f) << p;
+  }
+  EXPECT_GT(below, 400);  // the points below the terrain were searched too
 }
 
 }  // namespace

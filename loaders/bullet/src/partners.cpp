@@ -103,12 +103,8 @@ float convex_distance(const btConvexShape& shape, const btTransform& world_from_
 }
 
 void TriangleSet::add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
-  corners_.push_back(a);
-  corners_.push_back(b);
-  corners_.push_back(c);
-  const Eigen::Vector3f n = (b - a).cross(c - a);
-  const float length = n.norm();
-  normals_.push_back(length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero());
+  triangles_.push_back(detail::BoxedTriangle::of(a, b, c));
+  normals_.push_back(triangles_.back().normal);
 }
 
 void TriangleGrid::clear() {
@@ -121,6 +117,15 @@ Eigen::Vector3i TriangleGrid::cell_of(const Eigen::Vector3f& x) const {
   Eigen::Vector3i c;
   for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo[a]) / cell)), 0, dims[a] - 1);
   return c;
+}
+
+float TriangleGrid::unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const {
+  float block = std::numeric_limits<float>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (lo[a] + float(c[a] - r) * cell)));
+    if (c[a] + r + 1 < dims[a]) block = std::min(block, std::max(0.0f, lo[a] + float(c[a] + r + 1) * cell - x[a]));
+  }
+  return block;
 }
 
 // Rings to the nearest occupied cell: a breadth-first search over the 26 neighbours from every occupied cell (a
@@ -168,7 +173,7 @@ Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals) {
 
 void TriangleSet::clear() {
   common_normal_.setZero();
-  corners_.clear();
+  triangles_.clear();
   normals_.clear();
   grid_.clear();
 }
@@ -176,14 +181,14 @@ void TriangleSet::clear() {
 void TriangleSet::build() {
   grid_.clear();
   if (empty()) return;
-  grid_.lo = grid_.hi = corners_[0];
+  grid_.lo = triangles_[0].lo;
+  grid_.hi = triangles_[0].hi;
   float edges = 0;
-  for (size_t t = 0; t < size(); ++t)
-    for (int k = 0; k < 3; ++k) {
-      grid_.lo = grid_.lo.cwiseMin(corner(t, k));
-      grid_.hi = grid_.hi.cwiseMax(corner(t, k));
-      edges += (corner(t, (k + 1) % 3) - corner(t, k)).norm();
-    }
+  for (const detail::BoxedTriangle& t : triangles_) {
+    grid_.lo = grid_.lo.cwiseMin(t.lo);
+    grid_.hi = grid_.hi.cwiseMax(t.hi);
+    edges += (t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm();
+  }
   // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
   common_normal_ = common_normal(normals_);
   // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
@@ -191,9 +196,8 @@ void TriangleSet::build() {
   grid_.cell = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
   for (int a = 0; a < 3; ++a) grid_.dims[a] = std::clamp(int(std::ceil(extent[a] / grid_.cell)), 1, 64);
   grid_.fill(
-      size(), [&](size_t t) -> Eigen::Vector3f { return corner(t, 0).cwiseMin(corner(t, 1)).cwiseMin(corner(t, 2)); },
-      [&](size_t t) -> Eigen::Vector3f { return corner(t, 0).cwiseMax(corner(t, 1)).cwiseMax(corner(t, 2)); },
-      kEmptyRings);
+      size(), [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].lo; },
+      [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].hi; }, kEmptyRings);
 }
 
 float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
@@ -214,54 +218,34 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
 }
 
 float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
-  detail::NearestTriangle nearest(x);
-  auto consider = [&](size_t t) {
-    nearest.consider(corners_[3 * t], corners_[3 * t + 1], corners_[3 * t + 2], normals_[t]);
-    outward = nearest.outward;
-  };
-  const float& best2 = nearest.best2;
-  const float& side = nearest.side;
   if (empty()) return std::numeric_limits<float>::infinity();
+  detail::NearestTriangle nearest(x);
   if (!grid_.built()) {  // not built: every triangle
-    for (size_t t = 0; t < size(); ++t) consider(t);
-    return side * std::sqrt(best2);
+    for (const detail::BoxedTriangle& t : triangles_) nearest.consider(t.a, t.b, t.c, t.normal);
+    outward = nearest.outward;
+    return nearest.signed_distance();
   }
-  // Rings of cells around the cell nearest x (x's projection onto the grid's box lies in it; projecting onto a
-  // convex set brings no point of the set nearer, so after ring r every unvisited triangle is >= r cells away).
   const Eigen::Vector3i c = grid_.cell_of(x);
   const float box = grid_.box_distance(x);
+  const auto away_from_box = [&] {
+    return box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
+  };
   // The rings before the nearest occupied one hold nothing: the search starts there.
   const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);
   if (first_ring >= kEmptyRings) {  // no triangle within the rings the map covers
-    outward =
-        box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
+    outward = away_from_box();
     return std::max(box, float(kEmptyRings - 1) * grid_.cell);
   }
-  for (int r = first_ring; r <= first_ring + kMaxRings; ++r) {
-    for (int k = c.z() - r; k <= c.z() + r; ++k) {
-      if (k < 0 || k >= grid_.dims.z()) continue;
-      for (int j = c.y() - r; j <= c.y() + r; ++j) {
-        if (j < 0 || j >= grid_.dims.y()) continue;
-        const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
-        for (int i = c.x() - r; i <= c.x() + r; i += (face || r == 0) ? 1 : 2 * r) {
-          if (i < 0 || i >= grid_.dims.x()) continue;
-          const size_t cell = grid_.cell_index(i, j, k);
-          for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) consider(grid_.members[m]);
-        }
-      }
-    }
-    // Every unvisited triangle is at least this far (and none is nearer than the set's box: above a floor the
-    // triangle straight below settles the search at once).
-    const float reach = std::max(float(r) * grid_.cell, box);
-    if (best2 <= reach * reach * (1 + 1e-6f)) return side * std::sqrt(best2);
-    if (r > grid_.dims.maxCoeff()) return side * std::sqrt(best2);  // every cell visited: exact
+  const float limit = float(first_ring + kMaxRings) * grid_.cell;
+  const float reach = nearest_by_rings(grid_, triangles_, x, c, first_ring, box, limit, nearest);
+  if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+    outward = nearest.outward;
+    return nearest.signed_distance();
   }
-  // Not settled within kMaxRings of the first occupied ring: every triangle is farther than the rings reach and
-  // than the box. Such a point counts as outside (a point that deep behind a floor has tunnelled through it).
-  const float bound = std::max(box, float(first_ring + kMaxRings) * grid_.cell);
-  outward =
-      box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
-  return bound;
+  // Not settled within kMaxRings of the first occupied ring: every triangle is farther than that and than the box.
+  // Such a point counts as outside (a point that deep behind a floor has tunnelled through it).
+  outward = away_from_box();
+  return std::max(box, limit);
 }
 
 }  // namespace voxfmt::bullet

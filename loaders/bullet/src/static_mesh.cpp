@@ -67,18 +67,8 @@ std::shared_ptr<const StaticMeshIndex> StaticMeshIndex::build(const btConcaveSha
   const btVector3 pad = (hi - lo) * btScalar(0.01) + btVector3(1, 1, 1) * btScalar(1e-6);
   shape.processAllTriangles(&collect, lo - pad, hi + pad);
   index->triangles_.reserve(corners.size() / 3);
-  for (size_t t = 0; t + 2 < corners.size(); t += 3) {
-    Triangle tri;
-    tri.a = corners[t];
-    tri.b = corners[t + 1];
-    tri.c = corners[t + 2];
-    const Eigen::Vector3f n = (tri.b - tri.a).cross(tri.c - tri.a);
-    const float length = n.norm();
-    tri.normal = length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero();
-    tri.lo = tri.a.cwiseMin(tri.b).cwiseMin(tri.c);
-    tri.hi = tri.a.cwiseMax(tri.b).cwiseMax(tri.c);
-    index->triangles_.push_back(tri);
-  }
+  for (size_t t = 0; t + 2 < corners.size(); t += 3)
+    index->triangles_.push_back(detail::BoxedTriangle::of(corners[t], corners[t + 1], corners[t + 2]));
   index->vertices_ = std::move(corners);
   index->index();
   index->info_.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -96,7 +86,7 @@ void StaticMeshIndex::index() {
   double edges = 0;
   std::vector<Eigen::Vector3f> normals;
   normals.reserve(triangles_.size());
-  for (const Triangle& t : triangles_) {
+  for (const detail::BoxedTriangle& t : triangles_) {
     grid_.lo = grid_.lo.cwiseMin(t.lo);
     grid_.hi = grid_.hi.cwiseMax(t.hi);
     edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
@@ -113,7 +103,7 @@ void StaticMeshIndex::index() {
   sample();
   info_.vertices = vertices_.size();
   info_.memory_bytes =
-      triangles_.capacity() * sizeof(Triangle) + vertices_.capacity() * sizeof(Eigen::Vector3f) +
+      triangles_.capacity() * sizeof(detail::BoxedTriangle) + vertices_.capacity() * sizeof(Eigen::Vector3f) +
       (grid_.first.capacity() + grid_.members.capacity() + vertex_first_.capacity() + sample_block_.capacity()) *
           sizeof(uint32_t) +
       samples_.capacity() * sizeof(float) + grid_.ring.capacity();
@@ -130,7 +120,7 @@ void StaticMeshIndex::size_grid(double edges) {
     const double cells = double(grid_.dims.x()) * double(grid_.dims.y()) * double(grid_.dims.z());
     double members = 0;
     if (cells <= std::max(64.0 * 64 * 64, 8.0 * double(n))) {
-      for (const Triangle& t : triangles_) {
+      for (const detail::BoxedTriangle& t : triangles_) {
         const Eigen::Vector3i c0 = cell_of(t.lo), c1 = cell_of(t.hi);
         members += double(c1.x() - c0.x() + 1) * double(c1.y() - c0.y() + 1) * double(c1.z() - c0.z() + 1);
       }
@@ -166,72 +156,26 @@ void StaticMeshIndex::index_vertices() {
   for (size_t c = 0; c < cells; ++c) vertex_first_[c + 1] += vertex_first_[c];
 }
 
-// A triangle not yet seen after ring r lies in no cell of the block within r rings of c (every cell its box covers
-// lists it), so it is at least as far as the block's faces inside the grid.
-float StaticMeshIndex::unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const {
-  float block = std::numeric_limits<float>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    if (c[a] - r > 0) block = std::min(block, std::max(0.0f, x[a] - (grid_.lo[a] + float(c[a] - r) * grid_.cell)));
-    if (c[a] + r + 1 < grid_.dims[a])
-      block = std::min(block, std::max(0.0f, grid_.lo[a] + float(c[a] + r + 1) * grid_.cell - x[a]));
-  }
-  return block;
-}
-
 bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
                              float& distance, Eigen::Vector3f& outward, float& beyond, float seed) const {
   detail::NearestTriangle nearest(x);
   if (seed < band) nearest.best2 = seed * seed;  // cells farther than the seed are passed over
-  // A triangle is listed in every cell its box covers: each is looked at once per search (a stamp per triangle
-  // and thread; a triangle passed over stays out of reach, as the nearest only gets nearer).
-  thread_local std::vector<uint32_t> seen;
-  thread_local uint32_t search_id = 0;
-  if (seen.size() < triangles_.size()) seen.resize(triangles_.size(), 0);
-  if (++search_id == 0) {
-    std::fill(seen.begin(), seen.end(), 0u);
-    search_id = 1;
-  }
-  for (int r = first_ring;; ++r) {
-    // The cells of ring r that may hold a nearer triangle than the nearest so far.
-    for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, grid_.dims.z() - 1); ++k) {
-      for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, grid_.dims.y() - 1); ++j) {
-        const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
-        const int step = (face || r == 0) ? 1 : 2 * r;
-        for (int i = c.x() - r; i <= c.x() + r; i += step) {
-          if (i < 0 || i >= grid_.dims.x()) continue;
-          const Eigen::Vector3f cell_lo = grid_.lo + grid_.cell * Eigen::Vector3f(float(i), float(j), float(k));
-          const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(grid_.cell));
-          if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
-          const size_t cell = cell_index(i, j, k);
-          for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) {
-            const uint32_t id = grid_.members[m];
-            if (seen[id] == search_id) continue;
-            seen[id] = search_id;
-            const Triangle& t = triangles_[id];
-            if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
-            nearest.consider(t.a, t.b, t.c, t.normal);
-          }
-        }
-      }
-    }
-    const float reach = std::max(box, unseen_distance(x, c, r));
-    if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
-      if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
-        return search(x, c, first_ring, box, band, distance, outward, beyond);
-      const float d = std::sqrt(nearest.best2);
-      if (d > band) {
-        beyond = d;
-        return false;
-      }
-      distance = nearest.signed_distance();
-      outward = nearest.outward;
-      return true;
-    }
-    if (reach > band) {  // every triangle not seen is beyond the band, and so is the nearest seen
-      beyond = std::min(std::sqrt(nearest.best2), reach);
+  const float reach = nearest_by_rings(grid_, triangles_, x, c, first_ring, box, band, nearest);
+  if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+    if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
+      return search(x, c, first_ring, box, band, distance, outward, beyond);
+    const float d = std::sqrt(nearest.best2);
+    if (d > band) {
+      beyond = d;
       return false;
     }
+    distance = nearest.signed_distance();
+    outward = nearest.outward;
+    return true;
   }
+  beyond = std::min(std::sqrt(nearest.best2),
+                    reach);  // every triangle not seen is beyond the band, and so is the nearest seen
+  return false;
 }
 
 float StaticMeshIndex::distance(const Eigen::Vector3f& x, float proximity, Eigen::Vector3f& outward) const {

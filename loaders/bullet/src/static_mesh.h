@@ -71,16 +71,11 @@ class StaticMeshIndex {
   const Eigen::Vector3f& vertex(uint32_t id) const { return vertices_[id]; }
 
  private:
-  struct Triangle {
-    Eigen::Vector3f a, b, c, normal;
-    Eigen::Vector3f lo, hi;  ///< bounding box: a triangle no nearer than its box is not looked at
-  };
   void index();
   void size_grid(double edges);
   void index_vertices();
   Eigen::Vector3i cell_of(const Eigen::Vector3f& x) const { return grid_.cell_of(x); }
   size_t cell_index(int i, int j, int k) const { return grid_.cell_index(i, j, k); }
-  float unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const;
   /// The exact search (x within the band of some occupied cell): returns false when every triangle is farther
   /// than `band`, with `beyond` a lower bound of the distance not below the band.
   bool search(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box, float band,
@@ -97,7 +92,7 @@ class StaticMeshIndex {
 
   MeshSignature signature_;
   Info info_;
-  std::vector<Triangle> triangles_;
+  std::vector<detail::BoxedTriangle> triangles_;
   std::vector<Eigen::Vector3f> vertices_;  ///< sorted by cell: cell c holds vertex_first_[c] .. vertex_first_[c + 1]
   TriangleGrid grid_;  ///< the triangles binned in cells about a triangle's size, with the rings to them
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0

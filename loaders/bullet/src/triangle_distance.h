@@ -10,6 +10,22 @@
 
 namespace voxfmt::bullet::detail {
 
+/// A triangle as the nearest-triangle searches keep it: its corners, its unit normal (zero when it is degenerate)
+/// and its bounding box (a triangle no nearer than its box is not looked at).
+struct BoxedTriangle {
+  Eigen::Vector3f a, b, c, normal, lo, hi;
+  static BoxedTriangle of(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
+    const Eigen::Vector3f n = (b - a).cross(c - a);
+    const float length = n.norm();
+    return {a,
+            b,
+            c,
+            length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero(),
+            a.cwiseMin(b).cwiseMin(c),
+            a.cwiseMax(b).cwiseMax(c)};
+  }
+};
+
 /// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5).
 inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
                                            const Eigen::Vector3f& c) {

@@ -4,9 +4,13 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <vector>
+
+#include "triangle_distance.h"
 
 namespace voxfmt::bullet {
 
@@ -56,10 +60,57 @@ struct TriangleGrid {
     }
     fill_rings(rings);
   }
+  /// A triangle not yet seen after ring r around cell c lies in no cell of the block within r rings of c (every
+  /// cell its box covers lists it), so it is at least as far from x as the block's faces inside the grid.
+  float unseen_distance(const Eigen::Vector3f& x, const Eigen::Vector3i& c, int r) const;
 
  private:
   void fill_rings(int rings);
 };
+
+/// The nearest of `triangles` (listed in `grid`) to x, offered to `nearest`: rings of cells around c (x's cell)
+/// from `first_ring` on, skipping cells and triangles whose boxes cannot hold a nearer one and looking at each
+/// triangle once, until no unseen triangle can be nearer than the nearest (settled: nearest.best2 <= reach² (1 +
+/// 1e-6)) or every unseen one lies beyond `limit`. `box`: x's distance to the grid's box, which no triangle is
+/// nearer than. Returns the reach: the distance every unseen triangle is at least.
+inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail::BoxedTriangle>& triangles,
+                              const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box,
+                              float limit, detail::NearestTriangle& nearest) {
+  // A triangle is listed in every cell its box covers: a stamp per triangle and thread (a triangle passed over
+  // stays out of reach, as the nearest only gets nearer).
+  thread_local std::vector<uint32_t> seen;
+  thread_local uint32_t search_id = 0;
+  if (seen.size() < triangles.size()) seen.resize(triangles.size(), 0);
+  if (++search_id == 0) {
+    std::fill(seen.begin(), seen.end(), 0u);
+    search_id = 1;
+  }
+  for (int r = first_ring;; ++r) {
+    for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, grid.dims.z() - 1); ++k) {
+      for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, grid.dims.y() - 1); ++j) {
+        const bool face = std::abs(k - c.z()) == r || std::abs(j - c.y()) == r;
+        const int step = (face || r == 0) ? 1 : 2 * r;
+        for (int i = c.x() - r; i <= c.x() + r; i += step) {
+          if (i < 0 || i >= grid.dims.x()) continue;
+          const Eigen::Vector3f cell_lo = grid.lo + grid.cell * Eigen::Vector3f(float(i), float(j), float(k));
+          const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(grid.cell));
+          if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
+          const size_t cell = grid.cell_index(i, j, k);
+          for (uint32_t m = grid.first[cell]; m < grid.first[cell + 1]; ++m) {
+            const uint32_t id = grid.members[m];
+            if (seen[id] == search_id) continue;
+            seen[id] = search_id;
+            const detail::BoxedTriangle& t = triangles[id];
+            if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
+            nearest.consider(t.a, t.b, t.c, t.normal);
+          }
+        }
+      }
+    }
+    const float reach = std::max(box, grid.unseen_distance(x, c, r));
+    if (nearest.best2 <= reach * reach * (1 + 1e-6f) || reach > limit) return reach;
+  }
+}
 
 /// The mean of the proper normals if every one of them leans its way (n . mean > 0: a floor, a terrain), else zero.
 /// Degenerate triangles (zero normals) lie among their neighbours and do not count.
@@ -80,20 +131,24 @@ class TriangleSet {
   void add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c);
   /// Builds the search grid; call after the last add() and before distance().
   void build();
-  size_t size() const { return corners_.size() / 3; }
-  bool empty() const { return corners_.empty(); }
+  size_t size() const { return triangles_.size(); }
+  bool empty() const { return triangles_.empty(); }
   /// The vertices of triangle i.
-  const Eigen::Vector3f& corner(size_t i, int k) const { return corners_[3 * i + size_t(k)]; }
+  const Eigen::Vector3f& corner(size_t i, int k) const {
+    const detail::BoxedTriangle& t = triangles_[i];
+    return k == 0 ? t.a : k == 1 ? t.b : t.c;
+  }
   float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
   /// A value the signed distance at x is not below, cheap far from the triangles: for a set whose normals all
   /// lean one way (a floor, a terrain patch), a point beyond the set's box on that side is outside by at least
   /// its distance to the box; a point whose cell has no triangle within r rings is at least r - 1 cells from
-  /// every triangle. Elsewhere (a cell with a triangle) the exact distance.
+  /// every triangle. Elsewhere (a cell with a triangle) the exact distance. (Behind a one-sided set by more than a
+  /// cell, a point counts as tunnelled through: its bound is that size with the outside's sign.)
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
-  std::vector<Eigen::Vector3f> corners_;
-  std::vector<Eigen::Vector3f> normals_;
+  std::vector<detail::BoxedTriangle> triangles_;
+  std::vector<Eigen::Vector3f> normals_;  ///< the triangles' normals again, for common_normal
   TriangleGrid grid_;
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
