@@ -1,10 +1,8 @@
 #include "mesh_header.h"
 
-#include <cstdint>
 #include <fstream>
 #include <sstream>
 #include <string>
-#include <vector>
 
 #include "stages.h"
 
@@ -63,8 +61,7 @@ Declared ply_declared(std::istringstream& header) {
   return {};
 }
 
-// OFF (text): a vertex or a face needs at least a number and a separator. Binary OFF: three 4-byte coordinates a
-// vertex, a 4-byte count a face.
+// OFF (text): a vertex or a face needs at least a number and a separator. (Binary OFF, rare, is left to its reader.)
 Declared off_declared(const std::string& header) {
   std::istringstream lines(header);
   std::string line, text;
