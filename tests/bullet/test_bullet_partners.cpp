@@ -316,6 +316,33 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     if (expected >= 0) EXPECT_LE(searched.lower_bound(x), d + 1e-6f) << p;
   }
   EXPECT_GT(below, 400);  // the points below the terrain were searched too
+  // Far away (more than kMaxRings cells past the first ring that holds a triangle) a point gets a positive bound of
+  // its distance's size: deep behind a floor, it has tunnelled through. A grid fewer cells across than those rings
+  // is searched whole, so there the distance stays exact on either side.
+  TriangleSet small_searched, small_every;
+  for (int i = 0; i < 2; ++i)
+    for (int k = 0; k < 2; ++k)
+      for (TriangleSet* set : {&small_searched, &small_every}) {
+        set->add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
+        set->add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
+      }
+  small_searched.build();
+  std::uniform_real_distribution<float> far_across(-0.5f, 0.75f), far_up(-0.5f, 0.5f);
+  int bounded = 0;
+  for (int p = 0; p < 1000; ++p) {
+    const Eigen::Vector3f x(far_across(random), far_up(random), far_across(random));
+    Eigen::Vector3f outward_searched, outward_every;
+    const float d = searched.distance(x, outward_searched), expected = every.distance(x, outward_every);
+    const float tolerance = 1e-6f * (1.0f + std::abs(expected));
+    if (std::abs(d - expected) > tolerance) {
+      ++bounded;
+      ASSERT_GT(d, 0.0f) << p;
+      ASSERT_LE(d, std::abs(expected) + tolerance) << p;
+    }
+    const float small = small_searched.distance(x, outward_searched);
+    ASSERT_NEAR(small, small_every.distance(x, outward_every), tolerance) << p;
+  }
+  EXPECT_GT(bounded, 100);
 }
 
 }  // namespace

@@ -96,6 +96,13 @@ class BuildBadInput(unittest.TestCase):
             r = self.expect_error(self.write(name, text), "IMPORT_FAILED")
             self.assertIn("its header declares", r.stderr, name)
             self.assertLess(time.monotonic() - started, 10, name)
+        # A lying header the check does not read (longer than the 64 KiB it reads) meets the reader, whose memory
+        # the import's watchdog stops in proportion to the file (it used to run on to the 30 s time limit).
+        long_header = ply.replace("format ascii 1.0\n", "format ascii 1.0\n" + ("comment " + "x" * 70 + "\n") * 1000)
+        started = time.monotonic()
+        r = self.expect_error(self.write("long_header.ply", long_header), "IMPORT_FAILED")
+        self.assertIn("the importer needed more than", r.stderr)
+        self.assertLess(time.monotonic() - started, 25, "stopped by the time limit, not the memory limit")
         # The same headers declaring what they hold pass, and the lone triangle bakes (as a shell).
         honest = {"tri.off": "OFF\n# comment\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
                   "tri.ply": ply.replace("2000000000", "3")}

@@ -236,7 +236,9 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
     outward = away_from_box();
     return std::max(box, float(kEmptyRings - 1) * grid_.cell);
   }
-  const float limit = float(first_ring + kMaxRings) * grid_.cell;
+  // Rings past the grid's size cover all of it: the search is then exact wherever x is.
+  const float limit = first_ring + kMaxRings > grid_.dims.maxCoeff() ? std::numeric_limits<float>::infinity()
+                                                                     : float(first_ring + kMaxRings) * grid_.cell;
   const float reach = nearest_by_rings(grid_, triangles_, x, c, first_ring, box, limit, nearest);
   if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
     outward = nearest.outward;

@@ -121,8 +121,9 @@ Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals);
 /// whose plane is most nearly perpendicular to the direction to the point (at an edge or vertex several
 /// triangles are equally near; the one facing the point decides), so a closed or one-sided surface (a floor,
 /// a terrain) has negative distances below it. A uniform grid over the set finds the nearest triangle by
-/// searching rings of cells outward; points farther than `kMaxRings` cells from every triangle get a lower
-/// bound (the larger of the ring distance and the distance to the set's bounding box), enough to prune.
+/// searching rings of cells outward; points farther than `kMaxRings` cells beyond the first ring that holds a
+/// triangle, on a grid more cells across than those rings reach, get a lower bound (the larger of the rings'
+/// distance and the distance to the set's bounding box), enough to prune; elsewhere the distance is exact.
 class TriangleSet {
  public:
   static constexpr int kMaxRings = 8;

@@ -267,8 +267,9 @@ std::optional<BuildWarning> coarse_grid_warning(const TriangleMesh& mesh, double
   char text[320];
   std::snprintf(text, sizeof text,
                 "the object spans %.3g %s of %.6g m along its longest side: its shape is lost and its contacts "
-                "are only as exact as a voxel; use %g or more (--resolution, the default is 128, or --voxel-size)",
-                voxels, voxels == 1 ? "voxel" : "voxels", voxel_size, kFewestVoxels);
+                "are only as exact as a voxel; use --resolution %g or more (the default is 128), or a --voxel-size "
+                "of at most %.3g m",
+                voxels, voxels == 1 ? "voxel" : "voxels", voxel_size, kFewestVoxels, longest / kFewestVoxels);
   return BuildWarning{"COARSE_GRID", text};
 }
 

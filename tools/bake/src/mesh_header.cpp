@@ -101,6 +101,7 @@ void check_declared_counts(const std::string& path) {
     const size_t end = header.find("end_header");
     if (end == std::string::npos) return;
     body_at = header.find('\n', end);
+    if (body_at != std::string::npos) ++body_at;  // the body starts after end_header's line
     std::istringstream lines(header.substr(0, end + 10));
     declared = ply_declared(lines);
   } else {
@@ -110,14 +111,15 @@ void check_declared_counts(const std::string& path) {
     if (keyword.size() < 3 || keyword.compare(keyword.size() - 3, 3, "OFF") != 0) return;
     declared = off_declared(header);
   }
-  if (!declared.parsed || body_at == std::string::npos) return;
+  if (!declared.parsed || body_at == std::string::npos) return;  // npos: end_header ends the file
   const double body_bytes = file_bytes - double(body_at);
   if (declared.min_bytes <= body_bytes + 1)  // + 1: the last number needs no separator after it
     return;
   std::ostringstream message;
   message.precision(15);
   message << path << ": cannot read mesh: its header declares " << declared.what << ", which need at least "
-          << declared.min_bytes << " bytes, but the file holds " << file_bytes << " (a damaged or hostile file?)";
+          << declared.min_bytes << " bytes, but the file holds " << body_bytes
+          << (body_at > 0 ? " bytes after its header" : " bytes") << " (a damaged or hostile file?)";
   throw BakeError(IssueCode::ImportFailed, message.str());
 }
 
