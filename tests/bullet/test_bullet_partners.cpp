@@ -8,6 +8,7 @@
 #include <iostream>
 #include <random>
 #include <string>
+#include <utility>
 
 #include "baked_bunny.h"
 #include "triangle_set.h"  // private: the terrain's nearest-triangle search
@@ -293,54 +294,61 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     return 0.02f * std::sin(0.7f * float(i)) + 0.015f * std::cos(0.5f * float(k));
   };
   const auto vertex = [&](int i, int k) { return Eigen::Vector3f(0.01f * float(i), height(i, k), 0.01f * float(k)); };
-  for (int i = 0; i + 1 < n; ++i)
-    for (int k = 0; k + 1 < n; ++k)
-      for (TriangleSet* set : {&searched, &every}) {  // counter-clockwise seen from above
-        set->add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
-        set->add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
-      }
+  // A patch of cells x cells squares into both sets, counter-clockwise seen from above.
+  const auto add_patch = [&](int cells, TriangleSet& a, TriangleSet& b) {
+    for (int i = 0; i < cells; ++i)
+      for (int k = 0; k < cells; ++k)
+        for (TriangleSet* set : {&a, &b}) {
+          set->add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
+          set->add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
+        }
+  };
+  add_patch(n - 1, searched, every);
   searched.build();  // `every` is not built: it looks at every triangle
+  // The distance the grid search gives at x, and the one looking at every triangle gives.
+  const auto both = [](const TriangleSet& grid, const TriangleSet& all, const Eigen::Vector3f& x) {
+    Eigen::Vector3f outward;
+    const float d = grid.distance(x, outward);
+    return std::make_pair(d, all.distance(x, outward));
+  };
   std::mt19937 random(7);
   std::uniform_real_distribution<float> across(-0.03f, 0.26f), up(-0.06f, 0.08f);
   int below = 0;
   for (int p = 0; p < 4000; ++p) {
     const Eigen::Vector3f x(across(random), up(random), across(random));
-    Eigen::Vector3f outward_searched, outward_every;
-    const float d = searched.distance(x, outward_searched), expected = every.distance(x, outward_every);
+    const auto [d, expected] = both(searched, every, x);
     ASSERT_NEAR(std::abs(d), std::abs(expected), 1e-6f * (1.0f + std::abs(expected))) << p;
-    if (std::abs(expected) > 1e-4f) ASSERT_EQ(d < 0, expected < 0) << p;
+    if (std::abs(expected) > 1e-4f) {
+      ASSERT_EQ(d < 0, expected < 0) << p;
+    }
     below += expected < 0;
     // Outside, the bound is below the distance. (Behind the terrain by more than a cell its ring map bounds the
     // distance's size, not its sign: such a point counts as tunnelled through, as distance() counts one beyond its
     // rings.)
-    if (expected >= 0) EXPECT_LE(searched.lower_bound(x), d + 1e-6f) << p;
+    if (expected >= 0) {
+      EXPECT_LE(searched.lower_bound(x), d + 1e-6f) << p;
+    }
   }
   EXPECT_GT(below, 400);  // the points below the terrain were searched too
   // Far away (more than kMaxRings cells past the first ring that holds a triangle) a point gets a positive bound of
   // its distance's size: deep behind a floor, it has tunnelled through. A grid fewer cells across than those rings
   // is searched whole, so there the distance stays exact on either side.
   TriangleSet small_searched, small_every;
-  for (int i = 0; i < 2; ++i)
-    for (int k = 0; k < 2; ++k)
-      for (TriangleSet* set : {&small_searched, &small_every}) {
-        set->add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
-        set->add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
-      }
+  add_patch(2, small_searched, small_every);
   small_searched.build();
   std::uniform_real_distribution<float> far_across(-0.5f, 0.75f), far_up(-0.5f, 0.5f);
   int bounded = 0;
   for (int p = 0; p < 1000; ++p) {
     const Eigen::Vector3f x(far_across(random), far_up(random), far_across(random));
-    Eigen::Vector3f outward_searched, outward_every;
-    const float d = searched.distance(x, outward_searched), expected = every.distance(x, outward_every);
+    const auto [d, expected] = both(searched, every, x);
     const float tolerance = 1e-6f * (1.0f + std::abs(expected));
     if (std::abs(d - expected) > tolerance) {
       ++bounded;
       ASSERT_GT(d, 0.0f) << p;
       ASSERT_LE(d, std::abs(expected) + tolerance) << p;
     }
-    const float small = small_searched.distance(x, outward_searched);
-    ASSERT_NEAR(small, small_every.distance(x, outward_every), tolerance) << p;
+    const auto [small, small_expected] = both(small_searched, small_every, x);
+    ASSERT_NEAR(small, small_expected, 1e-6f * (1.0f + std::abs(small_expected))) << p;
   }
   EXPECT_GT(bounded, 100);
 }
