@@ -104,7 +104,6 @@ float convex_distance(const btConvexShape& shape, const btTransform& world_from_
 
 void TriangleSet::add(const Eigen::Vector3f& a, const Eigen::Vector3f& b, const Eigen::Vector3f& c) {
   triangles_.push_back(detail::BoxedTriangle::of(a, b, c));
-  normals_.push_back(triangles_.back().normal);
 }
 
 void TriangleGrid::clear() {
@@ -161,20 +160,19 @@ void TriangleGrid::fill_rings(int rings) {
   }
 }
 
-Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals) {
+Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangles) {
   Eigen::Vector3f mean = Eigen::Vector3f::Zero();
-  for (const Eigen::Vector3f& n : normals) mean += n;
+  for (const detail::BoxedTriangle& t : triangles) mean += t.normal;
   if (!(mean.squaredNorm() > 0.0f)) return Eigen::Vector3f::Zero();
   mean.normalize();
-  for (const Eigen::Vector3f& n : normals)
-    if (n.squaredNorm() > 0.0f && !(n.dot(mean) > 0.0f)) return Eigen::Vector3f::Zero();
+  for (const detail::BoxedTriangle& t : triangles)
+    if (t.normal.squaredNorm() > 0.0f && !(t.normal.dot(mean) > 0.0f)) return Eigen::Vector3f::Zero();
   return mean;
 }
 
 void TriangleSet::clear() {
   common_normal_.setZero();
   triangles_.clear();
-  normals_.clear();
   grid_.clear();
 }
 
@@ -190,7 +188,7 @@ void TriangleSet::build() {
     edges += (t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm();
   }
   // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
-  common_normal_ = common_normal(normals_);
+  common_normal_ = common_normal(triangles_);
   // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
   const Eigen::Vector3f extent = grid_.hi - grid_.lo;
   grid_.cell = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
@@ -240,7 +238,7 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   const float limit = first_ring + kMaxRings > grid_.dims.maxCoeff() ? std::numeric_limits<float>::infinity()
                                                                      : float(first_ring + kMaxRings) * grid_.cell;
   const float reach = nearest_by_rings(grid_, triangles_, x, c, first_ring, box, limit, nearest);
-  if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+  if (nearest.settled_within(reach)) {
     outward = nearest.outward;
     return nearest.signed_distance();
   }

@@ -84,16 +84,13 @@ void StaticMeshIndex::index() {
   grid_.lo = triangles_[0].lo;
   grid_.hi = triangles_[0].hi;
   double edges = 0;
-  std::vector<Eigen::Vector3f> normals;
-  normals.reserve(triangles_.size());
   for (const detail::BoxedTriangle& t : triangles_) {
     grid_.lo = grid_.lo.cwiseMin(t.lo);
     grid_.hi = grid_.hi.cwiseMax(t.hi);
     edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
-    normals.push_back(t.normal);
   }
   // One-sided (a floor, a terrain): beyond the box on that side is outside.
-  common_normal_ = common_normal(normals);
+  common_normal_ = common_normal(triangles_);
   size_grid(edges);
   info_.cells = size_t(grid_.dims.prod());
   grid_.fill(
@@ -161,7 +158,7 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
   detail::NearestTriangle nearest(x);
   if (seed < band) nearest.best2 = seed * seed;  // cells farther than the seed are passed over
   const float reach = nearest_by_rings(grid_, triangles_, x, c, first_ring, box, band, nearest);
-  if (nearest.best2 <= reach * reach * (1 + 1e-6f)) {
+  if (nearest.settled_within(reach)) {
     if (nearest.best_alignment < 0.0f)  // the seed was too small (rounding): no triangle taken
       return search(x, c, first_ring, box, band, distance, outward, beyond);
     const float d = std::sqrt(nearest.best2);
@@ -173,8 +170,8 @@ bool StaticMeshIndex::search(const Eigen::Vector3f& x, const Eigen::Vector3i& c,
     outward = nearest.outward;
     return true;
   }
-  beyond = std::min(std::sqrt(nearest.best2),
-                    reach);  // every triangle not seen is beyond the band, and so is the nearest seen
+  // Not settled: every triangle not seen is beyond the band, and so is the nearest seen.
+  beyond = std::min(std::sqrt(nearest.best2), reach);
   return false;
 }
 

@@ -80,6 +80,8 @@ struct NearestTriangle {
     }
   }
   float signed_distance() const { return side * std::sqrt(best2); }
+  /// Whether no triangle at least `reach` away can be nearer (the search is settled), within float rounding.
+  bool settled_within(float reach) const { return best2 <= reach * reach * (1 + 1e-6f); }
 };
 
 }  // namespace voxfmt::bullet::detail

@@ -70,8 +70,8 @@ struct TriangleGrid {
 
 /// The nearest of `triangles` (listed in `grid`) to x, offered to `nearest`: rings of cells around c (x's cell)
 /// from `first_ring` on, skipping cells and triangles whose boxes cannot hold a nearer one and looking at each
-/// triangle once, until no unseen triangle can be nearer than the nearest (settled: nearest.best2 <= reach² (1 +
-/// 1e-6)) or every unseen one lies beyond `limit`. `box`: x's distance to the grid's box, which no triangle is
+/// triangle once, until no unseen triangle can be nearer than the nearest (nearest.settled_within(reach)) or every
+/// unseen one lies beyond `limit`. `box`: x's distance to the grid's box, which no triangle is
 /// nearer than. Returns the reach: the distance every unseen triangle is at least.
 inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail::BoxedTriangle>& triangles,
                               const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box,
@@ -108,13 +108,13 @@ inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail
       }
     }
     const float reach = std::max(box, grid.unseen_distance(x, c, r));
-    if (nearest.best2 <= reach * reach * (1 + 1e-6f) || reach > limit) return reach;
+    if (nearest.settled_within(reach) || reach > limit) return reach;
   }
 }
 
 /// The mean of the proper normals if every one of them leans its way (n . mean > 0: a floor, a terrain), else zero.
 /// Degenerate triangles (zero normals) lie among their neighbours and do not count.
-Eigen::Vector3f common_normal(const std::vector<Eigen::Vector3f>& normals);
+Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangles);
 
 /// A set of triangles (a static mesh or terrain near a VPS body), world frame, each oriented counter-clockwise
 /// seen from outside. The distance is to the nearest triangle; its sign is the side of the nearest triangle
@@ -149,7 +149,6 @@ class TriangleSet {
 
  private:
   std::vector<detail::BoxedTriangle> triangles_;
-  std::vector<Eigen::Vector3f> normals_;  ///< the triangles' normals again, for common_normal
   TriangleGrid grid_;
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
