@@ -1,12 +1,14 @@
 // A VPS body against a static triangle mesh indexed once (CollisionSettings::static_mesh_index): the coherent pair
 // (a traversal front and the mesh's vertices kept near the body) finds bit for bit the contacts of the pair from
 // scratch, along a body sliding across a tilted wavy floor and one jumping far beyond where what it kept was made;
-// both find the contacts of the unindexed path (the triangles in the body's box gathered and gridded each test).
+// both find the contacts of the unindexed path (the triangles in the body's box gathered and gridded each test),
+// which terrains take: a body pressed deep into one keeps its deepest contacts.
 #include <BulletCollision/BroadphaseCollision/btCollisionAlgorithm.h>
 #include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
 #include <BulletCollision/CollisionDispatch/btManifoldResult.h>
 #include <BulletCollision/CollisionShapes/btBoxShape.h>
 #include <BulletCollision/CollisionShapes/btBvhTriangleMeshShape.h>
+#include <BulletCollision/CollisionShapes/btHeightfieldTerrainShape.h>
 #include <BulletCollision/CollisionShapes/btTriangleMesh.h>
 #include <gtest/gtest.h>
 
@@ -262,6 +264,38 @@ TEST(BulletStaticMesh, AnIndexIsSharedRebuiltWhenForgottenOrRescaledAndCountsThe
   EXPECT_EQ(pair.vps().counters().static_mesh_builds, 3u);
   Pair fresh(floor, btTransform::getIdentity(), unindexed());
   expect_as_unindexed(rescaled, fresh.test(at), 0);
+}
+
+// The terrain's cheap bound (its ring map) holds only above the surface: a bunny pressed 20 cm (about five of the
+// gathered triangles' cells) into a slope gets contacts as deep as its deepest shell point sits. A bound with the
+// outside's sign below the surface pruned the tree's clusters more than a cell deep (its deepest contact: 0.195 m).
+TEST(BulletTerrain, ABodyPressedDeepIntoASlopeKeepsItsDeepestContacts) {
+  // 64 x 64 heights over [-1, 1]^2 m in x-z, rising 0.5 m a metre along x (from -0.5 to 0.5; up axis y).
+  static std::vector<float> heights(64 * 64);
+  for (int k = 0; k < 64; ++k)
+    for (int i = 0; i < 64; ++i) heights[size_t(k * 64 + i)] = 0.5f * (-1.0f + 2.0f * float(i) / 63.0f);
+  auto terrain =
+      std::make_shared<btHeightfieldTerrainShape>(64, 64, heights.data(), 1.0f, -0.5f, 0.5f, 1, PHY_FLOAT, false);
+  terrain->setLocalScaling(btVector3(2.0f / 63, 1, 2.0f / 63));
+  const Eigen::Vector3d up = Eigen::Vector3d(-0.5, 1, 0).normalized();  // the slope y = x / 2 through the origin
+  const Bunny& bunny = Bunny::get();
+  btTransform at(btQuaternion(btVector3(1, 0, 1), 0.3f), btVector3(0, 0, 0));
+  const auto lowest = [&](const btTransform& t) {
+    const runtime::Pose pose = VpsMixedShape(bunny.object).asset_pose(t);
+    double height = 1e30;
+    for (const Eigen::Vector3f& p : bunny.object->point_tree().points)
+      height = std::min(height, pose.apply(p.cast<double>()).dot(up));
+    return height;
+  };
+  const double sunk = 0.2;
+  at.setOrigin(btVector3(0, btScalar((-lowest(at) - sunk) / up.y()), 0));
+  ASSERT_NEAR(lowest(at), -sunk, 1e-6);
+  Pair pair(terrain, btTransform::getIdentity(), CollisionSettings{});
+  double deepest = 0;
+  for (const runtime::Contact& c : pair.test(at))
+    if (!c.point_of_b) deepest = std::max(deepest, c.depth);
+  std::cout << "[ figures  ] bunny " << sunk << " m into a slope: deepest shell contact " << deepest << " m\n";
+  EXPECT_NEAR(deepest, sunk, 1e-4);
 }
 
 }  // namespace

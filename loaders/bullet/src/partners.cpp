@@ -174,6 +174,34 @@ void TriangleSet::clear() {
   common_normal_.setZero();
   triangles_.clear();
   grid_.clear();
+  above_surface_.clear();
+}
+
+void TriangleSet::mark_cells_above_surface() {
+  above_surface_.clear();
+  if (!(common_normal_.squaredNorm() > 0.0f)) return;
+  int up = 0;
+  common_normal_.cwiseAbs().maxCoeff(&up);
+  const int sign = common_normal_[up] > 0.0f ? 1 : -1;
+  // A graph over the axis: every proper normal leans up it. Then the surface over a column of cells lies within its
+  // occupied cells, and a point beyond the last of them is above it. (A column with no triangle says nothing: a
+  // point below a terrain's edge, just beside it, is inside.)
+  for (const detail::BoxedTriangle& t : triangles_)
+    if (t.normal.squaredNorm() > 0.0f && !(float(sign) * t.normal[up] > 0.0f)) return;
+  above_surface_.assign(size_t(grid_.dims.prod()), 0);
+  const int a = (up + 1) % 3, b = (up + 2) % 3, n = grid_.dims[up];
+  const auto at = [&](Eigen::Vector3i c, int step) {  // the step-th cell of c's column from its top
+    c[up] = sign > 0 ? n - 1 - step : step;
+    return grid_.cell_index(c);
+  };
+  Eigen::Vector3i c = Eigen::Vector3i::Zero();
+  for (c[a] = 0; c[a] < grid_.dims[a]; ++c[a])
+    for (c[b] = 0; c[b] < grid_.dims[b]; ++c[b]) {
+      int top = 0;
+      while (top < n && grid_.first[at(c, top) + 1] == grid_.first[at(c, top)]) ++top;
+      if (top == n) continue;
+      for (int step = 0; step < top; ++step) above_surface_[at(c, step)] = 1;
+    }
 }
 
 void TriangleSet::build() {
@@ -196,6 +224,7 @@ void TriangleSet::build() {
   grid_.fill(
       size(), [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].lo; },
       [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].hi; }, kEmptyRings);
+  mark_cells_above_surface();
 }
 
 float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
@@ -205,11 +234,13 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     // so outside, and no triangle is nearer than the box.
     if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
   }
-  if (!grid_.ring.empty()) {
+  if (!above_surface_.empty()) {
     // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
-    // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away.
-    const int ring = grid_.ring[grid_.cell_index(grid_.cell_of(x))];
-    if (ring > 1) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
+    // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away;
+    // and above the surface, so outside.
+    const size_t cell = grid_.cell_index(grid_.cell_of(x));
+    const int ring = grid_.ring[cell];
+    if (ring > 1 && above_surface_[cell]) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
   }
   Eigen::Vector3f outward;
   return distance(x, outward);

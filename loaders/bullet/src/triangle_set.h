@@ -140,17 +140,22 @@ class TriangleSet {
     return k == 0 ? t.a : k == 1 ? t.b : t.c;
   }
   float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
-  /// A value the signed distance at x is not below, cheap far from the triangles: for a set whose normals all
-  /// lean one way (a floor, a terrain patch), a point beyond the set's box on that side is outside by at least
-  /// its distance to the box; a point whose cell has no triangle within r rings is at least r - 1 cells from
-  /// every triangle. Elsewhere (a cell with a triangle) the exact distance. (Behind a one-sided set by more than a
-  /// cell, a point counts as tunnelled through: its bound is that size with the outside's sign.)
+  /// A value the signed distance at x is not below, cheap far above a floor or terrain: for a set whose normals
+  /// all lean one way, a point beyond the set's box on that side is outside by at least its distance to the box;
+  /// for a set that is a graph over a grid axis, a point above every triangle of its column of cells whose cell
+  /// has no triangle within r rings is outside by at least r - 1 cells. Elsewhere (below or beside the surface,
+  /// near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
+  void mark_cells_above_surface();
+
   std::vector<detail::BoxedTriangle> triangles_;
   TriangleGrid grid_;
   Eigen::Vector3f common_normal_ = Eigen::Vector3f::Zero();  ///< zero unless every normal has n . c > 0
+  /// Per cell, 1 where the cell lies above every triangle of its column along an axis every normal leans up
+  /// (so a point there is outside); empty when no axis does.
+  std::vector<uint8_t> above_surface_;
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };
 
