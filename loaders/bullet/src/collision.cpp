@@ -131,9 +131,11 @@ struct PairState {
   std::shared_ptr<const StaticMeshIndex> mesh;
   uint64_t mesh_generation = 0;
   VertexCache vertices;
+  TriangleSet triangles;  ///< a terrain's (or unindexed mesh's) triangles gathered at the last test, built
   void reset() {
     query.reset();
     vertices.valid = false;
+    triangles.clear();
   }
 };
 
@@ -317,6 +319,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     runtime::QueryScratch& scratch;
     runtime::QueryState* state;
     runtime::TraversalFront* front() const { return state ? &state->a_in_b : nullptr; }
+    TriangleSet* kept() const { return state ? &algorithm.state_->triangles : nullptr; }
     ConvexPair convex() const { return ConvexPair{a, pose_a, tb, options, contacts, scratch, front()}; }
   };
   using PartnerHandler = void (*)(const PartnerTest&);
@@ -339,13 +342,14 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       t[TRIANGLE_MESH_SHAPE_PROXYTYPE] = t[SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
         const auto& concave = static_cast<const btConcaveShape&>(p.b);
         if (!p.algorithm.shared_->settings.static_mesh_index)
-          return collide_concave(p.a, p.pose_a, p.ta, concave, p.tb, p.options, p.contacts, p.scratch);
+          return collide_concave(p.a, p.pose_a, p.ta, concave, p.tb, p.options, p.contacts, p.scratch, p.kept(),
+                                 p.front());
         collide_indexed(p.a, p.pose_a, p.ta, p.algorithm.mesh_index(concave), p.tb, p.options, p.contacts, p.scratch,
                         p.front(), p.state ? &p.algorithm.state_->vertices : nullptr);
       };
       t[TERRAIN_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
         collide_concave(p.a, p.pose_a, p.ta, static_cast<const btConcaveShape&>(p.b), p.tb, p.options, p.contacts,
-                        p.scratch);
+                        p.scratch, p.kept(), p.front());
       };
       t[BOX_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
         collide_box(p.convex(), static_cast<const btBoxShape&>(p.b));

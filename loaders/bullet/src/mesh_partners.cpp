@@ -86,7 +86,7 @@ void corners_within_reach(const runtime::CollisionObject& a, const runtime::Pose
 // signed by the triangles' sides; and those triangles' corners in A's voxelmap.
 void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
-                     runtime::QueryScratch& scratch) {
+                     runtime::QueryScratch& scratch, TriangleSet* kept, runtime::TraversalFront* front) {
   btVector3 lo, hi;
   a.getAabb(ta, lo, hi);
   const btScalar grow = btScalar(options.proximity) + a.getMargin();
@@ -101,24 +101,34 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     local_lo.setMin(corner);
     local_hi.setMax(corner);
   }
-  thread_local TriangleSet triangles;
-  triangles.clear();
+  thread_local TriangleSet gathered;
+  gathered.clear();
   const bool terrain = b.getShapeType() == TERRAIN_SHAPE_PROXYTYPE;
   btVector3 a_lo, a_hi;  // A's box in its own frame
   a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
   a_lo -= btVector3(grow, grow, grow);
   a_hi += btVector3(grow, grow, grow);
-  TriangleCollector collect(triangles, tb, terrain,
+  TriangleCollector collect(gathered, tb, terrain,
                             terrain ? static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis() : 1, ta.inverse(),
                             a_lo, a_hi);
   b.processAllTriangles(&collect, local_lo, local_hi);
-  if (triangles.empty()) return;
-  triangles.build();
-  if (a.uses_points())
-    runtime::query_against_function(
-        a.object(), pose_a,
-        [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); },
-        [&](const Eigen::Vector3f& x) { return triangles.lower_bound(x); }, options, contacts, scratch);
+  if (gathered.empty()) return;
+  const bool coherent = kept && front;
+  if (coherent && !kept->same_triangles(gathered)) {
+    std::swap(*kept, gathered);
+    kept->build();
+    front->reset();
+  } else if (!coherent) {
+    gathered.build();
+  }
+  const TriangleSet& triangles = coherent ? *kept : gathered;
+  auto distance = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); };
+  auto bound = [&](const Eigen::Vector3f& x) { return triangles.lower_bound(x); };
+  if (a.uses_points() && coherent)  // the triangles are in world coordinates: the partner's pose is the identity
+    runtime::query_against_function(a.object(), pose_a, runtime::Pose{}, distance, bound, options, contacts, scratch,
+                                    *front);
+  else if (a.uses_points())
+    runtime::query_against_function(a.object(), pose_a, distance, bound, options, contacts, scratch);
   if (a.uses_voxelmap()) {
     thread_local std::vector<Eigen::Vector3d> corners;
     corners_within_reach(a.object(), pose_a, triangles, options.proximity, corners);

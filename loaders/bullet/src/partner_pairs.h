@@ -19,6 +19,7 @@
 #include "bt_eigen.h"
 #include "static_mesh.h"
 #include "traversal/function_query.h"
+#include "triangle_set.h"
 #include "voxfmt/bullet/shape.h"
 #include "voxfmt/runtime/query.h"
 
@@ -95,10 +96,14 @@ void collide_polyhedron(const ConvexPair& pair, const btPolyhedralConvexShape& b
 void collide_curved_convex(const ConvexPair& pair, const btConvexShape& b);
 
 /// A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
-/// signed by the triangles' sides; and those triangles' corners in A's voxelmap.
+/// signed by the triangles' sides; and those triangles' corners in A's voxelmap. With a pair's `kept` set (and
+/// front): while a test gathers exactly the triangles the last one did, the distance is the same function, so the
+/// built set and the front are kept (a body at rest queries coherently); other triangles replace them and the
+/// front starts afresh.
 void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
-                     runtime::QueryScratch& scratch);
+                     runtime::QueryScratch& scratch, TriangleSet* kept = nullptr,
+                     runtime::TraversalFront* front = nullptr);
 
 /// A static mesh's vertices that were near a VPS body (A) at an anchor pose, for coherent queries.
 struct VertexCache {

@@ -177,6 +177,13 @@ void TriangleSet::clear() {
   above_surface_.clear();
 }
 
+bool TriangleSet::same_triangles(const TriangleSet& other) const {
+  return std::equal(triangles_.begin(), triangles_.end(), other.triangles_.begin(), other.triangles_.end(),
+                    [](const detail::BoxedTriangle& s, const detail::BoxedTriangle& t) {
+                      return s.a == t.a && s.b == t.b && s.c == t.c;
+                    });
+}
+
 void TriangleSet::mark_cells_above_surface() {
   above_surface_.clear();
   if (!(common_normal_.squaredNorm() > 0.0f)) return;

@@ -133,6 +133,8 @@ class TriangleSet {
   /// Builds the search grid; call after the last add() and before distance().
   void build();
   size_t size() const { return triangles_.size(); }
+  /// Whether `other` holds the same triangles, corner for corner, in the same order.
+  bool same_triangles(const TriangleSet& other) const;
   bool empty() const { return triangles_.empty(); }
   /// The vertices of triangle i.
   const Eigen::Vector3f& corner(size_t i, int k) const {
