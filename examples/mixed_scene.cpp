@@ -326,7 +326,8 @@ int main(int argc, char** argv) {
     json << "{\n  \"seconds\": " << seconds << ", \"steps\": " << steps << ", \"wall_s\": " << wall
          << ", \"voxel_m\": " << h << ",\n  \"pairs\": [";
     std::cout << std::left << std::setw(13) << "partner" << std::right << std::setw(10) << "contacts" << std::setw(14)
-              << "max pen vox" << std::setw(16) << "residual m/s" << std::setw(14) << "narrow us p50\n";
+              << "max pen vox" << std::setw(16) << "residual m/s" << std::setw(15) << "narrow us p50"
+              << "\n";
     bool first = true;
     for (const std::string& kind : kKinds) {
       KindStats& s = stats[kind];
@@ -343,7 +344,7 @@ int main(int argc, char** argv) {
       first = false;
       std::cout << std::left << std::setw(13) << kind << std::right << std::fixed << std::setprecision(2)
                 << std::setw(10) << contacts << std::setw(14) << s.max_penetration / h << std::setw(16)
-                << std::setprecision(6) << speed << std::setw(13) << std::setprecision(1) << p50 << "\n";
+                << std::setprecision(6) << speed << std::setw(15) << std::setprecision(1) << p50 << "\n";
     }
     json << "\n  ]\n}\n";
     std::cout << "simulated " << seconds << " s in " << std::setprecision(1) << wall << " s wall\n";

@@ -330,10 +330,10 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     if (over) {
       ASSERT_LE(bound, d + 1e-6f) << p << " at " << x.transpose();
     }
-    cheap += bound > 0.0f && bound < d - 1e-4f;
+    cheap += x.y() < 0.03f && bound > 0.0f && bound < d - 1e-4f;  // the ring map's bound (the box's top: 0.035)
   }
   EXPECT_GT(below, 400);  // the points below the terrain were searched too
-  EXPECT_GT(cheap, 400);  // and far above it the ring map bounded the distance without a search
+  EXPECT_GT(cheap, 100);  // and above it, within the box, the ring map bounded the distance without a search
   // Far away (more than kMaxRings cells past the first ring that holds a triangle) a point gets a positive bound of
   // its distance's size: deep behind a floor, it has tunnelled through. A grid fewer cells across than those rings
   // is searched whole, so there the distance stays exact on either side.

@@ -282,7 +282,7 @@ std::shared_ptr<btHeightfieldTerrainShape> wavy_terrain() {
 }
 
 // A terrain pair keeps its gathered triangles and its front while a test gathers the same triangles: along a slide
-// (the triangles change every few steps) and at rest (a jitter of a micrometre), the coherent pair's contacts are
+// (the triangles change nearly every step) and at rest (a jitter of a micrometre), the coherent pair's contacts are
 // bit for bit those of the pair from scratch, with fewer points looked up.
 TEST(BulletTerrain, CoherentPairFindsTheContactsFromScratchSlidingAndAtRest) {
   auto terrain = wavy_terrain();

@@ -132,6 +132,7 @@ struct PairState {
   uint64_t mesh_generation = 0;
   VertexCache vertices;
   TriangleSet triangles;  ///< a terrain's (or unindexed mesh's) triangles gathered at the last test, built
+  bool indexed = false;   ///< whether the front was made against a static mesh's index (or gathered triangles)
   void reset() {
     query.reset();
     vertices.valid = false;
@@ -341,6 +342,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       };
       t[TRIANGLE_MESH_SHAPE_PROXYTYPE] = t[SCALED_TRIANGLE_MESH_SHAPE_PROXYTYPE] = [](const PartnerTest& p) {
         const auto& concave = static_cast<const btConcaveShape&>(p.b);
+        p.algorithm.front_against(p.algorithm.shared_->settings.static_mesh_index);
         if (!p.algorithm.shared_->settings.static_mesh_index)
           return collide_concave(p.a, p.pose_a, p.ta, concave, p.tb, p.options, p.contacts, p.scratch, p.kept(),
                                  p.front());
@@ -458,6 +460,14 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       state.reset();
     }
     return *state.mesh;
+  }
+
+  /// A front made against the index is no front for gathered triangles, nor the other way round:
+  /// `static_mesh_index` switched between tests starts it afresh.
+  void front_against(bool indexed) const {
+    if (!state_ || state_->indexed == indexed) return;
+    state_->reset();
+    state_->indexed = indexed;
   }
 
   std::unique_ptr<PairState> state_;  ///< made on first use (a pointer: the algorithm lives in Bullet's pool)

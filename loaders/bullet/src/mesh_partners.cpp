@@ -83,7 +83,7 @@ void corners_within_reach(const runtime::CollisionObject& a, const runtime::Pose
 }  // namespace
 
 // A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
-// signed by the triangles' sides; and those triangles' corners in A's voxelmap.
+// signed by the triangles' sides, coherently while they are the pair's kept ones; and their corners in A's voxelmap.
 void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
                      runtime::QueryScratch& scratch, TriangleSet* kept, runtime::TraversalFront* front) {
@@ -113,18 +113,23 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
                             a_lo, a_hi);
   b.processAllTriangles(&collect, local_lo, local_hi);
   if (gathered.empty()) return;
-  const bool coherent = kept && front;
-  if (coherent && !kept->same_triangles(gathered)) {
-    std::swap(*kept, gathered);
-    kept->build();
-    front->reset();
-  } else if (!coherent) {
+  // The front holds while the triangles are the very ones it was made with. Others replace the kept ones (copied:
+  // a pair's buffers grow to its own largest set only) and this test queries from the root, as without a front.
+  bool same = false;
+  if (kept && front) {
+    same = kept->same_triangles(gathered);
+    if (!same) {
+      *kept = gathered;
+      kept->build();
+      front->reset();
+    }
+  } else {
     gathered.build();
   }
-  const TriangleSet& triangles = coherent ? *kept : gathered;
+  const TriangleSet& triangles = kept && front ? *kept : gathered;
   auto distance = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return triangles.distance(x, outward); };
   auto bound = [&](const Eigen::Vector3f& x) { return triangles.lower_bound(x); };
-  if (a.uses_points() && coherent)  // the triangles are in world coordinates: the partner's pose is the identity
+  if (a.uses_points() && same)  // the triangles are in world coordinates: the partner's pose is the identity
     runtime::query_against_function(a.object(), pose_a, runtime::Pose{}, distance, bound, options, contacts, scratch,
                                     *front);
   else if (a.uses_points())

@@ -98,8 +98,8 @@ void collide_curved_convex(const ConvexPair& pair, const btConvexShape& b);
 /// A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
 /// signed by the triangles' sides; and those triangles' corners in A's voxelmap. With a pair's `kept` set (and
 /// front): while a test gathers exactly the triangles the last one did, the distance is the same function, so the
-/// built set and the front are kept (a body at rest queries coherently); other triangles replace them and the
-/// front starts afresh.
+/// built set and the front are kept (a body at rest queries coherently); other triangles replace them, and the
+/// test queries from the root and starts the front afresh.
 void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
                      const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
                      runtime::QueryScratch& scratch, TriangleSet* kept = nullptr,

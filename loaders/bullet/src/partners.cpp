@@ -190,12 +190,14 @@ void TriangleSet::mark_cells_above_surface() {
   int up = 0;
   common_normal_.cwiseAbs().maxCoeff(&up);
   const int sign = common_normal_[up] > 0.0f ? 1 : -1;
-  // A graph over the axis: every proper normal leans up it. Then the surface over a column of cells lies within its
-  // occupied cells, and a point beyond the last of them is above it. (A column with no triangle says nothing: a
-  // point below a terrain's edge, just beside it, is inside.)
+  // Every proper normal leans up the axis (a terrain's do): a point in a column of cells above its topmost occupied
+  // cell is above the surface there, so outside. (A column with no triangle says nothing: a point below a terrain's
+  // edge, just beside it, is inside. Nor do columns at the box's sides for points beyond them: lower_bound asks
+  // only within the box's footprint.)
   for (const detail::BoxedTriangle& t : triangles_)
     if (t.normal.squaredNorm() > 0.0f && !(float(sign) * t.normal[up] > 0.0f)) return;
   above_surface_.assign(size_t(grid_.dims.prod()), 0);
+  up_axis_ = up;
   const int a = (up + 1) % 3, b = (up + 2) % 3, n = grid_.dims[up];
   const auto at = [&](Eigen::Vector3i c, int step) {  // the step-th cell of c's column from its top
     c[up] = sign > 0 ? n - 1 - step : step;
@@ -241,7 +243,12 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     // so outside, and no triangle is nearer than the box.
     if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
   }
-  if (!above_surface_.empty()) {
+  const auto over_the_box = [&] {
+    for (int a = 0; a < 3; ++a)
+      if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
+    return true;
+  };
+  if (!above_surface_.empty() && over_the_box()) {
     // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
     // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away;
     // and above the surface, so outside.

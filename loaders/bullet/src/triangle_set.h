@@ -144,9 +144,9 @@ class TriangleSet {
   float distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
   /// A value the signed distance at x is not below, cheap far above a floor or terrain: for a set whose normals
   /// all lean one way, a point beyond the set's box on that side is outside by at least its distance to the box;
-  /// for a set that is a graph over a grid axis, a point above every triangle of its column of cells whose cell
-  /// has no triangle within r rings is outside by at least r - 1 cells. Elsewhere (below or beside the surface,
-  /// near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
+  /// for a set whose normals all lean up a grid axis, a point over the box, above every triangle of its column of
+  /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells. Elsewhere (below or beside
+  /// the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
@@ -158,6 +158,7 @@ class TriangleSet {
   /// Per cell, 1 where the cell lies above every triangle of its column along an axis every normal leans up
   /// (so a point there is outside); empty when no axis does.
   std::vector<uint8_t> above_surface_;
+  int up_axis_ = 1;                       ///< that axis, when above_surface_ is filled
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };
 

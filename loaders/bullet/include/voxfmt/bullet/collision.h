@@ -87,8 +87,9 @@ struct CollisionSettings {
   /// Temporal coherence: each pair keeps the sphere-tree front of its last query (runtime::QueryState, dropped
   /// with the pair when it leaves the broadphase) and looks up only what the motion since can have brought within
   /// reach: the same contacts, and a body at rest costs about its contact points a step. Pairs against a terrain
-  /// or an unindexed static mesh (static_mesh_index off: the triangles near the body change as it moves) and
-  /// shapes limited to a tree level or point budget query from the root.
+  /// or an unindexed static mesh (static_mesh_index off) keep their front while they gather the same triangles
+  /// near the body (at rest) and query from the root when those change; shapes limited to a tree level or point
+  /// budget query from the root.
   bool coherent = true;
   /// Static triangle meshes (btBvhTriangleMeshShape, scaled or not) are indexed once, the first time a VPS body
   /// meets one (or ahead of time: VpsCollisionRegistration::prepare_static_mesh, which World::add_body calls for
