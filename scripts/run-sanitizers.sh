@@ -4,7 +4,8 @@
 # scripts/run-fuzzers.sh reuses it instead of compiling the bake a third time. -O2 with line tables only: stack
 # traces name files and lines, CGAL's templates compile far faster than with full -g, and Eigen is inlined (at
 # -O1 the real-time examples ran 50-100x slower than release).
-#   SANITIZER_SCOPE=all      (default) every test, the bake included (what CI runs)
+#   SANITIZER_SCOPE=all      (default) every test, the bake included (what CI runs), but haptic_loop and the quick
+#                            benchmarks (tests/CMakeLists.txt says why)
 #   SANITIZER_SCOPE=runtime  what needs no bake: libvoxfmt, the runtime, haptics, the Bullet shapes on exact spheres
 # The Python extension is not built (CPython would have to load the sanitizer runtime first), so the python.*
 # tests are not in this run; the CLI's pytest tests are, against the instrumented voxfmt.
