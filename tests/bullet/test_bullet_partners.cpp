@@ -330,10 +330,10 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     if (over) {
       ASSERT_LE(bound, d + 1e-6f) << p << " at " << x.transpose();
     }
-    cheap += x.y() < 0.03f && bound > 0.0f && bound < d - 1e-4f;  // the ring map's bound (the box's top: 0.035)
+    cheap += x.y() < 0.03f && bound > 0.0f && bound < d - 1e-4f;  // a bound without a search (the box's top: 0.035)
   }
   EXPECT_GT(below, 400);  // the points below the terrain were searched too
-  EXPECT_GT(cheap, 100);  // and above it, within the box, the ring map bounded the distance without a search
+  EXPECT_GT(cheap, 100);  // and above it, within the box, bounded without a search
   // Far away (more than kMaxRings cells past the first ring that holds a triangle) a point gets a positive bound of
   // its distance's size: deep behind a floor, it has tunnelled through. A grid fewer cells across than those rings
   // is searched whole, so there the distance stays exact on either side.
@@ -341,7 +341,10 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
   add_patch(2, small_searched, small_every);
   small_searched.build();
   std::uniform_real_distribution<float> far_across(-0.5f, 0.75f), far_up(-0.5f, 0.5f);
-  int bounded = 0;
+  // A terrain is solid below: under its footprint a point is searched to its nearest triangle however deep.
+  TriangleSet solid = searched;
+  solid.set_solid_below(true);
+  int bounded = 0, deep_below = 0;
   for (int p = 0; p < 1000; ++p) {
     const Eigen::Vector3f x(far_across(random), far_up(random), far_across(random));
     const auto [d, expected] = both(searched, every, x);
@@ -353,11 +356,52 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     }
     if (std::min(x.x(), x.z()) >= 0.0f && std::max(x.x(), x.z()) <= 0.01f * float(n - 1)) {
       ASSERT_LE(searched.lower_bound(x), d + tolerance) << p;
+      if (x.y() < -0.04f) {  // below every triangle
+        const auto [s, exact] = both(solid, every, x);
+        ASSERT_NEAR(s, exact, tolerance) << p << " at " << x.transpose();
+        ASSERT_LT(s, 0.0f) << p;
+        ASSERT_LE(solid.lower_bound(x), s + tolerance) << p;
+        deep_below += d > 0.0f;  // counted as tunnelled through without
+      }
     }
     const auto [small, small_expected] = both(small_searched, small_every, x);
     ASSERT_NEAR(small, small_expected, 1e-6f * (1.0f + std::abs(small_expected))) << p;
   }
   EXPECT_GT(bounded, 100);
+  EXPECT_GT(deep_below, 5);  // measured: 10 of the 1,000 points
+}
+
+// Less than a cell above a gentle terrain, where no cell is empty for rings around, the tops of the columns around
+// a point bound its distance without a search, and never above it.
+TEST(TerrainTriangles, PointsJustAboveAGentleTerrainAreBoundedByTheColumnsAround) {
+  TriangleSet terrain;
+  const int n = 40;
+  const auto vertex = [](int i, int k) {
+    return Eigen::Vector3f(0.01f * float(i), 0.003f * std::sin(0.2f * float(i)) * std::cos(0.15f * float(k)),
+                           0.01f * float(k));
+  };
+  for (int i = 0; i + 1 < n; ++i)
+    for (int k = 0; k + 1 < n; ++k) {
+      terrain.add(vertex(i, k), vertex(i, k + 1), vertex(i + 1, k + 1));
+      terrain.add(vertex(i, k), vertex(i + 1, k + 1), vertex(i + 1, k));
+    }
+  terrain.build();
+  std::mt19937 random(11);
+  std::uniform_real_distribution<float> across(0.0f, 0.01f * float(n - 1)), above(0.0005f, 0.01f);
+  int bounded = 0;
+  const int points = 2000;
+  for (int p = 0; p < points; ++p) {
+    const float x = across(random), z = across(random);
+    // Above the surface: over the highest of the patch's heights within a cell (its slope is below 0.1).
+    const Eigen::Vector3f at(x, 0.003f * std::sin(20.0f * x) * std::cos(15.0f * z) + 0.001f + above(random), z);
+    Eigen::Vector3f outward;
+    const float d = terrain.distance(at, outward), bound = terrain.lower_bound(at);
+    ASSERT_GT(d, 0.0f) << p;
+    ASSERT_LE(bound, d + 1e-7f) << p << " at " << at.transpose();
+    bounded += bound > 0.25f * d && bound < d - 1e-7f;
+  }
+  std::cout << "[ figures  ] " << bounded << " of " << points << " points within a cell above bounded by the columns\n";
+  EXPECT_GT(2 * bounded, points);
 }
 
 }  // namespace

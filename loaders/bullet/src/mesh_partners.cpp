@@ -104,6 +104,7 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   thread_local TriangleSet gathered;
   gathered.clear();
   const bool terrain = b.getShapeType() == TERRAIN_SHAPE_PROXYTYPE;
+  gathered.set_solid_below(terrain);
   btVector3 a_lo, a_hi;  // A's box in its own frame
   a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
   a_lo -= btVector3(grow, grow, grow);

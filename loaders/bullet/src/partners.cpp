@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <limits>
 
 namespace voxfmt::bullet {
@@ -171,6 +172,8 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 }
 
 void TriangleSet::clear() {
+  solid_below_ = false;
+  column_tops_.clear();
   common_normal_.setZero();
   triangles_.clear();
   grid_.clear();
@@ -211,6 +214,79 @@ void TriangleSet::mark_cells_above_surface() {
       if (top == n) continue;
       for (int step = 0; step < top; ++step) above_surface_[at(c, step)] = 1;
     }
+  fill_column_tops(sign);
+}
+
+// Per column of cells along the up axis, the highest point (along `sign` times the axis) of the triangles whose
+// boxes cover it, then that maximum over the blocks of 2k + 1 columns a side around each (kColumnReach).
+void TriangleSet::fill_column_tops(int sign) {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a], nb = grid_.dims[b];
+  const size_t columns = size_t(na) * size_t(nb);
+  up_sign_ = float(sign);
+  column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
+  for (const detail::BoxedTriangle& t : triangles_) {
+    const Eigen::Vector3i c0 = grid_.cell_of(t.lo), c1 = grid_.cell_of(t.hi);
+    const float top = sign > 0 ? t.hi[up_axis_] : -t.lo[up_axis_];
+    for (int j = c0[b]; j <= c1[b]; ++j)
+      for (int i = c0[a]; i <= c1[a]; ++i) {
+        float& column = column_tops_[size_t(j) * size_t(na) + size_t(i)];
+        column = std::max(column, top);
+      }
+  }
+  // Each reach's map from the last by a separable maximum filter (reaches grow, so each widens the one before).
+  std::vector<float> along(columns);
+  int before = 0;
+  for (size_t level = 0; level < std::size(kColumnReach); ++level) {
+    const int grow = kColumnReach[level] - before;
+    before = kColumnReach[level];
+    const float* from = &column_tops_[level * columns];
+    float* to = &column_tops_[(level + 1) * columns];
+    for (int j = 0; j < nb; ++j)
+      for (int i = 0; i < na; ++i) {
+        float m = -std::numeric_limits<float>::infinity();
+        for (int d = std::max(i - grow, 0); d <= std::min(i + grow, na - 1); ++d) m = std::max(m, from[j * na + d]);
+        along[size_t(j * na + i)] = m;
+      }
+    for (int j = 0; j < nb; ++j)
+      for (int i = 0; i < na; ++i) {
+        float m = -std::numeric_limits<float>::infinity();
+        for (int d = std::max(j - grow, 0); d <= std::min(j + grow, nb - 1); ++d)
+          m = std::max(m, along[size_t(d * na + i)]);
+        to[j * na + i] = m;
+      }
+  }
+}
+
+bool TriangleSet::below_column_top(const Eigen::Vector3f& x) const {
+  if (column_tops_.empty()) return false;
+  for (int a = 0; a < 3; ++a)
+    if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
+  const Eigen::Vector3i c = grid_.cell_of(x);
+  return up_sign_ * x[up_axis_] < column_tops_[size_t(c[b]) * size_t(grid_.dims[a]) + size_t(c[a])];
+}
+
+float TriangleSet::column_bound(const Eigen::Vector3f& x) const {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a];
+  const Eigen::Vector3i c = grid_.cell_of(x);
+  const size_t columns = size_t(na) * size_t(grid_.dims[b]), column = size_t(c[b]) * size_t(na) + size_t(c[a]);
+  const float height = up_sign_ * x[up_axis_];
+  // Above every triangle of its own column (a graph over the up axis): outside.
+  if (!(height > column_tops_[column])) return -std::numeric_limits<float>::infinity();
+  // How far x is inside its own column across the up axis: a block of 2k + 1 columns around it reaches k cells
+  // beyond that.
+  const float inside =
+      std::min({x[a] - (grid_.lo[a] + float(c[a]) * grid_.cell), grid_.lo[a] + float(c[a] + 1) * grid_.cell - x[a],
+                x[b] - (grid_.lo[b] + float(c[b]) * grid_.cell), grid_.lo[b] + float(c[b] + 1) * grid_.cell - x[b]});
+  float bound = 0.0f;
+  for (size_t level = 0; level < std::size(kColumnReach); ++level) {
+    // A triangle within the block is no higher than its top; one beyond it is farther across than the block's side.
+    const float across = std::max(inside, 0.0f) + float(kColumnReach[level]) * grid_.cell;
+    const float above = height - column_tops_[(level + 1) * columns + column];
+    bound = std::max(bound, std::min(across, above));
+    if (above <= across) break;  // wider blocks are no higher: their bounds are no larger than `above`
+  }
+  return bound;
 }
 
 void TriangleSet::build() {
@@ -251,10 +327,12 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
   if (!above_surface_.empty() && over_the_box()) {
     // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
     // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away;
-    // and above the surface, so outside.
+    // and above the surface, so outside. Nearer, the columns' tops around x bound it from below.
     const size_t cell = grid_.cell_index(grid_.cell_of(x));
     const int ring = grid_.ring[cell];
     if (ring > 1 && above_surface_[cell]) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
+    const float column = column_bound(x);
+    if (column > 0.0f) return column;
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
@@ -275,6 +353,14 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   };
   // The rings before the nearest occupied one hold nothing: the search starts there.
   const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);
+  // Deep under a solid terrain: inside, and searched to the end (rare, and those are the contacts that push a
+  // sunken body back out).
+  if (solid_below_ && below_column_top(x)) {
+    nearest_by_rings(grid_, triangles_, x, c, std::min(first_ring, kEmptyRings - 1), box,
+                     std::numeric_limits<float>::infinity(), nearest);
+    outward = nearest.outward;
+    return nearest.signed_distance();
+  }
   if (first_ring >= kEmptyRings) {  // no triangle within the rings the map covers
     outward = away_from_box();
     return std::max(box, float(kEmptyRings - 1) * grid_.cell);

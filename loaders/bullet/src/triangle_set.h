@@ -123,7 +123,8 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 /// a terrain) has negative distances below it. A uniform grid over the set finds the nearest triangle by
 /// searching rings of cells outward; points farther than `kMaxRings` cells beyond the first ring that holds a
 /// triangle, on a grid more cells across than those rings reach, get a lower bound (the larger of the rings'
-/// distance and the distance to the set's bounding box), enough to prune; elsewhere the distance is exact.
+/// distance and the distance to the set's bounding box), enough to prune, except under a solid set (a terrain:
+/// set_solid_below); elsewhere the distance is exact.
 class TriangleSet {
  public:
   static constexpr int kMaxRings = 8;
@@ -136,6 +137,10 @@ class TriangleSet {
   /// Whether `other` holds the same triangles, corner for corner, in the same order.
   bool same_triangles(const TriangleSet& other) const;
   bool empty() const { return triangles_.empty(); }
+  /// A terrain is solid below its surface: a point under the set's footprint and below its column's triangles is
+  /// inside however deep, and searched to its nearest triangle rather than counted as tunnelled through (a floor or
+  /// other open surface, by default, may be passed through). Cleared by clear().
+  void set_solid_below(bool solid) { solid_below_ = solid; }
   /// The vertices of triangle i.
   const Eigen::Vector3f& corner(size_t i, int k) const {
     const detail::BoxedTriangle& t = triangles_[i];
@@ -145,12 +150,20 @@ class TriangleSet {
   /// A value the signed distance at x is not below, cheap far above a floor or terrain: for a set whose normals
   /// all lean one way, a point beyond the set's box on that side is outside by at least its distance to the box;
   /// for a set whose normals all lean up a grid axis, a point over the box, above every triangle of its column of
-  /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells. Elsewhere (below or beside
+  /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells, and nearer by its height
+  /// over the tops of the columns around it (column_bound). Elsewhere (below or beside
   /// the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
   void mark_cells_above_surface();
+  void fill_column_tops(int sign);
+  /// A point above the top of its own column: the largest of, over each block of columns around it, the lesser of
+  /// its height over the block's top and its distance across to the block's side (a triangle is either in the
+  /// block, no higher than its top, or beyond its side). Not above it: -infinity.
+  float column_bound(const Eigen::Vector3f& x) const;
+  /// Whether x lies over the set's box across the up axis and below the top of its own column's triangles.
+  bool below_column_top(const Eigen::Vector3f& x) const;
 
   std::vector<detail::BoxedTriangle> triangles_;
   TriangleGrid grid_;
@@ -158,7 +171,13 @@ class TriangleSet {
   /// Per cell, 1 where the cell lies above every triangle of its column along an axis every normal leans up
   /// (so a point there is outside); empty when no axis does.
   std::vector<uint8_t> above_surface_;
-  int up_axis_ = 1;                       ///< that axis, when above_surface_ is filled
+  int up_axis_ = 1;       ///< that axis, when above_surface_ is filled
+  float up_sign_ = 1.0f;  ///< +1 if the normals lean up that axis, -1 down it
+  /// When above_surface_ is filled: per column of cells along the up axis (up_sign_ times) the top of the triangles
+  /// covering it, then of those covering each block of 2k + 1 columns a side around it, k in kColumnReach.
+  std::vector<float> column_tops_;
+  static constexpr int kColumnReach[] = {1, 2, 4, 8};
+  bool solid_below_ = false;
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };
 

@@ -1,0 +1,358 @@
+// terrain-slide: a VPS bunny sliding over a Bullet terrain (btHeightfieldTerrainShape), one pair test a step
+// through the registered collision algorithm, at several speeds, from scratch and coherent (a terrain pair keeps
+// its front only while it gathers the same triangles: a sliding body gathers others nearly every step).
+//
+// The bunny (CGAL's bunny00.off at 0.15 m, resolution 306, 35,000 points, baked once into --cache) circles 0.5 m
+// around the middle of a 4 m x 4 m terrain of 8.5 mm cells (--cell; mixed_scene's) with 2 cm waves, turning with its
+// path, pressed 0.5 to 2 voxels into the surface under it. Every configuration sees the same poses; runs alternate
+// between them,
+// --repeat times, and each figure is the median of its runs. Each configuration's contacts are compared with the
+// pair from scratch at every step, field by field (bit for bit).
+#include <BulletCollision/BroadphaseCollision/btCollisionAlgorithm.h>
+#include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
+#include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
+#include <BulletCollision/CollisionDispatch/btDefaultCollisionConfiguration.h>
+#include <BulletCollision/CollisionDispatch/btManifoldResult.h>
+#include <BulletCollision/CollisionShapes/btHeightfieldTerrainShape.h>
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+#include "voxfmt/bake/bake.h"
+#include "voxfmt/bullet/collision.h"
+#include "voxfmt/bullet/shape.h"
+#include "voxfmt/detail/atomic_file.h"
+#include "voxfmt/detail/cores.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using voxfmt::bullet::CollisionSettings;
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kTerrainM = 4.0;    // the terrain's side, metres
+constexpr double kPathRadius = 0.5;  // metres
+
+double wave(double x, double z) { return 0.02 * std::sin(2 * kPi * x / 0.7) * std::cos(2 * kPi * z / 0.9); }
+
+struct Config {
+  std::string name;
+  bool coherent;
+};
+
+/// One VPS body against the terrain through the registered algorithm, as a world's narrow phase calls it.
+class Pair {
+ public:
+  Pair(btCollisionShape& terrain, std::shared_ptr<const voxfmt::runtime::CollisionObject> object, const Config& config)
+      : terrain_(terrain) {
+    btDefaultCollisionConstructionInfo info;
+    voxfmt::bullet::prepare_construction_info(info);
+    configuration_ = std::make_unique<btDefaultCollisionConfiguration>(info);
+    dispatcher_ = std::make_unique<btCollisionDispatcher>(configuration_.get());
+    CollisionSettings settings;
+    settings.coherent = config.coherent;
+    settings.on_contacts = [this](const btCollisionObject*, const btCollisionObject*,
+                                  const voxfmt::runtime::ContactSet& contacts) { contacts_ = contacts.contacts; };
+    vps_ = voxfmt::bullet::register_vps_collision(*dispatcher_, settings);
+    shape_ = std::make_unique<voxfmt::bullet::VpsMixedShape>(std::move(object));
+    body_.setCollisionShape(shape_.get());
+    terrain_object_.setCollisionShape(&terrain_);
+    btCollisionObjectWrapper wa(nullptr, shape_.get(), &body_, body_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, &terrain_, &terrain_object_, terrain_object_.getWorldTransform(), -1, -1);
+    algorithm_ = dispatcher_->findAlgorithm(&wa, &wb, nullptr, BT_CONTACT_POINT_ALGORITHMS);
+  }
+  ~Pair() {
+    algorithm_->~btCollisionAlgorithm();
+    dispatcher_->freeCollisionAlgorithm(algorithm_);
+  }
+  Pair(const Pair&) = delete;
+  Pair& operator=(const Pair&) = delete;
+
+  /// The pair test's contacts with the body at `at`, and its time (microseconds).
+  double test(const btTransform& at) {
+    body_.setWorldTransform(at);
+    btCollisionObjectWrapper wa(nullptr, shape_.get(), &body_, body_.getWorldTransform(), -1, -1);
+    btCollisionObjectWrapper wb(nullptr, &terrain_, &terrain_object_, terrain_object_.getWorldTransform(), -1, -1);
+    btManifoldResult result(&wa, &wb);
+    contacts_.clear();
+    const auto start = Clock::now();
+    algorithm_->processCollision(&wa, &wb, btDispatcherInfo(), &result);
+    return std::chrono::duration<double, std::micro>(Clock::now() - start).count();
+  }
+  const std::vector<voxfmt::runtime::Contact>& contacts() const { return contacts_; }
+  uint64_t points_tested() const { return vps_->counters().points_tested; }
+
+ private:
+  btCollisionShape& terrain_;
+  std::unique_ptr<btDefaultCollisionConfiguration> configuration_;
+  std::unique_ptr<btCollisionDispatcher> dispatcher_;
+  std::unique_ptr<voxfmt::bullet::VpsCollisionRegistration> vps_;
+  std::unique_ptr<voxfmt::bullet::VpsMixedShape> shape_;
+  btCollisionObject body_, terrain_object_;
+  btCollisionAlgorithm* algorithm_ = nullptr;
+  std::vector<voxfmt::runtime::Contact> contacts_;
+};
+
+bool same_contacts(const std::vector<voxfmt::runtime::Contact>& a, const std::vector<voxfmt::runtime::Contact>& b) {
+  return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const auto& x, const auto& y) {
+    return x.point_index == y.point_index && x.point_of_b == y.point_of_b && x.depth == y.depth && x.point == y.point &&
+           x.normal == y.normal;
+  });
+}
+
+/// The body's poses along the circle at `speed_m` a step: turning with its path, its lowest shell point pressed
+/// 0.5-2 voxels below the terrain under it.
+std::vector<btTransform> circle_path(const std::shared_ptr<const voxfmt::runtime::CollisionObject>& body,
+                                     double speed_m, int steps) {
+  const voxfmt::bullet::VpsMixedShape shape(body);
+  const voxfmt::runtime::CollisionObject& object = *body;
+  const double h = object.voxelmap().voxel_size();
+  std::vector<btTransform> poses;
+  for (int s = 0; s < steps; ++s) {
+    const double angle = speed_m * s / kPathRadius;
+    const double x = kPathRadius * std::cos(angle), z = kPathRadius * std::sin(angle);
+    const btQuaternion q = btQuaternion(btVector3(0, 1, 0), btScalar(-angle)) * btQuaternion(btVector3(1, 0, 1), 0.3f);
+    btTransform t(q, btVector3(0, 0, 0));
+    const voxfmt::runtime::Pose pose = shape.asset_pose(t);
+    double lowest = 1e30;
+    for (const Eigen::Vector3f& p : object.point_tree().points) {
+      const Eigen::Vector3d w = pose.apply(p.cast<double>());
+      lowest = std::min(lowest, w.y() - wave(w.x() + x, w.z() + z));
+    }
+    const double depth = h * (1.25 + 0.75 * std::sin(0.1 * s));
+    t.setOrigin(btVector3(btScalar(x), btScalar(-lowest - depth), btScalar(z)));
+    poses.push_back(t);
+  }
+  return poses;
+}
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  return v[size_t(q * double(v.size() - 1) + 0.5)];
+}
+
+double mean(const std::vector<double>& v) {
+  double sum = 0;
+  for (double x : v) sum += x;
+  return v.empty() ? NAN : sum / double(v.size());
+}
+
+std::string fixed(double v, int precision) {
+  std::ostringstream out;
+  out << std::fixed << std::setprecision(precision) << v;
+  return out.str();
+}
+
+struct Run {
+  double mean_us, p50_us, p90_us, points_per_step;
+  size_t contacts = 0, differing_steps = 0;
+};
+
+/// One configuration along one path; `reference` holds the from-scratch pair's contacts per step (filled by the
+/// first configuration, which is from scratch).
+Run run(btCollisionShape& terrain, const std::shared_ptr<const voxfmt::runtime::CollisionObject>& object,
+        const Config& config, const std::vector<btTransform>& poses,
+        std::vector<std::vector<voxfmt::runtime::Contact>>& reference) {
+  Pair pair(terrain, object, config);
+  std::vector<double> us;
+  Run result{};
+  const bool fill = reference.empty();
+  for (size_t s = 0; s < poses.size(); ++s) {
+    us.push_back(pair.test(poses[s]));
+    result.contacts += pair.contacts().size();
+    if (fill)
+      reference.push_back(pair.contacts());
+    else if (!same_contacts(pair.contacts(), reference[s]))
+      ++result.differing_steps;
+  }
+  result.mean_us = mean(us);
+  result.p50_us = quantile(us, 0.5);
+  result.p90_us = quantile(us, 0.9);
+  result.points_per_step = double(pair.points_tested()) / double(poses.size());
+  return result;
+}
+
+std::string load_average() {
+  std::ifstream in("/proc/loadavg");
+  std::string one;
+  in >> one;
+  return one;
+}
+
+/// Every configuration along one path, alternated `repeat` times: prints a row each and returns their JSON;
+/// adds the steps whose contacts differ from the pair from scratch's to `differing`.
+nlohmann::json compare_on_path(btCollisionShape& terrain,
+                               const std::shared_ptr<const voxfmt::runtime::CollisionObject>& object,
+                               const std::vector<Config>& configs, const std::vector<btTransform>& poses, double speed,
+                               int repeat, size_t& differing) {
+  std::vector<std::vector<Run>> runs(configs.size());
+  for (int r = 0; r < repeat; ++r) {
+    std::vector<std::vector<voxfmt::runtime::Contact>> reference;
+    for (size_t c = 0; c < configs.size(); ++c) runs[c].push_back(run(terrain, object, configs[c], poses, reference));
+  }
+  nlohmann::json rows = nlohmann::json::array();
+  const auto median = [&](size_t c, double Run::*field) {
+    std::vector<double> v;
+    for (const Run& x : runs[c]) v.push_back(x.*field);
+    return quantile(v, 0.5);
+  };
+  for (size_t c = 0; c < configs.size(); ++c) {
+    // The speed-up over the from-scratch pair, within each round, then the median over the rounds.
+    std::vector<double> ratios;
+    size_t differ = 0;
+    for (int r = 0; r < repeat; ++r) {
+      ratios.push_back(runs[0][size_t(r)].mean_us / runs[c][size_t(r)].mean_us);
+      differ = std::max(differ, runs[c][size_t(r)].differing_steps);
+      differing += runs[c][size_t(r)].differing_steps;
+    }
+    const double speedup = quantile(ratios, 0.5);
+    std::cout << std::left << std::setw(10) << fixed(speed, 1) << std::setw(16) << configs[c].name << std::right
+              << std::setw(28)
+              << (fixed(median(c, &Run::mean_us), 0) + " / " + fixed(median(c, &Run::p50_us), 0) + " / " +
+                  fixed(median(c, &Run::p90_us), 0))
+              << std::setw(10) << fixed(speedup, 2) + "x" << std::setw(14) << fixed(median(c, &Run::points_per_step), 0)
+              << std::setw(14) << runs[c][0].contacts << std::setw(12) << differ << "\n";
+    rows.push_back({{"pair", configs[c].name},
+                    {"coherent", configs[c].coherent},
+                    {"mean_us", median(c, &Run::mean_us)},
+                    {"p50_us", median(c, &Run::p50_us)},
+                    {"p90_us", median(c, &Run::p90_us)},
+                    {"speedup_vs_scratch", speedup},
+                    {"points_per_step", median(c, &Run::points_per_step)},
+                    {"contacts", runs[c][0].contacts},
+                    {"steps_differing_from_scratch", differ}});
+  }
+  return rows;
+}
+
+/// The asset given, or the bunny baked once into the cache.
+std::string load_or_bake(const std::string& mesh, const std::string& cache, std::string asset) {
+  if (!asset.empty()) return asset;
+  fs::create_directories(cache);
+  asset = cache + "/bunny00-0.15m-r306-p35000.vox.h5";
+  if (fs::exists(asset)) return asset;
+  std::cerr << "bake: " << mesh << " -> " << asset << "\n";
+  voxfmt::bake::Settings settings;
+  settings.import.unit_scale = 0.15;
+  settings.voxelmap.resolution = 306;
+  settings.point_shell.points = 35000;
+  const auto summary = voxfmt::bake::bake_to_file(mesh, asset, settings);
+  if (!summary) throw std::runtime_error(summary.error().describe());
+  return asset;
+}
+
+/// The waves' heights on a square of kTerrainM metres, cells of about `cell_mm`, and Bullet's terrain over them.
+struct Terrain {
+  int cells = 0;
+  double cell_m = 0;
+  std::vector<float> heights;  ///< read in place by the shape
+  std::unique_ptr<btHeightfieldTerrainShape> shape;
+};
+
+Terrain make_terrain(double cell_mm) {
+  Terrain t;
+  t.cells = int(std::lround(kTerrainM / (cell_mm * 1e-3)));
+  t.cell_m = kTerrainM / t.cells;
+  const int n = t.cells + 1;
+  t.heights.resize(size_t(n) * size_t(n));
+  for (int k = 0; k < n; ++k)
+    for (int i = 0; i < n; ++i)
+      t.heights[size_t(k * n + i)] = float(wave(-kTerrainM / 2 + t.cell_m * i, -kTerrainM / 2 + t.cell_m * k));
+  // Bullet centres a terrain on its declared height range: [-0.02, 0.02] keeps height 0 at the origin.
+  t.shape =
+      std::make_unique<btHeightfieldTerrainShape>(n, n, t.heights.data(), 1.0f, -0.02f, 0.02f, 1, PHY_FLOAT, false);
+  t.shape->setLocalScaling(btVector3(btScalar(t.cell_m), 1, btScalar(t.cell_m)));
+  return t;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string mesh = VOXFMT_SAMPLE_MESHES "/bunny00.off", cache = "out/terrain_slide", asset, json_path;
+  std::vector<double> speeds_mm = {0.3, 1, 3, 10};
+  int steps = 400, repeat = 3;
+  double cell_mm = 8.5;
+  CLI::App app{
+      "terrain-slide — a VPS bunny sliding over a Bullet terrain: the pair test's time per step, from "
+      "scratch and coherent, at several speeds"};
+  app.add_option("--mesh", mesh, "mesh of the body, baked at 0.15 m, resolution 306, 35,000 points")
+      ->capture_default_str();
+  app.add_option("--cache", cache, "folder for the baked asset")->capture_default_str();
+  app.add_option("--asset", asset, "an asset to use as it is instead of baking --mesh");
+  app.add_option("--speeds", speeds_mm, "the body's speeds, millimetres a step")
+      ->delimiter(',')
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 100.0));
+  app.add_option("--cell", cell_mm, "the terrain's cell, millimetres (mixed_scene's terrain: 8.5)")
+      ->capture_default_str()
+      ->check(CLI::Range(2.0, 100.0));
+  app.add_option("--steps", steps, "steps per path")->capture_default_str()->check(CLI::Range(1, 100000));
+  app.add_option("--repeat", repeat, "runs per configuration and path (alternating); the median is reported")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100));
+  app.add_option("--json", json_path, "write the results as JSON");
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    asset = load_or_bake(mesh, cache, asset);
+    auto loaded = voxfmt::runtime::CollisionObject::load(asset);
+    if (!loaded) throw std::runtime_error(loaded.error().describe());
+    const auto object = loaded.value();
+
+    const Terrain terrain = make_terrain(cell_mm);
+    const int cells = terrain.cells;
+    const double cell_m = terrain.cell_m;
+
+    const std::vector<Config> configs = {{"from scratch", false}, {"coherent", true}};
+
+    const std::string load_start = load_average();
+    nlohmann::json paths = nlohmann::json::array();
+    size_t differing = 0;
+    std::cout << "terrain-slide: " << asset << " (" << object->point_tree().size() << " points, voxel "
+              << fixed(object->voxelmap().voxel_size() * 1e3, 3) << " mm) on a " << cells << " x " << cells
+              << " terrain of " << fixed(cell_m * 1e3, 2) << " mm cells, " << steps << " steps a path, median of "
+              << repeat << " alternated runs\n\n"
+              << std::left << std::setw(10) << "mm/step" << std::setw(16) << "pair" << std::right << std::setw(28)
+              << "pair test mean/p50/p90 us" << std::setw(10) << "speed-up" << std::setw(14) << "points/step"
+              << std::setw(14) << "contacts" << std::setw(12) << "differ"
+              << "\n";
+    for (double speed : speeds_mm) {
+      const std::vector<btTransform> poses = circle_path(object, speed * 1e-3, steps);
+      paths.push_back(
+          {{"speed_mm_per_step", speed},
+           {"configurations", compare_on_path(*terrain.shape, object, configs, poses, speed, repeat, differing)}});
+    }
+    if (!json_path.empty()) {
+      std::string command = argv[0];
+      for (int a = 1; a < argc; ++a) command += std::string(" ") + argv[a];
+      const nlohmann::json out = {{"command", command},
+                                  {"machine",
+                                   {{"usable_cores", voxfmt::usable_cores()},
+                                    {"load_average_start", load_start},
+                                    {"load_average_end", load_average()}}},
+                                  {"asset", asset},
+                                  {"points", object->point_tree().size()},
+                                  {"steps", steps},
+                                  {"repeat", repeat},
+                                  {"terrain", {{"cells", cells}, {"cell_m", cell_m}, {"side_m", kTerrainM}}},
+                                  {"paths", paths}};
+      if (const voxfmt::Status written = voxfmt::write_file_atomically(json_path, out.dump(1) + "\n"); !written)
+        throw std::runtime_error(written.error().describe());
+      std::cout << "wrote " << json_path << "\n";
+    }
+    if (differing) std::cerr << "terrain-slide: contacts differ from the pair from scratch\n";
+    return differing ? 1 : 0;
+  } catch (const std::exception& e) {
+    std::cerr << "terrain-slide: " << e.what() << "\n";
+    return 1;
+  }
+}
