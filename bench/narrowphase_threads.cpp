@@ -22,6 +22,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "common/figures.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
@@ -32,6 +33,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using namespace voxfmt_bench;  // quantile, mean, fixed, load_average
 using Clock = std::chrono::steady_clock;
 constexpr btScalar kDt = btScalar(1e-3);
 constexpr double kHalfBox = 0.25;
@@ -67,17 +69,6 @@ struct RunResult {
   uint64_t pair_tests = 0;
   std::vector<btScalar> final_poses;
 };
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  return v[size_t(q * double(v.size() - 1) + 0.5)];
-}
-double mean(const std::vector<double>& v) {
-  double sum = 0;
-  for (double x : v) sum += x;
-  return v.empty() ? NAN : sum / double(v.size());
-}
 
 RunResult run(const std::shared_ptr<const voxfmt::runtime::CollisionObject>& object, const Config& config, int bodies,
               int steps) {
@@ -154,13 +145,6 @@ RunResult run(const std::shared_ptr<const voxfmt::runtime::CollisionObject>& obj
   return result;
 }
 
-std::string load_average() {
-  std::ifstream in("/proc/loadavg");
-  std::string one;
-  in >> one;
-  return one.empty() ? "null" : one;
-}
-
 std::string cpu_model() {
   std::ifstream info("/proc/cpuinfo");
   for (std::string line; std::getline(info, line);)
@@ -175,12 +159,6 @@ std::string json_string(const std::string& text) {
     out += c;
   }
   return out + "\"";
-}
-
-std::string fixed(double v, int precision) {
-  std::ostringstream out;
-  out << std::fixed << std::setprecision(precision) << v;
-  return out.str();
 }
 
 }  // namespace

@@ -21,11 +21,10 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
 #include <iostream>
-#include <sstream>
 
+#include "common/figures.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/bullet/collision.h"
 #include "voxfmt/bullet/shape.h"
@@ -35,6 +34,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using namespace voxfmt_bench;  // quantile, mean, fixed, load_average
 using Clock = std::chrono::steady_clock;
 using voxfmt::bullet::CollisionSettings;
 constexpr double kPi = 3.14159265358979323846;
@@ -134,24 +134,6 @@ std::vector<btTransform> circle_path(const std::shared_ptr<const voxfmt::runtime
   return poses;
 }
 
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  return v[size_t(q * double(v.size() - 1) + 0.5)];
-}
-
-double mean(const std::vector<double>& v) {
-  double sum = 0;
-  for (double x : v) sum += x;
-  return v.empty() ? NAN : sum / double(v.size());
-}
-
-std::string fixed(double v, int precision) {
-  std::ostringstream out;
-  out << std::fixed << std::setprecision(precision) << v;
-  return out.str();
-}
-
 struct Run {
   double mean_us, p50_us, p90_us, points_per_step;
   size_t contacts = 0, differing_steps = 0;
@@ -179,13 +161,6 @@ Run run(btCollisionShape& terrain, const std::shared_ptr<const voxfmt::runtime::
   result.p90_us = quantile(us, 0.9);
   result.points_per_step = double(pair.points_tested()) / double(poses.size());
   return result;
-}
-
-std::string load_average() {
-  std::ifstream in("/proc/loadavg");
-  std::string one;
-  in >> one;
-  return one;
 }
 
 /// Every configuration along one path, alternated `repeat` times: prints a row each and returns their JSON;
@@ -232,6 +207,11 @@ nlohmann::json compare_on_path(btCollisionShape& terrain,
                     {"steps_differing_from_scratch", differ}});
   }
   return rows;
+}
+
+/// A load average's text as a JSON number (null where it could not be read).
+nlohmann::json as_number(const std::string& text) {
+  return text == "null" ? nlohmann::json() : nlohmann::json(std::stod(text));
 }
 
 /// The asset given, or the bunny baked once into the cache.
@@ -337,8 +317,8 @@ int main(int argc, char** argv) {
       const nlohmann::json out = {{"command", command},
                                   {"machine",
                                    {{"usable_cores", voxfmt::usable_cores()},
-                                    {"load_average_start", load_start},
-                                    {"load_average_end", load_average()}}},
+                                    {"load_average_start", as_number(load_start)},
+                                    {"load_average_end", as_number(load_average())}}},
                                   {"asset", asset},
                                   {"points", object->point_tree().size()},
                                   {"steps", steps},
