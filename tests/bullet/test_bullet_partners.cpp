@@ -357,11 +357,16 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     if (std::min(x.x(), x.z()) >= 0.0f && std::max(x.x(), x.z()) <= 0.01f * float(n - 1)) {
       ASSERT_LE(searched.lower_bound(x), d + tolerance) << p;
       if (x.y() < -0.04f) {  // below every triangle
+        // Inside, exactly where the search reaches and no deeper than the distance beyond it.
         const auto [s, exact] = both(solid, every, x);
-        ASSERT_NEAR(s, exact, tolerance) << p << " at " << x.transpose();
-        ASSERT_LT(s, 0.0f) << p;
-        ASSERT_LE(solid.lower_bound(x), s + tolerance) << p;
-        deep_below += d > 0.0f;  // counted as tunnelled through without
+        ASSERT_LT(s, 0.0f) << p << " at " << x.transpose();
+        ASSERT_GE(s, exact - tolerance) << p;
+        if (d > 0.0f) {  // beyond the search's reach: counted as tunnelled through when not solid
+          ++deep_below;
+          ASSERT_NEAR(s, -d, tolerance) << p;
+        } else {
+          ASSERT_NEAR(s, exact, tolerance) << p;
+        }
       }
     }
     const auto [small, small_expected] = both(small_searched, small_every, x);
@@ -369,6 +374,47 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
   }
   EXPECT_GT(bounded, 100);
   EXPECT_GT(deep_below, 5);  // measured: 10 of the 1,000 points
+}
+
+// The columns' bound over a set with gaps (two strips of a floor with nothing between them) and one that faces down
+// the z axis: never above the distance, for points over the gap and below it too.
+TEST(TerrainTriangles, TheColumnsBoundHoldsOverGapsAndAlongAnyAxis) {
+  for (const int up : {1, 2}) {
+    for (const float sign : {1.0f, -1.0f}) {
+      TriangleSet strips;
+      // A point of the floor at (u, v) across the up axis, at height h along it (times sign).
+      const auto at = [&](float u, float v, float h) {
+        Eigen::Vector3f p;
+        p[up] = sign * h;
+        p[(up + 1) % 3] = u;
+        p[(up + 2) % 3] = v;
+        return p;
+      };
+      for (const float u0 : {0.0f, 5.0f})  // strips [0, 1] and [5, 6] across, [0, 6] along
+        for (int i = 0; i < 4; ++i)
+          for (int k = 0; k < 24; ++k) {
+            const float u = u0 + 0.25f * float(i), v = 0.25f * float(k);
+            Eigen::Vector3f a = at(u, v, 0), b = at(u, v + 0.25f, 0), c = at(u + 0.25f, v + 0.25f, 0),
+                            d = at(u + 0.25f, v, 0);
+            // Facing up the axis (times sign): counter-clockwise seen from there.
+            if ((b - a).cross(c - a)[up] * sign < 0) std::swap(b, d);
+            strips.add(a, b, c);
+            strips.add(a, c, d);
+          }
+      strips.build();
+      std::mt19937 random(3);
+      std::uniform_real_distribution<float> across(0.0f, 6.0f), height(-2.0f, 2.0f);
+      int positive = 0;
+      for (int p = 0; p < 3000; ++p) {
+        const Eigen::Vector3f x = at(across(random), across(random), height(random));
+        Eigen::Vector3f outward;
+        const float d = strips.distance(x, outward), bound = strips.lower_bound(x);
+        ASSERT_LE(bound, d + 1e-5f) << "up " << up << " sign " << sign << " at " << x.transpose();
+        positive += bound > 0.0f && bound < d - 1e-5f;
+      }
+      EXPECT_GT(positive, 300) << "up " << up << " sign " << sign;  // bounded without a search above the strips
+    }
+  }
 }
 
 // Less than a cell above a gentle terrain, where no cell is empty for rings around, the tops of the columns around

@@ -189,6 +189,7 @@ bool TriangleSet::same_triangles(const TriangleSet& other) const {
 
 void TriangleSet::mark_cells_above_surface() {
   above_surface_.clear();
+  column_tops_.clear();
   if (!(common_normal_.squaredNorm() > 0.0f)) return;
   int up = 0;
   common_normal_.cwiseAbs().maxCoeff(&up);
@@ -271,8 +272,11 @@ float TriangleSet::column_bound(const Eigen::Vector3f& x) const {
   const Eigen::Vector3i c = grid_.cell_of(x);
   const size_t columns = size_t(na) * size_t(grid_.dims[b]), column = size_t(c[b]) * size_t(na) + size_t(c[a]);
   const float height = up_sign_ * x[up_axis_];
-  // Above every triangle of its own column (a graph over the up axis): outside.
-  if (!(height > column_tops_[column])) return -std::numeric_limits<float>::infinity();
+  // Above every triangle of its own column (a graph over the up axis): outside. A column no triangle covers says
+  // nothing (beside the set's edge, or over a gap in it, a point may be inside).
+  const float own_top = column_tops_[column];
+  if (!(own_top > -std::numeric_limits<float>::infinity()) || !(height > own_top))
+    return -std::numeric_limits<float>::infinity();
   // How far x is inside its own column across the up axis: a block of 2k + 1 columns around it reaches k cells
   // beyond that.
   const float inside =
@@ -284,7 +288,7 @@ float TriangleSet::column_bound(const Eigen::Vector3f& x) const {
     const float across = std::max(inside, 0.0f) + float(kColumnReach[level]) * grid_.cell;
     const float above = height - column_tops_[(level + 1) * columns + column];
     bound = std::max(bound, std::min(across, above));
-    if (above <= across) break;  // wider blocks are no higher: their bounds are no larger than `above`
+    if (above <= across) break;  // wider blocks are no lower: their bounds are no larger than `above`
   }
   return bound;
 }
@@ -338,6 +342,18 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
   return distance(x, outward);
 }
 
+float TriangleSet::beyond_reach(const Eigen::Vector3f& x, float reach, Eigen::Vector3f& outward) const {
+  if (solid_below_ && below_column_top(x)) {  // under a terrain: inside, pushed up its axis
+    outward = Eigen::Vector3f::Unit(up_axis_) * up_sign_;
+    return -reach;
+  }
+  // Behind an open surface (a floor): it has tunnelled through, so outside.
+  const float box = grid_.box_distance(x);
+  outward =
+      box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
+  return reach;
+}
+
 float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
   if (empty()) return std::numeric_limits<float>::infinity();
   detail::NearestTriangle nearest(x);
@@ -348,23 +364,10 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   }
   const Eigen::Vector3i c = grid_.cell_of(x);
   const float box = grid_.box_distance(x);
-  const auto away_from_box = [&] {
-    return box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
-  };
   // The rings before the nearest occupied one hold nothing: the search starts there.
   const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);
-  // Deep under a solid terrain: inside, and searched to the end (rare, and those are the contacts that push a
-  // sunken body back out).
-  if (solid_below_ && below_column_top(x)) {
-    nearest_by_rings(grid_, triangles_, x, c, std::min(first_ring, kEmptyRings - 1), box,
-                     std::numeric_limits<float>::infinity(), nearest);
-    outward = nearest.outward;
-    return nearest.signed_distance();
-  }
-  if (first_ring >= kEmptyRings) {  // no triangle within the rings the map covers
-    outward = away_from_box();
-    return std::max(box, float(kEmptyRings - 1) * grid_.cell);
-  }
+  if (first_ring >= kEmptyRings)  // no triangle within the rings the map covers
+    return beyond_reach(x, std::max(box, float(kEmptyRings - 1) * grid_.cell), outward);
   // Rings past the grid's size cover all of it: the search is then exact wherever x is.
   const float limit = first_ring + kMaxRings > grid_.dims.maxCoeff() ? std::numeric_limits<float>::infinity()
                                                                      : float(first_ring + kMaxRings) * grid_.cell;
@@ -374,9 +377,7 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
     return nearest.signed_distance();
   }
   // Not settled within kMaxRings of the first occupied ring: every triangle is farther than that and than the box.
-  // Such a point counts as outside (a point that deep behind a floor has tunnelled through it).
-  outward = away_from_box();
-  return std::max(box, limit);
+  return beyond_reach(x, std::max(box, limit), outward);
 }
 
 }  // namespace voxfmt::bullet

@@ -123,8 +123,8 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 /// a terrain) has negative distances below it. A uniform grid over the set finds the nearest triangle by
 /// searching rings of cells outward; points farther than `kMaxRings` cells beyond the first ring that holds a
 /// triangle, on a grid more cells across than those rings reach, get a lower bound (the larger of the rings'
-/// distance and the distance to the set's bounding box), enough to prune, except under a solid set (a terrain:
-/// set_solid_below); elsewhere the distance is exact.
+/// distance and the distance to the set's bounding box), enough to prune (under a solid set, a terrain, the same
+/// size inside: set_solid_below); elsewhere the distance is exact.
 class TriangleSet {
  public:
   static constexpr int kMaxRings = 8;
@@ -137,9 +137,10 @@ class TriangleSet {
   /// Whether `other` holds the same triangles, corner for corner, in the same order.
   bool same_triangles(const TriangleSet& other) const;
   bool empty() const { return triangles_.empty(); }
-  /// A terrain is solid below its surface: a point under the set's footprint and below its column's triangles is
-  /// inside however deep, and searched to its nearest triangle rather than counted as tunnelled through (a floor or
-  /// other open surface, by default, may be passed through). Cleared by clear().
+  /// A terrain is solid below its surface: a point over the set's box, below the top of its column's triangles
+  /// and farther than the search reaches from every triangle is inside, at least that deep, pushed up the set's up
+  /// axis, rather than counted as tunnelled through (a floor or other open surface, by default, may be passed
+  /// through). Cleared by clear().
   void set_solid_below(bool solid) { solid_below_ = solid; }
   /// The vertices of triangle i.
   const Eigen::Vector3f& corner(size_t i, int k) const {
@@ -164,6 +165,9 @@ class TriangleSet {
   float column_bound(const Eigen::Vector3f& x) const;
   /// Whether x lies over the set's box across the up axis and below the top of its own column's triangles.
   bool below_column_top(const Eigen::Vector3f& x) const;
+  /// distance() of a point no triangle lies within `reach` of: inside by that much under a solid set, else
+  /// outside.
+  float beyond_reach(const Eigen::Vector3f& x, float reach, Eigen::Vector3f& outward) const;
 
   std::vector<detail::BoxedTriangle> triangles_;
   TriangleGrid grid_;
