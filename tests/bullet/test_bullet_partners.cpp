@@ -364,6 +364,9 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
         if (d > 0.0f) {  // beyond the search's reach: counted as tunnelled through when not solid
           ++deep_below;
           ASSERT_NEAR(s, -d, tolerance) << p;
+          Eigen::Vector3f outward;
+          solid.distance(x, outward);
+          ASSERT_EQ(outward, Eigen::Vector3f::UnitY()) << p;  // pushed up the terrain
         } else {
           ASSERT_NEAR(s, exact, tolerance) << p;
         }
@@ -373,7 +376,7 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     ASSERT_NEAR(small, small_expected, 1e-6f * (1.0f + std::abs(small_expected))) << p;
   }
   EXPECT_GT(bounded, 100);
-  EXPECT_GT(deep_below, 5);  // measured: 10 of the 1,000 points
+  EXPECT_GT(deep_below, 0);  // measured: 10 of the 1,000 points
 }
 
 // The columns' bound over a set with gaps (two strips of a floor with nothing between them) and one that faces down
@@ -382,10 +385,11 @@ TEST(TerrainTriangles, TheColumnsBoundHoldsOverGapsAndAlongAnyAxis) {
   for (const int up : {1, 2}) {
     for (const float sign : {1.0f, -1.0f}) {
       TriangleSet strips;
-      // A point of the floor at (u, v) across the up axis, at height h along it (times sign).
+      // A point of the floor at (u, v) across the up axis, at height h along it (times sign), on a ramp along v
+      // (so the columns' tops differ along one axis across the up axis and not the other).
       const auto at = [&](float u, float v, float h) {
         Eigen::Vector3f p;
-        p[up] = sign * h;
+        p[up] = sign * (h + 0.2f * v);
         p[(up + 1) % 3] = u;
         p[(up + 2) % 3] = v;
         return p;
@@ -403,7 +407,7 @@ TEST(TerrainTriangles, TheColumnsBoundHoldsOverGapsAndAlongAnyAxis) {
           }
       strips.build();
       std::mt19937 random(3);
-      std::uniform_real_distribution<float> across(0.0f, 6.0f), height(-2.0f, 2.0f);
+      std::uniform_real_distribution<float> across(0.0f, 6.0f), height(-1.5f, 1.5f);
       int positive = 0;
       for (int p = 0; p < 3000; ++p) {
         const Eigen::Vector3f x = at(across(random), across(random), height(random));

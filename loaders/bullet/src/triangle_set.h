@@ -154,6 +154,7 @@ class TriangleSet {
   /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells, and nearer by its height
   /// over the tops of the columns around it (column_bound). Elsewhere (below or beside
   /// the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
+  /// (Beyond the search's reach distance() is a value of the right size, not a bound; a negative one never prunes.)
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
