@@ -5,9 +5,8 @@
 // The bunny (CGAL's bunny00.off at 0.15 m, resolution 306, 35,000 points, baked once into --cache) circles 0.5 m
 // around the middle of a 4 m x 4 m terrain of 8.5 mm cells (--cell; mixed_scene's) with 2 cm waves, turning with its
 // path, pressed 0.5 to 2 voxels into the surface under it. Every configuration sees the same poses; runs alternate
-// between them,
-// --repeat times, and each figure is the median of its runs. Each configuration's contacts are compared with the
-// pair from scratch at every step, field by field (bit for bit).
+// between them, --repeat times, and each figure is the median of its runs. Each configuration's contacts are
+// compared with the pair from scratch at every step, field by field (bit for bit).
 #include <BulletCollision/BroadphaseCollision/btCollisionAlgorithm.h>
 #include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
 #include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>

@@ -202,6 +202,7 @@ void TriangleSet::mark_cells_above_surface() {
     if (t.normal.squaredNorm() > 0.0f && !(float(sign) * t.normal[up] > 0.0f)) return;
   above_surface_.assign(size_t(grid_.dims.prod()), 0);
   up_axis_ = up;
+  up_sign_ = float(sign);
   const int a = (up + 1) % 3, b = (up + 2) % 3, n = grid_.dims[up];
   const auto at = [&](Eigen::Vector3i c, int step) {  // the step-th cell of c's column from its top
     c[up] = sign > 0 ? n - 1 - step : step;
@@ -215,22 +216,22 @@ void TriangleSet::mark_cells_above_surface() {
       if (top == n) continue;
       for (int step = 0; step < top; ++step) above_surface_[at(c, step)] = 1;
     }
-  fill_column_tops(sign);
+  fill_column_tops();
 }
 
 // Per column of cells along the up axis, the highest point (along `sign` times the axis) of the triangles whose
 // boxes cover it, then that maximum over the blocks of 2k + 1 columns a side around each (kColumnReach).
-void TriangleSet::fill_column_tops(int sign) {
+void TriangleSet::fill_column_tops() {
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a], nb = grid_.dims[b];
   const size_t columns = size_t(na) * size_t(nb);
-  up_sign_ = float(sign);
   column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
   for (const detail::BoxedTriangle& t : triangles_) {
     const Eigen::Vector3i c0 = grid_.cell_of(t.lo), c1 = grid_.cell_of(t.hi);
-    const float top = sign > 0 ? t.hi[up_axis_] : -t.lo[up_axis_];
-    for (int j = c0[b]; j <= c1[b]; ++j)
-      for (int i = c0[a]; i <= c1[a]; ++i) {
-        float& column = column_tops_[size_t(j) * size_t(na) + size_t(i)];
+    const float top = up_sign_ > 0.0f ? t.hi[up_axis_] : -t.lo[up_axis_];
+    Eigen::Vector3i cell = c0;
+    for (cell[b] = c0[b]; cell[b] <= c1[b]; ++cell[b])
+      for (cell[a] = c0[a]; cell[a] <= c1[a]; ++cell[a]) {
+        float& column = column_tops_[column_index(cell)];
         column = std::max(column, top);
       }
   }
@@ -258,19 +259,25 @@ void TriangleSet::fill_column_tops(int sign) {
   }
 }
 
-bool TriangleSet::below_column_top(const Eigen::Vector3f& x) const {
-  if (column_tops_.empty()) return false;
-  for (int a = 0; a < 3; ++a)
-    if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
+size_t TriangleSet::column_index(const Eigen::Vector3i& c) const {
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
-  const Eigen::Vector3i c = grid_.cell_of(x);
-  return up_sign_ * x[up_axis_] < column_tops_[size_t(c[b]) * size_t(grid_.dims[a]) + size_t(c[a])];
+  return size_t(c[b]) * size_t(grid_.dims[a]) + size_t(c[a]);
 }
 
-float TriangleSet::column_bound(const Eigen::Vector3f& x) const {
-  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a];
-  const Eigen::Vector3i c = grid_.cell_of(x);
-  const size_t columns = size_t(na) * size_t(grid_.dims[b]), column = size_t(c[b]) * size_t(na) + size_t(c[a]);
+bool TriangleSet::over_the_box(const Eigen::Vector3f& x) const {
+  for (int a = 0; a < 3; ++a)
+    if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
+  return true;
+}
+
+bool TriangleSet::below_column_top(const Eigen::Vector3f& x) const {
+  if (column_tops_.empty() || !over_the_box(x)) return false;
+  return up_sign_ * x[up_axis_] < column_tops_[column_index(grid_.cell_of(x))];
+}
+
+float TriangleSet::column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
+  const size_t columns = size_t(grid_.dims[a]) * size_t(grid_.dims[b]), column = column_index(c);
   const float height = up_sign_ * x[up_axis_];
   // Above every triangle of its own column (a graph over the up axis): outside. A column no triangle covers says
   // nothing (beside the set's edge, or over a gap in it, a point may be inside).
@@ -323,32 +330,27 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     // so outside, and no triangle is nearer than the box.
     if (off_box.dot(common_normal_) > 0.0f) return off_box.norm();
   }
-  const auto over_the_box = [&] {
-    for (int a = 0; a < 3; ++a)
-      if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
-    return true;
-  };
-  if (!above_surface_.empty() && over_the_box()) {
+  if (!above_surface_.empty() && over_the_box(x)) {
     // No triangle within `ring` - 1 rings of x's cell (x's projection onto the box lies in it, and projecting
     // onto a convex set brings nothing of it nearer): at least that many cells, and the box's distance, away;
     // and above the surface, so outside. Nearer, the columns' tops around x bound it from below.
-    const size_t cell = grid_.cell_index(grid_.cell_of(x));
+    const Eigen::Vector3i c = grid_.cell_of(x);
+    const size_t cell = grid_.cell_index(c);
     const int ring = grid_.ring[cell];
     if (ring > 1 && above_surface_[cell]) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
-    const float column = column_bound(x);
+    const float column = column_bound(x, c);
     if (column > 0.0f) return column;
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
 }
 
-float TriangleSet::beyond_reach(const Eigen::Vector3f& x, float reach, Eigen::Vector3f& outward) const {
+float TriangleSet::beyond_reach(const Eigen::Vector3f& x, float box, float reach, Eigen::Vector3f& outward) const {
   if (solid_below_ && below_column_top(x)) {  // under a terrain: inside, pushed up its axis
     outward = Eigen::Vector3f::Unit(up_axis_) * up_sign_;
     return -reach;
   }
   // Behind an open surface (a floor): it has tunnelled through, so outside.
-  const float box = grid_.box_distance(x);
   outward =
       box > 0.0f ? Eigen::Vector3f((x - x.cwiseMax(grid_.lo).cwiseMin(grid_.hi)) / box) : Eigen::Vector3f::UnitY();
   return reach;
@@ -367,7 +369,7 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   // The rings before the nearest occupied one hold nothing: the search starts there.
   const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);
   if (first_ring >= kEmptyRings)  // no triangle within the rings the map covers
-    return beyond_reach(x, std::max(box, float(kEmptyRings - 1) * grid_.cell), outward);
+    return beyond_reach(x, box, std::max(box, float(kEmptyRings - 1) * grid_.cell), outward);
   // Rings past the grid's size cover all of it: the search is then exact wherever x is.
   const float limit = first_ring + kMaxRings > grid_.dims.maxCoeff() ? std::numeric_limits<float>::infinity()
                                                                      : float(first_ring + kMaxRings) * grid_.cell;
@@ -377,7 +379,7 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
     return nearest.signed_distance();
   }
   // Not settled within kMaxRings of the first occupied ring: every triangle is farther than that and than the box.
-  return beyond_reach(x, std::max(box, limit), outward);
+  return beyond_reach(x, box, std::max(box, limit), outward);
 }
 
 }  // namespace voxfmt::bullet

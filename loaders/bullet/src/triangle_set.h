@@ -159,16 +159,20 @@ class TriangleSet {
 
  private:
   void mark_cells_above_surface();
-  void fill_column_tops(int sign);
+  void fill_column_tops();
+  /// Index of cell c's column (along the up axis) in column_tops_' maps.
+  size_t column_index(const Eigen::Vector3i& c) const;
+  /// Whether x lies within the set's box across the up axis (over it or under it).
+  bool over_the_box(const Eigen::Vector3f& x) const;
   /// A point above the top of its own column: the largest of, over each block of columns around it, the lesser of
   /// its height over the block's top and its distance across to the block's side (a triangle is either in the
-  /// block, no higher than its top, or beyond its side). Not above it: -infinity.
-  float column_bound(const Eigen::Vector3f& x) const;
+  /// block, no higher than its top, or beyond its side). Not above it: -infinity. `c`: x's cell.
+  float column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const;
   /// Whether x lies over the set's box across the up axis and below the top of its own column's triangles.
   bool below_column_top(const Eigen::Vector3f& x) const;
-  /// distance() of a point no triangle lies within `reach` of: inside by that much under a solid set, else
-  /// outside.
-  float beyond_reach(const Eigen::Vector3f& x, float reach, Eigen::Vector3f& outward) const;
+  /// distance() of a point no triangle lies within `reach` of (`box`: its distance to the set's box): inside by
+  /// that much under a solid set, else outside.
+  float beyond_reach(const Eigen::Vector3f& x, float box, float reach, Eigen::Vector3f& outward) const;
 
   std::vector<detail::BoxedTriangle> triangles_;
   TriangleGrid grid_;
