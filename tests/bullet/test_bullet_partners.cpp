@@ -341,7 +341,8 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
   add_patch(2, small_searched, small_every);
   small_searched.build();
   std::uniform_real_distribution<float> far_across(-0.5f, 0.75f), far_up(-0.5f, 0.5f);
-  // A terrain is solid below: under its footprint a point is searched to its nearest triangle however deep.
+  // A terrain is solid below: under its footprint a point below its column is searched to its nearest triangle
+  // however deep.
   TriangleSet solid = searched;
   solid.set_solid_below(true);
   int bounded = 0, deep_below = 0;
@@ -357,19 +358,16 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
     if (std::min(x.x(), x.z()) >= 0.0f && std::max(x.x(), x.z()) <= 0.01f * float(n - 1)) {
       ASSERT_LE(searched.lower_bound(x), d + tolerance) << p;
       if (x.y() < -0.04f) {  // below every triangle
-        // Inside, exactly where the search reaches and no deeper than the distance beyond it.
+        // Inside, exactly as deep (searched over the columns), where the ring search stops at its reach; the
+        // nearest triangle's normal out, which faces up.
         const auto [s, exact] = both(solid, every, x);
         ASSERT_LT(s, 0.0f) << p << " at " << x.transpose();
-        ASSERT_GE(s, exact - tolerance) << p;
-        if (d > 0.0f) {  // beyond the search's reach: counted as tunnelled through when not solid
-          ++deep_below;
-          ASSERT_NEAR(s, -d, tolerance) << p;
-          Eigen::Vector3f outward;
-          solid.distance(x, outward);
-          ASSERT_EQ(outward, Eigen::Vector3f::UnitY()) << p;  // pushed up the terrain
-        } else {
-          ASSERT_NEAR(s, exact, tolerance) << p;
-        }
+        ASSERT_NEAR(s, exact, tolerance) << p;
+        ASSERT_LE(solid.lower_bound(x), s) << p;
+        Eigen::Vector3f outward;
+        solid.distance(x, outward);
+        ASSERT_GT(outward.y(), 0.0f) << p;
+        deep_below += d > 0.0f;  // beyond the ring search's reach: counted as tunnelled through when not solid
       }
     }
     const auto [small, small_expected] = both(small_searched, small_every, x);
@@ -377,10 +375,18 @@ TEST(TerrainTriangles, TheGridSearchGivesTheNearestOfEveryTriangle) {
   }
   EXPECT_GT(bounded, 100);
   EXPECT_GT(deep_below, 0);  // measured: 10 of the 1,000 points
+  // Under the footprint at every depth to 0.6 m (60 cells; the ring search reaches 8), the nearest triangle.
+  std::uniform_real_distribution<float> footprint(0.0f, 0.01f * float(n - 1)), depth(-0.6f, -0.04f);
+  for (int p = 0; p < 2000; ++p) {
+    const Eigen::Vector3f x(footprint(random), depth(random), footprint(random));
+    const auto [s, exact] = both(solid, every, x);
+    ASSERT_NEAR(s, exact, 1e-6f * (1.0f + std::abs(exact))) << p << " at " << x.transpose();
+  }
 }
 
 // The columns' bound over a set with gaps (two strips of a floor with nothing between them) and one that faces down
-// the z axis: never above the distance, for points over the gap and below it too.
+// the z axis: never above the distance, for points over the gap and below it too; and under a solid set the search
+// over the columns finds the nearest triangle at any depth, along any axis.
 TEST(TerrainTriangles, TheColumnsBoundHoldsOverGapsAndAlongAnyAxis) {
   for (const int up : {1, 2}) {
     for (const float sign : {1.0f, -1.0f}) {
@@ -405,18 +411,31 @@ TEST(TerrainTriangles, TheColumnsBoundHoldsOverGapsAndAlongAnyAxis) {
             strips.add(a, b, c);
             strips.add(a, c, d);
           }
+      const TriangleSet every = strips;  // not built: looks at every triangle
       strips.build();
+      TriangleSet solid = strips;
+      solid.set_solid_below(true);
       std::mt19937 random(3);
       std::uniform_real_distribution<float> across(0.0f, 6.0f), height(-1.5f, 1.5f);
-      int positive = 0;
+      int positive = 0, deep = 0;
       for (int p = 0; p < 3000; ++p) {
-        const Eigen::Vector3f x = at(across(random), across(random), height(random));
+        const float u = across(random), h = height(random);
+        const Eigen::Vector3f x = at(u, across(random), h);
         Eigen::Vector3f outward;
         const float d = strips.distance(x, outward), bound = strips.lower_bound(x);
         ASSERT_LE(bound, d + 1e-5f) << "up " << up << " sign " << sign << " at " << x.transpose();
         positive += bound > 0.0f && bound < d - 1e-5f;
+        // Well below a strip, a solid set's distance is the nearest triangle's, however deep.
+        if (h < -0.5f && (u < 1.0f || u > 5.0f)) {
+          const float s = solid.distance(x, outward), expected = every.distance(x, outward);
+          ASSERT_NEAR(s, expected, 1e-6f * (1.0f - expected))
+              << "up " << up << " sign " << sign << " at " << x.transpose();
+          ASSERT_LE(solid.lower_bound(x), s) << "up " << up << " sign " << sign << " at " << x.transpose();
+          ++deep;
+        }
       }
       EXPECT_GT(positive, 300) << "up " << up << " sign " << sign;  // bounded without a search above the strips
+      EXPECT_GT(deep, 300) << "up " << up << " sign " << sign;
     }
   }
 }

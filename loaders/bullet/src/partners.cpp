@@ -174,6 +174,9 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 void TriangleSet::clear() {
   solid_below_ = false;
   column_tops_.clear();
+  column_bottoms_.clear();
+  column_lowest_.clear();
+  column_spans_.clear();
   common_normal_.setZero();
   triangles_.clear();
   grid_.clear();
@@ -190,6 +193,9 @@ bool TriangleSet::same_triangles(const TriangleSet& other) const {
 void TriangleSet::mark_cells_above_surface() {
   above_surface_.clear();
   column_tops_.clear();
+  column_bottoms_.clear();
+  column_lowest_.clear();
+  column_spans_.clear();
   if (!(common_normal_.squaredNorm() > 0.0f)) return;
   int up = 0;
   common_normal_.cwiseAbs().maxCoeff(&up);
@@ -225,14 +231,23 @@ void TriangleSet::fill_column_tops() {
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a], nb = grid_.dims[b];
   const size_t columns = size_t(na) * size_t(nb);
   column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
-  for (const detail::BoxedTriangle& t : triangles_) {
+  column_bottoms_.assign(columns, -std::numeric_limits<float>::infinity());
+  column_lowest_.assign(columns, 0);
+  for (size_t i = 0; i < triangles_.size(); ++i) {
+    const detail::BoxedTriangle& t = triangles_[i];
     const Eigen::Vector3i c0 = grid_.cell_of(t.lo), c1 = grid_.cell_of(t.hi);
     const float top = up_sign_ > 0.0f ? t.hi[up_axis_] : -t.lo[up_axis_];
+    const float bottom = up_sign_ > 0.0f ? t.lo[up_axis_] : -t.hi[up_axis_];
     Eigen::Vector3i cell = c0;
     for (cell[b] = c0[b]; cell[b] <= c1[b]; ++cell[b])
       for (cell[a] = c0[a]; cell[a] <= c1[a]; ++cell[a]) {
-        float& column = column_tops_[column_index(cell)];
-        column = std::max(column, top);
+        const size_t column = column_index(cell);
+        const bool first = !(column_tops_[column] > -std::numeric_limits<float>::infinity());
+        column_tops_[column] = std::max(column_tops_[column], top);
+        if (first || bottom < column_bottoms_[column]) {
+          column_bottoms_[column] = bottom;
+          column_lowest_[column] = uint32_t(i);
+        }
       }
   }
   // Each reach's map from the last by a separable maximum filter (reaches grow, so each widens the one before).
@@ -257,6 +272,97 @@ void TriangleSet::fill_column_tops() {
         to[j * na + i] = m;
       }
   }
+  fill_column_spans();
+}
+
+void TriangleSet::fill_column_spans() {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
+  int na = grid_.dims[a], nb = grid_.dims[b];
+  column_spans_.assign(1, std::vector<ColumnSpan>(size_t(na) * size_t(nb)));
+  for (size_t column = 0; column < column_spans_[0].size(); ++column)
+    if (column_tops_[column] > -std::numeric_limits<float>::infinity())
+      column_spans_[0][column] = {column_bottoms_[column], column_tops_[column]};
+  while (na > 1 || nb > 1) {
+    const int wa = (na + 1) / 2, wb = (nb + 1) / 2;
+    std::vector<ColumnSpan> up(size_t(wa) * size_t(wb));
+    const std::vector<ColumnSpan>& below = column_spans_.back();
+    for (int j = 0; j < nb; ++j)
+      for (int i = 0; i < na; ++i) {
+        ColumnSpan& to = up[size_t(j / 2 * wa + i / 2)];
+        const ColumnSpan& from = below[size_t(j * na + i)];
+        to.bottom = std::min(to.bottom, from.bottom);
+        to.top = std::max(to.top, from.top);
+      }
+    column_spans_.push_back(std::move(up));
+    na = wa;
+    nb = wb;
+  }
+}
+
+float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, up = up_axis_;
+  const float height = up_sign_ * x[up];
+  // A node's box: its columns across, its span up (a triangle's point lies in the column under it, whose span holds
+  // the triangle's); padded by float rounding in cell_of.
+  const float pad = 1e-5f * grid_.cell;
+  struct Node {
+    float d2;
+    int level, i, j;
+  };
+  detail::NearestTriangle nearest(x);
+  thread_local std::vector<Node> heap;
+  heap.clear();
+  const auto nearer_first = [](const Node& p, const Node& q) { return p.d2 > q.d2; };
+  const auto push = [&](int level, int i, int j) {
+    const int width = (grid_.dims[a] + (1 << level) - 1) >> level;
+    const ColumnSpan& span = column_spans_[size_t(level)][size_t(j * width + i)];
+    if (!(span.bottom <= span.top)) return;  // no triangle
+    const float side = grid_.cell * float(1 << level);
+    const float a0 = grid_.lo[a] + float(i) * side, b0 = grid_.lo[b] + float(j) * side;
+    const float da = std::max({a0 - pad - x[a], x[a] - (a0 + side + pad), 0.0f});
+    const float db = std::max({b0 - pad - x[b], x[b] - (b0 + side + pad), 0.0f});
+    const float dv = std::max({span.bottom - pad - height, height - (span.top + pad), 0.0f});
+    const float d2 = da * da + db * db + dv * dv;
+    if (!nearest.may_improve(d2)) return;  // nor can any triangle in it
+    heap.push_back({d2, level, i, j});
+    std::push_heap(heap.begin(), heap.end(), nearer_first);
+  };
+  push(int(column_spans_.size()) - 1, 0, 0);
+  VisitStamps& stamps = VisitStamps::start(triangles_.size());
+  while (!heap.empty()) {
+    std::pop_heap(heap.begin(), heap.end(), nearer_first);
+    const Node node = heap.back();
+    heap.pop_back();
+    if (!nearest.may_improve(node.d2)) break;  // nor can any node after it
+    if (node.level > 0) {
+      const int width = (grid_.dims[a] + (1 << (node.level - 1)) - 1) >> (node.level - 1),
+                height_below = (grid_.dims[b] + (1 << (node.level - 1)) - 1) >> (node.level - 1);
+      for (int j = 2 * node.j; j < std::min(2 * node.j + 2, height_below); ++j)
+        for (int i = 2 * node.i; i < std::min(2 * node.i + 2, width); ++i) push(node.level - 1, i, j);
+      continue;
+    }
+    // The column's cells that its triangles reach (the span is up_sign_ times the axis).
+    const ColumnSpan& span = column_spans_[0][size_t(node.j * grid_.dims[a] + node.i)];
+    Eigen::Vector3f low = grid_.lo, high = grid_.lo;
+    low[up] = up_sign_ > 0.0f ? span.bottom : -span.top;
+    high[up] = up_sign_ > 0.0f ? span.top : -span.bottom;
+    Eigen::Vector3i c = grid_.cell_of(low);
+    const int last = grid_.cell_of(high)[up];
+    c[a] = node.i;
+    c[b] = node.j;
+    for (; c[up] <= last; ++c[up]) {
+      const size_t cell = grid_.cell_index(c);
+      for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) {
+        const uint32_t id = grid_.members[m];
+        if (!stamps.first_visit(id)) continue;
+        const detail::BoxedTriangle& t = triangles_[id];
+        if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
+        nearest.consider(t.a, t.b, t.c, t.normal);
+      }
+    }
+  }
+  outward = nearest.outward;
+  return nearest.signed_distance();
 }
 
 size_t TriangleSet::column_index(const Eigen::Vector3i& c) const {
@@ -340,9 +446,19 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     if (ring > 1 && above_surface_[cell]) return std::max(grid_.box_distance(x), float(ring - 1) * grid_.cell);
     const float column = column_bound(x, c);
     if (column > 0.0f) return column;
+    // Below every triangle of its own column: most likely inside, where the exact distance (a search as deep as
+    // the point) would only open the cluster. Any triangle's distance bounds the depth.
+    const size_t own = column_index(c);
+    if (up_sign_ * x[up_axis_] < column_bottoms_[own]) return depth_bound(x, triangles_[column_lowest_[own]]);
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
+}
+
+float TriangleSet::depth_bound(const Eigen::Vector3f& x, const detail::BoxedTriangle& t) {
+  // The search may settle on a triangle tied with the nearest up to 1e-6 of the squared distance (NearestTriangle::
+  // tie): the margin keeps the bound below what it returns.
+  return -(x - detail::closest_on_triangle(x, t.a, t.b, t.c)).norm() * (1.0f + 1e-5f);
 }
 
 float TriangleSet::beyond_reach(const Eigen::Vector3f& x, float box, float reach, Eigen::Vector3f& outward) const {
@@ -365,6 +481,10 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
     return nearest.signed_distance();
   }
   const Eigen::Vector3i c = grid_.cell_of(x);
+  // Under a terrain, below every triangle of its column: searched over the columns, exact at any depth.
+  if (solid_below_ && !column_spans_.empty() && over_the_box(x) &&
+      up_sign_ * x[up_axis_] < column_bottoms_[column_index(c)])
+    return nearest_over_columns(x, outward);
   const float box = grid_.box_distance(x);
   // The rings before the nearest occupied one hold nothing: the search starts there.
   const int first_ring = grid_.ring.empty() ? 0 : int(grid_.ring[grid_.cell_index(c)]);

@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <limits>
 #include <vector>
 
 #include "triangle_distance.h"
@@ -68,6 +69,32 @@ struct TriangleGrid {
   void fill_rings(int rings);
 };
 
+/// A stamp per triangle and thread: a search looks at each triangle once, though the grid lists it in every cell its
+/// box covers (a triangle passed over stays out of reach, as the nearest only gets nearer).
+class VisitStamps {
+ public:
+  /// This thread's stamps, ready for a search over `count` triangles.
+  static VisitStamps& start(size_t count) {
+    thread_local VisitStamps stamps;
+    if (stamps.seen_.size() < count) stamps.seen_.resize(count, 0);
+    if (++stamps.search_ == 0) {
+      std::fill(stamps.seen_.begin(), stamps.seen_.end(), 0u);
+      stamps.search_ = 1;
+    }
+    return stamps;
+  }
+  /// Whether this search has not looked at triangle `id` yet (and marks it looked at).
+  bool first_visit(uint32_t id) {
+    if (seen_[id] == search_) return false;
+    seen_[id] = search_;
+    return true;
+  }
+
+ private:
+  std::vector<uint32_t> seen_;
+  uint32_t search_ = 0;
+};
+
 /// The nearest of `triangles` (listed in `grid`) to x, offered to `nearest`: rings of cells around c (x's cell)
 /// from `first_ring` on, skipping cells and triangles whose boxes cannot hold a nearer one and looking at each
 /// triangle once, until no unseen triangle can be nearer than the nearest (nearest.settled_within(reach)) or every
@@ -76,15 +103,7 @@ struct TriangleGrid {
 inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail::BoxedTriangle>& triangles,
                               const Eigen::Vector3f& x, const Eigen::Vector3i& c, int first_ring, float box,
                               float limit, detail::NearestTriangle& nearest) {
-  // A triangle is listed in every cell its box covers: a stamp per triangle and thread (a triangle passed over
-  // stays out of reach, as the nearest only gets nearer).
-  thread_local std::vector<uint32_t> seen;
-  thread_local uint32_t search_id = 0;
-  if (seen.size() < triangles.size()) seen.resize(triangles.size(), 0);
-  if (++search_id == 0) {
-    std::fill(seen.begin(), seen.end(), 0u);
-    search_id = 1;
-  }
+  VisitStamps& stamps = VisitStamps::start(triangles.size());
   for (int r = first_ring;; ++r) {
     for (int k = std::max(c.z() - r, 0); k <= std::min(c.z() + r, grid.dims.z() - 1); ++k) {
       for (int j = std::max(c.y() - r, 0); j <= std::min(c.y() + r, grid.dims.y() - 1); ++j) {
@@ -98,8 +117,7 @@ inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail
           const size_t cell = grid.cell_index(i, j, k);
           for (uint32_t m = grid.first[cell]; m < grid.first[cell + 1]; ++m) {
             const uint32_t id = grid.members[m];
-            if (seen[id] == search_id) continue;
-            seen[id] = search_id;
+            if (!stamps.first_visit(id)) continue;
             const detail::BoxedTriangle& t = triangles[id];
             if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
             nearest.consider(t.a, t.b, t.c, t.normal);
@@ -137,10 +155,11 @@ class TriangleSet {
   /// Whether `other` holds the same triangles, corner for corner, in the same order.
   bool same_triangles(const TriangleSet& other) const;
   bool empty() const { return triangles_.empty(); }
-  /// A terrain is solid below its surface: a point over the set's box, below the top of its column's triangles
-  /// and farther than the search reaches from every triangle is inside, at least that deep, pushed up the set's up
-  /// axis, rather than counted as tunnelled through (a floor or other open surface, by default, may be passed
-  /// through). Cleared by clear().
+  /// A terrain is solid below its surface: a point over the set's box and below every triangle of its column is
+  /// searched to its nearest triangle however deep (over a pyramid of the columns' spans), and one below the top of
+  /// its column's triangles and farther than the ring search reaches from every triangle is inside, at least that
+  /// deep, pushed up the set's up axis, rather than counted as tunnelled through (a floor or other open surface, by
+  /// default, may be passed through). Cleared by clear().
   void set_solid_below(bool solid) { solid_below_ = solid; }
   /// The vertices of triangle i.
   const Eigen::Vector3f& corner(size_t i, int k) const {
@@ -152,9 +171,11 @@ class TriangleSet {
   /// all lean one way, a point beyond the set's box on that side is outside by at least its distance to the box;
   /// for a set whose normals all lean up a grid axis, a point over the box, above every triangle of its column of
   /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells, and nearer by its height
-  /// over the tops of the columns around it (column_bound). Elsewhere (below or beside
-  /// the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point that is inside.
-  /// (Beyond the search's reach distance() is a value of the right size, not a bound; a negative one never prunes.)
+  /// over the tops of the columns around it (column_bound); below every triangle of its column, minus its distance
+  /// to one of them (depth_bound: cheap, and such a point is inside or near, so its cluster opens either way).
+  /// Elsewhere (beside the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point
+  /// that is inside. (Beyond the search's reach distance() is a value of the right size, not a bound; a negative one
+  /// never prunes.)
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
@@ -170,6 +191,12 @@ class TriangleSet {
   float column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const;
   /// Whether x lies over the set's box across the up axis and below the top of its own column's triangles.
   bool below_column_top(const Eigen::Vector3f& x) const;
+  /// A value the signed distance at x is not below: minus x's distance to t (the nearest triangle is no farther).
+  static float depth_bound(const Eigen::Vector3f& x, const detail::BoxedTriangle& t);
+  /// distance() of a point below its column under a solid set: a best-first search over column_spans_, exact at any
+  /// depth.
+  float nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
+  void fill_column_spans();
   /// distance() of a point no triangle lies within `reach` of (`box`: its distance to the set's box): inside by
   /// that much under a solid set, else outside.
   float beyond_reach(const Eigen::Vector3f& x, float box, float reach, Eigen::Vector3f& outward) const;
@@ -186,6 +213,17 @@ class TriangleSet {
   /// covering it, then of those covering each block of 2k + 1 columns a side around it, k in kColumnReach.
   std::vector<float> column_tops_;
   static constexpr int kColumnReach[] = {1, 2, 4, 8};
+  /// With column_tops_: per column, the lowest point (up_sign_ times) of the triangles covering it (-infinity where
+  /// none does), and the triangle that reaches it.
+  std::vector<float> column_bottoms_;
+  std::vector<uint32_t> column_lowest_;
+  /// With column_tops_: a pyramid over the columns, level 0 each column and each next level 2 x 2 of the one below,
+  /// each node the lowest and highest point (up_sign_ times) of the triangles covering its columns (none: bottom
+  /// +infinity, top -infinity): what bounds the distance to all its triangles in nearest_over_columns.
+  struct ColumnSpan {
+    float bottom = std::numeric_limits<float>::infinity(), top = -std::numeric_limits<float>::infinity();
+  };
+  std::vector<std::vector<ColumnSpan>> column_spans_;
   bool solid_below_ = false;
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };

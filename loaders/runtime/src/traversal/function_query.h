@@ -55,17 +55,20 @@ struct FunctionTarget {
   LowerBound& bound;
   float lower_bound(const Eigen::Vector3f& u) const { return bound(u); }
   static constexpr bool kBoundBeforeDistance = CheapBound<std::remove_cv_t<LowerBound>>::value;
-  /// The function's value; its normal is evaluated again where a contact is made (function_contacts), at the
-  /// contact's world point.
+  /// The function's value and outward normal (kept in the hit: a contact needs no second evaluation, which for a
+  /// triangle set or a convex shape is a search).
   void sample(const Eigen::Vector3f& u, QueryScratch::Buffers::Hit& hit) const {
-    Eigen::Vector3f normal;
+    Eigen::Vector3f normal = Eigen::Vector3f::Zero();
     hit.distance = function(u, normal);
     hit.exact = true;
+    hit.has_gradient = true;
+    hit.gradient = normal;
   }
 };
 
 /// What a walk against a partner's function reports: each point as a contact of A (the shell), its normal the
-/// point's own or the partner's outward one (QueryOptions::normal_source).
+/// point's own or the partner's outward one where it was sampled (QueryOptions::normal_source; a cut level's sphere,
+/// sampled at its centre, takes it at the point).
 template <class SignedDistance>
 auto function_contacts(const PointTree& tree, const Pose& pose, SignedDistance& distance, const QueryOptions& options,
                        ContactSet& out) {
@@ -73,8 +76,8 @@ auto function_contacts(const PointTree& tree, const Pose& pose, SignedDistance& 
     const uint32_t node = hit.node;
     Contact contact;
     contact.point = pose.apply(tree.points[node].cast<double>());
-    Eigen::Vector3f outward;
-    distance(contact.point.cast<float>(), outward);
+    Eigen::Vector3f outward = hit.gradient;
+    if (!hit.has_gradient) distance(contact.point.cast<float>(), outward);
     if (options.normal_source == NormalSource::PointShell || outward.squaredNorm() == 0.0f)
       contact.normal = (pose.rotation * tree.normals[node].cast<double>()).normalized();
     else
