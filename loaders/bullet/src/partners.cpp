@@ -173,14 +173,10 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 
 void TriangleSet::clear() {
   solid_below_ = false;
-  column_tops_.clear();
-  column_bottoms_.clear();
-  column_lowest_.clear();
-  column_spans_.clear();
   common_normal_.setZero();
   triangles_.clear();
   grid_.clear();
-  above_surface_.clear();
+  clear_columns();
 }
 
 bool TriangleSet::same_triangles(const TriangleSet& other) const {
@@ -190,12 +186,16 @@ bool TriangleSet::same_triangles(const TriangleSet& other) const {
                     });
 }
 
-void TriangleSet::mark_cells_above_surface() {
+void TriangleSet::clear_columns() {
   above_surface_.clear();
   column_tops_.clear();
   column_bottoms_.clear();
   column_lowest_.clear();
   column_spans_.clear();
+}
+
+void TriangleSet::mark_cells_above_surface() {
+  clear_columns();
   if (!(common_normal_.squaredNorm() > 0.0f)) return;
   int up = 0;
   common_normal_.cwiseAbs().maxCoeff(&up);

@@ -179,6 +179,8 @@ class TriangleSet {
   float lower_bound(const Eigen::Vector3f& x) const;
 
  private:
+  /// Drops what mark_cells_above_surface fills (a set with no up axis has none of it).
+  void clear_columns();
   void mark_cells_above_surface();
   void fill_column_tops();
   /// Index of cell c's column (along the up axis) in column_tops_' maps.
