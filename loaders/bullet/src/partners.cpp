@@ -341,28 +341,24 @@ float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3
         for (int i = 2 * node.i; i < std::min(2 * node.i + 2, width); ++i) push(node.level - 1, i, j);
       continue;
     }
-    // The column's cells that its triangles reach (the span is up_sign_ times the axis).
-    const ColumnSpan& span = column_spans_[0][size_t(node.j * grid_.dims[a] + node.i)];
-    Eigen::Vector3f low = grid_.lo, high = grid_.lo;
-    low[up] = up_sign_ > 0.0f ? span.bottom : -span.top;
-    high[up] = up_sign_ > 0.0f ? span.top : -span.bottom;
-    Eigen::Vector3i c = grid_.cell_of(low);
-    const int last = grid_.cell_of(high)[up];
-    c[a] = node.i;
-    c[b] = node.j;
-    for (; c[up] <= last; ++c[up]) {
-      const size_t cell = grid_.cell_index(c);
-      for (uint32_t m = grid_.first[cell]; m < grid_.first[cell + 1]; ++m) {
-        const uint32_t id = grid_.members[m];
-        if (!stamps.first_visit(id)) continue;
-        const detail::BoxedTriangle& t = triangles_[id];
-        if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
-        nearest.consider(t.a, t.b, t.c, t.normal);
-      }
-    }
+    consider_column(node.i, node.j, stamps, nearest);
   }
   outward = nearest.outward;
   return nearest.signed_distance();
+}
+
+void TriangleSet::consider_column(int i, int j, VisitStamps& stamps, detail::NearestTriangle& nearest) const {
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, up = up_axis_;
+  // The column's cells that its triangles reach (the span is up_sign_ times the axis).
+  const ColumnSpan& span = column_spans_[0][size_t(j * grid_.dims[a] + i)];
+  Eigen::Vector3f low = grid_.lo, high = grid_.lo;
+  low[up] = up_sign_ > 0.0f ? span.bottom : -span.top;
+  high[up] = up_sign_ > 0.0f ? span.top : -span.bottom;
+  Eigen::Vector3i c = grid_.cell_of(low);
+  const int last = grid_.cell_of(high)[up];
+  c[a] = i;
+  c[b] = j;
+  for (; c[up] <= last; ++c[up]) consider_cell(grid_, triangles_, grid_.cell_index(c), stamps, nearest);
 }
 
 size_t TriangleSet::column_index(const Eigen::Vector3i& c) const {

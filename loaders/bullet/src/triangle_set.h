@@ -95,6 +95,19 @@ class VisitStamps {
   uint32_t search_ = 0;
 };
 
+/// Offers `nearest` the triangles `grid` lists in `cell` that this search has not looked at and whose boxes could
+/// hold a nearer one.
+inline void consider_cell(const TriangleGrid& grid, const std::vector<detail::BoxedTriangle>& triangles, size_t cell,
+                          VisitStamps& stamps, detail::NearestTriangle& nearest) {
+  for (uint32_t m = grid.first[cell]; m < grid.first[cell + 1]; ++m) {
+    const uint32_t id = grid.members[m];
+    if (!stamps.first_visit(id)) continue;
+    const detail::BoxedTriangle& t = triangles[id];
+    if (!nearest.may_improve((t.lo - nearest.x).cwiseMax(nearest.x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
+    nearest.consider(t.a, t.b, t.c, t.normal);
+  }
+}
+
 /// The nearest of `triangles` (listed in `grid`) to x, offered to `nearest`: rings of cells around c (x's cell)
 /// from `first_ring` on, skipping cells and triangles whose boxes cannot hold a nearer one and looking at each
 /// triangle once, until no unseen triangle can be nearer than the nearest (nearest.settled_within(reach)) or every
@@ -114,14 +127,7 @@ inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail
           const Eigen::Vector3f cell_lo = grid.lo + grid.cell * Eigen::Vector3f(float(i), float(j), float(k));
           const Eigen::Vector3f off = (cell_lo - x).cwiseMax(x - cell_lo - Eigen::Vector3f::Constant(grid.cell));
           if (!nearest.may_improve(off.cwiseMax(0.0f).squaredNorm())) continue;
-          const size_t cell = grid.cell_index(i, j, k);
-          for (uint32_t m = grid.first[cell]; m < grid.first[cell + 1]; ++m) {
-            const uint32_t id = grid.members[m];
-            if (!stamps.first_visit(id)) continue;
-            const detail::BoxedTriangle& t = triangles[id];
-            if (!nearest.may_improve((t.lo - x).cwiseMax(x - t.hi).cwiseMax(0.0f).squaredNorm())) continue;
-            nearest.consider(t.a, t.b, t.c, t.normal);
-          }
+          consider_cell(grid, triangles, grid.cell_index(i, j, k), stamps, nearest);
         }
       }
     }
@@ -198,6 +204,9 @@ class TriangleSet {
   /// distance() of a point below its column under a solid set: a best-first search over column_spans_, exact at any
   /// depth.
   float nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
+  /// Offers `nearest` the triangles of column (i, j) (across the up axis: (up + 1) % 3, (up + 2) % 3) not yet looked
+  /// at.
+  void consider_column(int i, int j, VisitStamps& stamps, detail::NearestTriangle& nearest) const;
   void fill_column_spans();
   /// distance() of a point no triangle lies within `reach` of (`box`: its distance to the set's box): inside by
   /// that much under a solid set, else outside.
