@@ -1,5 +1,6 @@
 // Coherent queries (TraversalFront): over whole trajectories, every step's contacts equal those of a query from the
-// root, bit for bit and in the same order, while far fewer lookups are made when little moves.
+// root, bit for bit and in the same order, while far fewer lookups are made when little moves. And what a query
+// against a partner's function evaluates.
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -189,6 +190,44 @@ TEST(Coherence, QueriesWithABudgetStartAfresh) {
     expect_identical(fresh, coherent, 0);
     EXPECT_EQ(state.a_in_b.state().valid, o == &full);
   }
+}
+
+// A query against a partner's function evaluates it once a tested point: the contact keeps the outward normal of
+// the sample that gave its depth. A cut level's sphere, sampled at its centre, takes its normal at its point.
+TEST(FunctionQuery, AContactKeepsItsSamplesNormalAndACutSphereTakesItsPoints) {
+  const BakedBunny& bunny = BakedBunny::get();
+  Pose shell;
+  shell.translation = Eigen::Vector3d(0, 0.49 - 2 * bunny.h, 0);  // its lowest points about 2 voxels into the sphere
+  const Eigen::Vector3f centre(0.0f, -2.0f, 0.0f);
+  const float radius = 2.0f;
+  size_t calls = 0;
+  auto sphere = [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) {
+    ++calls;
+    outward = (x - centre).normalized();
+    return (x - centre).norm() - radius;
+  };
+  auto bound = [&](const Eigen::Vector3f& x) { return (x - centre).norm() - radius; };
+  const auto outward_at = [&](const Eigen::Vector3d& p) -> Eigen::Vector3d {
+    return (p.cast<float>() - centre).normalized().cast<double>();
+  };
+  QueryOptions options;
+  QueryScratch scratch;
+  ContactSet out;
+  query_against_function(*bunny.object, shell, sphere, bound, options, out, scratch);
+  ASSERT_GT(out.contacts.size(), 50u);
+  EXPECT_EQ(calls, out.stats.points_tested);  // none again for a contact
+  for (const Contact& c : out.contacts) ASSERT_LT((c.normal - outward_at(c.point)).norm(), 1e-5) << c.point_index;
+  options.max_level = 3;
+  options.cut_level = CutLevel::Spheres;
+  out.clear();
+  query_against_function(*bunny.object, shell, sphere, bound, options, out, scratch);
+  size_t spheres = 0;
+  for (const Contact& c : out.contacts) {
+    if (c.exact) continue;
+    ++spheres;
+    ASSERT_LT((c.normal - outward_at(c.point)).norm(), 1e-6) << c.point_index;
+  }
+  EXPECT_GT(spheres, 0u);
 }
 
 }  // namespace

@@ -189,9 +189,8 @@ bool TriangleSet::same_triangles(const TriangleSet& other) const {
 void TriangleSet::clear_columns() {
   above_surface_.clear();
   column_tops_.clear();
-  column_bottoms_.clear();
   column_lowest_.clear();
-  column_spans_.clear();
+  column_levels_.clear();
 }
 
 void TriangleSet::mark_cells_above_surface() {
@@ -225,13 +224,14 @@ void TriangleSet::mark_cells_above_surface() {
   fill_column_tops();
 }
 
-// Per column of cells along the up axis, the highest point (along `sign` times the axis) of the triangles whose
-// boxes cover it, then that maximum over the blocks of 2k + 1 columns a side around each (kColumnReach).
+// Per column of cells along the up axis, the span (along `sign` times the axis) of the triangles whose boxes cover
+// it and its lowest triangle, then the tops' maximum over the blocks of 2k + 1 columns a side around each
+// (kColumnReach) and the spans' pyramid.
 void TriangleSet::fill_column_tops() {
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, na = grid_.dims[a], nb = grid_.dims[b];
   const size_t columns = size_t(na) * size_t(nb);
-  column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
-  column_bottoms_.assign(columns, -std::numeric_limits<float>::infinity());
+  column_levels_.assign(1, ColumnLevel{na, nb, std::vector<ColumnSpan>(columns)});
+  std::vector<ColumnSpan>& spans = column_levels_[0].spans;
   column_lowest_.assign(columns, 0);
   for (size_t i = 0; i < triangles_.size(); ++i) {
     const detail::BoxedTriangle& t = triangles_[i];
@@ -241,15 +241,16 @@ void TriangleSet::fill_column_tops() {
     Eigen::Vector3i cell = c0;
     for (cell[b] = c0[b]; cell[b] <= c1[b]; ++cell[b])
       for (cell[a] = c0[a]; cell[a] <= c1[a]; ++cell[a]) {
-        const size_t column = column_index(cell);
-        const bool first = !(column_tops_[column] > -std::numeric_limits<float>::infinity());
-        column_tops_[column] = std::max(column_tops_[column], top);
-        if (first || bottom < column_bottoms_[column]) {
-          column_bottoms_[column] = bottom;
-          column_lowest_[column] = uint32_t(i);
+        ColumnSpan& span = spans[column_index(cell)];
+        span.top = std::max(span.top, top);
+        if (bottom < span.bottom) {
+          span.bottom = bottom;
+          column_lowest_[column_index(cell)] = uint32_t(i);
         }
       }
   }
+  column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
+  for (size_t column = 0; column < columns; ++column) column_tops_[column] = spans[column].top;
   // Each reach's map from the last by a separable maximum filter (reaches grow, so each widens the one before).
   std::vector<float> along(columns);
   int before = 0;
@@ -272,39 +273,32 @@ void TriangleSet::fill_column_tops() {
         to[j * na + i] = m;
       }
   }
-  fill_column_spans();
+  fill_column_pyramid();
 }
 
-void TriangleSet::fill_column_spans() {
-  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
-  int na = grid_.dims[a], nb = grid_.dims[b];
-  column_spans_.assign(1, std::vector<ColumnSpan>(size_t(na) * size_t(nb)));
-  for (size_t column = 0; column < column_spans_[0].size(); ++column)
-    if (column_tops_[column] > -std::numeric_limits<float>::infinity())
-      column_spans_[0][column] = {column_bottoms_[column], column_tops_[column]};
-  while (na > 1 || nb > 1) {
-    const int wa = (na + 1) / 2, wb = (nb + 1) / 2;
-    std::vector<ColumnSpan> up(size_t(wa) * size_t(wb));
-    const std::vector<ColumnSpan>& below = column_spans_.back();
-    for (int j = 0; j < nb; ++j)
-      for (int i = 0; i < na; ++i) {
-        ColumnSpan& to = up[size_t(j / 2 * wa + i / 2)];
-        const ColumnSpan& from = below[size_t(j * na + i)];
+void TriangleSet::fill_column_pyramid() {
+  while (column_levels_.back().count_a > 1 || column_levels_.back().count_b > 1) {
+    const ColumnLevel& below = column_levels_.back();
+    ColumnLevel up{(below.count_a + 1) / 2, (below.count_b + 1) / 2, {}};
+    up.spans.resize(size_t(up.count_a) * size_t(up.count_b));
+    for (int j = 0; j < below.count_b; ++j)
+      for (int i = 0; i < below.count_a; ++i) {
+        ColumnSpan& to = up.spans[size_t(j / 2 * up.count_a + i / 2)];
+        const ColumnSpan& from = below.at(i, j);
         to.bottom = std::min(to.bottom, from.bottom);
         to.top = std::max(to.top, from.top);
       }
-    column_spans_.push_back(std::move(up));
-    na = wa;
-    nb = wb;
+    column_levels_.push_back(std::move(up));
   }
 }
 
 float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const {
-  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, up = up_axis_;
-  const float height = up_sign_ * x[up];
+  const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
+  const float height = up_sign_ * x[up_axis_];
   // A node's box: its columns across, its span up (a triangle's point lies in the column under it, whose span holds
-  // the triangle's); padded by float rounding in cell_of.
-  const float pad = 1e-5f * grid_.cell;
+  // the triangle's), padded by the rounding in cell_of (relative to the cell and to the coordinates).
+  const float pad =
+      1e-5f * grid_.cell + 5e-7f * std::max(grid_.lo.cwiseAbs().maxCoeff(), grid_.hi.cwiseAbs().maxCoeff());
   struct Node {
     float d2;
     int level, i, j;
@@ -314,8 +308,7 @@ float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3
   heap.clear();
   const auto nearer_first = [](const Node& p, const Node& q) { return p.d2 > q.d2; };
   const auto push = [&](int level, int i, int j) {
-    const int width = (grid_.dims[a] + (1 << level) - 1) >> level;
-    const ColumnSpan& span = column_spans_[size_t(level)][size_t(j * width + i)];
+    const ColumnSpan& span = column_levels_[size_t(level)].at(i, j);
     if (!(span.bottom <= span.top)) return;  // no triangle
     const float side = grid_.cell * float(1 << level);
     const float a0 = grid_.lo[a] + float(i) * side, b0 = grid_.lo[b] + float(j) * side;
@@ -327,21 +320,20 @@ float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3
     heap.push_back({d2, level, i, j});
     std::push_heap(heap.begin(), heap.end(), nearer_first);
   };
-  push(int(column_spans_.size()) - 1, 0, 0);
+  push(int(column_levels_.size()) - 1, 0, 0);
   VisitStamps& stamps = VisitStamps::start(triangles_.size());
   while (!heap.empty()) {
     std::pop_heap(heap.begin(), heap.end(), nearer_first);
     const Node node = heap.back();
     heap.pop_back();
     if (!nearest.may_improve(node.d2)) break;  // nor can any node after it
-    if (node.level > 0) {
-      const int width = (grid_.dims[a] + (1 << (node.level - 1)) - 1) >> (node.level - 1),
-                height_below = (grid_.dims[b] + (1 << (node.level - 1)) - 1) >> (node.level - 1);
-      for (int j = 2 * node.j; j < std::min(2 * node.j + 2, height_below); ++j)
-        for (int i = 2 * node.i; i < std::min(2 * node.i + 2, width); ++i) push(node.level - 1, i, j);
+    if (node.level == 0) {
+      consider_column(node.i, node.j, stamps, nearest);
       continue;
     }
-    consider_column(node.i, node.j, stamps, nearest);
+    const ColumnLevel& below = column_levels_[size_t(node.level - 1)];
+    for (int j = 2 * node.j; j < std::min(2 * node.j + 2, below.count_b); ++j)
+      for (int i = 2 * node.i; i < std::min(2 * node.i + 2, below.count_a); ++i) push(node.level - 1, i, j);
   }
   outward = nearest.outward;
   return nearest.signed_distance();
@@ -350,7 +342,7 @@ float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3
 void TriangleSet::consider_column(int i, int j, VisitStamps& stamps, detail::NearestTriangle& nearest) const {
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3, up = up_axis_;
   // The column's cells that its triangles reach (the span is up_sign_ times the axis).
-  const ColumnSpan& span = column_spans_[0][size_t(j * grid_.dims[a] + i)];
+  const ColumnSpan& span = column_levels_[0].at(i, j);
   Eigen::Vector3f low = grid_.lo, high = grid_.lo;
   low[up] = up_sign_ > 0.0f ? span.bottom : -span.top;
   high[up] = up_sign_ > 0.0f ? span.top : -span.bottom;
@@ -370,6 +362,11 @@ bool TriangleSet::over_the_box(const Eigen::Vector3f& x) const {
   for (int a = 0; a < 3; ++a)
     if (a != up_axis_ && !(x[a] >= grid_.lo[a] && x[a] <= grid_.hi[a])) return false;
   return true;
+}
+
+bool TriangleSet::below_own_column(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const {
+  const ColumnSpan& span = column_levels_[0].at(c[(up_axis_ + 1) % 3], c[(up_axis_ + 2) % 3]);
+  return span.bottom <= span.top && up_sign_ * x[up_axis_] < span.bottom;
 }
 
 bool TriangleSet::below_column_top(const Eigen::Vector3f& x) const {
@@ -444,16 +441,15 @@ float TriangleSet::lower_bound(const Eigen::Vector3f& x) const {
     if (column > 0.0f) return column;
     // Below every triangle of its own column: most likely inside, where the exact distance (a search as deep as
     // the point) would only open the cluster. Any triangle's distance bounds the depth.
-    const size_t own = column_index(c);
-    if (up_sign_ * x[up_axis_] < column_bottoms_[own]) return depth_bound(x, triangles_[column_lowest_[own]]);
+    if (solid_below_ && below_own_column(x, c)) return depth_bound(x, triangles_[column_lowest_[column_index(c)]]);
   }
   Eigen::Vector3f outward;
   return distance(x, outward);
 }
 
 float TriangleSet::depth_bound(const Eigen::Vector3f& x, const detail::BoxedTriangle& t) {
-  // The search may settle on a triangle tied with the nearest up to 1e-6 of the squared distance (NearestTriangle::
-  // tie): the margin keeps the bound below what it returns.
+  // The searches' nearest is no farther than t (computed alike); the margin is for rounding, and costs nothing:
+  // the cluster opens either way.
   return -(x - detail::closest_on_triangle(x, t.a, t.b, t.c)).norm() * (1.0f + 1e-5f);
 }
 
@@ -478,8 +474,7 @@ float TriangleSet::distance(const Eigen::Vector3f& x, Eigen::Vector3f& outward) 
   }
   const Eigen::Vector3i c = grid_.cell_of(x);
   // Under a terrain, below every triangle of its column: searched over the columns, exact at any depth.
-  if (solid_below_ && !column_spans_.empty() && over_the_box(x) &&
-      up_sign_ * x[up_axis_] < column_bottoms_[column_index(c)])
+  if (solid_below_ && !column_levels_.empty() && over_the_box(x) && below_own_column(x, c))
     return nearest_over_columns(x, outward);
   const float box = grid_.box_distance(x);
   // The rings before the nearest occupied one hold nothing: the search starts there.

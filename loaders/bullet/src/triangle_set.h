@@ -148,7 +148,8 @@ Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangle
 /// searching rings of cells outward; points farther than `kMaxRings` cells beyond the first ring that holds a
 /// triangle, on a grid more cells across than those rings reach, get a lower bound (the larger of the rings'
 /// distance and the distance to the set's bounding box), enough to prune (under a solid set, a terrain, the same
-/// size inside: set_solid_below); elsewhere the distance is exact.
+/// size inside, and exact below every triangle of the point's column: set_solid_below); elsewhere the distance is
+/// exact.
 class TriangleSet {
  public:
   static constexpr int kMaxRings = 8;
@@ -177,8 +178,9 @@ class TriangleSet {
   /// all lean one way, a point beyond the set's box on that side is outside by at least its distance to the box;
   /// for a set whose normals all lean up a grid axis, a point over the box, above every triangle of its column of
   /// cells, whose cell has no triangle within r rings is outside by at least r - 1 cells, and nearer by its height
-  /// over the tops of the columns around it (column_bound); below every triangle of its column, minus its distance
-  /// to one of them (depth_bound: cheap, and such a point is inside or near, so its cluster opens either way).
+  /// over the tops of the columns around it (column_bound); under a solid set, below every triangle of its column,
+  /// minus its distance to one of them (depth_bound: cheap, and the point is inside, so its cluster opens either way;
+  /// behind an open floor the search's +reach prunes it instead).
   /// Elsewhere (beside the surface, near a triangle, or a set with no up) distance(): a bound must not hide a point
   /// that is inside. (Beyond the search's reach distance() is a value of the right size, not a bound; a negative one
   /// never prunes.)
@@ -197,17 +199,19 @@ class TriangleSet {
   /// its height over the block's top and its distance across to the block's side (a triangle is either in the
   /// block, no higher than its top, or beyond its side). Not above it: -infinity. `c`: x's cell.
   float column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const;
+  /// Whether x (in cell c) lies below every triangle of its own column, one that has some.
+  bool below_own_column(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const;
   /// Whether x lies over the set's box across the up axis and below the top of its own column's triangles.
   bool below_column_top(const Eigen::Vector3f& x) const;
   /// A value the signed distance at x is not below: minus x's distance to t (the nearest triangle is no farther).
   static float depth_bound(const Eigen::Vector3f& x, const detail::BoxedTriangle& t);
-  /// distance() of a point below its column under a solid set: a best-first search over column_spans_, exact at any
-  /// depth.
+  /// distance() of a point below its column under a solid set: a best-first search over column_levels_, exact at any
+  /// depth (against the set's triangles).
   float nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3f& outward) const;
   /// Offers `nearest` the triangles of column (i, j) (across the up axis: (up + 1) % 3, (up + 2) % 3) not yet looked
   /// at.
   void consider_column(int i, int j, VisitStamps& stamps, detail::NearestTriangle& nearest) const;
-  void fill_column_spans();
+  void fill_column_pyramid();
   /// distance() of a point no triangle lies within `reach` of (`box`: its distance to the set's box): inside by
   /// that much under a solid set, else outside.
   float beyond_reach(const Eigen::Vector3f& x, float box, float reach, Eigen::Vector3f& outward) const;
@@ -224,17 +228,22 @@ class TriangleSet {
   /// covering it, then of those covering each block of 2k + 1 columns a side around it, k in kColumnReach.
   std::vector<float> column_tops_;
   static constexpr int kColumnReach[] = {1, 2, 4, 8};
-  /// With column_tops_: per column, the lowest point (up_sign_ times) of the triangles covering it (-infinity where
-  /// none does), and the triangle that reaches it.
-  std::vector<float> column_bottoms_;
-  std::vector<uint32_t> column_lowest_;
-  /// With column_tops_: a pyramid over the columns, level 0 each column and each next level 2 x 2 of the one below,
-  /// each node the lowest and highest point (up_sign_ times) of the triangles covering its columns (none: bottom
-  /// +infinity, top -infinity): what bounds the distance to all its triangles in nearest_over_columns.
+  /// The lowest and highest point (up_sign_ times) of the triangles covering some columns (none: bottom +infinity,
+  /// top -infinity).
   struct ColumnSpan {
     float bottom = std::numeric_limits<float>::infinity(), top = -std::numeric_limits<float>::infinity();
   };
-  std::vector<std::vector<ColumnSpan>> column_spans_;
+  /// A level of the columns' pyramid: count_a x count_b nodes across the up axis ((up + 1) % 3, (up + 2) % 3).
+  struct ColumnLevel {
+    int count_a = 0, count_b = 0;
+    std::vector<ColumnSpan> spans;
+    const ColumnSpan& at(int i, int j) const { return spans[size_t(j) * size_t(count_a) + size_t(i)]; }
+  };
+  /// With column_tops_: the pyramid over the columns, level 0 each column, each next level 2 x 2 nodes of the one
+  /// below (what bounds the distance to all of a node's triangles in nearest_over_columns); and per column the
+  /// triangle that reaches lowest.
+  std::vector<ColumnLevel> column_levels_;
+  std::vector<uint32_t> column_lowest_;
   bool solid_below_ = false;
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };

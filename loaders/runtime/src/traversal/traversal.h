@@ -37,7 +37,7 @@ struct QueryScratch::Buffers {
     float distance;
     bool exact;
     /// The target's distance gradient at the point, where it gives one with the distance (a voxelmap computing
-    /// gradient normals): the contact's normal then needs no second sample.
+    /// gradient normals, a partner's function its outward normal): the contact's normal then needs no second sample.
     bool has_gradient = false;
     Eigen::Vector3f gradient = Eigen::Vector3f::Zero();
   };
