@@ -7,6 +7,10 @@
 // path, pressed 0.5 to 2 voxels into the surface under it. Every configuration sees the same poses; runs alternate
 // between them, --repeat times, and each figure is the median of its runs. Each configuration's contacts are
 // compared with the pair from scratch at every step, field by field (bit for bit).
+//
+// Then (--sink) the same bunny at rest at the path's start, sunk deeper and deeper under the surface (a body
+// teleported or pushed into the ground): per depth, the pair test's time from scratch, the shell points below the
+// surface and those that are contacts, and the deepest contact.
 #include <BulletCollision/BroadphaseCollision/btCollisionAlgorithm.h>
 #include <BulletCollision/CollisionDispatch/btCollisionDispatcher.h>
 #include <BulletCollision/CollisionDispatch/btCollisionObjectWrapper.h>
@@ -133,6 +137,61 @@ std::vector<btTransform> circle_path(const std::shared_ptr<const voxfmt::runtime
   return poses;
 }
 
+/// The body at the path's start, its lowest shell point `sunk_m` below the terrain under it; `below`: how far each
+/// shell point is below the surface (negative above it).
+btTransform sunk_pose(const std::shared_ptr<const voxfmt::runtime::CollisionObject>& body, double sunk_m,
+                      std::vector<double>& below) {
+  btTransform t = circle_path(body, 0.0, 1)[0];
+  const voxfmt::runtime::Pose pose = voxfmt::bullet::VpsMixedShape(body).asset_pose(t);
+  below.clear();
+  double deepest = -1e30;
+  for (const Eigen::Vector3f& p : body->point_tree().points) {
+    const Eigen::Vector3d w = pose.apply(p.cast<double>());
+    below.push_back(wave(w.x(), w.z()) - w.y());
+    deepest = std::max(deepest, below.back());
+  }
+  t.setOrigin(t.getOrigin() - btVector3(0, btScalar(sunk_m - deepest), 0));
+  for (double& b : below) b += sunk_m - deepest;
+  return t;
+}
+
+/// Per depth in `sunk_mm`, `tests` pair tests from scratch: prints a row each and returns their JSON.
+nlohmann::json sink(btCollisionShape& terrain, const std::shared_ptr<const voxfmt::runtime::CollisionObject>& object,
+                    const std::vector<double>& sunk_mm, int tests) {
+  std::cout << "\n"
+            << std::setw(10) << "sunk mm" << std::setw(22) << "pair test p50/max us" << std::setw(18) << "points below"
+            << std::setw(14) << "contacts" << std::setw(16) << "deepest mm"
+            << "\n";
+  nlohmann::json rows = nlohmann::json::array();
+  Pair pair(terrain, object, {"from scratch", false});
+  for (const double mm : sunk_mm) {
+    std::vector<double> below;
+    const btTransform at = sunk_pose(object, mm * 1e-3, below);
+    std::vector<double> us;
+    for (int t = 0; t < tests; ++t) us.push_back(pair.test(at));
+    size_t submerged = 0, touching = 0;
+    for (const double b : below) submerged += b > 1e-6;
+    double deepest = 0;
+    for (const voxfmt::runtime::Contact& c : pair.contacts())
+      if (!c.point_of_b && c.depth > 0) {
+        ++touching;
+        deepest = std::max(deepest, c.depth);
+      }
+    std::cout << std::setw(10) << fixed(mm, 0) << std::setw(22)
+              << (fixed(quantile(us, 0.5), 0) + " / " + fixed(*std::max_element(us.begin(), us.end()), 0))
+              << std::setw(18) << submerged << std::setw(14) << touching << std::setw(16) << fixed(deepest * 1e3, 1)
+              << "\n";
+    rows.push_back({{"sunk_mm", mm},
+                    {"p50_us", quantile(us, 0.5)},
+                    {"max_us", *std::max_element(us.begin(), us.end())},
+                    {"tests", tests},
+                    {"points_below_surface", submerged},
+                    {"points_in_contact", touching},
+                    {"deepest_contact_mm", deepest * 1e3}});
+  }
+  return rows;
+}
+
 struct Run {
   double mean_us, p50_us, p90_us, points_per_step;
   size_t contacts = 0, differing_steps = 0;
@@ -257,7 +316,7 @@ Terrain make_terrain(double cell_mm) {
 
 int main(int argc, char** argv) {
   std::string mesh = VOXFMT_SAMPLE_MESHES "/bunny00.off", cache = "out/terrain_slide", asset, json_path;
-  std::vector<double> speeds_mm = {0.3, 1, 3, 10};
+  std::vector<double> speeds_mm = {0.3, 1, 3, 10}, sunk_mm = {1, 10, 50, 100, 200, 400, 600};
   int steps = 400, repeat = 3;
   double cell_mm = 8.5;
   CLI::App app{
@@ -271,6 +330,10 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::Range(0.0, 100.0));
+  app.add_option("--sink", sunk_mm, "depths of the body sunk under the surface at rest, millimetres (none: skip)")
+      ->delimiter(',')
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 2000.0));
   app.add_option("--cell", cell_mm, "the terrain's cell, millimetres (mixed_scene's terrain: 8.5)")
       ->capture_default_str()
       ->check(CLI::Range(2.0, 100.0));
@@ -310,6 +373,7 @@ int main(int argc, char** argv) {
           {{"speed_mm_per_step", speed},
            {"configurations", compare_on_path(*terrain.shape, object, configs, poses, speed, repeat, differing)}});
     }
+    const nlohmann::json sunk = sink(*terrain.shape, object, sunk_mm, repeat * 3);
     if (!json_path.empty()) {
       std::string command = argv[0];
       for (int a = 1; a < argc; ++a) command += std::string(" ") + argv[a];
@@ -323,7 +387,8 @@ int main(int argc, char** argv) {
                                   {"steps", steps},
                                   {"repeat", repeat},
                                   {"terrain", {{"cells", cells}, {"cell_m", cell_m}, {"side_m", kTerrainM}}},
-                                  {"paths", paths}};
+                                  {"paths", paths},
+                                  {"sunk", sunk}};
       if (const voxfmt::Status written = voxfmt::write_file_atomically(json_path, out.dump(1) + "\n"); !written)
         throw std::runtime_error(written.error().describe());
       std::cout << "wrote " << json_path << "\n";

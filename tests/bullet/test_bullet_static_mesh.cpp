@@ -413,5 +413,37 @@ TEST(BulletTerrain, ABodyPressedDeepIntoASlopeKeepsItsDeepestContacts) {
   }
 }
 
+// A body buried under a terrain, 5 cm below the surface at its highest shell point: the triangles over it are
+// gathered (its box swept up the terrain's axis; those that met its box were none), and every shell point is a
+// contact as deep as it lies, pushed straight up. (Bullet pairs the two while the body is within the terrain's box:
+// its declared height range reaches down to -0.5 m here.)
+TEST(BulletTerrain, ABodyBuriedUnderTheSurfaceIsPushedUp) {
+  static std::vector<float> heights(101 * 101, 0.0f);
+  auto terrain =
+      std::make_shared<btHeightfieldTerrainShape>(101, 101, heights.data(), 1.0f, -0.5f, 0.5f, 1, PHY_FLOAT, false);
+  terrain->setLocalScaling(btVector3(0.02f, 1, 0.02f));
+  const Bunny& bunny = Bunny::get();
+  btTransform at(btQuaternion(btVector3(1, 0, 1), 0.3f), btVector3(0, 0, 0));
+  const auto heights_of = [&](const btTransform& t) {
+    const runtime::Pose pose = VpsMixedShape(bunny.object).asset_pose(t);
+    std::vector<double> y;
+    for (const Eigen::Vector3f& p : bunny.object->point_tree().points) y.push_back(pose.apply(p.cast<double>()).y());
+    return y;
+  };
+  const std::vector<double> level = heights_of(at);
+  // Terrain heights are relative to the middle of their range: the surface is at y = 0.
+  at.setOrigin(btVector3(0.1f, btScalar(-0.05 - *std::max_element(level.begin(), level.end())), -0.1f));
+  const std::vector<double> y = heights_of(at);
+  Pair pair(terrain, btTransform::getIdentity(), CollisionSettings{});
+  std::vector<bool> touching(y.size(), false);
+  for (const runtime::Contact& c : pair.test(at)) {
+    if (c.point_of_b) continue;
+    touching[c.point_index] = true;
+    ASSERT_NEAR(c.depth, -y[c.point_index], 1e-5) << "point " << c.point_index;
+    ASSERT_GT(c.normal.y(), 0.999) << "point " << c.point_index;
+  }
+  EXPECT_EQ(size_t(std::count(touching.begin(), touching.end(), true)), y.size());
+}
+
 }  // namespace
 }  // namespace voxfmt::bullet

@@ -14,45 +14,90 @@ namespace voxfmt::bullet::detail {
 
 namespace {
 
-// Collects the triangles of a static mesh or terrain, in world coordinates, that overlap A's own box (A's shape
-// frame, grown by the reach): Bullet hands over everything in the world-aligned box around A, which for a
-// rotated body holds several times more.
+// A's own box (its shape frame, grown by the reach) seen from a terrain's frame and swept up its axis: a terrain's
+// triangle in the box or above any part of it may be a point of A's nearest (a terrain is solid below), one beside
+// it or under it is not. Tested on the separating axes that do not depend on the triangle (the sweep's sides,
+// then the box's faces): a few triangles near the box's edges pass that a full test would refuse, which costs a
+// little search (a point's nearest is then looked for among more of the terrain), and the whole test costs less
+// than the full one (measured: sliding 5 % faster than with the box tested in A's frame, which left out the
+// triangles over a buried body; 8 % slower with the triangles' axes too).
+struct SweptBox {
+  struct Axis {
+    btVector3 normal;
+    btScalar lo, hi;  ///< the swept box's extent along the normal
+  };
+  Axis axes[6];
+  int up_axis;
+
+  SweptBox(const btTransform& terrain_from_a, const btVector3& a_lo, const btVector3& a_hi, int axis) : up_axis(axis) {
+    const btVector3 centre = terrain_from_a * ((a_lo + a_hi) * btScalar(0.5));
+    btVector3 up(0, 0, 0), half_axes[3];
+    up[axis] = 1;
+    for (int i = 0; i < 3; ++i)
+      half_axes[i] = terrain_from_a.getBasis().getColumn(i) * ((a_hi[i] - a_lo[i]) * btScalar(0.5));
+    // Along n the box spans its centre's projection plus or minus its radius, and the sweep reaches to infinity on
+    // the side that rises.
+    const auto along = [&](const btVector3& n) {
+      btScalar radius = 0;
+      for (const btVector3& h : half_axes) radius += btFabs(n.dot(h));
+      const btScalar mid = n.dot(centre), rise = n.dot(up);
+      return Axis{n, rise < 0 ? -SIMD_INFINITY : mid - radius, rise > 0 ? SIMD_INFINITY : mid + radius};
+    };
+    for (int i = 0; i < 3; ++i) {
+      axes[i] = along(half_axes[i].cross(up));
+      axes[3 + i] = along(half_axes[i]);
+    }
+  }
+  /// Whether triangle t (terrain frame) may meet the swept box: no axis of `axes` separates them.
+  bool meets(const btVector3* t) const {
+    for (const Axis& axis : axes) {
+      const btScalar p0 = axis.normal.dot(t[0]), p1 = axis.normal.dot(t[1]), p2 = axis.normal.dot(t[2]);
+      if (std::min({p0, p1, p2}) > axis.hi || std::max({p0, p1, p2}) < axis.lo) return false;
+    }
+    return true;
+  }
+};
+
+// Collects the triangles of a static mesh or terrain, in world coordinates, near A: a mesh's that overlap A's own
+// box (A's shape frame, grown by the reach), a terrain's that meet that box swept up its axis (SweptBox). Bullet
+// hands over everything in the world-aligned box around A, which for a rotated body holds several times more.
 class TriangleCollector : public btTriangleCallback {
  public:
-  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, bool upward, int up_axis,
-                    const btTransform& a_from_world, const btVector3& a_lo, const btVector3& a_hi)
-      : set_(set),
-        world_from_shape_(world_from_shape),
-        upward_(upward),
-        up_axis_(up_axis),
-        a_from_world_(a_from_world),
-        a_lo_(a_lo),
-        a_hi_(a_hi) {}
+  /// For a static mesh.
+  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, const btTransform& a_from_world,
+                    const btVector3& a_lo, const btVector3& a_hi)
+      : set_(set), world_from_shape_(world_from_shape), a_from_world_(a_from_world), a_lo_(a_lo), a_hi_(a_hi) {}
+  /// For a terrain, whose triangles are oriented to face up its axis.
+  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, const SweptBox& swept)
+      : set_(set), world_from_shape_(world_from_shape), swept_(&swept) {}
   void processTriangle(btVector3* triangle, int, int) override {
+    if (swept_ && !swept_->meets(triangle)) return;
     btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
               c = world_from_shape_ * triangle[2];
+    if (!swept_ && !overlaps_a_box(a, b, c)) return;
+    // A terrain's inside is below it: orient its triangles to face up, whatever order the grid gives them in.
+    if (swept_ && (triangle[1] - triangle[0]).cross(triangle[2] - triangle[0])[swept_->up_axis] < 0) std::swap(b, c);
+    auto eigen = [](const btVector3& w) { return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z())); };
+    set_.add(eigen(a), eigen(b), eigen(c));
+  }
+
+ private:
+  bool overlaps_a_box(const btVector3& a, const btVector3& b, const btVector3& c) const {
     btVector3 lo = a_from_world_ * a, hi = lo;
     for (const btVector3* p : {&b, &c}) {
       const btVector3 q = a_from_world_ * *p;
       lo.setMin(q);
       hi.setMax(q);
     }
-    if (lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() || hi.y() < a_lo_.y() ||
-        hi.z() < a_lo_.z())
-      return;
-    // A terrain's inside is below it: orient its triangles to face up, whatever order the grid gives them in.
-    if (upward_ && (triangle[1] - triangle[0]).cross(triangle[2] - triangle[0])[up_axis_] < 0) std::swap(b, c);
-    auto eigen = [](const btVector3& w) { return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z())); };
-    set_.add(eigen(a), eigen(b), eigen(c));
+    return !(lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() ||
+             hi.y() < a_lo_.y() || hi.z() < a_lo_.z());
   }
 
- private:
   TriangleSet& set_;
   const btTransform& world_from_shape_;
-  bool upward_;
-  int up_axis_;
   btTransform a_from_world_;
   btVector3 a_lo_, a_hi_;
+  const SweptBox* swept_ = nullptr;
 };
 
 // The triangles' corners that may be within `proximity` of A (a cheap lower bound of A's distance rules out the
@@ -109,10 +154,19 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
   a.getAabb(btTransform::getIdentity(), a_lo, a_hi);
   a_lo -= btVector3(grow, grow, grow);
   a_hi += btVector3(grow, grow, grow);
-  TriangleCollector collect(gathered, tb, terrain,
-                            terrain ? static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis() : 1, ta.inverse(),
-                            a_lo, a_hi);
-  b.processAllTriangles(&collect, local_lo, local_hi);
+  if (terrain) {
+    // Every triangle over the body too: Bullet's terrain passes over those above the box it is given.
+    const int up = static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis();
+    btVector3 terrain_lo, terrain_hi;
+    b.getAabb(btTransform::getIdentity(), terrain_lo, terrain_hi);
+    local_hi[up] = std::max(local_hi[up], terrain_hi[up]);
+    const SweptBox swept(shape_from_world * ta, a_lo, a_hi, up);
+    TriangleCollector collect(gathered, tb, swept);
+    b.processAllTriangles(&collect, local_lo, local_hi);
+  } else {
+    TriangleCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi);
+    b.processAllTriangles(&collect, local_lo, local_hi);
+  }
   if (gathered.empty()) return;
   // The front holds while the triangles are the very ones it was made with. Others replace the kept ones (copied:
   // a pair's buffers grow to its own largest set only) and this test queries from the root, as without a front.
