@@ -330,7 +330,7 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::Range(0.0, 100.0));
-  app.add_option("--sink", sunk_mm, "depths of the body sunk under the surface at rest, millimetres (none: skip)")
+  app.add_option("--sink", sunk_mm, "depths of the body sunk under the surface at rest, millimetres")
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::Range(0.0, 2000.0));
