@@ -125,16 +125,12 @@ void corners_within_reach(const runtime::CollisionObject& a, const runtime::Pose
   }
 }
 
-}  // namespace
-
-// A's points against the triangles of a static mesh or terrain that overlap A's box (grown by the proximity),
-// signed by the triangles' sides, coherently while they are the pair's kept ones; and their corners in A's voxelmap.
-void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
-                     const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
-                     runtime::QueryScratch& scratch, TriangleSet* kept, runtime::TraversalFront* front) {
+// Into `gathered` (world coordinates), the triangles of B that A, its box grown by `grow`, may meet: a static
+// mesh's that overlap A's box, a terrain's that meet it swept up the terrain's axis (a terrain is solid below).
+void gather(const VpsShape& a, const btTransform& ta, const btConcaveShape& b, const btTransform& tb, btScalar grow,
+            TriangleSet& gathered) {
   btVector3 lo, hi;
   a.getAabb(ta, lo, hi);
-  const btScalar grow = btScalar(options.proximity) + a.getMargin();
   lo -= btVector3(grow, grow, grow);
   hi += btVector3(grow, grow, grow);
   // The box in B's frame: the bounds of its eight corners.
@@ -146,7 +142,6 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     local_lo.setMin(corner);
     local_hi.setMax(corner);
   }
-  thread_local TriangleSet gathered;
   gathered.clear();
   const bool terrain = b.getShapeType() == TERRAIN_SHAPE_PROXYTYPE;
   gathered.set_solid_below(terrain);
@@ -167,6 +162,17 @@ void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTra
     TriangleCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi);
     b.processAllTriangles(&collect, local_lo, local_hi);
   }
+}
+
+}  // namespace
+
+// A's points against the triangles of a static mesh or terrain near A (gather, its box grown by the proximity),
+// signed by the triangles' sides, coherently while they are the pair's kept ones; and their corners in A's voxelmap.
+void collide_concave(const VpsShape& a, const runtime::Pose& pose_a, const btTransform& ta, const btConcaveShape& b,
+                     const btTransform& tb, const runtime::QueryOptions& options, runtime::ContactSet& contacts,
+                     runtime::QueryScratch& scratch, TriangleSet* kept, runtime::TraversalFront* front) {
+  thread_local TriangleSet gathered;
+  gather(a, ta, b, tb, btScalar(options.proximity) + a.getMargin(), gathered);
   if (gathered.empty()) return;
   // The front holds while the triangles are the very ones it was made with. Others replace the kept ones (copied:
   // a pair's buffers grow to its own largest set only) and this test queries from the root, as without a front.
