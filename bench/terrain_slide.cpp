@@ -159,7 +159,7 @@ btTransform sunk_pose(const std::shared_ptr<const voxfmt::runtime::CollisionObje
 nlohmann::json sink(btCollisionShape& terrain, const std::shared_ptr<const voxfmt::runtime::CollisionObject>& object,
                     const std::vector<double>& sunk_mm, int tests) {
   std::cout << "\n"
-            << std::setw(10) << "sunk mm" << std::setw(22) << "pair test p50/max us" << std::setw(18) << "points below"
+            << std::setw(10) << "sunk mm" << std::setw(22) << "pair test p50/max us" << std::setw(18) << "below waves"
             << std::setw(14) << "contacts" << std::setw(16) << "deepest mm"
             << "\n";
   nlohmann::json rows = nlohmann::json::array();
@@ -305,9 +305,9 @@ Terrain make_terrain(double cell_mm) {
   for (int k = 0; k < n; ++k)
     for (int i = 0; i < n; ++i)
       t.heights[size_t(k * n + i)] = float(wave(-kTerrainM / 2 + t.cell_m * i, -kTerrainM / 2 + t.cell_m * k));
-  // Bullet centres a terrain on its declared height range: [-0.02, 0.02] keeps height 0 at the origin.
-  t.shape =
-      std::make_unique<btHeightfieldTerrainShape>(n, n, t.heights.data(), 1.0f, -0.02f, 0.02f, 1, PHY_FLOAT, false);
+  // Bullet centres a terrain on its declared height range: [-1, 1] keeps height 0 at the origin, and reaches as deep
+  // as a world must for Bullet to pair a body sunk a metre with it.
+  t.shape = std::make_unique<btHeightfieldTerrainShape>(n, n, t.heights.data(), 1.0f, -1.0f, 1.0f, 1, PHY_FLOAT, false);
   t.shape->setLocalScaling(btVector3(btScalar(t.cell_m), 1, btScalar(t.cell_m)));
   return t;
 }

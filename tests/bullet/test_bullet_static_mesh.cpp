@@ -413,36 +413,43 @@ TEST(BulletTerrain, ABodyPressedDeepIntoASlopeKeepsItsDeepestContacts) {
   }
 }
 
-// A body buried under a terrain, 5 cm below the surface at its highest shell point: the triangles over it are
-// gathered (its box swept up the terrain's axis; those that met its box were none), and every shell point is a
-// contact as deep as it lies, pushed straight up. (Bullet pairs the two while the body is within the terrain's box:
-// its declared height range reaches down to -0.5 m here.)
+// A body buried under a terrain, 5 cm below the surface at its highest shell point, for a terrain up each axis: the
+// triangles over it are gathered (its box swept up the terrain's axis; a pair used to gather only those that met
+// its box, beside it, and measured its depth from them), and every shell point is a contact as deep as it lies,
+// pushed straight up. (Bullet pairs the two while the body is within the terrain's box: its declared height range
+// reaches down to -0.5 m here.)
 TEST(BulletTerrain, ABodyBuriedUnderTheSurfaceIsPushedUp) {
   static std::vector<float> heights(101 * 101, 0.0f);
-  auto terrain =
-      std::make_shared<btHeightfieldTerrainShape>(101, 101, heights.data(), 1.0f, -0.5f, 0.5f, 1, PHY_FLOAT, false);
-  terrain->setLocalScaling(btVector3(0.02f, 1, 0.02f));
   const Bunny& bunny = Bunny::get();
-  btTransform at(btQuaternion(btVector3(1, 0, 1), 0.3f), btVector3(0, 0, 0));
-  const auto heights_of = [&](const btTransform& t) {
-    const runtime::Pose pose = VpsMixedShape(bunny.object).asset_pose(t);
-    std::vector<double> y;
-    for (const Eigen::Vector3f& p : bunny.object->point_tree().points) y.push_back(pose.apply(p.cast<double>()).y());
-    return y;
-  };
-  const std::vector<double> level = heights_of(at);
-  // Terrain heights are relative to the middle of their range: the surface is at y = 0.
-  at.setOrigin(btVector3(0.1f, btScalar(-0.05 - *std::max_element(level.begin(), level.end())), -0.1f));
-  const std::vector<double> y = heights_of(at);
-  Pair pair(terrain, btTransform::getIdentity(), CollisionSettings{});
-  std::vector<bool> touching(y.size(), false);
-  for (const runtime::Contact& c : pair.test(at)) {
-    if (c.point_of_b) continue;
-    touching[c.point_index] = true;
-    ASSERT_NEAR(c.depth, -y[c.point_index], 1e-5) << "point " << c.point_index;
-    ASSERT_GT(c.normal.y(), 0.999) << "point " << c.point_index;
+  for (const int up : {0, 1, 2}) {
+    auto terrain =
+        std::make_shared<btHeightfieldTerrainShape>(101, 101, heights.data(), 1.0f, -0.5f, 0.5f, up, PHY_FLOAT, false);
+    btVector3 scaling(0.02f, 0.02f, 0.02f);
+    scaling[up] = 1;
+    terrain->setLocalScaling(scaling);
+    btTransform at(btQuaternion(btVector3(1, 0, 1), 0.3f), btVector3(0, 0, 0));
+    const auto heights_of = [&](const btTransform& t) {  // each shell point's coordinate along the up axis
+      const runtime::Pose pose = VpsMixedShape(bunny.object).asset_pose(t);
+      std::vector<double> h;
+      for (const Eigen::Vector3f& p : bunny.object->point_tree().points) h.push_back(pose.apply(p.cast<double>())[up]);
+      return h;
+    };
+    const std::vector<double> level = heights_of(at);
+    // Terrain heights are relative to the middle of their range: the surface is at 0 along the up axis.
+    btVector3 origin(0.1f, 0.1f, -0.1f);
+    origin[up] = btScalar(-0.05 - *std::max_element(level.begin(), level.end()));
+    at.setOrigin(origin);
+    const std::vector<double> h = heights_of(at);
+    Pair pair(terrain, btTransform::getIdentity(), CollisionSettings{});
+    std::vector<bool> touching(h.size(), false);
+    for (const runtime::Contact& c : pair.test(at)) {
+      if (c.point_of_b) continue;
+      touching[c.point_index] = true;
+      ASSERT_NEAR(c.depth, -h[c.point_index], 1e-5) << "up " << up << " point " << c.point_index;
+      ASSERT_GT(c.normal[up], 0.999) << "up " << up << " point " << c.point_index;
+    }
+    EXPECT_EQ(size_t(std::count(touching.begin(), touching.end(), true)), h.size()) << "up " << up;
   }
-  EXPECT_EQ(size_t(std::count(touching.begin(), touching.end(), true)), y.size());
 }
 
 }  // namespace

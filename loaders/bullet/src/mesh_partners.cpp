@@ -14,13 +14,14 @@ namespace voxfmt::bullet::detail {
 
 namespace {
 
-// A's own box (its shape frame, grown by the reach) seen from a terrain's frame and swept up its axis: a terrain's
-// triangle in the box or above any part of it may be a point of A's nearest (a terrain is solid below), one beside
-// it or under it is not. Tested on the separating axes that do not depend on the triangle (the sweep's sides,
-// then the box's faces): a few triangles near the box's edges pass that a full test would refuse, which costs a
-// little search (a point's nearest is then looked for among more of the terrain), and the whole test costs less
-// than the full one (measured: sliding 5 % faster than with the box tested in A's frame, which left out the
-// triangles over a buried body; 8 % slower with the triangles' axes too).
+// A's own box (its shape frame, grown by the reach) seen from a terrain's frame and swept up its axis: the terrain's
+// triangles in the box or above any part of it, those a point of A lies under or near (a terrain is solid below; a
+// buried point's nearest may lie beside the box, and is then missed: its depth comes out too large). Tested on the
+// separating axes that do not depend on the triangle (the sweep's sides, then the box's faces): a few triangles near
+// the box's edges pass that a full test would refuse, which costs a little search (a point's nearest is then looked for
+// among more of the terrain), and the whole test costs less than the full one (measured: sliding 5 % faster than with
+// the box tested in A's frame, which left out the triangles over a buried body; 8 % slower with the triangles' axes
+// too).
 struct SweptBox {
   struct Axis {
     btVector3 normal;
@@ -58,46 +59,61 @@ struct SweptBox {
   }
 };
 
-// Collects the triangles of a static mesh or terrain, in world coordinates, near A: a mesh's that overlap A's own
-// box (A's shape frame, grown by the reach), a terrain's that meet that box swept up its axis (SweptBox). Bullet
-// hands over everything in the world-aligned box around A, which for a rotated body holds several times more.
-class TriangleCollector : public btTriangleCallback {
- public:
-  /// For a static mesh.
-  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, const btTransform& a_from_world,
-                    const btVector3& a_lo, const btVector3& a_hi)
-      : set_(set), world_from_shape_(world_from_shape), a_from_world_(a_from_world), a_lo_(a_lo), a_hi_(a_hi) {}
-  /// For a terrain, whose triangles are oriented to face up its axis.
-  TriangleCollector(TriangleSet& set, const btTransform& world_from_shape, const SweptBox& swept)
-      : set_(set), world_from_shape_(world_from_shape), swept_(&swept) {}
-  void processTriangle(btVector3* triangle, int, int) override {
-    if (swept_ && !swept_->meets(triangle)) return;
-    btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
-              c = world_from_shape_ * triangle[2];
-    if (!swept_ && !overlaps_a_box(a, b, c)) return;
-    // A terrain's inside is below it: orient its triangles to face up, whatever order the grid gives them in.
-    if (swept_ && (triangle[1] - triangle[0]).cross(triangle[2] - triangle[0])[swept_->up_axis] < 0) std::swap(b, c);
-    auto eigen = [](const btVector3& w) { return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z())); };
-    set_.add(eigen(a), eigen(b), eigen(c));
-  }
+void add_in_world(TriangleSet& set, const btVector3& a, const btVector3& b, const btVector3& c) {
+  auto eigen = [](const btVector3& w) { return Eigen::Vector3f(float(w.x()), float(w.y()), float(w.z())); };
+  set.add(eigen(a), eigen(b), eigen(c));
+}
 
- private:
-  bool overlaps_a_box(const btVector3& a, const btVector3& b, const btVector3& c) const {
+// Collects, in world coordinates, a static mesh's triangles that overlap A's own box (A's shape frame, grown by the
+// reach): Bullet hands over everything in the world-aligned box around A, which for a rotated body holds several
+// times more.
+class MeshCollector : public btTriangleCallback {
+ public:
+  MeshCollector(TriangleSet& set, const btTransform& world_from_shape, const btTransform& a_from_world,
+                const btVector3& a_lo, const btVector3& a_hi)
+      : set_(set), world_from_shape_(world_from_shape), a_from_world_(a_from_world), a_lo_(a_lo), a_hi_(a_hi) {}
+  void processTriangle(btVector3* triangle, int, int) override {
+    const btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
+                    c = world_from_shape_ * triangle[2];
     btVector3 lo = a_from_world_ * a, hi = lo;
     for (const btVector3* p : {&b, &c}) {
       const btVector3 q = a_from_world_ * *p;
       lo.setMin(q);
       hi.setMax(q);
     }
-    return !(lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() ||
-             hi.y() < a_lo_.y() || hi.z() < a_lo_.z());
+    if (lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() || hi.y() < a_lo_.y() ||
+        hi.z() < a_lo_.z())
+      return;
+    add_in_world(set_, a, b, c);
   }
 
+ private:
   TriangleSet& set_;
   const btTransform& world_from_shape_;
   btTransform a_from_world_;
   btVector3 a_lo_, a_hi_;
-  const SweptBox* swept_ = nullptr;
+};
+
+// Collects, in world coordinates, a terrain's triangles that may meet A's box swept up its axis (SweptBox),
+// oriented to face up it (a terrain's inside is below it), whatever order the grid gives them in.
+class TerrainCollector : public btTriangleCallback {
+ public:
+  TerrainCollector(TriangleSet& set, const btTransform& world_from_shape, const SweptBox& swept)
+      : set_(set), world_from_shape_(world_from_shape), swept_(swept) {}
+  void processTriangle(btVector3* triangle, int, int) override {
+    if (!swept_.meets(triangle)) return;
+    const btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
+                    c = world_from_shape_ * triangle[2];
+    if ((triangle[1] - triangle[0]).cross(triangle[2] - triangle[0])[swept_.up_axis] < 0)
+      add_in_world(set_, a, c, b);
+    else
+      add_in_world(set_, a, b, c);
+  }
+
+ private:
+  TriangleSet& set_;
+  const btTransform& world_from_shape_;
+  const SweptBox& swept_;
 };
 
 // The triangles' corners that may be within `proximity` of A (a cheap lower bound of A's distance rules out the
@@ -150,16 +166,15 @@ void gather(const VpsShape& a, const btTransform& ta, const btConcaveShape& b, c
   a_lo -= btVector3(grow, grow, grow);
   a_hi += btVector3(grow, grow, grow);
   if (terrain) {
-    // Every triangle over the body too: Bullet's terrain passes over those above the box it is given.
+    // Every triangle over the body too: Bullet's terrain passes over those above the box it is given (however high:
+    // heights may be changed in place beyond the declared range, and the range's top rounds).
     const int up = static_cast<const btHeightfieldTerrainShape&>(b).getUpAxis();
-    btVector3 terrain_lo, terrain_hi;
-    b.getAabb(btTransform::getIdentity(), terrain_lo, terrain_hi);
-    local_hi[up] = std::max(local_hi[up], terrain_hi[up]);
+    local_hi[up] = BT_LARGE_FLOAT;
     const SweptBox swept(shape_from_world * ta, a_lo, a_hi, up);
-    TriangleCollector collect(gathered, tb, swept);
+    TerrainCollector collect(gathered, tb, swept);
     b.processAllTriangles(&collect, local_lo, local_hi);
   } else {
-    TriangleCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi);
+    MeshCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi);
     b.processAllTriangles(&collect, local_lo, local_hi);
   }
 }
