@@ -1338,21 +1338,50 @@ void count_inside(const Voxelmap& vm, VoxelmapReport& report) {
   report.deep_centres = deep;
 }
 
+// Each value no larger than its neighbour's along an axis plus their distance (min-plus passes forward and back
+// along each axis): every value is a distance to a real triangle, so never below the exact one, and the exact
+// distance is 1-Lipschitz, so a value lowered this way stays above it (sums rounded up). A point whose triangle
+// list or search missed its nearest triangle (a fuzzed soup of slivers did) is brought within reach of its
+// neighbours, as spec §3.3 requires. `metres`: the lattice, x fastest.
+void relax_lattice(const GridGeometry& g, const GridShape& shape, std::vector<float>& metres) {
+  for (int axis = 0; axis < 3; ++axis) {
+    const AxisLines lines(shape, axis);
+    const int64_t stride = axis == 0 ? 1 : axis == 1 ? shape.dims[0] : shape.dims[0] * shape.dims[1];
+    tbb::parallel_for(int64_t(0), lines.count, [&](int64_t line) {
+      int64_t at[3];
+      lines.first(line, at);
+      float* v = metres.data() + shape.index(at[0], at[1], at[2]);
+      // Lattice points along the axis lie kEdge voxels apart, the last clamped to the grid's last voxel.
+      const auto step = [&](int64_t i) {
+        return double(std::min<int64_t>((i + 1) * kEdge, g.dims[size_t(axis)] - 1) - i * kEdge) * g.voxel_size;
+      };
+      for (int64_t i = 0; i + 1 < lines.length; ++i)
+        v[(i + 1) * stride] = std::min(v[(i + 1) * stride], float_not_below(double(v[i * stride]) + step(i)));
+      for (int64_t i = lines.length - 2; i >= 0; --i)
+        v[i * stride] = std::min(v[i * stride], float_not_below(double(v[(i + 1) * stride]) + step(i)));
+    });
+  }
+}
+
 // The lattice's values (metres; a shell's distance to its sheets) and their error bounds: within kExactReach of the
 // surface, or within kFarSlack beyond it (spec §3.3), but for rounding: squared distances compared as floats
 // (2^-24 relative) and values kept as floats.
 void fill_lattice(const BrickRowsInput& in, Voxelmap& vm) {
   const GridGeometry& g = in.g;
   const Lattice L = propagate_lattice(g, in.triangles, in.lists, in.hierarchy, in.r);
-  const bool shell = in.rule == SignRule::Shell;
   vm.lattice.resize(L.keys.size());
   tbb::parallel_for(size_t(0), L.keys.size(), [&](size_t n) {
     float d2;
     const uint32_t bits = uint32_t(L.keys[n] >> 32);
     std::memcpy(&d2, &bits, sizeof d2);
-    const double u = L.keys[n] == kNoTriangle ? 1e9 : std::sqrt(double(d2));
-    vm.lattice[n] = float_not_below((shell ? std::abs(u - in.half_shell) : u) * g.voxel_size);
+    vm.lattice[n] = float_not_below((L.keys[n] == kNoTriangle ? 1e9 : std::sqrt(double(d2))) * g.voxel_size);
   });
+  relax_lattice(g, L, vm.lattice);
+  if (in.rule == SignRule::Shell) {
+    const double half_shell = in.half_shell * g.voxel_size;
+    tbb::parallel_for(size_t(0), vm.lattice.size(),
+                      [&](size_t n) { vm.lattice[n] = float_not_below(std::abs(double(vm.lattice[n]) - half_shell)); });
+  }
   vm.lattice_error = {1e-4 + 3e-7 * double(std::max({g.dims[0], g.dims[1], g.dims[2]})), kFarSlack};
 }
 
