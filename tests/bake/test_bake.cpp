@@ -13,6 +13,7 @@
 #include "closest_triangle.h"
 #include "exact_surface.h"
 #include "stages.h"
+#include "triangle_closest_point.h"
 #include "vec3_math.h"
 #include "voxfmt/io.h"
 #include "winding_number.h"
@@ -193,6 +194,44 @@ TEST(ClosestTriangle, FindsTheNearestInTreesOfEveryShape) {
       EXPECT_EQ(ClosestTriangle({(*tris)[triangle]}).nearest(p, std::numeric_limits<double>::infinity(), 0).first, d2);
     }
   }
+}
+
+// The squared distance from p to segment ab, written without the triangle's region tests.
+double segment_distance2(const Vec3& p, const Vec3& a, const Vec3& b) {
+  const Vec3 ab = b - a;
+  const double t = dot(ab, ab) > 0 ? std::clamp(dot(p - a, ab) / dot(ab, ab), 0.0, 1.0) : 0.0;
+  return distance2(p, a + ab * t);
+}
+
+TEST(TriangleClosestPoint, ATriangleWhoseCornersMeetOrLineUpIsItsSegmentOrPoint) {
+  // A soup's triangles after repair: two corners copies of one vertex (a segment, in each of the three orders), all
+  // three on one spot, three distinct corners on one line, and a sliver 1e-9 wide. Each is its longest segment
+  // (or its point); before the region tests skipped zero-length edges, a segment gave NaN (0/0) wherever p lay
+  // beyond its zero-length edge, and the bake's lattice missed it (tests/fuzz/regressions/mesh-stl-soup-*).
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> unit(-1, 1);
+  const Vec3 a{0.1, -0.2, 0.3}, c{0.9, 0.4, -0.5}, mid = a + (c - a) * 0.3;
+  const Vec3 off{1e-9, -2e-9, 0};
+  const std::vector<std::array<Vec3, 3>> triangles = {{a, a, c},   {a, c, a},   {c, a, a},        {a, a, a},
+                                                      {a, mid, c}, {mid, c, a}, {a, mid + off, c}};
+  for (const auto& t : triangles)
+    for (int q = 0; q < 2000; ++q) {
+      const Vec3 p{2 * unit(random), 2 * unit(random), 2 * unit(random)};
+      Feature feature;
+      const Vec3 x = closest_on_triangle(p, t[0], t[1], t[2], feature);
+      const double expected = std::min(
+          {segment_distance2(p, t[0], t[1]), segment_distance2(p, t[1], t[2]), segment_distance2(p, t[2], t[0])});
+      ASSERT_TRUE(std::isfinite(x[0]) && std::isfinite(x[1]) && std::isfinite(x[2])) << "query " << q;
+      EXPECT_NEAR(distance2(p, x), expected, 1e-12)
+          << "triangle " << (&t - triangles.data()) << " query " << q << " feature " << int(feature);
+    }
+  // A proper triangle keeps Ericson's answer: on the face, the point's offset is along the normal.
+  const Vec3 b{0.5, 0.9, 0.1}, n = normalized(cross(b - a, c - a));
+  Feature feature;
+  const Vec3 centre = (a + b + c) * (1.0 / 3);
+  const Vec3 x = closest_on_triangle(centre + n * 0.25, a, b, c, feature);
+  EXPECT_EQ(feature, Feature::kFace);
+  EXPECT_NEAR(distance2(x, centre), 0.0, 1e-24);
 }
 
 TEST(Bake, BunnyDistancesMatchExactSurface) {

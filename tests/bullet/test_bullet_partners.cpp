@@ -284,6 +284,39 @@ TEST(Partners, UnsupportedPairsAreReportedOnce) {
   EXPECT_GE(world.vps()->counters().unsupported_pairs, 20u);
 }
 
+// A mesh's triangle that names one vertex twice is a segment. Its closest point once came out NaN (0/0 on the
+// zero-length edge) beyond that edge, and a NaN distance passed the tie test and handed the point the segment's zero
+// normal and an outside sign: under a floor holding such a triangle, points read as outside with no direction.
+TEST(TerrainTriangles, ATriangleNamingAVertexTwiceNeitherHidesNorFlipsTheSurface) {
+  const Eigen::Vector3f a(0, 0, 0), b(0.1f, 0, 0), c(0.1f, 0, 0.1f), d(0, 0, 0.1f);
+  TriangleSet plain, doubled;  // a square facing +y; and the same with its diagonal and edges again as segments
+  for (TriangleSet* set : {&plain, &doubled}) {
+    set->add(a, d, c);
+    set->add(a, c, b);
+  }
+  doubled.add(a, a, c);
+  doubled.add(c, a, a);
+  doubled.add(b, a, a);
+  doubled.add(d, d, c);
+  for (TriangleSet* set : {&plain, &doubled}) {
+    set->set_solid_below(true);
+    set->build();
+  }
+  std::mt19937 random(5);
+  std::uniform_real_distribution<float> across(-0.05f, 0.15f), up(-0.03f, 0.03f);
+  int beside = 0;
+  for (int p = 0; p < 4000; ++p) {
+    const Eigen::Vector3f x(across(random), up(random), across(random));
+    Eigen::Vector3f outward, expected_outward;
+    const float distance = doubled.distance(x, outward), expected = plain.distance(x, expected_outward);
+    ASSERT_EQ(distance, expected) << p << " at " << x.transpose();
+    ASSERT_TRUE(outward.isApprox(expected_outward, 1e-5f))
+        << p << " at " << x.transpose() << ": " << outward.transpose();
+    beside += std::max(x.x(), x.z()) > 0.1f || std::min(x.x(), x.z()) < 0.0f;
+  }
+  EXPECT_GT(beside, 1000);  // points nearest an edge or corner, where the faces' alignment is below 1
+}
+
 // The grid search a terrain's triangles get (cells and triangles skipped by their boxes, each triangle once, a reach
 // from the block's faces) finds the nearest of every triangle: the same distance as looking at each, above the
 // terrain, below it, beside it, beyond its box and on its edges.

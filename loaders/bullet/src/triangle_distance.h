@@ -26,7 +26,18 @@ struct BoxedTriangle {
   }
 };
 
-/// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5).
+/// Closest point on segment ab to p (a zero-length one: a).
+inline Eigen::Vector3f closest_on_segment(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
+                                          const Eigen::Vector3f& b) {
+  const Eigen::Vector3f ab = b - a;
+  const float length2 = ab.squaredNorm();
+  return length2 > 0.0f ? Eigen::Vector3f(a + ab * std::clamp(ab.dot(p - a) / length2, 0.0f, 1.0f)) : a;
+}
+
+/// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5), safe for degenerate triangles as
+/// the bake's is (tools/bake/src/triangle_closest_point.h): an edge's test divides by its squared length, so a
+/// zero-length edge (a mesh's triangle naming one vertex twice) is skipped rather than made NaN, and face
+/// coordinates that come out beyond the face or not finite give the nearest point of the edges instead.
 inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
                                            const Eigen::Vector3f& c) {
   const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
@@ -36,16 +47,21 @@ inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen
   const float d3 = ab.dot(bp), d4 = ac.dot(bp);
   if (d3 >= 0 && d4 <= d3) return b;
   const float vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return a + ab * (d1 / (d1 - d3));
+  if (vc <= 0 && d1 >= 0 && d3 <= 0 && d1 - d3 > 0) return a + ab * (d1 / (d1 - d3));
   const Eigen::Vector3f cp = p - c;
   const float d5 = ab.dot(cp), d6 = ac.dot(cp);
   if (d6 >= 0 && d5 <= d6) return c;
   const float vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return a + ac * (d2 / (d2 - d6));
-  const float va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-  const float denom = 1.0f / (va + vb + vc);
-  return a + ab * (vb * denom) + ac * (vc * denom);
+  if (vb <= 0 && d2 >= 0 && d6 <= 0 && d2 - d6 > 0) return a + ac * (d2 / (d2 - d6));
+  const float va = d3 * d6 - d5 * d4, along_b = d4 - d3, along_c = d5 - d6;
+  if (va <= 0 && along_b >= 0 && along_c >= 0 && along_b + along_c > 0)
+    return b + (c - b) * (along_b / (along_b + along_c));
+  const float area2 = va + vb + vc, v = vb / area2, w = vc / area2;
+  if (v >= 0 && w >= 0 && v + w <= 1) return a + ab * v + ac * w;  // false for NaN
+  Eigen::Vector3f best = closest_on_segment(p, a, b);
+  for (const Eigen::Vector3f& q : {closest_on_segment(p, b, c), closest_on_segment(p, c, a)})
+    if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
+  return best;
 }
 
 /// The nearest of the triangles offered to it, with the sign of the side of the nearest triangle whose plane is

@@ -7,7 +7,7 @@
 
 #include <oneapi/tbb/parallel_for.h>
 
-#include "vec3_math.h"
+#include "triangle_closest_point.h"
 
 namespace voxfmt::bake {
 
@@ -36,26 +36,10 @@ struct Box {
   }
 };
 
-// Squared distance from p to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
+// Squared distance from p to triangle abc.
 double distance2_to_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = b - a, ac = c - a, ap = p - a;
-  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
-  if (d1 <= 0 && d2 <= 0) return dot(ap, ap);
-  const Vec3 bp = p - b;
-  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
-  if (d3 >= 0 && d4 <= d3) return dot(bp, bp);
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return distance2(p, a + ab * (d1 / (d1 - d3)));
-  const Vec3 cp = p - c;
-  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
-  if (d6 >= 0 && d5 <= d6) return dot(cp, cp);
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return distance2(p, a + ac * (d2 / (d2 - d6)));
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0)
-    return distance2(p, b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
-  const double denom = 1 / (va + vb + vc);
-  return distance2(p, a + ab * (vb * denom) + ac * (vc * denom));
+  Feature feature;
+  return distance2(p, closest_on_triangle(p, a, b, c, feature));
 }
 
 }  // namespace
