@@ -34,10 +34,22 @@ inline Eigen::Vector3f closest_on_segment(const Eigen::Vector3f& p, const Eigen:
   return length2 > 0.0f ? Eigen::Vector3f(a + ab * std::clamp(ab.dot(p - a) / length2, 0.0f, 1.0f)) : a;
 }
 
+/// The nearest of the edges' closest points, for a triangle whose face coordinates rounding has spoilt (out of line,
+/// so that the search's loops keep their fast path small).
+[[gnu::noinline, gnu::cold]] inline Eigen::Vector3f closest_on_edges(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
+                                                                     const Eigen::Vector3f& b,
+                                                                     const Eigen::Vector3f& c) {
+  Eigen::Vector3f best = closest_on_segment(p, a, b);
+  for (const Eigen::Vector3f& q : {closest_on_segment(p, b, c), closest_on_segment(p, c, a)})
+    if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
+  return best;
+}
+
 /// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5), safe for degenerate triangles as
 /// the bake's is (tools/bake/src/triangle_closest_point.h): an edge's test divides by its squared length, so a
-/// zero-length edge (a mesh's triangle naming one vertex twice) is skipped rather than made NaN, and face
-/// coordinates that come out beyond the face or not finite give the nearest point of the edges instead.
+/// zero-length edge (a mesh's triangle naming one vertex twice) is skipped rather than made NaN; and the face is
+/// taken only where its three coordinates' numerators are not negative and their sum (the squared area) positive,
+/// as they always are for a proper triangle: a triangle with its corners on one line takes its edges instead.
 inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
                                            const Eigen::Vector3f& c) {
   const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
@@ -56,12 +68,9 @@ inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen
   const float va = d3 * d6 - d5 * d4, along_b = d4 - d3, along_c = d5 - d6;
   if (va <= 0 && along_b >= 0 && along_c >= 0 && along_b + along_c > 0)
     return b + (c - b) * (along_b / (along_b + along_c));
-  const float area2 = va + vb + vc, v = vb / area2, w = vc / area2;
-  if (v >= 0 && w >= 0 && v + w <= 1) return a + ab * v + ac * w;  // false for NaN
-  Eigen::Vector3f best = closest_on_segment(p, a, b);
-  for (const Eigen::Vector3f& q : {closest_on_segment(p, b, c), closest_on_segment(p, c, a)})
-    if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
-  return best;
+  if (!(va >= 0 && vb >= 0 && vc >= 0 && va + vb + vc > 0)) return closest_on_edges(p, a, b, c);
+  const float denom = 1.0f / (va + vb + vc);
+  return a + ab * (vb * denom) + ac * (vc * denom);
 }
 
 /// The nearest of the triangles offered to it, with the sign of the side of the nearest triangle whose plane is

@@ -28,8 +28,10 @@ inline Vec3 closest_on_segment(const Vec3& p, const Vec3& a, const Vec3& b, Feat
   return q;
 }
 
-// The nearest of the three edges' closest points: where the face's barycentric coordinates cannot be trusted.
-inline Vec3 closest_on_edges(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Feature& feature) {
+// The nearest of the three edges' closest points: where the face's barycentric coordinates cannot be trusted (out
+// of line, so that the searches' loops keep their fast path small).
+[[gnu::noinline, gnu::cold]] inline Vec3 closest_on_edges(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c,
+                                                          Feature& feature) {
   double best2, d2;
   Vec3 best = closest_on_segment(p, a, b, Feature::kCornerA, Feature::kCornerB, Feature::kEdgeAB, feature, best2);
   Feature f;
@@ -46,8 +48,7 @@ inline Vec3 closest_on_edges(const Vec3& p, const Vec3& a, const Vec3& b, const 
 /// Detection" (5.1.5), made safe for degenerate triangles. An edge's test divides by its squared length (d1 - d3,
 /// d2 - d6, (d4 - d3) + (d5 - d6)), so a zero-length edge is skipped (0/0 made a corner-sharing segment NaN, and
 /// the bake then missed it); the tests left find the segment or point such a triangle is. A triangle nearly on one
-/// line (where rounding makes the face's barycentric coordinates meaningless), or a point whose coordinates come
-/// out beyond the face, takes the nearest point of its edges instead.
+/// line (where rounding makes the face's barycentric coordinates meaningless) takes the nearest point of its edges.
 inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Feature& feature) {
   const Vec3 ab = b - a, ac = c - a, ap = p - a;
   const double d1 = dot(ab, ap), d2 = dot(ac, ap);
@@ -82,15 +83,14 @@ inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, con
     feature = Feature::kEdgeBC;
     return b + (c - b) * (along_b / (along_b + along_c));
   }
-  // |ab x ac|^2 = |ab|^2 |ac|^2 sin^2(angle at a). Under a sine of 1e-5 rounding can leave the coordinates
-  // anywhere in the triangle, and its edges are within its width (that sine times its length) of it.
+  // The face's coordinates are va, vb, vc over their sum |ab x ac|^2 = |ab|^2 |ac|^2 sin^2(angle at a): never
+  // negative for a proper triangle here. Under a sine of 1e-5 rounding can put them anywhere in the triangle, and its
+  // edges are within its width (that sine times its length) of it.
   const double area2 = va + vb + vc;
-  if (area2 > 1e-10 * (d1 - d3) * (d2 - d6)) {
-    const double v = vb / area2, w = vc / area2;
-    if (v >= 0 && w >= 0 && v + w <= 1) {
-      feature = Feature::kFace;
-      return a + ab * v + ac * w;
-    }
+  if (va >= 0 && vb >= 0 && vc >= 0 && area2 > 1e-10 * (d1 - d3) * (d2 - d6)) {
+    const double denom = 1 / area2;
+    feature = Feature::kFace;
+    return a + ab * (vb * denom) + ac * (vc * denom);
   }
   return detail::closest_on_edges(p, a, b, c, feature);
 }
