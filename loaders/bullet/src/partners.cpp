@@ -241,28 +241,31 @@ void TriangleSet::fill_column_tops() {
     Eigen::Vector3i cell = c0;
     for (cell[b] = c0[b]; cell[b] <= c1[b]; ++cell[b])
       for (cell[a] = c0[a]; cell[a] <= c1[a]; ++cell[a]) {
-        ColumnSpan& span = spans[column_index(cell)];
+        const size_t column = column_index(cell);
+        ColumnSpan& span = spans[column];
         span.top = std::max(span.top, top);
         if (bottom < span.bottom) {
           span.bottom = bottom;
-          column_lowest_[column_index(cell)] = uint32_t(i);
+          column_lowest_[column] = uint32_t(i);
         }
       }
   }
-  column_tops_.assign(columns * (std::size(kColumnReach) + 1), -std::numeric_limits<float>::infinity());
-  for (size_t column = 0; column < columns; ++column) column_tops_[column] = spans[column].top;
-  // Each reach's map from the last by a separable maximum filter (reaches grow, so each widens the one before).
+  column_tops_.assign(columns * std::size(kColumnReach), -std::numeric_limits<float>::infinity());
+  // Each reach's map from the last (the first from the columns' own tops) by a separable maximum filter (reaches
+  // grow, so each widens the one before).
   std::vector<float> along(columns);
   int before = 0;
   for (size_t level = 0; level < std::size(kColumnReach); ++level) {
     const int grow = kColumnReach[level] - before;
     before = kColumnReach[level];
-    const float* from = &column_tops_[level * columns];
-    float* to = &column_tops_[(level + 1) * columns];
+    const auto from = [&](int column) {
+      return level == 0 ? spans[size_t(column)].top : column_tops_[(level - 1) * columns + size_t(column)];
+    };
+    float* to = &column_tops_[level * columns];
     for (int j = 0; j < nb; ++j)
       for (int i = 0; i < na; ++i) {
         float m = -std::numeric_limits<float>::infinity();
-        for (int d = std::max(i - grow, 0); d <= std::min(i + grow, na - 1); ++d) m = std::max(m, from[j * na + d]);
+        for (int d = std::max(i - grow, 0); d <= std::min(i + grow, na - 1); ++d) m = std::max(m, from(j * na + d));
         along[size_t(j * na + i)] = m;
       }
     for (int j = 0; j < nb; ++j)
@@ -277,6 +280,7 @@ void TriangleSet::fill_column_tops() {
 }
 
 void TriangleSet::fill_column_pyramid() {
+  column_pad_ = 1e-5f * grid_.cell + 5e-7f * std::max(grid_.lo.cwiseAbs().maxCoeff(), grid_.hi.cwiseAbs().maxCoeff());
   while (column_levels_.back().count_a > 1 || column_levels_.back().count_b > 1) {
     const ColumnLevel& below = column_levels_.back();
     ColumnLevel up{(below.count_a + 1) / 2, (below.count_b + 1) / 2, {}};
@@ -296,9 +300,8 @@ float TriangleSet::nearest_over_columns(const Eigen::Vector3f& x, Eigen::Vector3
   const int a = (up_axis_ + 1) % 3, b = (up_axis_ + 2) % 3;
   const float height = up_sign_ * x[up_axis_];
   // A node's box: its columns across, its span up (a triangle's point lies in the column under it, whose span holds
-  // the triangle's), padded by the rounding in cell_of (relative to the cell and to the coordinates).
-  const float pad =
-      1e-5f * grid_.cell + 5e-7f * std::max(grid_.lo.cwiseAbs().maxCoeff(), grid_.hi.cwiseAbs().maxCoeff());
+  // the triangle's), padded by column_pad_.
+  const float pad = column_pad_;
   struct Node {
     float d2;
     int level, i, j;
@@ -370,8 +373,8 @@ bool TriangleSet::below_own_column(const Eigen::Vector3f& x, const Eigen::Vector
 }
 
 bool TriangleSet::below_column_top(const Eigen::Vector3f& x) const {
-  if (column_tops_.empty() || !over_the_box(x)) return false;
-  return up_sign_ * x[up_axis_] < column_tops_[column_index(grid_.cell_of(x))];
+  if (column_levels_.empty() || !over_the_box(x)) return false;
+  return up_sign_ * x[up_axis_] < column_levels_[0].spans[column_index(grid_.cell_of(x))].top;
 }
 
 float TriangleSet::column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i& c) const {
@@ -380,7 +383,7 @@ float TriangleSet::column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i&
   const float height = up_sign_ * x[up_axis_];
   // Above every triangle of its own column (a graph over the up axis): outside. A column no triangle covers says
   // nothing (beside the set's edge, or over a gap in it, a point may be inside).
-  const float own_top = column_tops_[column];
+  const float own_top = column_levels_[0].spans[column].top;
   if (!(own_top > -std::numeric_limits<float>::infinity()) || !(height > own_top))
     return -std::numeric_limits<float>::infinity();
   // How far x is inside its own column across the up axis: a block of 2k + 1 columns around it reaches k cells
@@ -392,7 +395,7 @@ float TriangleSet::column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i&
   for (size_t level = 0; level < std::size(kColumnReach); ++level) {
     // A triangle within the block is no higher than its top; one beyond it is farther across than the block's side.
     const float across = std::max(inside, 0.0f) + float(kColumnReach[level]) * grid_.cell;
-    const float above = height - column_tops_[(level + 1) * columns + column];
+    const float above = height - column_tops_[level * columns + column];
     bound = std::max(bound, std::min(across, above));
     if (above <= across) break;  // wider blocks are no lower: their bounds are no larger than `above`
   }

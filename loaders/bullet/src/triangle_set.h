@@ -191,7 +191,7 @@ class TriangleSet {
   void clear_columns();
   void mark_cells_above_surface();
   void fill_column_tops();
-  /// Index of cell c's column (along the up axis) in column_tops_' maps.
+  /// Index of cell c's column (along the up axis) in column_tops_' maps and column_levels_[0].
   size_t column_index(const Eigen::Vector3i& c) const;
   /// Whether x lies within the set's box across the up axis (over it or under it).
   bool over_the_box(const Eigen::Vector3f& x) const;
@@ -224,8 +224,9 @@ class TriangleSet {
   std::vector<uint8_t> above_surface_;
   int up_axis_ = 1;       ///< that axis, when above_surface_ is filled
   float up_sign_ = 1.0f;  ///< +1 if the normals lean up that axis, -1 down it
-  /// When above_surface_ is filled: per column of cells along the up axis (up_sign_ times) the top of the triangles
-  /// covering it, then of those covering each block of 2k + 1 columns a side around it, k in kColumnReach.
+  /// When above_surface_ is filled: per k in kColumnReach, per column of cells along the up axis, the top (up_sign_
+  /// times) of the triangles covering the block of 2k + 1 columns a side around it (a column's own top: its span in
+  /// column_levels_[0]).
   std::vector<float> column_tops_;
   static constexpr int kColumnReach[] = {1, 2, 4, 8};
   /// The lowest and highest point (up_sign_ times) of the triangles covering some columns (none: bottom +infinity,
@@ -244,6 +245,8 @@ class TriangleSet {
   /// triangle that reaches lowest.
   std::vector<ColumnLevel> column_levels_;
   std::vector<uint32_t> column_lowest_;
+  /// How far a pyramid node's box is padded: the rounding in cell_of, relative to the cell and to the coordinates.
+  float column_pad_ = 0.0f;
   bool solid_below_ = false;
   static constexpr int kEmptyRings = 64;  ///< rings the grid's map covers: a lower bound that costs one read
 };
