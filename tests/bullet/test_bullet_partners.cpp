@@ -317,6 +317,30 @@ TEST(TerrainTriangles, ATriangleNamingAVertexTwiceNeitherHidesNorFlipsTheSurface
   EXPECT_GT(beside, 1000);  // points nearest an edge or corner, where the faces' alignment is below 1
 }
 
+// A triangle whose three distinct corners lie on one line (in float, within rounding of it) is that segment. Its face
+// coordinates are rounding noise there, and taken as they came they put the closest point anywhere along it: up to
+// half the segment too far from p.
+TEST(TerrainTriangles, ATriangleWithItsCornersOnOneLineIsItsSegment) {
+  std::mt19937 random(9);
+  std::uniform_real_distribution<float> unit(-1.0f, 1.0f), along(0.05f, 0.95f);
+  const auto segment_distance = [](const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
+    const Eigen::Vector3d a64 = a.cast<double>(), ab = b.cast<double>() - a64, ap = p.cast<double>() - a64;
+    return (ap - ab * std::clamp(ap.dot(ab) / ab.squaredNorm(), 0.0, 1.0)).norm();
+  };
+  int far_off = 0;
+  for (int q = 0; q < 20000; ++q) {
+    const Eigen::Vector3f a(unit(random), unit(random), unit(random)), c(unit(random), unit(random), unit(random));
+    const Eigen::Vector3f b = a + along(random) * (c - a), p(unit(random), unit(random), unit(random));
+    for (const auto& [x, y, z] : {std::array{a, b, c}, std::array{b, c, a}, std::array{c, a, b}}) {
+      const float got = (detail::closest_on_triangle(p, x, y, z) - p).norm();
+      const double expected = segment_distance(p, a, c);
+      far_off += got > expected + 1e-3;
+      ASSERT_NEAR(got, expected, 1e-4 * (1.0 + expected)) << q;
+    }
+  }
+  EXPECT_EQ(far_off, 0);
+}
+
 // The grid search a terrain's triangles get (cells and triangles skipped by their boxes, each triangle once, a reach
 // from the block's faces) finds the nearest of every triangle: the same distance as looking at each, above the
 // terrain, below it, beside it, beyond its box and on its edges.

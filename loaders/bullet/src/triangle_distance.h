@@ -34,22 +34,32 @@ inline Eigen::Vector3f closest_on_segment(const Eigen::Vector3f& p, const Eigen:
   return length2 > 0.0f ? Eigen::Vector3f(a + ab * std::clamp(ab.dot(p - a) / length2, 0.0f, 1.0f)) : a;
 }
 
-/// The nearest of the edges' closest points, for a triangle whose face coordinates rounding has spoilt (out of line,
-/// so that the search's loops keep their fast path small).
-[[gnu::noinline, gnu::cold]] inline Eigen::Vector3f closest_on_edges(const Eigen::Vector3f& p, const Eigen::Vector3f& a,
-                                                                     const Eigen::Vector3f& b,
-                                                                     const Eigen::Vector3f& c) {
+/// For a sliver, whose face coordinates va, vb, vc float rounding spoils: the nearest of its edges' closest points
+/// and, where those coordinates are not negative, of the face's point (both lie on the triangle, so the nearer is
+/// never worse). Out of line, so that the searches' loops keep their fast path small.
+[[gnu::noinline, gnu::cold]] inline Eigen::Vector3f closest_on_sliver(const Eigen::Vector3f& p,
+                                                                      const Eigen::Vector3f& a,
+                                                                      const Eigen::Vector3f& b,
+                                                                      const Eigen::Vector3f& c, float va, float vb,
+                                                                      float vc) {
   Eigen::Vector3f best = closest_on_segment(p, a, b);
   for (const Eigen::Vector3f& q : {closest_on_segment(p, b, c), closest_on_segment(p, c, a)})
     if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
+  if (va >= 0 && vb >= 0 && vc >= 0 && va + vb + vc > 0) {
+    const float denom = 1.0f / (va + vb + vc);
+    const Eigen::Vector3f q = a + (b - a) * (vb * denom) + (c - a) * (vc * denom);
+    if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
+  }
   return best;
 }
 
 /// Closest point on triangle abc to p (barycentric region test, Ericson 5.1.5), safe for degenerate triangles as
 /// the bake's is (tools/bake/src/triangle_closest_point.h): an edge's test divides by its squared length, so a
-/// zero-length edge (a mesh's triangle naming one vertex twice) is skipped rather than made NaN; and the face is
-/// taken only where its three coordinates' numerators are not negative and their sum (the squared area) positive,
-/// as they always are for a proper triangle: a triangle with its corners on one line takes its edges instead.
+/// zero-length edge (a mesh's triangle naming one vertex twice) is skipped rather than made NaN. The face's
+/// coordinates are va, vb, vc over their sum |ab x ac|^2 = |ab|^2 |ac|^2 sin^2(angle at a), never negative for a
+/// proper triangle there; on a sliver (a sine under 1e-2, corners nearly on one line) float rounding reaches them
+/// (about 2e-5 |ab|^2 |ac|^2 for points within a few triangle sizes) and would put the point anywhere on it, so a
+/// sliver takes closest_on_sliver.
 inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen::Vector3f& a, const Eigen::Vector3f& b,
                                            const Eigen::Vector3f& c) {
   const Eigen::Vector3f ab = b - a, ac = c - a, ap = p - a;
@@ -68,8 +78,10 @@ inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen
   const float va = d3 * d6 - d5 * d4, along_b = d4 - d3, along_c = d5 - d6;
   if (va <= 0 && along_b >= 0 && along_c >= 0 && along_b + along_c > 0)
     return b + (c - b) * (along_b / (along_b + along_c));
-  if (!(va >= 0 && vb >= 0 && vc >= 0 && va + vb + vc > 0)) return closest_on_edges(p, a, b, c);
-  const float denom = 1.0f / (va + vb + vc);
+  const float area2 = va + vb + vc;
+  if (!(va >= 0 && vb >= 0 && vc >= 0 && area2 > 1e-4f * ab.squaredNorm() * ac.squaredNorm()))
+    return closest_on_sliver(p, a, b, c, va, vb, vc);
+  const float denom = 1.0f / area2;
   return a + ab * (vb * denom) + ac * (vc * denom);
 }
 

@@ -85,9 +85,11 @@ inline Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, con
   }
   // The face's coordinates are va, vb, vc over their sum |ab x ac|^2 = |ab|^2 |ac|^2 sin^2(angle at a): never
   // negative for a proper triangle here. Under a sine of 1e-5 rounding can put them anywhere in the triangle, and its
-  // edges are within its width (that sine times its length) of it.
+  // edges are within its width (that sine times its length) of it. (For a point farther than about 100 triangle
+  // sizes, rounding can also move a proper triangle's point across it: an error under its size, 1 % of the
+  // distance, as the far lattice allows.)
   const double area2 = va + vb + vc;
-  if (va >= 0 && vb >= 0 && vc >= 0 && area2 > 1e-10 * (d1 - d3) * (d2 - d6)) {
+  if (va >= 0 && vb >= 0 && vc >= 0 && area2 > 1e-10 * dot(ab, ab) * dot(ac, ac)) {
     const double denom = 1 / area2;
     feature = Feature::kFace;
     return a + ab * (vb * denom) + ac * (vc * denom);
