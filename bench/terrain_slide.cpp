@@ -384,6 +384,39 @@ double surface_height(btHeightfieldTerrainShape& terrain, double x, double z) {
   return over.height;
 }
 
+/// The pair's contacts beside a wall against the terrain's triangles: each as deep as its point lies, and every
+/// shell point under the triangles deeper than the tolerance a contact (a missed one counts its depth as error).
+struct WallCheck {
+  size_t touching = 0, submerged = 0, missed = 0;
+  double deepest = 0, worst_error = 0;
+};
+
+WallCheck check_contacts(btHeightfieldTerrainShape& terrain, const voxfmt::runtime::CollisionObject& object,
+                         const voxfmt::runtime::Pose& pose, double x_max,
+                         const std::vector<voxfmt::runtime::Contact>& contacts) {
+  WallCheck check;
+  const std::vector<Triangle> near = triangles_in(terrain, x_max - 0.4, x_max + 0.2);
+  const auto world = [&](size_t i) { return pose.apply(object.point_tree().points[i].cast<double>()); };
+  std::vector<bool> contact(object.point_tree().size(), false);
+  for (const voxfmt::runtime::Contact& c : contacts)
+    if (!c.point_of_b && c.depth > 0) {
+      ++check.touching;
+      contact[c.point_index] = true;
+      check.deepest = std::max(check.deepest, c.depth);
+      check.worst_error = std::max(check.worst_error, std::abs(c.depth - distance_to(near, world(c.point_index))));
+    }
+  for (size_t i = 0; i < object.point_tree().size(); ++i) {
+    const Eigen::Vector3d x = world(i);
+    if (!(x.y() < surface_height(terrain, x.x(), x.z()))) continue;
+    ++check.submerged;
+    if (!contact[i] && distance_to(near, x) > kDepthToleranceMm * 1e-3) {
+      ++check.missed;
+      check.worst_error = std::max(check.worst_error, distance_to(near, x));
+    }
+  }
+  return check;
+}
+
 /// Per wall height in `walls_m`, `tests` pair tests from scratch of the bunny at rest 1 mm into the waves beside a
 /// wall whose top starts at the first grid line at most two cells inside the body's box: prints a row each, returns
 /// the JSON.
@@ -410,44 +443,22 @@ nlohmann::json beside_walls(const std::shared_ptr<const voxfmt::runtime::Collisi
     Pair pair(*terrain.shape, object, {"from scratch", false});
     std::vector<double> us;
     for (int t = 0; t < tests; ++t) us.push_back(pair.test(at));
-    size_t touching = 0;
-    const std::vector<Triangle> near = triangles_in(*terrain.shape, x_max - 0.4, x_max + 0.2);
-    double deepest = 0, worst_error = 0;
-    std::vector<bool> contact(object->point_tree().size(), false);
-    for (const voxfmt::runtime::Contact& c : pair.contacts())
-      if (!c.point_of_b && c.depth > 0) {
-        ++touching;
-        contact[c.point_index] = true;
-        deepest = std::max(deepest, c.depth);
-        const Eigen::Vector3d x = pose.apply(object->point_tree().points[c.point_index].cast<double>());
-        worst_error = std::max(worst_error, std::abs(c.depth - distance_to(near, x)));
-      }
-    // Every shell point under the terrain's triangles, deeper than the tolerance, must be a contact.
-    size_t submerged = 0, missed = 0;
-    for (size_t i = 0; i < object->point_tree().size(); ++i) {
-      const Eigen::Vector3d x = pose.apply(object->point_tree().points[i].cast<double>());
-      if (!(x.y() < surface_height(*terrain.shape, x.x(), x.z()))) continue;
-      ++submerged;
-      if (!contact[i] && distance_to(near, x) > kDepthToleranceMm * 1e-3) {
-        ++missed;
-        worst_error = std::max(worst_error, distance_to(near, x));
-      }
-    }
+    const WallCheck check = check_contacts(*terrain.shape, *object, pose, x_max, pair.contacts());
     std::cout << std::setw(10) << fixed(wall, 2) << std::setw(22)
               << (fixed(quantile(us, 0.5), 0) + " / " + fixed(*std::max_element(us.begin(), us.end()), 0))
-              << std::setw(18) << submerged << std::setw(14) << touching << std::setw(16) << fixed(deepest * 1e3, 1)
-              << std::setw(18) << fixed(worst_error * 1e3, 4) << "\n";
+              << std::setw(18) << check.submerged << std::setw(14) << check.touching << std::setw(16)
+              << fixed(check.deepest * 1e3, 1) << std::setw(18) << fixed(check.worst_error * 1e3, 4) << "\n";
     rows.push_back({{"wall_m", wall},
                     {"wall_top_from_x_m", top_from},
                     {"body_max_x_m", x_max},
                     {"p50_us", quantile(us, 0.5)},
                     {"max_us", *std::max_element(us.begin(), us.end())},
                     {"tests", tests},
-                    {"points_below_surface", submerged},
-                    {"points_in_contact", touching},
-                    {"points_below_surface_missed", missed},
-                    {"deepest_contact_mm", deepest * 1e3},
-                    {"largest_depth_error_mm", worst_error * 1e3}});
+                    {"points_below_surface", check.submerged},
+                    {"points_in_contact", check.touching},
+                    {"points_below_surface_missed", check.missed},
+                    {"deepest_contact_mm", check.deepest * 1e3},
+                    {"largest_depth_error_mm", check.worst_error * 1e3}});
   }
   return rows;
 }
