@@ -306,9 +306,12 @@ struct Terrain {
 };
 
 /// `rise(x, z)`: metres added to the waves (a wall).
+/// The terrain's cells a side for cells of about `cell_mm`.
+int terrain_cells(double cell_mm) { return int(std::lround(kTerrainM / (cell_mm * 1e-3))); }
+
 Terrain make_terrain(double cell_mm, const std::function<double(double, double)>& rise = {}) {
   Terrain t;
-  t.cells = int(std::lround(kTerrainM / (cell_mm * 1e-3)));
+  t.cells = terrain_cells(cell_mm);
   t.cell_m = kTerrainM / t.cells;
   const int n = t.cells + 1;
   t.heights.resize(size_t(n) * size_t(n));
@@ -409,9 +412,11 @@ WallCheck check_contacts(btHeightfieldTerrainShape& terrain, const voxfmt::runti
     const Eigen::Vector3d x = world(i);
     if (!(x.y() < surface_height(terrain, x.x(), x.z()))) continue;
     ++check.submerged;
-    if (!contact[i] && distance_to(near, x) > kDepthToleranceMm * 1e-3) {
+    if (contact[i]) continue;
+    const double depth = distance_to(near, x);
+    if (depth > kDepthToleranceMm * 1e-3) {
       ++check.missed;
-      check.worst_error = std::max(check.worst_error, distance_to(near, x));
+      check.worst_error = std::max(check.worst_error, depth);
     }
   }
   return check;
@@ -434,12 +439,11 @@ nlohmann::json beside_walls(const std::shared_ptr<const voxfmt::runtime::Collisi
             << "\n";
   nlohmann::json rows = nlohmann::json::array();
   for (const double wall : walls_m) {
-    Terrain terrain = make_terrain(cell_mm);
     // The wall's top starts at the first grid line past x_max less two cells; its face spans the cell before it.
-    const double top_from =
-        -kTerrainM / 2 + terrain.cell_m * std::ceil((x_max - 2 * terrain.cell_m + kTerrainM / 2) / terrain.cell_m);
+    const double cell_m = kTerrainM / terrain_cells(cell_mm);
+    const double top_from = -kTerrainM / 2 + cell_m * std::ceil((x_max - 2 * cell_m + kTerrainM / 2) / cell_m);
     const auto rise = [&](double x, double) { return x >= top_from - 1e-9 ? wall : 0.0; };
-    terrain = make_terrain(cell_mm, rise);
+    const Terrain terrain = make_terrain(cell_mm, rise);
     Pair pair(*terrain.shape, object, {"from scratch", false});
     std::vector<double> us;
     for (int t = 0; t < tests; ++t) us.push_back(pair.test(at));

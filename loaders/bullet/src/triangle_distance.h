@@ -34,22 +34,18 @@ inline Eigen::Vector3f closest_on_segment(const Eigen::Vector3f& p, const Eigen:
   return length2 > 0.0f ? Eigen::Vector3f(a + ab * std::clamp(ab.dot(p - a) / length2, 0.0f, 1.0f)) : a;
 }
 
-/// For a sliver, whose face coordinates va, vb, vc float rounding spoils: the nearest of its edges' closest points
-/// and, where those coordinates are not negative, of the face's point (both lie on the triangle, so the nearer is
-/// never worse). Out of line, so that the searches' loops keep their fast path small.
+/// For a sliver, whose face coordinates float rounding spoils: the nearest of its edges' closest points and of
+/// `face` (the face's point, where its coordinates came out not negative; else null). All lie on the triangle, so
+/// the nearest is never worse than any. Out of line, so that the searches' loops keep their fast path small.
 [[gnu::noinline, gnu::cold]] inline Eigen::Vector3f closest_on_sliver(const Eigen::Vector3f& p,
                                                                       const Eigen::Vector3f& a,
                                                                       const Eigen::Vector3f& b,
-                                                                      const Eigen::Vector3f& c, float va, float vb,
-                                                                      float vc) {
+                                                                      const Eigen::Vector3f& c,
+                                                                      const Eigen::Vector3f* face) {
   Eigen::Vector3f best = closest_on_segment(p, a, b);
   for (const Eigen::Vector3f& q : {closest_on_segment(p, b, c), closest_on_segment(p, c, a)})
     if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
-  if (va >= 0 && vb >= 0 && vc >= 0 && va + vb + vc > 0) {
-    const float denom = 1.0f / (va + vb + vc);
-    const Eigen::Vector3f q = a + (b - a) * (vb * denom) + (c - a) * (vc * denom);
-    if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
-  }
+  if (face && (*face - p).squaredNorm() < (best - p).squaredNorm()) best = *face;
   return best;
 }
 
@@ -79,10 +75,11 @@ inline Eigen::Vector3f closest_on_triangle(const Eigen::Vector3f& p, const Eigen
   if (va <= 0 && along_b >= 0 && along_c >= 0 && along_b + along_c > 0)
     return b + (c - b) * (along_b / (along_b + along_c));
   const float area2 = va + vb + vc;
-  if (!(va >= 0 && vb >= 0 && vc >= 0 && area2 > 1e-4f * ab.squaredNorm() * ac.squaredNorm()))
-    return closest_on_sliver(p, a, b, c, va, vb, vc);
+  if (!(va >= 0 && vb >= 0 && vc >= 0 && area2 > 0)) return closest_on_sliver(p, a, b, c, nullptr);
   const float denom = 1.0f / area2;
-  return a + ab * (vb * denom) + ac * (vc * denom);
+  const Eigen::Vector3f face = a + ab * (vb * denom) + ac * (vc * denom);
+  if (!(area2 > 1e-4f * ab.squaredNorm() * ac.squaredNorm())) return closest_on_sliver(p, a, b, c, &face);
+  return face;
 }
 
 /// The nearest of the triangles offered to it, with the sign of the side of the nearest triangle whose plane is
