@@ -3,7 +3,9 @@
 // terrain, a thin VPS shelf), each with a 0.15 m VPS bunny dropped on it, plus a dynamic capsule, hull and compound
 // dropped on a static VPS bunny; the scene settles for 5 s at 1 kHz. Writes a picture of the final scene (front
 // view of the point shells and the partners' outlines) and, with --json, per partner kind: contacts per step,
-// deepest penetration, residual speed and narrow-phase time per pair.
+// deepest penetration, residual speed, narrow-phase time per pair and where the station's bunny ended.
+// --drop-offset moves every drop and --friction-anchors turns on Bullet's friction anchors on the bunnies:
+// bench/rest_grid.py runs the scene over a grid of drops to judge a setting by more than one landing.
 #include <BulletCollision/CollisionShapes/btHeightfieldTerrainShape.h>
 #include <CLI/CLI.hpp>
 
@@ -113,6 +115,8 @@ int main(int argc, char** argv) {
   std::string bunny_mesh = VOXFMT_SAMPLE_MESHES "/bunny00.off", cache = "out/mixed_scene", json_path,
               png_path = "out/mixed_scene/mixed_scene.png";
   double seconds = 5.0;
+  std::vector<double> drop_offset{0.0, 0.0};
+  bool friction_anchors = false;
   CLI::App app{"mixed_scene — VPS bunnies against every kind of Bullet partner, settling for a few seconds"};
   app.add_option("--mesh", bunny_mesh, "the mesh of the VPS bodies (scaled to 0.15 m)")->capture_default_str();
   app.add_option("--cache", cache, "folder for the baked assets")->capture_default_str();
@@ -121,6 +125,14 @@ int main(int argc, char** argv) {
   app.add_option("--seconds", seconds, "simulated seconds at 1 kHz")
       ->capture_default_str()
       ->check(CLI::Range(0.2, 60.0));
+  app.add_option("--drop-offset", drop_offset, "every bunny dropped this far from its station's centre, x and z (m)")
+      ->delimiter(',')
+      ->expected(2)
+      ->capture_default_str()
+      ->check(CLI::Range(-0.02, 0.02));
+  app.add_flag("--friction-anchors", friction_anchors,
+               "Bullet's friction anchors on the bunnies (CF_HAS_FRICTION_ANCHOR): a contact point is kept while its "
+               "friction is inside the cone, and pulled back to where it was");
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -155,6 +167,8 @@ int main(int argc, char** argv) {
       auto shape = std::make_shared<voxfmt::bullet::VpsMixedShape>(object);
       btRigidBody* body = world.add_body(shape, btScalar(mass), where);
       body->setFriction(0.8f);
+      if (friction_anchors)
+        body->setCollisionFlags(body->getCollisionFlags() | btCollisionObject::CF_HAS_FRICTION_ANCHOR);
       body->setActivationState(DISABLE_DEACTIVATION);
       vps_shapes.push_back(shape);
       vps_bodies.push_back(body);
@@ -164,7 +178,8 @@ int main(int argc, char** argv) {
     auto drop_bunny = [&](double x, double top) {
       auto shape = std::make_shared<voxfmt::bullet::VpsMixedShape>(bunny);
       btTransform t = shape->asset_to_shape().inverse();
-      t.setOrigin(t.getOrigin() + btVector3(btScalar(x), btScalar(top - bunny->bounds_min().y() + 0.02), 0));
+      t.setOrigin(t.getOrigin() + btVector3(btScalar(x + drop_offset[0]),
+                                            btScalar(top - bunny->bounds_min().y() + 0.02), btScalar(drop_offset[1])));
       return add_vps(bunny, 1.0, t);
     };
     auto add_static = [&](std::shared_ptr<btCollisionShape> shape, const btTransform& where) {
@@ -324,7 +339,8 @@ int main(int argc, char** argv) {
     // ---- report
     std::ostringstream json;
     json << "{\n  \"seconds\": " << seconds << ", \"steps\": " << steps << ", \"wall_s\": " << wall
-         << ", \"voxel_m\": " << h << ",\n  \"pairs\": [";
+         << ", \"voxel_m\": " << h << ", \"drop_offset_m\": [" << drop_offset[0] << ", " << drop_offset[1]
+         << "], \"friction_anchors\": " << (friction_anchors ? "true" : "false") << ",\n  \"pairs\": [";
     std::cout << std::left << std::setw(13) << "partner" << std::right << std::setw(10) << "contacts" << std::setw(14)
               << "max pen vox" << std::setw(16) << "residual m/s" << std::setw(15) << "narrow us p50"
               << "\n";
@@ -340,7 +356,12 @@ int main(int argc, char** argv) {
                                      : 0;
       json << (first ? "" : ",") << "\n    {\"partner\": \"" << kind << "\", \"contacts_mean\": " << contacts
            << ", \"max_penetration_voxels\": " << s.max_penetration / h << ", \"residual_speed_mps\": " << speed
-           << ", \"narrow_us_p50\": " << p50 << "}";
+           << ", \"narrow_us_p50\": " << p50;
+      if (s.subject) {
+        const btVector3 c = s.subject->getCenterOfMassPosition();
+        json << ", \"final_position_m\": [" << c.x() << ", " << c.y() << ", " << c.z() << "]";
+      }
+      json << "}";
       first = false;
       std::cout << std::left << std::setw(13) << kind << std::right << std::fixed << std::setprecision(2)
                 << std::setw(10) << contacts << std::setw(14) << s.max_penetration / h << std::setw(16)

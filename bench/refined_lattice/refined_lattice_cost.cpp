@@ -28,6 +28,7 @@
 
 #include "closest_triangle.h"
 #include "stages.h"
+#include "triangle_closest_point.h"
 #include "voxfmt/io.h"
 
 namespace {
@@ -36,29 +37,14 @@ using voxfmt::Vec3;
 using voxfmt::Voxelmap;
 using voxfmt::bake::ClosestTriangle;
 
-Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
-double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-Vec3 along(const Vec3& a, const Vec3& d, double t) { return {a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]}; }
+using voxfmt::bake::distance2;
+using voxfmt::bake::dot;
+using voxfmt::bake::operator-;
 
-/// The point of triangle (a, b, c) nearest p (by its Voronoi regions: vertices, edges, face).
+/// The point of triangle (a, b, c) nearest p: the bake's own routine (degenerate triangles included).
 Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const Vec3 ab = sub(b, a), ac = sub(c, a), ap = sub(p, a);
-  const double d1 = dot(ab, ap), d2 = dot(ac, ap);
-  if (d1 <= 0 && d2 <= 0) return a;
-  const Vec3 bp = sub(p, b);
-  const double d3 = dot(ab, bp), d4 = dot(ac, bp);
-  if (d3 >= 0 && d4 <= d3) return b;
-  const double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return along(a, ab, d1 / (d1 - d3));
-  const Vec3 cp = sub(p, c);
-  const double d5 = dot(ab, cp), d6 = dot(ac, cp);
-  if (d6 >= 0 && d5 <= d6) return c;
-  const double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return along(a, ac, d2 / (d2 - d6));
-  const double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) return along(b, sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6)));
-  const double denom = 1 / (va + vb + vc);
-  return along(along(a, ab, vb * denom), ac, vc * denom);
+  voxfmt::bake::Feature feature;
+  return voxfmt::bake::closest_on_triangle(p, a, b, c, feature);
 }
 
 double seconds_since(std::chrono::steady_clock::time_point& start) {
@@ -115,9 +101,9 @@ double search_points(const Search& s, const std::vector<uint64_t>& points, const
       const Corner& corner = lattice[s.vm.lattice_index(a, b, c)];
       const Vec3 cp = s.at(Voxelmap::lattice_coordinate(a, s.vm.dims[0]), Voxelmap::lattice_coordinate(b, s.vm.dims[1]),
                            Voxelmap::lattice_coordinate(c, s.vm.dims[2]));
-      bound = std::min(bound, corner.distance + std::sqrt(dot(sub(p, cp), sub(p, cp))));
+      bound = std::min(bound, corner.distance + std::sqrt(distance2(p, cp)));
       const auto& t = s.corners[corner.triangle];
-      const Vec3 d = sub(closest_on_triangle(p, t[0], t[1], t[2]), p);
+      const Vec3 d = closest_on_triangle(p, t[0], t[1], t[2]) - p;
       if (dot(d, d) < carried2) carried2 = dot(d, d), hint = corner.triangle;
     }
     const double bound2 = std::min(bound * bound, carried2) * (1 + 1e-9);
@@ -146,7 +132,7 @@ std::vector<Corner> find_corners(const Search& s, unsigned threads, size_t& over
         Corner& corner = lattice[vm.lattice_index(a, b, uint32_t(c))];
         corner.distance = std::sqrt(d2);
         corner.triangle = f;
-        const Vec3 d = sub(closest_on_triangle(p, s.corners[f][0], s.corners[f][1], s.corners[f][2]), p);
+        const Vec3 d = closest_on_triangle(p, s.corners[f][0], s.corners[f][1], s.corners[f][2]) - p;
         const double n = std::sqrt(dot(d, d));
         corner.direction = n > 0 ? Vec3{d[0] / n, d[1] / n, d[2] / n} : Vec3{0, 0, 0};
       }
