@@ -130,9 +130,10 @@ int main(int argc, char** argv) {
       ->expected(2)
       ->capture_default_str()
       ->check(CLI::Range(-0.02, 0.02));
-  app.add_flag("--friction-anchors", friction_anchors,
-               "Bullet's friction anchors on the bunnies (CF_HAS_FRICTION_ANCHOR): a contact point is kept while its "
-               "friction is inside the cone, and pulled back to where it was");
+  app.add_flag(
+      "--friction-anchors", friction_anchors,
+      "Bullet's friction anchors on the dropped bunnies (CF_HAS_FRICTION_ANCHOR): a contact point is kept while its "
+      "friction is inside the cone, and pulled back to where it was");
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -167,7 +168,8 @@ int main(int argc, char** argv) {
       auto shape = std::make_shared<voxfmt::bullet::VpsMixedShape>(object);
       btRigidBody* body = world.add_body(shape, btScalar(mass), where);
       body->setFriction(0.8f);
-      if (friction_anchors)
+      // Dynamic ones only: a pair is anchored if either body asks, and the static bunny's partners are not measured.
+      if (friction_anchors && mass > 0)
         body->setCollisionFlags(body->getCollisionFlags() | btCollisionObject::CF_HAS_FRICTION_ANCHOR);
       body->setActivationState(DISABLE_DEACTIVATION);
       vps_shapes.push_back(shape);

@@ -41,11 +41,12 @@ for kind, p in pairs.items():
         failures.append(f"{kind}: no contacts")
     if p.get("max_penetration_voxels", 9) > 1.0:
         failures.append(f"{kind}: penetration {p['max_penetration_voxels']} voxels")
-# On a plane a drop moved sideways lands moved as much, but for how it bounces (rounding picks other contacts:
-# about a millimetre).
+# On a plane a drop moved sideways lands moved as much, within about a millimetre (rounding picks other contacts,
+# and it bounces differently).
 still, shifted = ({p["partner"]: p for p in r["pairs"]} for r in moved)
-if not (moved[0]["friction_anchors"] is True and moved[1]["drop_offset_m"] == [0.015, -0.01]):
-    failures.append(f"options not echoed: {moved[1]['friction_anchors']}, {moved[1]['drop_offset_m']}")
+echoed = [(r["friction_anchors"], r["drop_offset_m"]) for r in moved]
+if echoed != [(True, [0, 0]), (True, [0.015, -0.01])]:
+    failures.append(f"options echoed as {echoed}")
 shift = [b - a for a, b in zip(still["plane"]["final_position_m"], shifted["plane"]["final_position_m"])]
 if max(abs(shift[0] - 0.015), abs(shift[1]), abs(shift[2] + 0.01)) > 3e-3:
     failures.append(f"the plane's bunny moved by {shift} for a drop offset of (0.015, 0, -0.01) m")
