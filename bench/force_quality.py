@@ -36,9 +36,9 @@ points), so that the force per area is the reference's; without that, its force 
   peg-in-hole   a peg (radius 5 mm, 30 mm long) lowered 15 mm into a block's through hole (radius 5.2 mm; the
                 block 60 x 60 x 40 mm) without touching, then moved sideways across the clearance and 10 voxels
                 into the hole's wall over 700 steps while going 2 mm deeper: a long, nearly conforming contact
-  bunny-bunny   CGAL's bunny (0.15 m) turned over and lowered onto a second one's back, 0 -> 8 voxels over 600
-                steps, then slid 10 mm sideways while turning 20 degrees for 400 steps: curved, non-convex
-                contact. Its reference takes B's exact distance from its mesh (libigl: `pip install libigl`; the
+  bunny-bunny   CGAL's bunny (0.15 m; A baked with 30,000 points, B with 35,000, so that A's points go into B's
+                field) turned over and lowered onto a second one's back, 0 -> 8 voxels over 600 steps, then slid
+                10 mm sideways while turning 20 degrees for 400 steps: curved, non-convex contact. Its reference takes B's exact distance from its mesh (libigl: `pip install libigl`; the
                 pseudonormal sign), for every point of A that B's field does not put more than 2 voxels outside
                 (the field's error is far below that: a point it puts farther out is outside and adds nothing).
 And the haptic renderer (HapticRenderer::contact_wrench_at, full trees: the same per-point penalty along the
@@ -363,6 +363,12 @@ def run_path(name: str, tool, field, poses: np.ndarray, reference, h: float, vox
     B's files, for the haptic renderer (skipped without them or its program)."""
     identity = np.eye(4)
     ref_force, ref_torque, deepest = reference
+    # The reference is the tool's points in B's field; the query must measure the same (for two equal bodies its
+    # automatic direction takes B's points in A's field: another penalty model, degrees apart on a curved contact).
+    deepest_step = voxfmt.contacts(tool, poses[int(np.argmax(deepest))], field, identity)
+    if np.asarray(deepest_step.point_of_b).any():
+        raise SystemExit(f"force_quality: on the {name} path the query tests B's points in A's field, the "
+                         "reference A's in B's: give the tool fewer points than B")
     depth_voxels = deepest / h
     lever = float(np.linalg.norm(tool.points - np.asarray(tool.center_of_mass, np.float32), axis=1).max())
     methods: dict[str, dict] = {}
@@ -467,12 +473,13 @@ def measure(args) -> dict:
                              "with --paths")
 
         mesh = scaled_bunny(cache, args.bunny)
-        bunny = baked(voxfmt, cache, "bunny-0.15m", mesh, 35000)
+        fixed = baked(voxfmt, cache, "bunny-0.15m", mesh, 35000)
+        moving = baked(voxfmt, cache, "bunny-0.15m-30k", mesh, 30000)  # fewer points: its shell goes into B's field
         vertices, faces = igl.read_triangle_mesh(str(mesh))
-        poses = bunny_path(bunny, bunny, bunny.voxel_size)
-        reference = mesh_reference_wrench(bunny, poses, vertices, faces.astype(np.int64), bunny, 2 * bunny.voxel_size)
-        asset = asset_file(cache, "bunny-0.15m")
-        paths.append(run_path("bunny-bunny", bunny, bunny, poses, reference, bunny.voxel_size, voxfmt, (asset, asset)))
+        poses = bunny_path(moving, fixed, fixed.voxel_size)
+        reference = mesh_reference_wrench(moving, poses, vertices, faces.astype(np.int64), fixed, 2 * fixed.voxel_size)
+        paths.append(run_path("bunny-bunny", moving, fixed, poses, reference, fixed.voxel_size, voxfmt,
+                              (asset_file(cache, "bunny-0.15m-30k"), asset_file(cache, "bunny-0.15m"))))
     return {"benchmark": "force_quality", "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
