@@ -95,10 +95,10 @@ def main() -> int:
                                        "summary": summary(runs, args.threshold)})
     table = markdown(result)
     print(table, end="")
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    if args.markdown:
-        Path(args.markdown).write_text(table)
+    for path, text in ((args.json, json.dumps(result, indent=1) + "\n"), (args.markdown, table)):
+        if path:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            Path(path).write_text(text)
     return 0
 
 
