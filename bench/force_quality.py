@@ -570,7 +570,8 @@ def main() -> int:
     if unknown:
         print(f"force_quality: unknown path(s) {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
-    unknown_targets = set(args.check_only.split(",")) - {"shallow", "deep", "jump", "coherent"}
+    targets = set(args.check_only.split(","))
+    unknown_targets = targets - {"shallow", "deep", "jump", "coherent"}
     if unknown_targets:
         print(f"force_quality: unknown target(s) {', '.join(sorted(unknown_targets))}", file=sys.stderr)
         return 2
@@ -581,7 +582,7 @@ def main() -> int:
         Path(args.json).write_text(json.dumps(result) + "\n")
     if args.markdown:
         Path(args.markdown).write_text(table)
-    return check(result, set(args.check_only.split(","))) if args.check else 0
+    return check(result, targets) if args.check else 0
 
 
 def check_reference(args) -> int:

@@ -44,7 +44,8 @@ def summary(runs: list[dict], threshold: float) -> dict:
     moving = [{"offset_m": r["offset_m"], "partner": p["partner"], "residual_speed_mps": p["residual_speed_mps"]}
               for r in runs for p in r["pairs"] if p["residual_speed_mps"] > threshold]
     return {"bunnies": len(speeds), "moving": len(moving), "median_mps": statistics.median(speeds),
-            "p90_mps": statistics.quantiles(speeds, n=10, method="inclusive")[-1], "max_mps": speeds[-1], "moving_list": moving}
+            "p90_mps": statistics.quantiles(speeds, n=10, method="inclusive")[-1], "max_mps": speeds[-1],
+            "moving_list": moving}
 
 
 def markdown(result: dict) -> str:

@@ -305,10 +305,10 @@ struct Terrain {
   std::unique_ptr<btHeightfieldTerrainShape> shape;
 };
 
-/// `rise(x, z)`: metres added to the waves (a wall).
 /// The terrain's cells a side for cells of about `cell_mm`.
 int terrain_cells(double cell_mm) { return int(std::lround(kTerrainM / (cell_mm * 1e-3))); }
 
+/// `rise(x, z)`: metres added to the waves (a wall).
 Terrain make_terrain(double cell_mm, const std::function<double(double, double)>& rise = {}) {
   Terrain t;
   t.cells = terrain_cells(cell_mm);

@@ -103,8 +103,8 @@ double search_points(const Search& s, const std::vector<uint64_t>& points, const
                            Voxelmap::lattice_coordinate(c, s.vm.dims[2]));
       bound = std::min(bound, corner.distance + std::sqrt(distance2(p, cp)));
       const auto& t = s.corners[corner.triangle];
-      const Vec3 d = closest_on_triangle(p, t[0], t[1], t[2]) - p;
-      if (dot(d, d) < carried2) carried2 = dot(d, d), hint = corner.triangle;
+      const double d2 = distance2(closest_on_triangle(p, t[0], t[1], t[2]), p);
+      if (d2 < carried2) carried2 = d2, hint = corner.triangle;
     }
     const double bound2 = std::min(bound * bound, carried2) * (1 + 1e-9);
     const auto [d2, f] = s.tree.nearest(p, bound2, hint, slack);
