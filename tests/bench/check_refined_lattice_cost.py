@@ -5,7 +5,8 @@
 A box (not a cube) is baked small; the tool must find every lattice value at or above the exact distance to the
 mesh (spec §3.3: the lattice never under-estimates), flag some of the coarse bricks near the surface (a 16-voxel
 reach covers the whole small grid), count its new points as the flags imply (19 a flagged brick at most, at least
-one), and finish with no distance above its bound. Exits non-zero with the first failure.
+one), and finish with no distance above its bound; with `--carry`, the distances found without a search are
+never below the exact ones and, on a box's few large faces, equal to them. Exits non-zero with the first failure.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def main() -> int:
     voxfmt_cli, tool, work = sys.argv[1], sys.argv[2], Path(sys.argv[3])
     asset = bake_box(voxfmt_cli, work)
     figures_path = work / "refined.json"
-    subprocess.run([tool, str(asset), str(work / "box.off"), "--threads", "2", "--json", str(figures_path)],
+    subprocess.run([tool, str(asset), str(work / "box.off"), "--threads", "2", "--carry", "--json", str(figures_path)],
                    check=True, stdout=subprocess.DEVNULL)
     figures = json.loads(figures_path.read_text())
     with h5py.File(asset, "r") as f:
@@ -37,6 +38,9 @@ def main() -> int:
     assert 0 < figures["flagged"] <= coarse, figures
     assert figures["near"] == figures["flagged"] or figures["ridge"] > 0, figures
     assert 0 < figures["every4_points"] <= 19 * figures["flagged"], figures
+    carried = figures["carried"]
+    assert carried["lowest_voxels"] >= -1e-9, f"a carried distance below the exact one: {carried}"
+    assert carried["max_over_voxels"] <= 1e-6, f"carried distances above the exact ones on a box: {carried}"
     print(f"check_refined_lattice_cost: {figures['flagged']} of {coarse} coarse bricks flagged, "
           f"{figures['every4_points']} points every 4 voxels, {figures['every2_points']} every 2")
     return 0
