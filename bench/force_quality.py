@@ -44,8 +44,8 @@ points), so that the force per area is the reference's; without that, its force 
                 that: a point it puts farther out is outside and adds nothing).
 And the haptic renderer (HapticRenderer::contact_wrench_at, full trees: the same per-point penalty along the
 tool's own point normals, classical VPS), through build/bin/haptic-wrench (bench/haptic_wrench.cpp) when built.
-Every asset is baked at 306 voxels with the distance band --band (3, voxfmt build's default; others are cached
-under their own names).
+Every asset is baked with --resolution voxels along its longest side (306, the seed's) and the distance band
+--band (3, voxfmt build's default); other settings are cached under their own names.
 """
 
 from __future__ import annotations
@@ -421,22 +421,26 @@ def scaled_bunny(cache: Path, source: str) -> Path:
 
 
 DEFAULT_BAND = 3  # voxfmt build's
+DEFAULT_RESOLUTION = 306  # the seed's
 
 
-def asset_file(cache: Path, name: str, band: float = DEFAULT_BAND) -> Path:
-    """Where `baked` keeps the asset called `name` (baked with `band`)."""
-    return cache / (f"{name}.vox.h5" if band == DEFAULT_BAND else f"{name}-band{band:g}.vox.h5")
+def asset_file(cache: Path, name: str, bake: tuple[float, int] = (DEFAULT_BAND, DEFAULT_RESOLUTION)) -> Path:
+    """Where `baked` keeps the asset called `name` baked with `bake` (band, resolution)."""
+    band, resolution = bake
+    suffix = ("" if band == DEFAULT_BAND else f"-band{band:g}") + (
+        "" if resolution == DEFAULT_RESOLUTION else f"-res{resolution}")
+    return cache / f"{name}{suffix}.vox.h5"
 
 
 def baked(voxfmt, cache: Path, name: str, mesh: tuple[np.ndarray, np.ndarray] | Path, points: int,
-          band: float = DEFAULT_BAND):
-    asset = asset_file(cache, name, band)
+          bake: tuple[float, int] = (DEFAULT_BAND, DEFAULT_RESOLUTION)):
+    asset = asset_file(cache, name, bake)
     if not asset.exists():
         source = mesh if isinstance(mesh, Path) else cache / f"{name}.off"
         if not isinstance(mesh, Path):
             write_off(source, *mesh)
         print(f"force_quality: baking {asset.name} ...", file=sys.stderr)
-        voxfmt.bake(source, asset, resolution=306, points=points, band=band)
+        voxfmt.bake(source, asset, resolution=bake[1], points=points, band=bake[0])
     return voxfmt.load(asset)
 
 
@@ -445,33 +449,34 @@ def measure(args) -> dict:
 
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
+    bake = (args.band, args.resolution)
     paths = []
     if "wall-push" in args.paths:
         half = np.array([0.2, 0.2, 0.05])
-        wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000, args.band)
-        bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000, args.band)
+        wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000, bake)
+        bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000, bake)
         poses = wall_push_path(bunny, half[2], wall.voxel_size)
         paths.append(run_path("wall-push", bunny, wall, poses,
                               reference_wrench(bunny, poses, lambda x: box_sdf(x, half)), wall.voxel_size, voxfmt,
-                              (asset_file(cache, "bunny-0.15m", args.band), asset_file(cache, "wall", args.band))))
+                              (asset_file(cache, "bunny-0.15m", bake), asset_file(cache, "wall", bake))))
     if "tori-sliding" in args.paths:
         R, r = 0.05, 0.02
         mesh = torus_mesh(R, r, 1440, 480)
-        fixed = baked(voxfmt, cache, "torus-b", mesh, 35000, args.band)
-        moving = baked(voxfmt, cache, "torus-a", mesh, 30000, args.band)  # fewer points: its shell goes into B's field
+        fixed = baked(voxfmt, cache, "torus-b", mesh, 35000, bake)
+        moving = baked(voxfmt, cache, "torus-a", mesh, 30000, bake)  # fewer points: its shell goes into B's field
         poses = tori_path(r, fixed.voxel_size)
         paths.append(run_path("tori-sliding", moving, fixed, poses,
                               reference_wrench(moving, poses, lambda x: torus_sdf(x, R, r)), fixed.voxel_size, voxfmt,
-                              (asset_file(cache, "torus-a", args.band), asset_file(cache, "torus-b", args.band))))
+                              (asset_file(cache, "torus-a", bake), asset_file(cache, "torus-b", bake))))
     if "peg-in-hole" in args.paths:
         a, c, hole, radius, half_length = 0.03, 0.02, 0.0052, 0.005, 0.015
-        block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000, args.band)
-        peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000, args.band)
+        block = baked(voxfmt, cache, "block-hole-5.2mm", block_with_hole_mesh(a, c, hole, 1440), 35000, bake)
+        peg = baked(voxfmt, cache, "peg-5mm", cylinder_mesh(radius, half_length, 1440), 20000, bake)
         poses = peg_path(c, hole - radius, half_length, block.voxel_size)
         paths.append(run_path("peg-in-hole", peg, block, poses,
                               reference_wrench(peg, poses, lambda x: block_with_hole_sdf(x, a, c, hole)),
                               block.voxel_size, voxfmt,
-                              (asset_file(cache, "peg-5mm", args.band), asset_file(cache, "block-hole-5.2mm", args.band))))
+                              (asset_file(cache, "peg-5mm", bake), asset_file(cache, "block-hole-5.2mm", bake))))
     if "bunny-bunny" in args.paths:
         try:
             import igl
@@ -480,14 +485,16 @@ def measure(args) -> dict:
                              "with --paths")
 
         mesh = scaled_bunny(cache, args.bunny)
-        fixed = baked(voxfmt, cache, "bunny-0.15m", mesh, 35000, args.band)
-        moving = baked(voxfmt, cache, "bunny-0.15m-30k", mesh, 30000, args.band)  # fewer points: its shell goes into B's field
+        fixed = baked(voxfmt, cache, "bunny-0.15m", mesh, 35000, bake)
+        # Fewer points: its shell goes into B's field.
+        moving = baked(voxfmt, cache, "bunny-0.15m-30k", mesh, 30000, bake)
         vertices, faces = igl.read_triangle_mesh(str(mesh))
         poses = bunny_path(moving, fixed, fixed.voxel_size)
         reference = mesh_reference_wrench(moving, poses, vertices, faces.astype(np.int64), fixed, 2 * fixed.voxel_size)
         paths.append(run_path("bunny-bunny", moving, fixed, poses, reference, fixed.voxel_size, voxfmt,
-                              (asset_file(cache, "bunny-0.15m-30k", args.band), asset_file(cache, "bunny-0.15m", args.band))))
-    return {"benchmark": "force_quality", "band_voxels": args.band, "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
+                              (asset_file(cache, "bunny-0.15m-30k", bake), asset_file(cache, "bunny-0.15m", bake))))
+    return {"benchmark": "force_quality", "band_voxels": args.band, "resolution": args.resolution,
+            "stiffness": STIFFNESS, "min_depth_voxels": MIN_DEPTH_VOXELS,
             "machine": f"{platform.node()} ({os.cpu_count()} cores)",
             "command": "bench/force_quality.py " + " ".join(sys.argv[1:]), "paths": paths}
 
@@ -557,6 +564,8 @@ def main() -> int:
     ap.add_argument("--cache", default="out/force-quality", help="meshes and baked assets (reused)")
     ap.add_argument("--band", type=float, default=DEFAULT_BAND,
                     help="bake every asset with this distance band, voxels (voxfmt build --band; 3)")
+    ap.add_argument("--resolution", type=int, default=DEFAULT_RESOLUTION,
+                    help="bake every asset with this many voxels along its longest side (306)")
     ap.add_argument("--bunny", default=str(ROOT / "build/cgal-data/data/meshes/bunny00.off"))
     ap.add_argument("--plot", nargs=2, metavar=("JSON", "PNG"), help="only draw a results file's forces")
     ap.add_argument("--check-reference", action="store_true",
