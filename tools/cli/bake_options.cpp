@@ -26,7 +26,9 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   cmd.add_option("--margin", b.voxelmap.margin, "Outer voxels around the bounding box on each side")
       ->capture_default_str()
       ->check(CLI::Range(0u, 1024u));
-  cmd.add_option("--band", b.voxelmap.distance_band, "Half-width in voxels of the band of exact distances")
+  cmd.add_option("--band", b.voxelmap.distance_band,
+                 "Half-width in voxels of the band of exact distances (6 for haptic partners pressed deeper: smoother "
+                 "forces for ~1.3x the file; docs/haptics.md)")
       ->capture_default_str()
       ->check(CLI::Range(1.0, 64.0));
   cmd.add_option("--shell-thickness", b.voxelmap.shell_thickness,
