@@ -610,8 +610,9 @@ def check_reference(args) -> int:
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     half = np.array([0.2, 0.2, 0.05])
-    wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000)
-    bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000)
+    bake = (args.band, args.resolution)
+    wall = baked(voxfmt, cache, "wall", box_mesh(half), 35000, bake)
+    bunny = baked(voxfmt, cache, "bunny-0.15m", scaled_bunny(cache, args.bunny), 35000, bake)
     poses = wall_push_path(bunny, half[2], wall.voxel_size)[::10]
     vertices, faces = box_mesh(half)
     closed = reference_wrench(bunny, poses, lambda x: box_sdf(x, half))

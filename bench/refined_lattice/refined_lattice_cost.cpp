@@ -81,34 +81,55 @@ struct Search {
   Vec3 at(int64_t i, int64_t j, int64_t k) const { return vm.voxel_center(uint32_t(i), uint32_t(j), uint32_t(k)); }
 };
 
-/// Exact distances at the voxels `points` (keys i | j << 21 | k << 42), each within the least over its brick's
-/// corners of their distance plus the way to them; the largest excess of a distance over that bound (metres, <= 0
-/// unless something is wrong).
+/// A voxel as a key i | j << 21 | k << 42, and back.
+uint64_t key_of(const std::array<int64_t, 3>& v) {
+  return uint64_t(v[0]) | uint64_t(v[1]) << 21 | uint64_t(v[2]) << 42;
+}
+std::array<int64_t, 3> voxel_of(uint64_t key) {
+  return {int64_t(key & 0x1fffff), int64_t(key >> 21 & 0x1fffff), int64_t(key >> 42)};
+}
+
+/// The brick whose cell holds voxel v (the last brick along an axis for the grid's last voxel).
+std::array<uint32_t, 3> brick_of(const Voxelmap& vm, const std::array<int64_t, 3>& v) {
+  const auto bd = vm.brick_dims();
+  return {std::min(uint32_t(v[0] / 8), bd[0] - 1), std::min(uint32_t(v[1] / 8), bd[1] - 1),
+          std::min(uint32_t(v[2] / 8), bd[2] - 1)};
+}
+
+/// The nearest to p of the nearest triangles of brick b's 8 corners: its squared distance and index.
+std::pair<double, uint32_t> nearest_corner_triangle(const Search& s, const std::vector<Corner>& lattice, const Vec3& p,
+                                                    const std::array<uint32_t, 3>& b) {
+  double best = 1e300;
+  uint32_t triangle = 0;
+  for (int q = 0; q < 8; ++q) {
+    const uint32_t f = lattice[s.vm.lattice_index(b[0] + (q & 1), b[1] + (q >> 1 & 1), b[2] + (q >> 2))].triangle;
+    const double d2 = distance2(closest_on_triangle(p, s.corners[f][0], s.corners[f][1], s.corners[f][2]), p);
+    if (d2 < best) best = d2, triangle = f;
+  }
+  return {best, triangle};
+}
+
+/// Exact distances at the voxels `points` (keys, key_of), each within the least over its brick's corners of their
+/// distance plus the way to them; returns the largest excess of a distance over that bound, relative to the bound
+/// (at most the search's own 1e-9 unless something is wrong); the distances into `distances` if given.
 double search_points(const Search& s, const std::vector<uint64_t>& points, const std::vector<Corner>& lattice,
                      unsigned threads, double slack, std::vector<double>* distances = nullptr) {
-  const auto bd = s.vm.brick_dims();
   std::vector<double> excess(threads, -1e30);
   if (distances) distances->assign(points.size(), 0);
   parallel(points.size(), threads, [&](size_t n) {
-    const int64_t i = int64_t(points[n] & 0x1fffff), j = int64_t(points[n] >> 21 & 0x1fffff),
-                  k = int64_t(points[n] >> 42);
-    const Vec3 p = s.at(i, j, k);
-    const uint32_t bi = std::min(uint32_t(i / 8), bd[0] - 1), bj = std::min(uint32_t(j / 8), bd[1] - 1),
-                   bk = std::min(uint32_t(k / 8), bd[2] - 1);
+    const auto v = voxel_of(points[n]);
+    const Vec3 p = s.at(v[0], v[1], v[2]);
+    const auto b = brick_of(s.vm, v);
     // The corners' nearest triangles bound it (carried, as the bake's lattice stage carries them), and the least
     // corner distance plus the way to that corner is the bound a distance must keep.
-    double bound = 1e300, carried2 = 1e300;
-    uint32_t hint = 0;
+    double bound = 1e300;
     for (int q = 0; q < 8; ++q) {
-      const uint32_t a = bi + (q & 1), b = bj + (q >> 1 & 1), c = bk + (q >> 2);
-      const Corner& corner = lattice[s.vm.lattice_index(a, b, c)];
-      const Vec3 cp = s.at(Voxelmap::lattice_coordinate(a, s.vm.dims[0]), Voxelmap::lattice_coordinate(b, s.vm.dims[1]),
-                           Voxelmap::lattice_coordinate(c, s.vm.dims[2]));
-      bound = std::min(bound, corner.distance + std::sqrt(distance2(p, cp)));
-      const auto& t = s.corners[corner.triangle];
-      const double d2 = distance2(closest_on_triangle(p, t[0], t[1], t[2]), p);
-      if (d2 < carried2) carried2 = d2, hint = corner.triangle;
+      const uint32_t a = b[0] + (q & 1), c = b[1] + (q >> 1 & 1), d = b[2] + (q >> 2);
+      const Vec3 cp = s.at(Voxelmap::lattice_coordinate(a, s.vm.dims[0]), Voxelmap::lattice_coordinate(c, s.vm.dims[1]),
+                           Voxelmap::lattice_coordinate(d, s.vm.dims[2]));
+      bound = std::min(bound, lattice[s.vm.lattice_index(a, c, d)].distance + std::sqrt(distance2(p, cp)));
     }
+    const auto [carried2, hint] = nearest_corner_triangle(s, lattice, p, b);
     const double bound2 = std::min(bound * bound, carried2) * (1 + 1e-9);
     const auto [d2, f] = s.tree.nearest(p, bound2, hint, slack);
     (void)f;
@@ -145,7 +166,7 @@ std::vector<Corner> find_corners(const Search& s, unsigned threads, size_t& over
   return lattice;
 }
 
-/// Triangles sharing a vertex with each triangle (compressed rows), for a walk over the surface.
+/// Triangles sharing a vertex with each triangle (compressed rows, each once), for a walk over the surface.
 struct Rings {
   std::vector<uint32_t> begin, around;
   Rings(const std::vector<std::array<uint32_t, 3>>& triangles, size_t vertex_count) {
@@ -162,15 +183,20 @@ struct Rings {
       for (uint32_t v : triangles[t])
         for (uint32_t r = first[v]; r < first[v + 1]; ++r)
           if (of_vertex[r] != t) around.push_back(of_vertex[r]);
+      // An edge's neighbour shares two vertices: once is enough.
+      std::sort(around.begin() + begin[t], around.end());
+      around.erase(std::unique(around.begin() + begin[t], around.end()), around.end());
       begin[t + 1] = uint32_t(around.size());
     }
   }
 };
 
 struct Carried {
-  std::vector<double> distances;  // metres
+  std::vector<double> distances;  // the asset's units
   size_t rounds = 0, walk_steps = 0;
+  bool settled = false;  // no offer was taken in the last round (else it stopped after kMaxRounds)
 };
+constexpr size_t kMaxRounds = 32;
 
 /// Distances at `points` without a search: each point takes the nearest of its brick's corners' nearest triangles,
 /// then walks from triangle to a triangle sharing a vertex while that is nearer, and points every 4 voxels apart
@@ -178,13 +204,8 @@ struct Carried {
 /// triangle, so never below the exact one; how far above is what this measures.
 Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint64_t>& points,
                      const std::vector<Corner>& lattice, unsigned threads) {
-  const auto bd = s.vm.brick_dims();
   std::unordered_map<uint64_t, uint32_t> index;
   for (uint32_t n = 0; n < points.size(); ++n) index.emplace(points[n], n);
-  auto coordinates = [&](size_t n) {
-    return std::array<int64_t, 3>{int64_t(points[n] & 0x1fffff), int64_t(points[n] >> 21 & 0x1fffff),
-                                  int64_t(points[n] >> 42)};
-  };
   std::vector<uint32_t> triangle(points.size());
   std::vector<double> d2(points.size());
   std::atomic<size_t> steps{0};
@@ -203,38 +224,31 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
     steps += taken;
   };
   parallel(points.size(), threads, [&](size_t n) {
-    const auto [i, j, k] = coordinates(n);
-    const Vec3 p = s.at(i, j, k);
-    const uint32_t bi = std::min(uint32_t(i / 8), bd[0] - 1), bj = std::min(uint32_t(j / 8), bd[1] - 1),
-                   bk = std::min(uint32_t(k / 8), bd[2] - 1);
-    double best = 1e300;
-    uint32_t t = 0;
-    for (int q = 0; q < 8; ++q) {
-      const uint32_t f = lattice[s.vm.lattice_index(bi + (q & 1), bj + (q >> 1 & 1), bk + (q >> 2))].triangle;
-      const double e = distance2(closest_on_triangle(p, s.corners[f][0], s.corners[f][1], s.corners[f][2]), p);
-      if (e < best) best = e, t = f;
-    }
+    const auto v = voxel_of(points[n]);
+    const Vec3 p = s.at(v[0], v[1], v[2]);
+    auto [best, t] = nearest_corner_triangle(s, lattice, p, brick_of(s.vm, v));
     walk(p, t, best);
     triangle[n] = t, d2[n] = best;
   });
-  // Each point's neighbours every 4 voxels along the axes (kNone at the edge of the flagged bricks).
+  // Each point's neighbours 4 voxels away along the axes, kNone where that is not a point of `points`: outside the
+  // flagged bricks, a brick corner, or past the grid's last voxel (a point clamped to it has uneven neighbours).
   constexpr uint32_t kNone = ~0u;
   std::vector<std::array<uint32_t, 6>> beside(points.size());
   parallel(points.size(), threads, [&](size_t n) {
-    const auto c = coordinates(n);
+    const auto c = voxel_of(points[n]);
     for (int a = 0; a < 3; ++a)
       for (int side = 0; side < 2; ++side) {
         auto m = c;
         m[a] += side ? 4 : -4;
-        const auto found =
-            m[a] < 0 ? index.end() : index.find(uint64_t(m[0]) | uint64_t(m[1]) << 21 | uint64_t(m[2]) << 42);
+        const auto found = m[a] < 0 ? index.end() : index.find(key_of(m));
         beside[n][2 * a + side] = found == index.end() ? kNone : found->second;
       }
   });
   // Rounds of offers; after the first only points with a neighbour that changed in the round before.
   Carried out;
   std::vector<uint8_t> changed(points.size(), 1), changed_now(points.size());
-  for (bool any = true; any && out.rounds < 32; ++out.rounds) {
+  for (bool any = true; any; ++out.rounds) {
+    if (out.rounds == kMaxRounds) break;
     const std::vector<uint32_t> offered = triangle;
     std::fill(changed_now.begin(), changed_now.end(), 0);
     std::atomic<bool> lowered{false};
@@ -242,7 +256,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
       bool news = false;
       for (uint32_t m : beside[n]) news |= m != kNone && changed[m];
       if (!news) return;
-      const auto c = coordinates(n);
+      const auto c = voxel_of(points[n]);
       const Vec3 p = s.at(c[0], c[1], c[2]);
       bool took = false;
       for (uint32_t m : beside[n]) {
@@ -259,6 +273,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
     });
     changed.swap(changed_now);
     any = lowered;
+    out.settled = !any;
   }
   out.distances.resize(points.size());
   for (size_t n = 0; n < points.size(); ++n) out.distances[n] = std::sqrt(d2[n]);
@@ -297,7 +312,7 @@ Flags flag_bricks(const Voxelmap& vm, const std::vector<Corner>& lattice, double
 }
 
 /// The points every `step` voxels in the bricks flagged with a bit of `mask` (not their corners, each once), as
-/// keys i | j << 21 | k << 42.
+/// keys (key_of).
 std::vector<uint64_t> points_every(const Voxelmap& vm, const Flags& flags, int step, uint8_t mask) {
   const auto bd = vm.brick_dims();
   std::unordered_set<uint64_t> unique;
@@ -309,10 +324,9 @@ std::vector<uint64_t> points_every(const Voxelmap& vm, const Flags& flags, int s
           for (int y = 0; y <= 8; y += step)
             for (int x = 0; x <= 8; x += step) {
               if (x % 8 == 0 && y % 8 == 0 && z % 8 == 0) continue;  // a corner
-              const uint64_t i = std::min<uint64_t>(bi * 8 + uint32_t(x), vm.dims[0] - 1);
-              const uint64_t j = std::min<uint64_t>(bj * 8 + uint32_t(y), vm.dims[1] - 1);
-              const uint64_t k = std::min<uint64_t>(bk * 8 + uint32_t(z), vm.dims[2] - 1);
-              unique.insert(i | j << 21 | k << 42);
+              unique.insert(key_of({std::min<int64_t>(bi * 8 + uint32_t(x), vm.dims[0] - 1),
+                                    std::min<int64_t>(bj * 8 + uint32_t(y), vm.dims[1] - 1),
+                                    std::min<int64_t>(bk * 8 + uint32_t(z), vm.dims[2] - 1)}));
             }
       }
   std::vector<uint64_t> points(unique.begin(), unique.end());
@@ -361,16 +375,33 @@ void print_table(const Settings& o, const Voxelmap& vm, const nlohmann::json& f)
               f["every4_s"].get<double>());
   std::printf("| every 2 voxels in ridge bricks | %zu points | %.3f |\n", f["every2_points"].get<size_t>(),
               f["every2_s"].get<double>());
+  if (!f.contains("carried")) return;
+  const nlohmann::json& c = f["carried"];
+  std::printf("| every 4, exact searches | %zu points | %.3f |\n", f["every4_points"].get<size_t>(),
+              c["exact_s"].get<double>());
+  std::printf("| every 4, carried and walked (no search) | %zu rounds%s, %zu walk steps (adjacency %.3f s) | %.3f |\n",
+              c["rounds"].get<size_t>(), c["settled"].get<bool>() ? "" : " (not settled)",
+              c["walk_steps"].get<size_t>(), c["adjacency_s"].get<double>(), c["s"].get<double>());
+  std::printf(
+      "carried above exact, voxels: max %.3f, p99 %.3f; share above 0.01 / 0.1 / 0.5 / 1: %.3f %% / %.3f %% / "
+      "%.3f %% / %.3f %%; lowest %.2g\n",
+      c["max_over_voxels"].get<double>(), c["p99_over_voxels"].get<double>(), 100 * c["share_over_0_01"].get<double>(),
+      100 * c["share_over_0_1"].get<double>(), 100 * c["share_over_0_5"].get<double>(),
+      100 * c["share_over_1"].get<double>(), c["lowest_voxels"].get<double>());
 }
 
-/// carry_points at the every-4 points against exact searches: its time and how far above the exact distance.
-void compare_carried(const Search& s, const Rings& rings, const std::vector<uint64_t>& points,
-                     const std::vector<Corner>& lattice, unsigned threads, nlohmann::json& figures) {
+/// carry_points at the every-4 points (the surface's adjacency built within its time) against exact searches: both
+/// times, and how far above the exact distance. Returns the exact searches' excess over their bound (search_points).
+double compare_carried(const Search& s, const voxfmt::bake::TriangleMesh& mesh, const std::vector<uint64_t>& points,
+                       const std::vector<Corner>& lattice, unsigned threads, nlohmann::json& figures) {
   auto clock = std::chrono::steady_clock::now();
+  const Rings rings(mesh.triangles, mesh.vertices.size());
+  const double rings_s = seconds_since(clock);
   const Carried carried = carry_points(s, rings, points, lattice, threads);
-  const double carry_s = seconds_since(clock);
+  const double carry_s = rings_s + seconds_since(clock);
   std::vector<double> exact;
-  search_points(s, points, lattice, threads, 0.0, &exact);
+  const double excess = search_points(s, points, lattice, threads, 0.0, &exact);
+  const double exact_s = seconds_since(clock);
   std::vector<double> over(points.size());
   double below = 0;
   for (size_t n = 0; n < points.size(); ++n) {
@@ -382,8 +413,11 @@ void compare_carried(const Search& s, const Rings& rings, const std::vector<uint
     return double(over.end() - std::upper_bound(over.begin(), over.end(), v)) /
            double(std::max<size_t>(1, over.size()));
   };
-  const double p99 = over.empty() ? 0 : over[size_t(0.99 * double(over.size() - 1))];
+  const double p99 = over.empty() ? 0 : over[size_t(std::ceil(0.99 * double(over.size() - 1)))];
   figures["carried"] = {{"s", carry_s},
+                        {"adjacency_s", rings_s},
+                        {"exact_s", exact_s},
+                        {"settled", carried.settled},
                         {"rounds", carried.rounds},
                         {"walk_steps", carried.walk_steps},
                         {"max_over_voxels", over.empty() ? 0 : over.back()},
@@ -393,13 +427,7 @@ void compare_carried(const Search& s, const Rings& rings, const std::vector<uint
                         {"share_over_0_1", share(0.1)},
                         {"share_over_0_5", share(0.5)},
                         {"share_over_1", share(1.0)}};
-  std::printf("| every 4, carried and walked (no search) | %zu points, %zu rounds, %zu walk steps | %.3f |\n",
-              points.size(), carried.rounds, carried.walk_steps, carry_s);
-  std::printf(
-      "carried above exact, voxels: max %.3f, p99 %.3f; share above 0.01 / 0.1 / 0.5 / 1: %.3f %% / %.3f %% / "
-      "%.3f %% / %.3f %%; lowest %.2g\n",
-      over.empty() ? 0 : over.back(), p99, 100 * share(0.01), 100 * share(0.1), 100 * share(0.5), 100 * share(1.0),
-      below);
+  return excess;
 }
 
 }  // namespace
@@ -444,7 +472,7 @@ int main(int argc, char** argv) {
   figures["every4_s"] = seconds_since(clock);
   const double excess2 = search_points(s, every2, lattice, o.threads, o.slack);
   figures["every2_s"] = seconds_since(clock);
-  if (o.carry) compare_carried(s, Rings(mesh.triangles, mesh.vertices.size()), every4, lattice, o.threads, figures);
+  const double excess_exact = o.carry ? compare_carried(s, mesh, every4, lattice, o.threads, figures) : 0.0;
   figures.update({{"lattice_points", lattice.size()},
                   {"corners_above_lattice", over},
                   {"coarse_bricks", flags.coarse},
@@ -454,8 +482,9 @@ int main(int argc, char** argv) {
                   {"every4_points", every4.size()},
                   {"every2_points", every2.size()}});
   print_table(o, vm, figures);
-  if (excess4 > 1e-8 || excess2 > 1e-8) {
-    std::fprintf(stderr, "refined-lattice-cost: a distance above its bound (%g, %g of it)\n", excess4, excess2);
+  if (std::max({excess4, excess2, excess_exact}) > 1e-8) {
+    std::fprintf(stderr, "refined-lattice-cost: a distance above its bound (relative excess %g, %g, %g)\n", excess4,
+                 excess2, excess_exact);
     return 1;
   }
   if (!o.json_path.empty() && !(std::ofstream(o.json_path) << figures.dump(1) << "\n").flush()) {
