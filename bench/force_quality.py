@@ -440,7 +440,10 @@ def baked(voxfmt, cache: Path, name: str, mesh: tuple[np.ndarray, np.ndarray] | 
         if not isinstance(mesh, Path):
             write_off(source, *mesh)
         print(f"force_quality: baking {asset.name} ...", file=sys.stderr)
-        voxfmt.bake(source, asset, resolution=bake[1], points=points, band=bake[0])
+        try:
+            voxfmt.bake(source, asset, resolution=bake[1], points=points, band=bake[0])
+        except voxfmt.Error as e:
+            raise SystemExit(f"force_quality: cannot bake {asset.name}: {e}")
     return voxfmt.load(asset)
 
 
