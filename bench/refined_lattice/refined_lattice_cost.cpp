@@ -92,8 +92,9 @@ std::array<int64_t, 3> voxel_of(uint64_t key) {
 /// The brick whose cell holds voxel v (the last brick along an axis for the grid's last voxel).
 std::array<uint32_t, 3> brick_of(const Voxelmap& vm, const std::array<int64_t, 3>& v) {
   const auto bd = vm.brick_dims();
-  return {std::min(uint32_t(v[0] / 8), bd[0] - 1), std::min(uint32_t(v[1] / 8), bd[1] - 1),
-          std::min(uint32_t(v[2] / 8), bd[2] - 1)};
+  constexpr uint32_t edge = Voxelmap::kBrickEdge;
+  return {std::min(uint32_t(v[0]) / edge, bd[0] - 1), std::min(uint32_t(v[1]) / edge, bd[1] - 1),
+          std::min(uint32_t(v[2]) / edge, bd[2] - 1)};
 }
 
 /// The nearest to p of the nearest triangles of brick b's 8 corners: its squared distance and index.
@@ -125,8 +126,7 @@ double search_points(const Search& s, const std::vector<uint64_t>& points, const
     double bound = 1e300;
     for (int q = 0; q < 8; ++q) {
       const uint32_t a = b[0] + (q & 1), c = b[1] + (q >> 1 & 1), d = b[2] + (q >> 2);
-      const Vec3 cp = s.at(Voxelmap::lattice_coordinate(a, s.vm.dims[0]), Voxelmap::lattice_coordinate(c, s.vm.dims[1]),
-                           Voxelmap::lattice_coordinate(d, s.vm.dims[2]));
+      const Vec3 cp = s.vm.lattice_point_center(a, c, d);
       bound = std::min(bound, lattice[s.vm.lattice_index(a, c, d)].distance + std::sqrt(distance2(p, cp)));
     }
     const auto [carried2, hint] = nearest_corner_triangle(s, lattice, p, b);
@@ -149,8 +149,7 @@ std::vector<Corner> find_corners(const Search& s, unsigned threads, size_t& over
   parallel(size_t(bd[2] + 1), threads, [&](size_t c) {
     for (uint32_t b = 0; b <= bd[1]; ++b)
       for (uint32_t a = 0; a <= bd[0]; ++a) {
-        const Vec3 p = s.at(Voxelmap::lattice_coordinate(a, vm.dims[0]), Voxelmap::lattice_coordinate(b, vm.dims[1]),
-                            Voxelmap::lattice_coordinate(uint32_t(c), vm.dims[2]));
+        const Vec3 p = vm.lattice_point_center(a, b, uint32_t(c));
         const double l = vm.lattice[vm.lattice_index(a, b, uint32_t(c))];
         auto [d2, f] = s.tree.nearest(p, (l * l) * (1 + 1e-6) + 1e-18, 0, 0.0);
         if (!(d2 < (l * l) * (1 + 1e-6) + 1e-18)) std::tie(d2, f) = s.tree.nearest(p, 1e300, 0, 0.0), ++above;
@@ -247,8 +246,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
   // Rounds of offers; after the first only points with a neighbour that changed in the round before.
   Carried out;
   std::vector<uint8_t> changed(points.size(), 1), changed_now(points.size());
-  for (bool any = true; any; ++out.rounds) {
-    if (out.rounds == kMaxRounds) break;
+  while (!out.settled && out.rounds < kMaxRounds) {
     const std::vector<uint32_t> offered = triangle;
     std::fill(changed_now.begin(), changed_now.end(), 0);
     std::atomic<bool> lowered{false};
@@ -272,8 +270,8 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
       }
     });
     changed.swap(changed_now);
-    any = lowered;
-    out.settled = !any;
+    ++out.rounds;
+    out.settled = !lowered;
   }
   out.distances.resize(points.size());
   for (size_t n = 0; n < points.size(); ++n) out.distances[n] = std::sqrt(d2[n]);
