@@ -21,6 +21,9 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <map>
+#include <optional>
+#include <string>
 #include <thread>
 #include <unordered_map>
 #include <unordered_set>
@@ -201,8 +204,14 @@ constexpr size_t kMaxRounds = 32;
 /// then walks from triangle to a triangle sharing a vertex while that is nearer, and points every 4 voxels apart
 /// offer each other their triangles (then walk again) until none changes. Every value is a distance to a real
 /// triangle, so never below the exact one; how far above is what this measures.
-Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint64_t>& points,
-                     const std::vector<Corner>& lattice, unsigned threads) {
+/// What carry_points does after taking the corners' triangles: walk over the surface, take the neighbours' offers.
+struct CarrySteps {
+  bool walk = true, offers = true;
+  std::string name() const { return walk ? (offers ? "offers" : "walk") : (offers ? "offers-unwalked" : "corners"); }
+};
+
+Carried carry_points(const Search& s, const Rings* rings, const std::vector<uint64_t>& points,
+                     const std::vector<Corner>& lattice, unsigned threads, CarrySteps last) {
   std::unordered_map<uint64_t, uint32_t> index;
   for (uint32_t n = 0; n < points.size(); ++n) index.emplace(points[n], n);
   std::vector<uint32_t> triangle(points.size());
@@ -213,10 +222,10 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
     for (bool moved = true; moved;) {
       moved = false;
       const uint32_t from = t;
-      for (uint32_t r = rings.begin[from]; r < rings.begin[from + 1]; ++r) {
-        const auto& c = s.corners[rings.around[r]];
+      for (uint32_t r = rings->begin[from]; r < rings->begin[from + 1]; ++r) {
+        const auto& c = s.corners[rings->around[r]];
         const double e = distance2(closest_on_triangle(p, c[0], c[1], c[2]), p);
-        if (e < best) best = e, t = rings.around[r], moved = true;
+        if (e < best) best = e, t = rings->around[r], moved = true;
       }
       taken += moved;
     }
@@ -226,7 +235,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
     const auto v = voxel_of(points[n]);
     const Vec3 p = s.at(v[0], v[1], v[2]);
     auto [best, t] = nearest_corner_triangle(s, lattice, p, brick_of(s.vm, v));
-    walk(p, t, best);
+    if (last.walk) walk(p, t, best);
     triangle[n] = t, d2[n] = best;
   });
   // Each point's neighbours 4 voxels away along the axes, kNone where that is not a point of `points`: outside the
@@ -246,6 +255,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
   // Rounds of offers; after the first only points with a neighbour that changed in the round before.
   Carried out;
   std::vector<uint8_t> changed(points.size(), 1), changed_now(points.size());
+  out.settled = !last.offers;
   while (!out.settled && out.rounds < kMaxRounds) {
     const std::vector<uint32_t> offered = triangle;
     std::fill(changed_now.begin(), changed_now.end(), 0);
@@ -264,7 +274,7 @@ Carried carry_points(const Search& s, const Rings& rings, const std::vector<uint
         if (e < d2[n]) d2[n] = e, triangle[n] = f, took = true;
       }
       if (took) {
-        walk(p, triangle[n], d2[n]);
+        if (last.walk) walk(p, triangle[n], d2[n]);
         changed_now[n] = 1;
         lowered = true;
       }
@@ -337,6 +347,7 @@ struct Settings {
   double near = 16, ridge = 45, slack = 0.01;
   unsigned threads = 2;
   bool carry = false;
+  CarrySteps carry_steps;
   uint64_t max_memory_mib = voxfmt::ReadOptions::kDefaultReadMemoryBytes >> 20;
 };
 
@@ -352,6 +363,14 @@ void add_options(CLI::App& app, Settings& o) {
   app.add_flag("--carry", o.carry,
                "also find the every-4 points' distances without a search (corners' triangles carried, walked over "
                "the surface, offered between neighbours) and compare them with exact searches");
+  app.add_option_function<std::string>(
+         "--carry-steps",
+         [&o](const std::string& name) {
+           o.carry_steps = {name == "walk" || name == "offers", name == "offers" || name == "offers-unwalked"};
+         },
+         "how far --carry goes after the corners' triangles: corners (no further), walk (over the surface), "
+         "offers-unwalked (neighbours' offers, no walk), offers (walk and offers; the default)")
+      ->check(CLI::IsMember({"corners", "walk", "offers-unwalked", "offers"}));
   app.add_option("--threads", o.threads, "threads (2)")->check(CLI::Range(1u, 64u));
   app.add_option("--max-memory", o.max_memory_mib, "MiB the read may take")
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 30));
@@ -377,8 +396,8 @@ void print_table(const Settings& o, const Voxelmap& vm, const nlohmann::json& f)
   const nlohmann::json& c = f["carried"];
   std::printf("| every 4, exact searches | %zu points | %.3f |\n", f["every4_points"].get<size_t>(),
               c["exact_s"].get<double>());
-  std::printf("| every 4, carried and walked (no search) | %zu rounds%s, %zu walk steps (adjacency %.3f s) | %.3f |\n",
-              c["rounds"].get<size_t>(), c["settled"].get<bool>() ? "" : " (not settled)",
+  std::printf("| every 4, carried (no search; up to %s) | %zu rounds%s, %zu walk steps (adjacency %.3f s) | %.3f |\n",
+              c["steps"].get<std::string>().c_str(), c["rounds"].get<size_t>(), c["settled"].get<bool>() ? "" : " (not settled)",
               c["walk_steps"].get<size_t>(), c["adjacency_s"].get<double>(), c["s"].get<double>());
   std::printf(
       "carried above exact, voxels: max %.3f, p99 %.3f; share above 0.01 / 0.1 / 0.5 / 1: %.3f %% / %.3f %% / "
@@ -391,11 +410,13 @@ void print_table(const Settings& o, const Voxelmap& vm, const nlohmann::json& f)
 /// carry_points at the every-4 points (the surface's adjacency built within its time) against exact searches: both
 /// times, and how far above the exact distance. Returns the exact searches' excess over their bound (search_points).
 double compare_carried(const Search& s, const voxfmt::bake::TriangleMesh& mesh, const std::vector<uint64_t>& points,
-                       const std::vector<Corner>& lattice, unsigned threads, nlohmann::json& figures) {
+                       const std::vector<Corner>& lattice, unsigned threads, CarrySteps last,
+                       nlohmann::json& figures) {
   auto clock = std::chrono::steady_clock::now();
-  const Rings rings(mesh.triangles, mesh.vertices.size());
+  std::optional<Rings> rings;
+  if (last.walk) rings.emplace(mesh.triangles, mesh.vertices.size());
   const double rings_s = seconds_since(clock);
-  const Carried carried = carry_points(s, rings, points, lattice, threads);
+  const Carried carried = carry_points(s, rings ? &*rings : nullptr, points, lattice, threads, last);
   const double carry_s = rings_s + seconds_since(clock);
   std::vector<double> exact;
   const double excess = search_points(s, points, lattice, threads, 0.0, &exact);
@@ -412,7 +433,8 @@ double compare_carried(const Search& s, const voxfmt::bake::TriangleMesh& mesh, 
            double(std::max<size_t>(1, over.size()));
   };
   const double p99 = over.empty() ? 0 : over[size_t(std::ceil(0.99 * double(over.size() - 1)))];
-  figures["carried"] = {{"s", carry_s},
+  figures["carried"] = {{"steps", last.name()},
+                        {"s", carry_s},
                         {"adjacency_s", rings_s},
                         {"exact_s", exact_s},
                         {"settled", carried.settled},
@@ -470,7 +492,7 @@ int main(int argc, char** argv) {
   figures["every4_s"] = seconds_since(clock);
   const double excess2 = search_points(s, every2, lattice, o.threads, o.slack);
   figures["every2_s"] = seconds_since(clock);
-  const double excess_exact = o.carry ? compare_carried(s, mesh, every4, lattice, o.threads, figures) : 0.0;
+  const double excess_exact = o.carry ? compare_carried(s, mesh, every4, lattice, o.threads, o.carry_steps, figures) : 0.0;
   figures.update({{"lattice_points", lattice.size()},
                   {"corners_above_lattice", over},
                   {"coarse_bricks", flags.coarse},
