@@ -8,7 +8,8 @@ reach covers the whole small grid), count its new points as the flags imply (19 
 one), and finish with no distance above its bound; with `--carry`, the distances found without a search are
 never below the exact ones and, on a box's few large faces, equal to them. A finely meshed torus then makes the
 carried distances walk over the surface (a walk here finds the exact ones) and settle: none below exact, all
-within a voxel of it. Exits non-zero with the first failure.
+within a voxel of it; the corners' triangles alone (`--carry-steps corners`) neither walk nor offer, and are never
+nearer than the full carry. Exits non-zero with the first failure.
 """
 
 from __future__ import annotations
@@ -70,6 +71,14 @@ def check_torus(voxfmt_cli: str, tool: str, work: Path) -> dict:
     assert carried["walk_steps"] > 0, f"no point walked over the surface: {carried}"
     assert carried["lowest_voxels"] >= -1e-9, f"a carried distance below the exact one: {carried}"
     assert carried["max_over_voxels"] <= 1.0, f"carried distances over a voxel above exact: {carried}"
+    # The corners' triangles alone: no walk, no offers, never below exact, and never nearer than the full carry
+    # (each later step only lowers a distance).
+    subprocess.run([tool, str(asset), str(work / "torus.off"), "--threads", "2", "--carry", "--carry-steps", "corners",
+                    "--json", str(figures_path)], check=True, stdout=subprocess.DEVNULL)
+    corners = json.loads(figures_path.read_text())["carried"]
+    assert corners["steps"] == "corners" and corners["walk_steps"] == 0 and corners["rounds"] == 0, corners
+    assert corners["lowest_voxels"] >= -1e-9, f"a corner's distance below the exact one: {corners}"
+    assert corners["max_over_voxels"] >= carried["max_over_voxels"], f"corners nearer than the carry: {corners}"
     return figures
 
 
