@@ -397,8 +397,9 @@ void print_table(const Settings& o, const Voxelmap& vm, const nlohmann::json& f)
   std::printf("| every 4, exact searches | %zu points | %.3f |\n", f["every4_points"].get<size_t>(),
               c["exact_s"].get<double>());
   std::printf("| every 4, carried (no search; up to %s) | %zu rounds%s, %zu walk steps (adjacency %.3f s) | %.3f |\n",
-              c["steps"].get<std::string>().c_str(), c["rounds"].get<size_t>(), c["settled"].get<bool>() ? "" : " (not settled)",
-              c["walk_steps"].get<size_t>(), c["adjacency_s"].get<double>(), c["s"].get<double>());
+              c["steps"].get<std::string>().c_str(), c["rounds"].get<size_t>(),
+              c["settled"].get<bool>() ? "" : " (not settled)", c["walk_steps"].get<size_t>(),
+              c["adjacency_s"].get<double>(), c["s"].get<double>());
   std::printf(
       "carried above exact, voxels: max %.3f, p99 %.3f; share above 0.01 / 0.1 / 0.5 / 1: %.3f %% / %.3f %% / "
       "%.3f %% / %.3f %%; lowest %.2g\n",
@@ -410,8 +411,7 @@ void print_table(const Settings& o, const Voxelmap& vm, const nlohmann::json& f)
 /// carry_points at the every-4 points (the surface's adjacency built within its time) against exact searches: both
 /// times, and how far above the exact distance. Returns the exact searches' excess over their bound (search_points).
 double compare_carried(const Search& s, const voxfmt::bake::TriangleMesh& mesh, const std::vector<uint64_t>& points,
-                       const std::vector<Corner>& lattice, unsigned threads, CarrySteps last,
-                       nlohmann::json& figures) {
+                       const std::vector<Corner>& lattice, unsigned threads, CarrySteps last, nlohmann::json& figures) {
   auto clock = std::chrono::steady_clock::now();
   std::optional<Rings> rings;
   if (last.walk) rings.emplace(mesh.triangles, mesh.vertices.size());
@@ -492,7 +492,8 @@ int main(int argc, char** argv) {
   figures["every4_s"] = seconds_since(clock);
   const double excess2 = search_points(s, every2, lattice, o.threads, o.slack);
   figures["every2_s"] = seconds_since(clock);
-  const double excess_exact = o.carry ? compare_carried(s, mesh, every4, lattice, o.threads, o.carry_steps, figures) : 0.0;
+  const double excess_exact =
+      o.carry ? compare_carried(s, mesh, every4, lattice, o.threads, o.carry_steps, figures) : 0.0;
   figures.update({{"lattice_points", lattice.size()},
                   {"corners_above_lattice", over},
                   {"coarse_bricks", flags.coarse},
