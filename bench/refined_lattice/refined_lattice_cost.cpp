@@ -1,7 +1,8 @@
 // What exact distances on a finer lattice in flagged coarse bricks would cost a bake (issue "fidelity", the coarse
 // half of a format 2.2 candidate; bench/coarse_refinement.py measured what they give).
 //
-//   refined-lattice-cost ASSET MESH [--near VOXELS] [--ridge DEGREES] [--carry] [--threads N] [--json OUT]
+//   refined-lattice-cost ASSET MESH [--near VOXELS] [--ridge DEGREES] [--carry [--carry-steps STEPS]] [--threads N]
+//                        [--json OUT]
 //
 // The bake's own nearest-triangle hierarchy (tools/bake's ClosestTriangle) over MESH, in the asset's frame. First the
 // brick corners (the asset's lattice points): each one's nearest triangle and surface point, searched within the
@@ -12,7 +13,8 @@
 // neighbours), each searched within the distance to the nearest of its brick's corners' nearest triangles (carried,
 // as the bake's lattice stage carries them); and, for the ridge bricks alone, every 2 voxels (125 a brick). Prints
 // the counts and the seconds; each distance is checked against its corners' (1-Lipschitz) as it goes. `--carry`
-// also finds the every-4 points' distances with no search at all (carry_points) and says how far above exact ones.
+// also finds the every-4 points' distances with no search at all (carry_points) and says how far above exact ones;
+// `--carry-steps` stops it early (corners' triangles only, no walk, or no offers) to see which steps that needs.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <atomic>
