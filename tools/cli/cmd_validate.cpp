@@ -81,8 +81,8 @@ void add_validate_command(CLI::App& app, int& exit_code) {
   add_read_budget_option(cmd, options->read);
   cmd->footer(
       "\nExamples:\n"
-      "  voxfmt validate bunny.vox.h5                      # the structure (quick)\n"
-      "  voxfmt validate --level full assets/*.vox.h5      # every rule of the spec, every voxel\n"
+      "  voxfmt validate bunny.vox.h5                      # every rule of the spec, every voxel (full)\n"
+      "  voxfmt validate --level quick assets/*.vox.h5     # the structure only, quicker\n"
       "  voxfmt validate --json bunny.vox.h5 | jq '.files[].issues'  # findings for a script\n");
   cmd->callback([options, &exit_code] { exit_code = run(*options); });
 }
