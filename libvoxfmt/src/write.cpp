@@ -8,6 +8,7 @@
 #include <future>
 #include <limits>
 #include <optional>
+#include <system_error>
 
 #include "h5.h"
 #include "voxfmt/detail/atomic_file.h"
@@ -201,11 +202,16 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   // Structure first (the writer indexes by it), then the semantic rules beside the write.
   if (auto error = first_error(path, validate_asset(asset, ValidationLevel::Quick))) return *error;
   std::future<std::optional<Error>> semantic;
-  if (options.validation == ValidationLevel::Full)
-    semantic =
-        std::async(std::launch::async, [&] { return first_error(path, validate_asset(asset, ValidationLevel::Full)); });
-  // Whatever happens to the write, the check ends before `asset` may go away (the future's destructor waits).
   std::optional<Error> semantic_error;
+  if (options.validation == ValidationLevel::Full) {
+    auto check = [&] { return first_error(path, validate_asset(asset, ValidationLevel::Full)); };
+    try {
+      semantic = std::async(std::launch::async, check);
+    } catch (const std::system_error&) {  // no thread to be had (a process limit): checked here, before the write
+      semantic_error = check();
+    }
+  }
+  // Whatever happens to the write, the check ends before `asset` may go away (the future's destructor waits).
   auto wait_for_check = [&] {
     if (semantic.valid()) semantic_error = semantic.get();
   };

@@ -257,11 +257,22 @@ class Batch(unittest.TestCase):
         r, _ = self.batch(self.lib, "--shard", "2/2", expect=2)
         self.assertIn("--shard", r.stderr)
         r, _ = self.batch(os.path.join(self.root, "nope"), expect=2)
+        self.assertIn("FILE_NOT_FOUND", r.stderr)
         self.assertIn("nope", r.stderr)
         os.makedirs(os.path.join(self.root, "empty"))
         r, _ = self.batch(os.path.join(self.root, "empty"), expect=2)
+        self.assertIn("BAD_OPTION", r.stderr)
         self.assertIn("no meshes", r.stderr)
         self.assertFalse(self.assets())
+        # Refused before anything is made: no empty output folder left behind.
+        self.assertFalse(os.path.exists(self.out))
+        # Option values that cannot be meant: coded, exit 2, nothing baked.
+        for bad in (["--timeout", "nan"], ["--threads", "4294967295"], ["--max-memory", "120"],
+                    ["--voxel-size", "0"], ["--band", "inf"]):
+            r, _ = self.batch(self.lib, *bad, expect=2)
+            self.assertIn("BAD_OPTION", r.stderr, bad)
+            self.assertIn(bad[0], r.stderr, bad)
+            self.assertFalse(os.path.exists(self.out), bad)
 
     def test_nothing_that_is_not_a_manifest_or_a_mesh_is_overwritten_or_waited_for(self):
         # --manifest naming a mesh or notes: refused, the file untouched (compaction used to rewrite it).

@@ -147,10 +147,16 @@ class BuildBadInput(unittest.TestCase):
 
     def test_bad_option_is_a_usage_error(self):
         tet = self.write("tet.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")
-        for bad in (["--resolution", "10", "--voxel-size", "0.1"], ["--seed", "-1"]):  # -1 wrapped to 2^64 - 1
+        for bad in (["--resolution", "10", "--voxel-size", "0.1"], ["--seed", "-1"],  # -1 wrapped to 2^64 - 1
+                    ["--threads", "4294967295"], ["--voxel-size", "0"], ["--unit-scale", "nan"],
+                    ["--shell-thickness", "inf"], ["--band", "nan"]):
             r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, *bad], capture_output=True, text=True)
             self.assertEqual(r.returncode, 2, bad)
+            self.assertIn("BAD_OPTION", r.stderr, bad)
             self.assertFalse(os.path.exists(self.out))
+        # The message says what is wanted (CLI11's own named a range up to 1.8e308 that seemed to hold 0).
+        r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--voxel-size", "0"], capture_output=True, text=True)
+        self.assertIn("must be a finite number > 0", r.stderr)
 
     def test_good_input_writes_a_valid_asset(self):
         tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")

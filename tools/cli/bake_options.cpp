@@ -1,5 +1,7 @@
 #include "bake_options.h"
 
+#include "commands.h"
+
 #include <algorithm>
 #include <cstdio>
 
@@ -11,17 +13,18 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
                          ->check(CLI::Range(1u, 4096u));
   auto* voxel_size =
       cmd.add_option("--voxel-size", b.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
-          ->check(CLI::PositiveNumber);
+          ->check(finite_number());
   resolution->excludes(voxel_size);
   auto* points = cmd.add_option("--points", b.point_shell.points, "Target number of surface points")
                      ->capture_default_str()
                      ->check(CLI::Range(1u, 50'000'000u));
   auto* spacing = cmd.add_option("--point-spacing", b.point_shell.point_spacing,
                                  "Minimum distance between points in metres (instead of --points)")
-                      ->check(CLI::PositiveNumber);
+                      ->check(finite_number());
   points->excludes(spacing);
   cmd.add_option("--branching", b.point_shell.branching, "Mean children per point-sphere tree node")
       ->capture_default_str()
+      ->check(finite_number())
       ->check(CLI::Range(2.0, 64.0));
   cmd.add_option("--margin", b.voxelmap.margin, "Outer voxels around the bounding box on each side")
       ->capture_default_str()
@@ -30,14 +33,15 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
                  "Half-width in voxels of the band of exact distances (6 for haptic partners pressed deeper: smoother "
                  "forces for ~1.3x the file; docs/haptics.md)")
       ->capture_default_str()
+      ->check(finite_number())
       ->check(CLI::Range(1.0, 64.0));
   cmd.add_option("--shell-thickness", b.voxelmap.shell_thickness,
                  "Bake the surface as a solid shell this thick (metres): thin walls, sheets, open scans. Default: "
                  "the surface's inside, or a 2-voxel shell (with a warning) when it encloses nothing")
-      ->check(CLI::PositiveNumber);
+      ->check(finite_number());
   cmd.add_option("--unit-scale", b.import.unit_scale, "Multiply coordinates by this to get metres (0.001 for mm)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(finite_number());
   cmd.add_option("--up-axis", b.up_axis, "Up direction recorded in the asset")
       ->capture_default_str()
       ->check(CLI::IsMember({"+X", "-X", "+Y", "-Y", "+Z", "-Z"}));
@@ -50,7 +54,8 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
       ->capture_default_str()
       ->check(CLI::Range(0, 9));
   cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::Range(0u, kMaxThreads));
 }
 
 namespace {

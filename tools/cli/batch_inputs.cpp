@@ -43,7 +43,7 @@ class Collector {
     if (!argument.empty() && argument[0] == '@') return list(argument.substr(1));
     std::error_code ec;
     if (fs::is_directory(argument, ec)) return directory(argument);
-    if (!fs::exists(argument, ec)) throw UsageError(shown(argument) + ": no such file or directory");
+    if (!fs::exists(argument, ec)) throw UsageError(shown(argument) + ": no such file or directory", IssueCode::FileNotFound);
     if (is_list_file(argument)) return list(argument);
     require_regular(argument, shown(argument));
     add(argument, fs::path(argument).filename().generic_string());
@@ -93,7 +93,7 @@ class Collector {
     std::error_code ec;
     if (fs::is_directory(file, ec)) throw UsageError(shown(file) + ": is a folder, not a list file");
     std::ifstream in(file);  // a pipe is fine here: `batch @<(find ...)`
-    if (!in) throw UsageError(shown(file) + ": cannot read list file");
+    if (!in) throw UsageError(shown(file) + ": cannot read list file", IssueCode::FileNotFound);
     const fs::path base = fs::path(file).parent_path();
     std::string line;
     for (size_t number = 1; std::getline(in, line); ++number) {
@@ -107,7 +107,7 @@ class Collector {
         continue;
       }
       const std::string where = shown(file) + ":" + std::to_string(number) + ": " + shown(path.string());
-      if (!fs::exists(path, ec)) throw UsageError(where + ": no such file or directory");
+      if (!fs::exists(path, ec)) throw UsageError(where + ": no such file or directory", IssueCode::FileNotFound);
       require_regular(path, where);
       const fs::path relative = entry.lexically_normal();
       const bool inside = !entry.is_absolute() && !relative.empty() && *relative.begin() != "..";

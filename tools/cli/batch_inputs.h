@@ -6,11 +6,16 @@
 #include <string>
 #include <vector>
 
+#include "voxfmt/result.h"
+
 namespace voxfmt::cli {
 
-/// A bad command line or input set (exit 2), with a message for the user.
+/// A bad command line or input set (exit 2), with a message for the user and the error model's code (BAD_OPTION
+/// unless named: FILE_NOT_FOUND for an input that is not there, WRITE_FAILED for an output that cannot be made).
 struct UsageError : std::runtime_error {
-  using std::runtime_error::runtime_error;
+  explicit UsageError(const std::string& message, IssueCode code = IssueCode::BadOption)
+      : std::runtime_error(message), code(code) {}
+  IssueCode code;
 };
 
 struct BatchItem {

@@ -280,10 +280,6 @@ int Runner::run() {
 
 // This shard's meshes (mine_) among every input's (all_count_).
 void Runner::select_inputs() {
-  std::error_code ec;
-  fs::create_directories(o_.output_dir, ec);
-  if (ec || !fs::is_directory(o_.output_dir))
-    throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""));
   std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir);
   if (all.empty())
     throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
@@ -299,6 +295,12 @@ void Runner::select_inputs() {
                          ", the report's folder: choose another with --report-dir");
     }
   }
+  // Made only once the inputs are known good: a refused batch leaves no empty folder behind.
+  std::error_code ec;
+  fs::create_directories(o_.output_dir, ec);
+  if (ec || !fs::is_directory(o_.output_dir))
+    throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""),
+                     IssueCode::WriteFailed);
   for (BatchItem& item : all)
     if (shard_.contains(item.key)) mine_.push_back(std::move(item));
 }
@@ -313,7 +315,7 @@ void Runner::open_manifest() {
   try {
     manifest_ = std::make_unique<Manifest>(manifest_path_);
   } catch (const std::runtime_error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.what(), IssueCode::WriteFailed);
   }
 }
 
@@ -497,6 +499,10 @@ int report_after_batch(const Options& o) {
 
 }  // namespace
 
+// Below this much address space a child cannot load its libraries (one aborts in its initializer, before main):
+// measured ~140 MiB for a 64^3 bunny; a limit that low is a typo, refused rather than recorded as CRASHED.
+constexpr unsigned long long kLeastBakeAddressSpaceMib = 256;
+
 void add_batch_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
@@ -510,7 +516,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       ->required();
   cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")
       ->capture_default_str()
-      ->check(CLI::Range(0u, 1024u));
+      ->check(CLI::Range(0u, kMaxThreads));
   cmd->add_option("--shard", o->shard, "Bake only shard I of N (I/N, 0-based): mesh k belongs to hash(name) mod N")
       ->capture_default_str();
   cmd->add_flag("--force", o->force, "Rebuild assets that are up to date (and retry every failure)");
@@ -519,11 +525,23 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                 "CRASHED, OUT_OF_MEMORY, INTERNAL and WRITE_FAILED are always retried");
   cmd->add_option("--timeout", o->timeout, "Seconds one mesh may take before it is killed (TIMEOUT); 0 = no limit")
       ->capture_default_str()
+      ->check(finite_number(true))
       ->check(CLI::Range(0.0, 1e7));
   cmd->add_option("--max-memory", o->max_memory_mib,
                   "MiB one bake may use: its address space (OUT_OF_MEMORY beyond), and what its voxelmap may need "
-                  "(refused up front beyond, with the estimate); 0 = no limit")
-      ->capture_default_str();
+                  "(refused up front beyond, with the estimate); 0 = no limit, else at least " +
+                      std::to_string(kLeastBakeAddressSpaceMib))
+      ->capture_default_str()
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            const unsigned long long mib = std::strtoull(text.c_str(), nullptr, 10);
+            return mib == 0 || mib >= kLeastBakeAddressSpaceMib
+                       ? ""
+                       : "a bake's address space below " + std::to_string(kLeastBakeAddressSpaceMib) +
+                             " MiB cannot even start voxfmt (its libraries' threads and stacks): 0 for no limit, or "
+                             "at least that";
+          },
+          ""));
   cmd->add_option(
       "--manifest", o->manifest,
       "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
@@ -544,11 +562,11 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       exit_code = Runner(*o).run();
       if (o->report) exit_code = std::max(exit_code, report_after_batch(*o));
     } catch (const UsageError& e) {
-      std::cerr << "voxfmt batch: error: " << e.what() << "\n";
-      exit_code = kExitUsageOrIo;
+      exit_code = report_error("batch", {e.code, e.what()});
+    } catch (const std::bad_alloc&) {
+      exit_code = report_error("batch", {IssueCode::OutOfMemory, "out of memory"});
     } catch (const std::exception& e) {
-      std::cerr << "voxfmt batch: error: " << e.what() << "\n";
-      exit_code = kExitUsageOrIo;
+      exit_code = report_error("batch", {IssueCode::Internal, std::string("unexpected error: ") + e.what()});
     }
   });
 }

@@ -84,6 +84,7 @@ void add_export_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--width", options->width,
                   "Half-width of the \"distance\" level set in voxels: values clamp to +-width (default: the band the "
                   "asset stores completely, its distance band - 1/2)")
+      ->check(finite_number())
       ->check(CLI::Range(0.5, 32767.0));
   cmd->add_flag("--uncompressed", options->uncompressed,
                 "Write the grids uncompressed (default: NanoVDB's ZIP codec, which Warp and nanovdb_print read)");

@@ -64,20 +64,24 @@ void add_report_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--manifest", options->report.manifest,
                   "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)")
       ->check(non_empty_path());
-  cmd->add_option("--against", options->report.against,
+  CLI::Option* against = cmd->add_option("--against", options->report.against,
                   "Another bake of the library to compare with (assets that appeared, disappeared, changed status, "
                   "grew, shrank or bake more slowly)")
       ->check(non_empty_path());
   cmd->add_option("--size-threshold", options->report.size_threshold,
                   "With --against: relative file-size change that is listed")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 100.0));
+      ->check(finite_number(true))
+      ->check(CLI::Range(0.0, 100.0))
+      ->needs(against);
   cmd->add_option("--time-threshold", options->report.time_threshold,
                   "With --against: relative bake-time increase that is listed")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 100.0));
+      ->check(finite_number(true))
+      ->check(CLI::Range(0.0, 100.0))
+      ->needs(against);
   cmd->add_option("-j,--jobs", options->report.threads, "Threads reading assets (default: every core)")
-      ->check(CLI::Range(1, 1024));
+      ->check(CLI::Range(1u, kMaxThreads));
   cmd->add_flag(
       "--no-pictures", [options](int64_t) { options->report.pictures = false; },
       "Only the manifest's and the assets' facts: no thumbnails, slices or 3D data");

@@ -3,6 +3,10 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cmath>
+#include <cstdlib>
+#include <string>
+
 #include "report.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
@@ -33,6 +37,23 @@ inline CLI::Validator non_empty_path() {
   return CLI::Validator(
       [](std::string& path) { return path.empty() ? std::string("an empty path names no file or folder") : ""; }, "");
 }
+
+/// A number that must be finite and above 0 (`at_least_zero`: or 0): NaN and infinity are refused, and the message
+/// says so (CLI11's PositiveNumber names a range up to 1.8e308 that seems to hold 0).
+inline CLI::Validator finite_number(bool at_least_zero = false) {
+  return CLI::Validator(
+      [at_least_zero](std::string& text) -> std::string {
+        char* end = nullptr;
+        const double value = std::strtod(text.c_str(), &end);
+        const bool number = !text.empty() && end && *end == '\0';
+        if (number && std::isfinite(value) && (value > 0 || (at_least_zero && value == 0))) return "";
+        return "must be a finite number " + std::string(at_least_zero ? ">= 0" : "> 0") + ", not '" + text + "'";
+      },
+      at_least_zero ? "NUMBER >= 0" : "NUMBER > 0");
+}
+
+/// Worker threads: 0 (every core) up to kMaxThreads; more would only exhaust memory on thread stacks.
+constexpr unsigned kMaxThreads = 1024;
 
 void add_build_command(CLI::App& app, int& exit_code);
 void add_batch_command(CLI::App& app, int& exit_code);

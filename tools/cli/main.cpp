@@ -56,7 +56,10 @@ int main(int argc, char** argv) {
   } catch (const CLI::Success& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    app.exit(e);
+    // CLI11's message with the one error model's code; the help is one option away.
+    const std::string command = command_name(app);
+    voxfmt::cli::report_error(command.c_str(), {voxfmt::IssueCode::BadOption, e.what()});
+    std::cerr << "run 'voxfmt " << (command == "(no command)" ? "" : command + " ") << "--help' for the options\n";
     return voxfmt::cli::kExitUsageOrIo;
   } catch (const std::bad_alloc&) {
     return voxfmt::cli::report_error(command_name(app), {voxfmt::IssueCode::OutOfMemory, "out of memory"});

@@ -22,6 +22,9 @@
 #include <limits>
 #include <memory>
 #include <optional>
+#include <string>
+#include <string_view>
+#include <system_error>
 #include <type_traits>
 
 #include "stages.h"
@@ -82,7 +85,17 @@ Result<T> guarded(const std::string& mesh_path, Work&& work) {
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory (try a coarser resolution or voxel size)",
                  mesh_path};
+  } catch (const std::system_error& e) {
+    // No thread to be had (EAGAIN under an address-space or process limit) is memory, not a bug.
+    if (e.code() == std::errc::resource_unavailable_try_again || e.code() == std::errc::not_enough_memory)
+      return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory starting a thread (" + e.what() + ")",
+                   mesh_path};
+    return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
   } catch (const std::exception& e) {  // library failures (CGAL preconditions, TBB) still get a clean error
+    // TBB reports a worker it could not start as a runtime_error naming pthread_create.
+    if (std::string_view(e.what()).find("pthread_create") != std::string_view::npos)
+      return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory starting a thread (" + e.what() + ")",
+                   mesh_path};
     return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
   }
 }
