@@ -43,7 +43,8 @@ class Collector {
     if (!argument.empty() && argument[0] == '@') return list(argument.substr(1));
     std::error_code ec;
     if (fs::is_directory(argument, ec)) return directory(argument);
-    if (!fs::exists(argument, ec)) throw UsageError(shown(argument) + ": no such file or directory", IssueCode::FileNotFound);
+    if (!fs::exists(argument, ec))
+      throw UsageError(shown(argument) + ": no such file or directory", IssueCode::FileNotFound);
     if (is_list_file(argument)) return list(argument);
     require_regular(argument, shown(argument));
     add(argument, fs::path(argument).filename().generic_string());

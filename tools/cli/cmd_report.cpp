@@ -64,10 +64,11 @@ void add_report_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--manifest", options->report.manifest,
                   "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)")
       ->check(non_empty_path());
-  CLI::Option* against = cmd->add_option("--against", options->report.against,
-                  "Another bake of the library to compare with (assets that appeared, disappeared, changed status, "
-                  "grew, shrank or bake more slowly)")
-      ->check(non_empty_path());
+  CLI::Option* against =
+      cmd->add_option("--against", options->report.against,
+                      "Another bake of the library to compare with (assets that appeared, disappeared, changed status, "
+                      "grew, shrank or bake more slowly)")
+          ->check(non_empty_path());
   cmd->add_option("--size-threshold", options->report.size_threshold,
                   "With --against: relative file-size change that is listed")
       ->capture_default_str()
