@@ -63,11 +63,19 @@ InArray as_float64(nb::handle value, const char* what) {
   InArray array;
   if (nb::try_cast(value, array, false)) return array;
   nb::object converted;
+  std::string kind;
   try {
-    converted = nb::module_::import_("numpy").attr("asarray")(value, "dtype"_a = "float64");
+    const nb::object numpy = nb::module_::import_("numpy");
+    converted = numpy.attr("asarray")(value);
+    kind = nb::str(converted.attr("dtype").attr("kind")).c_str();
+    if (kind == "i" || kind == "u" || kind == "f") converted = numpy.attr("asarray")(converted, "dtype"_a = "float64");
   } catch (const nb::python_error&) {
     fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
   }
+  // Complex numbers would lose their imaginary part, booleans and objects are no coordinates.
+  if (kind != "i" && kind != "u" && kind != "f")
+    fail(IssueCode::BadOption, std::string(what) + ": expected an array of real numbers, got dtype " +
+                                   nb::str(converted.attr("dtype").attr("name")).c_str());
   if (!nb::try_cast(converted, array, false))
     fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
   return array;
@@ -209,6 +217,15 @@ struct Tracker {
   runtime::QueryScratch scratch;
   ContactSet work;
   std::mutex busy;  // one query at a time: the state is the pair's history
+
+  /// The tracker for one query, or a coded error while another thread's query holds it. Never waited for: the
+  /// holder may be a batch that has released the GIL and needs it back before it lets go.
+  std::unique_lock<std::mutex> claim() {
+    std::unique_lock<std::mutex> lock(busy, std::try_to_lock);
+    if (!lock.owns_lock())
+      fail(IssueCode::BadOption, "this Tracker is answering another thread's query: one query at a time per Tracker");
+    return lock;
+  }
 };
 
 static_assert(sizeof(runtime::Contact) % sizeof(double) == 0 && sizeof(runtime::Contact) % sizeof(uint32_t) == 0,
@@ -255,7 +272,7 @@ Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, d
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
   const QueryOptions options = query_options(std::nullopt, std::nullopt, proximity);
-  std::lock_guard<std::mutex> lock(tracker.busy);
+  const std::unique_lock<std::mutex> lock = tracker.claim();
   tracker.work.clear();
   runtime::query_contacts(*tracker.a.object, pa, *tracker.b.object, pb, options, tracker.work, tracker.scratch,
                           tracker.state);
@@ -276,6 +293,7 @@ std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrenc
     if (r.ndim() != 1 || r.shape(0) != 3)
       fail(IssueCode::BadOption, "reference: expected a point (3,), got shape " + shape_text(r));
     for (int i = 0; i < 3; ++i) ref[i] = r.data()[i * r.stride(0)];
+    if (!ref.allFinite()) fail(IssueCode::BadOption, "reference: expected a finite point");
   }
   const runtime::Wrench w = runtime::penalty_wrench(contacts.set, ref, stiffness);
   return {vector_array<double>(w.force), vector_array<double>(w.torque)};
@@ -347,10 +365,19 @@ struct BatchPoses {
 
 BatchPoses batch_poses(nb::handle poses_a, nb::handle poses_b) {
   const InArray first_a = as_float64(poses_a, "poses_a");
-  const size_t k_a = first_a.ndim() == 3 ? first_a.shape(0) : 0;
   std::vector<Pose> pa = parse_poses(poses_a, "poses_a", 0);
-  const std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k_a);
-  if (k_a == 0 && pb.size() != pa.size()) pa.assign(pb.size(), pa.front());
+  if (first_a.ndim() == 3) {  // a stack of K (K = 0 included): B is one pose for all, or K of them
+    const size_t k = pa.size();
+    const InArray first_b = as_float64(poses_b, "poses_b");
+    if (first_b.ndim() == 3 && first_b.shape(0) != k)
+      fail(IssueCode::BadOption, "poses_b: " + std::to_string(first_b.shape(0)) +
+                                     " poses where the other side has " + std::to_string(k));
+    std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k);
+    pb.resize(k);  // one pose for none: none
+    return {matrices_of(pa), matrices_of(pb), k};
+  }
+  const std::vector<Pose> pb = parse_poses(poses_b, "poses_b", 0);
+  pa.assign(pb.size(), pa.front());  // A is one pose (parse_poses gave exactly one)
   return {matrices_of(pa), matrices_of(pb), pb.size()};
 }
 
@@ -424,7 +451,7 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   std::unique_lock<std::mutex> tracker_lock;
   std::optional<runtime::BatchScene::Trajectory> trajectory;
   if (tracker) {
-    tracker_lock = std::unique_lock<std::mutex>(tracker->busy);
+    tracker_lock = tracker->claim();
     trajectory.emplace(runtime::BatchScene::Trajectory{tracker->scratch, tracker->state});
   }
   Status done = Status::success();
@@ -491,7 +518,7 @@ ReadOptions read_options(bool full, const std::optional<int64_t>& max_memory_mib
   options.level = full ? ValidationLevel::Full : ValidationLevel::Quick;
   if (max_memory_mib) {
     if (*max_memory_mib < 1 || *max_memory_mib > (int64_t(1) << 40))
-      fail(IssueCode::BadOption, "max_memory_mib must be >= 1");
+      fail(IssueCode::BadOption, "max_memory_mib must be in 1..2^40 (a mebibyte to a pebibyte)");
     options.max_memory_bytes = uint64_t(*max_memory_mib) << 20;
   }
   return options;
@@ -832,7 +859,7 @@ void bind_queries(nb::module_& m) {
       .def_prop_ro("b", [](const Tracker& t) { return t.b; })
       .def("_contacts", &tracked_query, "pose_a"_a, "pose_b"_a, "proximity"_a)
       .def("reset", [](Tracker& t) {
-        std::lock_guard<std::mutex> lock(t.busy);
+        const std::unique_lock<std::mutex> lock = t.claim();
         t.state.reset();
       });
 }

@@ -58,3 +58,23 @@ def test_one_pose_broadcasts_and_options_apply(sphere: voxfmt.Body) -> None:
         assert coarse.count[k] == len(single)
     empty = voxfmt.contacts_batch(sphere, np.eye(4), sphere, np.zeros((0, 4, 4)))
     assert len(empty) == 0 and empty.force.shape == (0, 3)
+
+
+def test_an_empty_side_against_a_stack_is_a_count_mismatch_not_a_crash(sphere: voxfmt.Body) -> None:
+    none = np.zeros((0, 4, 4))
+    with pytest.raises(voxfmt.OptionError, match="5 poses where the other side has 0"):
+        voxfmt.contacts_batch(sphere, none, sphere, random_poses(5, seed=3))
+    assert len(voxfmt.contacts_batch(sphere, none, sphere, np.eye(4))) == 0
+    assert len(voxfmt.Tracker(sphere, sphere).contacts_batch(none, np.eye(4))) == 0
+
+
+def test_poses_and_references_that_are_not_real_finite_numbers_are_refused(sphere: voxfmt.Body) -> None:
+    for pose in (np.eye(4) + 0j, np.eye(4, dtype=bool)):  # complex: the imaginary part would be dropped
+        with pytest.raises(voxfmt.OptionError, match="real numbers"):
+            voxfmt.contacts(sphere, pose, sphere, np.eye(4))
+    touching = voxfmt.contacts(sphere, np.eye(4), sphere, random_poses(1, seed=5)[0])
+    with pytest.raises(voxfmt.OptionError, match="finite"):
+        voxfmt.wrench(touching, 1.0, reference=[np.nan, 0, 0])
+    with pytest.raises(voxfmt.InternalError) as caught:
+        voxfmt.contacts_batch(sphere, np.eye(4), sphere, np.broadcast_to(np.eye(4), (10**9, 4, 4)))
+    assert caught.value.code == "OUT_OF_MEMORY"

@@ -344,3 +344,38 @@ def test_new_outputs_are_refused_for_arrays_no_framework_allocates(sphere: voxfm
         scene.new_outputs(np.zeros((8, 4, 4), np.float32))
     with pytest.raises(voxfmt.OptionError, match="max_contacts"):
         scene.new_outputs(FakeCudaArray((8, 4, 4), "float32"), -1)
+
+
+def test_the_first_failing_environment_is_named_with_its_own_reason(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    pa = np.tile(np.eye(4, dtype=np.float32), (6, 1, 1))
+    pb = pa.copy()
+    pb[1, :3, :3] = np.diag([1, 1, -1])  # a reflection
+    pb[4, 0, 3] = np.inf  # non-finite: a different reason, later
+    with pytest.raises(voxfmt.PoseError, match=r"environment 1: .*reflection.*2 environments failed"):
+        scene.contacts(pa, pb)
+
+
+def test_arguments_that_would_be_truncated_or_misread_are_refused(sphere: voxfmt.Body) -> None:
+    # A float pair or option would be floored (pair 0.9 runs pair 0), a bool taken for an integer.
+    for pairs in ([(0.9, 0)], [("0", "0")], [(True, 0)], [(0, 0, 0)], 5):
+        with pytest.raises(voxfmt.OptionError):
+            voxfmt.BatchScene([sphere], pairs=pairs)  # type: ignore[arg-type]
+    for bodies in (["sphere.vox.h5"], sphere, None):
+        with pytest.raises(voxfmt.OptionError):
+            voxfmt.BatchScene(bodies)  # type: ignore[arg-type]
+    scene = voxfmt.BatchScene([sphere])
+    poses = np.tile(np.eye(4, dtype=np.float32), (2, 1, 1))
+    for options in ({"max_contacts": 2.7}, {"max_contacts": "3"}, {"stiffness": "x"}, {"proximity": None},
+                    {"threads": 2.5}, {"threads": True}):
+        with pytest.raises(voxfmt.OptionError):
+            scene.contacts(poses, poses, **options)
+
+
+def test_poses_too_many_to_copy_are_refused_before_the_copy(sphere: voxfmt.Body) -> None:
+    # A broadcast view of 5e9 poses takes no memory; its contiguous copy would take 320 GB.
+    scene = voxfmt.BatchScene([sphere])
+    poses = np.broadcast_to(np.eye(4, dtype=np.float32), (5 * 10**9, 4, 4))
+    with pytest.raises(voxfmt.InternalError) as caught:
+        scene.contacts(poses, poses)
+    assert caught.value.code == "OUT_OF_MEMORY"

@@ -78,3 +78,32 @@ def test_tracker_rejects_what_is_not_a_body_and_bad_poses(sphere: voxfmt.Body) -
         tracker.contacts(np.eye(4), 2 * np.eye(4))
     with pytest.raises(voxfmt.OptionError):
         tracker.contacts(np.eye(4), np.eye(4), proximity=float("nan"))
+
+
+def test_a_tracker_busy_on_another_thread_says_so_instead_of_waiting(sphere: voxfmt.Body) -> None:
+    # The batch holds the tracker with the GIL released and needs the GIL back before it lets go: a second
+    # caller waiting for the tracker while holding the GIL would hang both.
+    import threading
+
+    tracker = voxfmt.Tracker(sphere, sphere)
+    apart = np.eye(4)
+    apart[1, 3] = 0.1
+    started, refused = threading.Event(), []
+
+    def batch() -> None:
+        started.set()
+        tracker.contacts_batch(np.eye(4), np.repeat(apart[None], 200_000, axis=0))
+
+    worker = threading.Thread(target=batch)
+    worker.start()
+    started.wait()
+    while worker.is_alive():  # until the batch holds the tracker (or it has finished)
+        try:
+            tracker.reset()
+        except voxfmt.OptionError as e:
+            refused.append(e)
+            break
+    worker.join(timeout=60)
+    assert not worker.is_alive()
+    assert refused and "another thread" in str(refused[0])
+    tracker.reset()  # free again

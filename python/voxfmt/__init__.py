@@ -8,7 +8,8 @@ contacts between them from NumPy.
     c = voxfmt.contacts(bunny, np.eye(4), bunny, pose)
     force, torque = voxfmt.wrench(c, stiffness=1e4)
 
-Every failure raises a :class:`voxfmt.Error` subclass whose ``code`` is the C++ library's code.
+Every failure raises a :class:`voxfmt.Error` subclass whose ``code`` is the C++ library's code (an argument of
+the wrong Python type to a compiled function is Python's TypeError).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from ._errors import AssetError, Error, InternalError, MeshError, OptionError, P
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
 from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
+from .batch import _pose_count, _real, _refuse_beyond_memory, _whole
 
 __version__: str = _library_version()
 
@@ -93,12 +95,6 @@ def _unsigned(name: str, value: Any) -> int:
     if not 0 <= number < 2 ** _UNSIGNED_BITS[name]:
         raise OptionError("BAD_OPTION", f"{name} {number} is out of range")
     return number
-
-
-def _real(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
-    return float(value)
 
 
 def _bake_setting(name: str, value: Any) -> Any:
@@ -256,6 +252,12 @@ def contacts_batch(
     Raises PoseError naming the first non-rigid pose before any query runs."""
     if not isinstance(with_contacts, bool):
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
+    if threads is not None:
+        threads = _whole("threads", threads, 1, 1024)
+    # The poses as matrices and rigid transforms of both sides and the per-pose outputs (the contacts' own
+    # memory, with_contacts, grows with what is found and is not known before).
+    count = max(_pose_count(poses_a), _pose_count(poses_b))
+    _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
                           time_budget_us=time_budget_us, proximity=_real("proximity", proximity),
@@ -300,6 +302,8 @@ class Tracker:
         with the one before (and with this tracker's earlier queries). The GIL is released."""
         if not isinstance(with_contacts, bool):
             raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
+        count = max(_pose_count(poses_a), _pose_count(poses_b))
+        _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
         out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
                               stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),
                               tracker=self._tracker)

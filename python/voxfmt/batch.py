@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -221,6 +222,37 @@ def _framework(array: Any) -> Any:
     raise OptionError("BAD_OPTION", f"CUDA arrays of {module} are not supported: use PyTorch or CuPy, or pass out=")
 
 
+def _real(name: str, value: Any) -> float:
+    """A number option (not a bool, a string or None)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _whole(name: str, value: Any, low: int, high: int) -> int:
+    """An integer option in low..high: a float would be floored and a bool taken for 0 or 1, silently."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise OptionError("BAD_OPTION", f"{name}: expected an integer, got {value!r}")
+    if not low <= int(value) <= high:
+        raise OptionError("BAD_OPTION", f"{name}: {int(value)} is not in {low}..{high}")
+    return int(value)
+
+
+def _refuse_beyond_memory(what: str, needed_bytes: float) -> None:
+    """Refused with figures before anything is allocated, not a MemoryError or the kernel's out-of-memory kill
+    (the limit the C++ batch applies too: 3/4 of this machine's memory)."""
+    memory = float(os.sysconf("SC_PHYS_PAGES")) * float(os.sysconf("SC_PAGE_SIZE"))
+    if needed_bytes > 0.75 * memory:
+        raise InternalError("OUT_OF_MEMORY", f"{what} need about {needed_bytes / 1e9:.1f} GB, more than 3/4 of this "
+                                             f"machine's {memory / 1e9:.0f} GB (smaller batches)")
+
+
+def _pose_count(poses: Any) -> int:
+    """K of a (K, 4, 4) stack (1 for one (4, 4) pose), from its shape alone: nothing is copied."""
+    shape = np.shape(poses)
+    return int(shape[0]) if len(shape) == 3 else 1
+
+
 def _pair_indices(pair_index: Any) -> np.ndarray:
     """pair_index as the int32 array the batch reads, without changing a value: a cast would wrap 2**32 + 1 to 1
     and floor a float 0.9 to 0, silently running another pair. (An int32 that names no pair is the
@@ -242,10 +274,22 @@ class BatchScene:
     call makes the poses' device current while it uploads and launches, and checks that every array is there)."""
 
     def __init__(self, bodies: Sequence[Body], pairs: Sequence[tuple[int, int]] | None = None) -> None:
+        if isinstance(bodies, Body) or not isinstance(bodies, Sequence):
+            raise OptionError("BAD_OPTION", f"bodies: expected a sequence of Bodies, got {type(bodies).__name__}")
         self.bodies = list(bodies)
+        for n, body in enumerate(self.bodies):
+            if not isinstance(body, Body):
+                raise OptionError("BAD_OPTION", f"bodies[{n}]: expected a Body (voxfmt.load), got {type(body).__name__}")
         if pairs is None:  # one body against itself, or the first against the second
             pairs = [(0, min(1, len(self.bodies) - 1))]
-        self.pairs = [(int(a), int(b)) for a, b in pairs]
+        if not isinstance(pairs, Sequence):
+            raise OptionError("BAD_OPTION", f"pairs: expected a sequence of (A, B) index pairs, got {pairs!r}")
+        self.pairs = []
+        for pair in pairs:
+            if not isinstance(pair, Sequence) or isinstance(pair, str) or len(pair) != 2:
+                raise OptionError("BAD_OPTION", f"pairs: expected (A, B) index pairs, got {pair!r}")
+            # A float or a string would be floored or parsed into another pair, silently.
+            self.pairs.append((_whole("pairs: A", pair[0], 0, 2**31 - 1), _whole("pairs: B", pair[1], 0, 2**31 - 1)))
         if not self.bodies or not self.pairs:
             raise OptionError("BAD_OPTION", "a BatchScene needs bodies and at least one pair")
         for a, b in self.pairs:
@@ -304,14 +348,22 @@ class BatchScene:
         environments' ``error`` (raising PoseError or OptionError); pass check=False (and ``out``) inside a CUDA
         graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks; outputs
         larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY)."""
+        stiffness, proximity = _real("stiffness", stiffness), _real("proximity", proximity)
+        max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
         if _on_cuda(poses_a) or _on_cuda(poses_b):
             result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream)
         else:
             if out is not None:
                 raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
+            if threads is not None:
+                threads = _whole("threads", threads, 0, 1024)
+            # The poses' contiguous copies and the outputs, judged before either is made.
+            envs = _pose_count(poses_a)
+            _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
+                                  envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
             raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),
                              None if pair_index is None else _pair_indices(pair_index),
-                             float(proximity), float(stiffness), int(max_contacts), threads)
+                             proximity, stiffness, max_contacts, threads)
             result = BatchResult(**raw)
         if check:
             _raise_for(result.error)
@@ -359,12 +411,17 @@ def _raise_for(error: Any) -> None:
     worst = int(error.max()) if len(error) else 0  # on a CUDA array this waits for the batch
     if worst == 0:
         return
-    codes = sorted({int(e) for e in (error.tolist() if hasattr(error, "tolist") else error)} - {0})
-    first = next(i for i, e in enumerate(error.tolist()) if int(e) != 0)
-    message = f"environment {first}: {_ENV_ERRORS.get(codes[0], 'error ' + str(codes[0]))}"
-    if any(c in (2, 3, 4, 5) for c in codes):
+    codes = [int(e) for e in (error.tolist() if hasattr(error, "tolist") else error)]
+    # The first environment that failed, with its own reason (not another environment's).
+    first = next(i for i, e in enumerate(codes) if e != 0)
+    code = codes[first]
+    failed = sum(1 for e in codes if e != 0)
+    message = f"environment {first}: {_ENV_ERRORS.get(code, 'error ' + str(code))}"
+    if failed > 1:
+        message += f" ({failed} environments failed; their codes are in the result's error)"
+    if code in (2, 3, 4, 5):
         raise PoseError("BAD_POSE", message)
-    if 7 in codes:
+    if code == 7:
         raise InternalError("INTERNAL", message)
     raise OptionError("BAD_OPTION", message)
 
