@@ -370,8 +370,8 @@ BatchPoses batch_poses(nb::handle poses_a, nb::handle poses_b) {
     const size_t k = pa.size();
     const InArray first_b = as_float64(poses_b, "poses_b");
     if (first_b.ndim() == 3 && first_b.shape(0) != k)
-      fail(IssueCode::BadOption, "poses_b: " + std::to_string(first_b.shape(0)) +
-                                     " poses where the other side has " + std::to_string(k));
+      fail(IssueCode::BadOption,
+           "poses_b: " + std::to_string(first_b.shape(0)) + " poses where the other side has " + std::to_string(k));
     std::vector<Pose> pb = parse_poses(poses_b, "poses_b", k);
     pb.resize(k);  // one pose for none: none
     return {matrices_of(pa), matrices_of(pb), k};
