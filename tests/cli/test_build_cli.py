@@ -127,6 +127,12 @@ class BuildBadInput(unittest.TestCase):
         text = "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\nnan 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n"
         self.expect_error(self.write("nan.off", text), "NON_FINITE_COORDINATES")
 
+    def test_an_extent_that_overflows_is_out_of_scale_not_coincident(self):
+        huge = self.write("huge.off", "OFF\n4 4 0\n-1.7e308 0 0\n1.7e308 0 0\n0 1.7e308 0\n0 0 1.7e308\n"
+                                      "3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")
+        r = self.expect_error(huge, "SCALE_OUT_OF_RANGE")
+        self.assertIn("overflows", r.stderr)
+
     def test_degenerate_mesh(self):
         r = self.expect_error(self.write("line.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n"), "EMPTY_SCENE")
         self.assertIn("line.off", r.stderr)

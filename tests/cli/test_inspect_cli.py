@@ -136,6 +136,23 @@ class InspectExports(unittest.TestCase):
         self.assertLess(self.layers.min(), 0)  # the tetrahedron's grid has outside...
         self.assertGreater(self.layers.max(), 0)  # ...and inside voxels
 
+    def test_strings_from_the_file_cannot_drive_the_terminal(self):
+        """A hostile provenance string (escape sequences, a bell, a carriage return, a forged line) is printed with
+        its control characters escaped; --json escapes them by JSON's own rules."""
+        hostile = os.path.join(self.dir, "hostile.vox.h5")
+        with open(self.asset, "rb") as src, open(hostile, "wb") as dst:
+            dst.write(src.read())
+        text = "\x1b[31mRED\x1b[2J\x1b]0;title\x07\nFAKE: valid\r\u0085"
+        with h5py.File(hostile, "r+") as f:
+            f["provenance"].attrs["source_file"] = text
+        r = subprocess.run([VOXFMT, "inspect", hostile], capture_output=True, text=True, timeout=60)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        for control in ("\x1b", "\x07", "\r", "\u0085", "\nFAKE"):
+            self.assertNotIn(control, r.stdout)
+        self.assertIn("\\x1b[31mRED\\x1b[2J\\x1b]0;title\\x07\\x0aFAKE: valid\\x0d\\xc2\\x85", r.stdout)
+        r = subprocess.run([VOXFMT, "inspect", hostile, "--json"], capture_output=True, text=True, timeout=60)
+        self.assertEqual(json.loads(r.stdout)["provenance"]["source_file"], text)
+
     def test_ply_of_every_level(self):
         levels = len(self.offsets) - 1
         for level in range(levels):
@@ -240,6 +257,20 @@ class InspectExports(unittest.TestCase):
             self.assertIn(message, r.stderr, args)
         self.assertFalse(os.path.exists(png))
         self.assertEqual([f for f in os.listdir(self.dir) if "partial" in f], [])
+        # --html naming a file: said so (not "holds files a report does not write").
+        r = self.inspect("--html", self.asset)
+        self.assertEqual(r.returncode, 2, r.stderr)
+        self.assertIn("is a file, not a folder", r.stderr)
+
+    def test_json_errors_are_json_on_stdout_too(self):
+        truncated = os.path.join(self.dir, "truncated.vox.h5")
+        with open(self.asset, "rb") as src, open(truncated, "wb") as dst:
+            dst.write(src.read(1000))
+        r = subprocess.run([VOXFMT, "inspect", truncated, "--json"], capture_output=True, text=True, timeout=60)
+        self.assertEqual(r.returncode, 1, r.stderr)
+        error = json.loads(r.stdout)
+        self.assertEqual((error["status"], error["input"]), ("error", truncated))
+        self.assertIn(error["code"], r.stderr)
 
 
 if __name__ == "__main__":

@@ -132,6 +132,19 @@ class ReportTest(unittest.TestCase):
         with open(os.path.join(self.report, "data.js")) as f:
             self.assertTrue(f.read().startswith('window.VOXFMT_REPORT = JSON.parse("'))
 
+    def test_a_record_too_long_to_be_one_is_skipped_not_read(self):
+        # 2 MiB in one line (over the 1 MiB a record may take): counted as skipped, not held nor copied into the page.
+        library = os.path.join(self.tmp, "long-record")
+        shutil.copytree(self.library, library)
+        with open(os.path.join(library, "manifest.jsonl"), "a") as f:
+            f.write(json.dumps({"output": "x" * (2 << 20), "status": "built"}) + "\n")
+        out = os.path.join(self.tmp, "long-record-report")
+        p = fx.run("report", library, "-o", out, "--no-pictures", "--json")
+        summary = json.loads(p.stdout)
+        self.assertEqual(summary["skipped_manifest_lines"], self.summary["skipped_manifest_lines"] + 1)
+        self.assertEqual(summary["meshes"], self.summary["meshes"])
+        self.assertLess(os.path.getsize(os.path.join(out, "data.js")), 1 << 20)
+
     def test_fields_of_the_wrong_type_are_dropped_not_shown(self):
         # A hand-edited manifest: a number as the status, a string as a time, warnings that are not objects.
         library = os.path.join(self.tmp, "mistyped")
@@ -177,6 +190,14 @@ class ReportTest(unittest.TestCase):
         p = fx.run("report", os.path.join(self.tmp, "nowhere"), check=False)
         self.assertEqual(p.returncode, 2)
         self.assertIn("FILE_NOT_FOUND", p.stderr)
+        self.assertIn("no such folder", p.stderr)  # not "no manifest.jsonl here"
+        p = fx.run("report", os.path.join(self.tmp, "nowhere"), "--json", check=False)
+        self.assertEqual(json.loads(p.stdout)["code"], "FILE_NOT_FOUND")
+        p = fx.run("report", self.library, "--manifest", self.library, check=False)
+        self.assertIn("a folder, not a manifest", p.stderr)
+        p = fx.run("report", self.library, "--size-threshold", "0.5", check=False)  # meaningless without --against
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("--against", p.stderr)
         p = fx.run("report", self.library, "--against", os.path.join(self.tmp, "nowhere"), "-o", os.path.join(self.tmp, "x"), check=False)
         self.assertEqual(p.returncode, 2)
         self.assertFalse(os.path.exists(os.path.join(self.tmp, "x")))

@@ -13,6 +13,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "report.h"
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/json_path.h"
 #include "voxfmt/result.h"
@@ -62,7 +63,8 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
   std::ifstream in(path);
   std::string line;
   size_t foreign = 0;
-  while (std::getline(in, line)) {
+  bool too_long = false;
+  while (report::read_manifest_line(in, line, too_long)) {  // a record over 1 MiB is dropped, as a torn one is
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
     const nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
     if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string()) {

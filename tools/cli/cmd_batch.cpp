@@ -562,7 +562,9 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       exit_code = Runner(*o).run();
       if (o->report) exit_code = std::max(exit_code, report_after_batch(*o));
     } catch (const UsageError& e) {
-      exit_code = report_error("batch", {e.code, e.what()});
+      exit_code =
+          report_error("batch", {e.code, e.what()}, o->json,
+                       o->inputs.size() == 1 ? o->inputs.front() : std::to_string(o->inputs.size()) + " inputs");
     } catch (const std::bad_alloc&) {
       exit_code = report_error("batch", {IssueCode::OutOfMemory, "out of memory"});
     } catch (const std::exception& e) {

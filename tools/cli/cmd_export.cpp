@@ -28,20 +28,20 @@ int run_export(const Options& o) {
   const auto start = clock::now();
   // A typo in the output costs no read of a large asset.
   if (const Status writable = check_output_path(o.nvdb, o.file); !writable)
-    return report_error("export", writable.error());
+    return report_error("export", writable.error(), o.json, o.file);
   runtime::LoadOptions load;
   load.load_point_shell = false;
   load.read = o.read;  // every rule of validate --level full, judged once by the read
   auto object = runtime::CollisionObject::load(o.file, load);
-  if (!object) return report_error("export", object.error());
+  if (!object) return report_error("export", object.error(), o.json, o.file);
   const auto read = clock::now();
   engines::NanoVdbOptions options;
   options.width_voxels = o.width;
   options.compress = !o.uncompressed;
   Result<engines::NanoVdbGrids> grids = engines::nanovdb_grids(*object.value(), options);
-  if (!grids) return report_error("export", grids.error());
+  if (!grids) return report_error("export", grids.error(), o.json, o.file);
   const Status written = write_file_atomically(o.nvdb, grids->file);
-  if (!written) return report_error("export", written.error());
+  if (!written) return report_error("export", written.error(), o.json, o.file);
   const auto done = clock::now();
   const double read_s = std::chrono::duration<double>(read - start).count();
   const double export_s = std::chrono::duration<double>(done - read).count();

@@ -56,8 +56,8 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
   std::ostream& o = std::cout;
   auto row = [&](const std::string& key) -> std::ostream& { return o << "  " << std::left << std::setw(20) << key; };
   o << file << "\n";
-  row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up " << a.up_axis
-                << "\n";
+  row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up "
+                << printable(a.up_axis) << "\n";
   row("file size") << human_bytes(s.file_size) << "\n";
   row("memory (loaded)") << human_bytes(s.memory_bytes) << "\n";
   row("bounds") << v3(a.bounds_min) << " .. " << v3(a.bounds_max) << "\n";
@@ -86,13 +86,17 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
                  << a.mass.inertia[6] << " " << a.mass.inertia[7] << " " << a.mass.inertia[8] << "] m^5\n";
   const Provenance& p = a.provenance;
   o << "provenance\n";
-  row("generator") << p.generator << " " << p.generator_version << "\n";
-  if (!p.source_file.empty()) row("source") << p.source_file << " (sha256 " << p.source_sha256 << ")\n";
-  if (!p.created_utc.empty()) row("created") << p.created_utc << "\n";
-  row("build parameters") << p.build_parameters_json << "\n";
+  // Every string below comes from the file as it is: printable() keeps a hostile one from driving the terminal.
+  row("generator") << printable(p.generator) << " " << printable(p.generator_version) << "\n";
+  if (!p.source_file.empty())
+    row("source") << printable(p.source_file) << " (sha256 " << printable(p.source_sha256) << ")\n";
+  if (!p.created_utc.empty()) row("created") << printable(p.created_utc) << "\n";
+  row("build parameters") << printable(p.build_parameters_json) << "\n";
   row("build warnings") << p.build_warnings.size() << "\n";
-  for (const BuildWarning& w : p.build_warnings) o << "    " << w.code << ": " << w.message << "\n";
-  for (const Issue& w : warnings) o << "warning: " << code_name(w.code) << " " << w.path << ": " << w.message << "\n";
+  for (const BuildWarning& w : p.build_warnings)
+    o << "    " << printable(w.code) << ": " << printable(w.message) << "\n";
+  for (const Issue& w : warnings)
+    o << "warning: " << code_name(w.code) << " " << printable(w.path) << ": " << printable(w.message) << "\n";
 }
 
 // Writes the files asked for; returns a JSON description of each, or the first error.
@@ -215,19 +219,22 @@ Status check_outputs(const Options& options) {
 }
 
 int run(const Options& options) {
-  if (Status usable = check_outputs(options); !usable) return report_error("inspect", usable.error());
+  if (Status usable = check_outputs(options); !usable)
+    return report_error("inspect", usable.error(), options.json, options.file);
   if (!options.html.empty()) {
     const Result<report::ReportInfo> info = report::write_asset_report(options.file, options.html, options.read);
-    if (!info) return report_error("inspect", info.error());
+    if (!info) return report_error("inspect", info.error(), options.json, options.file);
     std::cout << info->index_html << ": the asset's report card (" << std::fixed << std::setprecision(1)
               << double(info->bytes) / (1 << 20) << " MB folder)\n";
     return kExitOk;
   }
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(options.file, &warnings, options.read);
-  if (!asset) return report_error("inspect", asset.error());
+  if (!asset) return report_error("inspect", asset.error(), options.json, options.file);
   Result<nlohmann::json> written = write_exports(options, asset.value());
-  if (!written) return report_error("inspect", written.error());  // a slice or level outside, an unwritable file
+  if (!written)
+    return report_error("inspect", written.error(), options.json,
+                        options.file);  // a slice or level outside, an unwritable file
   const nlohmann::json& exports = written.value();
   if (!exports.empty() && !options.json) {
     for (const nlohmann::json& e : exports) print_export(e);

@@ -97,7 +97,7 @@ void add_report_command(CLI::App& app, int& exit_code) {
     options->report.progress = report_progress();
     const Result<report::ReportInfo> info = report::write_library_report(options->report);
     if (!info) {
-      exit_code = report_error("report", info.error());
+      exit_code = report_error("report", info.error(), options->json, options->report.library);
       return;
     }
     if (options->json)

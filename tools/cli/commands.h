@@ -20,6 +20,9 @@ enum ExitCode : int { kExitOk = 0, kExitInvalid = 1, kExitUsageOrIo = 2 };
 int exit_status(IssueCode code);
 /// Prints "voxfmt COMMAND: error: CODE: message" on stderr and returns exit_status(error.code).
 int report_error(const char* command, const Error& error);
+/// The same and, with `json` (the command's --json), the error on stdout too as `build --json` prints it
+/// ({"status": "error", "input", "code", "message"}): a script reading stdout sees the failure.
+int report_error(const char* command, const Error& error, bool json, const std::string& input);
 
 /// `--max-memory MiB`: the read budget of a command that reads assets (voxfmt/io.h ReadOptions), into `options`.
 inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
@@ -50,6 +53,31 @@ inline CLI::Validator finite_number(bool at_least_zero = false) {
         return "must be a finite number " + std::string(at_least_zero ? ">= 0" : "> 0") + ", not '" + text + "'";
       },
       at_least_zero ? "NUMBER >= 0" : "NUMBER > 0");
+}
+
+/// Text from a file (provenance, warnings, messages quoting it) made safe for a terminal: control characters
+/// (C0, DEL and UTF-8's C1) become \xNN, so an asset cannot clear the screen, set the title or forge lines.
+inline std::string printable(const std::string& text) {
+  std::string out;
+  out.reserve(text.size());
+  auto escape = [&out](unsigned char c) {
+    const char* digits = "0123456789abcdef";
+    out += "\\x";
+    out += digits[c >> 4];
+    out += digits[c & 15];
+  };
+  for (size_t i = 0; i < text.size(); ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    const auto next = i + 1 < text.size() ? static_cast<unsigned char>(text[i + 1]) : 0;
+    if (c < 0x20 || c == 0x7f) {
+      escape(c);
+    } else if (c == 0xc2 && next >= 0x80 && next <= 0x9f) {  // U+0080..U+009F
+      escape(c), escape(next), ++i;
+    } else {
+      out += char(c);
+    }
+  }
+  return out;
 }
 
 /// Worker threads: 0 (every core) up to kMaxThreads; more would only exhaust memory on thread stacks.

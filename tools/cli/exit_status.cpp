@@ -2,6 +2,7 @@
 #include <iostream>
 
 #include "commands.h"
+#include "json_report.h"
 
 namespace voxfmt::cli {
 
@@ -20,8 +21,18 @@ int exit_status(IssueCode code) {
 }
 
 int report_error(const char* command, const Error& error) {
-  std::cerr << "voxfmt " << command << ": error: " << error.describe() << "\n";
+  std::cerr << "voxfmt " << command << ": error: " << printable(error.describe()) << "\n";
   return exit_status(error.code);
+}
+
+int report_error(const char* command, const Error& error, bool json, const std::string& input) {
+  if (json)
+    std::cout << to_text(nlohmann::json{{"status", "error"},
+                                        {"input", input},
+                                        {"code", code_name(error.code)},
+                                        {"message", error.message}})
+              << "\n";
+  return report_error(command, error);
 }
 
 }  // namespace voxfmt::cli

@@ -189,9 +189,9 @@ void check_point_shell_memory(const Settings& options) {
   if (p.point_spacing > 0 || bytes <= limit) return;
   char text[300];
   std::snprintf(text, sizeof text,
-                "the point shell (%u points) would need about %.2f GB, more than the %.2f GB allowed (--max-memory; "
+                "the point shell (%u points) would need about %.1f MiB, more than the %.1f MiB allowed (--max-memory; "
                 "default 3/4 of this machine's memory): use fewer points",
-                p.points, bytes / 1e9, limit / 1e9);
+                p.points, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 

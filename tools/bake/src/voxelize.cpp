@@ -64,6 +64,10 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
     if (options.resolution == 0) throw BakeError(IssueCode::BadOption, "resolution must be >= 1");
     g.voxel_size = longest / options.resolution;
   }
+  // Finite coordinates whose span overflows a double (1.7e308 and -1.7e308) are out of scale, not coincident.
+  if (!std::isfinite(longest))
+    throw BakeError(IssueCode::ScaleOutOfRange,
+                    "the mesh's extent overflows a double (coordinates near 1.8e308): is it in metres (unit scale)?");
   if (!(g.voxel_size > 0) || !std::isfinite(g.voxel_size))
     throw BakeError(IssueCode::ZeroVolume, "the mesh has no extent (all vertices coincide)");
   // Checked before the grid is made, so a mesh in the wrong unit fails at once and says so, rather than as an
@@ -122,10 +126,10 @@ void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const Voxelma
   char text[400];
   std::snprintf(
       text, sizeof text,
-      "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.2f GB, more than the %.2f GB "
+      "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.1f MiB, more than the %.1f MiB "
       "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution or a larger "
       "voxel size",
-      g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1e9, limit / 1e9);
+      g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 

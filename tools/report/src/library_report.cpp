@@ -146,8 +146,13 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
     files = manifest_files(library);
   }
   if (files.empty()) {
+    std::error_code ec;
     const std::string where =
-        manifest_file.empty() ? library + ": no manifest.jsonl here" : manifest_file + ": no such file";
+        !manifest_file.empty()
+            ? manifest_file + (fs::is_directory(manifest_file, ec) ? ": a folder, not a manifest" : ": no such file")
+        : !fs::exists(library, ec)       ? library + ": no such folder"
+        : !fs::is_directory(library, ec) ? library + ": a file, not a library folder"
+                                         : library + ": no manifest.jsonl here";
     return Error(IssueCode::FileNotFound, where + " (a library is the output folder of `voxfmt batch`)",
                  manifest_file.empty() ? library : manifest_file);
   }
@@ -156,7 +161,9 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
   for (const fs::path& file : files) {
     std::ifstream in(file);
     std::string line;
-    while (std::getline(in, line)) {
+    bool too_long = false;
+    while (read_manifest_line(in, line, too_long)) {
+      m.skipped_lines += too_long;
       if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
       nlohmann::json record = nested_too_deep(line) ? nlohmann::json() : nlohmann::json::parse(line, nullptr, false);
       if (!record.is_object() || !record.contains("output") || !record["output"].is_string()) {
@@ -377,6 +384,10 @@ Status check_report_folder(const std::string& given) {
   const fs::path out = report_folder(given);
   if (out == out.root_path())
     return Error(IssueCode::BadOption, out.string() + ": a report needs a folder of its own", out.string());
+  std::error_code ec;
+  if (fs::exists(out, ec) && !fs::is_directory(out, ec))
+    return Error(IssueCode::BadOption,
+                 out.string() + " is a file, not a folder: a report is a folder (choose another path)", out.string());
   if (!replaceable(out))
     return Error(IssueCode::BadOption,
                  out.string() + " exists and holds files a report does not write: not replaced (choose another folder)",

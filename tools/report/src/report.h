@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <istream>
 #include <string>
 
 #include "voxfmt/io.h"
@@ -47,5 +48,27 @@ Status check_report_folder(const std::string& out);
 /// The same page for one asset (`voxfmt inspect ASSET --html OUT`), its card open. Fails like read_asset when
 /// the asset cannot be read, WRITE_FAILED when OUT cannot be written.
 Result<ReportInfo> write_asset_report(const std::string& asset, const std::string& out, const ReadOptions& read);
+
+/// The longest manifest record read (a record is a mesh's paths, settings, figures and warnings: a few KiB).
+constexpr size_t kMaxManifestRecordBytes = size_t(1) << 20;
+
+/// The next line of a manifest into `line`, false at the end. A line longer than kMaxManifestRecordBytes is read
+/// past, not kept (`line` comes back empty and `too_long` set): a hostile or broken record costs no memory.
+inline bool read_manifest_line(std::istream& in, std::string& line, bool& too_long) {
+  line.clear();
+  too_long = false;
+  for (int c = in.get(); c != std::char_traits<char>::eof(); c = in.get()) {
+    if (c == '\n') {
+      if (too_long) line.clear();
+      return true;
+    }
+    if (line.size() < kMaxManifestRecordBytes)
+      line.push_back(char(c));
+    else
+      too_long = true;
+  }
+  if (too_long) line.clear();
+  return !line.empty() || too_long;
+}
 
 }  // namespace voxfmt::report
