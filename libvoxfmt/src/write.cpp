@@ -208,7 +208,7 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
     try {
       semantic = std::async(std::launch::async, check);
     } catch (const std::system_error&) {  // no thread to be had (a process limit): checked here, before the write
-      semantic_error = check();
+      if (std::optional<Error> found = check()) return *found;
     }
   }
   // Whatever happens to the write, the check ends before `asset` may go away (the future's destructor waits).

@@ -377,7 +377,8 @@ BatchPoses batch_poses(nb::handle poses_a, nb::handle poses_b) {
     return {matrices_of(pa), matrices_of(pb), k};
   }
   const std::vector<Pose> pb = parse_poses(poses_b, "poses_b", 0);
-  pa.assign(pb.size(), pa.front());  // A is one pose (parse_poses gave exactly one)
+  const Pose one = pa.front();  // A is one pose (parse_poses gave exactly one)
+  pa.assign(pb.size(), one);
   return {matrices_of(pa), matrices_of(pb), pb.size()};
 }
 

@@ -226,7 +226,10 @@ def _real(name: str, value: Any) -> float:
     """A number option (not a bool, a string or None)."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:
+        raise OptionError("BAD_OPTION", f"{name}: {value} is beyond a double") from None
 
 
 def _whole(name: str, value: Any, low: int, high: int) -> int:
@@ -249,7 +252,10 @@ def _refuse_beyond_memory(what: str, needed_bytes: float) -> None:
 
 def _pose_count(poses: Any) -> int:
     """K of a (K, 4, 4) stack (1 for one (4, 4) pose), from its shape alone: nothing is copied."""
-    shape = np.shape(poses)
+    try:
+        shape = np.shape(poses)
+    except ValueError:  # a ragged list
+        raise OptionError("BAD_OPTION", "poses: expected (K, 4, 4) matrices or one (4, 4), got a ragged list") from None
     return int(shape[0]) if len(shape) == 3 else 1
 
 
@@ -282,11 +288,11 @@ class BatchScene:
                 raise OptionError("BAD_OPTION", f"bodies[{n}]: expected a Body (voxfmt.load), got {type(body).__name__}")
         if pairs is None:  # one body against itself, or the first against the second
             pairs = [(0, min(1, len(self.bodies) - 1))]
-        if not isinstance(pairs, Sequence):
+        if not isinstance(pairs, (Sequence, np.ndarray)):
             raise OptionError("BAD_OPTION", f"pairs: expected a sequence of (A, B) index pairs, got {pairs!r}")
         self.pairs = []
         for pair in pairs:
-            if not isinstance(pair, Sequence) or isinstance(pair, str) or len(pair) != 2:
+            if not isinstance(pair, (Sequence, np.ndarray)) or isinstance(pair, str) or len(pair) != 2:
                 raise OptionError("BAD_OPTION", f"pairs: expected (A, B) index pairs, got {pair!r}")
             # A float or a string would be floored or parsed into another pair, silently.
             self.pairs.append((_whole("pairs: A", pair[0], 0, 2**31 - 1), _whole("pairs: B", pair[1], 0, 2**31 - 1)))
@@ -314,8 +320,7 @@ class BatchScene:
         """Output arrays for contacts(..., out=) on CUDA poses (E, 4, 4): allocated by the poses' framework (PyTorch
         or CuPy) on their device, for E environments and `max_contacts` contacts each. What a CUDA graph is
         captured with (examples/gpu/cuda_graph.py)."""
-        if not 0 <= int(max_contacts) <= 1 << 24:
-            raise OptionError("BAD_OPTION", "max_contacts must be in 0..2^24")
+        max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
         envs = int(_cuda_interface("poses", poses)["shape"][0])
         fw = _framework(poses)
         if fw.__name__ == "torch":
@@ -325,7 +330,7 @@ class BatchScene:
             def empty(shape: tuple[int, ...], dtype: str) -> Any:
                 with fw.cuda.Device(_declared_device(poses)):
                     return fw.empty(shape, dtype=dtype)
-        specs = _output_specs(envs, int(max_contacts))
+        specs = _output_specs(envs, max_contacts)
         return BatchResult(**{name: empty(shape, dtype) for name, dtype, shape in specs})
 
     def contacts(
@@ -356,7 +361,7 @@ class BatchScene:
             if out is not None:
                 raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
             if threads is not None:
-                threads = _whole("threads", threads, 0, 1024)
+                threads = _whole("threads", threads, 1, 1024)
             # The poses' contiguous copies and the outputs, judged before either is made.
             envs = _pose_count(poses_a)
             _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
@@ -371,9 +376,7 @@ class BatchScene:
 
     def _contacts_cuda(self, poses_a: Any, poses_b: Any, pair_index: Any, stiffness: float, proximity: float,
                        max_contacts: int, out: BatchResult | None, stream: int | None) -> BatchResult:
-        k = int(max_contacts)
-        if not 0 <= k <= 1 << 24:
-            raise OptionError("BAD_OPTION", "max_contacts must be in 0..2^24")
+        k = max_contacts  # checked by contacts()
         device = _declared_device(poses_a)  # None: CUDA tells it below, once a device is known to be there
         envs = int(_cuda_interface("poses_a", poses_a)["shape"][0])
         _check_cuda_array("poses_a", poses_a, "float32", (envs, 4, 4), device)

@@ -278,7 +278,9 @@ class Batch(unittest.TestCase):
         # --manifest naming a mesh or notes: refused, the file untouched (compaction used to rewrite it).
         mesh = os.path.join(self.lib, "a/model.obj")
         notes = self.write("notes.txt", "my notes\n")
-        for path, before in ((mesh, TET_OBJ), (notes, "my notes\n")):
+        minified = self.write("other-tool.json", '{"a": "' + "x" * (2 << 20) + '"}')  # one line over 1 MiB
+        for path, before in ((mesh, TET_OBJ), (notes, "my notes\n"), (minified, None)):
+            before = before if before is not None else open(path).read()
             r, _ = self.batch(mesh, "--manifest", path, expect=2)
             self.assertIn("not a manifest, not overwritten", r.stderr)
             with open(path) as f:

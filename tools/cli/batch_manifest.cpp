@@ -65,6 +65,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
   size_t foreign = 0;
   bool too_long = false;
   while (report::read_manifest_line(in, line, too_long)) {  // a record over 1 MiB is dropped, as a torn one is
+    foreign += too_long;  // and counts as not ours: a file of nothing else is refused, never overwritten
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
     const nlohmann::json record = nlohmann::json::parse(line, nullptr, false);
     if (record.is_discarded() || !record.is_object() || !record.contains("output") || !record["output"].is_string()) {

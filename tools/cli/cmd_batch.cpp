@@ -95,6 +95,7 @@ class Runner {
   // The stages of run(), in order.
   void select_inputs();
   void open_manifest();
+  bool created_output_dir_ = false;  ///< select_inputs made OUTDIR (removed again if the manifest is refused)
   void plan();
   bake::Settings bake_settings();
   void announce(size_t stale_removed) const;
@@ -263,7 +264,13 @@ int Runner::run() {
   progress_ = std::make_unique<BatchProgress>(::isatty(STDERR_FILENO) && !o_.json, o_.quiet || o_.json);
   shard_ = parse_shard(o_.shard);
   select_inputs();
-  open_manifest();
+  try {
+    open_manifest();
+  } catch (const UsageError&) {  // a refused manifest leaves no folder made for it
+    std::error_code ec;
+    if (created_output_dir_) fs::remove(o_.output_dir, ec);  // only if still empty
+    throw;
+  }
   std::vector<std::string> outputs;
   for (const BatchItem& item : mine_) outputs.push_back(item.output);
   outputs.push_back(manifest_path_);
@@ -297,6 +304,7 @@ void Runner::select_inputs() {
   }
   // Made only once the inputs are known good: a refused batch leaves no empty folder behind.
   std::error_code ec;
+  created_output_dir_ = !fs::exists(o_.output_dir, ec);
   fs::create_directories(o_.output_dir, ec);
   if (ec || !fs::is_directory(o_.output_dir))
     throw UsageError(o_.output_dir + ": cannot create output directory" + (ec ? ": " + ec.message() : ""),
@@ -468,7 +476,7 @@ void Runner::report(bool interrupted) const {
     if (!failures_.empty()) {
       std::cout << "failed:\n";
       for (const nlohmann::json& f : failures_)
-        std::cout << "  " << f["code"].get<std::string>() << ": " << f["message"].get<std::string>() << "\n";
+        std::cout << "  " << f["code"].get<std::string>() << ": " << printable(f["message"].get<std::string>()) << "\n";
     }
     std::cout << "manifest: " << manifest_path_ << "\n";
   }
@@ -503,6 +511,18 @@ int report_after_batch(const Options& o) {
 // measured ~140 MiB for a 64^3 bunny; a limit that low is a typo, refused rather than recorded as CRASHED.
 constexpr unsigned long long kLeastBakeAddressSpaceMib = 256;
 
+// --max-memory as the option parser converted it (its own reading of "0x10" or "-1"): 0, or a limit a bake can
+// start under and that shifts into bytes without wrapping.
+void check_max_memory(size_t mib) {
+  constexpr size_t kMostMib = size_t(1) << 40;
+  if (mib != 0 && (mib < kLeastBakeAddressSpaceMib || mib > kMostMib))
+    throw UsageError("--max-memory " + std::to_string(mib) + ": a bake's address space below " +
+                     std::to_string(kLeastBakeAddressSpaceMib) +
+                     " MiB cannot even start voxfmt (its libraries' threads and stacks), and above 2^40 MiB is no "
+                     "limit: 0 for none, else " +
+                     std::to_string(kLeastBakeAddressSpaceMib) + "..2^40");
+}
+
 void add_batch_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
@@ -531,17 +551,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                   "MiB one bake may use: its address space (OUT_OF_MEMORY beyond), and what its voxelmap may need "
                   "(refused up front beyond, with the estimate); 0 = no limit, else at least " +
                       std::to_string(kLeastBakeAddressSpaceMib))
-      ->capture_default_str()
-      ->check(CLI::Validator(
-          [](std::string& text) -> std::string {
-            const unsigned long long mib = std::strtoull(text.c_str(), nullptr, 10);
-            return mib == 0 || mib >= kLeastBakeAddressSpaceMib
-                       ? ""
-                       : "a bake's address space below " + std::to_string(kLeastBakeAddressSpaceMib) +
-                             " MiB cannot even start voxfmt (its libraries' threads and stacks): 0 for no limit, or "
-                             "at least that";
-          },
-          ""));
+      ->capture_default_str();
   cmd->add_option(
       "--manifest", o->manifest,
       "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
@@ -559,6 +569,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       "  voxfmt batch /shared/meshes -o /shared/assets --shard 3/16 --timeout 3600   # one Slurm array task\n");
   cmd->callback([o, &exit_code] {
     try {
+      check_max_memory(o->max_memory_mib);
       exit_code = Runner(*o).run();
       if (o->report) exit_code = std::max(exit_code, report_after_batch(*o));
     } catch (const UsageError& e) {
@@ -566,9 +577,10 @@ void add_batch_command(CLI::App& app, int& exit_code) {
           report_error("batch", {e.code, e.what()}, o->json,
                        o->inputs.size() == 1 ? o->inputs.front() : std::to_string(o->inputs.size()) + " inputs");
     } catch (const std::bad_alloc&) {
-      exit_code = report_error("batch", {IssueCode::OutOfMemory, "out of memory"});
+      exit_code = report_error("batch", {IssueCode::OutOfMemory, "out of memory"}, o->json, o->output_dir);
     } catch (const std::exception& e) {
-      exit_code = report_error("batch", {IssueCode::Internal, std::string("unexpected error: ") + e.what()});
+      exit_code = report_error("batch", {IssueCode::Internal, std::string("unexpected error: ") + e.what()}, o->json,
+                               o->output_dir);
     }
   });
 }

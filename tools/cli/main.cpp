@@ -58,7 +58,9 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // CLI11's message with the one error model's code; the help is one option away.
     const std::string command = command_name(app);
-    voxfmt::cli::report_error(command.c_str(), {voxfmt::IssueCode::BadOption, e.what()});
+    // With --json the error is JSON on stdout too, as every command's own errors are.
+    const bool json = std::any_of(argv + 1, argv + argc, [](const char* a) { return std::string(a) == "--json"; });
+    voxfmt::cli::report_error(command.c_str(), {voxfmt::IssueCode::BadOption, e.what()}, json, "");
     std::cerr << "run 'voxfmt " << (command == "(no command)" ? "" : command + " ") << "--help' for the options\n";
     return voxfmt::cli::kExitUsageOrIo;
   } catch (const std::bad_alloc&) {

@@ -6,7 +6,9 @@
 
 #include <cstdint>
 #include <functional>
+#include <ios>
 #include <istream>
+#include <streambuf>
 #include <string>
 
 #include "voxfmt/io.h"
@@ -57,18 +59,23 @@ constexpr size_t kMaxManifestRecordBytes = size_t(1) << 20;
 inline bool read_manifest_line(std::istream& in, std::string& line, bool& too_long) {
   line.clear();
   too_long = false;
-  for (int c = in.get(); c != std::char_traits<char>::eof(); c = in.get()) {
+  std::streambuf* buffer = in.rdbuf();  // byte by byte from the buffer: no stream sentry per byte
+  using Traits = std::char_traits<char>;
+  bool any = false;
+  for (Traits::int_type c = buffer ? buffer->sbumpc() : Traits::eof(); c != Traits::eof(); c = buffer->sbumpc()) {
+    any = true;
     if (c == '\n') {
       if (too_long) line.clear();
       return true;
     }
     if (line.size() < kMaxManifestRecordBytes)
-      line.push_back(char(c));
+      line.push_back(Traits::to_char_type(c));
     else
       too_long = true;
   }
+  in.setstate(std::ios::eofbit);
   if (too_long) line.clear();
-  return !line.empty() || too_long;
+  return any;
 }
 
 }  // namespace voxfmt::report
