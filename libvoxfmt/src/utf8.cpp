@@ -24,6 +24,12 @@ size_t utf8_sequence(const std::string& s, size_t i) {
   }
   return 0;
 }
+
+void append_hex(std::string& out, uint8_t byte) {
+  char hex[8];
+  std::snprintf(hex, sizeof hex, "\\x%02X", unsigned(byte));
+  out += hex;
+}
 }  // namespace
 
 bool is_utf8(const std::string& text) {
@@ -45,10 +51,28 @@ std::string utf8_escaped(const std::string& text) {
       i += n;
       continue;
     }
-    char hex[8];
-    std::snprintf(hex, sizeof hex, "\\x%02X", unsigned(uint8_t(text[i])));
-    out += hex;
+    append_hex(out, uint8_t(text[i]));
     ++i;
+  }
+  return out;
+}
+
+std::string terminal_safe(const std::string& text) {
+  std::string out;
+  out.reserve(text.size());
+  for (size_t i = 0; i < text.size();) {
+    const size_t n = utf8_sequence(text, i);
+    const uint8_t lead = uint8_t(text[i]);
+    // C0 and DEL, and C1 (U+0080..U+009F, two bytes from 0xC2): a terminal acts on them (CSI, OSC, a bare CR).
+    const bool control = n == 1 ? lead < 0x20 || lead == 0x7F : n == 2 && lead == 0xC2 && uint8_t(text[i + 1]) <= 0x9F;
+    if (n == 0 || control) {
+      const size_t bytes = n == 0 ? 1 : n;
+      for (size_t k = 0; k < bytes; ++k) append_hex(out, uint8_t(text[i + k]));
+      i += bytes;
+      continue;
+    }
+    out.append(text, i, n);
+    i += n;
   }
   return out;
 }

@@ -149,7 +149,7 @@ class InspectExports(unittest.TestCase):
         self.assertEqual(r.returncode, 0, r.stderr)
         for control in ("\x1b", "\x07", "\r", "\u0085", "\nFAKE"):
             self.assertNotIn(control, r.stdout)
-        self.assertIn("\\x1b[31mRED\\x1b[2J\\x1b]0;title\\x07\\x0aFAKE: valid\\x0d\\xc2\\x85", r.stdout)
+        self.assertIn("\\x1B[31mRED\\x1B[2J\\x1B]0;title\\x07\\x0AFAKE: valid\\x0D\\xC2\\x85", r.stdout)
         r = subprocess.run([VOXFMT, "inspect", hostile, "--json"], capture_output=True, text=True, timeout=60)
         self.assertEqual(json.loads(r.stdout)["provenance"]["source_file"], text)
 

@@ -7,6 +7,7 @@
 
 #include "analytic_sphere.h"
 #include "test_support.h"
+#include "voxfmt/detail/utf8.h"
 #include "voxfmt/io.h"
 
 namespace voxfmt {
@@ -208,6 +209,18 @@ TEST(Write, ReportsAnUnwritableDirectory) {
   ASSERT_FALSE(status);
   EXPECT_EQ(status.error().code, IssueCode::WriteFailed);
   EXPECT_NE(status.error().message.find("/nonexistent-dir/x.vox.h5"), std::string::npos);
+}
+
+TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {
+  // Printable UTF-8 passes as it is, a multi-byte letter and a four-byte sequence included.
+  EXPECT_EQ(terminal_safe("b\xC3\xA4r \xF0\x9F\x90\x87 ok"), "b\xC3\xA4r \xF0\x9F\x90\x87 ok");
+  // C0, DEL and C1 (U+0085 is C2 85) are escaped byte by byte, in the case utf8_escaped writes.
+  EXPECT_EQ(terminal_safe("\x1B[2J\r\n\x7F\xC2\x85."), "\\x1B[2J\\x0D\\x0A\\x7F\\xC2\\x85.");
+  // U+00A0 is not a control; a raw 8-bit CSI, an overlong form and a surrogate are not UTF-8.
+  EXPECT_EQ(terminal_safe("\xC2\xA0\x9B\xC0\xAF\xED\xA0\x80"), "\xC2\xA0\\x9B\\xC0\\xAF\\xED\\xA0\\x80");
+  // A sequence cut short at the end of the text.
+  EXPECT_EQ(terminal_safe("a\xE2\x82"), "a\\xE2\\x82");
+  EXPECT_EQ(utf8_escaped("\x1B\xFF"), "\x1B\\xFF");  // utf8_escaped leaves controls alone
 }
 
 }  // namespace

@@ -89,7 +89,7 @@ void BatchProgress::report(const nlohmann::json& record, size_t done, size_t tot
   else
     line << "ok     " << record["input"].get<std::string>() << " (" << std::fixed << std::setprecision(2)
          << record.value("wall_s", 0.0) << " s)";
-  std::cerr << printable(line.str()) << "\n";  // a mesh's name and a child's message are not ours to print raw
+  std::cerr << terminal_safe(line.str()) << "\n";  // a mesh's name and a child's message are not ours to print raw
 }
 
 }  // namespace voxfmt::cli

@@ -476,7 +476,8 @@ void Runner::report(bool interrupted) const {
     if (!failures_.empty()) {
       std::cout << "failed:\n";
       for (const nlohmann::json& f : failures_)
-        std::cout << "  " << f["code"].get<std::string>() << ": " << printable(f["message"].get<std::string>()) << "\n";
+        std::cout << "  " << f["code"].get<std::string>() << ": " << terminal_safe(f["message"].get<std::string>())
+                  << "\n";
     }
     std::cout << "manifest: " << manifest_path_ << "\n";
   }

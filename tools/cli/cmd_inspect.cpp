@@ -57,7 +57,7 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
   auto row = [&](const std::string& key) -> std::ostream& { return o << "  " << std::left << std::setw(20) << key; };
   o << file << "\n";
   row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up "
-                << printable(a.up_axis) << "\n";
+                << terminal_safe(a.up_axis) << "\n";
   row("file size") << human_bytes(s.file_size) << "\n";
   row("memory (loaded)") << human_bytes(s.memory_bytes) << "\n";
   row("bounds") << v3(a.bounds_min) << " .. " << v3(a.bounds_max) << "\n";
@@ -86,17 +86,17 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
                  << a.mass.inertia[6] << " " << a.mass.inertia[7] << " " << a.mass.inertia[8] << "] m^5\n";
   const Provenance& p = a.provenance;
   o << "provenance\n";
-  // Every string below comes from the file as it is: printable() keeps a hostile one from driving the terminal.
-  row("generator") << printable(p.generator) << " " << printable(p.generator_version) << "\n";
+  // Every string below comes from the file as it is: terminal_safe() keeps a hostile one from driving the terminal.
+  row("generator") << terminal_safe(p.generator) << " " << terminal_safe(p.generator_version) << "\n";
   if (!p.source_file.empty())
-    row("source") << printable(p.source_file) << " (sha256 " << printable(p.source_sha256) << ")\n";
-  if (!p.created_utc.empty()) row("created") << printable(p.created_utc) << "\n";
-  row("build parameters") << printable(p.build_parameters_json) << "\n";
+    row("source") << terminal_safe(p.source_file) << " (sha256 " << terminal_safe(p.source_sha256) << ")\n";
+  if (!p.created_utc.empty()) row("created") << terminal_safe(p.created_utc) << "\n";
+  row("build parameters") << terminal_safe(p.build_parameters_json) << "\n";
   row("build warnings") << p.build_warnings.size() << "\n";
   for (const BuildWarning& w : p.build_warnings)
-    o << "    " << printable(w.code) << ": " << printable(w.message) << "\n";
+    o << "    " << terminal_safe(w.code) << ": " << terminal_safe(w.message) << "\n";
   for (const Issue& w : warnings)
-    o << "warning: " << code_name(w.code) << " " << printable(w.path) << ": " << printable(w.message) << "\n";
+    o << "warning: " << code_name(w.code) << " " << terminal_safe(w.path) << ": " << terminal_safe(w.message) << "\n";
 }
 
 // Writes the files asked for; returns a JSON description of each, or the first error.

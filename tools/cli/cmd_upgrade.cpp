@@ -144,7 +144,7 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
     entry["error"] = {{"code", code_name(error->code)}, {"message", error->message}};
     if (!o.json) {
       if (progress) std::cerr << "\r\033[K";
-      std::cerr << "voxfmt upgrade: error: " << code_name(error->code) << ": " << printable(error->message) << "\n";
+      std::cerr << "voxfmt upgrade: error: " << code_name(error->code) << ": " << terminal_safe(error->message) << "\n";
     }
   }
   return entry;

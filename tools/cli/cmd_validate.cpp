@@ -35,8 +35,8 @@ void print_findings(const std::string& file, const std::vector<Issue>& issues, s
             << " (" << errors << " error(s), " << warnings << " warning(s))\n";
   if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
   for (const Issue& issue : issues)
-    std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " " << printable(issue.path)
-              << ": " << printable(issue.message) << "\n";
+    std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " "
+              << terminal_safe(issue.path) << ": " << terminal_safe(issue.message) << "\n";
 }
 
 int run(const Options& options) {

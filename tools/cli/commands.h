@@ -8,6 +8,7 @@
 #include <string>
 
 #include "report.h"
+#include "voxfmt/detail/utf8.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
 
@@ -53,45 +54,6 @@ inline CLI::Validator finite_number(bool at_least_zero = false) {
         return "must be a finite number " + std::string(at_least_zero ? ">= 0" : "> 0") + ", not '" + text + "'";
       },
       at_least_zero ? "NUMBER >= 0" : "NUMBER > 0");
-}
-
-/// Text from a file (provenance, warnings, messages quoting it) made safe for a terminal: control characters
-/// (C0, DEL, and U+0080..U+009F) and bytes that are not UTF-8 become \xNN, so an asset cannot clear the screen,
-/// set the title or forge lines. Valid UTF-8 otherwise passes as it is.
-inline std::string printable(const std::string& text) {
-  std::string out;
-  out.reserve(text.size());
-  auto escape = [&out](unsigned char c) {
-    const char* digits = "0123456789abcdef";
-    out += "\\x";
-    out += digits[c >> 4];
-    out += digits[c & 15];
-  };
-  for (size_t i = 0; i < text.size();) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    if (c < 0x80) {
-      if (c < 0x20 || c == 0x7f)
-        escape(c);
-      else
-        out += char(c);
-      ++i;
-      continue;
-    }
-    // A multi-byte sequence: its length from the lead byte, every continuation byte checked.
-    const size_t length = c >= 0xc2 && c <= 0xdf ? 2 : c >= 0xe0 && c <= 0xef ? 3 : c >= 0xf0 && c <= 0xf4 ? 4 : 0;
-    bool valid = length > 0 && i + length <= text.size();
-    for (size_t k = 1; valid && k < length; ++k) valid = (static_cast<unsigned char>(text[i + k]) & 0xc0) == 0x80;
-    const bool c1 = valid && length == 2 && c == 0xc2 && static_cast<unsigned char>(text[i + 1]) <= 0x9f;
-    if (!valid || c1) {  // not UTF-8 (a raw 8-bit control among them), or a C1 control: escaped byte by byte
-      const size_t bytes = c1 ? 2 : 1;
-      for (size_t k = 0; k < bytes; ++k) escape(static_cast<unsigned char>(text[i + k]));
-      i += bytes;
-      continue;
-    }
-    out.append(text, i, length);
-    i += length;
-  }
-  return out;
 }
 
 /// Worker threads: 0 (every core) up to kMaxThreads; more would only exhaust memory on thread stacks.

@@ -21,7 +21,7 @@ int exit_status(IssueCode code) {
 }
 
 int report_error(const char* command, const Error& error) {
-  std::cerr << "voxfmt " << command << ": error: " << printable(error.describe()) << "\n";
+  std::cerr << "voxfmt " << command << ": error: " << terminal_safe(error.describe()) << "\n";
   return exit_status(error.code);
 }
 

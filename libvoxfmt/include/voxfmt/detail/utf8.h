@@ -11,6 +11,9 @@ namespace voxfmt {
 bool is_utf8(const std::string& text);
 /// `text` with every byte that is not part of valid UTF-8 written as \xNN.
 std::string utf8_escaped(const std::string& text);
+/// `text` as utf8_escaped writes it, with control characters (C0, DEL, C1) escaped as \xNN too: for text from a
+/// file shown on a terminal, where an escape sequence could clear the screen or forge a line.
+std::string terminal_safe(const std::string& text);
 /// The one message for STRING_NOT_UTF8, whether a reader found the bytes in a file or a writer was given them.
 std::string not_utf8_message(const std::string& text);
 /// `bytes` as lowercase hex, two digits a byte (a digest, a path's exact bytes in JSON).
