@@ -16,7 +16,6 @@
 
 #include "common.h"
 #include "traversal/eigen.h"
-#include "voxfmt/detail/cores.h"
 
 #if defined(VOXFMT_WITH_CUDA)
 #include "voxfmt/gpu/batch.h"
@@ -87,13 +86,7 @@ nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std
   in.proximity = proximity;
   in.stiffness = stiffness;
   const size_t k = size_t(max_contacts);
-  // Refused with figures, not a MemoryError or the kernel's out-of-memory kill: the outputs are zeroed at once.
-  const double bytes = double(envs) * (40.0 + 33.0 * double(k)), limit = double(default_memory_limit_bytes());
-  if (bytes > limit)
-    fail(IssueCode::OutOfMemory,
-         "the outputs of " + std::to_string(envs) + " environments x " + std::to_string(k) + " contacts need " +
-             std::to_string(int64_t(bytes / 1e9)) + " GB, more than 3/4 of this machine's " +
-             std::to_string(int64_t(double(physical_memory_bytes()) / 1e9)) + " GB (fewer max_contacts, or batches)");
+  // Their memory was judged by the caller (voxfmt.BatchScene.contacts, with the poses' copies it makes).
   OutArray<int32_t> count({envs}), overflow({envs}), error({envs});
   OutArray<float> max_depth({envs}), force({envs, 3}), torque({envs, 3});
   OutArray<float> points({envs, k, 3}), normals({envs, k, 3}), depths({envs, k});

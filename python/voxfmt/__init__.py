@@ -27,7 +27,7 @@ from ._errors import AssetError, Error, InternalError, MeshError, OptionError, P
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
 from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
-from .batch import _pose_count, _real, _refuse_beyond_memory, _whole
+from .batch import _real, _refuse_beyond_pose_memory, _whole
 
 __version__: str = _library_version()
 
@@ -254,10 +254,7 @@ def contacts_batch(
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
     if threads is not None:
         threads = _whole("threads", threads, 1, 1024)
-    # The poses as matrices and rigid transforms of both sides and the per-pose outputs (the contacts' own
-    # memory, with_contacts, grows with what is found and is not known before).
-    count = max(_pose_count(poses_a), _pose_count(poses_b))
-    _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
+    _refuse_beyond_pose_memory(poses_a, poses_b)
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
                           time_budget_us=time_budget_us, proximity=_real("proximity", proximity),
@@ -302,8 +299,7 @@ class Tracker:
         with the one before (and with this tracker's earlier queries). The GIL is released."""
         if not isinstance(with_contacts, bool):
             raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
-        count = max(_pose_count(poses_a), _pose_count(poses_b))
-        _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
+        _refuse_beyond_pose_memory(poses_a, poses_b)
         out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
                               stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),
                               tracker=self._tracker)

@@ -250,6 +250,13 @@ def _refuse_beyond_memory(what: str, needed_bytes: float) -> None:
                                              f"machine's {memory / 1e9:.0f} GB (smaller batches)")
 
 
+def _refuse_beyond_pose_memory(poses_a: Any, poses_b: Any) -> None:
+    """contacts_batch's memory, judged before anything is made: the poses as matrices and rigid transforms of both
+    sides and the per-pose outputs (with_contacts' own memory grows with what is found and is not known before)."""
+    count = max(_pose_count(poses_a), _pose_count(poses_b))
+    _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
+
+
 def _pose_count(poses: Any) -> int:
     """K of a (K, 4, 4) stack (1 for one (4, 4) pose), from its shape alone: nothing is copied."""
     try:
@@ -362,7 +369,8 @@ class BatchScene:
                 raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
             if threads is not None:
                 threads = _whole("threads", threads, 1, 1024)
-            # The poses' contiguous copies and the outputs, judged before either is made.
+            # The poses' contiguous copies and the outputs, judged before either is made (here only: the compiled
+            # half allocates what this allows).
             envs = _pose_count(poses_a)
             _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
                                   envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
