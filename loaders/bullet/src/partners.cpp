@@ -161,6 +161,18 @@ void TriangleGrid::fill_rings(int rings) {
   }
 }
 
+double bound_triangles(const std::vector<detail::BoxedTriangle>& triangles, TriangleGrid& grid) {
+  grid.lo = triangles[0].lo;
+  grid.hi = triangles[0].hi;
+  double edges = 0;
+  for (const detail::BoxedTriangle& t : triangles) {
+    grid.lo = grid.lo.cwiseMin(t.lo);
+    grid.hi = grid.hi.cwiseMax(t.hi);
+    edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
+  }
+  return edges;
+}
+
 Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangles) {
   Eigen::Vector3f mean = Eigen::Vector3f::Zero();
   for (const detail::BoxedTriangle& t : triangles) mean += t.normal;
@@ -405,19 +417,12 @@ float TriangleSet::column_bound(const Eigen::Vector3f& x, const Eigen::Vector3i&
 void TriangleSet::build() {
   grid_.clear();
   if (empty()) return;
-  grid_.lo = triangles_[0].lo;
-  grid_.hi = triangles_[0].hi;
-  float edges = 0;
-  for (const detail::BoxedTriangle& t : triangles_) {
-    grid_.lo = grid_.lo.cwiseMin(t.lo);
-    grid_.hi = grid_.hi.cwiseMax(t.hi);
-    edges += (t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm();
-  }
+  const double edges = bound_triangles(triangles_, grid_);
   // A one-sided set (every triangle faces within 90 degrees of the mean normal) allows the cheap lower bound.
   common_normal_ = common_normal(triangles_);
   // Cells about the size of a triangle (a few triangles each), at most 64 along an axis.
   const Eigen::Vector3f extent = grid_.hi - grid_.lo;
-  grid_.cell = std::max({edges / float(3 * size()), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
+  grid_.cell = std::max({float(edges / double(3 * size())), extent.maxCoeff() / 64.0f, 1e-30f});  // relative: any scale
   for (int a = 0; a < 3; ++a) grid_.dims[a] = std::clamp(int(std::ceil(extent[a] / grid_.cell)), 1, 64);
   grid_.fill(
       size(), [&](size_t t) -> const Eigen::Vector3f& { return triangles_[t].lo; },

@@ -81,14 +81,7 @@ void StaticMeshIndex::index() {
     vertices_.clear();
     return;
   }
-  grid_.lo = triangles_[0].lo;
-  grid_.hi = triangles_[0].hi;
-  double edges = 0;
-  for (const detail::BoxedTriangle& t : triangles_) {
-    grid_.lo = grid_.lo.cwiseMin(t.lo);
-    grid_.hi = grid_.hi.cwiseMax(t.hi);
-    edges += double((t.b - t.a).norm() + (t.c - t.b).norm() + (t.a - t.c).norm());
-  }
+  const double edges = bound_triangles(triangles_, grid_);
   // One-sided (a floor, a terrain): beyond the box on that side is outside.
   common_normal_ = common_normal(triangles_);
   size_grid(edges);

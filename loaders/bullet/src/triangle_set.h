@@ -140,6 +140,10 @@ inline float nearest_by_rings(const TriangleGrid& grid, const std::vector<detail
 /// Degenerate triangles (zero normals) lie among their neighbours and do not count.
 Eigen::Vector3f common_normal(const std::vector<detail::BoxedTriangle>& triangles);
 
+/// Sets `grid`'s box to the one around every triangle (at least one) and returns the sum of their edge lengths:
+/// a grid's cell is sized on the mean edge.
+double bound_triangles(const std::vector<detail::BoxedTriangle>& triangles, TriangleGrid& grid);
+
 /// A set of triangles (a static mesh or terrain near a VPS body), world frame, each oriented counter-clockwise
 /// seen from outside. The distance is to the nearest triangle; its sign is the side of the nearest triangle
 /// whose plane is most nearly perpendicular to the direction to the point (at an edge or vertex several
