@@ -27,14 +27,6 @@ VOXFMT_HD float max_f(float a, float b) { return a < b ? b : a; }
 VOXFMT_HD float clamp_f(float v, float lo, float hi) { return v < lo ? lo : (hi < v ? hi : v); }
 VOXFMT_HD int min_i(int a, int b) { return b < a ? b : a; }
 VOXFMT_HD int max_i(int a, int b) { return a < b ? b : a; }
-VOXFMT_HD float length(const Vec3& a) {
-#if defined(__CUDA_ARCH__)
-  return sqrtf(dot(a, a));
-#else
-  return __builtin_sqrtf(dot(a, a));
-#endif
-}
-
 VOXFMT_HD float sqrt_f(float v) {
 #if defined(__CUDA_ARCH__)
   return sqrtf(v);
@@ -42,6 +34,8 @@ VOXFMT_HD float sqrt_f(float v) {
   return __builtin_sqrtf(v);
 #endif
 }
+
+VOXFMT_HD float length(const Vec3& a) { return sqrt_f(dot(a, a)); }
 
 VOXFMT_HD double sqrt_d(double v) {
 #if defined(__CUDA_ARCH__)
