@@ -145,6 +145,25 @@ class ReportTest(unittest.TestCase):
         self.assertEqual(summary["meshes"], self.summary["meshes"])
         self.assertLess(os.path.getsize(os.path.join(out, "data.js")), 1 << 20)
 
+    def test_a_record_of_many_path_parts_or_leaving_the_library_is_not_searched_for(self):
+        # 64,000 parts in one output (128 KB) once took minutes (every tail looked up); "../" never leaves the library.
+        library = os.path.join(self.tmp, "many-parts")
+        os.makedirs(library)
+        outside = os.path.join(self.tmp, "outside.vox.h5")
+        shutil.copy(os.path.join(self.library, "tet.obj.vox.h5"), outside)
+        records = [{"output": "a/" * 64000 + "x.vox.h5", "status": "ok"},
+                   {"output": "../" * 8 + outside.lstrip("/"), "status": "ok"}]
+        with open(os.path.join(library, "manifest.jsonl"), "w") as f:
+            f.write("".join(json.dumps(r) + "\n" for r in records))
+        p = fx.run("report", library, "--no-pictures", "--json")
+        rows = load_data(os.path.join(library, "report"))["rows"]
+        self.assertEqual(json.loads(p.stdout)["meshes"], 2)
+        self.assertEqual(sorted(r["output_name"] for r in rows), ["outside.vox.h5", "x.vox.h5"])
+        for row in rows:  # neither found: the file outside the library was not read into the page
+            self.assertNotIn("detail", row)
+            self.assertEqual(row["asset_error"]["code"], "FILE_NOT_FOUND")
+            self.assertIn(library, row["asset_error"]["message"])
+
     def test_fields_of_the_wrong_type_are_dropped_not_shown(self):
         # A hand-edited manifest: a number as the status, a string as a time, warnings that are not objects.
         library = os.path.join(self.tmp, "mistyped")
@@ -185,6 +204,16 @@ class ReportTest(unittest.TestCase):
         self.assertEqual(p.returncode, 2)
         self.assertIn("BAD_OPTION", p.stderr)
         self.assertTrue(os.path.isfile(os.path.join(out, "notes.txt")))
+        # Nor is a folder whose img/ or assets/ holds someone's files (the names alone once passed for a report's).
+        for sub, name in (("img", "photo.jpg"), ("assets", "notes.txt"), ("assets", "model.vox.h5")):
+            site = os.path.join(self.tmp, "site-" + sub + "-" + name)
+            os.makedirs(os.path.join(site, sub))
+            with open(os.path.join(site, sub, name), "w") as f:
+                f.write("mine")
+            p = fx.run("report", self.library, "-o", site, "--no-pictures", check=False)
+            self.assertEqual(p.returncode, 2, (sub, name, p.stderr))
+            self.assertIn("holds files a report does not write", p.stderr)
+            self.assertTrue(os.path.isfile(os.path.join(site, sub, name)))
 
     def test_usage_errors(self):
         p = fx.run("report", os.path.join(self.tmp, "nowhere"), check=False)

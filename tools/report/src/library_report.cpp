@@ -3,6 +3,7 @@
 
 #include <cerrno>
 #include <cstdlib>
+#include <cstring>
 
 #include <algorithm>
 #include <atomic>
@@ -12,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <initializer_list>
 #include <map>
 #include <mutex>
 #include <new>
@@ -208,7 +210,13 @@ std::string library_relative(const std::string& library, const std::string& outp
   std::vector<fs::path> parts;
   for (const fs::path& part : fs::path(output).relative_path()) parts.push_back(part);
   std::error_code ec;
-  for (size_t first = 0; first < parts.size(); ++first) {
+  // Tails of at most kMaxTailParts parts, after the last "..": a tail never leaves the library, and a hostile
+  // record of 500,000 parts costs 64 lookups, not a quadratic number of them.
+  constexpr size_t kMaxTailParts = 64;
+  size_t start = parts.size() > kMaxTailParts ? parts.size() - kMaxTailParts : 0;
+  for (size_t k = 0; k < parts.size(); ++k)
+    if (parts[k] == "..") start = std::max(start, k + 1);
+  for (size_t first = start; first < parts.size(); ++first) {
     fs::path tail;
     for (size_t k = first; k < parts.size(); ++k) tail /= parts[k];
     if (fs::is_regular_file(fs::path(library) / tail, ec)) return tail.generic_string();
@@ -216,11 +224,16 @@ std::string library_relative(const std::string& library, const std::string& outp
   return fs::path(output).filename().string();
 }
 
-// The asset's file: in the library when it is there, else the manifest's output as recorded.
+// The asset's file: in the library when it is there, else the manifest's output as recorded where that lies in
+// the library too (a record naming a file elsewhere is not the library's: its card says it is missing).
 std::string asset_path(const std::string& library, const std::string& relative, const std::string& output) {
   std::error_code ec;
   const fs::path in_library = fs::path(library) / relative;
   if (fs::is_regular_file(in_library, ec) || output.empty() || !fs::exists(output, ec)) return in_library.string();
+  const fs::path root = fs::weakly_canonical(library, ec), recorded = fs::weakly_canonical(output, ec);
+  if (ec) return in_library.string();
+  const fs::path below = recorded.lexically_relative(root);
+  if (below.empty() || *below.begin() == "..") return in_library.string();
   return output;
 }
 
@@ -317,16 +330,39 @@ void parallel_for(size_t n, int threads, F&& f) {
   for (std::thread& t : pool) t.join();
 }
 
-// What a report folder holds: replacing a folder with anything else in it could delete someone's files.
-constexpr const char* kReportFolders[] = {"img", "assets"};
-constexpr const char* kReportFiles[] = {"data.js"};
+// What a report folder holds: replacing a folder with anything else in it could delete someone's files. Its
+// subfolders hold files named by an asset's number only ("12-views.png", "12.js"), so a folder of the same name
+// holding a user's files is not one.
+bool numbered_file(const std::string& name, std::initializer_list<const char*> suffixes) {
+  for (const char* suffix : suffixes) {
+    const size_t length = std::strlen(suffix);
+    if (name.size() <= length || name.compare(name.size() - length, length, suffix) != 0) continue;
+    const std::string number = name.substr(0, name.size() - length);
+    if (number.find_first_not_of("0123456789") == std::string::npos) return true;
+  }
+  return false;
+}
+
+bool report_subfolder(const fs::path& folder, std::initializer_list<const char*> suffixes) {
+  std::error_code ec;
+  if (fs::is_symlink(folder, ec)) return false;
+  for (const auto& entry : fs::directory_iterator(folder, ec))
+    if (entry.is_symlink(ec) || !entry.is_regular_file(ec) ||
+        !numbered_file(entry.path().filename().string(), suffixes))
+      return false;
+  return !ec;
+}
 
 bool report_entry(const fs::directory_entry& entry) {
   std::error_code ec;
   const std::string name = entry.path().filename().string();
-  if (entry.is_directory(ec))
-    return std::find(std::begin(kReportFolders), std::end(kReportFolders), name) != std::end(kReportFolders);
-  if (std::find(std::begin(kReportFiles), std::end(kReportFiles), name) != std::end(kReportFiles)) return true;
+  if (entry.is_directory(ec)) {
+    if (name == "img") return report_subfolder(entry.path(), {"-views.png", "-slice.png"});
+    if (name == "assets") return report_subfolder(entry.path(), {".js"});
+    return false;
+  }
+  if (entry.is_symlink(ec) || !entry.is_regular_file(ec)) return false;
+  if (name == "data.js") return true;
   for (size_t r = 0; r < kResourceCount; ++r)
     if (name == kResources[r].name) return true;
   return false;
