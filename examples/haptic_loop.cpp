@@ -249,7 +249,10 @@ int main(int argc, char** argv) {
           records.push_back(
               {t, pose, cycle.device_wrench, cycle.max_penetration, us, cycle.levels_completed, cycle.contacts});
         });
-        loop.start(cycles);
+        if (const voxfmt::Status started = loop.start(cycles); !started) {
+          std::cerr << "haptic_loop: " << started.error().describe() << "\n";
+          return 1;
+        }
         loop.join();
 
         std::vector<double> cycle_us;

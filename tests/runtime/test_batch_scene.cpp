@@ -284,6 +284,11 @@ TEST(BatchScene, AMalformedCallIsRefusedAndWritesNothing) {
   mixed.poses_b = nullptr;
   mixed.poses_b_f64 = identity64;
   EXPECT_EQ(scene->contacts(mixed, got.out).error().code, IssueCode::BadOption);
+  BatchEnvironments float_beside_doubles;  // once read as float, with a null poses_b: a crash
+  float_beside_doubles.count = 1;
+  float_beside_doubles.poses_a = identity;
+  float_beside_doubles.poses_a_f64 = float_beside_doubles.poses_b_f64 = identity64;
+  EXPECT_EQ(scene->contacts(float_beside_doubles, got.out).error().code, IssueCode::BadOption);
   BatchEnvironments negative = in;
   negative.proximity = -1;
   EXPECT_EQ(scene->contacts(negative, got.out).error().code, IssueCode::BadOption);

@@ -216,7 +216,7 @@ TEST(RealtimeLoop, RunsTheCyclesAndHandsOffTheLatestValue) {
     w.force.x() = calls;
     latest.publish(w);
   });
-  loop.start(200);
+  ASSERT_TRUE(loop.start(200));
   loop.join();
   EXPECT_EQ(calls, 200);
   EXPECT_EQ(loop.stats().cycles, 200u);
@@ -225,6 +225,28 @@ TEST(RealtimeLoop, RunsTheCyclesAndHandsOffTheLatestValue) {
   EXPECT_TRUE(fresh);
   latest.latest(&fresh);
   EXPECT_FALSE(fresh);
+}
+
+TEST(RealtimeLoop, BadSettingsAreRefusedAndTheCycleMayStopItsOwnLoop) {
+  // A rate of 0 or NaN once ran a busy loop with NaN steps; 2 GHz divided by a period of 0; a negative spin
+  // held stop() for seconds.
+  int calls = 0;
+  for (const LoopSettings settings : {LoopSettings{0.0, 80.0}, LoopSettings{double(NAN), 80.0}, LoopSettings{2e9, 0.0},
+                                      LoopSettings{1000.0, -1e7}, LoopSettings{1000.0, 2000.0}}) {
+    RealtimeLoop loop(settings, [&](double, double) { ++calls; });
+    const Status started = loop.start(10);
+    ASSERT_FALSE(started);
+    EXPECT_EQ(started.error().code, IssueCode::BadOption);
+  }
+  EXPECT_EQ(calls, 0);
+  RealtimeLoop* self = nullptr;
+  RealtimeLoop loop({2000.0, 80.0}, [&](double, double) {
+    if (++calls == 3) self->stop();  // once std::system_error (a thread joining itself): terminate
+  });
+  self = &loop;
+  ASSERT_TRUE(loop.start());
+  loop.join();
+  EXPECT_EQ(calls, 3);
 }
 
 TEST(RealtimeLoop, ReportsTheSchedulingItWasGranted) {
@@ -239,7 +261,7 @@ TEST(RealtimeLoop, ReportsTheSchedulingItWasGranted) {
     pthread_getschedparam(pthread_self(), &policy, &param);
     cpu = sched_getcpu();
   });
-  loop.start(20);
+  ASSERT_TRUE(loop.start(20));
   loop.join();
   const LoopStats stats = loop.stats();
   EXPECT_EQ(stats.cycles, 20u);

@@ -640,6 +640,14 @@ TEST(Query, ATimeBudgetEndsAtAWholeLevelAndKeepsEveryContact) {
   EXPECT_FALSE(generous.stats.time_budget_hit);
   EXPECT_EQ(generous.contacts.size(), full.contacts.size());
   EXPECT_EQ(generous.stats.deepest_level, full.stats.deepest_level);
+  // An infinite or vast budget is none (its deadline once overflowed into the past: the root level alone).
+  for (const double none : {double(INFINITY), 1e19, double(NAN)}) {
+    ContactSet unlimited;
+    options.time_budget_us = none;
+    query_contacts(*bunny.object, pa, *bunny.object, pb, options, unlimited);
+    EXPECT_FALSE(unlimited.stats.time_budget_hit) << none;
+    EXPECT_EQ(unlimited.contacts.size(), full.contacts.size()) << none;
+  }
 }
 
 TEST(Query, ATimeBudgetWithPointsReportsWholeLevels) {

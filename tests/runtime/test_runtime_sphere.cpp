@@ -2,6 +2,8 @@
 // closed form.
 #include <gtest/gtest.h>
 
+#include <array>
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -38,6 +40,25 @@ Pose at(double x) {
 // and outside the grid it is a lower bound of the exact distance that still grows with it (it was the distance
 // to the bounding box: 11 voxels falling to 4 within a quarter voxel where a line left the grid by a corner).
 // (Inside the grid, the slope at the band's edge is issue 42's and not asserted here.)
+TEST(SphereQuery, VoxelsOutsideTheGridAndAnEmptyMapAreNoValues) {
+  const SparseVoxelmap& map = sphere()->voxelmap();
+  const auto dims = map.dims();
+  EXPECT_TRUE(std::isfinite(map.value_at(dims[0] / 2, dims[1] / 2, dims[2] / 2)));
+  for (const auto& [i, j, k] :
+       {std::array<int, 3>{-1, 0, 0}, {dims[0], 0, 0}, {0, dims[1] + 1000, 0}, std::array<int, 3>{0, 0, -1}}) {
+    EXPECT_TRUE(std::isnan(map.value_at(i, j, k)));
+    EXPECT_TRUE(std::isnan(map.stored_distance_at(i, j, k)));
+    EXPECT_EQ(map.layer_at(i, j, k), std::numeric_limits<int>::min());
+  }
+  const SparseVoxelmap empty;  // sampled, it once read a null brick table
+  Eigen::Vector3f gradient(1, 1, 1);
+  const FieldSample s = empty.sample(Eigen::Vector3f(1, 2, 3), &gradient);
+  EXPECT_TRUE(s.bound);
+  EXPECT_EQ(s.distance, empty.distance_lower_bound(Eigen::Vector3f(1, 2, 3)));
+  EXPECT_EQ(gradient, Eigen::Vector3f::Zero());
+  EXPECT_TRUE(std::isnan(empty.value_at(0, 0, 0)));
+}
+
 TEST(SphereQuery, OutsideTheGridTheFieldContinuesAsALowerBound) {
   const SparseVoxelmap& map = sphere()->voxelmap();
   const double step = 0.05;  // voxels

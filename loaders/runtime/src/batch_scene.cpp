@@ -119,8 +119,10 @@ Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOpti
                                     const std::function<void(const Visit&)>& visit,
                                     const Trajectory* trajectory) const {
   auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "batch: " + what}; };
-  const bool f32 = in.poses_a && in.poses_b, f64 = in.poses_a_f64 && in.poses_b_f64;
-  if (in.count > 0 && f32 == f64) return bad("poses_a and poses_b: both float or both double, one of the two");
+  // One kind, both sides: a float pose beside two double ones was read as float with a null poses_b.
+  const bool any32 = in.poses_a || in.poses_b, any64 = in.poses_a_f64 || in.poses_b_f64;
+  const bool f32 = in.poses_a && in.poses_b && !any64, f64 = in.poses_a_f64 && in.poses_b_f64 && !any32;
+  if (in.count > 0 && !f32 && !f64) return bad("poses_a and poses_b: both float or both double, one of the two");
   if (!(std::isfinite(in.proximity) && in.proximity >= 0)) return bad("proximity must be finite and >= 0");
   QueryOptions query = options;
   query.proximity = in.proximity;

@@ -130,7 +130,7 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
     const uint32_t cut_begin = tree.level_offsets[std::min(cut, leaf_level)];
     const uint32_t cut_end = tree.level_offsets[std::min(cut, leaf_level) + 1];
     for (const Contact& c : scratch_set_.contacts) {
-      if (c.depth <= 0) continue;
+      if (!(c.depth > 0)) continue;
       const bool stands_for_subtree = cut < leaf_level && c.point_index >= cut_begin && c.point_index < cut_end;
       contacts_.push_back(c);
       weights_.push_back(stands_for_subtree ? double(subtree_size_[c.point_index]) : 1.0);

@@ -140,7 +140,7 @@ void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, cons
     const FieldSample s = map.sample(map.to_grid(asset), &gradient);
     ++out.stats.points_tested;
     const double distance = double(s.distance) * metres_per_unit - radius;
-    if (distance >= options.proximity || gradient.squaredNorm() == 0.0f) continue;
+    if (!(distance < options.proximity) || gradient.squaredNorm() == 0.0f) continue;  // NaN radius or proximity: none
     // A lower bound cannot confirm a contact (a large sphere's centre far outside A); A's own points against
     // the partner find those.
     if (s.bound && s.distance > 0.0f) continue;

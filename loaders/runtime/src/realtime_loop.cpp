@@ -1,6 +1,7 @@
 #include "voxfmt/runtime/haptics.h"
 
 #include <algorithm>
+#include <string>
 
 #ifdef __linux__
 #include <pthread.h>
@@ -10,8 +11,17 @@
 
 namespace voxfmt::runtime {
 
-void RealtimeLoop::start(uint64_t max_cycles) {
+Status RealtimeLoop::start(uint64_t max_cycles) {
   stop();
+  // A rate of 0 or NaN ran a busy loop of NaN time steps; over a GHz the period rounded to 0 and divided by it.
+  constexpr double kMaxRateHz = 1e6;
+  if (!(settings_.rate_hz > 0.0 && settings_.rate_hz <= kMaxRateHz))
+    return Error{IssueCode::BadOption,
+                 "RealtimeLoop: rate_hz must be in (0, 1e6], not " + std::to_string(settings_.rate_hz)};
+  if (!(settings_.spin_us >= 0.0 && settings_.spin_us <= 1e6 / settings_.rate_hz))
+    return Error{IssueCode::BadOption, "RealtimeLoop: spin_us must be in [0, one period (" +
+                                           std::to_string(1e6 / settings_.rate_hz) + " us)], not " +
+                                           std::to_string(settings_.spin_us)};
   stop_ = false;
   cycles_ = 0;
   overruns_ = 0;
@@ -19,6 +29,7 @@ void RealtimeLoop::start(uint64_t max_cycles) {
   memory_locked_ = false;
   cpu_ = -1;
   thread_ = std::thread([this, max_cycles] { run(max_cycles); });
+  return Status::success();
 }
 
 void RealtimeLoop::stop() {
@@ -27,7 +38,8 @@ void RealtimeLoop::stop() {
 }
 
 void RealtimeLoop::join() {
-  if (thread_.joinable()) thread_.join();
+  // From the loop's own thread a join would wait for itself (std::system_error, then terminate).
+  if (thread_.joinable() && thread_.get_id() != std::this_thread::get_id()) thread_.join();
 }
 
 namespace {

@@ -116,22 +116,36 @@ std::vector<int16_t> apron_codes(const Field& f, size_t value_bricks) {
 
 }  // namespace core
 
+bool SparseVoxelmap::in_grid(int i, int j, int k) const {
+  return !empty() && i >= 0 && j >= 0 && k >= 0 && i < layout_.dims[0] && j < layout_.dims[1] && k < layout_.dims[2];
+}
+
 float SparseVoxelmap::value_at(int i, int j, int k) const {
+  if (!in_grid(i, j, k)) return std::nanf("");
   bool exact = true;
   return core::voxel_value(field_of(*this), i, j, k, exact);
 }
 
 int SparseVoxelmap::layer_at(int i, int j, int k) const {
+  if (!in_grid(i, j, k)) return std::numeric_limits<int>::min();
   return int(std::clamp(std::floor(-double(value_at(i, j, k)) + 0.5), -32767.0, 32767.0));
 }
 
 float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
+  if (!in_grid(i, j, k)) return std::nanf("");
   bool exact = true;
   const float value = core::voxel_value(field_of(*this), i, j, k, exact);
   return exact ? value : std::nanf("");
 }
 
 FieldSample SparseVoxelmap::sample(const Eigen::Vector3f& u, Eigen::Vector3f* gradient) const {
+  if (empty()) {  // no grid to continue: the lower bound alone (the object's box), as distance_lower_bound
+    if (gradient) gradient->setZero();
+    FieldSample bound;
+    bound.distance = distance_lower_bound(u);
+    bound.bound = true;
+    return bound;
+  }
   core::Vec3 g;
   const FieldSample s = core::sample(field_of(*this), core::to_core(u), gradient ? &g : nullptr);
   if (gradient) *gradient = core::to_eigen(g);

@@ -90,6 +90,11 @@ QueryScratch::Buffers::Hit sample_hit(const Target& target, uint32_t node, const
   return hit;
 }
 
+/// Whether a query has a time budget: one over kNoTimeBudgetUs (a day), infinite, NaN or not positive is none (an
+/// infinite budget once overflowed the deadline into the past and cut every query at its root).
+constexpr double kNoTimeBudgetUs = 86400e6;
+inline bool time_limited(const QueryOptions& o) { return o.time_budget_us > 0.0 && o.time_budget_us < kNoTimeBudgetUs; }
+
 /// How far a query walks and what it reports at the end (QueryOptions, in the traversal's terms).
 struct WalkLimits {
   uint32_t max_level;
@@ -100,7 +105,7 @@ struct WalkLimits {
   bool timed;
   std::chrono::steady_clock::time_point deadline;
   static WalkLimits of(const QueryOptions& o) {
-    const bool timed = o.time_budget_us > 0.0;
+    const bool timed = time_limited(o);
     return {o.max_level,
             o.point_budget,
             o.min_points,
@@ -403,7 +408,7 @@ void traverse_tree(const PointTree& tree, const core::Frame& frame, const Target
 /// Whether a query can use (and keep) a traversal front: full traversals only.
 inline bool coherent_query_allowed(const QueryOptions& options) {
   return options.point_budget == std::numeric_limits<size_t>::max() &&
-         options.max_level == std::numeric_limits<uint32_t>::max() && options.time_budget_us <= 0.0;
+         options.max_level == std::numeric_limits<uint32_t>::max() && !time_limited(options);
 }
 
 }  // namespace detail

@@ -49,12 +49,15 @@ class SparseVoxelmap {
   /// A value the true signed distance at `u` is not below (voxel units). Used to prune sphere-tree clusters.
   float distance_lower_bound(const Eigen::Vector3f& u) const;
 
-  /// Layer of voxel (i, j, k): floor(-d + 1/2) of its value d in voxels (spec §3), for tests and inspection.
+  /// Layer of voxel (i, j, k): floor(-d + 1/2) of its value d in voxels (spec §3), for tests and inspection;
+  /// INT_MIN outside the grid (or on an empty map).
   int layer_at(int i, int j, int k) const;
-  /// Stored distance of voxel (i, j, k) in voxel units, or NaN where the asset stores none.
+  /// Stored distance of voxel (i, j, k) in voxel units, or NaN where the asset stores none or outside the grid.
   float stored_distance_at(int i, int j, int k) const;
-  /// Value of voxel (i, j, k) in voxel units: its stored distance or its estimate.
+  /// Value of voxel (i, j, k) in voxel units: its stored distance or its estimate; NaN outside the grid.
   float value_at(int i, int j, int k) const;
+  /// Whether voxel (i, j, k) is one of the grid's (never on an empty map).
+  bool in_grid(int i, int j, int k) const;
 
   double voxel_size() const { return voxel_size_; }
   const Eigen::Vector3d& origin() const { return origin_; }

@@ -77,9 +77,9 @@ class ScriptedDevice : public HapticDevice {
 };
 
 struct LoopSettings {
-  double rate_hz = 1000.0;  ///< 1 kHz default; 5 kHz and more are fine if a cycle fits
+  double rate_hz = 1000.0;  ///< 1 kHz default; 5 kHz and more are fine if a cycle fits; at most 1 MHz
   /// The loop sleeps until this long before a deadline, then spins: the kernel wakes a sleeping thread tens of
-  /// microseconds late, a fifth of a 5 kHz period.
+  /// microseconds late, a fifth of a 5 kHz period. From 0 to one period.
   double spin_us = 80.0;
   /// Where the system permits (Linux; root or CAP_SYS_NICE / CAP_IPC_LOCK, or the matching rlimits): run the
   /// loop's thread under SCHED_FIFO at `priority`, so that ordinary threads never delay a wake-up; lock the
@@ -110,9 +110,11 @@ class RealtimeLoop {
   RealtimeLoop(const RealtimeLoop&) = delete;
   RealtimeLoop& operator=(const RealtimeLoop&) = delete;
 
-  /// Starts the thread; it runs `max_cycles` cycles (0 = until stop()).
-  void start(uint64_t max_cycles = 0);
-  /// Asks the thread to stop and joins it.
+  /// Starts the thread; it runs `max_cycles` cycles (0 = until stop()). BAD_OPTION (and no thread) for a rate
+  /// that is not in (0, 1 MHz] or a spin that is not in [0, one period].
+  Status start(uint64_t max_cycles = 0);
+  /// Asks the thread to stop and joins it; called from the cycle itself, it asks only (the loop ends after the
+  /// cycle, and is joined by the next start(), stop() or the destructor).
   void stop();
   /// Waits until the thread has run its cycles.
   void join();

@@ -81,10 +81,10 @@ struct QueryOptions {
   /// narrower than the surface's (a bunny rocked on three such points for seconds). Not below a time budget's
   /// cut. Physics defaults turn it on.
   bool refine_cut_contacts = false;
-  /// Time budget of each tree traversal in microseconds (0 = none), for haptic loops and physics steps: the
-  /// clock is read at level ends and every 32 nodes. A level the budget interrupts is dropped and the last
-  /// completed level is the cut, reported as `cut_level` says: contacts are those of whole levels (the same as a
-  /// `max_level` query stopping there), so they do not depend on where in a level time ran out, and with
+  /// Time budget of each tree traversal in microseconds (0, infinity or a day and more = none), for haptic loops and
+  /// physics steps: the clock is read at level ends and every 32 nodes. A level the budget interrupts is dropped and
+  /// the last completed level is the cut, reported as `cut_level` says: contacts are those of whole levels (the same as
+  /// a `max_level` query stopping there), so they do not depend on where in a level time ran out, and with
   /// CutLevel::Spheres no contact found by the full tree is lost. The root level always completes.
   double time_budget_us = 0.0;
   /// Levels are tested whatever `max_level`, `point_budget` and `time_budget_us` say while the points tested,
@@ -205,7 +205,7 @@ struct Wrench {
 inline Wrench penalty_wrench(const ContactSet& contacts, const Eigen::Vector3d& reference, double stiffness) {
   Wrench w;
   for (const Contact& c : contacts.contacts) {
-    if (c.depth <= 0.0) continue;
+    if (!(c.depth > 0.0)) continue;  // a NaN depth too
     const Eigen::Vector3d f = stiffness * c.depth * c.normal;
     w.force += f;
     w.torque += (c.point - reference).cross(f);
