@@ -9,6 +9,7 @@
 #include <cstring>
 #include <iostream>
 
+#include "analytic_sphere.h"
 #include "baked_bunny.h"
 #include "traversal/function_query.h"
 #include "voxfmt/runtime/query.h"
@@ -189,6 +190,38 @@ TEST(Coherence, QueriesWithABudgetStartAfresh) {
     query_contacts(*bunny.object, pa, *bunny.object, Pose{}, *o, coherent, scratch, state);
     expect_identical(fresh, coherent, 0);
     EXPECT_EQ(state.a_in_b.state().valid, o == &full);
+  }
+}
+
+TEST(Coherence, AStateQueriedForAnotherPairStartsAfresh) {
+  // One QueryState carried from pair to pair (the header says one per pair; it once read the old tree's node
+  // numbers in the new tree, or kept another field's bounds): each query as a fresh one, bit for bit.
+  const BakedBunny& bunny = BakedBunny::get();
+  auto loaded = CollisionObject::from_asset(test::make_sphere_asset({{0, 0, 0}, 0.3, 0.02, 3000, 4}));
+  ASSERT_TRUE(loaded);
+  const CollisionObject& ball = *loaded.value();
+  QueryScratch scratch;
+  QueryState state;
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  const Pose near = pose_at(Eigen::Vector3d::UnitZ(), 0.2, Eigen::Vector3d(0.7, 0.05, 0));
+  const Pose inside = pose_at(Eigen::Vector3d::UnitY(), 0.3, Eigen::Vector3d(0.1, 0.1, 0.05));
+  struct Step {
+    const CollisionObject* a;
+    const CollisionObject* b;
+    Pose pose_a;
+  };
+  const Step steps[] = {{bunny.object.get(), bunny.object.get(), near},
+                        {bunny.object.get(), bunny.object.get(), near},
+                        {&ball, bunny.object.get(), inside},
+                        {bunny.object.get(), &ball, inside},
+                        {bunny.object.get(), bunny.object.get(), near}};
+  for (size_t s = 0; s < std::size(steps); ++s) {
+    ContactSet fresh, coherent;
+    query_contacts(*steps[s].a, steps[s].pose_a, *steps[s].b, Pose{}, options, fresh, scratch);
+    query_contacts(*steps[s].a, steps[s].pose_a, *steps[s].b, Pose{}, options, coherent, scratch, state);
+    EXPECT_FALSE(fresh.contacts.empty()) << "step " << s;
+    expect_identical(fresh, coherent, s);
   }
 }
 

@@ -59,9 +59,20 @@ struct TraversalFront::State {
   static constexpr uint32_t kBusyQueries = 4, kFirstSkip = 8, kMaxSkip = 256;
   bool valid = false;
 
+  const void* shell = nullptr;   ///< the point tree the front is of
+  const void* target = nullptr;  ///< the field it was walked against (null: not known to the caller)
+
   void reset() {
     valid = false;
     heap.clear();
+  }
+  /// The front belongs to one pair: queried for another shell or target, it starts afresh (its entries index
+  /// another tree's nodes, its bounds another field's).
+  void bind(const void* shell_tree, const void* target_field) {
+    if (shell_tree == shell && target_field == target) return;
+    reset();
+    shell = shell_tree;
+    target = target_field;
   }
   /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt
   /// after). `extent`: the shell's largest distance from its origin.
