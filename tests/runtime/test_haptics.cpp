@@ -203,6 +203,40 @@ TEST(Haptics, DeviceJumpingThroughAThinWallLeavesTheToolOnTheNearSide) {
   EXPECT_LT(renderer.tool_pose().translation.x() + kToolRadius, -0.5 * kVoxel) << "at rest, half a voxel in";
 }
 
+TEST(Haptics, ANonFiniteSampleIsRejectedAndNeverPoisonsTheTool) {
+  // One NaN device pose or time step once made every later output NaN, for good.
+  const double x = kObjectRadius + kToolRadius - 0.002;
+  HapticRenderer renderer(tool(), at(x));
+  renderer.add_object(big_sphere(), at(0));
+  const Wrench first = renderer.step(at(x), 1e-3).device_wrench;
+  Pose bad = at(x);
+  bad.translation.y() = NAN;
+  EXPECT_TRUE(renderer.step(bad, 1e-3).input_rejected);
+  for (const double dt : {double(NAN), double(INFINITY), 0.0, -1e-3}) {
+    const HapticCycle& cycle = renderer.step(at(x), dt);
+    EXPECT_TRUE(cycle.input_rejected) << dt;
+    EXPECT_TRUE(cycle.device_wrench.force.allFinite()) << dt;
+  }
+  for (int i = 0; i < 100; ++i) {
+    const HapticCycle& cycle = renderer.step(at(x), 1e-3);
+    ASSERT_FALSE(cycle.input_rejected);
+    ASSERT_TRUE(cycle.device_wrench.force.allFinite() && cycle.contact_wrench.force.allFinite()) << i;
+  }
+  EXPECT_TRUE(first.force.allFinite());
+  // Parameters that are not finite or negative are refused where the renderer is made.
+  for (double HapticParameters::*field : {&HapticParameters::contact_stiffness, &HapticParameters::coupling_stiffness,
+                                          &HapticParameters::max_force, &HapticParameters::tool_mass}) {
+    for (const double value : {-1.0, double(NAN), double(INFINITY)}) {
+      HapticParameters parameters;
+      parameters.*field = value;
+      EXPECT_THROW(HapticRenderer(tool(), at(x), parameters), std::invalid_argument) << value;
+    }
+  }
+  Pose nowhere = at(x);
+  nowhere.translation.x() = INFINITY;
+  EXPECT_THROW(HapticRenderer(tool(), nowhere), std::invalid_argument);
+}
+
 TEST(RealtimeLoop, RunsTheCyclesAndHandsOffTheLatestValue) {
   LatestValue<Wrench> latest;
   int calls = 0;

@@ -48,11 +48,28 @@ Eigen::Vector3d rotation_vector(const Eigen::Matrix3d& rotation) {
   return axis * angle;
 }
 
+namespace {
+bool finite_pose(const Pose& pose) {
+  return pose.rotation.allFinite() && pose.translation.allFinite() && std::isfinite(pose.scale) && pose.scale > 0;
+}
+}  // namespace
+
 HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
                                const HapticParameters& parameters)
     : tool_(std::move(tool)), parameters_(parameters), tool_pose_(start), level_cap_(parameters.query.max_level) {
   if (!tool_ || !tool_->has_point_shell()) throw std::invalid_argument("HapticRenderer: the tool needs a point shell");
-  if (!(parameters_.tool_mass > 0)) throw std::invalid_argument("HapticRenderer: tool_mass must be > 0");
+  if (!(parameters_.tool_mass > 0 && std::isfinite(parameters_.tool_mass)))
+    throw std::invalid_argument("HapticRenderer: tool_mass must be finite and > 0");
+  if (!finite_pose(start)) throw std::invalid_argument("HapticRenderer: the start pose must be finite");
+  const HapticParameters& p = parameters_;
+  // A negative stiffness or limit threw the tool hundreds of metres; NaN made every later output NaN.
+  for (const double value :
+       {p.contact_stiffness, p.contact_damping, p.coupling_stiffness, p.coupling_damping, p.coupling_angular_stiffness,
+        p.coupling_angular_damping, p.max_force, p.max_torque, p.time_budget_us})
+    if (!(value >= 0 && std::isfinite(value)))
+      throw std::invalid_argument(
+          "HapticRenderer: stiffnesses, damping, limits and the time budget must be finite "
+          "and >= 0");
   const double volume = tool_->volume() > 0 ? tool_->volume() : 1.0;
   const double s = start.scale;
   // Unit-density inertia scales with length^5; the mass is fixed, so the density is mass / (s^3 volume).
@@ -167,7 +184,15 @@ struct HapticRenderer::Coupling {
 };
 
 const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
+  if (!(dt > 0 && std::isfinite(dt))) {  // no time to integrate: the last outputs stand
+    cycle_.input_rejected = true;
+    return cycle_;
+  }
+  // A pose that is not finite is replaced by the last finite one (before the first: the start, where the tool is).
+  const bool pose_ok = finite_pose(device_pose);
+  const Pose device = pose_ok ? device_pose : have_last_device_ ? last_device_pose_ : tool_pose_;
   cycle_ = HapticCycle{};
+  cycle_.input_rejected = !pose_ok;
   const Eigen::Vector3d com_asset = tool_->center_of_mass();
   const Eigen::Vector3d com = tool_pose_.apply(com_asset);
   const auto start = Clock::now();
@@ -177,7 +202,7 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   cycle_.query_cpu_us = thread_cpu_us() - cpu_start;
   adapt_level_cap();
   const ContactTerms contact = contact_terms(com);
-  const Coupling coupling = couple(device_pose, dt, com_asset, com);
+  const Coupling coupling = couple(device, dt, com_asset, com);
   energy_ = kinetic_energy(tool_pose_.rotation) + contact.energy + coupling.energy;
   integrate(contact, coupling, dt, com_asset, com);
   return cycle_;

@@ -174,21 +174,27 @@ struct HapticCycle {
   bool time_budget_hit = false;
   double query_us = 0.0;      ///< wall time of the queries
   double query_cpu_us = 0.0;  ///< CPU time of the queries (what the level cap follows)
+  /// The device pose was not finite (the cycle ran with the last finite one), or `dt` was not a finite time
+  /// > 0 (the cycle did not run: the outputs are the previous cycle's). One bad sample never poisons the tool.
+  bool input_rejected = false;
 };
 
 class HapticRenderer {
  public:
-  /// `tool` needs a point shell; `start` is the tool's (and the device's) pose at the first cycle.
+  /// `tool` needs a point shell; `start` is the tool's (and the device's) pose at the first cycle. Throws
+  /// std::invalid_argument for a tool without a point shell, a start pose that is not finite, a `tool_mass` that
+  /// is not > 0, or a stiffness, damping, limit or budget that is negative or not finite.
   HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
                  const HapticParameters& parameters = {});
 
-  /// Adds an object (it needs a voxelmap) at `pose`; returns its index for set_object_pose.
+  /// Adds an object (it needs a voxelmap: else std::invalid_argument) at `pose`; returns its index for
+  /// set_object_pose (which throws std::out_of_range for an index it did not return).
   size_t add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose);
   void set_object_pose(size_t index, const Pose& pose);
   size_t object_count() const { return objects_.size(); }
 
-  /// One haptic cycle of length `dt` seconds with the device at `device_pose`. No allocation after the first
-  /// few cycles (buffers keep their capacity).
+  /// One haptic cycle of length `dt` seconds with the device at `device_pose` (see HapticCycle::input_rejected
+  /// for a pose or `dt` that is not finite). No allocation after the first few cycles (buffers keep their capacity).
   const HapticCycle& step(const Pose& device_pose, double dt);
 
   /// The contact wrench on the tool (about its centre of mass) were it at `tool_pose`, from the full trees (no
