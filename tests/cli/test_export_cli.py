@@ -87,6 +87,25 @@ class ExportCli(unittest.TestCase):
         self.assertFalse(os.path.exists(out))
         self.assertEqual([n for n in os.listdir(self.dir) if n.startswith("damaged.nvdb")], [])
 
+    def test_a_grid_too_far_from_its_origin_for_float_is_refused(self):
+        # Shifted 1e16 m, the asset is valid, but NanoVDB's float transform gave it a voxel of 0.
+        far = os.path.join(self.dir, "far.vox.h5")
+        shutil.copy(self.asset, far)
+        with h5py.File(far, "r+") as f:
+            shift = np.array([1e16, 0, 0])
+            f["voxelmap"].attrs["origin"] += shift
+            f.attrs["bounds_min"] += shift
+            f.attrs["bounds_max"] += shift
+            f["mass_properties"].attrs["center_of_mass"] += shift
+            f["pointshell/points"][...] += shift
+            f["pointshell/sphere_centers"][...] += shift
+        out = os.path.join(self.dir, "far.nvdb")
+        r = self.export("--nvdb", out, asset=far)
+        self.assertEqual(r.returncode, 1, r.stdout + r.stderr)
+        self.assertIn("VALUE_OUT_OF_RANGE", r.stderr)
+        self.assertIn("2^20", r.stderr)
+        self.assertFalse(os.path.exists(out))
+
     def test_bad_arguments_and_missing_files_exit_2(self):
         missing = self.export("--nvdb", os.path.join(self.dir, "x.nvdb"), asset=os.path.join(self.dir, "none.vox.h5"))
         self.assertEqual(missing.returncode, 2)

@@ -464,7 +464,7 @@ void Runner::report(bool interrupted) const {
                                         {"failures", failures_}})
               << "\n";
   } else {
-    std::cout << "voxfmt batch: " << mine_.size() << " mesh(es) in " << o_.output_dir;
+    std::cout << "voxfmt batch: " << mine_.size() << " mesh(es) in " << terminal_safe(o_.output_dir);
     if (shard_.count > 1) std::cout << " (shard " << shard_.index << "/" << shard_.count << ")";
     std::cout << ": " << counts_.built << " built, " << counts_.up_to_date << " up to date, " << counts_.failed
               << " failed";
@@ -479,7 +479,7 @@ void Runner::report(bool interrupted) const {
         std::cout << "  " << f["code"].get<std::string>() << ": " << terminal_safe(f["message"].get<std::string>())
                   << "\n";
     }
-    std::cout << "manifest: " << manifest_path_ << "\n";
+    std::cout << "manifest: " << terminal_safe(manifest_path_) << "\n";
   }
 }
 

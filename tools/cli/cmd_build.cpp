@@ -42,8 +42,8 @@ int run(const Options& o) {
   } else if (!o.quiet) {
     for (const BuildWarning& w : s.warnings)
       std::cerr << "warning: " << w.code << ": " << terminal_safe(w.message) << "\n";
-    std::cout << o.output << ": " << s.dims[0] << "x" << s.dims[1] << "x" << s.dims[2] << " voxels of " << s.voxel_size
-              << " m, " << s.points << " points in " << s.points_per_level.size() << " levels, "
+    std::cout << terminal_safe(o.output) << ": " << s.dims[0] << "x" << s.dims[1] << "x" << s.dims[2] << " voxels of "
+              << s.voxel_size << " m, " << s.points << " points in " << s.points_per_level.size() << " levels, "
               << s.file_size_bytes / 1024 << " KiB, " << std::fixed << std::setprecision(2) << s.total_s << " s\n";
   }
   return kExitOk;

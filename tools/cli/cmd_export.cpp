@@ -61,9 +61,9 @@ int run_export(const Options& o) {
     std::cout << to_text(out) << "\n";
     return kExitOk;
   }
-  std::cout << o.nvdb << ": NanoVDB grids \"distance\" (level set, " << g.distance_leaves << " leaves, width "
-            << std::setprecision(4) << g.width << " m) and \"coarse\" (" << g.coarse_voxels << " points), "
-            << g.file.size() << " bytes" << (o.uncompressed ? "" : " (ZIP)") << " in " << std::fixed
+  std::cout << terminal_safe(o.nvdb) << ": NanoVDB grids \"distance\" (level set, " << g.distance_leaves
+            << " leaves, width " << std::setprecision(4) << g.width << " m) and \"coarse\" (" << g.coarse_voxels
+            << " points), " << g.file.size() << " bytes" << (o.uncompressed ? "" : " (ZIP)") << " in " << std::fixed
             << std::setprecision(2) << read_s + export_s << " s\n";
   return kExitOk;
 }

@@ -45,8 +45,8 @@ std::function<void(size_t, size_t)> report_progress() {
 }
 
 void print_report_summary(const report::ReportInfo& info) {
-  std::cout << "report: " << info.index_html << " (" << info.meshes << " meshes: " << info.built << " built, "
-            << info.up_to_date << " up to date, " << info.failed << " failed";
+  std::cout << "report: " << terminal_safe(info.index_html) << " (" << info.meshes << " meshes: " << info.built
+            << " built, " << info.up_to_date << " up to date, " << info.failed << " failed";
   if (info.unreadable_assets) std::cout << ", " << info.unreadable_assets << " asset(s) unreadable";
   std::cout << "; " << megabytes(info.bytes) << ")\n";
   if (info.skipped_lines) std::cout << "  " << info.skipped_lines << " manifest line(s) were not records: skipped\n";

@@ -2,6 +2,8 @@
 // package builds them too): the level set's leaves are bricks of the asset, its tiles signed from the brick table.
 #include <algorithm>
 #include <atomic>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <exception>
 #include <sstream>
@@ -236,6 +238,21 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
                  "nanovdb_grids: the level set's width must be 0 (the default) or a number of "
                  "voxels up to 32767, got " +
                      std::to_string(options.width_voxels)};
+  // NanoVDB's readers map index to world in float: a grid 1e16 m from its origin came out with a voxel of 0. Within
+  // 2^20 voxels of it a voxel keeps 3 bits below its size.
+  constexpr double kMaxVoxelsFromOrigin = double(1 << 20);
+  for (int a = 0; a < 3; ++a) {
+    const double far =
+        std::max(std::abs(map.origin()[a]), std::abs(map.origin()[a] + map.dims()[size_t(a)] * map.voxel_size()));
+    if (!(far / map.voxel_size() <= kMaxVoxelsFromOrigin)) {
+      char voxels[32];
+      std::snprintf(voxels, sizeof voxels, "%.3g", far / map.voxel_size());
+      return Error{IssueCode::ValueOutOfRange, "nanovdb_grids: the grid reaches " + std::string(voxels) +
+                                                   " voxels from the world origin on axis " + std::to_string(a) +
+                                                   "; NanoVDB's float transform keeps at most 2^20 (bake the mesh "
+                                                   "nearer its origin)"};
+    }
+  }
   // By default the band the asset stores completely: every voxel nearer than this has its exact distance.
   const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
   NanoVdbGrids info;
