@@ -1,6 +1,7 @@
 #include "voxfmt/detail/atomic_file.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -101,6 +102,26 @@ Status check_output_path(const std::string& path, const std::string& input) {
   if (std::filesystem::equivalent(path, input, ec))
     return Error{IssueCode::BadOption, path + ": is the input " + input + ": writing it would replace it", path};
   return Status::success();
+}
+
+size_t remove_dead_temporaries(const std::string& path) {
+  namespace fs = std::filesystem;
+  const fs::path target(path);
+  const std::string prefix = target.filename().string() + std::string(kPartialMarker);
+  size_t removed = 0;
+  std::error_code ec;
+  const fs::path folder = target.parent_path().empty() ? fs::path(".") : target.parent_path();
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) continue;
+    const std::string tail = name.substr(prefix.size());  // PID-N
+    const std::string pid = tail.substr(0, tail.find('-'));
+    if (pid.empty() || pid.size() > 9 || pid.find_first_not_of("0123456789") != std::string::npos) continue;
+    if (::kill(pid_t(std::stol(pid)), 0) == 0 || errno != ESRCH) continue;  // alive, or not ours to judge
+    std::error_code remove_error;
+    removed += fs::remove(it->path(), remove_error) ? 1 : 0;
+  }
+  return removed;
 }
 
 Status write_file_atomically(const std::string& given, const AtomicWrite& steps) {

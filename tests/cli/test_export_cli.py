@@ -87,6 +87,21 @@ class ExportCli(unittest.TestCase):
         self.assertFalse(os.path.exists(out))
         self.assertEqual([n for n in os.listdir(self.dir) if n.startswith("damaged.nvdb")], [])
 
+    def test_temporaries_of_a_killed_export_are_removed_by_the_next(self):
+        out = os.path.join(self.dir, "again.nvdb")
+        child = subprocess.Popen(["true"])
+        child.wait()  # a process number that is gone
+        left = out + ".partial-%d-0" % child.pid
+        alive = out + ".partial-%d-0" % os.getpid()  # a write still running: not touched
+        for path in (left, alive):
+            with open(path, "wb") as f:
+                f.write(b"x" * 1000)
+        r = self.export("--nvdb", out)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertFalse(os.path.exists(left))
+        self.assertTrue(os.path.exists(alive))
+        os.remove(alive)
+
     def test_a_grid_too_far_from_its_origin_for_float_is_refused(self):
         # Shifted 1e16 m, the asset is valid, but NanoVDB's float transform gave it a voxel of 0.
         far = os.path.join(self.dir, "far.vox.h5")

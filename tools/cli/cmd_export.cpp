@@ -40,6 +40,7 @@ int run_export(const Options& o) {
   options.compress = !o.uncompressed;
   Result<engines::NanoVdbGrids> grids = engines::nanovdb_grids(*object.value(), options);
   if (!grids) return report_error("export", grids.error(), o.json, o.file);
+  remove_dead_temporaries(o.nvdb);  // what an export killed while writing left beside it
   const Status written = write_file_atomically(o.nvdb, grids->file);
   if (!written) return report_error("export", written.error(), o.json, o.file);
   const auto done = clock::now();

@@ -14,6 +14,11 @@ namespace voxfmt {
 /// Marker of temporaries: `PATH.partial-<pid>-<n>`. Tools that clean up after killed runs look for it.
 inline constexpr std::string_view kPartialMarker = ".partial-";
 
+/// Removes the temporaries of `path` (`PATH.partial-<pid>-<n>`) whose process is gone: what a write killed by a
+/// signal left. Returns how many. A command that writes one file calls it once; a write does not (a scan of a
+/// folder of thousands of files per write would cost more than the write).
+size_t remove_dead_temporaries(const std::string& path);
+
 struct AtomicWrite {
   /// Produces the file's content at the temporary path it is given (any library may write there).
   std::function<Status(const std::string& temporary_path)> write;
