@@ -7,6 +7,7 @@
 #include <cstring>
 #include <exception>
 #include <sstream>
+#include <system_error>
 
 #define NANOVDB_USE_ZIP
 #include <nanovdb/NanoVDB.h>
@@ -293,7 +294,15 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
     info.file = std::move(file).str();
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::OutOfMemory, "nanovdb_grids: out of memory building the grids"};
+  } catch (const std::system_error& e) {  // no thread to be had (EAGAIN) under a memory limit is memory too
+    const bool memory =
+        e.code() == std::errc::resource_unavailable_try_again || e.code() == std::errc::not_enough_memory;
+    return Error{memory ? IssueCode::OutOfMemory : IssueCode::Internal,
+                 std::string("nanovdb_grids: ") + (memory ? "out of memory building the grids: " : "") + e.what()};
   } catch (const std::exception& e) {
+    // NanoVDB reports its own allocations' failures as runtime_error ("... malloc failed").
+    if (std::strstr(e.what(), "malloc failed"))
+      return Error{IssueCode::OutOfMemory, std::string("nanovdb_grids: out of memory building the grids: ") + e.what()};
     return Error{IssueCode::Internal, std::string("nanovdb_grids: NanoVDB failed: ") + e.what()};
   }
   return info;
