@@ -104,20 +104,28 @@ Status check_output_path(const std::string& path, const std::string& input) {
   return Status::success();
 }
 
-size_t remove_dead_temporaries(const std::string& path) {
+size_t remove_dead_temporaries(const std::string& given) {
   namespace fs = std::filesystem;
-  const fs::path target(path);
+  const Result<std::string> resolved = output_target(given);  // temporaries lie beside a link's target
+  if (!resolved) return 0;
+  const fs::path target(resolved.value());
   const std::string prefix = target.filename().string() + std::string(kPartialMarker);
+  const auto digits = [](const std::string& text) {
+    return !text.empty() && text.size() <= 9 && text.find_first_not_of("0123456789") == std::string::npos;
+  };
   size_t removed = 0;
   std::error_code ec;
   const fs::path folder = target.parent_path().empty() ? fs::path(".") : target.parent_path();
   for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
     const std::string name = it->path().filename().string();
     if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) continue;
-    const std::string tail = name.substr(prefix.size());  // PID-N
-    const std::string pid = tail.substr(0, tail.find('-'));
-    if (pid.empty() || pid.size() > 9 || pid.find_first_not_of("0123456789") != std::string::npos) continue;
-    if (::kill(pid_t(std::stol(pid)), 0) == 0 || errno != ESRCH) continue;  // alive, or not ours to judge
+    // Exactly PID-N, a regular file (not a link, not a folder), of a process that is gone.
+    const std::string tail = name.substr(prefix.size());
+    const size_t dash = tail.find('-');
+    if (dash == std::string::npos || !digits(tail.substr(0, dash)) || !digits(tail.substr(dash + 1))) continue;
+    std::error_code status_error;
+    if (!fs::is_regular_file(it->symlink_status(status_error))) continue;
+    if (::kill(pid_t(std::stol(tail.substr(0, dash))), 0) == 0 || errno != ESRCH) continue;
     std::error_code remove_error;
     removed += fs::remove(it->path(), remove_error) ? 1 : 0;
   }

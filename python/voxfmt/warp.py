@@ -60,7 +60,8 @@ def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tu
 
     ``asset`` is a path (loaded and validated as :func:`voxfmt.load` does) or a :class:`voxfmt.Body`. ``width`` is the
     level set's half-width in voxels (default: the asset's complete band, ``distance_band - 1/2``); ``compress``
-    uses NanoVDB's ZIP codec.
+    uses NanoVDB's ZIP codec. A grid that reaches more than 2^20 voxels from the world origin is refused
+    (``VALUE_OUT_OF_RANGE``: NanoVDB's readers map index to world in float).
     """
     if width is not None and (isinstance(width, bool) or not isinstance(width, (int, float)) or not 0.5 <= width <= 32767):
         raise OptionError("BAD_OPTION", f"width: expected a number of voxels in [0.5, 32767], got {width!r}")

@@ -93,14 +93,20 @@ class ExportCli(unittest.TestCase):
         child.wait()  # a process number that is gone
         left = out + ".partial-%d-0" % child.pid
         alive = out + ".partial-%d-0" % os.getpid()  # a write still running: not touched
-        for path in (left, alive):
+        kept = out + ".partial-%d-0.keep" % child.pid  # not a temporary's name: someone's file
+        for path in (left, alive, kept):
             with open(path, "wb") as f:
                 f.write(b"x" * 1000)
+        folder = out + ".partial-%d-1" % child.pid  # a folder is never a temporary
+        os.makedirs(folder)
         r = self.export("--nvdb", out)
         self.assertEqual(r.returncode, 0, r.stderr)
         self.assertFalse(os.path.exists(left))
-        self.assertTrue(os.path.exists(alive))
+        for path in (alive, kept, folder):
+            self.assertTrue(os.path.exists(path), path)
         os.remove(alive)
+        os.remove(kept)
+        os.rmdir(folder)
 
     def test_a_grid_too_far_from_its_origin_for_float_is_refused(self):
         # Shifted 1e16 m, the asset is valid, but NanoVDB's float transform gave it a voxel of 0.

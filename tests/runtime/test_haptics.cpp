@@ -266,7 +266,7 @@ TEST(RealtimeLoop, BadSettingsAreRefusedAndTheCycleMayStopItsOwnLoop) {
   // held stop() for seconds.
   int calls = 0;
   for (const LoopSettings settings : {LoopSettings{0.0, 80.0}, LoopSettings{double(NAN), 80.0}, LoopSettings{2e9, 0.0},
-                                      LoopSettings{1000.0, -1e7}, LoopSettings{1000.0, 2000.0}}) {
+                                      LoopSettings{1000.0, -1e7}, LoopSettings{1000.0, double(NAN)}}) {
     RealtimeLoop loop(settings, [&](double, double) { ++calls; });
     const Status started = loop.start(10);
     ASSERT_FALSE(started);
@@ -274,13 +274,23 @@ TEST(RealtimeLoop, BadSettingsAreRefusedAndTheCycleMayStopItsOwnLoop) {
   }
   EXPECT_EQ(calls, 0);
   RealtimeLoop* self = nullptr;
+  bool restart_refused = false;
   RealtimeLoop loop({2000.0, 80.0}, [&](double, double) {
-    if (++calls == 3) self->stop();  // once std::system_error (a thread joining itself): terminate
+    if (++calls == 3) {
+      restart_refused = !self->start();  // a thread assigned over itself: terminate
+      self->stop();                      // once std::system_error (a thread joining itself): terminate
+    }
   });
   self = &loop;
   ASSERT_TRUE(loop.start());
   loop.join();
   EXPECT_EQ(calls, 3);
+  EXPECT_TRUE(restart_refused);
+  // A spin longer than the period (20 kHz, 80 us) is a busy wait, not an error.
+  RealtimeLoop busy({20000.0, 80.0}, [&](double, double) { ++calls; });
+  ASSERT_TRUE(busy.start(20));
+  busy.join();
+  EXPECT_EQ(busy.stats().cycles, 20u);
 }
 
 TEST(RealtimeLoop, ReportsTheSchedulingItWasGranted) {

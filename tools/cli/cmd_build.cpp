@@ -8,7 +8,6 @@
 #include "bake_options.h"
 #include "commands.h"
 #include "voxfmt/bake/bake.h"
-#include "voxfmt/detail/atomic_file.h"
 
 namespace voxfmt::cli {
 
@@ -31,7 +30,6 @@ int run(const Options& o) {
     std::cerr << "\r\033[K" << std::setw(3) << int(fraction * 100 + 0.5) << "% " << stage << "  (" << std::fixed
               << std::setprecision(1) << t << " s)" << std::flush;
   };
-  remove_dead_temporaries(o.output);  // what a build killed while writing left beside it
   const Result<bake::Summary> summary = bake::bake_to_file(o.mesh, o.output, o.bake, progress);
   if (show_progress) std::cerr << "\r\033[K" << std::flush;
   if (!summary) {

@@ -61,6 +61,7 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
   if (!(parameters_.tool_mass > 0 && std::isfinite(parameters_.tool_mass)))
     throw std::invalid_argument("HapticRenderer: tool_mass must be finite and > 0");
   if (!finite_pose(start)) throw std::invalid_argument("HapticRenderer: the start pose must be finite");
+  if (parameters_.time_budget_us >= kNoTimeBudgetUs) parameters_.time_budget_us = 0.0;  // none, as a query's
   const HapticParameters& p = parameters_;
   // A negative stiffness or limit threw the tool hundreds of metres; NaN made every later output NaN.
   for (const double value :

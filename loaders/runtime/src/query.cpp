@@ -87,7 +87,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   // The voxelmap is fixed in its own grid: displacements are measured there too.
   const Eigen::Matrix3f M = core::to_eigen(frame.to_grid);
   const Eigen::Vector3f m = core::to_eigen(frame.to_grid.m);
-  if (allowed) front->state().bind(&tree, core_field.bricks);
+  if (allowed) front->state().bind(&tree, tree.size(), core_field.bricks);
   if (allowed && front->state().take_turn(M, m, tree.extent)) {
     detail::traverse_coherent(tree, frame, M, m, target, out.stats, scratch.buffers(), front->state(), emit);
   } else {

@@ -1,6 +1,7 @@
 #include "voxfmt/runtime/haptics.h"
 
 #include <algorithm>
+#include <cmath>
 #include <string>
 
 #ifdef __linux__
@@ -12,16 +13,19 @@
 namespace voxfmt::runtime {
 
 Status RealtimeLoop::start(uint64_t max_cycles) {
+  if (on_loop_thread())
+    return Error{IssueCode::BadOption,
+                 "RealtimeLoop: start() from the loop's own cycle (stop it, then start it "
+                 "from another thread)"};
   stop();
   // A rate of 0 or NaN ran a busy loop of NaN time steps; over a GHz the period rounded to 0 and divided by it.
   constexpr double kMaxRateHz = 1e6;
   if (!(settings_.rate_hz > 0.0 && settings_.rate_hz <= kMaxRateHz))
     return Error{IssueCode::BadOption,
                  "RealtimeLoop: rate_hz must be in (0, 1e6], not " + std::to_string(settings_.rate_hz)};
-  if (!(settings_.spin_us >= 0.0 && settings_.spin_us <= 1e6 / settings_.rate_hz))
-    return Error{IssueCode::BadOption, "RealtimeLoop: spin_us must be in [0, one period (" +
-                                           std::to_string(1e6 / settings_.rate_hz) + " us)], not " +
-                                           std::to_string(settings_.spin_us)};
+  if (!(settings_.spin_us >= 0.0 && std::isfinite(settings_.spin_us)))
+    return Error{IssueCode::BadOption,
+                 "RealtimeLoop: spin_us must be finite and >= 0, not " + std::to_string(settings_.spin_us)};
   stop_ = false;
   cycles_ = 0;
   overruns_ = 0;
@@ -39,8 +43,10 @@ void RealtimeLoop::stop() {
 
 void RealtimeLoop::join() {
   // From the loop's own thread a join would wait for itself (std::system_error, then terminate).
-  if (thread_.joinable() && thread_.get_id() != std::this_thread::get_id()) thread_.join();
+  if (!on_loop_thread() && thread_.joinable()) thread_.join();
 }
+
+bool RealtimeLoop::on_loop_thread() const { return loop_thread_.load() == std::this_thread::get_id(); }
 
 namespace {
 
@@ -70,11 +76,13 @@ void apply_realtime_settings(const LoopSettings& settings, std::atomic<bool>& pr
 
 void RealtimeLoop::run(uint64_t max_cycles) {
   using Clock = std::chrono::steady_clock;
+  loop_thread_ = std::this_thread::get_id();
   apply_realtime_settings(settings_, realtime_priority_, memory_locked_, cpu_);
   const auto period =
       std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / settings_.rate_hz));
-  const auto spin =
-      std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::micro>(settings_.spin_us));
+  // A spin longer than the period is a busy wait.
+  const auto spin = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double, std::micro>(std::min(settings_.spin_us, 1e6 / settings_.rate_hz)));
   const double dt = 1.0 / settings_.rate_hz;
   const auto start = Clock::now();
   uint64_t k = 0;     // index of the deadline the next cycle starts at
@@ -98,6 +106,7 @@ void RealtimeLoop::run(uint64_t max_cycles) {
     }
     k = next;
   }
+  loop_thread_ = std::thread::id();  // ids are reused once a thread is gone
 }
 
 }  // namespace voxfmt::runtime

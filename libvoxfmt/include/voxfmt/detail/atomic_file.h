@@ -14,9 +14,10 @@ namespace voxfmt {
 /// Marker of temporaries: `PATH.partial-<pid>-<n>`. Tools that clean up after killed runs look for it.
 inline constexpr std::string_view kPartialMarker = ".partial-";
 
-/// Removes the temporaries of `path` (`PATH.partial-<pid>-<n>`) whose process is gone: what a write killed by a
-/// signal left. Returns how many. A command that writes one file calls it once; a write does not (a scan of a
-/// folder of thousands of files per write would cost more than the write).
+/// Removes the temporaries of `path` (regular files named exactly `PATH.partial-<pid>-<n>`, beside a link's
+/// target) whose process is gone: what a write killed by a signal left. Returns how many. A command that writes
+/// one file calls it once; a write does not, nor does `build` (run once per mesh by `batch`, which sweeps its
+/// library itself: a scan of a folder of thousands of files per write would cost more than the write).
 size_t remove_dead_temporaries(const std::string& path);
 
 struct AtomicWrite {

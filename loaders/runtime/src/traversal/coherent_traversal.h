@@ -60,6 +60,7 @@ struct TraversalFront::State {
   bool valid = false;
 
   const void* shell = nullptr;   ///< the point tree the front is of
+  size_t shell_nodes = 0;        ///< and its size (an address reused by another object's tree)
   const void* target = nullptr;  ///< the field it was walked against (null: not known to the caller)
 
   void reset() {
@@ -68,10 +69,11 @@ struct TraversalFront::State {
   }
   /// The front belongs to one pair: queried for another shell or target, it starts afresh (its entries index
   /// another tree's nodes, its bounds another field's).
-  void bind(const void* shell_tree, const void* target_field) {
-    if (shell_tree == shell && target_field == target) return;
+  void bind(const void* shell_tree, size_t nodes, const void* target_field) {
+    if (shell_tree == shell && nodes == shell_nodes && target_field == target) return;
     reset();
     shell = shell_tree;
+    shell_nodes = nodes;
     target = target_field;
   }
   /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt

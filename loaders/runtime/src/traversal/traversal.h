@@ -90,9 +90,8 @@ QueryScratch::Buffers::Hit sample_hit(const Target& target, uint32_t node, const
   return hit;
 }
 
-/// Whether a query has a time budget: one over kNoTimeBudgetUs (a day), infinite, NaN or not positive is none (an
+/// Whether a query has a time budget: one of kNoTimeBudgetUs or more, infinite, NaN or not positive is none (an
 /// infinite budget once overflowed the deadline into the past and cut every query at its root).
-constexpr double kNoTimeBudgetUs = 86400e6;
 inline bool time_limited(const QueryOptions& o) { return o.time_budget_us > 0.0 && o.time_budget_us < kNoTimeBudgetUs; }
 
 /// How far a query walks and what it reports at the end (QueryOptions, in the traversal's terms).

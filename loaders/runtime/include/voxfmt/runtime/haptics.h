@@ -79,7 +79,7 @@ class ScriptedDevice : public HapticDevice {
 struct LoopSettings {
   double rate_hz = 1000.0;  ///< 1 kHz default; 5 kHz and more are fine if a cycle fits; at most 1 MHz
   /// The loop sleeps until this long before a deadline, then spins: the kernel wakes a sleeping thread tens of
-  /// microseconds late, a fifth of a 5 kHz period. From 0 to one period.
+  /// microseconds late, a fifth of a 5 kHz period. At least 0; one period or more is a busy wait.
   double spin_us = 80.0;
   /// Where the system permits (Linux; root or CAP_SYS_NICE / CAP_IPC_LOCK, or the matching rlimits): run the
   /// loop's thread under SCHED_FIFO at `priority`, so that ordinary threads never delay a wake-up; lock the
@@ -111,12 +111,13 @@ class RealtimeLoop {
   RealtimeLoop& operator=(const RealtimeLoop&) = delete;
 
   /// Starts the thread; it runs `max_cycles` cycles (0 = until stop()). BAD_OPTION (and no thread) for a rate
-  /// that is not in (0, 1 MHz] or a spin that is not in [0, one period].
+  /// that is not in (0, 1 MHz], a spin that is negative or not finite, or a call from the loop's own cycle.
   Status start(uint64_t max_cycles = 0);
   /// Asks the thread to stop and joins it; called from the cycle itself, it asks only (the loop ends after the
-  /// cycle, and is joined by the next start(), stop() or the destructor).
+  /// cycle, and is joined by stop(), join() or the destructor from another thread).
   void stop();
-  /// Waits until the thread has run its cycles.
+  /// Waits until the thread has run its cycles (from the loop's own cycle: returns at once). One thread at a
+  /// time may join, stop or start a loop.
   void join();
   /// Counters so far (exact after join()/stop()).
   LoopStats stats() const {
@@ -125,6 +126,7 @@ class RealtimeLoop {
 
  private:
   void run(uint64_t max_cycles);
+  bool on_loop_thread() const;
   LoopSettings settings_;
   Cycle cycle_;
   std::thread thread_;
@@ -132,6 +134,7 @@ class RealtimeLoop {
   std::atomic<uint64_t> cycles_{0}, overruns_{0};
   std::atomic<bool> realtime_priority_{false}, memory_locked_{false};
   std::atomic<int> cpu_{-1};
+  std::atomic<std::thread::id> loop_thread_{};  ///< set by the loop's thread itself (thread_ is the caller's)
 };
 
 // ---- Haptic rendering.

@@ -28,6 +28,9 @@ struct Pose {
   }
 };
 
+/// A time budget of this many microseconds (a day) or more is none (QueryOptions::time_budget_us).
+inline constexpr double kNoTimeBudgetUs = 86400e6;
+
 /// Which point shell is tested against which voxelmap.
 enum class QueryDirection {
   APointsInB,  ///< A's points against B's voxelmap
