@@ -30,9 +30,10 @@ Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& w) {
   return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
 }
 
-Eigen::Vector3d saturate(const Eigen::Vector3d& v, double limit) {
+// The factor in (0, 1] that brings v's length down to the limit (1 when it is within it).
+double saturation_scale(const Eigen::Vector3d& v, double limit) {
   const double n = v.norm();
-  return n > limit && n > 0 ? Eigen::Vector3d(v * (limit / n)) : v;
+  return n > limit && n > 0 ? limit / n : 1.0;
 }
 
 }  // namespace
@@ -177,10 +178,12 @@ struct HapticRenderer::ContactTerms {
   double energy = 0.0;
 };
 
-// The spring and damper from the tool to the device's pose of it, and whether each is saturated.
+// The spring and damper from the tool to the device's pose of it. A saturated coupling is the same spring and
+// damper scaled down (its secant: the scale times the spring gives the saturated force at this stretch), so the
+// implicit step treats it as a softer linear spring and stays stable however large the step.
 struct HapticRenderer::Coupling {
   Eigen::Vector3d force, torque;
-  bool force_saturated = false, torque_saturated = false;
+  double force_scale = 1.0, torque_scale = 1.0;  ///< in (0, 1]; below 1 where saturated
   double energy = 0.0;
 };
 
@@ -268,20 +271,21 @@ HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double 
   Coupling c;
   c.energy =
       0.5 * p.coupling_stiffness * stretch.squaredNorm() + 0.5 * p.coupling_angular_stiffness * twist.squaredNorm();
-  c.force = saturate(p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_), p.max_force);
-  c.torque = saturate(
-      p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_),
-      p.max_torque);
-  c.force_saturated = c.force.norm() >= p.max_force * (1 - 1e-9);
-  c.torque_saturated = c.torque.norm() >= p.max_torque * (1 - 1e-9);
+  const Eigen::Vector3d force = p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_);
+  const Eigen::Vector3d torque =
+      p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_);
+  c.force_scale = saturation_scale(force, p.max_force);
+  c.torque_scale = saturation_scale(torque, p.max_torque);
+  c.force = c.force_scale * force;
+  c.torque = c.torque_scale * torque;
   cycle_.device_wrench.force = -c.force;
   cycle_.device_wrench.torque = -c.torque;
   return c;
 }
 
 // Implicit Euler: (M + dt D + dt^2 K) v' = M v + dt (F(x, v) + D v), with K and D the linearised stiffness and
-// damping of the coupling and the contacts. Unconditionally stable for these linear springs. Then the pose moves
-// about the centre of mass.
+// damping of the coupling (scaled where saturated) and the contacts. Unconditionally stable for these linear
+// springs. Then the pose moves about the centre of mass.
 void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coupling, double dt,
                                const Eigen::Vector3d& com_asset, const Eigen::Vector3d& com) {
   const HapticParameters& p = parameters_;
@@ -291,14 +295,12 @@ void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coup
   mass.bottomRightCorner<3, 3>() = rot * inertia_body_ * rot.transpose();
   Matrix6d damping = p.contact_damping * contact.stiffness;
   Matrix6d stiffness = p.contact_stiffness * contact.stiffness;
-  if (!coupling.force_saturated) {  // a saturated spring no longer stiffens with the stretch
-    damping.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_damping;
-    stiffness.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_stiffness;
-  }
-  if (!coupling.torque_saturated) {
-    damping.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_damping;
-    stiffness.bottomRightCorner<3, 3>() += Eigen::Matrix3d::Identity() * p.coupling_angular_stiffness;
-  }
+  damping.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * (coupling.force_scale * p.coupling_damping);
+  stiffness.topLeftCorner<3, 3>() += Eigen::Matrix3d::Identity() * (coupling.force_scale * p.coupling_stiffness);
+  damping.bottomRightCorner<3, 3>() +=
+      Eigen::Matrix3d::Identity() * (coupling.torque_scale * p.coupling_angular_damping);
+  stiffness.bottomRightCorner<3, 3>() +=
+      Eigen::Matrix3d::Identity() * (coupling.torque_scale * p.coupling_angular_stiffness);
   Vector6d velocity;
   velocity << velocity_, angular_velocity_;
   Vector6d force = contact.wrench;
