@@ -235,18 +235,32 @@ class CoherentTraversal {
   }
 
   // Stage 4, revisit an entry: its own displacement since the anchor often keeps it without a lookup; else a
-  // subtree is descended again, a point looked up again (its own bound first where a distance costs more).
+  // subtree is descended again, a point looked up again.
   void revisit(const Entry& e) {
     if (e.bound - moved(e) > proximity_) {
       keep(e);
     } else if (!e.is_point()) {
       descend(e.node());
     } else {
-      float point_bound = -std::numeric_limits<float>::infinity();
-      if (Target::kBoundBeforeDistance && nodes_[e.node()].child_count > 0)
-        point_bound = target_.lower_bound(map(points_[e.node()]));
-      test_point(e.node(), point_bound);
+      revisit_point(e.node());
     }
+  }
+
+  // A point is tested behind its node's sphere, as the level walk tests it: an interpolated distance may lie a
+  // little below the bound of the true distance, so a point sampled without that gate could be a contact the
+  // walk from the root never reaches. Then its own bound first where a distance costs more.
+  void revisit_point(uint32_t node) {
+    float point_bound = -std::numeric_limits<float>::infinity();
+    if (Target::kBoundBeforeDistance) {
+      const PointTree::Node& n = nodes_[node];
+      const float sphere_bound = target_.lower_bound(map(to_eigen(n.centre)));
+      if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
+        record(node, true, sphere_bound - n.radius * radius_scale_);
+        return;
+      }
+      if (n.child_count > 0) point_bound = target_.lower_bound(map(points_[node]));
+    }
+    test_point(node, point_bound);
   }
 
   // Stage 5, descend: the subtree of `root` as the level walk traverses it, recording where it stops.
