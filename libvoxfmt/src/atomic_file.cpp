@@ -104,15 +104,24 @@ Status check_output_path(const std::string& path, const std::string& input) {
   return Status::success();
 }
 
+namespace {
+bool digits(const std::string& text) {
+  return !text.empty() && text.size() <= 9 && text.find_first_not_of("0123456789") == std::string::npos;
+}
+}  // namespace
+
+bool process_is_gone(const std::string& pid) {
+  if (!digits(pid)) return false;
+  const long process = std::stol(pid);
+  return process > 0 && ::kill(pid_t(process), 0) != 0 && errno == ESRCH;
+}
+
 size_t remove_dead_temporaries(const std::string& given) {
   namespace fs = std::filesystem;
   const Result<std::string> resolved = output_target(given);  // temporaries lie beside a link's target
   if (!resolved) return 0;
   const fs::path target(resolved.value());
   const std::string prefix = target.filename().string() + std::string(kPartialMarker);
-  const auto digits = [](const std::string& text) {
-    return !text.empty() && text.size() <= 9 && text.find_first_not_of("0123456789") == std::string::npos;
-  };
   size_t removed = 0;
   std::error_code ec;
   const fs::path folder = target.parent_path().empty() ? fs::path(".") : target.parent_path();
@@ -122,10 +131,10 @@ size_t remove_dead_temporaries(const std::string& given) {
     // Exactly PID-N, a regular file (not a link, not a folder), of a process that is gone.
     const std::string tail = name.substr(prefix.size());
     const size_t dash = tail.find('-');
-    if (dash == std::string::npos || !digits(tail.substr(0, dash)) || !digits(tail.substr(dash + 1))) continue;
+    if (dash == std::string::npos || !digits(tail.substr(dash + 1))) continue;
     std::error_code status_error;
     if (!fs::is_regular_file(it->symlink_status(status_error))) continue;
-    if (::kill(pid_t(std::stol(tail.substr(0, dash))), 0) == 0 || errno != ESRCH) continue;
+    if (!process_is_gone(tail.substr(0, dash))) continue;
     std::error_code remove_error;
     removed += fs::remove(it->path(), remove_error) ? 1 : 0;
   }

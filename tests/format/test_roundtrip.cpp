@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -7,6 +10,7 @@
 
 #include "analytic_sphere.h"
 #include "test_support.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/utf8.h"
 #include "voxfmt/io.h"
 
@@ -209,6 +213,35 @@ TEST(Write, ReportsAnUnwritableDirectory) {
   ASSERT_FALSE(status);
   EXPECT_EQ(status.error().code, IssueCode::WriteFailed);
   EXPECT_NE(status.error().message.find("/nonexistent-dir/x.vox.h5"), std::string::npos);
+}
+
+TEST(Errors, AnUncheckedFailedResultSaysWhatFailed) {
+  // value() of a failed result threw std::bad_variant_access, which names nothing; now the error travels along.
+  const Result<Asset> missing = read_asset("/nonexistent/voxfmt-test.vox.h5");
+  ASSERT_FALSE(missing.ok());
+  try {
+    (void)missing.value();
+    ADD_FAILURE() << "no throw";
+  } catch (const BadResultAccess& e) {
+    EXPECT_EQ(e.error().code, IssueCode::FileNotFound);
+    EXPECT_NE(std::string(e.what()).find("FILE_NOT_FOUND"), std::string::npos) << e.what();
+  }
+  const Result<int> fine = 3;
+  EXPECT_EQ(fine.value(), 3);
+  EXPECT_THROW((void)fine.error(), std::logic_error);
+}
+
+TEST(Files, OnlyAnEndedProcessCountsAsGone) {
+  // Whose temporaries may be swept (`export`, `report`): a process that has ended, never a live one or a name
+  // that is not a process id.
+  EXPECT_FALSE(process_is_gone(std::to_string(::getpid())));
+  for (const char* not_a_pid : {"", "0", "-1", "12a", "1234567890", " 12"}) EXPECT_FALSE(process_is_gone(not_a_pid));
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) ::_exit(0);
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  EXPECT_TRUE(process_is_gone(std::to_string(child)));  // reaped: the id names no process (until reused)
 }
 
 TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <variant>
@@ -107,6 +108,17 @@ struct Error {
   std::string describe() const { return std::string(code_name(code)) + ": " + message; }
 };
 
+/// Thrown by Result::value() of a failed result (a caller that did not check ok()): carries the error, and its
+/// what() is the error's describe(), so an unchecked failure still says what failed.
+class BadResultAccess : public std::logic_error {
+ public:
+  explicit BadResultAccess(Error e) : std::logic_error(e.describe()), error_(std::move(e)) {}
+  const Error& error() const { return error_; }
+
+ private:
+  Error error_;
+};
+
 template <class T>
 class [[nodiscard]] Result {
  public:
@@ -114,14 +126,22 @@ class [[nodiscard]] Result {
   Result(Error error) : state_(std::move(error)) {}  // NOLINT(google-explicit-constructor)
   bool ok() const { return state_.index() == 0; }
   explicit operator bool() const { return ok(); }
-  T& value() & { return std::get<0>(state_); }
-  const T& value() const& { return std::get<0>(state_); }
-  T&& value() && { return std::get<0>(std::move(state_)); }
+  /// The value; throws BadResultAccess (with the error) when the call failed.
+  T& value() & { return checked(), std::get<0>(state_); }
+  const T& value() const& { return checked(), std::get<0>(state_); }
+  T&& value() && { return checked(), std::get<0>(std::move(state_)); }
   T* operator->() { return &value(); }
   const T* operator->() const { return &value(); }
-  const Error& error() const { return std::get<1>(state_); }
+  /// The error; throws std::logic_error when the call succeeded.
+  const Error& error() const {
+    if (ok()) throw std::logic_error("voxfmt::Result::error() of a successful result");
+    return std::get<1>(state_);
+  }
 
  private:
+  void checked() const {
+    if (!ok()) throw BadResultAccess(std::get<1>(state_));
+  }
   std::variant<T, Error> state_;
 };
 

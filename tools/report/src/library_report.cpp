@@ -1,7 +1,5 @@
-#include <signal.h>
 #include <unistd.h>
 
-#include <cerrno>
 #include <cstdlib>
 #include <cstring>
 
@@ -386,10 +384,7 @@ void remove_stale_leftovers(const fs::path& out) {
     const std::string other = entry.path().filename().string();
     for (const std::string& marker : {name + std::string(kPartialMarker), name + ".old-"}) {
       if (other.rfind(marker, 0) != 0) continue;
-      const std::string pid = other.substr(marker.size());
-      if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) continue;
-      const long process = std::strtol(pid.c_str(), nullptr, 10);
-      if (process > 0 && ::kill(pid_t(process), 0) != 0 && errno == ESRCH) fs::remove_all(entry.path(), ec);
+      if (process_is_gone(other.substr(marker.size()))) fs::remove_all(entry.path(), ec);
     }
   }
 }

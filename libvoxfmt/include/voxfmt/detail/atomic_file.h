@@ -20,6 +20,10 @@ inline constexpr std::string_view kPartialMarker = ".partial-";
 /// library itself: a scan of a folder of thousands of files per write would cost more than the write).
 size_t remove_dead_temporaries(const std::string& path);
 
+/// Whether `pid`, decimal digits as a temporary's name holds them (at most 9, > 0), names a process that has
+/// ended. Anything else (not digits, a live process, one of another user) is not gone: its files are kept.
+bool process_is_gone(const std::string& pid);
+
 struct AtomicWrite {
   /// Produces the file's content at the temporary path it is given (any library may write there).
   std::function<Status(const std::string& temporary_path)> write;

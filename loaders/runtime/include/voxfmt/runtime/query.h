@@ -17,7 +17,10 @@
 
 namespace voxfmt::runtime {
 
-/// Rigid placement of an object with uniform scale: world = rotation * (scale * asset) + translation.
+/// Rigid placement of an object with uniform scale: world = rotation * (scale * asset) + translation. The rotation
+/// must be one (orthonormal, determinant +1) and the scale a finite number > 0: the per-pair queries run at
+/// kilohertz rates and do not check (a sheared matrix is used as if it were a rotation; a scale <= 0 finds
+/// nothing). BatchScene checks every pose and refuses others with an error per environment.
 struct Pose {
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();
