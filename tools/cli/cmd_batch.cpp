@@ -524,6 +524,24 @@ void check_max_memory(size_t mib) {
                      std::to_string(kLeastBakeAddressSpaceMib) + "..2^40");
 }
 
+// The command: the batch, then its report; every failure a coded error line (or JSON) and an exit code.
+int run_batch(const Options& o) {
+  try {
+    check_max_memory(o.max_memory_mib);
+    int exit_code = Runner(o).run();
+    if (o.report) exit_code = std::max(exit_code, report_after_batch(o));
+    return exit_code;
+  } catch (const UsageError& e) {
+    return report_error("batch", {e.code, e.what()}, o.json,
+                        o.inputs.size() == 1 ? o.inputs.front() : std::to_string(o.inputs.size()) + " inputs");
+  } catch (const std::bad_alloc&) {
+    return report_error("batch", {IssueCode::OutOfMemory, "out of memory"}, o.json, o.output_dir);
+  } catch (const std::exception& e) {
+    return report_error("batch", {IssueCode::Internal, std::string("unexpected error: ") + e.what()}, o.json,
+                        o.output_dir);
+  }
+}
+
 void add_batch_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
@@ -568,22 +586,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       "  voxfmt batch meshes/ -o assets/                       # every mesh below meshes/, on every core\n"
       "  voxfmt batch meshes/ -o assets/ --retry-failed -j 2   # again: only what failed or changed\n"
       "  voxfmt batch /shared/meshes -o /shared/assets --shard 3/16 --timeout 3600   # one Slurm array task\n");
-  cmd->callback([o, &exit_code] {
-    try {
-      check_max_memory(o->max_memory_mib);
-      exit_code = Runner(*o).run();
-      if (o->report) exit_code = std::max(exit_code, report_after_batch(*o));
-    } catch (const UsageError& e) {
-      exit_code =
-          report_error("batch", {e.code, e.what()}, o->json,
-                       o->inputs.size() == 1 ? o->inputs.front() : std::to_string(o->inputs.size()) + " inputs");
-    } catch (const std::bad_alloc&) {
-      exit_code = report_error("batch", {IssueCode::OutOfMemory, "out of memory"}, o->json, o->output_dir);
-    } catch (const std::exception& e) {
-      exit_code = report_error("batch", {IssueCode::Internal, std::string("unexpected error: ") + e.what()}, o->json,
-                               o->output_dir);
-    }
-  });
+  cmd->callback([o, &exit_code] { exit_code = run_batch(*o); });
 }
 
 }  // namespace voxfmt::cli

@@ -229,11 +229,10 @@ std::string grid_metadata_json(const runtime::CollisionObject& object, const std
   return json;
 }
 
-Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const NanoVdbOptions& options) {
-  if (!object.has_voxelmap())
-    return Error{IssueCode::InvalidAsset, "nanovdb_grids: the object has no voxelmap (loaded point shell only)"};
-  const runtime::SparseVoxelmap& map = object.voxelmap();
-  const FieldSamples field(field_of(map));
+namespace {
+
+// What the options and the grid allow, before any work.
+Status check_exportable(const runtime::SparseVoxelmap& map, const NanoVdbOptions& options) {
   if (!(options.width_voxels >= 0 && options.width_voxels <= 32767))  // NaN fails too
     return Error{IssueCode::BadOption,
                  "nanovdb_grids: the level set's width must be 0 (the default) or a number of "
@@ -254,44 +253,64 @@ Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const
                                                    "nearer its origin)"};
     }
   }
+  return Status::success();
+}
+
+// The two grids side by side (the level set is most of the work; the coarse grid is a bounded share).
+std::vector<nanovdb::GridHandle<>> build_grids(const runtime::CollisionObject& object, const FieldSamples& field,
+                                               double width, NanoVdbGrids& info) {
+  std::vector<nanovdb::GridHandle<>> handles(2);
+  std::exception_ptr failure[2];
+  run_workers(2, [&](unsigned grid) {
+    try {
+      handles[grid] = grid == 0 ? distance_grid(object, field, float(width), info) : coarse_grid(object, field, info);
+    } catch (...) {
+      failure[grid] = std::current_exception();
+    }
+  });
+  for (const std::exception_ptr& e : failure)
+    if (e) std::rethrow_exception(e);
+  return handles;
+}
+
+// NanoVDB's writer, step by step, so that the first grid can say that another follows: Warp's load_next_grid()
+// reads the next grid where grid_count says there is one. Each grid keeps index 0, as NanoVDB 32.4's tools (and
+// any reader of one grid alone) expect of a grid that starts its buffer. Empty where the stream failed.
+std::string write_grids(std::vector<nanovdb::GridHandle<>>& handles, bool compress, NanoVdbGrids& info) {
+  const auto codec = compress ? nanovdb::io::Codec::ZIP : nanovdb::io::Codec::NONE;
+  nanovdb::io::Segment segment(codec);
+  for (const auto& handle : handles) segment.add(handle);
+  for (size_t n = 0; n < handles.size(); ++n) {
+    auto* grid = reinterpret_cast<nanovdb::NanoGrid<float>*>(handles[n].data());
+    grid->data()->mGridCount = n == 0 ? uint32_t(handles.size()) : 1u;
+    nanovdb::updateChecksum(*grid);
+    info.uncompressed_bytes += handles[n].size();
+  }
+  std::ostringstream file(std::string(segment.memUsage(), '\0'), std::ios::binary | std::ios::ate);
+  for (size_t n = 0; n < handles.size(); ++n)
+    segment.meta[n].fileSize =
+        compress ? write_zip(file, handles[n]) : nanovdb::io::Internal::write(file, handles[n], codec);
+  file.seekp(0);
+  segment.write(file);
+  return file ? std::move(file).str() : std::string();
+}
+
+}  // namespace
+
+Result<NanoVdbGrids> nanovdb_grids(const runtime::CollisionObject& object, const NanoVdbOptions& options) {
+  if (!object.has_voxelmap())
+    return Error{IssueCode::InvalidAsset, "nanovdb_grids: the object has no voxelmap (loaded point shell only)"};
+  const runtime::SparseVoxelmap& map = object.voxelmap();
+  if (Status exportable = check_exportable(map, options); !exportable) return exportable.error();
+  const FieldSamples field(field_of(map));
   // By default the band the asset stores completely: every voxel nearer than this has its exact distance.
   const double width = options.width_voxels > 0 ? options.width_voxels : double(field.field().band_edge);
   NanoVdbGrids info;
   info.width = width * map.voxel_size();
-  std::vector<nanovdb::GridHandle<>> handles;
   try {
-    // The two grids side by side (the level set is most of the work; the coarse grid is a bounded share).
-    handles.resize(2);
-    std::exception_ptr failure[2];
-    run_workers(2, [&](unsigned grid) {
-      try {
-        handles[grid] = grid == 0 ? distance_grid(object, field, float(width), info) : coarse_grid(object, field, info);
-      } catch (...) {
-        failure[grid] = std::current_exception();
-      }
-    });
-    for (const std::exception_ptr& e : failure)
-      if (e) std::rethrow_exception(e);
-    // NanoVDB's writer, step by step, so that the first grid can say that another follows: Warp's load_next_grid()
-    // reads the next grid where grid_count says there is one. Each grid keeps index 0, as NanoVDB 32.4's tools (and
-    // any reader of one grid alone) expect of a grid that starts its buffer.
-    const auto codec = options.compress ? nanovdb::io::Codec::ZIP : nanovdb::io::Codec::NONE;
-    nanovdb::io::Segment segment(codec);
-    for (const auto& handle : handles) segment.add(handle);
-    for (size_t n = 0; n < handles.size(); ++n) {
-      auto* grid = reinterpret_cast<nanovdb::NanoGrid<float>*>(handles[n].data());
-      grid->data()->mGridCount = n == 0 ? uint32_t(handles.size()) : 1u;
-      nanovdb::updateChecksum(*grid);
-      info.uncompressed_bytes += handles[n].size();
-    }
-    std::ostringstream file(std::string(segment.memUsage(), '\0'), std::ios::binary | std::ios::ate);
-    for (size_t n = 0; n < handles.size(); ++n)
-      segment.meta[n].fileSize =
-          options.compress ? write_zip(file, handles[n]) : nanovdb::io::Internal::write(file, handles[n], codec);
-    file.seekp(0);
-    segment.write(file);
-    if (!file) return Error{IssueCode::Internal, "nanovdb_grids: NanoVDB could not write the grids"};
-    info.file = std::move(file).str();
+    std::vector<nanovdb::GridHandle<>> handles = build_grids(object, field, width, info);
+    info.file = write_grids(handles, options.compress, info);
+    if (info.file.empty()) return Error{IssueCode::Internal, "nanovdb_grids: NanoVDB could not write the grids"};
   } catch (const std::bad_alloc&) {
     return Error{IssueCode::OutOfMemory, "nanovdb_grids: out of memory building the grids"};
   } catch (const std::system_error& e) {  // no thread to be had (EAGAIN) under a memory limit is memory too
