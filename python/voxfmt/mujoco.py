@@ -127,8 +127,8 @@ def load_plugin() -> str:
 
 
 def loaded_files() -> int:
-    """How many asset files the plugin has loaded (or failed to load) in this process: each file once, however
-    many geoms and models name it."""
+    """How many asset files the plugin has loaded in this process: each file once, however many geoms and models
+    name it (a file baked again counts again; a failed load does not count)."""
     load_plugin()
     assert _library is not None
     return int(_library.voxfmt_mujoco_loaded_files())

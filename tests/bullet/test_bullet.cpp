@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <iostream>
+#include <limits>
 
 #include "baked_bunny.h"
 #include "voxfmt/bullet/shape.h"
@@ -339,6 +340,12 @@ TEST(Bullet, ShapeInertiaComesFromTheAsset) {
       EXPECT_LE(w[a], double(hi[a]) + 1e-5);
     }
   }
+  // A scale that is not a finite number > 0 is refused and leaves the shape as it was: 0 made every point a
+  // contact, -1 turned the box inside out (never paired), NaN made the box and the inertia NaN.
+  for (const float bad : {0.0f, -1.0f, std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()})
+    EXPECT_THROW(shape.setLocalScaling(btVector3(bad, bad, bad)), std::invalid_argument) << bad;
+  EXPECT_EQ(shape.getLocalScaling(), btVector3(0.5f, 0.5f, 0.5f));
+  EXPECT_EQ(shape.asset_pose(t).scale, 0.5);
 }
 
 }  // namespace

@@ -173,6 +173,44 @@ def test_evaluate_is_the_runtimes_field(sphere_asset) -> None:  # type: ignore[n
         vm.evaluate(sphere_asset, np.zeros((3, 2)))
 
 
+def test_a_nan_point_is_nowhere(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # A NaN point indexed the brick table far out of bounds (a segfault), from Python and from inside mj_step,
+    # whose own check of NaN covers qpos and qvel, not a mocap body's position.
+    points = np.array([[np.nan, 0, 0], [0, 0, np.nan], [np.inf, 0, 0], [-np.inf, 0, 0], [0, 0, SPHERE_RADIUS]])
+    distances, gradients = vm.evaluate(sphere_asset, points, gradients=True)
+    assert np.isposinf(distances[:4]).all() and abs(distances[4]) < SPHERE_VOXEL
+    assert np.allclose(np.linalg.norm(gradients, axis=1), 1.0)
+    ball = vm.part(sphere_asset, "ball", pos=(0, 0, SPHERE_RADIUS + 0.001))
+    held = re.sub(r"<freejoint/>", "", ball.body).replace('<body name="ball"', '<body name="held" mocap="true"', 1)
+    held = held.replace('<geom name="ball"', '<geom name="held"', 1).replace(f"{SPHERE_RADIUS + 0.001:g}", "0.3")
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), ball).replace("</worldbody>", held + "</worldbody>"))
+    data = mujoco.MjData(model)
+    for _ in range(5):
+        mujoco.mj_step(model, data)
+    data.mocap_pos[0] = np.nan
+    for _ in range(5):
+        mujoco.mj_step(model, data)  # MuJoCo's business from here; the plugin must only not crash
+
+
+def test_a_failed_load_holds_no_place_and_a_mended_file_loads(tmp_path, sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # Every failed load held one of the cache's 4,095 places for good: 4,096 mistyped paths and then no file
+    # loaded at all, with OUT_OF_MEMORY.
+    import shutil
+
+    vm.load_plugin()
+    before = vm.loaded_files()
+    missing = tmp_path / "later.vox.h5"
+    for i in range(200):
+        with pytest.raises(voxfmt.AssetError, match="FILE_NOT_FOUND"):
+            vm.field_bytes(tmp_path / f"typo{i}.vox.h5")
+    with pytest.raises(voxfmt.AssetError, match="FILE_NOT_FOUND"):
+        vm.evaluate(missing, np.zeros((1, 3)))
+    assert vm.loaded_files() == before
+    shutil.copyfile(sphere_asset, missing)  # the file appears: it loads now
+    assert vm.field_bytes(missing) > 0
+    assert vm.loaded_files() == before + 1
+
+
 @pytest.mark.parametrize("version", ["1.0", "1.1", "2.0"])
 def test_every_format_version_loads(tmp_path, version: str) -> None:  # type: ignore[no-untyped-def]
     sys.path.insert(0, str(REPO / "tests" / "spec"))

@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "bt_eigen.h"
@@ -63,7 +64,11 @@ void VpsShape::getAabb(const btTransform& t, btVector3& aabb_min, btVector3& aab
 }
 
 void VpsShape::setLocalScaling(const btVector3& scaling) {
-  // Uniform scaling only: distances and normals of the asset stay valid under it.
+  // Uniform scaling only: distances and normals of the asset stay valid under it. A scale of 0 made every point a
+  // contact, a negative one turned the box inside out (never paired), NaN or inf made the box and inertia NaN.
+  if (!(std::isfinite(double(scaling.x())) && scaling.x() > 0))
+    throw std::invalid_argument("VpsShape::setLocalScaling: the scale (x) must be a finite number > 0, got " +
+                                std::to_string(double(scaling.x())));
   scale_ = double(scaling.x());
   local_scaling_ = btVector3(scaling.x(), scaling.x(), scaling.x());
 }

@@ -43,12 +43,23 @@ AssetCache& AssetCache::instance() {
   return cache;
 }
 
+namespace {
+// The last failed load of this thread: every caller reads an entry right after acquiring it, on its own thread,
+// and a model that keeps a failed handle only asks whether it has a field (it has none).
+thread_local CachedAsset t_failure;
+}  // namespace
+
 int AssetCache::acquire(const std::string& path) {
   const std::string key = key_of(path);
   std::lock_guard<std::mutex> lock(mutex_);
   const auto found = handles_.find(key);
   if (found != handles_.end()) return found->second;
-  const int handle = add(load_entry(path));
+  std::unique_ptr<CachedAsset> entry = load_entry(path);
+  if (!entry->field) {  // a failure holds no slot: it is tried again next time (the file may be mended)
+    t_failure = std::move(*entry);
+    return kFailedHandle;
+  }
+  const int handle = add(std::move(entry));
   if (handle < kCapacity - 1) handles_.emplace(key, handle);
   return handle;
 }
@@ -72,6 +83,7 @@ int AssetCache::add(std::unique_ptr<CachedAsset> entry) {
 }
 
 const CachedAsset* AssetCache::get(double handle) const {
+  if (handle == kFailedHandle) return &t_failure;
   if (!(handle >= 0 && handle < kCapacity)) return nullptr;  // also NaN
   return entries_[int(handle)].load(std::memory_order_acquire);
 }

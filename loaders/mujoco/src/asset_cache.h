@@ -22,15 +22,19 @@ struct CachedAsset {
 class AssetCache {
  public:
   static constexpr int kCapacity = 4096;
+  /// The handle of a failed load: get() gives the calling thread's last failure, to report where MuJoCo lets a
+  /// plugin report one (init); no slot is spent, and the file is read again the next time it is named.
+  static constexpr int kFailedHandle = -1;
   static AssetCache& instance();
 
   /// The handle of `path`'s entry, loading the file the first time it is named (again if it changed on disk:
-  /// the key is the canonical path with the file's size and modification time). A failed load is an entry too,
-  /// so the failure can be reported where MuJoCo lets a plugin report one (init). Thread-safe.
+  /// the key is the canonical path with the file's size and modification time; the earlier version stays
+  /// loaded, as a model compiled against it may still use it). kFailedHandle where it cannot be loaded.
+  /// Thread-safe.
   int acquire(const std::string& path);
   /// The entry of a handle, or null for a handle this cache never gave. Lock-free.
   const CachedAsset* get(double handle) const;
-  /// Entries made so far (one per file loaded, or failed to load).
+  /// Files loaded so far (each version of a file baked again while the process runs counts).
   int size() const { return count_.load(std::memory_order_acquire); }
 
  private:

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "core/field.h"
 #include "voxfmt/io.h"
@@ -148,6 +149,12 @@ size_t AssetField::memory_bytes() const {
 double AssetField::evaluate_raw(const double point[3], Eigen::Vector3f& direction) const {
   Eigen::Vector3f u;
   for (int a = 0; a < 3; ++a) u[a] = float((point[a] - origin_[a]) * inverse_voxel_size_);
+  // A NaN point (a NaN pose in the model) is nowhere: as far as an infinite one, and never a lookup (the clamp
+  // below keeps NaN, which indexed the brick table far out of bounds).
+  if (!u.array().isFinite().all()) {
+    direction.setZero();
+    return std::numeric_limits<double>::infinity();
+  }
   // Beyond the voxel centres the trilinear field would be constant along the clamped axes (a zero gradient that
   // strands a descent): the distance to the box is added there instead.
   const Eigen::Vector3f clamped = u.cwiseMax(Eigen::Vector3f::Zero()).cwiseMin(grid_max_);
@@ -173,6 +180,9 @@ void AssetField::unit_gradient(const Eigen::Vector3f& direction, const double po
     return;
   }
   Eigen::Vector3d away = Eigen::Vector3d(point[0], point[1], point[2]) - centre_;
+  // A point at infinity points away along its infinite axes; a NaN one nowhere in particular (UnitZ below).
+  if (!away.allFinite())
+    for (int a = 0; a < 3; ++a) away[a] = std::isinf(away[a]) ? std::copysign(1.0, away[a]) : 0.0;
   const double n = away.norm();
   away = n > 0 ? Eigen::Vector3d(away / n) : Eigen::Vector3d::UnitZ();
   for (int a = 0; a < 3; ++a) gradient[a] = away[a];

@@ -236,7 +236,7 @@ __attribute__((visibility("default"))) long long voxfmt_mujoco_field_bytes(const
   return entry && entry->field ? static_cast<long long>(entry->field->memory_bytes()) : -1;
 }
 
-/// Files the plugin has loaded (or failed to load) in this process: one per file, however many geoms name it.
+/// Files the plugin has loaded in this process: one per file (and version), however many geoms name it.
 __attribute__((visibility("default"))) int voxfmt_mujoco_loaded_files() { return AssetCache::instance().size(); }
 
 /// Distances (n) and unit gradients (n x 3, may be null) of the asset at `path` at `points` (n x 3, asset frame,

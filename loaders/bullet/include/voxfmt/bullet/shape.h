@@ -56,6 +56,7 @@ class VpsShape : public btConcaveShape {
 
   // btCollisionShape
   void getAabb(const btTransform& t, btVector3& aabb_min, btVector3& aabb_max) const override;
+  /// Uniform: x is the scale (y and z are ignored). Throws std::invalid_argument unless it is finite and > 0.
   void setLocalScaling(const btVector3& scaling) override;
   const btVector3& getLocalScaling() const override { return local_scaling_; }
   /// Principal moments of the asset's mass properties for `mass` (uniform density), scaled.
