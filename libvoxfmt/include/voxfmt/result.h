@@ -1,8 +1,10 @@
 // The one error model of every voxfmt library: fallible calls return Result<T> or Status carrying an Error
-// (a stable code of spec/issue-codes.md, a message, and where it happened). Nothing throws across the API,
-// except the Bullet shapes' constructors (documented there).
+// (a stable code of spec/issue-codes.md, a message, and where it happened). Nothing throws across the API but
+// what docs/architecture.md lists: here, reading the value of a failed Result (or the error of a successful
+// one) without checking ok() first.
 #pragma once
 
+#include <cstdlib>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -109,7 +111,8 @@ struct Error {
 };
 
 /// Thrown by Result::value() of a failed result (a caller that did not check ok()): carries the error, and its
-/// what() is the error's describe(), so an unchecked failure still says what failed.
+/// what() is the error's describe(), so an unchecked failure still says what failed. Also by Result::error() of
+/// a successful result (INTERNAL).
 class BadResultAccess : public std::logic_error {
  public:
   explicit BadResultAccess(Error e) : std::logic_error(e.describe()), error_(std::move(e)) {}
@@ -132,15 +135,24 @@ class [[nodiscard]] Result {
   T&& value() && { return checked(), std::get<0>(std::move(state_)); }
   T* operator->() { return &value(); }
   const T* operator->() const { return &value(); }
-  /// The error; throws std::logic_error when the call succeeded.
+  /// The error; throws BadResultAccess (INTERNAL) when the call succeeded.
   const Error& error() const {
-    if (ok()) throw std::logic_error("voxfmt::Result::error() of a successful result");
+    if (ok()) fail(BadResultAccess(Error{IssueCode::Internal, "voxfmt::Result::error() of a successful result"}));
     return std::get<1>(state_);
   }
 
  private:
   void checked() const {
-    if (!ok()) throw BadResultAccess(std::get<1>(state_));
+    if (!ok()) fail(BadResultAccess(std::get<1>(state_)));
+  }
+  // Built without exceptions, a caller that did not check ends the program instead (std::get did too).
+  [[noreturn]] static void fail(const BadResultAccess& e) {
+#if defined(__cpp_exceptions)
+    throw e;
+#else
+    (void)e;
+    std::abort();
+#endif
   }
   std::variant<T, Error> state_;
 };

@@ -43,24 +43,21 @@ AssetCache& AssetCache::instance() {
   return cache;
 }
 
-namespace {
-// The last failed load of this thread: every caller reads an entry right after acquiring it, on its own thread,
-// and a model that keeps a failed handle only asks whether it has a field (it has none).
-thread_local CachedAsset t_failure;
-}  // namespace
-
 int AssetCache::acquire(const std::string& path) {
   const std::string key = key_of(path);
   std::lock_guard<std::mutex> lock(mutex_);
   const auto found = handles_.find(key);
   if (found != handles_.end()) return found->second;
   std::unique_ptr<CachedAsset> entry = load_entry(path);
-  if (!entry->field) {  // a failure holds no slot: it is tried again next time (the file may be mended)
-    t_failure = std::move(*entry);
-    return kFailedHandle;
+  int handle;
+  if (!entry->field) {  // no slot: a failure is kept apart, under a negative handle, for as long as the key holds
+    failures_.push_back(std::move(entry));
+    handle = -int(failures_.size());
+  } else {
+    handle = add(std::move(entry));
+    if (handle == kCapacity - 1) return handle;  // full: not remembered, so every naming is told so
   }
-  const int handle = add(std::move(entry));
-  if (handle < kCapacity - 1) handles_.emplace(key, handle);
+  handles_.emplace(key, handle);
   return handle;
 }
 
@@ -83,7 +80,12 @@ int AssetCache::add(std::unique_ptr<CachedAsset> entry) {
 }
 
 const CachedAsset* AssetCache::get(double handle) const {
-  if (handle == kFailedHandle) return &t_failure;
+  if (handle < 0) {  // a failure (rare: under the lock)
+    std::lock_guard<std::mutex> lock(mutex_);
+    const double index = -handle - 1;
+    if (!(index < double(failures_.size())) || index != double(int(index))) return nullptr;
+    return failures_[size_t(index)].get();
+  }
   if (!(handle >= 0 && handle < kCapacity)) return nullptr;  // also NaN
   return entries_[int(handle)].load(std::memory_order_acquire);
 }

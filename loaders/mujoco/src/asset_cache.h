@@ -7,6 +7,7 @@
 #include <mutex>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 #include "asset_field.h"
 
@@ -22,17 +23,15 @@ struct CachedAsset {
 class AssetCache {
  public:
   static constexpr int kCapacity = 4096;
-  /// The handle of a failed load: get() gives the calling thread's last failure, to report where MuJoCo lets a
-  /// plugin report one (init); no slot is spent, and the file is read again the next time it is named.
-  static constexpr int kFailedHandle = -1;
   static AssetCache& instance();
 
   /// The handle of `path`'s entry, loading the file the first time it is named (again if it changed on disk:
   /// the key is the canonical path with the file's size and modification time; the earlier version stays
-  /// loaded, as a model compiled against it may still use it). kFailedHandle where it cannot be loaded.
-  /// Thread-safe.
+  /// loaded, as a model compiled against it may still use it). A failed load is an entry too, so the failure can
+  /// be reported where MuJoCo lets a plugin report one (init), and compile and init judge a file alike; it has a
+  /// negative handle and takes none of the kCapacity places (a mended file has a new key and loads). Thread-safe.
   int acquire(const std::string& path);
-  /// The entry of a handle, or null for a handle this cache never gave. Lock-free.
+  /// The entry of a handle, or null for a handle this cache never gave. Lock-free for loaded files.
   const CachedAsset* get(double handle) const;
   /// Files loaded so far (each version of a file baked again while the process runs counts).
   int size() const { return count_.load(std::memory_order_acquire); }
@@ -40,8 +39,9 @@ class AssetCache {
  private:
   int add(std::unique_ptr<CachedAsset> entry);  // under mutex_
 
-  std::mutex mutex_;
-  std::unordered_map<std::string, int> handles_;  ///< key -> handle
+  mutable std::mutex mutex_;
+  std::unordered_map<std::string, int> handles_;        ///< key -> handle
+  std::vector<std::unique_ptr<CachedAsset>> failures_;  ///< handle -1 - i: the i-th failed key
   std::atomic<const CachedAsset*> entries_[kCapacity] = {};
   std::atomic<int> count_{0};
   std::unique_ptr<CachedAsset> overflow_;  ///< what every path gets once the cache is full

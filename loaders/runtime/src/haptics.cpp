@@ -30,10 +30,18 @@ Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& w) {
   return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
 }
 
-// The factor in (0, 1] that brings v's length down to the limit (1 when it is within it).
+// The factor in [0, 1] that brings v's length down to the limit (1 when it is within it; 0 for no force at all).
 double saturation_scale(const Eigen::Vector3d& v, double limit) {
+  if (limit <= 0) return 0.0;
   const double n = v.norm();
-  return n > limit && n > 0 ? limit / n : 1.0;
+  return n > limit ? limit / n : 1.0;
+}
+
+// The energy of a spring of stiffness k stretched by x whose force is capped at `limit`: quadratic up to the cap,
+// then linear (the saturated spring's own potential, which the implicit step never lets rise).
+double saturated_spring_energy(double k, double x, double limit) {
+  if (k * x <= limit) return 0.5 * k * x * x;
+  return limit * x - 0.5 * limit * limit / k;
 }
 
 }  // namespace
@@ -179,8 +187,8 @@ struct HapticRenderer::ContactTerms {
 };
 
 // The spring and damper from the tool to the device's pose of it. A saturated coupling is the same spring and
-// damper scaled down (its secant: the scale times the spring gives the saturated force at this stretch), so the
-// implicit step treats it as a softer linear spring and stays stable however large the step.
+// damper scaled down (its secant: the scale times their force is the saturated force at this stretch and
+// velocity), so the implicit step treats it as a softer linear spring and stays stable however large the step.
 struct HapticRenderer::Coupling {
   Eigen::Vector3d force, torque;
   double force_scale = 1.0, torque_scale = 1.0;  ///< in (0, 1]; below 1 where saturated
@@ -269,8 +277,8 @@ HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double 
   const Eigen::Vector3d stretch = device_com - com;
   const Eigen::Vector3d twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
   Coupling c;
-  c.energy =
-      0.5 * p.coupling_stiffness * stretch.squaredNorm() + 0.5 * p.coupling_angular_stiffness * twist.squaredNorm();
+  c.energy = saturated_spring_energy(p.coupling_stiffness, stretch.norm(), p.max_force) +
+             saturated_spring_energy(p.coupling_angular_stiffness, twist.norm(), p.max_torque);
   const Eigen::Vector3d force = p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_);
   const Eigen::Vector3d torque =
       p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_);

@@ -248,12 +248,15 @@ class CoherentTraversal {
 
   // A point is tested behind its node's sphere, as the level walk tests it: an interpolated distance may lie a
   // little below the bound of the true distance, so a point sampled without that gate could be a contact the
-  // walk from the root never reaches. Then its own bound first where a distance costs more.
+  // walk from the root never reaches. (Its ancestors' tests are not repeated: a point whose parent the walk culls
+  // while its own sphere passes could still differ.) Then its own bound first where a distance costs more. Only
+  // for voxelmaps: a function's distance is its bound.
   void revisit_point(uint32_t node) {
     float point_bound = -std::numeric_limits<float>::infinity();
     if (Target::kBoundBeforeDistance) {
       const PointTree::Node& n = nodes_[node];
       const float sphere_bound = target_.lower_bound(map(to_eigen(n.centre)));
+      ++stats_.nodes_visited;
       if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
         record(node, true, sphere_bound - n.radius * radius_scale_);
         return;

@@ -210,8 +210,9 @@ class HapticRenderer {
   const Pose& tool_pose() const { return tool_pose_; }
   const Eigen::Vector3d& tool_velocity() const { return velocity_; }
   const Eigen::Vector3d& tool_angular_velocity() const { return angular_velocity_; }
-  /// Energy at the start of the last cycle, J: the tool's kinetic energy, the coupling spring's and the contacts'
-  /// penalty potential (k depth^2 / 2 per point).
+  /// Energy at the start of the last cycle, J: the tool's kinetic energy, the coupling spring's (quadratic up to
+  /// max_force / max_torque, linear beyond: the saturated spring's potential) and the contacts' penalty potential
+  /// (k depth^2 / 2 per point).
   double energy() const { return energy_; }
   /// Contacts of the last cycle (all objects, world frame, normals pushing the tool out).
   const std::vector<Contact>& contacts() const { return contacts_; }
