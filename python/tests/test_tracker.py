@@ -42,8 +42,8 @@ def test_tracker_matches_independent_queries_and_does_less_work(sphere: voxfmt.B
         contacts += len(fresh)
     assert contacts > 1000
     assert lookups_tracked < lookups_fresh
-    # At rest (one pose again and again) a step looks up about its contacts, after the first two (the jump
-    # there, then one traversal from the root).
+    # At rest (one pose again and again) a step looks up its contacts (a bound and a distance each), after the
+    # first two (the jump there, then one traversal from the root).
     rest = poses_b[150]
     for _ in range(2):
         tracker.contacts(np.eye(4), rest, proximity=0.01 * RADIUS)

@@ -207,6 +207,22 @@ TEST(Haptics, ASaturatedCouplingIsStableAtAnyTimeStep) {
   }
 }
 
+TEST(Haptics, NoForceLimitMeansNoCoupling) {
+  // max_force and max_torque of 0: the device feels nothing and the tool is not pulled (not even by the implicit
+  // step's stiffness, which a limit of 0 once left in).
+  HapticParameters parameters;
+  parameters.max_force = parameters.max_torque = 0;
+  HapticRenderer renderer(tool(), at(0.05), parameters);
+  for (int i = 0; i < 100; ++i) {
+    const HapticCycle& cycle =
+        renderer.step(at(0, 0, 0, Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitX()).matrix()), 1e-3);
+    ASSERT_EQ(cycle.device_wrench.force.norm(), 0.0);
+    ASSERT_EQ(cycle.device_wrench.torque.norm(), 0.0);
+  }
+  EXPECT_EQ(renderer.tool_pose().translation.x(), 0.05);
+  EXPECT_EQ(renderer.tool_velocity().norm(), 0.0);
+}
+
 TEST(Haptics, DeviceJumpingThroughAThinWallLeavesTheToolOnTheNearSide) {
   // The wall is two voxels (10 mm) thick at x = 0. The device jumps from x = -60 mm (tool 10 mm in front of
   // the wall) to x = +80 mm in one cycle and stays there: the coupling pulls the tool at full force, the

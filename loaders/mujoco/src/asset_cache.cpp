@@ -1,5 +1,7 @@
 #include "asset_cache.h"
 
+#include <sys/stat.h>
+
 #include <filesystem>
 
 namespace voxfmt::mujoco {
@@ -7,17 +9,19 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// The canonical path with the file's size and modification time: a file baked again is loaded again. A path
-// that does not resolve is keyed as written (its entry holds the error; once the file exists it has a new key).
+// The canonical path with the file's size, modification and status-change times: a file baked again is loaded
+// again, and so is one whose load failed once its permissions or content changed (the status-change time moves
+// on any write, chmod or rename, and no user can set it back). A path that does not resolve is keyed as written
+// (its entry holds the error; once the file exists it has a new key).
 std::string key_of(const std::string& path) {
   std::error_code error;
   const fs::path canonical = fs::canonical(path, error);
   if (error) return "?" + path;
-  const auto size = fs::file_size(canonical, error);
-  if (error) return "?" + path;
-  const auto time = fs::last_write_time(canonical, error);
-  if (error) return "?" + path;
-  return canonical.string() + '\n' + std::to_string(size) + '\n' + std::to_string(time.time_since_epoch().count());
+  struct stat status {};
+  if (::stat(canonical.c_str(), &status) != 0) return "?" + path;
+  return canonical.string() + '\n' + std::to_string(status.st_size) + '\n' + std::to_string(status.st_mtim.tv_sec) +
+         '.' + std::to_string(status.st_mtim.tv_nsec) + '\n' + std::to_string(status.st_ctim.tv_sec) + '.' +
+         std::to_string(status.st_ctim.tv_nsec);
 }
 
 std::unique_ptr<CachedAsset> load_entry(const std::string& path) {
@@ -48,6 +52,8 @@ int AssetCache::acquire(const std::string& path) {
   std::lock_guard<std::mutex> lock(mutex_);
   const auto found = handles_.find(key);
   if (found != handles_.end()) return found->second;
+  // Full: no file is read (each naming is told so, without a read under the lock).
+  if (count_.load(std::memory_order_relaxed) >= kCapacity - 1) return add(nullptr);
   std::unique_ptr<CachedAsset> entry = load_entry(path);
   int handle;
   if (!entry->field) {  // no slot: a failure is kept apart, under a negative handle, for as long as the key holds
@@ -86,7 +92,7 @@ const CachedAsset* AssetCache::get(double handle) const {
     if (!(index < double(failures_.size())) || index != double(int(index))) return nullptr;
     return failures_[size_t(index)].get();
   }
-  if (!(handle >= 0 && handle < kCapacity)) return nullptr;  // also NaN
+  if (!(handle >= 0 && handle < kCapacity) || handle != double(int(handle))) return nullptr;  // also NaN
   return entries_[int(handle)].load(std::memory_order_acquire);
 }
 

@@ -191,7 +191,7 @@ struct HapticRenderer::ContactTerms {
 // velocity), so the implicit step treats it as a softer linear spring and stays stable however large the step.
 struct HapticRenderer::Coupling {
   Eigen::Vector3d force, torque;
-  double force_scale = 1.0, torque_scale = 1.0;  ///< in (0, 1]; below 1 where saturated
+  double force_scale = 1.0, torque_scale = 1.0;  ///< in [0, 1]; below 1 where saturated
   double energy = 0.0;
 };
 
