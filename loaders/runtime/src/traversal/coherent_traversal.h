@@ -252,18 +252,27 @@ class CoherentTraversal {
   // while its own sphere passes could still differ.) Then its own bound first where a distance costs more. Only
   // for voxelmaps: a function's distance is its bound.
   void revisit_point(uint32_t node) {
-    float point_bound = -std::numeric_limits<float>::infinity();
-    if (Target::kBoundBeforeDistance) {
-      const PointTree::Node& n = nodes_[node];
-      const float sphere_bound = target_.lower_bound(map(to_eigen(n.centre)));
-      ++stats_.nodes_visited;
-      if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
-        record(node, true, sphere_bound - n.radius * radius_scale_);
-        return;
-      }
-      if (n.child_count > 0) point_bound = target_.lower_bound(map(points_[node]));
-    }
-    test_point(node, point_bound);
+    if (!Target::kBoundBeforeDistance) return test_point(node, -std::numeric_limits<float>::infinity());
+    const NodeTest t = test_node(node);
+    if (!t.in_reach) return record(node, true, t.sphere_bound - nodes_[node].radius * radius_scale_);
+    test_point(node, t.point_bound);
+  }
+
+  // A node's sphere against the target, as the level walk tests it: in reach or not, the sphere's bound, and,
+  // where a distance costs more than a bound, the bound at the node's own point (-inf otherwise).
+  struct NodeTest {
+    bool in_reach;
+    float sphere_bound;
+    float point_bound;
+  };
+  NodeTest test_node(uint32_t node) {
+    const PointTree::Node& n = nodes_[node];
+    NodeTest t{false, target_.lower_bound(map(to_eigen(n.centre))), -std::numeric_limits<float>::infinity()};
+    ++stats_.nodes_visited;
+    t.in_reach = core::sphere_in_reach(t.sphere_bound, n.radius, radius_scale_, proximity_);
+    if (t.in_reach && Target::kBoundBeforeDistance && n.child_count > 0)
+      t.point_bound = target_.lower_bound(map(points_[node]));
+    return t;
   }
 
   // Stage 5, descend: the subtree of `root` as the level walk traverses it, recording where it stops.
@@ -274,18 +283,14 @@ class CoherentTraversal {
     for (size_t q = 0; q < queue.size(); ++q) {
       const uint32_t node = queue[q];
       const PointTree::Node& n = nodes_[node];
-      const float radius = n.radius * radius_scale_;
-      const float sphere_bound = target_.lower_bound(map(to_eigen(n.centre)));
-      ++stats_.nodes_visited;
-      if (!core::sphere_in_reach(sphere_bound, n.radius, radius_scale_, proximity_)) {
-        record(node, false, sphere_bound - radius);
+      const NodeTest t = test_node(node);
+      if (!t.in_reach) {
+        record(node, false, t.sphere_bound - n.radius * radius_scale_);
         continue;
       }
-      float point_bound = -std::numeric_limits<float>::infinity();
-      if (Target::kBoundBeforeDistance && n.child_count > 0) point_bound = target_.lower_bound(map(points_[node]));
-      test_point(node, point_bound);
+      test_point(node, t.point_bound);
       for (uint32_t c = n.first_child; c < n.first_child + n.child_count; ++c) {
-        const float carried = core::carried_bound(sphere_bound, point_bound, nodes_[c].reach_from_parent,
+        const float carried = core::carried_bound(t.sphere_bound, t.point_bound, nodes_[c].reach_from_parent,
                                                   nodes_[c].reach_from_parent_point, radius_scale_);
         if (carried > proximity_)
           record(c, false, carried);
