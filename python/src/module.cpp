@@ -625,16 +625,22 @@ double time_query(const Body& a, nb::handle pose_a, const Body& b, nb::handle po
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() / double(iterations);
 }
 
-// voxfmt errors become the voxfmt._errors exception of their code (the translator is global to nanobind).
+// voxfmt errors become the voxfmt._errors exception of their code (the translator is global to nanobind), an
+// unchecked Result's too (BadResultAccess carries its error), so no binding can raise a bare RuntimeError for one.
+void raise_coded(const voxfmt::Error& error) {
+  nb::object exc = nb::module_::import_("voxfmt._errors")
+                       .attr("make_error")(voxfmt::code_name(error.code), error.message, error.file, error.object);
+  PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
+}
+
 void bind_errors() {
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {
     try {
       std::rethrow_exception(p);
     } catch (const CodedError& e) {
-      const voxfmt::Error& error = e.error;
-      nb::object exc = nb::module_::import_("voxfmt._errors")
-                           .attr("make_error")(voxfmt::code_name(error.code), error.message, error.file, error.object);
-      PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
+      raise_coded(e.error);
+    } catch (const voxfmt::BadResultAccess& e) {
+      raise_coded(e.error());
     }
   });
 }

@@ -229,6 +229,10 @@ TEST(Errors, AnUncheckedFailedResultSaysWhatFailed) {
   const Result<int> fine = 3;
   EXPECT_EQ(fine.value(), 3);
   EXPECT_THROW((void)fine.error(), std::logic_error);
+  const Status succeeded = Status::success();  // a success has no error to hand out, as a Result has none
+  EXPECT_THROW((void)succeeded.error(), BadResultAccess);
+  const Status failed = Error(IssueCode::BadOption, "x");
+  EXPECT_EQ(failed.error().code, IssueCode::BadOption);
 }
 
 TEST(Files, OnlyAnEndedProcessCountsAsGone) {

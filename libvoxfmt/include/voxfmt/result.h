@@ -111,8 +111,8 @@ struct Error {
 };
 
 /// Thrown by Result::value() of a failed result (a caller that did not check ok()): carries the error, and its
-/// what() is the error's describe(), so an unchecked failure still says what failed. Also by Result::error() of
-/// a successful result (INTERNAL).
+/// what() is the error's describe(), so an unchecked failure still says what failed. Also by the error() of
+/// a Result or Status that succeeded (INTERNAL).
 class BadResultAccess : public std::logic_error {
  public:
   explicit BadResultAccess(Error e) : std::logic_error(e.describe()), error_(std::move(e)) {}
@@ -121,6 +121,18 @@ class BadResultAccess : public std::logic_error {
  private:
   Error error_;
 };
+
+namespace detail {
+// Built without exceptions, a caller that did not check ends the program instead (std::get did too).
+[[noreturn]] inline void fail_access(const BadResultAccess& e) {
+#if defined(__cpp_exceptions)
+  throw e;
+#else
+  (void)e;
+  std::abort();
+#endif
+}
+}  // namespace detail
 
 template <class T>
 class [[nodiscard]] Result {
@@ -137,22 +149,15 @@ class [[nodiscard]] Result {
   const T* operator->() const { return &value(); }
   /// The error; throws BadResultAccess (INTERNAL) when the call succeeded.
   const Error& error() const {
-    if (ok()) fail(BadResultAccess(Error{IssueCode::Internal, "voxfmt::Result::error() of a successful result"}));
+    if (ok())
+      detail::fail_access(
+          BadResultAccess(Error{IssueCode::Internal, "voxfmt::Result::error() of a successful result"}));
     return std::get<1>(state_);
   }
 
  private:
   void checked() const {
-    if (!ok()) fail(BadResultAccess(std::get<1>(state_)));
-  }
-  // Built without exceptions, a caller that did not check ends the program instead (std::get did too).
-  [[noreturn]] static void fail(const BadResultAccess& e) {
-#if defined(__cpp_exceptions)
-    throw e;
-#else
-    (void)e;
-    std::abort();
-#endif
+    if (!ok()) detail::fail_access(BadResultAccess(std::get<1>(state_)));
   }
   std::variant<T, Error> state_;
 };
@@ -165,7 +170,11 @@ class [[nodiscard]] Status {
   Status(Error e) : error_(std::move(e)), failed_(true) {}  // NOLINT(google-explicit-constructor)
   bool ok() const { return !failed_; }
   explicit operator bool() const { return ok(); }
-  const Error& error() const { return error_; }
+  /// The error; throws BadResultAccess (INTERNAL) when the call succeeded, as Result::error() does.
+  const Error& error() const {
+    if (ok()) detail::fail_access(BadResultAccess(Error{IssueCode::Internal, "voxfmt::Status::error() of a success"}));
+    return error_;
+  }
 
  private:
   Error error_;
