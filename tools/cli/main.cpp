@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <csignal>
 #include <exception>
 #include <iostream>
@@ -18,6 +19,23 @@ namespace {
 const char* command_name(const CLI::App& app) {
   const auto used = app.get_subcommands();
   return used.empty() ? "(no command)" : used.front()->get_name().c_str();
+}
+
+// Whether the command line asks for JSON: `--json`, or `--json=V` with V a value CLI11 reads as true (the last
+// one counts, as in CLI11). Needed where CLI11 itself refused the line, so that its error is JSON too.
+bool json_requested(int argc, char** argv) {
+  bool json = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--") break;
+    if (arg == "--json") json = true;
+    if (arg.rfind("--json=", 0) != 0) continue;
+    std::string value = arg.substr(7);
+    std::transform(value.begin(), value.end(), value.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    json = value == "true" || value == "1" || value == "yes" || value == "on" || value == "t" || value == "y" ||
+           value == "+" || value == "enable";
+  }
+  return json;
 }
 }  // namespace
 
@@ -59,7 +77,7 @@ int main(int argc, char** argv) {
     // CLI11's message with the one error model's code; the help is one option away.
     const std::string command = command_name(app);
     // With --json the error is JSON on stdout too, as every command's own errors are.
-    const bool json = std::any_of(argv + 1, argv + argc, [](const char* a) { return std::string(a) == "--json"; });
+    const bool json = json_requested(argc, argv);
     voxfmt::cli::report_error(command.c_str(), {voxfmt::IssueCode::BadOption, e.what()}, json, "");
     std::cerr << "run 'voxfmt " << (command == "(no command)" ? "" : command + " ") << "--help' for the options\n";
     return voxfmt::cli::kExitUsageOrIo;
