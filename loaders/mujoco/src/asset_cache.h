@@ -26,8 +26,8 @@ class AssetCache {
   static AssetCache& instance();
 
   /// The handle of `path`'s entry, loading the file the first time it is named (again if it changed on disk:
-  /// the key is the canonical path with the file's size and modification time; the earlier version stays
-  /// loaded, as a model compiled against it may still use it). A failed load is an entry too, so the failure can
+  /// the key is the canonical path with the file's size, modification and status-change times; the earlier version
+  /// stays loaded, as a model compiled against it may still use it). A failed load is an entry too, so the failure can
   /// be reported where MuJoCo lets a plugin report one (init), and compile and init judge a file alike; it has a
   /// negative handle and takes none of the kCapacity places (a mended file has a new key and loads). Thread-safe.
   int acquire(const std::string& path);

@@ -127,8 +127,9 @@ float SparseVoxelmap::value_at(int i, int j, int k) const {
 }
 
 int SparseVoxelmap::layer_at(int i, int j, int k) const {
-  if (!in_grid(i, j, k)) return std::numeric_limits<int>::min();
-  return int(std::clamp(std::floor(-double(value_at(i, j, k)) + 0.5), -32767.0, 32767.0));
+  const float value = value_at(i, j, k);  // NaN outside the grid only: a voxel's value is always finite
+  if (std::isnan(value)) return std::numeric_limits<int>::min();
+  return int(std::clamp(std::floor(-double(value) + 0.5), -32767.0, 32767.0));
 }
 
 float SparseVoxelmap::stored_distance_at(int i, int j, int k) const {
