@@ -268,11 +268,14 @@ class Batch(unittest.TestCase):
         self.assertFalse(os.path.exists(self.out))
         # Option values that cannot be meant: coded, exit 2, nothing baked.
         for bad in (["--timeout", "nan"], ["--threads", "4294967295"], ["--max-memory", "120"],
-                    ["--voxel-size", "0"], ["--band", "inf"]):
+                    ["--max-memory", "1e3"], ["--voxel-size", "0"], ["--band", "inf"]):
             r, _ = self.batch(self.lib, *bad, expect=2)
             self.assertIn("BAD_OPTION", r.stderr, bad)
             self.assertIn(bad[0], r.stderr, bad)
             self.assertFalse(os.path.exists(self.out), bad)
+        # A size written as "1e3" is 1000 to a reader: the message says what is wrong with it, not "not in range".
+        r, _ = self.batch(self.lib, "--max-memory", "1e3", expect=2)
+        self.assertIn("whole number", r.stderr)
 
     def test_nothing_that_is_not_a_manifest_or_a_mesh_is_overwritten_or_waited_for(self):
         # --manifest naming a mesh or notes: refused, the file untouched (compaction used to rewrite it).

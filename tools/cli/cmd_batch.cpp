@@ -512,7 +512,7 @@ int report_after_batch(const Options& o) {
 // measured ~140 MiB for a 64^3 bunny; a limit that low is a typo, refused rather than recorded as CRASHED.
 constexpr unsigned long long kLeastBakeAddressSpaceMib = 256;
 
-// --max-memory as the option parser converted it (its own reading of "0x10" or "-1"): 0, or a limit a bake can
+// --max-memory (decimal digits, whole_number): 0, or a limit a bake can
 // start under and that shifts into bytes without wrapping.
 void check_max_memory(size_t mib) {
   constexpr size_t kMostMib = size_t(1) << 40;
@@ -570,7 +570,8 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                   "MiB one bake may use: its address space (OUT_OF_MEMORY beyond), and what its voxelmap may need "
                   "(refused up front beyond, with the estimate); 0 = no limit, else at least " +
                       std::to_string(kLeastBakeAddressSpaceMib))
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(whole_number());
   cmd->add_option(
       "--manifest", o->manifest,
       "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");

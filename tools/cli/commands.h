@@ -25,6 +25,17 @@ int report_error(const char* command, const Error& error);
 /// ({"status": "error", "input", "code", "message"}): a script reading stdout sees the failure.
 int report_error(const char* command, const Error& error, bool json, const std::string& input);
 
+/// A count written in decimal digits only (MiB, points): "1e3", "0x10", "-1" or "2.5" are refused as not a whole
+/// number, where the integer conversion would read some of them its own way or call them out of range.
+inline CLI::Validator whole_number() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        if (!text.empty() && text.find_first_not_of("0123456789") == std::string::npos) return "";
+        return "must be a whole number in decimal digits, not '" + text + "'";
+      },
+      "");
+}
+
 /// `--max-memory MiB`: the read budget of a command that reads assets (voxfmt/io.h ReadOptions), into `options`.
 inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
   cmd->add_option_function<uint64_t>(
@@ -32,6 +43,7 @@ inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
          "MiB a read may use, decided from the file's metadata before anything is read (beyond: OUT_OF_MEMORY, "
          "exit 2; default " +
              std::to_string(ReadOptions::kDefaultReadMemoryBytes >> 20) + ", enough for a 2048^3 asset)")
+      ->check(whole_number())
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
 }
 
