@@ -163,6 +163,13 @@ class BuildBadInput(unittest.TestCase):
         # The message says what is wanted (CLI11's own named a range up to 1.8e308 that seemed to hold 0).
         r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--voxel-size", "0"], capture_output=True, text=True)
         self.assertIn("must be a finite number > 0", r.stderr)
+        # A count in another notation is refused as such, not as out of range ("1e3") or read its own way ("0x2").
+        for option, value in (("--resolution", "1e3"), ("--points", "1e4"), ("--threads", "0x2"), ("--margin", "2.5"),
+                              ("--max-memory", "1e3")):
+            r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, option, value], capture_output=True, text=True)
+            self.assertEqual(r.returncode, 2, option)
+            self.assertIn("must be a whole number in decimal digits, not '%s'" % value, r.stderr)
+            self.assertFalse(os.path.exists(self.out))
 
     def test_good_input_writes_a_valid_asset(self):
         tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")

@@ -180,6 +180,7 @@ void add_export_options(CLI::App* cmd, Options& options) {
       ->needs(slice);
   cmd->add_option("--zoom", options.zoom,
                   "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
+      ->check(whole_number())
       ->check(CLI::Range(1, 64))
       ->needs(slice);
   auto* ply = cmd->add_option("--ply", options.ply,
