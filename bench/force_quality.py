@@ -347,14 +347,16 @@ def method_figures(force, torque, ref_force, ref_torque, depth_voxels, lever) ->
     return out
 
 
-def haptic_wrench(tool_asset: Path, field_asset: Path, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def haptic_wrench(tool_asset: Path, field_asset: Path, poses: np.ndarray,
+                  tricubic: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """HapticRenderer::contact_wrench_at at every pose, through bench/haptic_wrench.cpp (the renderer is C++), and
-    its microseconds per pose (loading excluded)."""
+    its microseconds per pose (loading excluded); `tricubic`: its depths interpolated so."""
     with tempfile.TemporaryDirectory() as scratch:
         pose_file, out_file = Path(scratch) / "poses.f64", Path(scratch) / "wrench.f64"
         np.ascontiguousarray(poses, dtype="<f8").tofile(pose_file)
         run = subprocess.run([str(HAPTIC_WRENCH), str(tool_asset), str(field_asset), str(pose_file), str(out_file),
-                              "--stiffness", str(STIFFNESS)], check=True, capture_output=True, text=True)
+                              "--stiffness", str(STIFFNESS)] + (["--tricubic"] if tricubic else []),
+                             check=True, capture_output=True, text=True)
         wrench = np.fromfile(out_file, dtype="<f8").reshape(len(poses), 6)
     us_per_pose = float(run.stdout.split()[-1])
     return wrench[:, :3], wrench[:, 3:], us_per_pose
@@ -386,13 +388,14 @@ def run_path(name: str, tool, field, poses: np.ndarray, reference, h: float, vox
 
     runs = [("fine", None, None)] + [(f"level {level} {cut}", level, cut) for level in range(len(levels) - 2)
                                      for cut in ("points", "spheres")]
-    for label, level, cut in runs + [("coherent", None, None)]:
+    for label, level, cut in runs + [("fine tricubic", None, None), ("coherent", None, None)]:
         start = time.perf_counter()
         if label == "coherent":
             batch = voxfmt.Tracker(tool, field).contacts_batch(poses, identity, stiffness=STIFFNESS)
         else:
             batch = voxfmt.contacts_batch(tool, poses, field, identity, threads=1, stiffness=STIFFNESS,
-                                          max_level=level, cut_level=cut or "spheres")
+                                          max_level=level, cut_level=cut or "spheres",
+                                          interpolation="tricubic" if label == "fine tricubic" else "trilinear")
         points = int(levels[level + 1]) if level is not None else len(tool.points)
         seconds = time.perf_counter() - start
         # A cut shell has fewer points to share the load: each stands for len(shell) / points of the surface, so
@@ -403,6 +406,8 @@ def run_path(name: str, tool, field, poses: np.ndarray, reference, h: float, vox
         # The haptic renderer (full trees): the same per-point penalty along the tool's own point normals.
         force, torque, us_per_pose = haptic_wrench(*assets, poses)
         record("haptic renderer", force, torque, 1.0, len(tool.points), us_per_pose)
+        force, torque, us_per_pose = haptic_wrench(*assets, poses, tricubic=True)
+        record("haptic renderer tricubic", force, torque, 1.0, len(tool.points), us_per_pose)
     reference_smoothness = round(smoothness(ref_force, depth_voxels >= MIN_DEPTH_VOXELS), 3)
     return {"path": name, "steps": len(poses), "voxel_size": h, "reference_smoothness": reference_smoothness,
             "methods": methods, "depth_voxels": depth_voxels.round(4).tolist(), "force_norm": series}
@@ -579,6 +584,9 @@ def main() -> int:
     ap.add_argument("--check-only", default="shallow,deep,jump,coherent",
                     help="with --check, the targets checked: shallow, deep (steps within tolerance), jump (excess "
                          "jump), coherent (coherent = fine)")
+    ap.add_argument("--check-also", action="append", default=[], metavar="METHOD:TARGETS",
+                    help="with --check, also hold another method to targets (shallow, deep, jump), e.g. "
+                         "'fine tricubic:shallow,deep'; repeatable")
     args = ap.parse_args()
     if args.plot:
         plot(*args.plot)
@@ -590,11 +598,16 @@ def main() -> int:
     if unknown:
         print(f"force_quality: unknown path(s) {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
-    targets = set(args.check_only.split(","))
-    unknown_targets = targets - {"shallow", "deep", "jump", "coherent"}
-    if unknown_targets:
-        print(f"force_quality: unknown target(s) {', '.join(sorted(unknown_targets))}", file=sys.stderr)
-        return 2
+    targets = {"fine": set(args.check_only.split(","))}
+    for also in args.check_also:
+        method, _, listed = also.partition(":")
+        targets[method] = set(listed.split(",")) - {"coherent"} if listed else set()
+    for method, wanted in targets.items():
+        unknown_targets = wanted - {"shallow", "deep", "jump", "coherent"}
+        if unknown_targets or not wanted:
+            print(f"force_quality: unknown or no target(s) for {method}: {', '.join(sorted(unknown_targets))}",
+                  file=sys.stderr)
+            return 2
     result = measure(args)
     table = markdown(result)
     print(table)
@@ -628,19 +641,24 @@ def check_reference(args) -> int:
     return 0 if max(worst) < 1e-6 else 1
 
 
-def check(result: dict, targets: set[str]) -> int:
-    """The targets that do not depend on the machine (those in `targets`): the fine shell within 2 % and 2 degrees
-    in 95 % of the shallow steps and 10 % in 95 % of the deep ones, no excess jump above 5 median steps, coherent =
-    fine."""
+def check(result: dict, targets: dict[str, set[str]]) -> int:
+    """The targets that do not depend on the machine (`targets`: per method, those checked): within 2 % and 2
+    degrees in 95 % of the shallow steps and 10 % in 95 % of the deep ones, no excess jump above 5 median steps,
+    coherent = fine."""
     failures = []
     for p in result["paths"]:
-        fine = p["methods"]["fine"]
-        for band in ("shallow", "deep"):
-            if band in targets and band in fine and fine[band]["within_share"] < 0.95:
-                failures.append(f"{p['path']}: fine within tolerance in {fine[band]['within_share']:.1%} of {band} steps")
-        if "jump" in targets and fine["excess_jump"] > 5:
-            failures.append(f"{p['path']}: fine's error jumps {fine['excess_jump']:.1f} median steps")
-        if "coherent" in targets and p["force_norm"]["coherent"] != p["force_norm"]["fine"]:
+        for name, wanted in targets.items():
+            if name not in p["methods"]:
+                failures.append(f"{p['path']}: no method {name!r}")
+                continue
+            method = p["methods"][name]
+            for band in ("shallow", "deep"):
+                if band in wanted and band in method and method[band]["within_share"] < 0.95:
+                    failures.append(f"{p['path']}: {name} within tolerance in {method[band]['within_share']:.1%} of "
+                                    f"{band} steps")
+            if "jump" in wanted and method["excess_jump"] > 5:
+                failures.append(f"{p['path']}: {name}'s error jumps {method['excess_jump']:.1f} median steps")
+        if "coherent" in targets["fine"] and p["force_norm"]["coherent"] != p["force_norm"]["fine"]:
             failures.append(f"{p['path']}: coherent's force differs from fine's")
     for failure in failures:
         print(f"force_quality: FAILED {failure}", file=sys.stderr)

@@ -1,7 +1,7 @@
 // The haptic renderer's contact wrench along a path, for bench/force_quality.py: HapticRenderer::contact_wrench_at
 // (the full trees; the per-point penalty along the tool's own point normals, classical VPS) at every pose.
 //
-//   haptic-wrench TOOL.vox.h5 OBJECT.vox.h5 POSES OUT --stiffness K
+//   haptic-wrench TOOL.vox.h5 OBJECT.vox.h5 POSES OUT --stiffness K [--tricubic]
 //
 // POSES: the tool's poses in the object's frame, N row-major 4x4 float64 matrices (raw, little-endian); OUT gets N
 // rows of force and torque (about the tool's centre of mass), 6 float64 each. Prints the microseconds per pose of
@@ -50,6 +50,8 @@ int main(int argc, char** argv) {
   app.add_option("poses", poses_path, "N row-major 4x4 float64 poses of the tool")->required();
   app.add_option("out", out_path, "N x 6 float64: force, torque")->required();
   app.add_option("--stiffness", stiffness, "N/m per penetrating point")->capture_default_str();
+  bool tricubic = false;
+  app.add_flag("--tricubic", tricubic, "Depths interpolated tricubically (QueryOptions::interpolation)");
   CLI11_PARSE(app, argc, argv);
 
   std::ifstream in(poses_path, std::ios::binary | std::ios::ate);
@@ -69,6 +71,7 @@ int main(int argc, char** argv) {
   const auto object = load_or_exit(object_path);
   rt::HapticParameters parameters;
   parameters.contact_stiffness = stiffness;
+  if (tricubic) parameters.query.interpolation = rt::Interpolation::Tricubic;
   rt::HapticRenderer renderer(tool, pose_of(poses.data()), parameters);
   renderer.add_object(object, rt::Pose{});
   std::vector<double> out;

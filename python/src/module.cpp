@@ -168,8 +168,12 @@ struct Cut {
 };
 
 QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
-                           const Cut& cut = {}) {
+                           const Cut& cut = {}, const std::string& interpolation = "trilinear") {
   QueryOptions options;
+  if (interpolation == "tricubic")
+    options.interpolation = runtime::Interpolation::Tricubic;
+  else if (interpolation != "trilinear")
+    fail(IssueCode::BadOption, "interpolation must be 'trilinear' or 'tricubic', not '" + interpolation + "'");
   if (cut.max_level) {
     if (*cut.max_level < 0) fail(IssueCode::BadOption, "max_level must be >= 0 (or None: the whole tree)");
     options.max_level = uint32_t(std::min<int64_t>(*cut.max_level, std::numeric_limits<uint32_t>::max()));
@@ -251,10 +255,11 @@ double deepest_depth(const ContactSet& set) {
 
 Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, std::optional<int64_t> point_budget,
                std::optional<double> time_budget_us, double proximity, std::optional<int64_t> max_level,
-               const std::string& cut_level) {
+               const std::string& cut_level, const std::string& interpolation) {
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
-  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
+  const QueryOptions options =
+      query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level}, interpolation);
   // The traversal fills a per-thread set that keeps its capacity; the result gets one allocation of the exact
   // size (a fresh vector grown contact by contact cost more than the copy).
   thread_local runtime::QueryScratch scratch;
@@ -268,10 +273,11 @@ Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_
   return out;
 }
 
-Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, double proximity) {
+Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, double proximity,
+                       const std::string& interpolation) {
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
-  const QueryOptions options = query_options(std::nullopt, std::nullopt, proximity);
+  const QueryOptions options = query_options(std::nullopt, std::nullopt, proximity, {}, interpolation);
   const std::unique_lock<std::mutex> lock = tracker.claim();
   tracker.work.clear();
   runtime::query_contacts(*tracker.a.object, pa, *tracker.b.object, pb, options, tracker.work, tracker.scratch,
@@ -434,8 +440,10 @@ struct BatchOutputs {
 BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::handle poses_b,
                          std::optional<int64_t> threads, bool with_contacts, double stiffness,
                          std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
-                         Tracker* tracker, std::optional<int64_t> max_level, const std::string& cut_level) {
-  const QueryOptions options = query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level});
+                         Tracker* tracker, std::optional<int64_t> max_level, const std::string& cut_level,
+                         const std::string& interpolation) {
+  const QueryOptions options =
+      query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level}, interpolation);
   if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
   const BatchPoses poses = batch_poses(poses_a, poses_b);
@@ -834,16 +842,19 @@ void bind_queries(nb::module_& m) {
         "decided from the file's metadata before anything is read.");
   m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a = nb::none(),
         "time_budget_us"_a = nb::none(), "proximity"_a = 0.0, "max_level"_a = nb::none(), "cut_level"_a = "spheres",
+        "interpolation"_a = "trilinear",
         nb::sig("def contacts(a: Body, pose_a: numpy.typing.ArrayLike, b: Body, pose_b: numpy.typing.ArrayLike, *, "
                 "point_budget: int | None = None, time_budget_us: float | None = None, proximity: float = 0.0, "
-                "max_level: int | None = None, cut_level: str = 'spheres') -> Contacts"),
+                "max_level: int | None = None, cut_level: str = 'spheres', interpolation: str = 'trilinear') "
+                "-> Contacts"),
         "Contacts between a and b placed by 4x4 rigid body-to-world poses (voxfmt.PoseError, code BAD_POSE,\n"
         "when not rigid). point_budget stops before the tree level that would exceed it; time_budget_us bounds\n"
         "each traversal; max_level is the deepest tree level tested (0: the root); proximity also reports points\n"
         "outside but closer than it (negative depth). A query stopped above the leaves reports its last level as\n"
         "cut_level says: 'spheres' (each point stands for its sphere: no contact of the full tree is lost, depths\n"
         "up to two radii deeper) or 'points' (each point only for itself, at its true depth: the seed's coarse\n"
-        "shell).");
+        "shell). interpolation: 'trilinear' (8 voxels a point) or 'tricubic' (Catmull-Rom over 64 where they\n"
+        "hold stored distances: a curved surface's depth and normal far nearer the exact ones, for haptic forces).");
   m.def("wrench", &wrench, "contacts"_a, "stiffness"_a, nb::kw_only(), "reference"_a = nb::none(),
         nb::sig("def wrench(contacts: Contacts, stiffness: float, *, reference: numpy.typing.ArrayLike | None = "
                 "None) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64]]"),
@@ -852,7 +863,8 @@ void bind_queries(nb::module_& m) {
   m.def("_contacts_batch", &contacts_batch, "a"_a, "poses_a"_a, "b"_a, "poses_b"_a, nb::kw_only(),
         "threads"_a.none() = nb::none(), "with_contacts"_a = false, "stiffness"_a = 1.0,
         "point_budget"_a.none() = nb::none(), "time_budget_us"_a.none() = nb::none(), "proximity"_a = 0.0,
-        "tracker"_a.none() = nb::none(), "max_level"_a.none() = nb::none(), "cut_level"_a = "spheres");
+        "tracker"_a.none() = nb::none(), "max_level"_a.none() = nb::none(), "cut_level"_a = "spheres",
+        "interpolation"_a = "trilinear");
   nb::class_<Tracker>(m, "_Tracker")
       .def(
           "__init__",
@@ -864,7 +876,7 @@ void bind_queries(nb::module_& m) {
           "a"_a, "b"_a)
       .def_prop_ro("a", [](const Tracker& t) { return t.a; })
       .def_prop_ro("b", [](const Tracker& t) { return t.b; })
-      .def("_contacts", &tracked_query, "pose_a"_a, "pose_b"_a, "proximity"_a)
+      .def("_contacts", &tracked_query, "pose_a"_a, "pose_b"_a, "proximity"_a, "interpolation"_a = "trilinear")
       .def("reset", [](Tracker& t) {
         const std::unique_lock<std::mutex> lock = t.claim();
         t.state.reset();

@@ -122,6 +122,31 @@ def test_max_level_cuts_at_a_level_and_cut_level_says_what_it_reports(sphere: vo
         assert error.value.code == "BAD_OPTION"
 
 
+def test_tricubic_interpolation_everywhere_a_query_is_made(sphere: voxfmt.Body) -> None:
+    # The C++ tests measure its accuracy against a closed form; here every entry point takes the option, agrees
+    # with the others, and refuses a reading it does not know.
+    h = sphere.voxel_size
+    pose_b = overlap_pose(0.6 * h)
+    linear = voxfmt.contacts(sphere, np.eye(4), sphere, pose_b)
+    cubic = voxfmt.contacts(sphere, np.eye(4), sphere, pose_b, interpolation="tricubic")
+    assert len(linear) > 0 and len(cubic) > 0
+    shared, in_linear, in_cubic = np.intersect1d(linear.point_index, cubic.point_index, return_indices=True)
+    assert len(shared) > 0.8 * len(linear)
+    change = np.abs(cubic.depths[in_cubic] - linear.depths[in_linear])
+    assert change.max() > 0 and change.max() < 0.1 * h  # another reading of the same values, not another field
+    batch = voxfmt.contacts_batch(sphere, np.eye(4)[None], sphere, pose_b[None], interpolation="tricubic")
+    assert batch.count[0] == len(cubic) and batch.max_depth[0] == cubic.max_depth
+    tracker = voxfmt.Tracker(sphere, sphere)
+    for reading, expected in (("tricubic", cubic), ("trilinear", linear), ("tricubic", cubic)):
+        tracked = tracker.contacts(np.eye(4), pose_b, interpolation=reading)
+        np.testing.assert_array_equal(tracked.depths, expected.depths)
+    along = tracker.contacts_batch(np.eye(4)[None], pose_b[None], interpolation="tricubic")
+    assert along.max_depth[0] == cubic.max_depth
+    with pytest.raises(voxfmt.OptionError) as error:
+        voxfmt.contacts(sphere, np.eye(4), sphere, pose_b, interpolation="cubic")
+    assert error.value.code == "BAD_OPTION" and "tricubic" in str(error.value)
+
+
 def test_views_are_read_only_and_outlive_their_owner(sphere_asset: Path) -> None:
     body = voxfmt.load(sphere_asset)
     points, normals, levels, radii = body.points, body.normals, body.levels, body.sphere_radii

@@ -243,12 +243,14 @@ def contacts_batch(
     proximity: float = 0.0,
     max_level: int | None = None,
     cut_level: str = "spheres",
+    interpolation: str = "trilinear",
 ) -> Batch:
     """contacts() for K pose pairs at once: ``poses_a`` and ``poses_b`` are (K, 4, 4) (either may be one
     (4, 4) pose for all K). The GIL is released; ``threads`` workers (default: every core) split the poses;
     the outputs are allocated once. Returns per-pose ``count``, ``max_depth``, ``force`` and ``torque``
     (penalty wrench with ``stiffness``, as wrench() computes it), plus the flattened contacts with
-    ``with_contacts``. ``point_budget``, ``time_budget_us``, ``max_level`` and ``cut_level`` are contacts()'s.
+    ``with_contacts``. ``point_budget``, ``time_budget_us``, ``max_level``, ``cut_level`` and
+    ``interpolation`` are contacts()'s.
     Raises PoseError naming the first non-rigid pose before any query runs."""
     if not isinstance(with_contacts, bool):
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
@@ -258,7 +260,7 @@ def contacts_batch(
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
                           time_budget_us=time_budget_us, proximity=_real("proximity", proximity),
-                          max_level=max_level, cut_level=cut_level)
+                          max_level=max_level, cut_level=cut_level, interpolation=interpolation)
     return Batch(**out)
 
 
@@ -282,9 +284,11 @@ class Tracker:
     def b(self) -> Body:
         return self._tracker.b
 
-    def contacts(self, pose_a: npt.ArrayLike, pose_b: npt.ArrayLike, *, proximity: float = 0.0) -> Contacts:
-        """contacts(a, pose_a, b, pose_b), coherent with this pair's earlier queries."""
-        return self._tracker._contacts(pose_a, pose_b, _real("proximity", proximity))
+    def contacts(self, pose_a: npt.ArrayLike, pose_b: npt.ArrayLike, *, proximity: float = 0.0,
+                 interpolation: str = "trilinear") -> Contacts:
+        """contacts(a, pose_a, b, pose_b), coherent with this pair's earlier queries (a query with another
+        ``interpolation`` than the last starts from the root)."""
+        return self._tracker._contacts(pose_a, pose_b, _real("proximity", proximity), interpolation)
 
     def contacts_batch(
         self,
@@ -294,6 +298,7 @@ class Tracker:
         with_contacts: bool = False,
         stiffness: float = 1.0,
         proximity: float = 0.0,
+        interpolation: str = "trilinear",
     ) -> Batch:
         """contacts_batch() over K consecutive poses (a trajectory), in order on one thread, each query coherent
         with the one before (and with this tracker's earlier queries). The GIL is released."""
@@ -302,7 +307,7 @@ class Tracker:
         _refuse_beyond_pose_memory(poses_a, poses_b)
         out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
                               stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),
-                              tracker=self._tracker)
+                              tracker=self._tracker, interpolation=interpolation)
         return Batch(**out)
 
     def reset(self) -> None:

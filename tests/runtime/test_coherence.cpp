@@ -141,6 +141,52 @@ TEST(Coherence, ABodyTurningInsideAnotherGivesTheSameContactsRoundAfterRound) {
   EXPECT_LT(l.unordered, steps * rounds);  // the front was kept and revisited, not only rebuilt
 }
 
+TEST(Coherence, TricubicQueriesGiveTheSameContactsWhateverTheReadingBefore) {
+  // A tricubic sample may fall faster than a trilinear one as a point moves (core::kTricubicSlope): the front
+  // allows for it. And one state queried with either reading in turn gives each query's own contacts (the front
+  // starts afresh at a change: its bounds are of the other reading's samples).
+  const BakedBunny& bunny = BakedBunny::get();
+  const double h = bunny.h;
+  const size_t steps = 600;
+  const auto path = [&](size_t s) {
+    const double t = double(s % steps) / double(steps);
+    const double gap = 0.97 - 0.12 * std::sin(3.14159265358979 * t);
+    return pose_at(Eigen::Vector3d(0.2, 1, 0.1), 0.3 * t, Eigen::Vector3d(gap, 0.05 * t, -0.02 * t));
+  };
+  QueryOptions options;
+  options.direction = QueryDirection::APointsInB;
+  options.proximity = 0.5 * h;
+  options.interpolation = Interpolation::Tricubic;
+  const Lookups l = run_trajectory(*bunny.object, *bunny.object, options, steps, path);
+  EXPECT_GT(l.contacts, 1000u);
+  EXPECT_LT(l.coherent, l.fresh);
+
+  QueryScratch scratch;
+  QueryState state;
+  ContactSet fresh, coherent;
+  size_t differing = 0;
+  for (size_t s = 0; s < 200; ++s) {
+    QueryOptions o = options;
+    o.interpolation = (s / 3) % 2 ? Interpolation::Tricubic : Interpolation::Trilinear;
+    const Pose pa = path(200 + s);
+    fresh.clear();
+    coherent.clear();
+    query_contacts(*bunny.object, pa, *bunny.object, Pose{}, o, fresh, scratch);
+    query_contacts(*bunny.object, pa, *bunny.object, Pose{}, o, coherent, scratch, state);
+    expect_identical(fresh, coherent, s);
+    if (HasFatalFailure()) return;
+    // The two readings differ at this overlap (else the test would prove nothing about the change).
+    ContactSet other;
+    QueryOptions flipped = o;
+    flipped.interpolation =
+        o.interpolation == Interpolation::Tricubic ? Interpolation::Trilinear : Interpolation::Tricubic;
+    query_contacts(*bunny.object, pa, *bunny.object, Pose{}, flipped, other, scratch);
+    differing += other.contacts.size() != fresh.contacts.size() ||
+                 (!fresh.contacts.empty() && other.contacts[0].depth != fresh.contacts[0].depth);
+  }
+  EXPECT_GT(differing, 100u);
+}
+
 TEST(Coherence, ABodyAtRestLooksUpOnlyItsContacts) {
   // Resting contact: the same pose step after step. After the first step only the points in contact (and those
   // within reach) are looked up again.

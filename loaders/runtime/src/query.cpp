@@ -38,9 +38,12 @@ struct VoxelmapTarget {
   /// Whether a sample computes the gradient too (gradient normals: the contact's normal then needs no second
   /// sample at the same point).
   bool gradients = false;
+  bool tricubic = false;  ///< QueryOptions::interpolation
+  float sampled_slope() const { return tricubic ? core::kTricubicSlope : core::kTrilinearSlope; }
   void sample(const Eigen::Vector3f& u, QueryScratch::Buffers::Hit& hit) const {
     core::Vec3 g = core::make_vec3(0, 0, 0);
-    const core::Sample s = core::sample(field, core::to_core(u), gradients ? &g : nullptr);
+    const core::Sample s = tricubic ? core::sample_tricubic(field, core::to_core(u), gradients ? &g : nullptr)
+                                    : core::sample(field, core::to_core(u), gradients ? &g : nullptr);
     hit.distance = s.distance;
     hit.exact = s.exact;
     hit.has_gradient = gradients;
@@ -82,12 +85,12 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
     contact.exact = hit.exact;
     out.contacts.push_back(contact);
   };
-  const VoxelmapTarget target{core_field, gradient_normals};
+  const VoxelmapTarget target{core_field, gradient_normals, options.interpolation == Interpolation::Tricubic};
   const bool allowed = front && detail::coherent_query_allowed(options);
   // The voxelmap is fixed in its own grid: displacements are measured there too.
   const Eigen::Matrix3f M = core::to_eigen(frame.to_grid);
   const Eigen::Vector3f m = core::to_eigen(frame.to_grid.m);
-  if (allowed) front->state().bind(&tree, tree.size(), core_field.bricks);
+  if (allowed) front->state().bind(&tree, tree.size(), core_field.bricks, int(options.interpolation));
   if (allowed && front->state().take_turn(M, m, tree.extent)) {
     detail::traverse_coherent(tree, frame, M, m, target, out.stats, scratch.buffers(), front->state(), emit);
   } else {

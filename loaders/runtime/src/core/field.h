@@ -333,6 +333,86 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   return result;
 }
 
+/// How fast an interpolated field may fall per voxel the point moves, adjacent stored values differing by at most
+/// 1 voxel per voxel (the distance is 1-Lipschitz) plus their quantisation: the slope a coherent query allows a
+/// sampled bound. Trilinear: along each axis a weighted mean of adjacent differences, sqrt(3) in all. Catmull-Rom:
+/// along an axis a sum of the three adjacent differences whose weights' magnitudes sum to 6 t (1 - t) <= 1.5, times
+/// the other two axes' weights, whose magnitudes sum to 1 + t (1 - t) <= 1.25 each: 2.34375 per axis.
+constexpr float kTrilinearSlope = 1.7321f * 1.001f;
+constexpr float kTricubicSlope = 1.7321f * 2.34375f * 1.001f;
+
+/// Catmull-Rom weights of the four voxels around a coordinate (offsets -1, 0, 1, 2 from the voxel below it) at
+/// `t` in [0, 1), and their derivatives in t. The kernel reproduces quadratics exactly: a curved surface's
+/// distance, which trilinear weights overestimate on its convex side by about t (1 - t) / 2 times its curvature.
+VOXFMT_HD void catmull_rom(float t, float w[4], float dw[4]) {
+  const float t2 = t * t, t3 = t2 * t;
+  w[0] = 0.5f * (-t3 + 2.0f * t2 - t);
+  w[1] = 0.5f * (3.0f * t3 - 5.0f * t2 + 2.0f);
+  w[2] = 0.5f * (-3.0f * t3 + 4.0f * t2 + t);
+  w[3] = 0.5f * (t3 - t2);
+  dw[0] = 0.5f * (-3.0f * t2 + 4.0f * t - 1.0f);
+  dw[1] = 0.5f * (9.0f * t2 - 10.0f * t);
+  dw[2] = 0.5f * (-9.0f * t2 + 8.0f * t + 1.0f);
+  dw[3] = 0.5f * (3.0f * t2 - 2.0f * t);
+}
+
+/// The tricubic (Catmull-Rom) field at a point the grid covers, where the 4^3 voxels around it all lie in the grid
+/// and hold stored distances (false otherwise: nothing is written). `gradient` per voxel, as trilinear's.
+VOXFMT_HD bool tricubic_stored(const Field& f, const Vec3& u, float& distance, Vec3* gradient) {
+  int base[3];
+  float w[3][4], dw[3][4];
+  for (int a = 0; a < 3; ++a) {
+    const float c = u[a];
+    base[a] = int(c + 1.0f) - 1;  // floor: c > -1 where the grid covers u
+    if (base[a] < 1 || base[a] + 2 > f.dims[a] - 1) return false;
+    catmull_rom(c - float(base[a]), w[a], dw[a]);
+  }
+  // Along x for each of the 16 rows, then along y for each of the 4 planes, then along z.
+  float row[16], row_dx[16];
+  for (int r = 0; r < 16; ++r) {
+    const int j = base[1] - 1 + (r & 3), k = base[2] - 1 + (r >> 2);
+    float sum = 0.0f, sum_dx = 0.0f;
+    for (int i = 0; i < 4; ++i) {
+      bool exact = true;
+      const float v = voxel_value(f, base[0] - 1 + i, j, k, exact);
+      if (!exact) return false;
+      sum += w[0][i] * v;
+      sum_dx += dw[0][i] * v;
+    }
+    row[r] = sum;
+    row_dx[r] = sum_dx;
+  }
+  float value = 0.0f, gx = 0.0f, gy = 0.0f, gz = 0.0f;
+  for (int k = 0; k < 4; ++k) {
+    float plane = 0.0f, plane_dx = 0.0f, plane_dy = 0.0f;
+    for (int j = 0; j < 4; ++j) {
+      plane += w[1][j] * row[k * 4 + j];
+      plane_dx += w[1][j] * row_dx[k * 4 + j];
+      plane_dy += dw[1][j] * row[k * 4 + j];
+    }
+    value += w[2][k] * plane;
+    gx += w[2][k] * plane_dx;
+    gy += w[2][k] * plane_dy;
+    gz += dw[2][k] * plane;
+  }
+  distance = value;
+  if (gradient) *gradient = make_vec3(gx, gy, gz);
+  return true;
+}
+
+/// sample() read tricubically where it can be (tricubic_stored: near the surface, within about the band less two
+/// voxels), else as sample() reads it. Exact distances at voxel centres interpolated by a cubic follow a curved
+/// surface's distance far closer than trilinearly: a bunny's shallow contact forces within 2 % of the exact
+/// model's in every step, against 89 % of steps (bench/force_quality.py). Costs 64 voxel reads a sample.
+VOXFMT_HD Sample sample_tricubic(const Field& f, const Vec3& u, Vec3* gradient) {
+  Sample result;
+  if (covers(f, u) && tricubic_stored(f, u, result.distance, gradient)) {
+    result.exact = true;
+    return result;
+  }
+  return sample(f, u, gradient);
+}
+
 /// The voxel nearest `u`, a point that covers() (every coordinate above -1/2, so truncation rounds).
 VOXFMT_HD void nearest_voxel(const Vec3& u, int v[3]) {
   v[0] = int(u.x + 0.5f), v[1] = int(u.y + 0.5f), v[2] = int(u.z + 0.5f);

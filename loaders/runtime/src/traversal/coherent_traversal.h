@@ -5,8 +5,11 @@
 
 #include <algorithm>
 #include <limits>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
+#include "../core/field.h"
 #include "../core/prune.h"
 #include "eigen.h"
 #include "voxfmt/runtime/query.h"
@@ -62,6 +65,7 @@ struct TraversalFront::State {
   const void* shell = nullptr;   ///< the point tree the front is of
   size_t shell_nodes = 0;        ///< and its size (an address reused by another object's tree)
   const void* target = nullptr;  ///< the field it was walked against (null: not known to the caller)
+  int reading = 0;               ///< how the field was read (QueryOptions::interpolation): its bounds are of that
 
   void reset() {
     valid = false;
@@ -69,12 +73,13 @@ struct TraversalFront::State {
   }
   /// The front belongs to one pair: queried for another shell or target, it starts afresh (its entries index
   /// another tree's nodes, its bounds another field's).
-  void bind(const void* shell_tree, size_t nodes, const void* target_field) {
-    if (shell_tree == shell && nodes == shell_nodes && target_field == target) return;
+  void bind(const void* shell_tree, size_t nodes, const void* target_field, int target_reading = 0) {
+    if (shell_tree == shell && nodes == shell_nodes && target_field == target && target_reading == reading) return;
     reset();
     shell = shell_tree;
     shell_nodes = nodes;
     target = target_field;
+    reading = target_reading;
   }
   /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt
   /// after). `extent`: the shell's largest distance from its origin.
@@ -94,6 +99,22 @@ struct TraversalFront::State {
 
 namespace detail {
 
+/// How fast a bound from a target's sampled distance may fall per unit the point moves (bounds of the true
+/// distance, a subtree's or a point's lower bound, fall only as fast as it moves): the target's `sampled_slope()`
+/// where it has one, else the trilinear field's (core::kTrilinearSlope).
+template <class Target, class = void>
+struct SampledSlope {
+  static float of(const Target&) { return core::kTrilinearSlope; }
+};
+template <class Target>
+struct SampledSlope<Target, std::void_t<decltype(std::declval<const Target&>().sampled_slope())>> {
+  static float of(const Target& target) { return target.sampled_slope(); }
+};
+template <class Target>
+float sampled_slope(const Target& target) {
+  return SampledSlope<Target>::of(target);
+}
+
 /// The traversal of LevelTraversal, coherent with `front`: an entry is kept while the motion since the front's
 /// anchor pose (Mr, mr against the front's) cannot have brought it within `proximity`, and re-examined otherwise —
 /// a pruned subtree is traversed again from its node, a point looked up again. The points closer than `proximity`
@@ -107,10 +128,6 @@ class CoherentTraversal {
   using Front = TraversalFront::State;
   using Entry = Front::Entry;
   using Hit = QueryScratch::Buffers::Hit;
-  // A bound from a sampled distance falls faster than the point moves: inside a voxel cell the interpolated field
-  // has a slope of at most sqrt(3) times the largest difference of adjacent stored values (1 voxel per voxel, plus
-  // quantisation). Bounds of the true distance (a subtree's, a point's lower bound) fall as fast as it moves.
-  static constexpr float kSampledSlope = 1.7321f * 1.001f;
 
   CoherentTraversal(const PointTree& tree, const core::Frame& frame, const Eigen::Matrix3f& Mr,
                     const Eigen::Vector3f& mr, const Target& target, QueryStats& stats, QueryScratch::Buffers& b,
@@ -126,6 +143,7 @@ class CoherentTraversal {
         radius_scale_(frame.radius_scale),
         proximity_(frame.proximity),
         target_(target),
+        sampled_slope_(detail::sampled_slope(target)),
         stats_(stats),
         b_(b),
         front_(front),
@@ -163,7 +181,7 @@ class CoherentTraversal {
     dM_ = Mr_ - front_.M;
     dm_ = mr_ - front_.m;
     spin_ = dM_.norm();
-    everywhere_ = kSampledSlope * (dm_.norm() + spin_ * tree_.extent + rounding_);
+    everywhere_ = sampled_slope_ * (dm_.norm() + spin_ * tree_.extent + rounding_);
     front_.revisit.clear();
     // A fresh front is built unordered (one heap at the end, not one push per entry).
     ordered_ = front_.ordered && !fresh_;
@@ -174,7 +192,7 @@ class CoherentTraversal {
     const Eigen::Vector3f x = e.is_point() ? points_[node] : to_eigen(nodes_[node].centre);
     const float r = e.is_point() ? 0.0f : nodes_[node].radius;
     const float distance = (dM_ * x + dm_).norm() + spin_ * r + rounding_;
-    return e.is_sampled() ? kSampledSlope * distance : distance;
+    return e.is_sampled() ? sampled_slope_ * distance : distance;
   }
 
   // Stage 2, pop: the entries that may be within reach (always the contacts, whose bound is below it), one by one
@@ -333,7 +351,7 @@ class CoherentTraversal {
       front_.next_skip = Front::kFirstSkip;
     } else if (++front_.busy >= Front::kBusyQueries) {
       front_.busy = 0;
-      front_.busy_step = everywhere_ / kSampledSlope;
+      front_.busy_step = everywhere_ / sampled_slope_;
       front_.skip = front_.next_skip;
       front_.next_skip = std::min(2 * front_.next_skip, Front::kMaxSkip);
     }
@@ -367,6 +385,7 @@ class CoherentTraversal {
   const Eigen::Vector3f& mr_;
   float radius_scale_, proximity_;
   const Target& target_;
+  const float sampled_slope_;
   QueryStats& stats_;
   QueryScratch::Buffers& b_;
   Front& front_;

@@ -16,7 +16,7 @@ namespace voxfmt::runtime {
 /// What the field says at a point, in voxel units of the map (multiply by voxel_size for metres).
 struct FieldSample {
   float distance = 0.0f;  ///< signed distance estimate, negative inside
-  bool exact = false;     ///< true: trilinear interpolation of stored distances; false: estimates or bounds
+  bool exact = false;     ///< true: interpolated from stored distances only; false: estimates or bounds
   bool bound = false;     ///< only a lower bound: outside the grid (core::sample says which)
 };
 
