@@ -136,6 +136,17 @@ def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
         voxfmt.BatchScene([sphere], pairs=[(0, 2)])
     with pytest.raises(voxfmt.OptionError):
         scene.contacts(pa, pb[:2])
+    # Judged from the shapes before any copy: a billion-environment view of one pose, or of one pair index, is a
+    # coded error at once, not a 119 GB copy ending in MemoryError.
+    huge = np.broadcast_to(np.eye(4, dtype=np.float32), (10**9, 4, 4))
+    for call in (lambda: scene.contacts(pa[:1], huge), lambda: scene.contacts(pa, pa, np.broadcast_to(np.int32(0), (10**10,))),
+                 lambda: scene.contacts(pa[0], pa[0])):
+        with pytest.raises(voxfmt.OptionError) as error:
+            call()
+        assert error.value.code == "BAD_OPTION"
+    with pytest.raises(voxfmt.InternalError) as error:
+        scene.contacts(huge, huge)
+    assert error.value.code == "OUT_OF_MEMORY"
 
 
 def test_cuda_status_says_why() -> None:

@@ -266,6 +266,28 @@ def _pose_count(poses: Any) -> int:
     return int(shape[0]) if len(shape) == 3 else 1
 
 
+def _environment_count(poses_a: Any, poses_b: Any, pair_index: Any) -> int:
+    """E of a CPU call, from the arrays' shapes alone (nothing is copied, so a huge broadcast view is judged before
+    a contiguous copy of it is made): (E, 4, 4) poses on both sides, (E,) pair indices."""
+    shapes = {}
+    for name, array in (("poses_a", poses_a), ("poses_b", poses_b), ("pair_index", pair_index)):
+        try:
+            shapes[name] = tuple(int(n) for n in np.shape(array))
+        except ValueError:  # a ragged list
+            raise OptionError("BAD_OPTION", f"{name}: a ragged list, not an array") from None
+    for name in ("poses_a", "poses_b"):
+        if len(shapes[name]) != 3 or shapes[name][1:] != (4, 4):
+            raise OptionError("BAD_OPTION", f"{name}: expected (E, 4, 4) matrices, got shape {shapes[name]}")
+    envs = shapes["poses_a"][0]
+    if shapes["poses_b"][0] != envs:
+        raise OptionError("BAD_OPTION", f"poses_a and poses_b hold different numbers of environments ({envs} and "
+                                        f"{shapes['poses_b'][0]})")
+    if pair_index is not None and shapes["pair_index"] != (envs,):
+        raise OptionError("BAD_OPTION", f"pair_index must hold one pair per environment: expected shape ({envs},), "
+                                        f"got {shapes['pair_index']}")
+    return envs
+
+
 def _pair_indices(pair_index: Any) -> np.ndarray:
     """pair_index as the int32 array the batch reads, without changing a value: a cast would wrap 2**32 + 1 to 1
     and floor a float 0.9 to 0, silently running another pair. (An int32 that names no pair is the
@@ -371,7 +393,7 @@ class BatchScene:
                 threads = _whole("threads", threads, 1, 1024)
             # The poses' contiguous copies and the outputs, judged before either is made (here only: the compiled
             # half allocates what this allows).
-            envs = _pose_count(poses_a)
+            envs = _environment_count(poses_a, poses_b, pair_index)
             _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
                                   envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
             raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),

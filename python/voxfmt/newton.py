@@ -21,6 +21,7 @@ module runs with, checked at import (``pip install 'voxfmt[newton]'`` installs t
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -75,7 +76,15 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
     """
     if texture_format not in TEXTURE_FORMATS:
         raise OptionError("BAD_OPTION", f"texture_format: expected one of {TEXTURE_FORMATS}, got {texture_format!r}")
-    tolerance = -1.0 if coarse_tolerance is None else float(coarse_tolerance)
+    if coarse_tolerance is None:
+        tolerance = -1.0  # the asset's estimate quantum
+    elif (isinstance(coarse_tolerance, (bool, np.bool_)) or not isinstance(coarse_tolerance, (int, float, np.number))
+          or not math.isfinite(coarse_tolerance) or coarse_tolerance < 0):
+        # NaN once stored no brick at all (every comparison with it false): 2 voxels off through Newton's sampler.
+        raise OptionError("BAD_OPTION", f"coarse_tolerance: expected a finite number of voxels >= 0, got "
+                                        f"{coarse_tolerance!r}")
+    else:
+        tolerance = float(coarse_tolerance)
     return dict(_voxfmt._texture_sdf(as_body(asset), texture_format, tolerance))
 
 
@@ -94,13 +103,32 @@ def _unit_scale(body: Any) -> float:
         return 1.0
 
 
+def _surface_arrays(vertices: Any, triangles: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 3) finite float32 vertices and (T * 3,) int32 indices within [0, V), or BAD_OPTION: a reshape or a cast
+    would silently make another mesh of (V, 2) vertices, float or 64-bit indices."""
+    try:
+        v, t = np.asarray(vertices), np.asarray(triangles)
+    except ValueError:
+        raise OptionError("BAD_OPTION", "surface: vertices and triangles must be arrays, not ragged lists") from None
+    if v.ndim != 2 or v.shape[1] != 3 or not np.issubdtype(v.dtype, np.number) or np.iscomplexobj(v):
+        raise OptionError("BAD_OPTION", f"surface: expected (V, 3) real vertices, got shape {v.shape} of {v.dtype}")
+    if not np.isfinite(v).all():
+        raise OptionError("BAD_OPTION", "surface: a vertex is not finite")
+    if t.ndim != 2 or t.shape[1] != 3 or t.dtype == np.bool_ or not np.issubdtype(t.dtype, np.integer):
+        raise OptionError("BAD_OPTION", f"surface: expected (T, 3) integer triangles, got shape {t.shape} of {t.dtype}")
+    if t.size and (int(t.min()) < 0 or int(t.max()) >= len(v)):
+        raise OptionError("BAD_OPTION", f"surface: a triangle names vertex {int(t.min()) if int(t.min()) < 0 else int(t.max())}, "
+                                        f"not one of the {len(v)} vertices")
+    return v.astype(np.float32), t.astype(np.int32).reshape(-1)
+
+
 def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:
     """A ``newton.Mesh`` of the asset's surface carrying the asset's SDF. ``surface`` is the mesh the asset was baked
     from: a file (read as ``voxfmt build`` reads it, scaled by the asset's recorded ``unit_scale``), a
     ``(vertices (V, 3), triangles (T, 3))`` pair in the asset's frame, or a ``newton.Mesh`` (its SDF replaced)."""
     body = as_body(asset)
     if isinstance(surface, newton.Mesh):
-        vertices, triangles = surface.vertices, surface.indices
+        vertices, triangles = surface.vertices, np.asarray(surface.indices).reshape(-1, 3)
     elif isinstance(surface, (str, os.PathLike)):
         vertices, triangles = _voxfmt.read_mesh(surface, unit_scale=_unit_scale(body))
     elif isinstance(surface, Sequence) and len(surface) == 2:
@@ -110,8 +138,7 @@ def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: An
             "BAD_OPTION", "surface: expected a mesh file, a (vertices, triangles) pair or a newton.Mesh, got "
             f"{type(surface).__name__}"
         )
-    vertices = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
-    triangles = np.asarray(triangles, dtype=np.int32).reshape(-1)
+    vertices, triangles = _surface_arrays(vertices, triangles)
     return newton.Mesh(vertices, triangles, sdf=sdf(body, texture_format=texture_format, device=device))
 
 

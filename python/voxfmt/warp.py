@@ -3,19 +3,24 @@ own field (no file, no GPU needed), on any Warp device.
 
     import warp as wp, voxfmt.warp
     distance, coarse = voxfmt.warp.volumes("bunny.vox.h5", device="cuda:0")
-    # in a kernel: voxfmt.warp.sample_distance(distance.id, coarse.id, width, x) for any world point x
+    # in a kernel: voxfmt.warp.sample_distance(distance.id, coarse.id, width, x) for a world point x in the grid
 
 Two grids, float32, metres, in the asset's frame (index (i, j, k) at the asset's voxel centre):
 
-- ``distance``: a narrow-band level set whose leaves are the asset's bricks near the surface. Exact (the asset's
-  stored distances) within ``width`` of the surface, clamped to ``+-width`` beyond it; its tiles are signed from the
-  asset's own inside/outside (so open meshes keep their signs). ``width`` is the band the asset stores completely:
+- ``distance``: a narrow-band level set whose leaves are the asset's bricks near the surface. Its voxel values are
+  the asset's stored distances within ``width`` of the surface, clamped to ``+-width`` beyond it; its tiles are
+  signed from the asset's own inside/outside (so open meshes keep their signs). Between voxel centres it is read
+  trilinearly, so in cells that straddle the clamp a sample lies below the runtime's by up to about a fifth of a
+  voxel (take a width a voxel above the depth you read). ``width`` is the band the asset stores completely:
   ``distance_band - 1/2`` voxels (2.5 voxels for ``voxfmt build``'s default band), or a width you give.
 - ``coarse``: one unsigned distance every 8 voxels (the asset's lattice), whose trilinear interpolation is the
   runtime's estimate in coarse bricks: the far field's magnitude where the level set is clamped, whose sign the level
-  set's tiles carry (:func:`sample_distance` combines them as the runtime does there; beyond the band of bricks near
-  the surface, a format 2.2 asset's own estimates are settled, never below the exact distance, where the
-  interpolation may lie up to 4 sqrt(3) voxels below it).
+  set's tiles carry (:func:`sample_distance` combines them as the runtime does there). It is an estimate, not a
+  bound either way: up to 4 sqrt(3) voxels below the exact distance, and above it by up to 8 sqrt(3) voxels near
+  the clamp (in value bricks a format 2.2 asset's own estimates are settled instead: never below the exact
+  distance). Outside the asset's grid both grids hold their background (``+width``, and the largest lattice
+  value), not a distance: :func:`sample_distance` is for points within the grid (``voxfmt.Body.signed_distance``
+  continues the field beyond it as a lower bound).
 
 ``voxfmt export ASSET --nvdb OUT.nvdb`` writes the same grids to a file (``wp.Volume.load_from_nvdb`` reads it).
 Needs ``warp-lang`` (``pip install 'voxfmt[warp]'``); tested with the version in :data:`WARP_VERSION`.

@@ -100,6 +100,19 @@ def test_add_shape_reads_the_mesh_as_the_bake_did(assets: dict[str, Path]) -> No
         vn.mesh(body, 3.0)
     with pytest.raises(voxfmt.OptionError):
         vn.texture_layout(body, texture_format="half")
+    # Arrays that a reshape or a cast would make into another mesh, and tolerances that would store no brick.
+    flat = vertices.reshape(-1, 2) if vertices.size % 2 == 0 else vertices[:, :2]
+    for bad in ((flat, triangles), (vertices, triangles + 0.5), (vertices, triangles.astype(np.int64) + 2**32),
+                (vertices, triangles.reshape(-1)), (np.full_like(vertices, np.nan), triangles),
+                (vertices, triangles + len(vertices)), (vertices, -triangles - 1)):
+        with pytest.raises(voxfmt.OptionError) as error:
+            vn.mesh(body, bad)
+        assert error.value.code == "BAD_OPTION"
+    for tolerance in (float("nan"), float("inf"), -1.0, "1", True):
+        with pytest.raises(voxfmt.OptionError) as error:
+            vn.texture_layout(body, coarse_tolerance=tolerance)
+        assert error.value.code == "BAD_OPTION"
+    assert vn.texture_layout(body, coarse_tolerance=np.float32(0.5))["coarse_stored"] >= 0
 
 
 def test_a_damaged_asset_is_refused_with_its_code(assets: dict[str, Path], tmp_path: Path) -> None:

@@ -78,8 +78,8 @@ void add_export_command(CLI::App& app, int& exit_code) {
   cmd->add_option("file", options->file, "Asset file (.vox.h5)")->required();
   cmd->add_option("--nvdb", options->nvdb,
                   "Write two float32 NanoVDB grids (metres, the asset's frame): \"distance\", a level set whose "
-                  "leaves are the asset's bricks near the surface (exact within the band), and \"coarse\", one "
-                  "signed distance every 8 voxels for the far field")
+                  "leaves are the asset's bricks near the surface (its voxels exact within the band), and "
+                  "\"coarse\", one unsigned distance every 8 voxels for the far field (its sign is the level set's)")
       ->check(non_empty_path())
       ->required();
   cmd->add_option("--width", options->width,

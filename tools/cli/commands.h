@@ -61,7 +61,8 @@ inline CLI::Validator finite_number(bool at_least_zero = false) {
       [at_least_zero](std::string& text) -> std::string {
         char* end = nullptr;
         const double value = std::strtod(text.c_str(), &end);
-        const bool number = !text.empty() && end && *end == '\0';
+        // strtod also reads hexadecimal ("0x10" is 16): a decimal number only.
+        const bool number = !text.empty() && end && *end == '\0' && text.find_first_of("xXpP") == std::string::npos;
         if (number && std::isfinite(value) && (value > 0 || (at_least_zero && value == 0))) return "";
         return "must be a finite number " + std::string(at_least_zero ? ">= 0" : "> 0") + ", not '" + text + "'";
       },
