@@ -134,6 +134,8 @@ def test_bad_environments_are_coded_errors(sphere: voxfmt.Body) -> None:
             scene.contacts(pa, pa, index)
     with pytest.raises(voxfmt.OptionError):
         voxfmt.BatchScene([sphere], pairs=[(0, 2)])
+    with pytest.raises(voxfmt.OptionError, match="at least one Body"):
+        voxfmt.BatchScene([])
     with pytest.raises(voxfmt.OptionError):
         scene.contacts(pa, pb[:2])
     # Judged from the shapes before any copy: a billion-environment view of one pose, or of one pair index, is a

@@ -315,6 +315,8 @@ class BatchScene:
         for n, body in enumerate(self.bodies):
             if not isinstance(body, Body):
                 raise OptionError("BAD_OPTION", f"bodies[{n}]: expected a Body (voxfmt.load), got {type(body).__name__}")
+        if not self.bodies:
+            raise OptionError("BAD_OPTION", "bodies: a scene needs at least one Body")
         if pairs is None:  # one body against itself, or the first against the second
             pairs = [(0, min(1, len(self.bodies) - 1))]
         if not isinstance(pairs, (Sequence, np.ndarray)):

@@ -110,6 +110,10 @@ def test_one_grid_at_a_time_and_the_refusals(assets: dict[str, Path], tmp_path: 
         voxfmt.warp.volume(assets["cube"], "cpu", grid="fine")
     with pytest.raises(voxfmt.OptionError):
         voxfmt.warp.nvdb(assets["cube"], width=0.1)
+    # NumPy's scalars are numbers too (BatchScene takes them); its bool is not.
+    assert voxfmt.warp.nvdb(assets["cube"], width=np.float32(3.0))[1] == voxfmt.warp.nvdb(assets["cube"], width=3)[1]
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.warp.nvdb(assets["cube"], width=np.bool_(True))
     with pytest.raises(voxfmt.OptionError):
         voxfmt.warp.nvdb(42)
     missing = tmp_path / "none.vox.h5"
