@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from . import _voxfmt
-from ._asset import as_body
+from ._asset import as_body, warp_device
 from ._errors import OptionError
 
 NEWTON_VERSION = "1.8.0"
@@ -91,8 +91,9 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
 def sdf(asset: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:
     """The asset's distance field as a ``newton.SDF`` (a texture SDF on ``device``, default Warp's), in the asset's
     frame: give it to ``newton.Mesh(..., sdf=...)`` of the asset's surface, or use :func:`add_shape`."""
+    device = warp_device(wp, device)
     layout = texture_layout(asset, texture_format=texture_format)
-    texture_data, _, _ = _texture_sdf_data(layout, texture_format, wp.get_device(device))
+    texture_data, _, _ = _texture_sdf_data(layout, texture_format, device)
     return newton.SDF.create_from_data(texture_data=texture_data)
 
 
@@ -166,7 +167,7 @@ def finalize(builder: Any, device: Any = None) -> Any:
     """``builder.finalize(device)``, also on the CPU: there Newton refuses meshes with SDFs (it would build them with
     CUDA), so the model is finalized without them and given the meshes' SDFs afterwards, as Newton's CUDA path
     would have."""
-    device = wp.get_device(device)
+    device = warp_device(wp, device)
     if device.is_cuda:
         return builder.finalize(device=device)
     meshes = {id(m): m for m in builder.shape_source if isinstance(m, newton.Mesh) and m.sdf is not None}

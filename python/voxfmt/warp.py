@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from . import _voxfmt
-from ._asset import as_body
+from ._asset import as_body, warp_device
 from ._errors import OptionError
 
 WARP_VERSION = "1.19.0"
@@ -82,6 +82,7 @@ def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tu
 def volumes(asset: Any, device: Any = None, *, width: float | None = None) -> tuple[Any, Any]:
     """The asset's ``distance`` and ``coarse`` grids as two ``wp.Volume`` on ``device`` (default: Warp's default
     device). Arguments as :func:`nvdb`. The level set's width in metres is ``distance.voxfmt_width``."""
+    device = warp_device(wp, device)
     data, info = nvdb(asset, width=width, compress=False)
     distance = wp.Volume.load_from_nvdb(data, device=device)
     coarse = distance.load_next_grid()

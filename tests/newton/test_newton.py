@@ -113,6 +113,10 @@ def test_add_shape_reads_the_mesh_as_the_bake_did(assets: dict[str, Path]) -> No
             vn.texture_layout(body, coarse_tolerance=tolerance)
         assert error.value.code == "BAD_OPTION"
     assert vn.texture_layout(body, coarse_tolerance=np.float32(0.5))["coarse_stored"] >= 0
+    for call in (lambda: vn.sdf(body, device="bogus"), lambda: vn.finalize(newton.ModelBuilder(), "cuda:97")):
+        with pytest.raises(voxfmt.OptionError) as error:
+            call()
+        assert error.value.code == "BAD_OPTION"
 
 
 def test_a_damaged_asset_is_refused_with_its_code(assets: dict[str, Path], tmp_path: Path) -> None:

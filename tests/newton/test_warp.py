@@ -114,6 +114,11 @@ def test_one_grid_at_a_time_and_the_refusals(assets: dict[str, Path], tmp_path: 
     assert voxfmt.warp.nvdb(assets["cube"], width=np.float32(3.0))[1] == voxfmt.warp.nvdb(assets["cube"], width=3)[1]
     with pytest.raises(voxfmt.OptionError):
         voxfmt.warp.nvdb(assets["cube"], width=np.bool_(True))
+    # A device Warp does not know, or this machine lacks, is refused before the grids are built.
+    for device in ("bogus", "cuda:97"):
+        with pytest.raises(voxfmt.OptionError) as error:
+            voxfmt.warp.volumes(assets["cube"], device)
+        assert error.value.code == "BAD_OPTION" and repr(device) in str(error.value)
     with pytest.raises(voxfmt.OptionError):
         voxfmt.warp.nvdb(42)
     missing = tmp_path / "none.vox.h5"
