@@ -76,16 +76,23 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
     """
     if texture_format not in TEXTURE_FORMATS:
         raise OptionError("BAD_OPTION", f"texture_format: expected one of {TEXTURE_FORMATS}, got {texture_format!r}")
-    if coarse_tolerance is None:
-        tolerance = -1.0  # the asset's estimate quantum
-    elif (isinstance(coarse_tolerance, (bool, np.bool_)) or not isinstance(coarse_tolerance, (int, float, np.number))
-          or not math.isfinite(coarse_tolerance) or coarse_tolerance < 0):
-        # NaN once stored no brick at all (every comparison with it false): 2 voxels off through Newton's sampler.
-        raise OptionError("BAD_OPTION", f"coarse_tolerance: expected a finite number of voxels >= 0, got "
-                                        f"{coarse_tolerance!r}")
-    else:
-        tolerance = float(coarse_tolerance)
+    tolerance = -1.0 if coarse_tolerance is None else _voxels("coarse_tolerance", coarse_tolerance)
     return dict(_voxfmt._texture_sdf(as_body(asset), texture_format, tolerance))
+
+
+def _voxels(name: str, value: Any) -> float:
+    """A finite number of voxels >= 0 (NumPy's numbers too), or BAD_OPTION: NaN as a tolerance once stored no brick
+    at all (every comparison with it false), 2 voxels off through Newton's sampler."""
+    number = None
+    if not isinstance(value, (bool, np.bool_, np.timedelta64)) and isinstance(value, (int, float, np.integer,
+                                                                                   np.floating)):
+        try:
+            number = float(value)
+        except OverflowError:  # an int beyond float's range
+            number = None
+    if number is None or not math.isfinite(number) or number < 0:
+        raise OptionError("BAD_OPTION", f"{name}: expected a finite number of voxels >= 0, got {value!r}")
+    return number
 
 
 def sdf(asset: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:
@@ -105,22 +112,26 @@ def _unit_scale(body: Any) -> float:
 
 
 def _surface_arrays(vertices: Any, triangles: Any) -> tuple[np.ndarray, np.ndarray]:
-    """(V, 3) finite float32 vertices and (T * 3,) int32 indices within [0, V), or BAD_OPTION: a reshape or a cast
-    would silently make another mesh of (V, 2) vertices, float or 64-bit indices."""
+    """(V, 3) finite float32 vertices and (T * 3,) int32 indices within [0, V) (given as (T, 3) or flat), or
+    BAD_OPTION: a reshape or a cast would silently make another mesh of (V, 2) vertices, float or 64-bit indices."""
     try:
         v, t = np.asarray(vertices), np.asarray(triangles)
     except ValueError:
         raise OptionError("BAD_OPTION", "surface: vertices and triangles must be arrays, not ragged lists") from None
     if v.ndim != 2 or v.shape[1] != 3 or not np.issubdtype(v.dtype, np.number) or np.iscomplexobj(v):
         raise OptionError("BAD_OPTION", f"surface: expected (V, 3) real vertices, got shape {v.shape} of {v.dtype}")
+    v = v.astype(np.float32)
     if not np.isfinite(v).all():
-        raise OptionError("BAD_OPTION", "surface: a vertex is not finite")
-    if t.ndim != 2 or t.shape[1] != 3 or t.dtype == np.bool_ or not np.issubdtype(t.dtype, np.integer):
+        raise OptionError("BAD_OPTION", "surface: a vertex is not finite (in float32)")
+    if t.ndim == 1 and t.size % 3 == 0:  # Newton's own layout (newton.Mesh.indices): three indices a triangle
+        t = t.reshape(-1, 3)
+    if (t.ndim != 2 or t.shape[1] != 3 or t.dtype == np.bool_ or not np.issubdtype(t.dtype, np.integer)
+            or np.issubdtype(t.dtype, np.timedelta64)):
         raise OptionError("BAD_OPTION", f"surface: expected (T, 3) integer triangles, got shape {t.shape} of {t.dtype}")
     if t.size and (int(t.min()) < 0 or int(t.max()) >= len(v)):
         raise OptionError("BAD_OPTION", f"surface: a triangle names vertex {int(t.min()) if int(t.min()) < 0 else int(t.max())}, "
                                         f"not one of the {len(v)} vertices")
-    return v.astype(np.float32), t.astype(np.int32).reshape(-1)
+    return v, t.astype(np.int32).reshape(-1)
 
 
 def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:

@@ -170,6 +170,18 @@ class BuildBadInput(unittest.TestCase):
             self.assertEqual(r.returncode, 2, option)
             self.assertIn("must be a whole number in decimal digits, not '%s'" % value, r.stderr)
             self.assertFalse(os.path.exists(self.out))
+        r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--seed", "99999999999999999999"],
+                           capture_output=True, text=True)
+        self.assertIn("must be at most 18446744073709551615", r.stderr)  # not clamped to it
+        # Leading zeros are decimal (CLI11 alone read "010" as octal 8, and called "09" out of range).
+        dims = []
+        for resolution in ("10", "010", "09"):
+            r = subprocess.run([VOXFMT, "build", tet, "-o", self.out, "--resolution", resolution, "--json"],
+                               capture_output=True, text=True)
+            self.assertEqual(r.returncode, 0, r.stderr)
+            dims.append(json.loads(r.stdout)["voxelmap"]["dims"])
+        self.assertEqual(dims[0], dims[1])
+        self.assertEqual(max(dims[2]) + 1, max(dims[0]))
 
     def test_good_input_writes_a_valid_asset(self):
         tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")

@@ -103,12 +103,14 @@ def test_add_shape_reads_the_mesh_as_the_bake_did(assets: dict[str, Path]) -> No
     # Arrays that a reshape or a cast would make into another mesh, and tolerances that would store no brick.
     flat = vertices.reshape(-1, 2) if vertices.size % 2 == 0 else vertices[:, :2]
     for bad in ((flat, triangles), (vertices, triangles + 0.5), (vertices, triangles.astype(np.int64) + 2**32),
-                (vertices, triangles.reshape(-1)), (np.full_like(vertices, np.nan), triangles),
+                (vertices, triangles.reshape(-1)[:-1]), (np.full_like(vertices, np.nan), triangles),
+                (vertices.astype(np.float64) * 1e300, triangles),  # finite, but not in float32
                 (vertices, triangles + len(vertices)), (vertices, -triangles - 1)):
         with pytest.raises(voxfmt.OptionError) as error:
             vn.mesh(body, bad)
         assert error.value.code == "BAD_OPTION"
-    for tolerance in (float("nan"), float("inf"), -1.0, "1", True):
+    assert len(vn.mesh(body, (vertices, triangles.reshape(-1))).vertices) == len(vertices)  # Newton's flat layout
+    for tolerance in (float("nan"), float("inf"), -1.0, "1", True, 10**400, np.complex128(1), np.timedelta64(1)):
         with pytest.raises(voxfmt.OptionError) as error:
             vn.texture_layout(body, coarse_tolerance=tolerance)
         assert error.value.code == "BAD_OPTION"

@@ -142,9 +142,9 @@ TEST(Coherence, ABodyTurningInsideAnotherGivesTheSameContactsRoundAfterRound) {
 }
 
 TEST(Coherence, TricubicQueriesGiveTheSameContactsWhateverTheReadingBefore) {
-  // A tricubic sample may fall faster than a trilinear one as a point moves (core::kTricubicSlope): the front
-  // allows for it. And one state queried with either reading in turn gives each query's own contacts (the front
-  // starts afresh at a change: its bounds are of the other reading's samples).
+  // The tricubic reading steps where it gives way to trilinear, so its sampled points keep no bound and are looked
+  // up again each query. And one state queried with either reading in turn gives each query's own contacts (the
+  // front starts afresh at a change: its bounds are of the other reading's samples).
   const BakedBunny& bunny = BakedBunny::get();
   const double h = bunny.h;
   const size_t steps = 600;

@@ -10,7 +10,7 @@ namespace voxfmt::cli {
 void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   auto* resolution = cmd.add_option("--resolution", b.voxelmap.resolution, "Voxels along the longest bounding-box axis")
                          ->capture_default_str()
-                         ->check(whole_number())
+                         ->transform(whole_number())
                          ->check(CLI::Range(1u, 4096u));
   auto* voxel_size =
       cmd.add_option("--voxel-size", b.voxelmap.voxel_size, "Voxel edge in metres (instead of --resolution)")
@@ -18,7 +18,7 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
   resolution->excludes(voxel_size);
   auto* points = cmd.add_option("--points", b.point_shell.points, "Target number of surface points")
                      ->capture_default_str()
-                     ->check(whole_number())
+                     ->transform(whole_number())
                      ->check(CLI::Range(1u, 50'000'000u));
   auto* spacing = cmd.add_option("--point-spacing", b.point_shell.point_spacing,
                                  "Minimum distance between points in metres (instead of --points)")
@@ -30,7 +30,7 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
       ->check(CLI::Range(2.0, 64.0));
   cmd.add_option("--margin", b.voxelmap.margin, "Outer voxels around the bounding box on each side")
       ->capture_default_str()
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(0u, 1024u));
   cmd.add_option("--band", b.voxelmap.distance_band,
                  "Half-width in voxels of the band of exact distances (6 for haptic partners pressed deeper: smoother "
@@ -52,14 +52,14 @@ void add_bake_options(CLI::App& cmd, bake::Settings& b) {
                "Skip the self-intersection check (faster on huge meshes)");
   cmd.add_option("--seed", b.point_shell.seed, "Seed of the point sampling (deterministic)")
       ->capture_default_str()
-      ->check(whole_number());  // a uint64: "-1" would wrap to 2^64 - 1
+      ->transform(whole_number());  // a uint64: "-1" would wrap to 2^64 - 1
   cmd.add_option("--deflate", b.deflate, "gzip level 0-9 for the voxel grids")
       ->capture_default_str()
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(0, 9));
   cmd.add_option("--threads", b.threads, "Worker threads of a bake (0 = all cores; in batch: cores / --jobs)")
       ->capture_default_str()
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(0u, kMaxThreads));
 }
 

@@ -555,7 +555,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       ->required();
   cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")
       ->capture_default_str()
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(0u, kMaxThreads));
   cmd->add_option("--shard", o->shard, "Bake only shard I of N (I/N, 0-based): mesh k belongs to hash(name) mod N")
       ->capture_default_str();
@@ -572,7 +572,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                   "(refused up front beyond, with the estimate); 0 = no limit, else at least " +
                       std::to_string(kLeastBakeAddressSpaceMib))
       ->capture_default_str()
-      ->check(whole_number());
+      ->transform(whole_number());
   cmd->add_option(
       "--manifest", o->manifest,
       "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");

@@ -64,7 +64,7 @@ void add_build_command(CLI::App& app, int& exit_code) {
          "--max-memory", [o](uint64_t mib) { o->bake.voxelmap.max_memory_bytes = mib << 20; },
          "MiB the voxelmap, and the point shell, may each need at its peak; a bake that would need more is refused "
          "up front with OUT_OF_MEMORY and the estimate (default: 3/4 of this machine's memory)")
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
   cmd->add_flag("--json", o->json, "Print a JSON summary (timings, peak memory, sizes, warnings) on stdout");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress, warnings or summary");

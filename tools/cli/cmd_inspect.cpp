@@ -180,14 +180,14 @@ void add_export_options(CLI::App* cmd, Options& options) {
       ->needs(slice);
   cmd->add_option("--zoom", options.zoom,
                   "Pixels per voxel P of the slice picture (default: 900 / the longer side, within 1..16)")
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(1, 64))
       ->needs(slice);
   auto* ply = cmd->add_option("--ply", options.ply,
                               "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)")
                   ->check(non_empty_path());
   cmd->add_option("--level", options.level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
-      ->check(CLI::NonNegativeNumber)
+      ->transform(whole_number())
       ->needs(ply);
   cmd->add_flag("--inward-normals", options.inward_normals, "With --ply: keep the asset's inward normals")->needs(ply);
   cmd->add_option("--vdb", options.vdb,

@@ -82,6 +82,7 @@ void add_report_command(CLI::App& app, int& exit_code) {
       ->check(CLI::Range(0.0, 100.0))
       ->needs(against);
   cmd->add_option("-j,--jobs", options->report.threads, "Threads reading assets (default: every core)")
+      ->transform(whole_number())
       ->check(CLI::Range(1u, kMaxThreads));
   cmd->add_flag(
       "--no-pictures", [options](int64_t) { options->report.pictures = false; },

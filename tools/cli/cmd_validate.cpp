@@ -77,6 +77,7 @@ void add_validate_command(CLI::App& app, int& exit_code) {
       ->check(CLI::IsMember({"quick", "full"}));
   cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
       ->capture_default_str()
+      ->transform(whole_number())
       ->check(finite_number());
   add_read_budget_option(cmd, options->read);
   cmd->footer(

@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <string>
@@ -26,12 +27,17 @@ int report_error(const char* command, const Error& error);
 int report_error(const char* command, const Error& error, bool json, const std::string& input);
 
 /// A count written in decimal digits only (MiB, points): "1e3", "0x10", "-1" or "2.5" are refused as not a whole
-/// number, where the integer conversion would read some of them its own way or call them out of range.
+/// number, where the integer conversion would read some of them its own way or call them out of range. Leading
+/// zeros are dropped (CLI11 reads "010" as octal 8), and a count beyond 2^64 - 1 is refused (it would be clamped).
 inline CLI::Validator whole_number() {
   return CLI::Validator(
       [](std::string& text) -> std::string {
-        if (!text.empty() && text.find_first_not_of("0123456789") == std::string::npos) return "";
-        return "must be a whole number in decimal digits, not '" + text + "'";
+        if (text.empty() || text.find_first_not_of("0123456789") != std::string::npos)
+          return "must be a whole number in decimal digits, not '" + text + "'";
+        text.erase(0, std::min(text.find_first_not_of('0'), text.size() - 1));
+        if (text.size() > 20 || (text.size() == 20 && text > "18446744073709551615"))
+          return "must be at most 18446744073709551615, not " + text;
+        return "";
       },
       "");
 }
@@ -43,7 +49,7 @@ inline void add_read_budget_option(CLI::App* cmd, ReadOptions& options) {
          "MiB a read may use, decided from the file's metadata before anything is read (beyond: OUT_OF_MEMORY, "
          "exit 2; default " +
              std::to_string(ReadOptions::kDefaultReadMemoryBytes >> 20) + ", enough for a 2048^3 asset)")
-      ->check(whole_number())
+      ->transform(whole_number())
       ->check(CLI::Range(uint64_t(1), uint64_t(1) << 40));
 }
 

@@ -39,7 +39,8 @@ struct VoxelmapTarget {
   /// sample at the same point).
   bool gradients = false;
   bool tricubic = false;  ///< QueryOptions::interpolation
-  float sampled_slope() const { return tricubic ? core::kTricubicSlope : core::kTrilinearSlope; }
+  /// Tricubic steps where it gives way to trilinear: no slope bound for a coherent query (traverse_coherent).
+  bool sampled_bounds_hold() const { return !tricubic; }
   void sample(const Eigen::Vector3f& u, QueryScratch::Buffers::Hit& hit) const {
     core::Vec3 g = core::make_vec3(0, 0, 0);
     const core::Sample s = tricubic ? core::sample_tricubic(field, core::to_core(u), gradients ? &g : nullptr)
@@ -138,10 +139,15 @@ void query_points_in_voxelmap(const CollisionObject& a, const Pose& pose_a, cons
   if (!a.has_voxelmap()) return;
   const SparseVoxelmap& map = a.voxelmap();
   const double metres_per_unit = pose_a.scale * map.voxel_size();
+  const bool tricubic = options.interpolation == Interpolation::Tricubic && !map.empty();
+  const core::Field field = field_of(map);
   for (size_t i = 0; i < count; ++i) {
     const Eigen::Vector3d asset = pose_a.rotation.transpose() * (points[i] - pose_a.translation) / pose_a.scale;
     Eigen::Vector3f gradient;
-    const FieldSample s = map.sample(map.to_grid(asset), &gradient);
+    core::Vec3 g = core::make_vec3(0, 0, 0);
+    const FieldSample s = tricubic ? core::sample_tricubic(field, core::to_core(map.to_grid(asset)), &g)
+                                   : map.sample(map.to_grid(asset), &gradient);
+    if (tricubic) gradient = core::to_eigen(g);
     ++out.stats.points_tested;
     const double distance = double(s.distance) * metres_per_unit - radius;
     if (!(distance < options.proximity) || gradient.squaredNorm() == 0.0f) continue;  // NaN radius or proximity: none

@@ -333,14 +333,6 @@ VOXFMT_HD Sample sample(const Field& f, const Vec3& u, Vec3* gradient) {
   return result;
 }
 
-/// How fast an interpolated field may fall per voxel the point moves, adjacent stored values differing by at most
-/// 1 voxel per voxel (the distance is 1-Lipschitz) plus their quantisation: the slope a coherent query allows a
-/// sampled bound. Trilinear: along each axis a weighted mean of adjacent differences, sqrt(3) in all. Catmull-Rom:
-/// along an axis a sum of the three adjacent differences whose weights' magnitudes sum to 6 t (1 - t) <= 1.5, times
-/// the other two axes' weights, whose magnitudes sum to 1 + t (1 - t) <= 1.25 each: 2.34375 per axis.
-constexpr float kTrilinearSlope = 1.7321f * 1.001f;
-constexpr float kTricubicSlope = 1.7321f * 2.34375f * 1.001f;
-
 /// Catmull-Rom weights of the four voxels around a coordinate (offsets -1, 0, 1, 2 from the voxel below it) at
 /// `t` in [0, 1), and their derivatives in t. The kernel reproduces quadratics exactly: a curved surface's
 /// distance, which trilinear weights overestimate on its convex side by about t (1 - t) / 2 times its curvature.
@@ -400,10 +392,11 @@ VOXFMT_HD bool tricubic_stored(const Field& f, const Vec3& u, float& distance, V
   return true;
 }
 
-/// sample() read tricubically where it can be (tricubic_stored: near the surface, within about the band less two
-/// voxels), else as sample() reads it. Exact distances at voxel centres interpolated by a cubic follow a curved
-/// surface's distance far closer than trilinearly: a bunny's shallow contact forces within 2 % of the exact
-/// model's in every step, against 89 % of steps (bench/force_quality.py). Costs 64 voxel reads a sample.
+/// sample() read tricubically where it can be (tricubic_stored: near the surface; the stencil reaches up to 2
+/// voxels along each axis, 3.5 diagonally, so with a band of 3 nearly every point on the surface, three in four half
+/// a voxel deep and one in four a voxel deep), else as sample() reads it. Exact distances at voxel centres interpolated
+/// by a cubic follow a curved surface's distance far closer than trilinearly: a bunny's shallow contact forces within 2
+/// % of the exact model's in every step, against 89 % of steps (bench/force_quality.py). Costs 64 voxel reads a sample.
 VOXFMT_HD Sample sample_tricubic(const Field& f, const Vec3& u, Vec3* gradient) {
   Sample result;
   if (covers(f, u) && tricubic_stored(f, u, result.distance, gradient)) {

@@ -9,7 +9,6 @@
 #include <utility>
 #include <vector>
 
-#include "../core/field.h"
 #include "../core/prune.h"
 #include "eigen.h"
 #include "voxfmt/runtime/query.h"
@@ -99,21 +98,18 @@ struct TraversalFront::State {
 
 namespace detail {
 
-/// How fast a bound from a target's sampled distance may fall per unit the point moves (bounds of the true
-/// distance, a subtree's or a point's lower bound, fall only as fast as it moves): the target's `sampled_slope()`
-/// where it has one, else the trilinear field's (core::kTrilinearSlope).
+/// Whether a target's sampled distances change no faster than kSampledSlope times the distance a point moves, so
+/// that a sampled point keeps a bound (a target's `sampled_bounds_hold()` where it has one, else true). A reading
+/// that switches between two interpolations where its inputs change (tricubic near the surface, trilinear beyond)
+/// steps where it switches: its points are looked up again at every query, as estimates are.
 template <class Target, class = void>
-struct SampledSlope {
-  static float of(const Target&) { return core::kTrilinearSlope; }
+struct SampledBounds {
+  static bool hold(const Target&) { return true; }
 };
 template <class Target>
-struct SampledSlope<Target, std::void_t<decltype(std::declval<const Target&>().sampled_slope())>> {
-  static float of(const Target& target) { return target.sampled_slope(); }
+struct SampledBounds<Target, std::void_t<decltype(std::declval<const Target&>().sampled_bounds_hold())>> {
+  static bool hold(const Target& target) { return target.sampled_bounds_hold(); }
 };
-template <class Target>
-float sampled_slope(const Target& target) {
-  return SampledSlope<Target>::of(target);
-}
 
 /// The traversal of LevelTraversal, coherent with `front`: an entry is kept while the motion since the front's
 /// anchor pose (Mr, mr against the front's) cannot have brought it within `proximity`, and re-examined otherwise —
@@ -128,6 +124,10 @@ class CoherentTraversal {
   using Front = TraversalFront::State;
   using Entry = Front::Entry;
   using Hit = QueryScratch::Buffers::Hit;
+  // A bound from a sampled distance falls faster than the point moves: inside a voxel cell the interpolated field
+  // has a slope of at most sqrt(3) times the largest difference of adjacent stored values (1 voxel per voxel, plus
+  // quantisation). Bounds of the true distance (a subtree's, a point's lower bound) fall as fast as it moves.
+  static constexpr float kSampledSlope = 1.7321f * 1.001f;
 
   CoherentTraversal(const PointTree& tree, const core::Frame& frame, const Eigen::Matrix3f& Mr,
                     const Eigen::Vector3f& mr, const Target& target, QueryStats& stats, QueryScratch::Buffers& b,
@@ -143,7 +143,7 @@ class CoherentTraversal {
         radius_scale_(frame.radius_scale),
         proximity_(frame.proximity),
         target_(target),
-        sampled_slope_(detail::sampled_slope(target)),
+        sampled_bounds_hold_(SampledBounds<Target>::hold(target)),
         stats_(stats),
         b_(b),
         front_(front),
@@ -181,7 +181,7 @@ class CoherentTraversal {
     dM_ = Mr_ - front_.M;
     dm_ = mr_ - front_.m;
     spin_ = dM_.norm();
-    everywhere_ = sampled_slope_ * (dm_.norm() + spin_ * tree_.extent + rounding_);
+    everywhere_ = kSampledSlope * (dm_.norm() + spin_ * tree_.extent + rounding_);
     front_.revisit.clear();
     // A fresh front is built unordered (one heap at the end, not one push per entry).
     ordered_ = front_.ordered && !fresh_;
@@ -192,7 +192,7 @@ class CoherentTraversal {
     const Eigen::Vector3f x = e.is_point() ? points_[node] : to_eigen(nodes_[node].centre);
     const float r = e.is_point() ? 0.0f : nodes_[node].radius;
     const float distance = (dM_ * x + dm_).norm() + spin_ * r + rounding_;
-    return e.is_sampled() ? sampled_slope_ * distance : distance;
+    return e.is_sampled() ? kSampledSlope * distance : distance;
   }
 
   // Stage 2, pop: the entries that may be within reach (always the contacts, whose bound is below it), one by one
@@ -328,10 +328,10 @@ class CoherentTraversal {
       bound = hit.distance;
       ++stats_.points_tested;
       if (bound < proximity_) b_.level_hits.push_back(hit);
-      // Interpolated from estimates (the band's edge and beyond), the distance has no useful slope bound: looked
-      // up again at the next query.
+      // Interpolated from estimates (the band's edge and beyond), or by a reading that steps (SampledBounds), the
+      // distance has no useful slope bound: looked up again at the next query.
       sampled = true;
-      if (!exact) bound = -std::numeric_limits<float>::infinity();
+      if (!exact || !sampled_bounds_hold_) bound = -std::numeric_limits<float>::infinity();
     }
     record(node, true, bound, sampled);
   }
@@ -351,7 +351,7 @@ class CoherentTraversal {
       front_.next_skip = Front::kFirstSkip;
     } else if (++front_.busy >= Front::kBusyQueries) {
       front_.busy = 0;
-      front_.busy_step = everywhere_ / sampled_slope_;
+      front_.busy_step = everywhere_ / kSampledSlope;
       front_.skip = front_.next_skip;
       front_.next_skip = std::min(2 * front_.next_skip, Front::kMaxSkip);
     }
@@ -385,7 +385,7 @@ class CoherentTraversal {
   const Eigen::Vector3f& mr_;
   float radius_scale_, proximity_;
   const Target& target_;
-  const float sampled_slope_;
+  const bool sampled_bounds_hold_;
   QueryStats& stats_;
   QueryScratch::Buffers& b_;
   Front& front_;

@@ -73,9 +73,12 @@ enum class Interpolation {
   /// pressed 0.1-2 voxels into a bunny: its force's magnitude 1.1 % low at the median step, 6.4 % off at the 95th
   /// percentile; bench/force_quality.py).
   Trilinear,
-  /// Catmull-Rom over the 4^3 voxels around the point where all hold stored distances (within the band less two
-  /// voxels), trilinear elsewhere: the same bunny within 1.2 % at the 95th percentile, for 64 voxel reads per
-  /// point sampled instead of 8. For haptic forces (docs/haptics.md); the CPU query only.
+  /// Catmull-Rom over the 4^3 voxels around the point where all hold stored distances (near the surface: with the
+  /// default band of 3, nearly every point on it, three in four half a voxel deep, one in four a voxel deep; a
+  /// wider band reaches deeper), trilinear elsewhere: the same bunny within 1.2 % at the 95th percentile, for 64
+  /// voxel reads per point sampled instead of 8. For haptic forces (docs/haptics.md); the CPU query only (not the
+  /// CUDA batch nor BatchScene::contacts). A coherent query looks its sampled points up again each time, as the
+  /// reading steps where it gives way to trilinear.
   Tricubic,
 };
 
