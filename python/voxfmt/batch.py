@@ -223,8 +223,8 @@ def _framework(array: Any) -> Any:
 
 
 def _real(name: str, value: Any) -> float:
-    """A number option (not a bool, a string or None)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    """A number option (not a bool, a string, a time span or None)."""
+    if isinstance(value, (bool, np.timedelta64)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
     try:
         return float(value)

@@ -31,6 +31,7 @@ import numpy as np
 from . import _voxfmt
 from ._asset import as_body, warp_device
 from ._errors import OptionError
+from .batch import _real
 
 NEWTON_VERSION = "1.8.0"
 """The newton release this module is built for (it reads two of Newton's internal structures: pinned)."""
@@ -81,16 +82,10 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
 
 
 def _voxels(name: str, value: Any) -> float:
-    """A finite number of voxels >= 0 (NumPy's numbers too), or BAD_OPTION: NaN as a tolerance once stored no brick
-    at all (every comparison with it false), 2 voxels off through Newton's sampler."""
-    number = None
-    if not isinstance(value, (bool, np.bool_, np.timedelta64)) and isinstance(value, (int, float, np.integer,
-                                                                                   np.floating)):
-        try:
-            number = float(value)
-        except OverflowError:  # an int beyond float's range
-            number = None
-    if number is None or not math.isfinite(number) or number < 0:
+    """A finite number of voxels >= 0, or BAD_OPTION: NaN as a tolerance once stored no brick at all (every
+    comparison with it false), 2 voxels off through Newton's sampler."""
+    number = _real(name, value)
+    if not math.isfinite(number) or number < 0:
         raise OptionError("BAD_OPTION", f"{name}: expected a finite number of voxels >= 0, got {value!r}")
     return number
 
@@ -140,7 +135,7 @@ def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: An
     ``(vertices (V, 3), triangles (T, 3))`` pair in the asset's frame, or a ``newton.Mesh`` (its SDF replaced)."""
     body = as_body(asset)
     if isinstance(surface, newton.Mesh):
-        vertices, triangles = surface.vertices, np.asarray(surface.indices).reshape(-1, 3)
+        vertices, triangles = surface.vertices, surface.indices
     elif isinstance(surface, (str, os.PathLike)):
         vertices, triangles = _voxfmt.read_mesh(surface, unit_scale=_unit_scale(body))
     elif isinstance(surface, Sequence) and len(surface) == 2:

@@ -30,11 +30,10 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from . import _voxfmt
 from ._asset import as_body, warp_device
 from ._errors import OptionError
+from .batch import _real
 
 WARP_VERSION = "1.19.0"
 """The warp-lang release this module is tested with. It uses Warp's public volume API only (NanoVDB 32.x grids), so
@@ -70,9 +69,7 @@ def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tu
     uses NanoVDB's ZIP codec. A grid that reaches more than 2^20 voxels from the world origin is refused
     (``VALUE_OUT_OF_RANGE``: NanoVDB's readers map index to world in float).
     """
-    if width is not None and (isinstance(width, (bool, np.bool_)) or not isinstance(width, (int, float, np.integer,
-                                                                                          np.floating))
-                              or not 0.5 <= width <= 32767):
+    if width is not None and not 0.5 <= _real("width", width) <= 32767:
         raise OptionError("BAD_OPTION", f"width: expected a number of voxels in [0.5, 32767], got {width!r}")
     body = as_body(asset)
     data, info = _voxfmt._nanovdb(body, float(width or 0.0), bool(compress))
