@@ -275,7 +275,8 @@ class InspectExports(unittest.TestCase):
     def test_an_option_error_is_json_when_json_is_asked_for_in_any_spelling(self):
         # CLI11 refuses the line before any command runs; the error is still JSON on stdout for --json=true.
         for spelling, wants_json in (("--json", True), ("--json=true", True), ("--json=ON", True),
-                                     ("--json=false", False), ("--json=0", False)):
+                                     ("--json=2", True), ("--json=false", False), ("--json=0", False),
+                                     ("--json=-1", False)):
             r = subprocess.run([VOXFMT, "inspect", self.asset, spelling, "--no-such-option"], capture_output=True,
                                text=True, timeout=60)
             self.assertEqual(r.returncode, 2, (spelling, r.stderr))

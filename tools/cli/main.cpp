@@ -1,8 +1,6 @@
 // voxfmt: the one command-line front end of the toolchain.
 #include <CLI/CLI.hpp>
 
-#include <algorithm>
-#include <cctype>
 #include <csignal>
 #include <exception>
 #include <iostream>
@@ -30,10 +28,9 @@ bool json_requested(int argc, char** argv) {
     if (arg == "--") break;
     if (arg == "--json") json = true;
     if (arg.rfind("--json=", 0) != 0) continue;
-    std::string value = arg.substr(7);
-    std::transform(value.begin(), value.end(), value.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    json = value == "true" || value == "1" || value == "yes" || value == "on" || value == "t" || value == "y" ||
-           value == "+" || value == "enable";
+    // CLI11's own reading of a flag's value, so that every spelling it takes as true ("2", "on", ...) asks for JSON.
+    bool value = false;
+    json = CLI::detail::lexical_cast(arg.substr(7), value) && value;
   }
   return json;
 }
