@@ -292,6 +292,35 @@ TEST(Coherence, AStateQueriedForAnotherPairStartsAfresh) {
   }
 }
 
+TEST(Coherence, AnObjectLoadedWhereAnotherWasStartsItsPairAfresh) {
+  // A reload: an object assigned over another at the same address, with as many points and a grid no larger (so
+  // its arrays keep their storage too). The state knows its pair by the objects' ids: each query as a fresh one.
+  const BakedBunny& bunny = BakedBunny::get();
+  auto first = CollisionObject::from_asset(test::make_sphere_asset({{0, 0, 0}, 0.3, 0.02, 3000, 4}));
+  auto second = CollisionObject::from_asset(test::make_sphere_asset({{0.04, 0.03, 0}, 0.26, 0.02, 3000, 4}));
+  ASSERT_TRUE(first && second);
+  ASSERT_EQ(first.value()->point_tree().size(), second.value()->point_tree().size());
+  EXPECT_NE(first.value()->id(), second.value()->id());
+  const Pose inside = pose_at(Eigen::Vector3d::UnitY(), 0.3, Eigen::Vector3d(0.1, 0.1, 0.05));
+  for (const QueryDirection direction : {QueryDirection::APointsInB, QueryDirection::BPointsInA}) {
+    CollisionObject ball = *first.value();
+    QueryScratch scratch;
+    QueryState state;
+    QueryOptions options;
+    options.direction = direction;
+    for (int reload = 0; reload < 2; ++reload) {
+      if (reload == 1) ball = *second.value();
+      for (int repeat = 0; repeat < 2; ++repeat) {
+        ContactSet fresh, coherent;
+        query_contacts(*bunny.object, inside, ball, Pose{}, options, fresh, scratch);
+        query_contacts(*bunny.object, inside, ball, Pose{}, options, coherent, scratch, state);
+        EXPECT_FALSE(fresh.contacts.empty()) << "reload " << reload;
+        expect_identical(fresh, coherent, size_t(2 * reload + repeat));
+      }
+    }
+  }
+}
+
 // A query against a partner's function evaluates it once a tested point: the contact keeps the outward normal of
 // the sample that gave its depth. A cut level's sphere, sampled at its centre, takes its normal at its point.
 TEST(FunctionQuery, AContactKeepsItsSamplesNormalAndACutSphereTakesItsPoints) {

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 #include "traversal/eigen.h"
@@ -100,6 +101,8 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_che
     return voxfmt::Error{voxfmt::IssueCode::ReadFailed, "LoadOptions asks for neither voxelmap nor point shell"};
 
   auto object = std::make_shared<CollisionObject>();
+  static std::atomic<uint64_t> made{0};
+  object->id_ = ++made;
   object->bounds_min_ = to_double(asset.bounds_min);
   object->bounds_max_ = to_double(asset.bounds_max);
   object->distance_band_ = asset.voxelmap.distance_band;

@@ -91,7 +91,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   // The voxelmap is fixed in its own grid: displacements are measured there too.
   const Eigen::Matrix3f M = core::to_eigen(frame.to_grid);
   const Eigen::Vector3f m = core::to_eigen(frame.to_grid.m);
-  if (allowed) front->state().bind(&tree, tree.size(), core_field.bricks, int(options.interpolation));
+  if (allowed) front->state().bind(shell.id(), field.id(), int(options.interpolation));
   if (allowed && front->state().take_turn(M, m, tree.extent)) {
     detail::traverse_coherent(tree, frame, M, m, target, out.stats, scratch.buffers(), front->state(), emit);
   } else {

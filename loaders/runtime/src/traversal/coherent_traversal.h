@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <cstdint>
 #include <limits>
 #include <type_traits>
 #include <utility>
@@ -61,23 +62,22 @@ struct TraversalFront::State {
   static constexpr uint32_t kBusyQueries = 4, kFirstSkip = 8, kMaxSkip = 256;
   bool valid = false;
 
-  const void* shell = nullptr;   ///< the point tree the front is of
-  size_t shell_nodes = 0;        ///< and its size (an address reused by another object's tree)
-  const void* target = nullptr;  ///< the field it was walked against (null: not known to the caller)
-  int reading = 0;               ///< how the field was read (QueryOptions::interpolation): its bounds are of that
+  uint64_t shell = 0;   ///< CollisionObject::id of the object whose point tree the front is of
+  uint64_t target = 0;  ///< and of the object whose field it was walked against (0: a function, no identity)
+  int reading = 0;      ///< how the field was read (QueryOptions::interpolation): its bounds are of that
 
   void reset() {
     valid = false;
     heap.clear();
   }
   /// The front belongs to one pair: queried for another shell or target, it starts afresh (its entries index
-  /// another tree's nodes, its bounds another field's).
-  void bind(const void* shell_tree, size_t nodes, const void* target_field, int target_reading = 0) {
-    if (shell_tree == shell && nodes == shell_nodes && target_field == target && target_reading == reading) return;
+  /// another tree's nodes, its bounds another field's). Objects are known by their ids, not their addresses, which
+  /// an object loaded after another was destroyed may reuse.
+  void bind(uint64_t shell_object, uint64_t target_object, int target_reading = 0) {
+    if (shell_object == shell && target_object == target && target_reading == reading) return;
     reset();
-    shell = shell_tree;
-    shell_nodes = nodes;
-    target = target_field;
+    shell = shell_object;
+    target = target_object;
     reading = target_reading;
   }
   /// Whether the query at relative pose (Mr, mr) uses the front (false while skipping; the front is rebuilt

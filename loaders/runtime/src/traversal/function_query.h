@@ -120,8 +120,8 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   // Displacements in the partner's frame, where its distance function is fixed.
   const Eigen::Matrix3f Mr = (partner.rotation.transpose() * pose.rotation * pose.scale).cast<float>();
   const Eigen::Vector3f mr = (partner.rotation.transpose() * (pose.translation - partner.translation)).cast<float>();
-  // The partner's function has no identity here (nullptr): its pair keeps its front.
-  front.state().bind(&tree, tree.size(), nullptr);
+  // The partner's function has no identity here (0): its pair keeps its front.
+  front.state().bind(shell_object.id(), 0);
   if (!front.state().take_turn(Mr, mr, tree.extent)) {
     query_against_function(shell_object, pose, distance, lower_bound, options, out, scratch);
     return;

@@ -168,6 +168,9 @@ class CollisionObject {
   const voxfmt::Provenance& provenance() const { return provenance_; }
   /// Half-width of the band of stored distances, voxels (spec §3.2).
   double distance_band() const { return distance_band_; }
+  /// A number no other object made in this process has (a copy shares its original's): what a QueryState knows
+  /// its pair by, as an address may be reused by an object loaded after another was destroyed.
+  uint64_t id() const { return id_; }
 
  private:
   /// Converts an asset that has passed at least quick validation (each load validates once).
@@ -187,6 +190,7 @@ class CollisionObject {
   double point_spacing_ = 0.0;
   voxfmt::Provenance provenance_;
   double distance_band_ = 0.0;
+  uint64_t id_ = 0;
 };
 
 }  // namespace voxfmt::runtime
