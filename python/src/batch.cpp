@@ -53,7 +53,7 @@ using CpuArray = nb::ndarray<T, nb::device::cpu, nb::c_contig, Dims...>;
 // The CPU path: runtime::BatchScene on `threads` workers, the GIL released.
 nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std::pair<int64_t, int64_t>>& pairs,
                    nb::handle poses_a, nb::handle poses_b, nb::handle pair_index, double proximity, double stiffness,
-                   int64_t max_contacts, std::optional<int64_t> threads) {
+                   int64_t max_contacts, std::optional<int64_t> threads, const std::string& interpolation) {
   if (max_contacts < 0 || max_contacts > (int64_t(1) << 24))
     fail(IssueCode::BadOption, "max_contacts must be in 0..2^24");
   if (threads && *threads < 1) fail(IssueCode::BadOption, "threads must be >= 1 (or None: every core)");
@@ -85,6 +85,7 @@ nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std
   in.pair = pair ? pair->data() : nullptr;
   in.proximity = proximity;
   in.stiffness = stiffness;
+  in.interpolation = interpolation_of(interpolation);
   const size_t k = size_t(max_contacts);
   // Their memory was judged by the caller (voxfmt.BatchScene.contacts, with the poses' copies it makes).
   OutArray<int32_t> count({envs}), overflow({envs}), error({envs});
@@ -235,7 +236,7 @@ nb::dict export_core(const Body& body) {
 void bind_batch(nb::module_& m) {
   m.def("_export_core", &export_core, "body"_a);
   m.def("_batch_cpu", &batch_cpu, "bodies"_a, "pairs"_a, "poses_a"_a, "poses_b"_a, "pair_index"_a.none(), "proximity"_a,
-        "stiffness"_a, "max_contacts"_a, "threads"_a.none());
+        "stiffness"_a, "max_contacts"_a, "threads"_a.none(), "interpolation"_a = "trilinear");
 #if defined(VOXFMT_WITH_CUDA)
   m.def("_cuda_status", [] {
     std::string why;

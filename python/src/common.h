@@ -12,6 +12,7 @@
 
 #include "voxfmt/result.h"
 #include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/query.h"
 
 namespace voxfmt::python {
 
@@ -26,6 +27,14 @@ struct CodedError : std::exception {
 
 [[noreturn]] inline void fail(IssueCode code, std::string message) {
   throw CodedError(Error{code, std::move(message)});
+}
+
+/// Python's name of a reading ('trilinear' or 'tricubic'), as QueryOptions::interpolation; BAD_OPTION otherwise.
+inline runtime::Interpolation interpolation_of(const std::string& name) {
+  if (name == "tricubic") return runtime::Interpolation::Tricubic;
+  if (name != "trilinear")
+    fail(IssueCode::BadOption, "interpolation must be 'trilinear' or 'tricubic', not '" + name + "'");
+  return runtime::Interpolation::Trilinear;
 }
 
 /// A NumPy array of `shape` the binding fills (zeroed), owned by Python once returned.

@@ -170,10 +170,7 @@ struct Cut {
 QueryOptions query_options(std::optional<int64_t> point_budget, std::optional<double> time_budget_us, double proximity,
                            const Cut& cut = {}, const std::string& interpolation = "trilinear") {
   QueryOptions options;
-  if (interpolation == "tricubic")
-    options.interpolation = runtime::Interpolation::Tricubic;
-  else if (interpolation != "trilinear")
-    fail(IssueCode::BadOption, "interpolation must be 'trilinear' or 'tricubic', not '" + interpolation + "'");
+  options.interpolation = interpolation_of(interpolation);
   if (cut.max_level) {
     if (*cut.max_level < 0) fail(IssueCode::BadOption, "max_level must be >= 0 (or None: the whole tree)");
     options.max_level = uint32_t(std::min<int64_t>(*cut.max_level, std::numeric_limits<uint32_t>::max()));

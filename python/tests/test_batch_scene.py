@@ -80,6 +80,29 @@ def test_the_same_contacts_as_contacts_batch(bodies: dict[str, voxfmt.Body], pai
             assert mine == theirs, k
 
 
+def test_tricubic_reading_is_contacts_batchs(bodies: dict[str, voxfmt.Body]) -> None:
+    a = b = bodies["sphere"]
+    rng = np.random.default_rng(7)
+    pa = random_poses(rng, 200, 0.0, a)
+    pb = random_poses(rng, 200, 0.5 * size(a), b)
+    scene = voxfmt.BatchScene([a, b])
+    got = scene.contacts(pa, pb, stiffness=3e3, interpolation="tricubic")
+    ref = voxfmt.contacts_batch(a, pa.astype(np.float64), b, pb.astype(np.float64), stiffness=3e3,
+                                interpolation="tricubic")
+    trilinear = scene.contacts(pa, pb, stiffness=3e3)
+    assert np.array_equal(got.count, ref.count) and (got.count > 0).sum() > 50
+    scale = 1 + np.abs(ref.force).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(got.force / scale, ref.force / scale, atol=1e-5)
+    touching = got.max_depth > 0
+    assert (got.force[touching] != trilinear.force[touching]).any(axis=1).mean() > 0.5, "tricubic read as trilinear"
+    for bad in ("cubic", None, 3):
+        with pytest.raises(voxfmt.OptionError, match="interpolation"):
+            scene.contacts(pa, pb, interpolation=bad)
+    poses = FakeCudaArray((8, 4, 4), "float32")
+    with pytest.raises(voxfmt.OptionError, match="trilinearly only"):
+        scene.contacts(poses, poses, interpolation="tricubic")
+
+
 def test_pairs_and_pair_index(bodies: dict[str, voxfmt.Body]) -> None:
     scene = voxfmt.BatchScene([bodies["sphere"], bodies["shell"]], pairs=[(0, 1), (1, 0), (0, 0)])
     rng = np.random.default_rng(8)

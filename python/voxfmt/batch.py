@@ -377,16 +377,22 @@ class BatchScene:
         out: BatchResult | None = None,
         stream: int | None = None,
         check: bool = True,
+        interpolation: str = "trilinear",
     ) -> BatchResult:
         """Contacts of every environment: poses_a, poses_b (E, 4, 4) rigid body-to-world matrices (float32, or
         float64 on the CPU), pair_index (E,) int32 or None. On CUDA arrays the call is queued on `stream` (default:
         the framework's current stream) and returns at once; with ``check=True`` it then waits to check the
         environments' ``error`` (raising PoseError or OptionError); pass check=False (and ``out``) inside a CUDA
         graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks; outputs
-        larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY)."""
+        larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY).
+        ``interpolation``: 'trilinear' or 'tricubic' (as :func:`voxfmt.contacts`'s; on the CPU only)."""
         stiffness, proximity = _real("stiffness", stiffness), _real("proximity", proximity)
         max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
+        if not isinstance(interpolation, str) or interpolation not in ("trilinear", "tricubic"):
+            raise OptionError("BAD_OPTION", f"interpolation must be 'trilinear' or 'tricubic', not {interpolation!r}")
         if _on_cuda(poses_a) or _on_cuda(poses_b):
+            if interpolation != "trilinear":
+                raise OptionError("BAD_OPTION", "the CUDA batch reads distances trilinearly only (tricubic: NumPy poses)")
             result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream)
         else:
             if out is not None:
@@ -400,7 +406,7 @@ class BatchScene:
                                   envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
             raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),
                              None if pair_index is None else _pair_indices(pair_index),
-                             proximity, stiffness, max_contacts, threads)
+                             proximity, stiffness, max_contacts, threads, interpolation)
             result = BatchResult(**raw)
         if check:
             _raise_for(result.error)

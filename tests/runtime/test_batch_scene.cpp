@@ -84,46 +84,63 @@ TEST(BatchScene, EveryEnvironmentIsTheRuntimesQueryReduced) {
   in.pair = pair.data();
   in.proximity = 0.002;
   in.stiffness = 1e4;
-  Outputs got(kEnvs, kKeep);
-  ASSERT_TRUE(scene->contacts(in, got.out, 2));
-  QueryOptions options;
-  options.proximity = in.proximity;
-  const std::shared_ptr<const CollisionObject> objects[] = {big, small};
-  const int pairs[3][2] = {{0, 1}, {1, 0}, {0, 0}};
-  size_t touching = 0, overflowing = 0;
-  for (size_t e = 0; e < kEnvs; ++e) {
-    const CollisionObject& a = *objects[pairs[pair[e]][0]];
-    const CollisionObject& b = *objects[pairs[pair[e]][1]];
-    const Pose posea = pose_of(&pa[16 * e]), poseb = pose_of(&pb[16 * e]);
-    ContactSet set;
-    query_contacts(a, posea, b, poseb, options, set);
-    ASSERT_EQ(got.error[e], 0);
-    ASSERT_EQ(size_t(got.count[e]), set.contacts.size()) << e;
-    EXPECT_EQ(size_t(got.overflow[e]), set.contacts.size() - std::min<size_t>(set.contacts.size(), kKeep));
-    touching += !set.contacts.empty();
-    overflowing += got.overflow[e] > 0;
-    float deepest = 0;
-    for (const Contact& c : set.contacts) deepest = std::max(deepest, c.depth > 0 ? float(c.depth) : 0.0f);
-    EXPECT_EQ(got.max_depth[e], deepest);
-    const Wrench w = penalty_wrench(set, posea.apply(a.center_of_mass()), in.stiffness);
-    for (int k = 0; k < 3; ++k) {
-      EXPECT_EQ(got.force[3 * e + k], float(w.force[k]));
-      EXPECT_EQ(got.torque[3 * e + k], float(w.torque[k]));
-    }
-    for (size_t i = 0; i < std::min<size_t>(set.contacts.size(), kKeep); ++i) {
-      const Contact& c = set.contacts[i];
-      const size_t at = e * kKeep + i;
+  std::vector<float> trilinear_forces;
+  // Either reading, as query_contacts reads with it; the tricubic one gives other forces.
+  for (const Interpolation reading : {Interpolation::Trilinear, Interpolation::Tricubic}) {
+    in.interpolation = reading;
+    Outputs got(kEnvs, kKeep);
+    ASSERT_TRUE(scene->contacts(in, got.out, 2));
+    QueryOptions options;
+    options.proximity = in.proximity;
+    options.interpolation = reading;
+    const std::shared_ptr<const CollisionObject> objects[] = {big, small};
+    const int pairs[3][2] = {{0, 1}, {1, 0}, {0, 0}};
+    size_t touching = 0, overflowing = 0;
+    for (size_t e = 0; e < kEnvs; ++e) {
+      const CollisionObject& a = *objects[pairs[pair[e]][0]];
+      const CollisionObject& b = *objects[pairs[pair[e]][1]];
+      const Pose posea = pose_of(&pa[16 * e]), poseb = pose_of(&pb[16 * e]);
+      ContactSet set;
+      query_contacts(a, posea, b, poseb, options, set);
+      ASSERT_EQ(got.error[e], 0);
+      ASSERT_EQ(size_t(got.count[e]), set.contacts.size()) << e;
+      EXPECT_EQ(size_t(got.overflow[e]), set.contacts.size() - std::min<size_t>(set.contacts.size(), kKeep));
+      touching += !set.contacts.empty();
+      overflowing += got.overflow[e] > 0;
+      float deepest = 0;
+      for (const Contact& c : set.contacts) deepest = std::max(deepest, c.depth > 0 ? float(c.depth) : 0.0f);
+      EXPECT_EQ(got.max_depth[e], deepest);
+      const Wrench w = penalty_wrench(set, posea.apply(a.center_of_mass()), in.stiffness);
       for (int k = 0; k < 3; ++k) {
-        EXPECT_EQ(got.points[3 * at + k], float(c.point[k]));
-        EXPECT_EQ(got.normals[3 * at + k], float(c.normal[k]));
+        EXPECT_EQ(got.force[3 * e + k], float(w.force[k]));
+        EXPECT_EQ(got.torque[3 * e + k], float(w.torque[k]));
       }
-      EXPECT_EQ(got.depths[at], float(c.depth));
-      EXPECT_EQ(uint32_t(got.index[at]), c.point_index);
-      EXPECT_EQ(bool(got.of_b[at]), c.point_of_b);
+      for (size_t i = 0; i < std::min<size_t>(set.contacts.size(), kKeep); ++i) {
+        const Contact& c = set.contacts[i];
+        const size_t at = e * kKeep + i;
+        for (int k = 0; k < 3; ++k) {
+          EXPECT_EQ(got.points[3 * at + k], float(c.point[k]));
+          EXPECT_EQ(got.normals[3 * at + k], float(c.normal[k]));
+        }
+        EXPECT_EQ(got.depths[at], float(c.depth));
+        EXPECT_EQ(uint32_t(got.index[at]), c.point_index);
+        EXPECT_EQ(bool(got.of_b[at]), c.point_of_b);
+      }
+    }
+    EXPECT_GT(touching, kEnvs / 4) << "too few environments touch: the test no longer compares contacts";
+    EXPECT_GT(overflowing, 10u) << "no environment overflows its buffer: the test no longer checks overflow";
+    if (reading == Interpolation::Trilinear) {
+      trilinear_forces = got.force;
+    } else {
+      size_t penetrating = 0, differ = 0;
+      for (size_t e = 0; e < kEnvs; ++e) {
+        penetrating += got.max_depth[e] > 0;
+        differ += got.force[3 * e] != trilinear_forces[3 * e];
+      }
+      EXPECT_GT(penetrating, 20u);
+      EXPECT_GT(differ, penetrating / 2) << "the tricubic batch reads as the trilinear one";
     }
   }
-  EXPECT_GT(touching, kEnvs / 4) << "too few environments touch: the test no longer compares contacts";
-  EXPECT_GT(overflowing, 10u) << "no environment overflows its buffer: the test no longer checks overflow";
 }
 
 TEST(BatchScene, EachEnvironmentIsVisitedOnceWithTheQueryItsOptionsAndTrajectoryGive) {
@@ -295,6 +312,9 @@ TEST(BatchScene, AMalformedCallIsRefusedAndWritesNothing) {
   BatchEnvironments infinite = in;
   infinite.stiffness = INFINITY;
   EXPECT_EQ(scene->contacts(infinite, got.out).error().code, IssueCode::BadOption);
+  BatchEnvironments unknown_reading = in;
+  unknown_reading.interpolation = Interpolation(7);
+  EXPECT_EQ(scene->contacts(unknown_reading, got.out).error().code, IssueCode::BadOption);
   EXPECT_EQ(got.count[0], -7);  // nothing written
   BatchEnvironments empty;
   EXPECT_TRUE(scene->contacts(empty, got.out));  // no environments, no poses needed

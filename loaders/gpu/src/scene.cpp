@@ -139,6 +139,8 @@ Status Scene::contacts(const Environments& in, const Outputs& out, void* stream)
   if (!out.count) return Error{IssueCode::BadOption, "the batch needs a `count` output"};
   if (in.poses_a_f64 || in.poses_b_f64)
     return Error{IssueCode::BadOption, "the device batch takes float32 poses (poses_a, poses_b)"};
+  if (in.interpolation != runtime::Interpolation::Trilinear)
+    return Error{IssueCode::BadOption, "the device batch reads distances trilinearly only (tricubic: the CPU batch)"};
   core::BatchInputs<float> inputs;
   inputs.bodies = device_->bodies;
   inputs.pair_a = device_->pair_a;

@@ -85,6 +85,8 @@ Status check_batch(const BatchEnvironments& in, const BatchOutputs& out) {
   auto bad = [](const std::string& what) { return Error{IssueCode::BadOption, "batch: " + what}; };
   if (!out.count) return bad("the count output is required");
   if (!(std::isfinite(in.stiffness) && in.stiffness >= 0)) return bad("stiffness must be finite and >= 0");
+  if (in.interpolation != Interpolation::Trilinear && in.interpolation != Interpolation::Tricubic)
+    return bad("interpolation must be Trilinear or Tricubic");
   return Status::success();
 }
 
@@ -173,6 +175,7 @@ Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out
   QueryOptions options;
   options.direction = QueryDirection::Auto;
   options.normal_source = NormalSource::DistanceGradient;
+  options.interpolation = in.interpolation;
   return each_environment(in, options, threads, [&](const Visit& v) {
     if (v.error != 0) {
       write_error(out, v.environment, v.error);

@@ -76,9 +76,9 @@ enum class Interpolation {
   /// Catmull-Rom over the 4^3 voxels around the point where all hold stored distances (near the surface: with the
   /// default band of 3, nearly every point on it, three in four half a voxel deep, one in four a voxel deep; a
   /// wider band reaches deeper), trilinear elsewhere: the same bunny within 1.2 % at the 95th percentile, for 64
-  /// voxel reads per point sampled instead of 8. For haptic forces (docs/haptics.md); the CPU query only (not the
-  /// CUDA batch nor BatchScene::contacts). A coherent query looks its sampled points up again each time, as the
-  /// reading steps where it gives way to trilinear.
+  /// voxel reads per point sampled instead of 8. For haptic forces (docs/haptics.md); the CPU queries only
+  /// (BatchScene too: BatchEnvironments::interpolation; not the CUDA batch). A coherent query looks its sampled
+  /// points up again each time, as the reading steps where it gives way to trilinear.
   Tricubic,
 };
 
@@ -249,6 +249,9 @@ struct BatchEnvironments {
   const int32_t* pair = nullptr;  ///< E indices into the scene's pairs, or nullptr: pair 0 for every one
   double proximity = 0.0;         ///< metres: also report points outside but nearer than this (negative depth)
   double stiffness = 1.0;         ///< N/m of the penalty wrench
+  /// How points' distances are read (QueryOptions::interpolation): Tricubic on the CPU only (gpu::Scene refuses
+  /// it with BAD_OPTION).
+  Interpolation interpolation = Interpolation::Trilinear;
 };
 
 /// Per-environment outputs the caller sized (only `count` is required; null arrays are skipped); gpu::Scene takes
