@@ -8,6 +8,9 @@
 #include <functional>
 #include <limits>
 #include <random>
+#include <stdexcept>
+
+#include <sys/stat.h>
 
 #include "boundary_winding.h"
 #include "closest_triangle.h"
@@ -632,6 +635,62 @@ TEST(Bake, TimingsAndProgressFollowTheStageList) {
       EXPECT_LE(seconds(info.stage), seconds(info.within) + 1e-3) << info.name;
     }
   }
+}
+
+// A caller's mistakes through the library (not the CLI, which refuses most before): coded errors, no file left.
+TEST(Bake, ACallersMistakesAreCodedErrorsAndLeaveNoFile) {
+  const std::string cube = kMeshes + "/cube.off";
+  Settings small;
+  small.voxelmap.resolution = 16;
+  small.point_shell.points = 300;
+  small.threads = 1;
+  Settings threads = small;  // 2^32 - 1 threads aborted on bad_alloc inside TBB
+  threads.threads = std::numeric_limits<unsigned>::max();
+  EXPECT_EQ(check_settings(threads).error().code, IssueCode::BadOption);
+  EXPECT_EQ(bake_mesh(cube, threads).error().code, IssueCode::BadOption);
+  for (const double limit : {std::nan(""), -1.0, double(INFINITY)}) {
+    Settings timed = small;
+    timed.import.time_limit_s = limit;
+    EXPECT_EQ(check_settings(timed).error().code, IssueCode::BadOption) << limit;
+  }
+  // A point spacing's count is judged before sampling, as a point count is (it took 5x the limit).
+  Settings dense = small;
+  dense.point_shell.point_spacing = 1e-3;  // ~8 million points on the cube's 6 m^2
+  dense.voxelmap.max_memory_bytes = uint64_t(64) << 20;
+  EXPECT_EQ(bake_mesh(cube, dense).error().code, IssueCode::OutOfMemory);
+
+  // A progress callback that throws stops the bake at any stage, with a code and no file, "done" included.
+  const std::string out = (std::filesystem::temp_directory_path() / "voxfmt_thrown_progress.vox.h5").string();
+  for (const char* stage : {"import", "write", "done"}) {
+    for (const bool standard : {true, false}) {
+      std::filesystem::remove(out);
+      const auto thrower = [&](std::string_view at, double) {
+        if (at != stage) return;
+        if (standard) throw std::runtime_error("cancelled");
+        throw 42;
+      };
+      const Result<Summary> stopped = bake_to_file(cube, out, small, thrower);
+      ASSERT_FALSE(stopped) << stage;
+      EXPECT_EQ(stopped.error().code, IssueCode::Internal) << stage;
+      EXPECT_FALSE(std::filesystem::exists(out)) << stage;
+    }
+  }
+  // bake_mesh ends its progress at "done" too.
+  std::vector<std::string> stages;
+  ASSERT_TRUE(bake_mesh(cube, small, [&](std::string_view at, double) { stages.emplace_back(at); }));
+  ASSERT_FALSE(stages.empty());
+  EXPECT_EQ(stages.back(), "done");
+
+  // Only a regular file has a hash: a folder read as empty, a pipe never ended.
+  const std::filesystem::path folder = std::filesystem::temp_directory_path() / "voxfmt_hash_folder";
+  std::filesystem::create_directories(folder);
+  EXPECT_EQ(sha256_file(folder.string()).error().code, IssueCode::InputNotFound);
+  const std::string fifo = (folder / "pipe").string();
+  std::filesystem::remove(fifo);
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(sha256_file(fifo).error().code, IssueCode::InputNotFound);
+  std::filesystem::remove_all(folder);
+  EXPECT_EQ(sha256_file(cube).value().size(), 64u);
 }
 
 TEST(Bake, PointsAreEvenlySpread) {

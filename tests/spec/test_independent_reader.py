@@ -1318,6 +1318,40 @@ class TestLegacyUpgrade(unittest.TestCase):
         self.assertEqual(again.returncode, 0, describe(again))
         self.assertEqual([f["status"] for f in ss.parse_json_stdout(self, again)["files"]], ["current"])
 
+    def test_upgrade_copies_what_it_leaves_alone_and_never_rewrites_a_newer_file(self):
+        """A current file (and one of a newer minor version, even with --force, whose rewrite would drop what this
+        voxfmt does not know) is copied unchanged to an output elsewhere; an in-place upgrade reports the size the
+        file had; one file named twice is upgraded once."""
+        root = os.path.join(self.tmp, "alone")
+        os.makedirs(root)
+        old = sf.write_fixture_h5py(os.path.join(root, "old.vox.h5"), grid=sf.FINE_GRID, format_version=[2, 1])
+        current = os.path.join(root, "current.vox.h5")
+        self.assertEqual(ss.run([ss.VOXFMT_BIN, "upgrade", old, "-o", current]).returncode, 0)
+        newer = os.path.join(root, "newer.vox.h5")
+        shutil.copy(current, newer)
+        with h5py.File(newer, "r+") as f:
+            f.attrs["format_version"] = np.array([2, 3], dtype=f.attrs["format_version"].dtype)
+            f["x_future"] = np.arange(3)
+        for source, force, status in ((current, False, "current"), (newer, False, "newer"), (newer, True, "newer")):
+            out = os.path.join(root, "copy-" + os.path.basename(source))
+            proc = ss.run([ss.VOXFMT_BIN, "upgrade", source, "-o", out, "--json"] + (["--force"] if force else []))
+            self.assertEqual(proc.returncode, 0, describe(proc))
+            self.assertEqual([f["status"] for f in ss.parse_json_stdout(self, proc)["files"]], [status])
+            with open(source, "rb") as a, open(out, "rb") as b:
+                self.assertEqual(a.read(), b.read(), "not copied unchanged: " + out)
+            os.remove(out)
+        in_place = os.path.join(root, "in-place.vox.h5")
+        shutil.copy(old, in_place)
+        size = os.path.getsize(in_place)
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", in_place, "-o", in_place, "--json"])
+        entry = ss.parse_json_stdout(self, proc)["files"][0]
+        self.assertEqual((entry["status"], entry["bytes_before"]), ("upgraded", size), describe(proc))
+        self.assertEqual(entry["bytes_after"], os.path.getsize(in_place))
+        twice = os.path.join(root, "twice")
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", old, os.path.join(root, ".", "old.vox.h5"), "-o", twice, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        self.assertEqual([f["status"] for f in ss.parse_json_stdout(self, proc)["files"]], ["upgraded"])
+
     def test_upgrade_writes_only_under_its_output(self):
         """A link in the input folder is upgraded under OUTPUT by its own name, never through the link onto the
         file it points to; two inputs that would write one output are refused; an output folder inside the input

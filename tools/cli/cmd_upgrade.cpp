@@ -82,15 +82,18 @@ Result<std::vector<Item>> plan(const Options& o) {
   }
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
   std::map<fs::path, const Item*> by_output;
+  std::vector<Item> unique;
   for (const Item& item : items) {
     const auto [it, added] = by_output.emplace(place(item.output), &item);
+    if (!added && fs::equivalent(it->second->input, item.input, ec)) continue;  // one file named twice: once
     if (!added)
       return Error{IssueCode::BadOption,
                    "two inputs would write the same output " + item.output + ": " + it->second->input + " and " +
                        item.input + " (upgrade them into different folders)",
                    item.output};
+    unique.push_back(item);
   }
-  return items;
+  return unique;
 }
 
 // Counts of a run, and the exit status of its worst failure.
@@ -99,40 +102,78 @@ struct Tally {
   int worst = kExitOk;
 };
 
-// One file: read, and rewritten in the current format unless it is already (or --force). Its entry in the JSON
-// report; the line a person reads.
+// The folder `output` goes in, made where missing: WRITE_FAILED with the reason (a permission, a file in the way).
+Status make_parent(const std::string& output) {
+  const fs::path parent = fs::path(output).parent_path();
+  std::error_code ec;
+  if (parent.empty() || fs::is_directory(parent, ec)) return Status::success();
+  if (fs::create_directories(parent, ec); ec)
+    return Error{IssueCode::WriteFailed, output + ": cannot make the folder " + parent.string() + ": " + ec.message(),
+                 output};
+  return Status::success();
+}
+
+// A file left as it is (current, or newer than this voxfmt), copied byte for byte where the output is elsewhere,
+// so that a library's upgraded copy holds every asset of it.
+Status copy_unchanged(const Item& item) {
+  if (place(item.output) == place(item.input)) return Status::success();
+  if (Status made = make_parent(item.output); !made) return made;
+  return write_file_atomically(
+      item.output, AtomicWrite{[&](const std::string& temporary) -> Status {
+                                 std::error_code ec;
+                                 fs::copy_file(item.input, temporary, fs::copy_options::overwrite_existing, ec);
+                                 if (ec)
+                                   return Error{IssueCode::WriteFailed,
+                                                item.output + ": cannot copy " + item.input + ": " + ec.message(),
+                                                item.output};
+                                 return Status::success();
+                               },
+                               {}});
+}
+
+// The upgraded asset written to the item's output; its entry's sizes (the input's measured before a write in place
+// replaces it).
+Status write_upgraded(Asset& asset, const Item& item, nlohmann::json& entry) {
+  std::error_code ec;
+  const uintmax_t before = fs::file_size(item.input, ec);
+  if (Status made = make_parent(item.output); !made) return made;
+  // 2.0 and 2.1 estimates are the lattice interpolated; 2.2 settles them from the same stored data.
+  if (asset.voxelmap.estimates != Voxelmap::Estimates::Settled) fill_estimates(asset.voxelmap);
+  const Status written = write_asset(item.output, asset);
+  entry["bytes_before"] = before;
+  entry["bytes_after"] = fs::file_size(item.output, ec);
+  return written;
+}
+
+// One file: read, and rewritten in the current format unless it is already (or --force: a file of a newer minor
+// version is never rewritten, which would drop what this voxfmt does not know). Its entry in the JSON report; the
+// line a person reads.
 nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Tally& tally) {
   nlohmann::json entry = {{"input", item.input}, {"output", item.output}};
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(item.input, &warnings, o.read);
   Status written = Status::success();
-  const auto current = [](const FormatVersion& v) {
-    return v.major == kFormatVersion.major && v.minor >= kFormatVersion.minor;
-  };
-  if (asset && current(asset.value().version) && !o.force) {
-    ++tally.current;
-    entry["status"] = "current";
-    entry["format_version"] = {asset.value().version.major, asset.value().version.minor};
+  const FormatVersion from = asset ? asset.value().version : FormatVersion{};
+  const bool newer = from.major == kFormatVersion.major && from.minor > kFormatVersion.minor;
+  if (asset && (newer || (from.major == kFormatVersion.major && from.minor == kFormatVersion.minor && !o.force))) {
+    written = copy_unchanged(item);
+    if (written) {
+      ++tally.current;
+      entry["status"] = newer ? "newer" : "current";
+      entry["format_version"] = {from.major, from.minor};
+    }
   } else if (asset) {
-    const FormatVersion from = asset.value().version;
-    std::error_code ec;
-    if (fs::path(item.output).has_parent_path()) fs::create_directories(fs::path(item.output).parent_path(), ec);
-    // 2.0 and 2.1 estimates are the lattice interpolated; 2.2 settles them from the same stored data.
-    Voxelmap& vm = asset.value().voxelmap;
-    if (vm.estimates != Voxelmap::Estimates::Settled) fill_estimates(vm);
-    written = write_asset(item.output, asset.value());
+    written = write_upgraded(asset.value(), item, entry);
     if (written) {
       ++tally.upgraded;
       entry["status"] = "upgraded";
       entry["from"] = {from.major, from.minor};
-      entry["bytes_before"] = fs::file_size(item.input, ec);
-      entry["bytes_after"] = fs::file_size(item.output, ec);
       if (!o.json && !o.quiet) {
         if (progress) std::cerr << "\r\033[K";
-        std::cout << item.input << " (" << from.major << "." << from.minor << ", " << std::fixed << std::setprecision(1)
-                  << double(fs::file_size(item.input, ec)) / 1e6 << " MB) -> " << item.output << " ("
-                  << kFormatVersion.major << "." << kFormatVersion.minor << ", "
-                  << double(fs::file_size(item.output, ec)) / 1e6 << " MB)\n";
+        std::cout << terminal_safe(item.input) << " (" << from.major << "." << from.minor << ", " << std::fixed
+                  << std::setprecision(1) << double(entry["bytes_before"].get<uintmax_t>()) / 1e6 << " MB) -> "
+                  << terminal_safe(item.output) << " (" << kFormatVersion.major << "." << kFormatVersion.minor << ", "
+                  << double(entry["bytes_after"].get<uintmax_t>()) / 1e6 << " MB)\n";
       }
     }
   }
@@ -169,8 +210,8 @@ int run(const Options& o) {
     std::cout << to_text(report) << "\n";
   } else if (!o.quiet) {
     std::cout << tally.upgraded << " upgraded to format " << kFormatVersion.major << "." << kFormatVersion.minor << ", "
-              << tally.current << " already current" << (o.force ? "" : " (left alone; --force rewrites them)") << ", "
-              << tally.failed << " failed\n";
+              << tally.current << " already current or newer (left as they are, copied where the output is elsewhere"
+              << (o.force ? "" : "; --force rewrites the current ones") << "), " << tally.failed << " failed\n";
   }
   return tally.worst;
 }
@@ -188,7 +229,8 @@ void add_upgrade_command(CLI::App& app, int& exit_code) {
                   "Output file (one input file), or folder (several inputs, or a folder: relative paths are kept)")
       ->check(non_empty_path())
       ->required();
-  cmd->add_flag("--force", o->force, "Rewrite assets that are already of the current format too");
+  cmd->add_flag("--force", o->force,
+                "Rewrite assets that are already of the current format too (never those of a newer minor version)");
   cmd->add_flag("--json", o->json, "Print a JSON report on stdout");
   cmd->add_flag("-q,--quiet", o->quiet, "Print nothing but errors");
   add_read_budget_option(cmd, o->read);

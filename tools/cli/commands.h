@@ -9,6 +9,7 @@
 #include <string>
 
 #include "report.h"
+#include "voxfmt/bake/bake.h"
 #include "voxfmt/detail/utf8.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
@@ -75,8 +76,7 @@ inline CLI::Validator finite_number(bool at_least_zero = false) {
       at_least_zero ? "NUMBER >= 0" : "NUMBER > 0");
 }
 
-/// Worker threads: 0 (every core) up to kMaxThreads; more would only exhaust memory on thread stacks.
-constexpr unsigned kMaxThreads = 1024;
+using bake::kMaxThreads;  // worker threads: 0 (every core) up to this
 
 void add_build_command(CLI::App& app, int& exit_code);
 void add_batch_command(CLI::App& app, int& exit_code);

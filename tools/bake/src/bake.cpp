@@ -97,6 +97,8 @@ Result<T> guarded(const std::string& mesh_path, Work&& work) {
       return Error{IssueCode::OutOfMemory, mesh_path + ": out of memory starting a thread (" + e.what() + ")",
                    mesh_path};
     return Error{IssueCode::Internal, mesh_path + ": " + e.what(), mesh_path};
+  } catch (...) {  // a progress callback's own exception of any type
+    return Error{IssueCode::Internal, mesh_path + ": stopped by an exception that is not a std::exception", mesh_path};
   }
 }
 
@@ -180,18 +182,21 @@ struct Geometry {
 };
 
 // The point shell's peak, before it starts: about 420 bytes a point (candidates, the Poisson-disk grid, the tree;
-// measured with the bunny at 0.2, 1 and 2 M points). Beside the voxelmap's own check, so that `--points` too is
-// refused up front rather than killed halfway. (With a point spacing the count is known only once sampled.)
-void check_point_shell_memory(const Settings& options) {
+// measured with the bunny at 0.2, 1 and 2 M points). Beside the voxelmap's own check, so that `--points` or
+// `--point-spacing` too is refused up front rather than killed halfway.
+void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options) {
   constexpr double kBytesPerPoint = 420;
-  const PointShellSettings& p = options.point_shell;
-  const double bytes = double(p.points) * kBytesPerPoint, limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
-  if (p.point_spacing > 0 || bytes <= limit) return;
+  const double points = point_shell_target(mesh, options.point_shell);
+  // Past 50 million points sampling refuses the spacing itself (BAD_OPTION), with its own message.
+  if (!(points <= 50e6)) return;
+  const double bytes = points * kBytesPerPoint, limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
+  if (bytes <= limit) return;
   char text[300];
-  std::snprintf(text, sizeof text,
-                "the point shell (%u points) would need about %.1f MiB, more than the %.1f MiB allowed (--max-memory; "
-                "default 3/4 of this machine's memory): use fewer points",
-                p.points, bytes / 1048576.0, limit / 1048576.0);
+  std::snprintf(
+      text, sizeof text,
+      "the point shell (%.0f points) would need about %.1f MiB, more than the %.1f MiB allowed (--max-memory; "
+      "default 3/4 of this machine's memory): use fewer points or a wider point spacing",
+      points, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 
@@ -206,7 +211,7 @@ PointShell sample_shell(const TriangleMesh& mesh, PointShellSettings settings, d
 // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run beside the
 // voxelmap's parallel work, each stage timed by its own wall time.
 Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, StageTimes& times) {
-  check_point_shell_memory(options);
+  check_point_shell_memory(mesh, options);
   Geometry g;
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = plan.winding;
@@ -389,6 +394,9 @@ Bounds bounding_box(const TriangleMesh& mesh) {
 }
 
 Result<std::string> sha256_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec))  // a folder reads as empty, a pipe never ends
+    return Error{IssueCode::InputNotFound, path + ": not a regular file, nothing to hash", path};
   std::ifstream in(path, std::ios::binary);
   if (!in) return Error{IssueCode::InputNotFound, path + ": cannot open for hashing", path};
   std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
@@ -398,6 +406,7 @@ Result<std::string> sha256_file(const std::string& path) {
     in.read(buffer.data(), std::streamsize(buffer.size()));
     if (in.gcount() > 0) EVP_DigestUpdate(ctx.get(), buffer.data(), size_t(in.gcount()));
   }
+  if (in.bad()) return Error{IssueCode::ReadFailed, path + ": a read failed while hashing", path};
   unsigned char digest[EVP_MAX_MD_SIZE];
   unsigned int length = 0;
   EVP_DigestFinal_ex(ctx.get(), digest, &length);
@@ -496,10 +505,17 @@ Status check_settings(const Settings& s) {
   if (std::find(std::begin(kAxes), std::end(kAxes), s.up_axis) == std::end(kAxes))
     return bad("up_axis '" + s.up_axis + "' is none of +X, -X, +Y, -Y, +Z, -Z");
   if (s.deflate < 0 || s.deflate > 9) return bad("deflate " + std::to_string(s.deflate) + " is outside 0..9");
+  if (s.threads > kMaxThreads)
+    return bad("threads " + std::to_string(s.threads) + " is outside 0.." + std::to_string(kMaxThreads));
+  if (!finite_non_negative(s.import.time_limit_s))
+    return bad("time_limit_s must be a finite number > 0 (or 0: the default)");
   return Status::success();
 }
 
-Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress) {
+namespace {
+
+// bake_mesh but for its last word ("done"), which bake_to_file says only once the file is written.
+Result<Baked> bake_in_memory(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress) {
   if (const Status checked = check_settings(settings); !checked) {
     Error error = checked.error();
     error.message = mesh_path + ": " + error.message;
@@ -518,35 +534,57 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
   });
 }
 
+}  // namespace
+
+Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, const ProgressCallback& progress) {
+  Result<Baked> baked = bake_in_memory(mesh_path, settings, progress);
+  if (!baked || !progress) return baked;
+  return guarded<Baked>(mesh_path, [&]() -> Result<Baked> {
+    progress("done", 1.0);
+    return std::move(baked.value());
+  });
+}
+
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress) {
   const auto start = std::chrono::steady_clock::now();
   // before a long bake; never onto the mesh itself
   if (Status usable = check_output_path(output_path, mesh_path); !usable) return usable.error();
-  Result<Baked> baked = bake_mesh(mesh_path, settings, progress);
+  Result<Baked> baked = bake_in_memory(mesh_path, settings, progress);
   if (!baked) return baked.error();
-  const BakeStageInfo& write = stage_info(BakeStage::Write);
-  if (progress) progress(write.name, write.progress_start);
-  const auto write_start = std::chrono::steady_clock::now();
-  WriteOptions write_options;  // validation: Full, beside the write
-  write_options.deflate_level = settings.deflate;
-  const Status written = write_asset(output_path, baked->asset, write_options);
-  if (!written) {
-    Error error = written.error();
-    if (error.code == IssueCode::InvalidAsset)  // the bake made something the spec forbids: say whose fault
-      error.message = mesh_path + ": the baked asset is invalid, nothing was written (a bake bug: please report it): " +
-                      error.message;
-    return error;
+  // The callback may throw here too (a caller's cancel): guarded, and the file it was told of removed again.
+  bool written_here = false;
+  Result<Summary> result = guarded<Summary>(mesh_path, [&]() -> Result<Summary> {
+    const BakeStageInfo& write = stage_info(BakeStage::Write);
+    if (progress) progress(write.name, write.progress_start);
+    const auto write_start = std::chrono::steady_clock::now();
+    WriteOptions write_options;  // validation: Full, beside the write
+    write_options.deflate_level = settings.deflate;
+    const Status written = write_asset(output_path, baked->asset, write_options);
+    if (!written) {
+      Error error = written.error();
+      if (error.code == IssueCode::InvalidAsset)  // the bake made something the spec forbids: say whose fault
+        error.message =
+            mesh_path +
+            ": the baked asset is invalid, nothing was written (a bake bug: please report it): " + error.message;
+      return error;
+    }
+    written_here = true;
+    Summary summary = std::move(baked->summary);
+    summary.timings.push_back({write.name, seconds_since(write_start)});
+    summary.output = output_path;
+    std::error_code ec;
+    summary.file_size_bytes = std::filesystem::file_size(output_path, ec);
+    summary.total_s = seconds_since(start);
+    summary.peak_memory_bytes = peak_memory_bytes();
+    if (progress) progress("done", 1.0);
+    return summary;
+  });
+  if (!result && written_here) {
+    std::error_code ec;
+    std::filesystem::remove(output_path, ec);
   }
-  Summary summary = std::move(baked->summary);
-  summary.timings.push_back({write.name, seconds_since(write_start)});
-  summary.output = output_path;
-  std::error_code ec;
-  summary.file_size_bytes = std::filesystem::file_size(output_path, ec);
-  summary.total_s = seconds_since(start);
-  summary.peak_memory_bytes = peak_memory_bytes();
-  if (progress) progress("done", 1.0);
-  return summary;
+  return result;
 }
 
 Result<TriangleMesh> read_mesh(const std::string& mesh_path, const ImportSettings& settings) {

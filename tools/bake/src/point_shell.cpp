@@ -94,12 +94,28 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
 
 }  // namespace
 
+namespace {
+
+double target_for_area(double area, const PointShellSettings& options) {
+  const double s = options.point_spacing;
+  return s > 0 ? std::ceil(area / (0.75 * s * s)) : double(options.points);
+}
+
+}  // namespace
+
+double point_shell_target(const TriangleMesh& mesh, const PointShellSettings& options) {
+  if (options.point_spacing == 0) return double(options.points);
+  double area = 0;
+  for (const auto& t : mesh.triangles)
+    area += 0.5 * length(cross(mesh.vertices[t[1]] - mesh.vertices[t[0]], mesh.vertices[t[2]] - mesh.vertices[t[0]]));
+  return target_for_area(area, options);
+}
+
 PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& options) {
   double area = 0;
   // Probe the area with a few candidates first, to size the candidate pool.
   surface_candidates(mesh, 1, options.seed, area);
-  double wanted = double(options.points);
-  if (options.point_spacing > 0) wanted = std::ceil(area / (0.75 * options.point_spacing * options.point_spacing));
+  const double wanted = target_for_area(area, options);
   if (!(wanted >= 1)) throw BakeError(IssueCode::BadOption, "the point shell needs at least one point");
   if (!(wanted <= 50e6))
     throw BakeError(IssueCode::BadOption,

@@ -83,6 +83,9 @@ double memory_limit_bytes(uint64_t max_memory_bytes);
 /// Samples evenly spread surface points (Poisson-disk by dart throwing over area-weighted candidates) with
 /// inward face normals. Returns points and normals only (tree fields empty).
 PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& settings);
+/// How many points sample_point_shell aims for: `points`, or with a point spacing the surface's area over
+/// 0.75 spacing^2 (so a spacing's count is known, and judged, before any sampling).
+double point_shell_target(const TriangleMesh& mesh, const PointShellSettings& settings);
 /// Clusters the points bottom-up into a breadth-first point-sphere tree (reorders the points).
 void build_sphere_tree(PointShell& shell, double branching);
 

@@ -64,6 +64,9 @@ struct PointShellSettings {
   uint64_t seed = 24301;       ///< sampling is deterministic for a given seed
 };
 
+/// Worker threads a bake may be given: 0 (every core) up to this; more would only exhaust memory on thread stacks.
+constexpr unsigned kMaxThreads = 1024;
+
 /// Everything a bake can be told. The defaults are `voxfmt build`'s.
 struct Settings {
   ImportSettings import;
@@ -71,7 +74,7 @@ struct Settings {
   PointShellSettings point_shell;
   bool check_self_intersections = true;  ///< false skips CGAL's test on huge meshes (a warning says so)
   std::string up_axis = "+Y";            ///< recorded in the asset (informative)
-  unsigned threads = 0;                  ///< worker threads; 0 = all cores
+  unsigned threads = 0;                  ///< worker threads; 0 = all cores (at most kMaxThreads)
   int deflate = 4;                       ///< gzip level 0..9 of the voxel grids in the file
 };
 
@@ -163,9 +166,9 @@ struct Baked {
 };
 
 /// Checks every setting against the range `voxfmt build` accepts (resolution 1..4096, points 1..50,000,000,
-/// branching 2..64, margin 0..1024, band 1..64 voxels, deflate 0..9, up axis one of +X..-Z, sizes finite and
-/// positive where given): BAD_OPTION naming the setting otherwise. bake_mesh checks first, so every caller (the
-/// CLI, the Python package) is refused the same way.
+/// branching 2..64, margin 0..1024, band 1..64 voxels, deflate 0..9, threads 0..kMaxThreads, up axis one of +X..-Z,
+/// sizes and the time limit finite and positive where given): BAD_OPTION naming the setting otherwise. bake_mesh checks
+/// first, so every caller (the CLI, the Python package) is refused the same way.
 Status check_settings(const Settings& settings);
 
 /// Bakes `mesh_path` (any format assimp reads; all meshes of a scene merged with their node transforms) into
@@ -175,7 +178,8 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
 
 /// Bakes `mesh_path` and writes the asset to `output_path`: every rule of `voxfmt validate --level full` is
 /// checked in memory (beside the write) and the file replaces `output_path` atomically only when it passes.
-/// Errors: those of bake_mesh, INVALID_ASSET (a bake bug: nothing is written), WRITE_FAILED.
+/// Errors: those of bake_mesh, INVALID_ASSET (a bake bug: nothing is written), WRITE_FAILED. An exception the
+/// progress callback throws stops the bake (INTERNAL, naming it) and leaves no file, even when thrown at "done".
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress = {});
 
@@ -193,7 +197,8 @@ std::string error_json(const std::string& input, const Error& error);
 std::string build_parameters_json(const Settings& settings);
 /// Versions of the libraries the bake uses (provenance `dependency_versions`).
 std::map<std::string, std::string> dependency_versions();
-/// Lowercase hex SHA-256 of a file's bytes; INPUT_NOT_FOUND when it cannot be read.
+/// Lowercase hex SHA-256 of a regular file's bytes; INPUT_NOT_FOUND when it is none (a folder, a pipe) or cannot be
+/// read, READ_FAILED when a read fails part way.
 Result<std::string> sha256_file(const std::string& path);
 /// The current time as ISO 8601 UTC, e.g. "2026-11-22T04:00:14Z" (provenance, manifests).
 std::string utc_now();
