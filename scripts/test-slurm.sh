@@ -355,6 +355,7 @@ counter = ('echo "task=$SLURM_ARRAY_TASK_ID job=$SLURM_JOB_ID restart=${SLURM_RE
 replacements = [  # (README, this test): each must occur exactly once
     ('#SBATCH --array=0-15 ', f'#SBATCH --array=0-{int(shards) - 1} '),
     ('# 16 shards:', f'# {shards} shards:'),
+    ('shards=16 ', f'shards={shards} '),
     ('#SBATCH --cpus-per-task=8\n', '#SBATCH --cpus-per-task=1\n'),
     ('#SBATCH --mem=32G\n', '#SBATCH --mem=2G\n'),
     ('#SBATCH --time=04:00:00\n', '#SBATCH --time=00:10:00\n'),
@@ -367,7 +368,7 @@ for old, new in replacements:
     if script.count(old) != 1:
         sys.exit(f'{readme}: the Slurm job script has changed: {old!r} occurs {script.count(old)} times, not once')
     script = script.replace(old, new)
-for needed in ('#!/bin/bash\n', '#SBATCH --requeue', '--shard "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT"'):
+for needed in ('#!/bin/bash\n', '#SBATCH --requeue', '--shard "$SLURM_ARRAY_TASK_ID/$shards"'):
     if needed not in script:
         sys.exit(f'{readme}: the Slurm job script has changed: no {needed!r}')
 open(target, 'w').write(script)

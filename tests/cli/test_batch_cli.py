@@ -117,6 +117,18 @@ class Batch(unittest.TestCase):
         r, summary = self.batch(self.lib, expect=1)
         self.assertEqual((summary["built"], summary["up_to_date"]), (0, 3))
         self.assertEqual({rec["status"] for rec in self.manifest()}, {"up_to_date", "failed"})
+        # An asset damaged past its provenance (its compressed bricks overwritten, the same size) is not up to date.
+        import h5py  # the spec tests' interpreter has it
+        damaged = os.path.join(self.out, "b", "cube.off.vox.h5")
+        with h5py.File(damaged, "r") as f:
+            chunk = f["voxelmap/brick_values"].id.get_chunk_info(0)
+        with open(damaged, "r+b") as f:
+            f.seek(chunk.byte_offset)
+            f.write(b"\xff" * chunk.size)
+        self.assertNotEqual(subprocess.run([VOXFMT, "validate", damaged], capture_output=True).returncode, 0)
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"]), (1, 2), r.stderr)
+        self.assertEqual(subprocess.run([VOXFMT, "validate", damaged], capture_output=True).returncode, 0)
         # --force rebuilds (and retries the failure).
         r, summary = self.batch(self.lib, "--force", expect=1)
         self.assertEqual((summary["built"], summary["up_to_date"], summary["failed_not_retried"]), (3, 0, 0))
@@ -237,6 +249,20 @@ class Batch(unittest.TestCase):
         records = self.last_records()
         self.assertEqual(len(records), 14)
         self.assertEqual(sum(rec["status"] != "failed" for rec in records.values()), 13)
+
+    def test_a_mesh_named_like_an_option_bakes_and_only_dead_bakes_temporaries_go(self):
+        # "-dash.obj" once reached the bake as an option (BAD_OPTION, never retried). A temporary of a live process
+        # (another batch or build writing into the library) is kept; a dead one's removed.
+        self.write("lib/c/-dash.obj", TET_OBJ)
+        live = self.write("out/c/-dash.obj.vox.h5.partial-%d-0" % os.getpid(), "a live bake's")
+        ended = subprocess.Popen(["true"])
+        ended.wait()
+        dead = self.write("out/a/model.obj.vox.h5.partial-%d-0" % ended.pid, "a killed bake's")
+        r, summary = self.batch(self.lib, expect=1)  # only the flat mesh fails
+        self.assertNotIn("c/-dash.obj", [f["input"].split("lib/")[-1] for f in summary["failures"]], r.stderr)
+        self.assertTrue(os.path.exists(os.path.join(self.out, "c", "-dash.obj.vox.h5")), r.stderr)
+        self.assertTrue(os.path.exists(live), "a live process's temporary was removed")
+        self.assertFalse(os.path.exists(dead), "a dead process's temporary was kept")
 
     def test_list_file_and_single_files(self):
         self.write("more/x/box.off", cube_off(1.0))

@@ -141,8 +141,17 @@ nlohmann::json Runner::base_record(const BatchItem& item) const {
   return record;
 }
 
+// Whether an asset whose manifest record no longer matches it (touched, copied, its manifest lost) still reads: its
+// provenance alone does not say (a file damaged past its provenance group read as up to date). A file too large for
+// the read budget cannot be judged here and is taken by its provenance.
+bool still_reads(const std::string& output) {
+  for (const Issue& issue : validate_file(output, ValidationLevel::Quick))
+    if (issue.severity == Severity::Error && issue.code != IssueCode::OutOfMemory) return false;
+  return true;
+}
+
 // Same source bytes, build parameters and tool version: by the manifest (its record for this output, and the
-// file still has the size and mtime recorded there), else by the asset's own provenance.
+// file still has the size and mtime recorded there), else by the asset's own provenance and a read of the file.
 bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann::json& record) const {
   if (o_.force || sha.empty()) return false;
   const FileStamp file = stamp(item.output);
@@ -162,7 +171,7 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   if (!provenance) return false;  // unreadable, foreign or damaged: rebuild
   const Provenance& p = provenance.value();
   if (p.source_sha256 != sha || p.generator_version != VOXFMT_VERSION_STRING ||
-      !same_parameters(p.build_parameters_json, parameters_))
+      !same_parameters(p.build_parameters_json, parameters_) || !still_reads(item.output))
     return false;
   record = base_record(item);
   record["status"] = "up_to_date";
@@ -401,8 +410,9 @@ bool Runner::bake_all(const bake::Settings& settings) {
     while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
       const BatchItem& item = todo_[next_].item;
       fs::create_directories(fs::path(item.output).parent_path(), ec);
-      std::vector<std::string> command = {exe, "build", item.input, "-o", item.output, "--json"};
+      std::vector<std::string> command = {exe, "build", "-o", item.output, "--json"};
       command.insert(command.end(), option_args.begin(), option_args.end());
+      command.insert(command.end(), {"--", item.input});  // a mesh named "-x.off" is a mesh, not an option
       pool.start(next_, command, limits);
       running_[next_] = {next_, std::chrono::steady_clock::now(), command};
       ++next_;
