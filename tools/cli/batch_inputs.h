@@ -33,8 +33,10 @@ struct BatchItem {
 ///    relative to the list file's directory; a listed file keeps its relative path as key (or its file name
 ///    when the entry is absolute or leaves that directory), a listed directory is scanned as above;
 ///  - any other file: a mesh; key = its file name.
-/// The same file reached twice is baked once. Two different files with one key throw UsageError (nothing is
-/// ever overwritten by another input), as does an input that does not exist.
+/// The same file reached twice under one key is baked once; under two keys (a link beside its target, a folder and
+/// a file in it both given) it is baked once per key, each asset named as asked. Two different files with one key
+/// throw UsageError (nothing is ever overwritten by another input), as does an input that does not exist. Links to
+/// folders are not followed, and a folder that cannot be read is skipped.
 std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir);
 
 /// `--shard I/N`: a mesh belongs to shard hash(key) mod N. The hash (64-bit FNV-1a of the key's UTF-8 bytes)

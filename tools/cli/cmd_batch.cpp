@@ -451,6 +451,8 @@ bool Runner::bake_all(const bake::Settings& settings) {
     remove_stale_partials(unfinished);
   }
   progress_->clear();
+  // The bakes are over: a signal from here on (during --report) stops the process as it would any command.
+  for (int s : {SIGINT, SIGTERM, SIGHUP}) std::signal(s, SIG_DFL);
   return interrupted;
 }
 
@@ -539,7 +541,7 @@ int run_batch(const Options& o) {
   try {
     check_max_memory(o.max_memory_mib);
     int exit_code = Runner(o).run();
-    if (o.report) exit_code = std::max(exit_code, report_after_batch(o));
+    if (o.report && exit_code < 128) exit_code = std::max(exit_code, report_after_batch(o));  // not once stopped
     return exit_code;
   } catch (const UsageError& e) {
     return report_error("batch", {e.code, e.what()}, o.json,
