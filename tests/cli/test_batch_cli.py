@@ -112,6 +112,14 @@ class Batch(unittest.TestCase):
         self.assertEqual((summary["built"], summary["up_to_date"], summary["failed"], summary["failed_not_retried"]), (0, 3, 1, 1))
         self.assertEqual(before, {a: os.stat(os.path.join(self.out, a)).st_mtime_ns for a in self.assets()})
         self.assertEqual(len(self.manifest()), 4, "a rerun with nothing to do keeps one record per mesh")
+        # Touched assets are up to date by their provenance and keep their bake's figures (the report shows them).
+        for asset in self.assets():
+            os.utime(os.path.join(self.out, asset))
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual((summary["built"], summary["up_to_date"]), (0, 3))
+        kept = [rec for rec in self.last_records().values() if rec["status"] == "up_to_date"]
+        self.assertEqual(len(kept), 3)
+        self.assertTrue(all(rec.get("total_s", 0) > 0 and rec.get("input_triangles") for rec in kept), kept)
         # Without the manifest the assets' provenance proves them up to date.
         os.remove(os.path.join(self.out, "manifest.jsonl"))
         r, summary = self.batch(self.lib, expect=1)

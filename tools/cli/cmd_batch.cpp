@@ -156,16 +156,18 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   if (o_.force || sha.empty()) return false;
   const FileStamp file = stamp(item.output);
   if (!file.exists) return false;
-  if (const nlohmann::json* last = manifest_->last(item.output)) {
-    const std::string status = text_field(*last, "status");
-    if ((status == "ok" || status == "up_to_date") && text_field(*last, "source_sha256") == sha &&
-        text_field(*last, "tool_version") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
-        same_parameters((*last)["build_parameters"], parameters_) &&
-        integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
-        integer_field(*last, "output_mtime_ns") == file.mtime_ns) {
-      record = nullptr;  // the manifest already says so
-      return true;
-    }
+  const nlohmann::json* last = manifest_->last(item.output);
+  const std::string last_status = last ? text_field(*last, "status") : "";
+  // The manifest's record is of this bake (its figures still hold) ...
+  const bool same_bake = (last_status == "ok" || last_status == "up_to_date") &&
+                         text_field(*last, "source_sha256") == sha &&
+                         text_field(*last, "tool_version") == VOXFMT_VERSION_STRING &&
+                         last->contains("build_parameters") && same_parameters((*last)["build_parameters"], parameters_);
+  // ... and of this very file.
+  if (same_bake && integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
+      integer_field(*last, "output_mtime_ns") == file.mtime_ns) {
+    record = nullptr;  // the manifest already says so
+    return true;
   }
   Result<Provenance> provenance = read_provenance(item.output);
   if (!provenance) return false;  // unreadable, foreign or damaged: rebuild
@@ -173,7 +175,9 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   if (p.source_sha256 != sha || p.generator_version != VOXFMT_VERSION_STRING ||
       !same_parameters(p.build_parameters_json, parameters_) || !still_reads(item.output))
     return false;
-  record = base_record(item);
+  // A touched or copied asset keeps its bake's figures (time, triangles, memory), which the report shows.
+  record = same_bake ? *last : nlohmann::json::object();
+  record.update(base_record(item));
   record["status"] = "up_to_date";
   record["source_sha256"] = sha;
   record["file_size_bytes"] = file.size;
