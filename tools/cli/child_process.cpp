@@ -90,7 +90,7 @@ void ChildPool::start(size_t id, const std::vector<std::string>& argv, const Chi
   children_.push_back(std::move(child));
 }
 
-std::vector<ChildResult> ChildPool::poll(int wait_ms) {
+void ChildPool::wait(int wait_ms) const {
   std::vector<pollfd> fds;
   for (const Child& c : children_) {
     if (c.out_fd >= 0) fds.push_back({c.out_fd, POLLIN, 0});
@@ -111,7 +111,10 @@ std::vector<ChildResult> ChildPool::poll(int wait_ms) {
     ::poll(fds.data(), fds.size(), wait_ms);  // EINTR (a signal) just ends the wait early
   else if (wait_ms > 0)
     ::usleep(useconds_t(wait_ms) * 1000);
+}
 
+std::vector<ChildResult> ChildPool::poll(int wait_ms) {
+  wait(wait_ms);
   std::vector<ChildResult> finished;
   for (size_t i = 0; i < children_.size();) {
     Child& c = children_[i];

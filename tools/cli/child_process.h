@@ -52,6 +52,8 @@ class ChildPool {
     bool timed_out = false;
     std::string out, err;
   };
+  /// Sleeps until a child writes, a timeout is due or `wait_ms` have passed (the first part of poll).
+  void wait(int wait_ms) const;
   std::vector<Child> children_;
 };
 

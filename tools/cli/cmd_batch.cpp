@@ -100,6 +100,7 @@ class Runner {
   bake::Settings bake_settings();
   void announce(size_t stale_removed) const;
   bool bake_all(const bake::Settings& settings);
+  void record_bake(const ChildResult& child);
   void report(bool interrupted) const;
 
   const Options& o_;
@@ -159,10 +160,10 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   const nlohmann::json* last = manifest_->last(item.output);
   const std::string last_status = last ? text_field(*last, "status") : "";
   // The manifest's record is of this bake (its figures still hold) ...
-  const bool same_bake = (last_status == "ok" || last_status == "up_to_date") &&
-                         text_field(*last, "source_sha256") == sha &&
-                         text_field(*last, "tool_version") == VOXFMT_VERSION_STRING &&
-                         last->contains("build_parameters") && same_parameters((*last)["build_parameters"], parameters_);
+  const bool same_bake =
+      (last_status == "ok" || last_status == "up_to_date") && text_field(*last, "source_sha256") == sha &&
+      text_field(*last, "tool_version") == VOXFMT_VERSION_STRING && last->contains("build_parameters") &&
+      same_parameters((*last)["build_parameters"], parameters_);
   // ... and of this very file.
   if (same_bake && integer_field(*last, "file_size_bytes") == int64_t(file.size) &&
       integer_field(*last, "output_mtime_ns") == file.mtime_ns) {
@@ -425,26 +426,7 @@ bool Runner::bake_all(const bake::Settings& settings) {
     for (const ChildResult& child : pool.poll(250)) {
       // A bake killed by the signal that stops the batch (Slurm's scancel signals every process) is not the
       // mesh's fault: not recorded, its temporary removed below, baked again by the next run.
-      if (g_interrupted && child.signal) continue;
-      const Running r = running_[child.id];
-      running_.erase(child.id);
-      const BatchItem& item = todo_[r.index].item;
-      nlohmann::json record = finish_record(item, child, r.command);
-      if (!record.contains("source_sha256")) record["source_sha256"] = todo_[r.index].sha;
-      manifest_->append(record);
-      ++finished_;
-      progress_->finished(double(item.input_bytes), child.seconds);
-      if (record["status"] == "failed") {
-        ++counts_.failed;
-        failures_.push_back({{"input", item.input},
-                             {"output", item.output},
-                             {"code", record["error"]["code"]},
-                             {"message", record["error"]["message"]},
-                             {"retried", true}});
-      } else {
-        ++counts_.built;
-      }
-      progress_->report(record, finished_, todo_.size());
+      if (!(g_interrupted && child.signal)) record_bake(child);
     }
   }
   const bool interrupted = g_interrupted != 0;
@@ -458,6 +440,29 @@ bool Runner::bake_all(const bake::Settings& settings) {
   // The bakes are over: a signal from here on (during --report) stops the process as it would any command.
   for (int s : {SIGINT, SIGTERM, SIGHUP}) std::signal(s, SIG_DFL);
   return interrupted;
+}
+
+// A finished bake's record in the manifest, its counts, failures and progress.
+void Runner::record_bake(const ChildResult& child) {
+  const Running r = running_[child.id];
+  running_.erase(child.id);
+  const BatchItem& item = todo_[r.index].item;
+  nlohmann::json record = finish_record(item, child, r.command);
+  if (!record.contains("source_sha256")) record["source_sha256"] = todo_[r.index].sha;
+  manifest_->append(record);
+  ++finished_;
+  progress_->finished(double(item.input_bytes), child.seconds);
+  if (record["status"] == "failed") {
+    ++counts_.failed;
+    failures_.push_back({{"input", item.input},
+                         {"output", item.output},
+                         {"code", record["error"]["code"]},
+                         {"message", record["error"]["message"]},
+                         {"retried", true}});
+  } else {
+    ++counts_.built;
+  }
+  progress_->report(record, finished_, todo_.size());
 }
 
 void Runner::report(bool interrupted) const {
