@@ -271,6 +271,15 @@ class Batch(unittest.TestCase):
         self.assertTrue(os.path.exists(os.path.join(self.out, "c", "-dash.obj.vox.h5")), r.stderr)
         self.assertTrue(os.path.exists(live), "a live process's temporary was removed")
         self.assertFalse(os.path.exists(dead), "a dead process's temporary was kept")
+        # What a scan leaves out that a user may miss is said: a link to a folder, a mesh's name linking to nothing.
+        os.symlink(os.path.join(self.lib, "a"), os.path.join(self.lib, "c", "linked"))
+        os.symlink("gone.obj", os.path.join(self.lib, "c", "dangling.obj"))
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual(sorted(s.split(os.sep + "c" + os.sep)[-1] for s in summary["skipped_inputs"]),
+                         ["dangling.obj: a link to nothing", "linked: a link to a folder, not followed"])
+        r = subprocess.run([VOXFMT, "batch", self.lib, "-o", self.out, *SMALL], capture_output=True, text=True,
+                           timeout=120)
+        self.assertIn("warning: " + os.path.join(self.lib, "c", "dangling.obj") + ": a link to nothing", r.stderr)
 
     def test_list_file_and_single_files(self):
         self.write("more/x/box.off", cube_off(1.0))

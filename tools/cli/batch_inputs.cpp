@@ -1,5 +1,7 @@
 #include "batch_inputs.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
@@ -34,7 +36,7 @@ void require_regular(const fs::path& path, const std::string& where) {
 
 class Collector {
  public:
-  explicit Collector(const std::string& output_dir) {
+  explicit Collector(const std::string& output_dir, std::vector<std::string>* skipped) : skipped_(skipped) {
     std::error_code ec;
     output_dir_ = fs::weakly_canonical(output_dir, ec);
   }
@@ -85,7 +87,10 @@ class Collector {
         if (is_dir) it.disable_recursion_pending();  // hidden folders and our own output are not inputs
         continue;
       }
-      if (is_dir || !it->is_regular_file(ec) || !bake::is_mesh_file_name(name)) continue;
+      if (is_dir || !it->is_regular_file(ec) || !bake::is_mesh_file_name(name)) {
+        note_skipped(*it, is_dir, name);
+        continue;
+      }
       add(path, path.lexically_relative(root).generic_string());
     }
   }
@@ -116,14 +121,29 @@ class Collector {
     }
   }
 
+  // What a folder scan leaves out that a user may not expect (hidden entries and other files are not noted).
+  void note_skipped(const fs::directory_entry& entry, bool is_dir, const std::string& name) {
+    if (!skipped_) return;
+    std::error_code ec;
+    const std::string path = entry.path().string();
+    if (is_dir && entry.is_symlink(ec))
+      skipped_->push_back(path + ": a link to a folder, not followed");
+    else if (is_dir && ::access(entry.path().c_str(), R_OK | X_OK) != 0)
+      skipped_->push_back(path + ": a folder that cannot be read");
+    else if (!is_dir && entry.is_symlink(ec) && !fs::exists(entry.path(), ec) && bake::is_mesh_file_name(name))
+      skipped_->push_back(path + ": a link to nothing");
+  }
+
   fs::path output_dir_;
+  std::vector<std::string>* skipped_ = nullptr;
   std::map<std::string, BatchItem> by_key_;
 };
 
 }  // namespace
 
-std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir) {
-  Collector collector(output_dir);
+std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir,
+                                      std::vector<std::string>* skipped) {
+  Collector collector(output_dir, skipped);
   for (const std::string& argument : inputs) collector.argument(argument);
   std::vector<BatchItem> items = collector.finish();
   for (BatchItem& item : items) item.output = (fs::path(output_dir) / (item.key + ".vox.h5")).string();

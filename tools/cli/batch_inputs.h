@@ -36,8 +36,11 @@ struct BatchItem {
 /// The same file reached twice under one key is baked once; under two keys (a link beside its target, a folder and
 /// a file in it both given) it is baked once per key, each asset named as asked. Two different files with one key
 /// throw UsageError (nothing is ever overwritten by another input), as does an input that does not exist. Links to
-/// folders are not followed, and a folder that cannot be read is skipped.
-std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir);
+/// folders are not followed, and a folder that cannot be read is skipped; `skipped`, when given, receives what a
+/// folder scan left out that a user may miss ("PATH: why": an unreadable folder, a link to a folder, a mesh's name
+/// that links to nothing).
+std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir,
+                                      std::vector<std::string>* skipped = nullptr);
 
 /// `--shard I/N`: a mesh belongs to shard hash(key) mod N. The hash (64-bit FNV-1a of the key's UTF-8 bytes)
 /// depends on the key alone, so machines that see the same library agree, and adding a mesh moves no other.

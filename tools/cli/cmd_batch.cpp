@@ -105,8 +105,9 @@ class Runner {
 
   const Options& o_;
   Shard shard_;
-  std::vector<BatchItem> mine_;  ///< this shard's meshes
-  size_t all_count_ = 0;         ///< every shard's
+  std::vector<BatchItem> mine_;       ///< this shard's meshes
+  size_t all_count_ = 0;              ///< every shard's
+  std::vector<std::string> skipped_;  ///< what the folder scans left out ("PATH: why"), said as warnings
   std::string manifest_path_;
   std::unique_ptr<Manifest> manifest_;
   nlohmann::json parameters_;
@@ -301,7 +302,9 @@ int Runner::run() {
 
 // This shard's meshes (mine_) among every input's (all_count_).
 void Runner::select_inputs() {
-  std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir);
+  std::vector<BatchItem> all = collect_inputs(o_.inputs, o_.output_dir, &skipped_);
+  if (!o_.quiet && !o_.json)
+    for (const std::string& line : skipped_) std::cerr << "voxfmt batch: warning: " << terminal_safe(line) << "\n";
   if (all.empty())
     throw UsageError("no meshes found in the inputs (directories are scanned for extensions assimp reads)");
   all_count_ = all.size();
@@ -482,7 +485,8 @@ void Runner::report(bool interrupted) const {
                                         {"threads_per_bake", threads_},
                                         {"output_dir", o_.output_dir},
                                         {"manifest", manifest_path_},
-                                        {"failures", failures_}})
+                                        {"failures", failures_},
+                                        {"skipped_inputs", skipped_}})
               << "\n";
   } else {
     std::cout << "voxfmt batch: " << mine_.size() << " mesh(es) in " << terminal_safe(o_.output_dir);
