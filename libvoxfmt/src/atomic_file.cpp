@@ -116,25 +116,29 @@ bool process_is_gone(const std::string& pid) {
   return process > 0 && ::kill(pid_t(process), 0) != 0 && errno == ESRCH;
 }
 
+bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name) {
+  const std::string name = entry.path().filename().string();
+  const std::string prefix = target_name + std::string(kPartialMarker);
+  if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
+  // Exactly PID-N, a regular file (not a link, not a folder), of a process that is gone.
+  const std::string tail = name.substr(prefix.size());
+  const size_t dash = tail.find('-');
+  if (dash == std::string::npos || !digits(tail.substr(dash + 1))) return false;
+  std::error_code ec;
+  return std::filesystem::is_regular_file(entry.symlink_status(ec)) && process_is_gone(tail.substr(0, dash));
+}
+
 size_t remove_dead_temporaries(const std::string& given) {
   namespace fs = std::filesystem;
   const Result<std::string> resolved = output_target(given);  // temporaries lie beside a link's target
   if (!resolved) return 0;
   const fs::path target(resolved.value());
-  const std::string prefix = target.filename().string() + std::string(kPartialMarker);
+  const std::string target_name = target.filename().string();
   size_t removed = 0;
   std::error_code ec;
   const fs::path folder = target.parent_path().empty() ? fs::path(".") : target.parent_path();
   for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
-    const std::string name = it->path().filename().string();
-    if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) continue;
-    // Exactly PID-N, a regular file (not a link, not a folder), of a process that is gone.
-    const std::string tail = name.substr(prefix.size());
-    const size_t dash = tail.find('-');
-    if (dash == std::string::npos || !digits(tail.substr(dash + 1))) continue;
-    std::error_code status_error;
-    if (!fs::is_regular_file(it->symlink_status(status_error))) continue;
-    if (!process_is_gone(tail.substr(0, dash))) continue;
+    if (!dead_temporary_of(*it, target_name)) continue;
     std::error_code remove_error;
     removed += fs::remove(it->path(), remove_error) ? 1 : 0;
   }

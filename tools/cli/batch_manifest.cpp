@@ -5,8 +5,6 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include <algorithm>
-#include <cctype>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -158,30 +156,23 @@ FileStamp stamp(const std::string& path) {
 }
 
 size_t remove_stale_partials(const std::vector<std::string>& outputs) {
-  // remove_dead_temporaries' rules, one listing per folder instead of one per output: beside a link's target
-  // (where a write lands), regular files named exactly NAME.partial-PID-N whose process is gone (another batch's
-  // or build's live temporary is kept).
+  // remove_dead_temporaries' rule (dead_temporary_of), one listing per folder instead of one per output, beside a
+  // link's target (where a write lands): another batch's or build's live temporary on this machine is kept.
   std::map<fs::path, std::set<std::string>> by_dir;
   for (const std::string& output : outputs) {
     const Result<std::string> target = output_target(output);
     const fs::path path = target ? fs::path(target.value()) : fs::path(output);
     by_dir[path.parent_path()].insert(path.filename().string());
   }
-  const auto whole_number = [](const std::string& text) {
-    return !text.empty() && std::all_of(text.begin(), text.end(), [](unsigned char c) { return std::isdigit(c); });
-  };
   size_t removed = 0;
   for (const auto& [dir, names] : by_dir) {
     std::error_code ec;
     for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
       const std::string name = it->path().filename().string();
       const size_t mark = name.rfind(kPartialMarker);
-      if (mark == std::string::npos || !names.count(name.substr(0, mark))) continue;
-      const std::string tail = name.substr(mark + kPartialMarker.size());
-      const size_t dash = tail.find('-');
-      if (dash == std::string::npos || !whole_number(tail.substr(dash + 1))) continue;
-      std::error_code status_error;
-      if (!fs::is_regular_file(it->symlink_status(status_error)) || !process_is_gone(tail.substr(0, dash))) continue;
+      if (mark == std::string::npos || !names.count(name.substr(0, mark)) ||
+          !dead_temporary_of(*it, name.substr(0, mark)))
+        continue;
       std::error_code remove_error;
       removed += fs::remove(it->path(), remove_error);
     }

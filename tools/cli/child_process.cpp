@@ -97,15 +97,17 @@ void ChildPool::wait(int wait_ms) const {
     if (c.err_fd >= 0) fds.push_back({c.err_fd, POLLIN, 0});
   }
   // Wake up in time for the earliest timeout (in double: a timeout of weeks overflows an int of milliseconds), and
-  // at once for a child whose pipes are closed: it is exiting, and its reap should not wait a whole poll (which,
-  // with no pipe left to watch, is a sleep: 250 ms added to every bake of a small mesh).
+  // soon for a child whose pipes are closed: it is exiting, and its reap should not wait a whole poll (which, with
+  // no pipe left to watch, is a sleep: 250 ms added to every bake of a small mesh). Soon is as long as it has been
+  // closing (1, 2, 4 ... ms), so one that lingers is not polled a thousand times a second.
   const auto now = std::chrono::steady_clock::now();
   for (const Child& c : children_) {
     if (c.timeout > 0 && !c.timed_out) {
       const double left = c.timeout - std::chrono::duration<double>(now - c.start).count();
       wait_ms = int(std::max(0.0, std::min(double(wait_ms), left * 1000 + 1)));
     }
-    if (c.out_fd < 0 && c.err_fd < 0) wait_ms = std::min(wait_ms, 1);
+    if (c.out_fd < 0 && c.err_fd < 0)
+      wait_ms = std::min(wait_ms, std::max(1, int(std::chrono::duration<double, std::milli>(now - c.closed).count())));
   }
   if (!fds.empty())
     ::poll(fds.data(), fds.size(), wait_ms);  // EINTR (a signal) just ends the wait early
@@ -135,6 +137,7 @@ std::vector<ChildResult> ChildPool::poll(int wait_ms) {
     // Reaped once both pipes are closed (all output read), or right away after a kill (a grandchild could
     // hold the pipes open).
     const bool pipes_done = c.out_fd < 0 && c.err_fd < 0;
+    if (pipes_done && c.closed == std::chrono::steady_clock::time_point{}) c.closed = std::chrono::steady_clock::now();
     const pid_t r = (pipes_done || c.timed_out) ? ::waitpid(c.pid, &status, c.timed_out ? 0 : WNOHANG) : 0;
     if (r == c.pid) {
       ChildResult result;

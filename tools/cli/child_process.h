@@ -50,6 +50,7 @@ class ChildPool {
     std::chrono::steady_clock::time_point start;
     double timeout;
     bool timed_out = false;
+    std::chrono::steady_clock::time_point closed{};  ///< when both pipes closed (it is exiting)
     std::string out, err;
   };
   /// Sleeps until a child writes, a timeout is due or `wait_ms` have passed (the first part of poll).

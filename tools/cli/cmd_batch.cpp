@@ -145,9 +145,12 @@ nlohmann::json Runner::base_record(const BatchItem& item) const {
 
 // Whether an asset whose manifest record no longer matches it (touched, copied, its manifest lost) still reads: its
 // provenance alone does not say (a file damaged past its provenance group read as up to date). A file too large for
-// the read budget cannot be judged here and is taken by its provenance.
-bool still_reads(const std::string& output) {
-  for (const Issue& issue : validate_file(output, ValidationLevel::Quick))
+// the read budget (the bakes' --max-memory where given) cannot be judged here and is taken by its provenance.
+bool still_reads(const std::string& output, uint64_t max_memory_mib) {
+  ReadOptions read;
+  read.level = ValidationLevel::Quick;
+  if (max_memory_mib > 0) read.max_memory_bytes = max_memory_mib << 20;
+  for (const Issue& issue : validate_file(output, read))
     if (issue.severity == Severity::Error && issue.code != IssueCode::OutOfMemory) return false;
   return true;
 }
@@ -175,7 +178,7 @@ bool Runner::up_to_date(const BatchItem& item, const std::string& sha, nlohmann:
   if (!provenance) return false;  // unreadable, foreign or damaged: rebuild
   const Provenance& p = provenance.value();
   if (p.source_sha256 != sha || p.generator_version != VOXFMT_VERSION_STRING ||
-      !same_parameters(p.build_parameters_json, parameters_) || !still_reads(item.output))
+      !same_parameters(p.build_parameters_json, parameters_) || !still_reads(item.output, o_.max_memory_mib))
     return false;
   // A touched or copied asset keeps its bake's figures (time, triangles, memory), which the report shows.
   record = same_bake ? *last : nlohmann::json::object();
@@ -407,10 +410,16 @@ bool Runner::bake_all(const bake::Settings& settings) {
   limits.timeout_seconds = o_.timeout;
   limits.max_memory_bytes = o_.max_memory_mib * 1024 * 1024;
 
-  struct sigaction action {};
+  // The stop signals, as long as the bakes run, unless the caller ignores them (nohup); restored after.
+  constexpr int kStopSignals[] = {SIGINT, SIGTERM, SIGHUP};
+  struct sigaction action {
+  }, before[3];
   action.sa_handler = on_signal;
   sigemptyset(&action.sa_mask);
-  for (int s : {SIGINT, SIGTERM, SIGHUP}) sigaction(s, &action, nullptr);
+  for (int n = 0; n < 3; ++n) {
+    sigaction(kStopSignals[n], nullptr, &before[n]);
+    if (before[n].sa_handler != SIG_IGN) sigaction(kStopSignals[n], &action, nullptr);
+  }
 
   ChildPool pool;
   std::error_code ec;
@@ -440,8 +449,8 @@ bool Runner::bake_all(const bake::Settings& settings) {
     remove_stale_partials(unfinished);
   }
   progress_->clear();
-  // The bakes are over: a signal from here on (during --report) stops the process as it would any command.
-  for (int s : {SIGINT, SIGTERM, SIGHUP}) std::signal(s, SIG_DFL);
+  // The bakes are over: a signal from here on (during --report) does what it did before the batch.
+  for (int n = 0; n < 3; ++n) sigaction(kStopSignals[n], &before[n], nullptr);
   return interrupted;
 }
 

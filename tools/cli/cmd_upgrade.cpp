@@ -98,7 +98,7 @@ Result<std::vector<Item>> plan(const Options& o) {
 
 // Counts of a run, and the exit status of its worst failure.
 struct Tally {
-  size_t upgraded = 0, current = 0, failed = 0;
+  size_t upgraded = 0, current = 0, newer = 0, failed = 0;
   int worst = kExitOk;
 };
 
@@ -140,8 +140,10 @@ Status write_upgraded(Asset& asset, const Item& item, nlohmann::json& entry) {
   // 2.0 and 2.1 estimates are the lattice interpolated; 2.2 settles them from the same stored data.
   if (asset.voxelmap.estimates != Voxelmap::Estimates::Settled) fill_estimates(asset.voxelmap);
   const Status written = write_asset(item.output, asset);
-  entry["bytes_before"] = before;
-  entry["bytes_after"] = fs::file_size(item.output, ec);
+  if (written) {
+    entry["bytes_before"] = before;
+    entry["bytes_after"] = fs::file_size(item.output, ec);
+  }
   return written;
 }
 
@@ -158,7 +160,7 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
   if (asset && (newer || (from.major == kFormatVersion.major && from.minor == kFormatVersion.minor && !o.force))) {
     written = copy_unchanged(item);
     if (written) {
-      ++tally.current;
+      ++(newer ? tally.newer : tally.current);
       entry["status"] = newer ? "newer" : "current";
       entry["format_version"] = {from.major, from.minor};
     }
@@ -205,13 +207,15 @@ int run(const Options& o) {
   if (progress) std::cerr << "\r\033[K" << std::flush;
   report["upgraded"] = tally.upgraded;
   report["current"] = tally.current;
+  report["newer"] = tally.newer;
   report["failed"] = tally.failed;
   if (o.json) {
     std::cout << to_text(report) << "\n";
   } else if (!o.quiet) {
     std::cout << tally.upgraded << " upgraded to format " << kFormatVersion.major << "." << kFormatVersion.minor << ", "
-              << tally.current << " already current or newer (left as they are, copied where the output is elsewhere"
-              << (o.force ? "" : "; --force rewrites the current ones") << "), " << tally.failed << " failed\n";
+              << tally.current << " already current" << (o.force ? "" : " (--force rewrites them)") << ", "
+              << tally.newer << " of a newer format (never rewritten), " << tally.failed
+              << " failed; those left as they are were copied where the output is elsewhere\n";
   }
   return tally.worst;
 }

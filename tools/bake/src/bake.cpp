@@ -184,11 +184,13 @@ struct Geometry {
 // The point shell's peak, before it starts: about 420 bytes a point (candidates, the Poisson-disk grid, the tree;
 // measured with the bunny at 0.2, 1 and 2 M points). Beside the voxelmap's own check, so that `--points` or
 // `--point-spacing` too is refused up front rather than killed halfway.
-void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options) {
+void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options, double shell_thickness) {
   constexpr double kBytesPerPoint = 420;
-  const double points = point_shell_target(mesh, options.point_shell);
+  const double target = point_shell_target(mesh, options.point_shell);
   // Past 50 million points sampling refuses the spacing itself (BAD_OPTION), with its own message.
-  if (!(points <= 50e6)) return;
+  if (!(target <= 50e6)) return;
+  // A shell's two sheets each get a spacing's count (a point count is shared between them: sample_shell).
+  const double points = shell_thickness > 0 && options.point_shell.point_spacing > 0 ? 2 * target : target;
   const double bytes = points * kBytesPerPoint, limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
   if (bytes <= limit) return;
   char text[300];
@@ -211,7 +213,7 @@ PointShell sample_shell(const TriangleMesh& mesh, PointShellSettings settings, d
 // The voxelmap and the point shell are independent: the (mostly serial) sampling and tree building run beside the
 // voxelmap's parallel work, each stage timed by its own wall time.
 Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, StageTimes& times) {
-  check_point_shell_memory(mesh, options);
+  check_point_shell_memory(mesh, options, plan.shell_thickness);
   Geometry g;
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = plan.winding;
@@ -552,9 +554,9 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
   if (Status usable = check_output_path(output_path, mesh_path); !usable) return usable.error();
   Result<Baked> baked = bake_in_memory(mesh_path, settings, progress);
   if (!baked) return baked.error();
-  // The callback may throw here too (a caller's cancel): guarded, and the file it was told of removed again.
-  bool written_here = false;
-  Result<Summary> result = guarded<Summary>(mesh_path, [&]() -> Result<Summary> {
+  // The callback may throw here too (a caller's cancel): guarded. At "done" the file is in place (it replaced
+  // whatever the path held): a throw there is reported and the file stays.
+  return guarded<Summary>(mesh_path, [&]() -> Result<Summary> {
     const BakeStageInfo& write = stage_info(BakeStage::Write);
     if (progress) progress(write.name, write.progress_start);
     const auto write_start = std::chrono::steady_clock::now();
@@ -569,7 +571,6 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
             ": the baked asset is invalid, nothing was written (a bake bug: please report it): " + error.message;
       return error;
     }
-    written_here = true;
     Summary summary = std::move(baked->summary);
     summary.timings.push_back({write.name, seconds_since(write_start)});
     summary.output = output_path;
@@ -580,11 +581,6 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
     if (progress) progress("done", 1.0);
     return summary;
   });
-  if (!result && written_here) {
-    std::error_code ec;
-    std::filesystem::remove(output_path, ec);
-  }
-  return result;
 }
 
 Result<TriangleMesh> read_mesh(const std::string& mesh_path, const ImportSettings& settings) {

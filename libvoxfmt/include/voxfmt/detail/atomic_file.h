@@ -3,6 +3,7 @@
 // target's name, and an earlier file there stays untouched until the new one is complete.
 #pragma once
 
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <string_view>
@@ -19,6 +20,11 @@ inline constexpr std::string_view kPartialMarker = ".partial-";
 /// one file calls it once; a write does not, nor does `build` (run once per mesh by `batch`, which sweeps its
 /// library itself: a scan of a folder of thousands of files per write would cost more than the write).
 size_t remove_dead_temporaries(const std::string& path);
+
+/// Whether `entry` is a temporary of the file named `target_name` (in the same folder) left by a process that has
+/// ended: a regular file (not a link) named exactly `target_name.partial-<pid>-<n>`, `pid` gone. Processes are
+/// those of this machine: a writer on another host sharing the folder cannot be told from a dead one.
+bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name);
 
 /// Whether `pid`, decimal digits as a temporary's name holds them (at most 9, > 0), names a process that has
 /// ended. Anything else (not digits, a live process, one of another user) is not gone: its files are kept.

@@ -168,8 +168,9 @@ class CollisionObject {
   const voxfmt::Provenance& provenance() const { return provenance_; }
   /// Half-width of the band of stored distances, voxels (spec §3.2).
   double distance_band() const { return distance_band_; }
-  /// A number no other object made in this process has (a copy shares its original's): what a QueryState knows
-  /// its pair by, as an address may be reused by an object loaded after another was destroyed.
+  /// A number no other object this runtime made has (a copy shares its original's; a second copy of the runtime
+  /// in the process, linked statically into another library, counts on its own): what a QueryState knows its pair
+  /// by, as an address may be reused by an object loaded after another was destroyed.
   uint64_t id() const { return id_; }
 
  private:

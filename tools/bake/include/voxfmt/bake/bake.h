@@ -179,7 +179,8 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
 /// Bakes `mesh_path` and writes the asset to `output_path`: every rule of `voxfmt validate --level full` is
 /// checked in memory (beside the write) and the file replaces `output_path` atomically only when it passes.
 /// Errors: those of bake_mesh, INVALID_ASSET (a bake bug: nothing is written), WRITE_FAILED. An exception the
-/// progress callback throws stops the bake (INTERNAL, naming it) and leaves no file, even when thrown at "done".
+/// progress callback throws stops the bake (INTERNAL, naming it); up to "write" nothing is written, at "done" the
+/// file is already in place and stays.
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress = {});
 
