@@ -400,7 +400,7 @@ slow_bake_pid() {  # the `voxfmt build $SLOW` process of the victim task, if it 
   [ "$(task_field JobState)" = RUNNING ] && [ -n "$raw" ] || return 0
   for pid in $(timeout 5 scontrol listpids "$raw" 2>/dev/null | awk 'NR > 1 && $1 ~ /^[0-9]+$/ { print $1 }'); do
     cmd=$(tr '\0' ' ' <"/proc/$pid/cmdline" 2>/dev/null) || continue
-    if [[ $cmd == *" build $MESHES/$SLOW "* ]]; then
+    if [[ $cmd == *" build "* && $cmd == *" -- $MESHES/$SLOW "* ]]; then  # batch's child: build ... -- MESH
       echo "$pid"
       return
     fi
