@@ -113,7 +113,17 @@ bool digits(const std::string& text) {
 bool process_is_gone(const std::string& pid) {
   if (!digits(pid)) return false;
   const long process = std::stol(pid);
-  return process > 0 && ::kill(pid_t(process), 0) != 0 && errno == ESRCH;
+  if (process <= 0) return false;
+  if (::kill(pid_t(process), 0) != 0) return errno == ESRCH;
+  // A zombie answers kill() but writes nothing more: a bake killed with its batch stays one where nothing reaps
+  // orphans (a container whose first process does not).
+  std::FILE* stat = std::fopen(("/proc/" + pid + "/stat").c_str(), "r");
+  if (!stat) return false;
+  char line[512] = {};
+  const size_t read = std::fread(line, 1, sizeof line - 1, stat);
+  std::fclose(stat);
+  const char* close = std::strrchr(line, ')');  // the command name may hold spaces and parentheses
+  return read > 0 && close && (close[1] == ' ') && (close[2] == 'Z' || close[2] == 'X');
 }
 
 bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name) {

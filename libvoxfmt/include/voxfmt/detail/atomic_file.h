@@ -27,7 +27,8 @@ size_t remove_dead_temporaries(const std::string& path);
 bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name);
 
 /// Whether `pid`, decimal digits as a temporary's name holds them (at most 9, > 0), names a process that has
-/// ended. Anything else (not digits, a live process, one of another user) is not gone: its files are kept.
+/// ended (a zombie too: it writes nothing more). Anything else (not digits, a live process, one of another user) is
+/// not gone: its files are kept.
 bool process_is_gone(const std::string& pid);
 
 struct AtomicWrite {
