@@ -6,7 +6,7 @@ built (bench/gpu_batch.py --prepare), against the CPU's results on the same pose
   python3 scripts/gpu/check.py --input ... --backend cpu --json OUT.json   # the same flow on voxfmt's CPU path
 
 Reports (JSON): device, poses/s over environments from 1 to 1 M, per-call latency p50/p99 at 1, 64, 1024, 4096 and
-16384 environments (host clock, launch to results, beside the kernel's own time by CUDA events), the device memory
+16384 environments (host clock, launch to results in host memory with the outputs made once, beside the kernel's own time by CUDA events), the device memory
 the asset's upload took (measured: the device's free memory before and after), and agreement with the CPU: every
 output of every environment (counts, deepest penetration, force, torque, overflow, error codes and the first
 max_contacts contacts: points, normals, depths, point indices, sides), touching (proximity 0) and near (1 mm),
@@ -89,15 +89,27 @@ class CudaBackend:
     def upload(self, poses: np.ndarray) -> Any:
         return self.cp.asarray(poses)
 
-    def run(self, pa: Any, pb: Any, stiffness: float, proximity: float = 0.0, k: int = 0,
-            timed: bool = False) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
-        cp, n = self.cp, pa.shape[0]
+    def outputs(self, n: int, k: int = 0) -> dict[str, Any]:
+        cp = self.cp
         out = {"count": cp.empty(n, cp.int32), "max_depth": cp.empty(n, cp.float32), "force": cp.empty((n, 3), cp.float32),
                "torque": cp.empty((n, 3), cp.float32), "overflow": cp.empty(n, cp.int32), "error": cp.empty(n, cp.int32)}
         if k:
             out |= {"points": cp.empty((n, k, 3), cp.float32), "normals": cp.empty((n, k, 3), cp.float32),
                     "depths": cp.empty((n, k), cp.float32), "point_index": cp.empty((n, k), cp.int32),
                     "point_of_b": cp.empty((n, k), cp.uint8)}
+        return out
+
+    def buffers(self, n: int) -> Any:
+        """Outputs on the device and page-locked host arrays for them, made once, as a caller in a loop holds them."""
+        import cupyx
+
+        out = self.outputs(n)
+        return out, {name: cupyx.empty_pinned(v.shape, v.dtype) for name, v in out.items()}
+
+    def run(self, pa: Any, pb: Any, stiffness: float, proximity: float = 0.0, k: int = 0,
+            timed: bool = False, buffers: Any = None) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
+        cp, n = self.cp, pa.shape[0]
+        out, host = buffers if buffers is not None else (self.outputs(n, k), None)
         text = ctypes.create_string_buffer(512)
         ptr = lambda a: ctypes.c_void_p(a.data.ptr)  # noqa: E731
         maybe = lambda name: ptr(out[name]) if k else ctypes.c_void_p(0)  # noqa: E731
@@ -116,8 +128,15 @@ class CudaBackend:
             raise RuntimeError(text.value.decode())
 
         def fetch() -> dict[str, np.ndarray]:
-            cp.cuda.get_current_stream().synchronize()
-            return {name: cp.asnumpy(v) for name, v in out.items()}
+            stream = cp.cuda.get_current_stream()
+            if host is None:
+                stream.synchronize()
+                return {name: cp.asnumpy(v) for name, v in out.items()}
+            for name, v in out.items():  # every output copied on the stream, then one wait
+                cp.cuda.runtime.memcpyAsync(host[name].ctypes.data, v.data.ptr, v.nbytes,
+                                            cp.cuda.runtime.memcpyDeviceToHost, stream.ptr)
+            stream.synchronize()
+            return host
 
         return fetch, (float(kernel_ms.value) if timed else None)
 
@@ -139,8 +158,11 @@ class CpuBackend:
     def upload(self, poses: np.ndarray) -> np.ndarray:
         return poses
 
+    def buffers(self, n: int) -> Any:
+        return None
+
     def run(self, pa: np.ndarray, pb: np.ndarray, stiffness: float, proximity: float = 0.0, k: int = 0,
-            timed: bool = False) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
+            timed: bool = False, buffers: Any = None) -> tuple[Callable[[], dict[str, np.ndarray]], float | None]:
         r = self.scene.contacts(pa, pb, stiffness=stiffness, proximity=proximity, max_contacts=k, check=False)
         return (lambda: {name: getattr(r, name) for name in PER_ENV + (CONTACTS if k else ())}), None
 
@@ -183,14 +205,16 @@ def main() -> int:
         got = backend.run(pa, pb, stiffness, proximity, k)[0]()
         ref = {name: data[f"{case}_{name}"][compared] for name in PER_ENV + CONTACTS}
         report["agreement"][case] = agreement(ref, got) | {"proximity_m": proximity, "max_contacts": k}
-    # Latency: host clock from the launch to results in host memory; the kernel's time by CUDA events.
+    # Latency: host clock from the launch to results in host memory (outputs and page-locked host arrays made once,
+    # as a caller in a loop holds them: the launch, the kernel, the copies, one wait); the kernel's by CUDA events.
     for envs in [e for e in LATENCY_ENVS if e <= args.max_envs]:
         pa, pb = backend.upload(pa_all[:envs] if envs <= count else np.resize(pa_all, (envs, 4, 4))), \
             backend.upload(pb_all[:envs] if envs <= count else np.resize(pb_all, (envs, 4, 4)))
         samples, kernel = [], []
+        buffers = backend.buffers(envs)
         for rep in range(args.reps + 3):
             start = time.perf_counter()
-            backend.run(pa, pb, stiffness)[0]()
+            backend.run(pa, pb, stiffness, buffers=buffers)[0]()
             if rep >= 3:  # the first calls warm the device and the caches
                 samples.append(time.perf_counter() - start)
                 kernel_ms = backend.run(pa, pb, stiffness, timed=True)[1]

@@ -71,13 +71,29 @@ int voxfmt_gpu_check_run(const int32_t* bricks, const int16_t* codes, int apron,
   b.voxel_size = body_doubles[3];
   b.bounding_radius = body_doubles[7];
   std::string failure;
-  // The body and the pair table go up once per process and are refreshed in place (one asset at a time).
+  // The body and the pair table go up once per process and are refreshed in place when the asset changes (one at a
+  // time), as a scene uploads them once: a copy every call would add a synchronous transfer to each round trip.
+  // The asset is known by its arrays' addresses and its numbers (a Body's padding would make a byte compare of it
+  // unreliable).
+  std::string asset;
+  const auto add = [&asset](const void* bytes, size_t size) { asset.append(static_cast<const char*>(bytes), size); };
+  for (const void* array : {static_cast<const void*>(bricks), static_cast<const void*>(codes),
+                            static_cast<const void*>(lattice), nodes, static_cast<const void*>(points),
+                            static_cast<const void*>(normals)})
+    add(&array, sizeof array);
+  add(&apron, sizeof apron), add(&count, sizeof count), add(&levels, sizeof levels);
+  add(field_floats, 18 * sizeof(float)), add(field_dims, 9 * sizeof(int32_t)), add(body_doubles, 8 * sizeof(double));
+  static std::string uploaded;
   if (!device_body) {
     device_body = static_cast<core::Body*>(voxfmt::gpu::device::copy_to_device(&b, sizeof b, failure));
     const uint32_t zero = 0;
     device_pair = static_cast<uint32_t*>(voxfmt::gpu::device::copy_to_device(&zero, sizeof zero, failure));
-  } else if (cudaMemcpy(device_body, &b, sizeof b, cudaMemcpyHostToDevice) != cudaSuccess) {
-    failure = "cannot update the body";
+    uploaded = asset;
+  } else if (asset != uploaded) {
+    if (cudaMemcpy(device_body, &b, sizeof b, cudaMemcpyHostToDevice) == cudaSuccess)
+      uploaded = asset;
+    else
+      failure = "cannot update the body";
   }
   if (failure.empty()) {
     core::BatchInputs<float> in;

@@ -8,10 +8,11 @@
 
 #include "core/block_walk.h"
 
-// Blocks a multiprocessor should hold at once: a register cap for the compiler; 0 leaves the registers to it. Another
-// value only to measure one (scripts/gpu-check.sh builds 128 lanes with 7: 72 registers on sm_90).
+// Blocks a multiprocessor should hold at once: a register cap for the compiler (0 leaves the registers to it). Five
+// blocks of 128 lanes: 96 registers on sm_90, where the compiler alone takes 128 and holds four (measured on an
+// H200: docs/gpu.md). Another value only to measure one (scripts/gpu-check.sh's CAPS).
 #ifndef VOXFMT_BLOCK_MIN_BLOCKS
-#define VOXFMT_BLOCK_MIN_BLOCKS 0
+#define VOXFMT_BLOCK_MIN_BLOCKS 5
 #endif
 
 namespace voxfmt::gpu::device {

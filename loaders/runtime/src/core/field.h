@@ -462,7 +462,7 @@ VOXFMT_HD float nearest_voxel_bound(const Field& f, const Vec3& u, const int v[3
 }
 
 /// A value the true signed distance at `u` is not below (voxel units): what prunes sphere-tree clusters.
-VOXFMT_HD float lower_bound(const Field& f, const Vec3& u) {
+VOXFMT_HD_OUTLINE float lower_bound(const Field& f, const Vec3& u) {
   // Outside the grid the object is at least as far as its bounding box; inside, the nearest voxel says more.
   if (!covers(f, u)) return bounds_distance(f, u);
   int v[3];
