@@ -104,6 +104,21 @@ class Batch(unittest.TestCase):
         self.assertEqual(summary["failures"][0]["code"], "EMPTY_SCENE")
         self.assertFalse([f for f in os.listdir(os.path.join(self.out, "broken"))] if os.path.isdir(os.path.join(self.out, "broken")) else [])
 
+    def test_the_output_folder_spelled_another_way_keeps_one_record_a_mesh(self):
+        """"./out/" or a link to the folder name the same outputs as the path the first batch was given: their
+        records are found (the failed mesh is not retried) and compaction keeps one record a mesh."""
+        self.batch(self.lib, expect=1)
+        os.symlink(self.out, os.path.join(self.root, "link"))
+        for spelling in ("./out/", "link"):
+            r = subprocess.run([VOXFMT, "batch", "lib", "-o", spelling, "--json", "-j", "2", *SMALL], cwd=self.root,
+                               capture_output=True, text=True, timeout=120)
+            self.assertEqual(r.returncode, 1, r.stdout + r.stderr)
+            summary = json.loads(r.stdout)
+            self.assertEqual((summary["built"], summary["up_to_date"], summary["failed_not_retried"]), (0, 3, 1))
+        # Each run found every record (nothing to append); compaction kept one record a mesh.
+        self.assertEqual(len(self.manifest()), 4)
+        self.assertEqual(len({os.path.realpath(os.path.join(self.root, rec["output"])) for rec in self.manifest()}), 4)
+
     def test_rerun_skips_force_rebuilds_and_option_change_rebuilds(self):
         self.batch(self.lib, expect=1)
         before = {a: os.stat(os.path.join(self.out, a)).st_mtime_ns for a in self.assets()}

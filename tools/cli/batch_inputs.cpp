@@ -146,7 +146,9 @@ std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, co
   Collector collector(output_dir, skipped);
   for (const std::string& argument : inputs) collector.argument(argument);
   std::vector<BatchItem> items = collector.finish();
-  for (BatchItem& item : items) item.output = (fs::path(output_dir) / (item.key + ".vox.h5")).string();
+  // Lexically normal: "./out/" and "out" name the same outputs in the manifest and the messages.
+  for (BatchItem& item : items)
+    item.output = (fs::path(output_dir) / (item.key + ".vox.h5")).lexically_normal().string();
   return items;
 }
 

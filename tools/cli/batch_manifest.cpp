@@ -74,7 +74,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
       foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
       continue;
     }
-    last[path_of(record, "output")] = record;
+    last[report::manifest_output_key(path_of(record, "output"))] = record;
     if (check_only) break;
   }
   if (last.empty() && foreign > 0)
@@ -181,7 +181,7 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
 }
 
 const nlohmann::json* Manifest::last(const std::string& output) const {
-  auto it = last_.find(output);
+  auto it = last_.find(report::manifest_output_key(output));
   return it == last_.end() ? nullptr : &it->second;
 }
 
@@ -189,7 +189,8 @@ void Manifest::append(const nlohmann::json& record) {
   // One write() per line: O_APPEND puts it at the end as a whole; fdatasync makes it survive a crash.
   write_all(fd_, json_line(record) + "\n", path_);
   if (::fdatasync(fd_) != 0) fail(path_, "cannot flush");
-  if (record.contains("output") && record["output"].is_string()) last_[path_of(record, "output")] = record;
+  if (record.contains("output") && record["output"].is_string())
+    last_[report::manifest_output_key(path_of(record, "output"))] = record;
 }
 
 }  // namespace voxfmt::cli

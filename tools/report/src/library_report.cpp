@@ -172,8 +172,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
       }
       drop_mistyped_fields(record);
       // Across files (the shards' and the whole library's), the record that finished last wins.
-      const std::string output = path_of(record, "output");
-      auto [it, inserted] = last.try_emplace(output);
+      auto [it, inserted] = last.try_emplace(manifest_output_key(path_of(record, "output")));
       const auto finished = [](const nlohmann::json& r) {
         const auto f = r.find("finished_utc");
         return f != r.end() && f->is_string() ? f->get<std::string>() : std::string();

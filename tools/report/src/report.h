@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <filesystem>
 #include <functional>
 #include <ios>
 #include <istream>
@@ -76,6 +77,18 @@ inline bool read_manifest_line(std::istream& in, std::string& line, bool& too_lo
   in.setstate(std::ios::eofbit);
   if (too_long) line.clear();
   return any;
+}
+
+/// The one name of a record's output however it was typed ("out/a.vox.h5", "./out/a.vox.h5", "/abs/out/a.vox.h5",
+/// a link to the folder): absolute from the working directory, links resolved, "." and ".." gone. A batch and a
+/// report key their records by it, so a library batched twice with its folder spelled two ways has one record a
+/// mesh, not two.
+inline std::string manifest_output_key(const std::string& output) {
+  std::error_code ec;
+  std::filesystem::path path = std::filesystem::absolute(output, ec);
+  if (ec) return std::filesystem::path(output).lexically_normal().string();
+  const std::filesystem::path resolved = std::filesystem::weakly_canonical(path, ec);
+  return (ec ? path.lexically_normal() : resolved).string();
 }
 
 }  // namespace voxfmt::report
