@@ -395,6 +395,13 @@ Bounds bounding_box(const TriangleMesh& mesh) {
   return b;
 }
 
+double surface_area(const TriangleMesh& mesh) {
+  double area = 0;
+  for (const auto& t : mesh.triangles)
+    area += 0.5 * length(cross(mesh.vertices[t[1]] - mesh.vertices[t[0]], mesh.vertices[t[2]] - mesh.vertices[t[0]]));
+  return area;
+}
+
 Result<std::string> sha256_file(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec))  // a folder reads as empty, a pipe never ends

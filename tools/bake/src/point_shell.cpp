@@ -38,7 +38,6 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
     cumulative[t] = area;
     normals[t] = len > 0 ? Vec3f{float(-n[0] / len), float(-n[1] / len), float(-n[2] / len)} : Vec3f{0, 0, 1};
   }
-  if (!(area > 0)) throw BakeError(IssueCode::ZeroVolume, "the surface has zero area");
   std::mt19937_64 rng(seed);
   std::vector<Candidate> out(count);
   for (Candidate& c : out) {
@@ -105,16 +104,12 @@ double target_for_area(double area, const PointShellSettings& options) {
 
 double point_shell_target(const TriangleMesh& mesh, const PointShellSettings& options) {
   if (options.point_spacing == 0) return double(options.points);
-  double area = 0;
-  for (const auto& t : mesh.triangles)
-    area += 0.5 * length(cross(mesh.vertices[t[1]] - mesh.vertices[t[0]], mesh.vertices[t[2]] - mesh.vertices[t[0]]));
-  return target_for_area(area, options);
+  return target_for_area(surface_area(mesh), options);
 }
 
 PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& options) {
-  double area = 0;
-  // Probe the area with a few candidates first, to size the candidate pool.
-  surface_candidates(mesh, 1, options.seed, area);
+  double area = surface_area(mesh);
+  if (!(area > 0)) throw BakeError(IssueCode::ZeroVolume, "the surface has zero area");
   const double wanted = target_for_area(area, options);
   if (!(wanted >= 1)) throw BakeError(IssueCode::BadOption, "the point shell needs at least one point");
   if (!(wanted <= 50e6))

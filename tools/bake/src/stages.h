@@ -32,6 +32,8 @@ struct Bounds {
 };
 /// Axis-aligned bounding box of the mesh's vertices (the mesh must have at least one vertex).
 Bounds bounding_box(const TriangleMesh& mesh);
+/// The triangles' area summed in their order (m^2): what sizes the point shell and the bake's memory estimate.
+double surface_area(const TriangleMesh& mesh);
 
 // ---------------------------------------------------------------- 1. import
 

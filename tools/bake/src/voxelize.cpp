@@ -101,17 +101,6 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
   return g;
 }
 
-double surface_area(const TriangleMesh& mesh) {
-  double area = 0;
-  for (const auto& t : mesh.triangles) {
-    const Vec3 a{mesh.vertices[t[0]][0], mesh.vertices[t[0]][1], mesh.vertices[t[0]][2]};
-    const Vec3 b{mesh.vertices[t[1]][0], mesh.vertices[t[1]][1], mesh.vertices[t[1]][2]};
-    const Vec3 c{mesh.vertices[t[2]][0], mesh.vertices[t[2]][1], mesh.vertices[t[2]][2]};
-    area += 0.5 * length(cross(b - a, c - a));
-  }
-  return area;
-}
-
 // What the sparse bake holds at its peak, estimated before it starts: the brick table and the lattice (with its
 // propagation keys) grow with the volume / 512; the value bricks, their codes and the triangles binned to them with
 // the surface (a brick of 8^3 voxels per ~30 voxel^2 of surface, measured on CGAL's sample meshes). A bake that
