@@ -70,6 +70,16 @@ class BuildBadInput(unittest.TestCase):
     def test_garbage_in_a_known_format(self):
         self.expect_error(self.write("broken.obj", "v 0 0 0\nf 1 2 3 4 5\nthis is not obj\n"), "IMPORT_FAILED")
 
+    def test_a_face_naming_a_missing_vertex_is_an_import_error(self):
+        """assimp reads an OFF face whose index is past the vertices as the last vertex, and only logs it: the
+        file is corrupt, and refused, not baked into a shape nobody drew."""
+        text = "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 7\n3 0 2 3\n3 1 2 3\n"
+        r = self.expect_error(self.write("bad_index.off", text), "IMPORT_FAILED")
+        self.assertIn("out of range", r.stderr)
+        # The same tetrahedron with every index in range bakes.
+        good = self.build(self.write("good.off", text.replace("3 0 1 7", "3 0 1 3")), "--resolution", "16")
+        self.assertEqual(good.returncode, 0, good.stderr)
+
     def test_a_crashing_importer_is_an_import_error(self):
         # Debian's assimp aborts in an assertion on an OFF file that announces more vertices than it holds; the
         # import runs in a child process, so that is IMPORT_FAILED, not the end of voxfmt. (The comment's bytes let

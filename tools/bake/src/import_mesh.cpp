@@ -6,12 +6,14 @@
 #include <assimp/scene.h>
 #include <assimp/DefaultLogger.hpp>
 #include <assimp/Importer.hpp>
+#include <assimp/LogStream.hpp>
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -118,11 +120,46 @@ bool is_mesh_file_name(const std::string& path) {
 
 namespace {
 
+// Some of assimp's readers report a corrupt file only to its log and read on: an OFF face naming a vertex the file
+// does not have gets the last vertex instead, a mesh nobody drew. The log's errors are kept during a read, and
+// these refuse the file.
+class LogErrors : public Assimp::LogStream {
+ public:
+  explicit LogErrors(std::vector<std::string>& into) : into_(into) {}
+  void write(const char* message) override {
+    if (into_.size() < 16) into_.emplace_back(message);
+  }
+
+ private:
+  std::vector<std::string>& into_;
+};
+
+// The first of `errors` that says the file is corrupt ("Error, T0: OFF: Vertex index is out of range\n": the
+// message alone), or "".
+std::string corrupt_file_error(const std::vector<std::string>& errors) {
+  for (std::string e : errors) {
+    if (e.find("out of range") == std::string::npos) continue;
+    if (e.rfind("Error", 0) == 0 && e.find(": ") != std::string::npos) e.erase(0, e.find(": ") + 2);
+    while (!e.empty() && (e.back() == '\n' || e.back() == '\r')) e.pop_back();
+    return e;
+  }
+  return std::string();
+}
+
 // The parse itself: CGAL's readers, then assimp.
 TriangleMesh import_in_process(const std::string& path, const ImportSettings& options) {
   TriangleMesh mesh;
   if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
 
+  // Assimp has one logger per process: reads in this process take turns (an isolated read is alone in its child).
+  static std::mutex logging;
+  const std::lock_guard<std::mutex> turn(logging);
+  std::vector<std::string> log_errors;
+  Assimp::DefaultLogger::create(nullptr, Assimp::Logger::NORMAL, 0);
+  Assimp::DefaultLogger::get()->attachStream(new LogErrors(log_errors), Assimp::Logger::Err);
+  struct EndLog {
+    ~EndLog() { Assimp::DefaultLogger::kill(); }
+  } end_log;
   Assimp::Importer importer;
   const std::string extension = std::filesystem::path(path).extension().string();
   if (extension.empty() || !importer.IsExtensionSupported(extension))
@@ -140,6 +177,8 @@ TriangleMesh import_in_process(const std::string& path, const ImportSettings& op
     throw BakeError(empty ? IssueCode::EmptyScene : IssueCode::ImportFailed,
                     path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
   }
+  if (const std::string corrupt = corrupt_file_error(log_errors); !corrupt.empty())
+    throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: " + corrupt + " (a corrupt file)");
 
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);
   if (mesh.triangles.empty()) throw BakeError(IssueCode::EmptyScene, path + ": the scene contains no triangles");
