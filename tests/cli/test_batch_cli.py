@@ -104,6 +104,24 @@ class Batch(unittest.TestCase):
         self.assertEqual(summary["failures"][0]["code"], "EMPTY_SCENE")
         self.assertFalse([f for f in os.listdir(os.path.join(self.out, "broken"))] if os.path.isdir(os.path.join(self.out, "broken")) else [])
 
+    def test_prune_removes_the_assets_of_meshes_no_longer_among_the_inputs(self):
+        """A mesh deleted from the library is said (not_in_inputs) and its asset kept, until --prune removes the
+        asset and its record: the next run and the report no longer know it."""
+        self.batch(self.lib, expect=1)
+        os.remove(os.path.join(self.lib, "b/cube.off"))
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (1, 0))
+        self.assertIn("b/cube.off.vox.h5", self.assets())
+        r, summary = self.batch(self.lib, "--prune", expect=1)
+        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (1, 1))
+        self.assertEqual(self.assets(), ["a/model.obj.vox.h5", "b/model.obj.vox.h5"])
+        report = subprocess.run([VOXFMT, "report", self.out, "-o", os.path.join(self.root, "rep"), "--json"],
+                                capture_output=True, text=True, timeout=120)
+        self.assertEqual(json.loads(report.stdout)["meshes"], 3, report.stderr)  # two built, the failed one
+        r, summary = self.batch(self.lib, expect=1)
+        self.assertEqual(summary["not_in_inputs"], 0)
+        self.assertFalse([rec for rec in self.manifest() if "cube" in rec["output"]])
+
     def test_the_output_folder_spelled_another_way_keeps_one_record_a_mesh(self):
         """"./out/" or a link to the folder name the same outputs as the path the first batch was given: their
         records are found (the failed mesh is not retried) and compaction keeps one record a mesh."""

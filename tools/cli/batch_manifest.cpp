@@ -80,6 +80,8 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
   if (last.empty() && foreign > 0)
     throw std::runtime_error(path + ": holds no batch record but " + std::to_string(foreign) +
                              " other line(s): not a manifest, not overwritten (choose another --manifest)");
+  for (auto it = last.begin(); it != last.end();)  // an asset `batch --prune` removed has no record to keep
+    it = text_field(it->second, "status") == "removed" ? last.erase(it) : std::next(it);
   return last;
 }
 }  // namespace

@@ -15,8 +15,8 @@ class Manifest {
  public:
   /// Takes the manifest's lock (`PATH.lock`, flock: released by the kernel however the process ends; a second
   /// batch on the same manifest is refused), reads the records already there (a line torn by a crash is
-  /// dropped), rewrites the file atomically with only the last record of each output (sorted by output), and
-  /// opens it for appending. Throws std::runtime_error.
+  /// dropped), rewrites the file atomically with only the last record of each output (sorted by output; none for
+  /// an output whose last record says it was removed), and opens it for appending. Throws std::runtime_error.
   explicit Manifest(const std::string& path);
   ~Manifest();
   Manifest(const Manifest&) = delete;
@@ -24,6 +24,8 @@ class Manifest {
 
   /// The last record for `output`, or nullptr.
   const nlohmann::json* last(const std::string& output) const;
+  /// Every output's last record, by report::manifest_output_key.
+  const std::map<std::string, nlohmann::json>& records() const { return last_; }
   /// Appends one line and flushes it to disk before returning, so a killed run keeps every finished record.
   void append(const nlohmann::json& record);
   const std::string& path() const { return path_; }

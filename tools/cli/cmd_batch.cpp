@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -36,6 +37,7 @@
 #include "child_process.h"
 #include "commands.h"
 #include "json_report.h"
+#include "report.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/json_path.h"
@@ -61,6 +63,7 @@ struct Options {
   bool json = false;
   bool quiet = false;
   bool report = false;
+  bool prune = false;      ///< remove the assets of recorded meshes no longer among the inputs
   std::string report_dir;  ///< empty: OUTDIR/report
   bake::Settings bake;
 
@@ -97,6 +100,7 @@ class Runner {
   void open_manifest();
   bool created_output_dir_ = false;  ///< select_inputs made OUTDIR (removed again if the manifest is refused)
   void plan();
+  void find_removed();
   bake::Settings bake_settings();
   void announce(size_t stale_removed) const;
   bool bake_all(const bake::Settings& settings);
@@ -120,6 +124,7 @@ class Runner {
     std::string sha;  ///< of the source when planned; empty if unreadable
   };
   std::vector<Job> todo_;
+  std::vector<std::string> removed_;  ///< outputs recorded in the manifest whose mesh is not among the inputs
   size_t next_ = 0;
   struct Running {
     size_t index;
@@ -295,6 +300,7 @@ int Runner::run() {
   const size_t stale = remove_stale_partials(outputs);
   parameters_ = build_parameters(o_.bake);
   plan();
+  find_removed();
   const bake::Settings settings = bake_settings();
   announce(stale);
   const bool interrupted = bake_all(settings);
@@ -376,6 +382,29 @@ void Runner::plan() {
                    [](const Job& a, const Job& b) { return a.item.input_bytes > b.item.input_bytes; });
 }
 
+// The outputs the manifest records whose mesh is no longer among this run's inputs (this shard's): a mesh deleted
+// or renamed. Said; with --prune its asset (a file or a link, never a folder) is removed and a "removed" record
+// appended, which the next compaction drops.
+void Runner::find_removed() {
+  std::set<std::string> current;
+  for (const BatchItem& item : mine_) current.insert(report::manifest_output_key(item.output));
+  for (const auto& [key, record] : manifest_->records())
+    if (!current.count(key)) removed_.push_back(path_of(record, "output"));
+  if (!o_.prune) return;
+  for (const std::string& output : removed_) {  // after the loop above: append() changes the records
+    std::error_code ec;
+    const fs::file_status status = fs::symlink_status(output, ec);
+    if (!ec && (fs::is_regular_file(status) || fs::is_symlink(status))) fs::remove(output, ec);
+    if (ec)
+      throw UsageError(output + ": cannot remove the asset of a mesh no longer among the inputs: " + ec.message(),
+                       IssueCode::WriteFailed);
+    nlohmann::json record = {
+        {"status", "removed"}, {"finished_utc", bake::utc_now()}, {"tool_version", VOXFMT_VERSION_STRING}};
+    set_path(record, "output", output);
+    manifest_->append(record);
+  }
+}
+
 // Lanes (jobs_) and threads per bake (threads_) from the cores this task may use, and each bake's settings.
 bake::Settings Runner::bake_settings() {
   const unsigned cores = usable_cores();  // what Slurm or taskset gives this task, not the whole node
@@ -400,6 +429,9 @@ void Runner::announce(size_t stale) const {
   std::cerr << todo_.size() << " to bake with -j " << jobs_ << " (" << threads_ << " thread(s) each)";
   if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
   std::cerr << "\n";
+  if (!removed_.empty())
+    std::cerr << "voxfmt batch: " << removed_.size() << " recorded mesh(es) no longer among the inputs"
+              << (o_.prune ? ": their assets removed" : " (--prune removes their assets)") << "\n";
 }
 
 // Runs todo_ in jobs_ child processes, recording each as it ends. Returns whether a signal stopped the batch.
@@ -487,6 +519,8 @@ void Runner::report(bool interrupted) const {
                                         {"up_to_date", counts_.up_to_date},
                                         {"failed", counts_.failed},
                                         {"failed_not_retried", counts_.failed_before},
+                                        {"not_in_inputs", removed_.size()},
+                                        {"pruned", o_.prune ? removed_.size() : 0},
                                         {"not_started", todo_.size() - finished_},
                                         {"interrupted", interrupted},
                                         {"seconds", seconds},
@@ -611,6 +645,9 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       "--manifest", o->manifest,
       "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
   add_bake_options(*cmd, o->bake);
+  cmd->add_flag("--prune", o->prune,
+                "Remove the assets (and records) of meshes the manifest holds that are not among these inputs: "
+                "deleted or renamed meshes");
   cmd->add_flag("--json", o->json, "Print the summary as JSON on stdout (no progress)");
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
   cmd->add_flag("--report", o->report, "Then write the library's HTML report into OUTDIR/report (`voxfmt report`)");

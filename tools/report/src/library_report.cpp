@@ -113,7 +113,8 @@ void drop_mistyped_fields(nlohmann::json& row) {
   const std::vector<std::pair<const char*, std::function<bool(const nlohmann::json&)>>> rules = {
       {"input", text},
       {"output", text},
-      {"status", [](const nlohmann::json& v) { return v == "ok" || v == "up_to_date" || v == "failed"; }},
+      {"status",
+       [](const nlohmann::json& v) { return v == "ok" || v == "up_to_date" || v == "failed" || v == "removed"; }},
       {"error", [&](const nlohmann::json& v) { return v.is_null() || coded(v); }},
       {"timings_s", [&](const nlohmann::json& v) { return v.is_object() && std::all_of(v.begin(), v.end(), number); }},
       {"warnings", [&](const nlohmann::json& v) { return v.is_array() && std::all_of(v.begin(), v.end(), coded); }},
@@ -135,6 +136,11 @@ void drop_mistyped_fields(nlohmann::json& row) {
     const auto it = row.find(key);
     if (it != row.end() && !valid(*it)) row.erase(it);
   }
+}
+
+std::string text_of(const nlohmann::json& record, const char* key) {
+  const auto it = record.find(key);
+  return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
 }
 
 Result<ManifestRecords> read_manifest(const std::string& library, const std::string& manifest_file) {
@@ -180,13 +186,9 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
       if (inserted || finished(record) >= finished(it->second)) it->second = std::move(record);
     }
   }
-  for (auto& [output, record] : last) m.records.push_back(std::move(record));
+  for (auto& [output, record] : last)  // an asset `batch --prune` removed is no longer in the library
+    if (text_of(record, "status") != "removed") m.records.push_back(std::move(record));
   return m;
-}
-
-std::string text_of(const nlohmann::json& record, const char* key) {
-  const auto it = record.find(key);
-  return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
 }
 
 // A mesh's name in the report: its input file's name ("bunny00.off"), else the output's without ".vox.h5".
