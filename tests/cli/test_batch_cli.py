@@ -109,17 +109,23 @@ class Batch(unittest.TestCase):
         asset and its record: the next run and the report no longer know it."""
         self.batch(self.lib, expect=1)
         os.remove(os.path.join(self.lib, "b/cube.off"))
+        # A record edited to name a file outside OUTDIR: counted, never deleted.
+        elsewhere = self.write("precious.vox.h5", "not ours\n")
+        with open(os.path.join(self.out, "manifest.jsonl"), "a") as f:
+            f.write(json.dumps({"output": elsewhere, "status": "ok"}) + "\n")
         r, summary = self.batch(self.lib, expect=1)
-        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (1, 0))
+        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (2, 0))
         self.assertIn("b/cube.off.vox.h5", self.assets())
         r, summary = self.batch(self.lib, "--prune", expect=1)
-        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (1, 1))
+        self.assertEqual((summary["not_in_inputs"], summary["pruned"]), (2, 1))
         self.assertEqual(self.assets(), ["a/model.obj.vox.h5", "b/model.obj.vox.h5"])
+        self.assertTrue(os.path.exists(elsewhere))
         report = subprocess.run([VOXFMT, "report", self.out, "-o", os.path.join(self.root, "rep"), "--json"],
                                 capture_output=True, text=True, timeout=120)
-        self.assertEqual(json.loads(report.stdout)["meshes"], 3, report.stderr)  # two built, the failed one
+        # Two built, the failed one and the edited record; not the pruned one.
+        self.assertEqual(json.loads(report.stdout)["meshes"], 4, report.stderr)
         r, summary = self.batch(self.lib, expect=1)
-        self.assertEqual(summary["not_in_inputs"], 0)
+        self.assertEqual(summary["not_in_inputs"], 1)  # the record naming a file elsewhere stays
         self.assertFalse([rec for rec in self.manifest() if "cube" in rec["output"]])
 
     def test_the_output_folder_spelled_another_way_keeps_one_record_a_mesh(self):

@@ -124,7 +124,8 @@ class Runner {
     std::string sha;  ///< of the source when planned; empty if unreadable
   };
   std::vector<Job> todo_;
-  std::vector<std::string> removed_;  ///< outputs recorded in the manifest whose mesh is not among the inputs
+  std::vector<std::string> removed_;   ///< outputs recorded in the manifest whose mesh is not among the inputs
+  std::vector<std::string> prunable_;  ///< of those, the assets --prune may remove (inside OUTDIR, .vox.h5)
   size_t next_ = 0;
   struct Running {
     size_t index;
@@ -383,18 +384,28 @@ void Runner::plan() {
 }
 
 // The outputs the manifest records whose mesh is no longer among this run's inputs (this shard's): a mesh deleted
-// or renamed. Said; with --prune its asset (a file or a link, never a folder) is removed and a "removed" record
-// appended, which the next compaction drops.
+// or renamed. Said; with --prune its asset is removed and a "removed" record appended, which the next compaction
+// drops. Only an asset a batch could have written: a `.vox.h5` file or link (never a folder) inside OUTDIR — a
+// record is text anyone may have edited, and must not name a file elsewhere for deletion.
 void Runner::find_removed() {
   std::set<std::string> current;
   for (const BatchItem& item : mine_) current.insert(report::manifest_output_key(item.output));
-  for (const auto& [key, record] : manifest_->records())
-    if (!current.count(key)) removed_.push_back(path_of(record, "output"));
+  const std::string inside = report::manifest_output_key(o_.output_dir) + "/";
+  const std::string suffix = ".vox.h5";
+  for (const auto& [key, record] : manifest_->records()) {
+    const std::string output = path_of(record, "output");
+    if (current.count(key)) continue;
+    removed_.push_back(output);
+    const bool ours = key.rfind(inside, 0) == 0 && output.size() > suffix.size() &&
+                      output.compare(output.size() - suffix.size(), suffix.size(), suffix) == 0;
+    if (ours) prunable_.push_back(output);
+  }
   if (!o_.prune) return;
-  for (const std::string& output : removed_) {  // after the loop above: append() changes the records
+  for (const std::string& output : prunable_) {  // after the loop above: append() changes the records
     std::error_code ec;
     const fs::file_status status = fs::symlink_status(output, ec);
-    if (!ec && (fs::is_regular_file(status) || fs::is_symlink(status))) fs::remove(output, ec);
+    ec.clear();
+    if (fs::is_regular_file(status) || fs::is_symlink(status)) fs::remove(output, ec);
     if (ec)
       throw UsageError(output + ": cannot remove the asset of a mesh no longer among the inputs: " + ec.message(),
                        IssueCode::WriteFailed);
@@ -431,7 +442,9 @@ void Runner::announce(size_t stale) const {
   std::cerr << "\n";
   if (!removed_.empty())
     std::cerr << "voxfmt batch: " << removed_.size() << " recorded mesh(es) no longer among the inputs"
-              << (o_.prune ? ": their assets removed" : " (--prune removes their assets)") << "\n";
+              << (o_.prune ? ": " + std::to_string(prunable_.size()) + " asset(s) in OUTDIR removed"
+                           : std::string(" (--prune removes their assets)"))
+              << "\n";
 }
 
 // Runs todo_ in jobs_ child processes, recording each as it ends. Returns whether a signal stopped the batch.
@@ -520,7 +533,7 @@ void Runner::report(bool interrupted) const {
                                         {"failed", counts_.failed},
                                         {"failed_not_retried", counts_.failed_before},
                                         {"not_in_inputs", removed_.size()},
-                                        {"pruned", o_.prune ? removed_.size() : 0},
+                                        {"pruned", o_.prune ? prunable_.size() : 0},
                                         {"not_started", todo_.size() - finished_},
                                         {"interrupted", interrupted},
                                         {"seconds", seconds},
