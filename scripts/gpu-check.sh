@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # The GPU check, run on a CUDA machine that has nvcc, Python and CuPy but none of voxfmt's libraries (the device
 # machine of docs/gpu.md): builds the standalone runner (scripts/gpu/standalone.cu + loaders/gpu/src/kernels.cu,
-# the kernel voxfmt links) at each block size of $LANES (with the default register cap, device.h) and each register
-# cap of $CAPS (LANES:BLOCKS, the blocks a multiprocessor should hold; 0: no cap), runs scripts/gpu/check.py over
-# the inputs bench/gpu_batch.py --prepare wrote here with each (and the default size without the bricks' apron), and
-# leaves the JSON files in $OUT (default out/gpu-check): gpu-batch.json is the default build's (128 lanes, the
-# apron, the default cap). Then compute-sanitizer's memcheck, racecheck and synccheck over a few hundred poses, where
-# the machine has it (sanitizers.txt). Also all of it in one file, gpu-check.tar.gz: a borrowed device machine
-# returns eight files at most.
+# the kernel voxfmt links) at each block size of $LANES (with the default register cap, device.h: 640 threads'
+# worth of blocks) and each register cap of $CAPS (LANES:BLOCKS, the blocks a multiprocessor should hold; 0: no
+# cap), runs scripts/gpu/check.py over the inputs bench/gpu_batch.py --prepare wrote here with each (and the default
+# size without the bricks' apron), and leaves the JSON files in $OUT (default out/gpu-check): gpu-batch.json is the
+# default build's (128 lanes, the apron, the default cap). Then compute-sanitizer's memcheck, racecheck and
+# synccheck over a few hundred poses, where the machine has it (sanitizers.txt). Also all of it in one file,
+# gpu-check.tar.gz: a borrowed device machine returns eight files at most.
 #   bash scripts/gpu-check.sh [INPUT_FOLDER]      # default out/gpu-input; LANES="32 64 128 256", CAPS="128:0 128:6"
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,7 +15,7 @@ input=${1:-out/gpu-input}
 OUT=${OUT:-out/gpu-check}
 LANES=${LANES:-32 64 128 256}
 case " $LANES " in *" 128 "*) ;; *) LANES="$LANES 128" ;; esac  # the default, always measured
-CAPS=${CAPS:-128:0 128:6}  # on an H200: 128 registers uncapped, 80 with six blocks (the default five: 96)
+CAPS=${CAPS:-128:0 128:6}  # on an H200: 128 registers uncapped, 80 with six blocks (the default, five: 96)
 mkdir -p "$OUT"
 [ -f "$input/gpu-batch-input.npz" ] || { echo "gpu-check: no $input/gpu-batch-input.npz (bench/gpu_batch.py --prepare)" >&2; exit 2; }
 nvcc=${NVCC:-$(command -v nvcc || echo /usr/local/cuda/bin/nvcc)}
@@ -63,6 +63,6 @@ if command -v compute-sanitizer >/dev/null; then
     grep -E "ERROR SUMMARY|RACECHECK SUMMARY" "$OUT/sanitizers.txt" | tail -n 1
   done
 fi
-tar -czf "$build/gpu-check.tar.gz" -C "$OUT" . && mv "$build/gpu-check.tar.gz" "$OUT/"
+tar -czf "$build/gpu-check.tar.gz" --exclude=./gpu-check.tar.gz -C "$OUT" . && mv "$build/gpu-check.tar.gz" "$OUT/"
 echo "gpu-check: done in $((SECONDS - start)) s (exit $status)"
 exit $status

@@ -133,6 +133,13 @@ class Batch(unittest.TestCase):
         records are found (the failed mesh is not retried) and compaction keeps one record a mesh."""
         self.batch(self.lib, expect=1)
         os.symlink(self.out, os.path.join(self.root, "link"))
+        # A record of the same asset written with another spelling (as an older version would have left it).
+        first = [rec for rec in self.manifest() if rec["output"].endswith("a/model.obj.vox.h5")][0]
+        with open(os.path.join(self.out, "manifest.jsonl"), "a") as f:
+            f.write(json.dumps(dict(first, output="./out/a/model.obj.vox.h5")) + "\n")
+        report = subprocess.run([VOXFMT, "report", "out", "-o", "rep", "--json"], cwd=self.root, capture_output=True,
+                                text=True, timeout=120)
+        self.assertEqual(json.loads(report.stdout)["meshes"], 4, report.stderr)  # not 5
         for spelling in ("./out/", "link"):
             r = subprocess.run([VOXFMT, "batch", "lib", "-o", spelling, "--json", "-j", "2", *SMALL], cwd=self.root,
                                capture_output=True, text=True, timeout=120)

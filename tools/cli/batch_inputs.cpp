@@ -139,6 +139,15 @@ class Collector {
   std::map<std::string, BatchItem> by_key_;
 };
 
+// `path` without "." parts and empty ones: "./out/" and "out" name the same outputs in the manifest and the
+// messages. ".." stays: after a link to a folder it does not undo the step before it.
+fs::path without_dot_parts(const fs::path& path) {
+  fs::path out;
+  for (const fs::path& part : path)
+    if (!part.empty() && part != ".") out /= part;
+  return out.empty() ? fs::path(".") : out;
+}
+
 }  // namespace
 
 std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, const std::string& output_dir,
@@ -146,9 +155,7 @@ std::vector<BatchItem> collect_inputs(const std::vector<std::string>& inputs, co
   Collector collector(output_dir, skipped);
   for (const std::string& argument : inputs) collector.argument(argument);
   std::vector<BatchItem> items = collector.finish();
-  // Lexically normal: "./out/" and "out" name the same outputs in the manifest and the messages.
-  for (BatchItem& item : items)
-    item.output = (fs::path(output_dir) / (item.key + ".vox.h5")).lexically_normal().string();
+  for (BatchItem& item : items) item.output = without_dot_parts(fs::path(output_dir) / (item.key + ".vox.h5")).string();
   return items;
 }
 

@@ -61,6 +61,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
   if (const std::string kind = not_a_regular_file(path); !kind.empty())
     throw std::runtime_error(path + ": " + kind + ": not a manifest");
   std::map<std::string, nlohmann::json> last;
+  std::map<std::string, std::string> folders;  // resolved once each
   std::ifstream in(path);
   std::string line;
   size_t foreign = 0;
@@ -74,7 +75,7 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
       foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
       continue;
     }
-    last[report::manifest_output_key(path_of(record, "output"))] = record;
+    last[report::manifest_output_key(path_of(record, "output"), &folders)] = record;
     if (check_only) break;
   }
   if (last.empty() && foreign > 0)
@@ -183,7 +184,7 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
 }
 
 const nlohmann::json* Manifest::last(const std::string& output) const {
-  auto it = last_.find(report::manifest_output_key(output));
+  auto it = last_.find(report::manifest_output_key(output, &folders_));
   return it == last_.end() ? nullptr : &it->second;
 }
 
@@ -192,7 +193,7 @@ void Manifest::append(const nlohmann::json& record) {
   write_all(fd_, json_line(record) + "\n", path_);
   if (::fdatasync(fd_) != 0) fail(path_, "cannot flush");
   if (record.contains("output") && record["output"].is_string())
-    last_[report::manifest_output_key(path_of(record, "output"))] = record;
+    last_[report::manifest_output_key(path_of(record, "output"), &folders_)] = record;
 }
 
 }  // namespace voxfmt::cli

@@ -35,6 +35,7 @@ class Manifest {
   int lock_fd_ = -1;
   int fd_ = -1;
   std::map<std::string, nlohmann::json> last_;
+  mutable std::map<std::string, std::string> folders_;  ///< manifest_output_key's resolved folders
 };
 
 /// One JSON Lines line (no newline): compact, invalid UTF-8 replaced.

@@ -388,21 +388,23 @@ void Runner::plan() {
 // drops. Only an asset a batch could have written: a `.vox.h5` file or link (never a folder) inside OUTDIR — a
 // record is text anyone may have edited, and must not name a file elsewhere for deletion.
 void Runner::find_removed() {
+  std::map<std::string, std::string> folders;
   std::set<std::string> current;
-  for (const BatchItem& item : mine_) current.insert(report::manifest_output_key(item.output));
-  const std::string inside = report::manifest_output_key(o_.output_dir) + "/";
+  for (const BatchItem& item : mine_) current.insert(report::manifest_output_key(item.output, &folders));
+  std::error_code ec;
+  const std::string inside = fs::weakly_canonical(fs::absolute(o_.output_dir), ec).string() + "/";
+  const bool known = !ec;  // else nothing is removed
   const std::string suffix = ".vox.h5";
   for (const auto& [key, record] : manifest_->records()) {
     const std::string output = path_of(record, "output");
     if (current.count(key)) continue;
     removed_.push_back(output);
-    const bool ours = key.rfind(inside, 0) == 0 && output.size() > suffix.size() &&
+    const bool ours = known && key.rfind(inside, 0) == 0 && output.size() > suffix.size() &&
                       output.compare(output.size() - suffix.size(), suffix.size(), suffix) == 0;
     if (ours) prunable_.push_back(output);
   }
   if (!o_.prune) return;
   for (const std::string& output : prunable_) {  // after the loop above: append() changes the records
-    std::error_code ec;
     const fs::file_status status = fs::symlink_status(output, ec);
     ec.clear();
     if (fs::is_regular_file(status) || fs::is_symlink(status)) fs::remove(output, ec);

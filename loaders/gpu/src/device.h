@@ -8,11 +8,12 @@
 
 #include "core/block_walk.h"
 
-// Blocks a multiprocessor should hold at once: a register cap for the compiler (0 leaves the registers to it). Five
-// blocks of 128 lanes: 96 registers on sm_90, where the compiler alone takes 128 and holds four (measured on an
-// H200: docs/gpu.md). Another value only to measure one (scripts/gpu-check.sh's CAPS).
+// Blocks a multiprocessor should hold at once: a register cap for the compiler (0 leaves the registers to it). 640
+// threads' worth: five blocks of 128 lanes, 96 registers a thread on sm_90 at any block size, where the compiler
+// alone takes 128 and holds four blocks of 128 (measured on an H200: docs/gpu.md). Another value only to measure
+// one (scripts/gpu-check.sh's CAPS).
 #ifndef VOXFMT_BLOCK_MIN_BLOCKS
-#define VOXFMT_BLOCK_MIN_BLOCKS 5
+#define VOXFMT_BLOCK_MIN_BLOCKS (640 / VOXFMT_BLOCK_LANES)
 #endif
 
 namespace voxfmt::gpu::device {

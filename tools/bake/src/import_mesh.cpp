@@ -121,45 +121,66 @@ bool is_mesh_file_name(const std::string& path) {
 namespace {
 
 // Some of assimp's readers report a corrupt file only to its log and read on: an OFF face naming a vertex the file
-// does not have gets the last vertex instead, a mesh nobody drew. The log's errors are kept during a read, and
-// these refuse the file.
-class LogErrors : public Assimp::LogStream {
+// does not have gets the last vertex instead, a mesh nobody drew. During a read, the first logged error or warning
+// that a vertex or face index is out of range is kept, and refuses the file. (Other indices out of range, a
+// material's or a clip's, leave the geometry whole: those files still read.)
+class CorruptGeometry : public Assimp::LogStream {
  public:
-  explicit LogErrors(std::vector<std::string>& into) : into_(into) {}
+  explicit CorruptGeometry(std::string& first) : first_(first) {}
   void write(const char* message) override {
-    if (into_.size() < 16) into_.emplace_back(message);
+    if (!first_.empty() || !message) return;
+    const std::string lower = lowercase(message);
+    const auto has = [&lower](const char* words) { return lower.find(words) != std::string::npos; };
+    if (!has("out of range") || !has("index") || !(has("vertex") || has("face"))) return;
+    std::string text = message;  // "Error, T0: OFF: Vertex index is out of range\n": the message alone
+    if (const size_t colon = text.find(": "); colon != std::string::npos && text.find(", T") < colon)
+      text.erase(0, colon + 2);
+    while (!text.empty() && (text.back() == '\n' || text.back() == '\r')) text.pop_back();
+    first_ = text;
   }
 
  private:
-  std::vector<std::string>& into_;
+  std::string& first_;
 };
 
-// The first of `errors` that says the file is corrupt ("Error, T0: OFF: Vertex index is out of range\n": the
-// message alone), or "".
-std::string corrupt_file_error(const std::vector<std::string>& errors) {
-  for (std::string e : errors) {
-    if (e.find("out of range") == std::string::npos) continue;
-    if (e.rfind("Error", 0) == 0 && e.find(": ") != std::string::npos) e.erase(0, e.find(": ") + 2);
-    while (!e.empty() && (e.back() == '\n' || e.back() == '\r')) e.pop_back();
-    return e;
+// Listens to assimp's log for the life of a read: on the logger a host application installed, else on one of its
+// own, removed again at the end. Assimp has one logger per process, so reads in one process take turns (an
+// isolated read is alone in its child).
+class CorruptGeometryLog {
+ public:
+  explicit CorruptGeometryLog(std::string& first) : turn_(mutex()) {
+    own_ = Assimp::DefaultLogger::isNullLogger();
+    if (own_) Assimp::DefaultLogger::create(nullptr, Assimp::Logger::NORMAL, 0);
+    stream_ = new CorruptGeometry(first);
+    Assimp::DefaultLogger::get()->attachStream(stream_, kSeverities);  // the logger owns it while attached
   }
-  return std::string();
-}
+  ~CorruptGeometryLog() {
+    if (own_)
+      Assimp::DefaultLogger::kill();  // deletes the stream
+    else if (Assimp::DefaultLogger::get()->detachStream(stream_, kSeverities))
+      delete stream_;  // detached: ours again
+  }
+  CorruptGeometryLog(const CorruptGeometryLog&) = delete;
+  CorruptGeometryLog& operator=(const CorruptGeometryLog&) = delete;
+
+ private:
+  static constexpr unsigned kSeverities = Assimp::Logger::Warn | Assimp::Logger::Err;
+  static std::mutex& mutex() {
+    static std::mutex m;
+    return m;
+  }
+  std::lock_guard<std::mutex> turn_;
+  bool own_ = false;
+  CorruptGeometry* stream_ = nullptr;
+};
 
 // The parse itself: CGAL's readers, then assimp.
 TriangleMesh import_in_process(const std::string& path, const ImportSettings& options) {
   TriangleMesh mesh;
   if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
 
-  // Assimp has one logger per process: reads in this process take turns (an isolated read is alone in its child).
-  static std::mutex logging;
-  const std::lock_guard<std::mutex> turn(logging);
-  std::vector<std::string> log_errors;
-  Assimp::DefaultLogger::create(nullptr, Assimp::Logger::NORMAL, 0);
-  Assimp::DefaultLogger::get()->attachStream(new LogErrors(log_errors), Assimp::Logger::Err);
-  struct EndLog {
-    ~EndLog() { Assimp::DefaultLogger::kill(); }
-  } end_log;
+  std::string corrupt;
+  const CorruptGeometryLog log(corrupt);
   Assimp::Importer importer;
   const std::string extension = std::filesystem::path(path).extension().string();
   if (extension.empty() || !importer.IsExtensionSupported(extension))
@@ -177,7 +198,7 @@ TriangleMesh import_in_process(const std::string& path, const ImportSettings& op
     throw BakeError(empty ? IssueCode::EmptyScene : IssueCode::ImportFailed,
                     path + (empty ? ": the scene contains no triangles (" : ": cannot read mesh (") + reason + ")");
   }
-  if (const std::string corrupt = corrupt_file_error(log_errors); !corrupt.empty())
+  if (!corrupt.empty())
     throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: " + corrupt + " (a corrupt file)");
 
   append_node(*scene, *scene->mRootNode, aiMatrix4x4(), mesh, options.unit_scale, path);

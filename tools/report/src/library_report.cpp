@@ -164,6 +164,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
   }
   ManifestRecords m;
   std::map<std::string, nlohmann::json> last;
+  std::map<std::string, std::string> folders;  // manifest_output_key's, resolved once each
   for (const fs::path& file : files) {
     std::ifstream in(file);
     std::string line;
@@ -178,7 +179,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
       }
       drop_mistyped_fields(record);
       // Across files (the shards' and the whole library's), the record that finished last wins.
-      auto [it, inserted] = last.try_emplace(manifest_output_key(path_of(record, "output")));
+      auto [it, inserted] = last.try_emplace(manifest_output_key(path_of(record, "output"), &folders));
       const auto finished = [](const nlohmann::json& r) {
         const auto f = r.find("finished_utc");
         return f != r.end() && f->is_string() ? f->get<std::string>() : std::string();

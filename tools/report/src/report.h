@@ -9,6 +9,7 @@
 #include <functional>
 #include <ios>
 #include <istream>
+#include <map>
 #include <streambuf>
 #include <string>
 
@@ -79,16 +80,28 @@ inline bool read_manifest_line(std::istream& in, std::string& line, bool& too_lo
   return any;
 }
 
-/// The one name of a record's output however it was typed ("out/a.vox.h5", "./out/a.vox.h5", "/abs/out/a.vox.h5",
-/// a link to the folder): absolute from the working directory, links resolved, "." and ".." gone. A batch and a
-/// report key their records by it, so a library batched twice with its folder spelled two ways has one record a
-/// mesh, not two.
-inline std::string manifest_output_key(const std::string& output) {
-  std::error_code ec;
-  std::filesystem::path path = std::filesystem::absolute(output, ec);
-  if (ec) return std::filesystem::path(output).lexically_normal().string();
-  const std::filesystem::path resolved = std::filesystem::weakly_canonical(path, ec);
-  return (ec ? path.lexically_normal() : resolved).string();
+/// The one name of a record's output however its folder was typed ("out/a.vox.h5", "./out/a.vox.h5",
+/// "/abs/out/a.vox.h5", a link to the folder): the folder absolute from the working directory with its links
+/// resolved, then the file's own name (a file that is itself a link keeps its name: two links are two outputs). A
+/// batch and a report key their records by it, so a library batched twice with its folder spelled two ways, from
+/// one working directory, has one record a mesh. `folders` caches the resolved folders (a manifest's records share
+/// a few: one resolution each, not one per record).
+inline std::string manifest_output_key(const std::string& output,
+                                       std::map<std::string, std::string>* folders = nullptr) {
+  namespace fs = std::filesystem;
+  const fs::path path(output);
+  const std::string folder = path.parent_path().string();
+  std::string resolved;
+  if (folders && folders->count(folder)) {
+    resolved = folders->at(folder);
+  } else {
+    std::error_code ec;
+    const fs::path absolute = fs::absolute(folder.empty() ? fs::path(".") : fs::path(folder), ec);
+    const fs::path canonical = ec ? fs::path() : fs::weakly_canonical(absolute, ec);
+    resolved = (ec ? (absolute.empty() ? fs::path(folder) : absolute).lexically_normal() : canonical).string();
+    if (folders) (*folders)[folder] = resolved;
+  }
+  return (fs::path(resolved) / path.filename()).string();
 }
 
 }  // namespace voxfmt::report

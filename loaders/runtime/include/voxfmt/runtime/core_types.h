@@ -8,7 +8,8 @@
 #if defined(__CUDACC__)
 #define VOXFMT_HD __host__ __device__ __forceinline__
 // A device function called from several places of a kernel, kept out of line there: inlined at each, the batch
-// kernel's code outgrew the instruction cache (measured: docs/gpu.md). Inlined on the CPU, as VOXFMT_HD.
+// kernel's code outgrew the instruction cache (measured: docs/gpu.md). Inlined in what the C++ compiler builds (the
+// CPU runtime), as VOXFMT_HD.
 #define VOXFMT_HD_OUTLINE __host__ __device__ __noinline__ inline
 #else
 #define VOXFMT_HD [[gnu::always_inline]] inline
