@@ -173,9 +173,9 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
     for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end; it.increment(ec)) {
       const std::string name = it->path().filename().string();
       const size_t mark = name.rfind(kPartialMarker);
-      if (mark == std::string::npos || !names.count(name.substr(0, mark)) ||
-          !dead_temporary_of(*it, name.substr(0, mark)))
-        continue;
+      if (mark == std::string::npos) continue;
+      const std::string target = name.substr(0, mark);
+      if (!names.count(target) || !dead_temporary_of(*it, target)) continue;
       std::error_code remove_error;
       removed += fs::remove(it->path(), remove_error);
     }
@@ -184,7 +184,7 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
 }
 
 const nlohmann::json* Manifest::last(const std::string& output) const {
-  auto it = last_.find(report::manifest_output_key(output, &folders_));
+  auto it = last_.find(key_of(output));
   return it == last_.end() ? nullptr : &it->second;
 }
 
@@ -192,8 +192,7 @@ void Manifest::append(const nlohmann::json& record) {
   // One write() per line: O_APPEND puts it at the end as a whole; fdatasync makes it survive a crash.
   write_all(fd_, json_line(record) + "\n", path_);
   if (::fdatasync(fd_) != 0) fail(path_, "cannot flush");
-  if (record.contains("output") && record["output"].is_string())
-    last_[report::manifest_output_key(path_of(record, "output"), &folders_)] = record;
+  if (record.contains("output") && record["output"].is_string()) last_[key_of(path_of(record, "output"))] = record;
 }
 
 }  // namespace voxfmt::cli

@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "report.h"
+
 namespace voxfmt::cli {
 
 class Manifest {
@@ -24,8 +26,10 @@ class Manifest {
 
   /// The last record for `output`, or nullptr.
   const nlohmann::json* last(const std::string& output) const;
-  /// Every output's last record, by report::manifest_output_key.
+  /// Every output's last record, by key_of(output).
   const std::map<std::string, nlohmann::json>& records() const { return last_; }
+  /// The key of `output` among records(): report::manifest_output_key, its folders resolved once.
+  std::string key_of(const std::string& output) const { return report::manifest_output_key(output, &folders_); }
   /// Appends one line and flushes it to disk before returning, so a killed run keeps every finished record.
   void append(const nlohmann::json& record);
   const std::string& path() const { return path_; }

@@ -124,7 +124,7 @@ class Runner {
     std::string sha;  ///< of the source when planned; empty if unreadable
   };
   std::vector<Job> todo_;
-  std::vector<std::string> removed_;   ///< outputs recorded in the manifest whose mesh is not among the inputs
+  size_t not_in_inputs_ = 0;           ///< outputs recorded in the manifest whose mesh is not among the inputs
   std::vector<std::string> prunable_;  ///< of those, the assets --prune may remove (inside OUTDIR, .vox.h5)
   size_t next_ = 0;
   struct Running {
@@ -388,23 +388,21 @@ void Runner::plan() {
 // drops. Only an asset a batch could have written: a `.vox.h5` file or link (never a folder) inside OUTDIR — a
 // record is text anyone may have edited, and must not name a file elsewhere for deletion.
 void Runner::find_removed() {
-  std::map<std::string, std::string> folders;
   std::set<std::string> current;
-  for (const BatchItem& item : mine_) current.insert(report::manifest_output_key(item.output, &folders));
-  std::error_code ec;
-  const std::string inside = fs::weakly_canonical(fs::absolute(o_.output_dir), ec).string() + "/";
-  const bool known = !ec;  // else nothing is removed
+  for (const BatchItem& item : mine_) current.insert(manifest_->key_of(item.output));
+  const std::string inside = report::resolved_folder(o_.output_dir) + "/";
   const std::string suffix = ".vox.h5";
   for (const auto& [key, record] : manifest_->records()) {
-    const std::string output = path_of(record, "output");
     if (current.count(key)) continue;
-    removed_.push_back(output);
-    const bool ours = known && key.rfind(inside, 0) == 0 && output.size() > suffix.size() &&
-                      output.compare(output.size() - suffix.size(), suffix.size(), suffix) == 0;
-    if (ours) prunable_.push_back(output);
+    ++not_in_inputs_;
+    const std::string output = path_of(record, "output");
+    if (key.rfind(inside, 0) == 0 && output.size() > suffix.size() &&
+        output.compare(output.size() - suffix.size(), suffix.size(), suffix) == 0)
+      prunable_.push_back(output);
   }
   if (!o_.prune) return;
   for (const std::string& output : prunable_) {  // after the loop above: append() changes the records
+    std::error_code ec;
     const fs::file_status status = fs::symlink_status(output, ec);
     ec.clear();
     if (fs::is_regular_file(status) || fs::is_symlink(status)) fs::remove(output, ec);
@@ -442,8 +440,8 @@ void Runner::announce(size_t stale) const {
   std::cerr << todo_.size() << " to bake with -j " << jobs_ << " (" << threads_ << " thread(s) each)";
   if (stale) std::cerr << "; removed " << stale << " stale temporary file(s)";
   std::cerr << "\n";
-  if (!removed_.empty())
-    std::cerr << "voxfmt batch: " << removed_.size() << " recorded mesh(es) no longer among the inputs"
+  if (not_in_inputs_ > 0)
+    std::cerr << "voxfmt batch: " << not_in_inputs_ << " recorded mesh(es) no longer among the inputs"
               << (o_.prune ? ": " + std::to_string(prunable_.size()) + " asset(s) in OUTDIR removed"
                            : std::string(" (--prune removes their assets)"))
               << "\n";
@@ -534,7 +532,7 @@ void Runner::report(bool interrupted) const {
                                         {"up_to_date", counts_.up_to_date},
                                         {"failed", counts_.failed},
                                         {"failed_not_retried", counts_.failed_before},
-                                        {"not_in_inputs", removed_.size()},
+                                        {"not_in_inputs", not_in_inputs_},
                                         {"pruned", o_.prune ? prunable_.size() : 0},
                                         {"not_started", todo_.size() - finished_},
                                         {"interrupted", interrupted},

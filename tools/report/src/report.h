@@ -80,28 +80,34 @@ inline bool read_manifest_line(std::istream& in, std::string& line, bool& too_lo
   return any;
 }
 
+/// `folder` ("" for the working directory) however it was typed ("out", "./out/", a link to it): absolute from the
+/// working directory, its links resolved (lexically normal where the file system cannot say).
+inline std::string resolved_folder(const std::string& folder) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path absolute = fs::absolute(folder.empty() ? fs::path(".") : fs::path(folder), ec);
+  const fs::path canonical = ec ? fs::path() : fs::weakly_canonical(absolute, ec);
+  return (ec ? (absolute.empty() ? fs::path(folder) : absolute).lexically_normal() : canonical).string();
+}
+
 /// The one name of a record's output however its folder was typed ("out/a.vox.h5", "./out/a.vox.h5",
-/// "/abs/out/a.vox.h5", a link to the folder): the folder absolute from the working directory with its links
-/// resolved, then the file's own name (a file that is itself a link keeps its name: two links are two outputs). A
-/// batch and a report key their records by it, so a library batched twice with its folder spelled two ways, from
-/// one working directory, has one record a mesh. `folders` caches the resolved folders (a manifest's records share
-/// a few: one resolution each, not one per record).
+/// "/abs/out/a.vox.h5", a link to the folder): resolved_folder of its folder, then the file's own name (a file
+/// that is itself a link keeps its name: two links are two outputs). A batch and a report key their records by
+/// it, so a library batched twice with its folder spelled two ways, from one working directory, has one record a
+/// mesh. `folders` caches the resolved folders (a manifest's records share a few: one resolution each, not one per
+/// record).
 inline std::string manifest_output_key(const std::string& output,
                                        std::map<std::string, std::string>* folders = nullptr) {
-  namespace fs = std::filesystem;
-  const fs::path path(output);
+  const std::filesystem::path path(output);
   const std::string folder = path.parent_path().string();
   std::string resolved;
   if (folders && folders->count(folder)) {
     resolved = folders->at(folder);
   } else {
-    std::error_code ec;
-    const fs::path absolute = fs::absolute(folder.empty() ? fs::path(".") : fs::path(folder), ec);
-    const fs::path canonical = ec ? fs::path() : fs::weakly_canonical(absolute, ec);
-    resolved = (ec ? (absolute.empty() ? fs::path(folder) : absolute).lexically_normal() : canonical).string();
+    resolved = resolved_folder(folder);
     if (folders) (*folders)[folder] = resolved;
   }
-  return (fs::path(resolved) / path.filename()).string();
+  return (std::filesystem::path(resolved) / path.filename()).string();
 }
 
 }  // namespace voxfmt::report
