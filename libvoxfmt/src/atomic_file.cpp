@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -126,9 +127,22 @@ bool process_is_gone(const std::string& pid) {
   return read > 0 && close && (close[1] == ' ') && (close[2] == 'Z' || close[2] == 'X');
 }
 
+std::string temporary_stem(const std::string& target_name) {
+  // The longest suffix: the marker, a pid (at most 10 digits) and "-" and a counter (at most 10).
+  constexpr size_t kNameMax = 255, kSuffixMax = kPartialMarker.size() + 10 + 1 + 10, kHashChars = 16;
+  if (target_name.size() + kSuffixMax <= kNameMax) return target_name;
+  uint64_t hash = 14695981039346656037ull;  // FNV-1a: stable across runs and builds, unlike std::hash
+  for (const unsigned char c : target_name) hash = (hash ^ c) * 1099511628211ull;
+  size_t keep = kNameMax - kSuffixMax - 1 - kHashChars;
+  while (keep > 0 && (static_cast<unsigned char>(target_name[keep]) & 0xC0) == 0x80) --keep;  // whole UTF-8 characters
+  char hex[kHashChars + 1];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(hash));
+  return target_name.substr(0, keep) + "~" + hex;
+}
+
 bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name) {
   const std::string name = entry.path().filename().string();
-  const std::string prefix = target_name + std::string(kPartialMarker);
+  const std::string prefix = temporary_stem(target_name) + std::string(kPartialMarker);
   if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) return false;
   // Exactly PID-N, a regular file (not a link, not a folder), of a process that is gone.
   const std::string tail = name.substr(prefix.size());
@@ -162,8 +176,10 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
   const std::string& path = resolved.value();
   if (Status usable = check_resolved_output(given, path); !usable) return usable;
   static std::atomic<unsigned> counter{0};
-  const std::string temp =
-      path + std::string(kPartialMarker) + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  const size_t slash = path.find_last_of('/');
+  const std::string folder = slash == std::string::npos ? "" : path.substr(0, slash + 1);
+  const std::string temp = folder + temporary_stem(path.substr(folder.size())) + std::string(kPartialMarker) +
+                           std::to_string(::getpid()) + "-" + std::to_string(counter++);
   auto fail = [&](Status status) {
     std::remove(temp.c_str());
     return status;

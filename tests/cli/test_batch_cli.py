@@ -327,6 +327,25 @@ class Batch(unittest.TestCase):
                            timeout=120)
         self.assertIn("warning: " + os.path.join(self.lib, "c", "dangling.obj") + ": a link to nothing", r.stderr)
 
+    def test_a_mesh_whose_asset_name_is_as_long_as_allowed_bakes_and_its_dead_temporaries_go(self):
+        # The asset's name is 255 bytes, the file system's limit: its temporary takes a shortened stem
+        # (atomic_file.h's temporary_stem: the first 208 bytes, "~" and the FNV-1a hash of the whole name).
+        name = "m" * 244 + ".obj"
+        self.write("lib/long/" + name, TET_OBJ)
+        asset = name + ".vox.h5"
+        self.assertEqual(len(asset), 255)
+        digest = 14695981039346656037
+        for byte in asset.encode():
+            digest = ((digest ^ byte) * 1099511628211) % 2**64
+        ended = subprocess.Popen(["true"])
+        ended.wait()
+        dead = self.write("out/long/%s~%016x.partial-%d-0" % (asset[:208], digest, ended.pid), "a killed bake's")
+        live = self.write("out/long/%s~%016x.partial-%d-0" % (asset[:208], digest, os.getpid()), "a live bake's")
+        self.batch(self.lib, expect=1)  # only the flat mesh fails
+        self.assertIn(os.path.join("long", asset), self.assets())
+        self.assertFalse(os.path.exists(dead), "a dead process's temporary was kept")
+        self.assertTrue(os.path.exists(live), "a live process's temporary was removed")
+
     def test_list_file_and_single_files(self):
         self.write("more/x/box.off", cube_off(1.0))
         self.write("lists/local/chair.obj", TET_OBJ)

@@ -259,6 +259,19 @@ class BuildBadOutput(unittest.TestCase):
         with open(target, "rb") as f:
             self.assertEqual(f.read(8), b"\x89HDF\r\n\x1a\n")
 
+    def test_a_dash_or_an_empty_path_is_a_usage_error_and_a_long_name_is_written(self):
+        for out, words in (("-", "--output: '-' (standard output) is not supported"), ("", "--output: an empty path")):
+            r = subprocess.run([VOXFMT, "build", self.mesh, "-o", out, "--resolution", "24"], cwd=self.dir.name,
+                               capture_output=True, text=True, timeout=120)
+            self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+            self.assertIn(words, r.stderr)
+        self.assertEqual(sorted(os.listdir(self.dir.name)), [os.path.basename(self.mesh)])
+        long_name = os.path.join(self.dir.name, "a" * 248 + ".vox.h5")  # 255 bytes: the file system's limit
+        self.assertEqual(self.build(long_name).returncode, 0)
+        with open(long_name, "rb") as f:
+            self.assertEqual(f.read(8), b"\x89HDF\r\n\x1a\n")
+        self.assertEqual(self.partials(self.dir.name), [])
+
     def test_empty_path_is_a_usage_error(self):
         r = self.build("")
         self.assertEqual(r.returncode, 2, r.stdout + r.stderr)

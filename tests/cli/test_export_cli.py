@@ -87,6 +87,27 @@ class ExportCli(unittest.TestCase):
         self.assertFalse(os.path.exists(out))
         self.assertEqual([n for n in os.listdir(self.dir) if n.startswith("damaged.nvdb")], [])
 
+    def test_a_dash_is_refused_not_written_as_a_file_named_dash_and_dot_slash_dash_is_that_file(self):
+        r = subprocess.run([VOXFMT, "export", self.asset, "--nvdb", "-"], cwd=self.dir, capture_output=True,
+                           text=True, timeout=60)
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertIn("BAD_OPTION: --nvdb: '-' (standard output) is not supported", r.stderr)
+        self.assertFalse(os.path.exists(os.path.join(self.dir, "-")))
+        r = subprocess.run([VOXFMT, "export", self.asset, "--nvdb", "./-"], cwd=self.dir, capture_output=True,
+                           text=True, timeout=60)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertTrue(os.path.isfile(os.path.join(self.dir, "-")))
+        os.remove(os.path.join(self.dir, "-"))
+
+    def test_a_name_as_long_as_the_file_system_allows_is_written(self):
+        # Its temporary's name (the name and ".partial-PID-N") would pass 255 bytes: it takes a shortened stem.
+        out = os.path.join(self.dir, "n" * 250 + ".nvdb")
+        r = self.export("--nvdb", out)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertTrue(os.path.isfile(out))
+        self.assertEqual([n for n in os.listdir(self.dir) if ".partial-" in n], [])
+        os.remove(out)
+
     def test_temporaries_of_a_killed_export_are_removed_by_the_next(self):
         out = os.path.join(self.dir, "again.nvdb")
         child = subprocess.Popen(["true"])

@@ -252,6 +252,42 @@ TEST(Files, OnlyAnEndedProcessCountsAsGone) {
   EXPECT_TRUE(process_is_gone(std::to_string(child)));  // reaped: the id names no process (until reused)
 }
 
+TEST(Files, ANameAsLongAsTheFileSystemAllowsIsWrittenAndItsDeadTemporariesFound) {
+  // 255 bytes is a legal name; its temporary (the name and ".partial-PID-N") was not, so no write could succeed.
+  const std::string dir = test::scratch_dir("long-name");
+  const std::string name = std::string(248, 'n') + ".vox.h5", sibling = std::string(248, 'n') + ".vox.h6";
+  ASSERT_EQ(name.size(), 255u);
+  EXPECT_EQ(temporary_stem("short.vox.h5"), "short.vox.h5");
+  const std::string stem = temporary_stem(name);
+  EXPECT_LE(stem.size() + kPartialMarker.size() + 21, 255u);
+  EXPECT_EQ(stem.compare(0, 100, name, 0, 100), 0);  // the name's start is kept, to be recognised
+  EXPECT_NE(stem, temporary_stem(sibling));          // names that differ only at their end keep apart
+  EXPECT_EQ(stem, temporary_stem(name));
+  // A long name of two-byte characters is cut between characters, never inside one.
+  std::string accented = "a";  // then "é"s: each starts at an odd byte
+  while (accented.size() < 250) accented += "\xc3\xa9";
+  EXPECT_EQ(temporary_stem(accented).find('~') % 2, 1u);
+
+  ASSERT_TRUE(write_file_atomically(dir + "/" + name, std::string_view("bytes")));
+  ASSERT_TRUE(write_file_atomically(dir + "/" + sibling, std::string_view("other")));
+  std::ifstream written(dir + "/" + name);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(written), {}), "bytes");
+
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) ::_exit(0);
+  int status = 0;
+  ASSERT_EQ(::waitpid(child, &status, 0), child);
+  const std::string dead = dir + "/" + stem + std::string(kPartialMarker) + std::to_string(child) + "-0";
+  const std::string alive = dir + "/" + stem + std::string(kPartialMarker) + std::to_string(::getpid()) + "-0";
+  std::ofstream(dead) << "torn";
+  std::ofstream(alive) << "being written";
+  EXPECT_FALSE(dead_temporary_of(std::filesystem::directory_entry(dead), sibling));
+  EXPECT_EQ(remove_dead_temporaries(dir + "/" + name), 1u);
+  EXPECT_FALSE(std::filesystem::exists(dead));
+  EXPECT_TRUE(std::filesystem::exists(alive));
+}
+
 TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {
   // Printable UTF-8 passes as it is, a multi-byte letter and a four-byte sequence included.
   EXPECT_EQ(terminal_safe("b\xC3\xA4r \xF0\x9F\x90\x87 ok"), "b\xC3\xA4r \xF0\x9F\x90\x87 ok");

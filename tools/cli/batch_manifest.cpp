@@ -161,11 +161,12 @@ FileStamp stamp(const std::string& path) {
 size_t remove_stale_partials(const std::vector<std::string>& outputs) {
   // remove_dead_temporaries' rule (dead_temporary_of), one listing per folder instead of one per output, beside a
   // link's target (where a write lands): another batch's or build's live temporary on this machine is kept.
-  std::map<fs::path, std::set<std::string>> by_dir;
+  std::map<fs::path, std::map<std::string, std::string>> by_dir;  // folder: a temporary's stem -> the output's name
   for (const std::string& output : outputs) {
     const Result<std::string> target = output_target(output);
     const fs::path path = target ? fs::path(target.value()) : fs::path(output);
-    by_dir[path.parent_path()].insert(path.filename().string());
+    const std::string name = path.filename().string();
+    by_dir[path.parent_path()].emplace(temporary_stem(name), name);
   }
   size_t removed = 0;
   for (const auto& [dir, names] : by_dir) {
@@ -174,8 +175,8 @@ size_t remove_stale_partials(const std::vector<std::string>& outputs) {
       const std::string name = it->path().filename().string();
       const size_t mark = name.rfind(kPartialMarker);
       if (mark == std::string::npos) continue;
-      const std::string target = name.substr(0, mark);
-      if (!names.count(target) || !dead_temporary_of(*it, target)) continue;
+      const auto target = names.find(name.substr(0, mark));
+      if (target == names.end() || !dead_temporary_of(*it, target->second)) continue;
       std::error_code remove_error;
       removed += fs::remove(it->path(), remove_error);
     }

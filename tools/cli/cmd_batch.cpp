@@ -632,7 +632,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                   "(@FILE, or *.txt/*.lst/*.list: one path per line, relative to the list)")
       ->required();
   cmd->add_option("-o,--output", o->output_dir, "Output directory; OUTDIR/<path below the input root>.vox.h5 per mesh")
-      ->check(non_empty_path())
+      ->check(output_path())
       ->required();
   cmd->add_option("-j,--jobs", o->jobs, "Meshes baked at once (0 = one per core)")
       ->capture_default_str()
@@ -665,7 +665,7 @@ void add_batch_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("-q,--quiet", o->quiet, "No progress or per-mesh lines; only the summary");
   cmd->add_flag("--report", o->report, "Then write the library's HTML report into OUTDIR/report (`voxfmt report`)");
   cmd->add_option("--report-dir", o->report_dir, "The report's folder instead of OUTDIR/report (implies --report)")
-      ->check(non_empty_path())
+      ->check(output_path())
       ->each([o](const std::string&) { o->report = true; });
   cmd->footer(
       "\nExamples:\n"

@@ -57,7 +57,7 @@ void add_build_command(CLI::App& app, int& exit_code) {
   cmd->add_option("mesh", o->mesh, "Input mesh file (OBJ, PLY, STL, OFF, glTF/GLB, FBX, DAE, ...)")->required();
   cmd->add_option("-o,--output", o->output,
                   "Output asset file (.vox.h5); validated against the spec in memory, then written atomically")
-      ->check(non_empty_path())
+      ->check(output_path())
       ->required();
   add_bake_options(*cmd, o->bake);
   cmd->add_option_function<uint64_t>(

@@ -80,7 +80,7 @@ void add_export_command(CLI::App& app, int& exit_code) {
                   "Write two float32 NanoVDB grids (metres, the asset's frame): \"distance\", a level set whose "
                   "leaves are the asset's bricks near the surface (its voxels exact within the band), and "
                   "\"coarse\", one unsigned distance every 8 voxels for the far field (its sign is the level set's)")
-      ->check(non_empty_path())
+      ->check(output_path())
       ->required();
   cmd->add_option("--width", options->width,
                   "Half-width of the \"distance\" level set in voxels: values clamp to +-width (default: the band the "

@@ -171,7 +171,7 @@ void add_export_options(CLI::App* cmd, Options& options) {
   auto* png = cmd->add_option("--png", options.png,
                               "Write the --slice picture here (PNG: colour map inside red / outside blue, surface "
                               "contour, legend; (P*columns + 200) x (max(P*rows, 240) + 42) pixels)")
-                  ->check(non_empty_path());
+                  ->check(output_path());
   slice->needs(png);
   png->needs(slice);
   cmd->add_option("--field", options.field, "What the slice colours: layers (every voxel) or distances (the band)")
@@ -185,7 +185,7 @@ void add_export_options(CLI::App* cmd, Options& options) {
       ->needs(slice);
   auto* ply = cmd->add_option("--ply", options.ply,
                               "Write the point shell with normals as binary PLY (MeshLab, Blender, CloudCompare)")
-                  ->check(non_empty_path());
+                  ->check(output_path());
   cmd->add_option("--level", options.level, "With --ply: only tree levels 0..L (a coarser shell; default: all)")
       ->transform(whole_number())
       ->needs(ply);
@@ -193,11 +193,11 @@ void add_export_options(CLI::App* cmd, Options& options) {
   cmd->add_option("--vdb", options.vdb,
                   "Write the voxelmap as OpenVDB grids: \"distance\" (level set of the stored band, metres) and "
                   "\"layers\" (int32), for Houdini, Blender or vdb_view")
-      ->check(non_empty_path());
+      ->check(output_path());
   cmd->add_option("--html", options.html,
                   "Write the asset's report card (facts, validation, pictures, 3D view) as a folder with index.html "
                   "(the card `voxfmt report` shows)")
-      ->check(non_empty_path());
+      ->check(output_path());
 }
 
 // Each file output apart from the asset and from the others: none may replace the asset or another output.

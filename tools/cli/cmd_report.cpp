@@ -59,8 +59,7 @@ void add_report_command(CLI::App& app, int& exit_code) {
       "Write an HTML report of a baked library (a `voxfmt batch` output folder): summary, table, a card "
       "with pictures per asset, a 3D view; opens from the file system, no server");
   cmd->add_option("library", options->report.library, "Library folder (holding manifest.jsonl)")->required();
-  cmd->add_option("-o,--output", options->report.out, "Report folder (default: LIBRARY/report)")
-      ->check(non_empty_path());
+  cmd->add_option("-o,--output", options->report.out, "Report folder (default: LIBRARY/report)")->check(output_path());
   cmd->add_option("--manifest", options->report.manifest,
                   "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)")
       ->check(non_empty_path());

@@ -231,7 +231,7 @@ void add_upgrade_command(CLI::App& app, int& exit_code) {
   cmd->add_option("inputs", o->inputs, "Asset files, or folders searched for *.vox.h5")->required();
   cmd->add_option("-o,--output", o->output,
                   "Output file (one input file), or folder (several inputs, or a folder: relative paths are kept)")
-      ->check(non_empty_path())
+      ->check(output_path())
       ->required();
   cmd->add_flag("--force", o->force,
                 "Rewrite assets that are already of the current format too (never those of a newer minor version)");

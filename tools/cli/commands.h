@@ -61,6 +61,19 @@ inline CLI::Validator non_empty_path() {
       [](std::string& path) { return path.empty() ? std::string("an empty path names no file or folder") : ""; }, "");
 }
 
+/// An output's path: non-empty, and not "-", which other tools read as standard output but would here be a file
+/// named "-" (outputs are files or folders: an HDF5 asset, a NanoVDB file, a report are written and renamed into
+/// place). `./-` still names that file.
+inline CLI::Validator output_path() {
+  return CLI::Validator(
+      [](std::string& path) -> std::string {
+        if (path.empty()) return "an empty path names no file or folder";
+        if (path == "-") return "'-' (standard output) is not supported: outputs are written to a file (./- names one)";
+        return "";
+      },
+      "");
+}
+
 /// A number that must be finite and above 0 (`at_least_zero`: or 0): NaN and infinity are refused, and the message
 /// says so (CLI11's PositiveNumber names a range up to 1.8e308 that seems to hold 0).
 inline CLI::Validator finite_number(bool at_least_zero = false) {

@@ -378,10 +378,10 @@ bool replaceable(const fs::path& out) {
   return !ec;
 }
 
-// Leftovers of killed runs beside `out` (NAME.partial-PID, NAME.old-PID whose process is gone).
+// Leftovers of killed runs beside `out` (STEM.partial-PID, STEM.old-PID whose process is gone; temporary_stem).
 void remove_stale_leftovers(const fs::path& out) {
   std::error_code ec;
-  const std::string name = out.filename().string();
+  const std::string name = temporary_stem(out.filename().string());
   for (const auto& entry : fs::directory_iterator(out.parent_path(), ec)) {
     const std::string other = entry.path().filename().string();
     for (const std::string& marker : {name + std::string(kPartialMarker), name + ".old-"}) {
@@ -438,8 +438,9 @@ Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(
   fs::create_directories(parent, ec);
   remove_stale_leftovers(out);
   const std::string pid = std::to_string(::getpid());
-  const fs::path temporary = parent / (out.filename().string() + std::string(kPartialMarker) + pid);
-  const fs::path old = parent / (out.filename().string() + ".old-" + pid);
+  const std::string stem = temporary_stem(out.filename().string());
+  const fs::path temporary = parent / (stem + std::string(kPartialMarker) + pid);
+  const fs::path old = parent / (stem + ".old-" + pid);
   fs::remove_all(temporary, ec);
   if (!fs::create_directories(temporary / "img", ec) || !fs::create_directories(temporary / "assets", ec))
     return Error(IssueCode::WriteFailed, temporary.string() + ": cannot create the folder (" + ec.message() + ")",

@@ -15,15 +15,20 @@ namespace voxfmt {
 /// Marker of temporaries: `PATH.partial-<pid>-<n>`. Tools that clean up after killed runs look for it.
 inline constexpr std::string_view kPartialMarker = ".partial-";
 
-/// Removes the temporaries of `path` (regular files named exactly `PATH.partial-<pid>-<n>`, beside a link's
+/// What a temporary's name starts with, before the marker, for a target named `target_name` (a name, no folder):
+/// the name itself, or where the name and a temporary's longest suffix would pass the file system's 255 bytes,
+/// its first bytes, `~` and a hash of the whole name. A name that is legal is thus always writable.
+std::string temporary_stem(const std::string& target_name);
+
+/// Removes the temporaries of `path` (regular files named exactly `STEM.partial-<pid>-<n>`, beside a link's
 /// target) whose process is gone: what a write killed by a signal left. Returns how many. A command that writes
 /// one file calls it once; a write does not, nor does `build` (run once per mesh by `batch`, which sweeps its
 /// library itself: a scan of a folder of thousands of files per write would cost more than the write).
 size_t remove_dead_temporaries(const std::string& path);
 
 /// Whether `entry` is a temporary of the file named `target_name` (in the same folder) left by a process that has
-/// ended: a regular file (not a link) named exactly `target_name.partial-<pid>-<n>`, `pid` gone. Processes are
-/// those of this machine: a writer on another host sharing the folder cannot be told from a dead one.
+/// ended: a regular file (not a link) named exactly `STEM.partial-<pid>-<n>` (temporary_stem), `pid` gone. Processes
+/// are those of this machine: a writer on another host sharing the folder cannot be told from a dead one.
 bool dead_temporary_of(const std::filesystem::directory_entry& entry, const std::string& target_name);
 
 /// Whether `pid`, decimal digits as a temporary's name holds them (at most 9, > 0), names a process that has
