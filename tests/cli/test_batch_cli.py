@@ -449,6 +449,40 @@ class Batch(unittest.TestCase):
         r, summary = self.batch(mesh, expect=0)
         self.assertEqual(summary["built"], 1)
 
+    def test_a_bake_stopped_just_before_its_batch_is_not_a_failure(self):
+        # Ctrl-C or scancel signal the batch and its bakes; the bake may be first. Its death is not recorded as a
+        # crash (which the report would count): the batch stops, records nothing, and the next run bakes the mesh.
+        mesh = os.path.join(self.lib, "b/cube.off")
+        proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
+                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.time() + 30
+        children = []
+        while not children and time.time() < deadline:
+            children = self.children_of_this_test()
+            time.sleep(0.01)
+        self.assertTrue(children, "the bake child was not seen")
+        os.kill(children[0], signal.SIGTERM)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+        self.assertEqual(proc.returncode, 128 + signal.SIGTERM, err)
+        self.assertEqual([rec for rec in self.manifest() if rec.get("status") == "failed"], [], err)
+        self.assertEqual(self.assets(), [])
+        r, summary = self.batch(mesh, expect=0)
+        self.assertEqual((summary["built"], summary["failed"]), (1, 0))
+        # Stopped alone (the batch goes on), the bake is recorded as crashed, after the moment's wait.
+        os.remove(os.path.join(self.out, "cube.off.vox.h5"))
+        proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
+                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        children = []
+        while not children and time.time() < deadline + 30:
+            children = self.children_of_this_test()
+            time.sleep(0.01)
+        os.kill(children[0], signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+        self.assertEqual(proc.returncode, 1, err)
+        self.assertEqual(json.loads(out)["failures"][0]["code"], "CRASHED")
+
     def test_timeout_is_a_recorded_failure(self):
         r, summary = self.batch(os.path.join(self.lib, "b/cube.off"), "--timeout", "0.001", expect=1)
         self.assertEqual(summary["failures"][0]["code"], "TIMEOUT")

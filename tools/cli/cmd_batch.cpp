@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
+#include <iterator>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -104,6 +105,7 @@ class Runner {
   bake::Settings bake_settings();
   void announce(size_t stale_removed) const;
   bool bake_all(const bake::Settings& settings);
+  void record_finished(const std::vector<ChildResult>& finished);
   void record_bake(const ChildResult& child);
   void report(bool interrupted) const;
 
@@ -133,6 +135,11 @@ class Runner {
     std::vector<std::string> command;
   };
   std::map<size_t, Running> running_;
+  struct Stopped {
+    ChildResult child;
+    std::chrono::steady_clock::time_point until;  ///< recorded from then on, unless the batch is stopped
+  };
+  std::vector<Stopped> stopped_;  ///< bakes ended by a stop signal, held back (record_finished)
   size_t finished_ = 0;
   Counts counts_;
   std::vector<nlohmann::json> failures_;
@@ -447,6 +454,33 @@ void Runner::announce(size_t stale) const {
               << "\n";
 }
 
+// The stop signals caught (g_interrupted) as long as it lives, unless the caller ignores them (nohup); restored
+// after, so that a signal during --report does what it did before the batch.
+class StopSignals {
+ public:
+  static constexpr int kSignals[] = {SIGINT, SIGTERM, SIGHUP};
+  StopSignals() {
+    struct sigaction action {};
+    action.sa_handler = on_signal;
+    sigemptyset(&action.sa_mask);
+    for (size_t n = 0; n < std::size(kSignals); ++n) {
+      sigaction(kSignals[n], nullptr, &before_[n]);
+      if (before_[n].sa_handler != SIG_IGN) sigaction(kSignals[n], &action, nullptr);
+    }
+  }
+  ~StopSignals() {
+    for (size_t n = 0; n < std::size(kSignals); ++n) sigaction(kSignals[n], &before_[n], nullptr);
+  }
+  StopSignals(const StopSignals&) = delete;
+  StopSignals& operator=(const StopSignals&) = delete;
+  static bool is_one(int signal_number) {
+    return std::find(std::begin(kSignals), std::end(kSignals), signal_number) != std::end(kSignals);
+  }
+
+ private:
+  struct sigaction before_[std::size(kSignals)]{};
+};
+
 // Runs todo_ in jobs_ child processes, recording each as it ends. Returns whether a signal stopped the batch.
 bool Runner::bake_all(const bake::Settings& settings) {
   const std::vector<std::string> option_args = bake_option_args(settings);
@@ -454,21 +488,10 @@ bool Runner::bake_all(const bake::Settings& settings) {
   ChildLimits limits;
   limits.timeout_seconds = o_.timeout;
   limits.max_memory_bytes = o_.max_memory_mib * 1024 * 1024;
-
-  // The stop signals, as long as the bakes run, unless the caller ignores them (nohup); restored after.
-  constexpr int kStopSignals[] = {SIGINT, SIGTERM, SIGHUP};
-  struct sigaction action {
-  }, before[3];
-  action.sa_handler = on_signal;
-  sigemptyset(&action.sa_mask);
-  for (int n = 0; n < 3; ++n) {
-    sigaction(kStopSignals[n], nullptr, &before[n]);
-    if (before[n].sa_handler != SIG_IGN) sigaction(kStopSignals[n], &action, nullptr);
-  }
-
+  const StopSignals catching;
   ChildPool pool;
   std::error_code ec;
-  while ((next_ < todo_.size() || pool.running() > 0) && !g_interrupted) {
+  while ((next_ < todo_.size() || pool.running() > 0 || !stopped_.empty()) && !g_interrupted) {
     while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
       const BatchItem& item = todo_[next_].item;
       fs::create_directories(fs::path(item.output).parent_path(), ec);
@@ -480,23 +503,41 @@ bool Runner::bake_all(const bake::Settings& settings) {
       ++next_;
     }
     progress_->draw(snapshot());
-    for (const ChildResult& child : pool.poll(250)) {
-      // A bake killed by the signal that stops the batch (Slurm's scancel signals every process) is not the
-      // mesh's fault: not recorded, its temporary removed below, baked again by the next run.
-      if (!(g_interrupted && child.signal)) record_bake(child);
-    }
+    record_finished(pool.poll(250));
   }
   const bool interrupted = g_interrupted != 0;
   if (interrupted) {
     pool.kill_all();
-    std::vector<std::string> unfinished;
+    std::vector<std::string> unfinished;  // those stopped_ holds back included
     for (const auto& [id, r] : running_) unfinished.push_back(todo_[r.index].item.output);
     remove_stale_partials(unfinished);
   }
   progress_->clear();
-  // The bakes are over: a signal from here on (during --report) does what it did before the batch.
-  for (int n = 0; n < 3; ++n) sigaction(kStopSignals[n], &before[n], nullptr);
   return interrupted;
+}
+
+// A bake ended by a stop signal is held back a moment before it is recorded: the signal that stops the batch
+// (Ctrl-C to the terminal's process group, Slurm's scancel to every process of the step) may reach the bake first,
+// and such a bake is not the mesh's failure. Signalled alone, it is recorded (CRASHED) once the moment has passed.
+void Runner::record_finished(const std::vector<ChildResult>& finished) {
+  constexpr auto kStopGrace = std::chrono::seconds(1);
+  const auto now = std::chrono::steady_clock::now();
+  for (const ChildResult& child : finished) {
+    // Killed by the signal that stops the batch: not recorded, its temporary removed, baked again by the next run.
+    if (g_interrupted && child.signal) continue;
+    if (StopSignals::is_one(child.signal))
+      stopped_.push_back({child, now + kStopGrace});
+    else
+      record_bake(child);
+  }
+  for (auto it = stopped_.begin(); it != stopped_.end() && !g_interrupted;) {
+    if (it->until > now) {
+      ++it;
+      continue;
+    }
+    record_bake(it->child);
+    it = stopped_.erase(it);
+  }
 }
 
 // A finished bake's record in the manifest, its counts, failures and progress.
