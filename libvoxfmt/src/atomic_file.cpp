@@ -60,6 +60,12 @@ Status check_resolved_output(const std::string& given, const std::string& path) 
   const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
   if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
   if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
+  // Said before a long job, not by the write at its end.
+  const long name_max = ::pathconf(folder.c_str(), _PC_NAME_MAX);
+  const size_t name_bytes = fs::path(path).filename().string().size();
+  if (name_max > 0 && name_bytes > size_t(name_max))
+    return write_failed(given, "the file's name is " + std::to_string(name_bytes) + " bytes, more than the " +
+                                   std::to_string(name_max) + " its folder's file system allows");
   return Status::success();
 }
 

@@ -271,6 +271,9 @@ class BuildBadOutput(unittest.TestCase):
         with open(long_name, "rb") as f:
             self.assertEqual(f.read(8), b"\x89HDF\r\n\x1a\n")
         self.assertEqual(self.partials(self.dir.name), [])
+        # One byte more is refused before the bake, not by the write at its end.
+        too_long = os.path.join(self.dir.name, "a" * 249 + ".vox.h5")
+        self.expect_write_failed(self.build(too_long), "the file's name is 256 bytes, more than the 255")
 
     def test_empty_path_is_a_usage_error(self):
         r = self.build("")
