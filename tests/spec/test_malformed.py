@@ -200,6 +200,24 @@ class TestMalformed(MalformedBase):
         self.assertTrue(entries[self.good]["valid"])
         self.assertFalse(entries[bad]["valid"])
 
+    def test_max_issues_limits_the_list_never_the_verdict(self):
+        # A note first (an unknown object) and an error: listing one finding must still say INVALID, exit 1,
+        # and list the error.
+        bad = self.bad("note_then_error", values={"/mass_properties/volume": np.float64(-1)})
+        with h5py.File(bad, "a") as f:
+            f["aaa_notes"] = np.arange(3)
+        for args in (["--json"], []):
+            proc = ss.run([ss.VOXFMT_BIN, "validate", bad, "--max-issues", "1", *args])
+            self.assert_not_crashed(proc)
+            self.assertEqual(proc.returncode, 1, describe(proc))
+            self.assertIn("VALUE_OUT_OF_RANGE", proc.stdout, describe(proc))
+        proc = ss.run([ss.VOXFMT_BIN, "validate", bad, "--max-issues", "1", "--json"])
+        entry = ss.check_validate_json(self, proc, [bad])[bad]
+        self.assertFalse(entry["valid"])
+        self.assertEqual(len(entry["issues"]), 1)
+        self.assertGreaterEqual(entry["issues_found"], 2)
+        self.assertIn("INVALID", ss.run([ss.VOXFMT_BIN, "validate", bad, "--max-issues", "1"]).stdout)
+
 
 @ss.requires_bin
 class TestMalformedMore(MalformedBase):

@@ -17,8 +17,8 @@ struct Options {
   size_t max_issues = 100;
   ReadOptions read;
 };
-// One file's findings as a person reads them.
-void print_findings(const std::string& file, const std::vector<Issue>& issues, size_t found) {
+// One file's findings as a person reads them: the verdict and counts of all, the first `shown` of them listed.
+void print_findings(const std::string& file, const std::vector<Issue>& issues, size_t shown) {
   bool unreadable = false, over_budget = false;
   size_t errors = 0, warnings = 0;
   for (const Issue& issue : issues) {
@@ -33,8 +33,8 @@ void print_findings(const std::string& file, const std::vector<Issue>& issues, s
                 : over_budget       ? "NOT JUDGED (over the read budget: --max-memory)"
                                     : "INVALID")
             << " (" << errors << " error(s), " << warnings << " warning(s))\n";
-  if (found > issues.size()) std::cout << "  (showing " << issues.size() << " of " << found << " findings)\n";
-  for (const Issue& issue : issues)
+  if (issues.size() > shown) std::cout << "  (showing " << shown << " of " << issues.size() << " findings)\n";
+  for (const Issue& issue : std::vector<Issue>(issues.begin(), issues.begin() + std::min(shown, issues.size())))
     std::cout << "  " << severity_name(issue.severity) << " " << code_name(issue.code) << " "
               << terminal_safe(issue.path) << ": " << terminal_safe(issue.message) << "\n";
 }
@@ -46,18 +46,23 @@ int run(const Options& options) {
     ReadOptions read = options.read;
     read.level = options.level == "full" ? ValidationLevel::Full : ValidationLevel::Quick;
     std::vector<Issue> issues = validate_file(file, read);
-    const size_t found = issues.size();
-    if (issues.size() > options.max_issues) issues.resize(options.max_issues);
+    // The verdict and the exit status are the whole file's; --max-issues only limits what is listed, errors first.
     for (const Issue& issue : issues)
       if (issue.severity == Severity::Error) {
         worst = std::max(worst, exit_status(issue.code));
         break;
       }
+    if (issues.size() > options.max_issues)
+      std::stable_partition(issues.begin(), issues.end(),
+                            [](const Issue& issue) { return issue.severity == Severity::Error; });
+    const size_t shown = std::min(options.max_issues, issues.size());
     if (options.json)
-      report["files"].push_back(
-          {{"file", file}, {"valid", !has_errors(issues)}, {"issues", issues_json(issues)}, {"issues_found", found}});
+      report["files"].push_back({{"file", file},
+                                 {"valid", !has_errors(issues)},
+                                 {"issues", issues_json({issues.begin(), issues.begin() + shown})},
+                                 {"issues_found", issues.size()}});
     else
-      print_findings(file, issues, found);
+      print_findings(file, issues, shown);
   }
   if (options.json) std::cout << to_text(report) << "\n";
   return worst;
@@ -75,7 +80,8 @@ void add_validate_command(CLI::App& app, int& exit_code) {
                   "quick: structure, types, shapes, ranges, tree; full: also the semantic rules")
       ->capture_default_str()
       ->check(CLI::IsMember({"quick", "full"}));
-  cmd->add_option("--max-issues", options->max_issues, "Report at most this many findings per file")
+  cmd->add_option("--max-issues", options->max_issues, "List at most this many findings per file, errors first (the verdict and the exit status are "
+                  "every finding's)")
       ->capture_default_str()
       ->transform(whole_number())
       ->check(finite_number());
