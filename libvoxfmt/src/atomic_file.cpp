@@ -198,6 +198,12 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
     Status check = steps.before_commit();
     if (!check) return fail(check);
   }
+  // A replaced file keeps its permissions (a private asset stays private); a new one gets the umask's.
+  struct stat replaced {};
+  if (::stat(path.c_str(), &replaced) == 0 && S_ISREG(replaced.st_mode) &&
+      ::chmod(temp.c_str(), replaced.st_mode & 07777) != 0)
+    return fail(
+        write_failed(path, std::string("cannot keep the replaced file's permissions: ") + std::strerror(errno)));
   if (std::rename(temp.c_str(), path.c_str()) != 0)
     return fail(
         write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno)));

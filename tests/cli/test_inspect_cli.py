@@ -186,6 +186,45 @@ class InspectExports(unittest.TestCase):
         with open(out, "rb") as f:
             self.assertEqual(f.read(4), b" BDV", "OpenVDB's magic number 0x56444220, little-endian")
 
+    def test_a_vdb_cut_short_by_a_file_size_limit_is_write_failed_and_no_file(self):
+        import resource
+        out = os.path.join(self.dir, "limited.vdb")
+
+        def limit_file_size():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+        r = subprocess.run([VOXFMT, "inspect", self.asset, "--vdb", out], capture_output=True, text=True, timeout=60,
+                           preexec_fn=limit_file_size)
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertIn("WRITE_FAILED", r.stderr)
+        self.assertEqual([n for n in os.listdir(self.dir) if n.startswith("limited.vdb")], [])
+
+    def test_the_card_goes_with_the_other_outputs_and_json(self):
+        card, ply = os.path.join(self.dir, "card"), os.path.join(self.dir, "with-card.ply")
+        r = self.inspect("--html", card, "--ply", ply, "--json")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        exports = json.loads(r.stdout)["exports"]
+        self.assertEqual([e["kind"] for e in exports], ["html", "point_shell"])
+        self.assertEqual(exports[0]["file"], os.path.join(card, "index.html"))
+        self.assertEqual(exports[0]["bytes"] > 0, True)
+        self.assertTrue(os.path.isfile(ply) and os.path.isfile(os.path.join(card, "index.html")))
+        # What a killed inspect left beside an output (a dead process's temporary) goes with the next write.
+        ended = subprocess.Popen(["true"])
+        ended.wait()
+        left = ply + ".partial-%d-0" % ended.pid
+        with open(left, "w") as f:
+            f.write("torn")
+        self.assertEqual(self.inspect("--ply", ply).returncode, 0)
+        self.assertFalse(os.path.exists(left))
+
+    def test_output_that_cannot_reach_stdout_is_a_failure(self):
+        # `--json > report.json` on a full disk: exit 2 and a message, never exit 0 with an empty report.
+        for command in (["inspect", self.asset, "--json"], ["validate", self.asset, "--json"]):
+            with open("/dev/full", "w") as full:
+                r = subprocess.run([VOXFMT, *command], stdout=full, stderr=subprocess.PIPE, text=True, timeout=60)
+            self.assertEqual(r.returncode, 2, r.stderr)
+            self.assertIn("WRITE_FAILED: standard output", r.stderr)
+
     def test_slice_png_size_colours_and_contour(self):
         W, H, D = self.dims
         for axis, index, cols, rows in (("z", D // 3, W, H), ("y", H // 3, W, D), ("x", W // 3, H, D)):

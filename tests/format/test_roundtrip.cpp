@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -286,6 +287,18 @@ TEST(Files, ANameAsLongAsTheFileSystemAllowsIsWrittenAndItsDeadTemporariesFound)
   EXPECT_EQ(remove_dead_temporaries(dir + "/" + name), 1u);
   EXPECT_FALSE(std::filesystem::exists(dead));
   EXPECT_TRUE(std::filesystem::exists(alive));
+}
+
+TEST(Files, AReplacedFileKeepsItsPermissions) {
+  const std::string file = test::scratch_dir("permissions") + "/private.vox.h5";
+  ASSERT_TRUE(write_file_atomically(file, std::string_view("first")));
+  ASSERT_EQ(::chmod(file.c_str(), 0600), 0);
+  ASSERT_TRUE(write_file_atomically(file, std::string_view("second")));
+  struct stat info {};
+  ASSERT_EQ(::stat(file.c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 07777, 0600u);
+  std::ifstream written(file);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(written), {}), "second");
 }
 
 TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {

@@ -1396,6 +1396,41 @@ class TestLegacyUpgrade(unittest.TestCase):
         self.assertEqual(proc.returncode, 0, describe(proc))
         self.assertTrue(os.path.isfile(os.path.join(root, "fresh", "a.vox.h5")))
 
+    def test_upgrade_refuses_an_output_that_is_another_input_and_a_folder_of_no_assets(self):
+        """An output that another item reads (read later, in order) would be replaced before it is read: refused,
+        as JSON too; a folder holding no asset is an error, not '0 upgraded'; a 1.x file of a newer minor is never
+        rewritten; assets named in upper case are found."""
+        root = os.path.join(self.tmp, "clash")
+        for folder in ("aa/sub", "out/sub", "empty"):
+            os.makedirs(os.path.join(root, folder))
+        sf.write_legacy_fixture_h5py(os.path.join(root, "aa", "sub", "x.vox.h5"))
+        kept = sf.write_fixture_h5py(os.path.join(root, "out", "sub", "x.vox.h5"), format_version=[2, 1])
+        with open(kept, "rb") as f:
+            before = f.read()
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "aa"), os.path.join(root, "out", "sub"), "-o",
+                       os.path.join(root, "out"), "--json"])
+        self.assertEqual(proc.returncode, 2, describe(proc))
+        error = ss.parse_json_stdout(self, proc)
+        self.assertEqual((error["status"], error["code"]), ("error", "BAD_OPTION"), describe(proc))
+        self.assertIn("it would be replaced before it is read", error["message"])
+        with open(kept, "rb") as f:
+            self.assertEqual(f.read(), before, "an input was replaced")
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "empty"), "-o", os.path.join(root, "o2")])
+        self.assertEqual(proc.returncode, 2, describe(proc))
+        self.assertIn("holds no asset", proc.stderr)
+        newer = sf.write_legacy_fixture_h5py(os.path.join(root, "empty", "NEWER.VOX.H5"))
+        with h5py.File(newer, "r+") as f:
+            f.attrs["format_version"] = np.array([1, 2], dtype=f.attrs["format_version"].dtype)
+            f["x_future"] = np.arange(3)
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "empty"), "-o", os.path.join(root, "o3"),
+                       "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+        entry = ss.parse_json_stdout(self, proc)["files"][0]
+        self.assertEqual(entry["status"], "newer", describe(proc))
+        self.assertIn("VERSION_NEWER_MINOR", [w["code"] for w in entry["warnings"]])
+        with open(newer, "rb") as a, open(os.path.join(root, "o3", "NEWER.VOX.H5"), "rb") as b:
+            self.assertEqual(a.read(), b.read(), "a newer file was not copied unchanged")
+
 
 if __name__ == "__main__":
     unittest.main()

@@ -150,6 +150,9 @@ void print_export(const nlohmann::json& e) {
               << e["axis"].get<std::string>() << " = " << e["index"] << ", " << e["columns"] << " x " << e["rows"]
               << " voxels at " << e["zoom"] << " px, " << e["width"] << " x " << e["height"] << " px"
               << (e["surface_in_slice"].get<bool>() ? "" : " (the surface does not cross this slice)") << "\n";
+  else if (e["kind"] == "html")
+    std::cout << e["file"].get<std::string>() << ": the asset's report card (" << std::fixed << std::setprecision(1)
+              << double(e["bytes"].get<uint64_t>()) / (1 << 20) << " MB folder)\n";
   else if (e["kind"] == "vdb")
     std::cout << e["file"].get<std::string>() << ": OpenVDB grids \"distance\" (" << e["distance_voxels"]
               << " band voxels) and \"layers\" (" << e["layer_voxels"] << " voxels)\n";
@@ -222,12 +225,18 @@ Status check_outputs(const Options& options) {
 int run(const Options& options) {
   if (Status usable = check_outputs(options); !usable)
     return report_error("inspect", usable.error(), options.json, options.file);
+  for (const std::string* output : {&options.png, &options.ply, &options.vdb})
+    if (!output->empty()) remove_dead_temporaries(*output);  // what a killed inspect left beside it
+  nlohmann::json card;  // the report card's entry among the exports, where --html asks for one
   if (!options.html.empty()) {
     const Result<report::ReportInfo> info = report::write_asset_report(options.file, options.html, options.read);
     if (!info) return report_error("inspect", info.error(), options.json, options.file);
-    std::cout << info->index_html << ": the asset's report card (" << std::fixed << std::setprecision(1)
-              << double(info->bytes) / (1 << 20) << " MB folder)\n";
-    return kExitOk;
+    card = {{"file", info->index_html}, {"kind", "html"}, {"bytes", info->bytes}};
+    const bool more = !options.png.empty() || !options.ply.empty() || !options.vdb.empty();
+    if (!options.json && !more) {
+      print_export(card);
+      return kExitOk;
+    }
   }
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(options.file, &warnings, options.read);
@@ -236,7 +245,8 @@ int run(const Options& options) {
   if (!written)
     return report_error("inspect", written.error(), options.json,
                         options.file);  // a slice or level outside, an unwritable file
-  const nlohmann::json& exports = written.value();
+  nlohmann::json& exports = written.value();
+  if (!card.is_null()) exports.insert(exports.begin(), card);
   if (!exports.empty() && !options.json) {
     for (const nlohmann::json& e : exports) print_export(e);
     return kExitOk;

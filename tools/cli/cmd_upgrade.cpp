@@ -4,11 +4,14 @@
 // its target atomically.
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
 #include <map>
 
+#include "batch_manifest.h"
 #include "commands.h"
 #include "json_report.h"
 #include "voxfmt/detail/atomic_file.h"
@@ -33,9 +36,13 @@ struct Item {
   std::string input, output;
 };
 
+// *.vox.h5, in any case (a library copied from a case-insensitive file system may hold BUNNY.VOX.H5).
 bool is_asset_name(const fs::path& p) {
   const std::string name = p.filename().string();
-  return name.size() > 7 && name.compare(name.size() - 7, 7, ".vox.h5") == 0;
+  if (name.size() <= 7) return false;
+  std::string suffix = name.substr(name.size() - 7);
+  for (char& c : suffix) c = char(std::tolower(static_cast<unsigned char>(c)));
+  return suffix == ".vox.h5";
 }
 
 // Where a path lies, as the plan compares them: a folder as what it is (an alias of OUT is OUT), a file by its
@@ -60,6 +67,7 @@ Result<std::vector<Item>> plan(const Options& o) {
   if (single_file) return std::vector<Item>{{o.inputs[0], o.output}};
   const fs::path output_folder = place(o.output);
   for (const std::string& input : o.inputs) {
+    const size_t found_before = items.size();
     if (fs::is_directory(input, ec)) {
       for (auto it = fs::recursive_directory_iterator(input, ec); !ec && it != fs::recursive_directory_iterator();
            it.increment(ec)) {
@@ -73,6 +81,8 @@ Result<std::vector<Item>> plan(const Options& o) {
           items.push_back({it->path().string(), (fs::path(o.output) / it->path().lexically_relative(input)).string()});
       }
       if (ec) return Error{IssueCode::FileNotFound, input + ": cannot list the folder: " + ec.message(), input};
+      if (items.size() == found_before)
+        return Error{IssueCode::FileNotFound, input + ": the folder holds no asset (*.vox.h5) to upgrade", input};
     } else if (fs::is_regular_file(input, ec)) {
       items.push_back({input, (fs::path(o.output) / fs::path(input).filename()).string()});
     } else {
@@ -81,9 +91,17 @@ Result<std::vector<Item>> plan(const Options& o) {
     }
   }
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
-  std::map<fs::path, const Item*> by_output;
+  std::map<fs::path, const Item*> by_output, by_input;
+  for (const Item& item : items) by_input.emplace(place(item.input), &item);
   std::vector<Item> unique;
   for (const Item& item : items) {
+    // Items run one after another: an output that is another item's input would replace it before it is read.
+    const auto input = by_input.find(place(item.output));
+    if (input != by_input.end() && !fs::equivalent(input->second->input, item.input, ec))
+      return Error{IssueCode::BadOption,
+                   item.output + " (the upgrade of " + item.input + ") is also an input: it would be replaced " +
+                       "before it is read (upgrade into another folder)",
+                   item.output};
     const auto [it, added] = by_output.emplace(place(item.output), &item);
     if (!added && fs::equivalent(it->second->input, item.input, ec)) continue;  // one file named twice: once
     if (!added)
@@ -156,7 +174,18 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
   Result<Asset> asset = read_asset(item.input, &warnings, o.read);
   Status written = Status::success();
   const FormatVersion from = asset ? asset.value().version : FormatVersion{};
-  const bool newer = from.major == kFormatVersion.major && from.minor > kFormatVersion.minor;
+  // Newer than this voxfmt knows (a 2.x or a 1.x minor): the reader says so, and ignores what it does not know.
+  const bool newer = std::any_of(warnings.begin(), warnings.end(),
+                                 [](const Issue& issue) { return issue.code == IssueCode::VersionNewerMinor; });
+  if (asset && !warnings.empty()) {
+    entry["warnings"] = issues_json(warnings);
+    if (!o.json && !o.quiet)
+      for (const Issue& issue : warnings)
+        if (issue.severity != Severity::Info)
+          std::cerr << (progress ? "\r\033[K" : "") << "voxfmt upgrade: " << terminal_safe(item.input) << ": "
+                    << severity_name(issue.severity) << ": " << code_name(issue.code) << ": "
+                    << terminal_safe(issue.message) << "\n";
+  }
   if (asset && (newer || (from.major == kFormatVersion.major && from.minor == kFormatVersion.minor && !o.force))) {
     written = copy_unchanged(item);
     if (written) {
@@ -195,8 +224,14 @@ nlohmann::json upgrade_one(const Options& o, const Item& item, bool progress, Ta
 
 int run(const Options& o) {
   const Result<std::vector<Item>> planned = plan(o);
-  if (!planned) return report_error("upgrade", planned.error());
+  if (!planned) return report_error("upgrade", planned.error(), o.json, o.inputs.empty() ? "" : o.inputs[0]);
   const std::vector<Item>& items = planned.value();
+  {
+    // What killed upgrades left beside these outputs (a dead process's NAME.partial-PID-N), once per folder.
+    std::vector<std::string> outputs;
+    for (const Item& item : items) outputs.push_back(item.output);
+    remove_stale_partials(outputs);
+  }
   const bool progress = !o.quiet && !o.json && isatty(STDERR_FILENO) && items.size() > 1;
   nlohmann::json report = {{"files", nlohmann::json::array()}};
   Tally tally;

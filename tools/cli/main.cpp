@@ -1,6 +1,7 @@
 // voxfmt: the one command-line front end of the toolchain.
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <csignal>
 #include <exception>
 #include <iostream>
@@ -85,5 +86,11 @@ int main(int argc, char** argv) {
     return voxfmt::cli::report_error(command_name(app),
                                      {voxfmt::IssueCode::Internal, std::string("unexpected error: ") + e.what()});
   }
+  // What was printed must have reached stdout: `--json > report.json` on a full disk is a failure, not an empty
+  // report and exit 0.
+  if (!std::cout.flush())
+    return std::max(exit_code,
+                    voxfmt::cli::report_error(command_name(app), {voxfmt::IssueCode::WriteFailed,
+                                                                  "standard output: cannot write what was printed"}));
   return exit_code;
 }

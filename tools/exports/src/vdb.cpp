@@ -2,10 +2,14 @@
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/exports/exports.h"
 
+#include <openvdb/io/Stream.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/SignedFloodFill.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
 #include <vector>
 
 namespace voxfmt::exports {
@@ -74,13 +78,17 @@ Result<VdbInfo> write_voxelmap_vdb(const Asset& asset, const std::string& path) 
   }
   AtomicWrite steps;
   steps.write = [&](const std::string& temp) -> Status {
+    // Through a stream we own: openvdb::io::File does not report a write its ofstream failed (a full disk, a
+    // file-size limit), and a cut-short file would pass for a written one.
+    std::ofstream out(temp, std::ios::binary);
     try {
-      openvdb::io::File file(temp);
-      file.write(grids);
-      file.close();
+      openvdb::io::Stream(out).write(grids);
     } catch (const std::exception& e) {
       return Error{IssueCode::WriteFailed, path + ": cannot write the VDB file (" + e.what() + ")", path};
     }
+    out.close();
+    if (!out)
+      return Error{IssueCode::WriteFailed, path + ": cannot write the VDB file (" + std::strerror(errno) + ")", path};
     return Status::success();
   };
   const Status written = write_file_atomically(path, steps);
