@@ -80,7 +80,8 @@ void add_validate_command(CLI::App& app, int& exit_code) {
                   "quick: structure, types, shapes, ranges, tree; full: also the semantic rules")
       ->capture_default_str()
       ->check(CLI::IsMember({"quick", "full"}));
-  cmd->add_option("--max-issues", options->max_issues, "List at most this many findings per file, errors first (the verdict and the exit status are "
+  cmd->add_option("--max-issues", options->max_issues,
+                  "List at most this many findings per file, errors first (the verdict and the exit status are "
                   "every finding's)")
       ->capture_default_str()
       ->transform(whole_number())
