@@ -96,14 +96,55 @@ nb::ndarray<nb::numpy, T> vector_array(const Eigen::Matrix<T, 3, 1>& v) {
   return out.array;
 }
 
-/// A str or os.PathLike as a file name; anything else is BAD_OPTION naming `what`.
+/// A str, bytes or os.PathLike as a file name, as open() takes it: its bytes by os.fsencode (a name that is not
+/// UTF-8 included). Anything else, or a name holding a NUL byte (which would name another file), is BAD_OPTION.
 std::string path_arg(nb::handle value, const char* what) {
+  std::string path;
   try {
     nb::module_ os = nb::module_::import_("os");
-    return nb::cast<std::string>(os.attr("fsdecode")(os.attr("fspath")(value)));
+    const nb::bytes bytes = nb::cast<nb::bytes>(os.attr("fsencode")(os.attr("fspath")(value)));
+    path.assign(bytes.c_str(), bytes.size());
   } catch (const nb::python_error&) {
-    fail(IssueCode::BadOption, std::string(what) + ": expected a path (str or os.PathLike)");
+    fail(IssueCode::BadOption, std::string(what) + ": expected a path (str, bytes or os.PathLike)");
+  } catch (const nb::cast_error&) {
+    fail(IssueCode::BadOption, std::string(what) + ": expected a path (str, bytes or os.PathLike)");
   }
+  if (path.find('\0') != std::string::npos) fail(IssueCode::BadOption, std::string(what) + ": embedded null byte");
+  return path;
+}
+
+/// Text that may hold a file's name, as os.fsdecode gives it: a name that is not UTF-8 keeps its bytes (as
+/// surrogates), where nanobind's strict UTF-8 would fail the call.
+nb::str fs_text(const std::string& text) {
+  PyObject* decoded = PyUnicode_DecodeFSDefaultAndSize(text.data(), Py_ssize_t(text.size()));
+  if (!decoded) throw nb::python_error();
+  return nb::steal<nb::str>(decoded);
+}
+
+/// One of the package's option rules (voxfmt/batch.py: _real, _whole), so that a compiled function judges a number
+/// as the Python ones do: never a bool, an int beyond int64 an OptionError, not nanobind's TypeError.
+nb::object package_rule(const char* name) {
+  static nb::object* batch = new nb::object(nb::module_::import_("voxfmt.batch"));  // kept to the end: no teardown
+  return batch->attr(name);
+}
+
+/// A number option (int or float, NumPy's too); a plain float at once.
+double real_arg(nb::handle value, const char* name) {
+  if (PyFloat_CheckExact(value.ptr())) return PyFloat_AS_DOUBLE(value.ptr());
+  return nb::cast<double>(package_rule("_real")(name, value));
+}
+
+/// An integer option, or None; its range is the caller's to check.
+std::optional<int64_t> optional_int_arg(nb::handle value, const char* name) {
+  if (value.is_none()) return std::nullopt;
+  return nb::cast<int64_t>(
+      package_rule("_whole")(name, value, std::numeric_limits<int64_t>::min(), std::numeric_limits<int64_t>::max()));
+}
+
+/// A number option, or None.
+std::optional<double> optional_real_arg(nb::handle value, const char* name) {
+  if (value.is_none()) return std::nullopt;
+  return real_arg(value, name);
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -250,13 +291,14 @@ double deepest_depth(const ContactSet& set) {
   return deepest;
 }
 
-Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, std::optional<int64_t> point_budget,
-               std::optional<double> time_budget_us, double proximity, std::optional<int64_t> max_level,
-               const std::string& cut_level, const std::string& interpolation) {
+Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_b, nb::handle point_budget,
+               nb::handle time_budget_us, nb::handle proximity, nb::handle max_level, const std::string& cut_level,
+               const std::string& interpolation) {
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
-  const QueryOptions options =
-      query_options(point_budget, time_budget_us, proximity, Cut{max_level, cut_level}, interpolation);
+  const QueryOptions options = query_options(
+      optional_int_arg(point_budget, "point_budget"), optional_real_arg(time_budget_us, "time_budget_us"),
+      real_arg(proximity, "proximity"), Cut{optional_int_arg(max_level, "max_level"), cut_level}, interpolation);
   // The traversal fills a per-thread set that keeps its capacity; the result gets one allocation of the exact
   // size (a fresh vector grown contact by contact cost more than the copy).
   thread_local runtime::QueryScratch scratch;
@@ -270,11 +312,12 @@ Contacts query(const Body& a, nb::handle pose_a, const Body& b, nb::handle pose_
   return out;
 }
 
-Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, double proximity,
+Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, nb::handle proximity,
                        const std::string& interpolation) {
   const Pose pa = parse_pose(pose_a, "pose_a");
   const Pose pb = parse_pose(pose_b, "pose_b");
-  const QueryOptions options = query_options(std::nullopt, std::nullopt, proximity, {}, interpolation);
+  const QueryOptions options =
+      query_options(std::nullopt, std::nullopt, real_arg(proximity, "proximity"), {}, interpolation);
   const std::unique_lock<std::mutex> lock = tracker.claim();
   tracker.work.clear();
   runtime::query_contacts(*tracker.a.object, pa, *tracker.b.object, pb, options, tracker.work, tracker.scratch,
@@ -287,8 +330,9 @@ Contacts tracked_query(Tracker& tracker, nb::handle pose_a, nb::handle pose_b, d
 }
 
 std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, double>> wrench(const Contacts& contacts,
-                                                                                  double stiffness,
+                                                                                  nb::handle stiffness_object,
                                                                                   std::optional<nb::handle> reference) {
+  const double stiffness = real_arg(stiffness_object, "stiffness");
   if (!(std::isfinite(stiffness) && stiffness >= 0)) fail(IssueCode::BadOption, "stiffness must be finite and >= 0");
   Eigen::Vector3d ref = contacts.reference;
   if (reference && !reference->is_none()) {
@@ -494,7 +538,8 @@ struct ProgressBridge {
   }
 };
 
-std::string bake(const std::string& mesh, const std::string& output, const bake::Settings& s, nb::object progress) {
+std::string bake(nb::handle mesh_object, nb::handle output_object, const bake::Settings& s, nb::object progress) {
+  const std::string mesh = path_arg(mesh_object, "mesh_path"), output = path_arg(output_object, "out_path");
   ProgressBridge bridge{progress, std::nullopt};
   bake::ProgressCallback callback;
   if (!progress.is_none()) callback = [&bridge](std::string_view stage, double f) { bridge(stage, f); };
@@ -530,21 +575,23 @@ ReadOptions read_options(bool full, const std::optional<int64_t>& max_memory_mib
   return options;
 }
 
-std::vector<std::tuple<std::string, std::string, std::string, std::string>> validate(
-    const std::string& path, bool full, const std::optional<int64_t>& max_memory_mib) {
-  const ReadOptions options = read_options(full, max_memory_mib);
+nb::list validate(nb::handle path_object, bool full, nb::handle max_memory_mib) {
+  const std::string path = path_arg(path_object, "path");
+  const ReadOptions options = read_options(full, optional_int_arg(max_memory_mib, "max_memory_mib"));
   std::vector<Issue> issues;
   {
     nb::gil_scoped_release release;
     issues = validate_file(path, options);
   }
-  std::vector<std::tuple<std::string, std::string, std::string, std::string>> out;
-  for (const Issue& i : issues) out.emplace_back(code_name(i.code), severity_name(i.severity), i.message, i.path);
+  nb::list out;
+  for (const Issue& i : issues)
+    out.append(nb::make_tuple(code_name(i.code), severity_name(i.severity), fs_text(i.message), fs_text(i.path)));
   return out;
 }
 
-std::string inspect(const std::string& path, const std::optional<int64_t>& max_memory_mib) {
-  const ReadOptions options = read_options(true, max_memory_mib);
+std::string inspect(nb::handle path_object, nb::handle max_memory_mib) {
+  const std::string path = path_arg(path_object, "path");
+  const ReadOptions options = read_options(true, optional_int_arg(max_memory_mib, "max_memory_mib"));
   std::vector<Issue> warnings;
   std::optional<Result<Asset>> asset;
   {
@@ -577,11 +624,12 @@ std::tuple<nb::ndarray<nb::numpy, double>, nb::ndarray<nb::numpy, uint32_t>> rea
   return {vertices.array, triangles.array};
 }
 
-Body load(nb::handle path_object, double density, const std::optional<int64_t>& max_memory_mib) {
+Body load(nb::handle path_object, nb::handle density_object, nb::handle max_memory_mib) {
   const std::string path = path_arg(path_object, "path");
+  const double density = real_arg(density_object, "density");
   if (!(std::isfinite(density) && density > 0)) fail(IssueCode::BadOption, "density must be a finite number > 0");
   runtime::LoadOptions options;
-  options.read = read_options(true, max_memory_mib);
+  options.read = read_options(true, optional_int_arg(max_memory_mib, "max_memory_mib"));
   std::optional<Result<std::shared_ptr<const CollisionObject>>> object;
   {
     nb::gil_scoped_release release;
@@ -634,7 +682,8 @@ double time_query(const Body& a, nb::handle pose_a, const Body& b, nb::handle po
 // unchecked Result's too (BadResultAccess carries its error), so no binding can raise a bare RuntimeError for one.
 void raise_coded(const voxfmt::Error& error) {
   nb::object exc = nb::module_::import_("voxfmt._errors")
-                       .attr("make_error")(voxfmt::code_name(error.code), error.message, error.file, error.object);
+                       .attr("make_error")(voxfmt::code_name(error.code), fs_text(error.message), fs_text(error.file),
+                                           fs_text(error.object));
   PyErr_SetObject(reinterpret_cast<PyObject*>(Py_TYPE(exc.ptr())), exc.ptr());
 }
 
@@ -722,7 +771,7 @@ void bind_body(nb::module_& m) {
           },
           "(min (3,), max (3,)) bounding box in the asset frame, metres.", nb::rv_policy::automatic)
       .def_prop_ro(
-          "path", [](const Body& b) { return b.path; }, "The file it was loaded from.")
+          "path", [](const Body& b) { return fs_text(b.path); }, "The file it was loaded from.")
       .def_prop_ro(
           "build_parameters", [](const Body& b) { return b.object->provenance().build_parameters_json; },
           "The bake's options that shaped the data, as the asset records them (a JSON object, text).")
@@ -750,8 +799,8 @@ void bind_body(nb::module_& m) {
            "at its nearest point, and at least the distance to the bounding box.")
       .def("__repr__", [](const Body& b) {
         const auto& d = b.object->voxelmap().dims();
-        return "<voxfmt.Body '" + b.path + "': " + std::to_string(b.object->point_tree().size()) + " points, " +
-               std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) + " voxels>";
+        return fs_text("<voxfmt.Body '" + b.path + "': " + std::to_string(b.object->point_tree().size()) + " points, " +
+                       std::to_string(d[0]) + "x" + std::to_string(d[1]) + "x" + std::to_string(d[2]) + " voxels>");
       });
 }
 
@@ -830,16 +879,16 @@ void bind_contacts(nb::module_& m) {
 
 // load, contacts, wrench, contacts_batch and the Tracker of a pair.
 void bind_queries(nb::module_& m) {
-  m.def("load", &load, "path"_a.none(), nb::kw_only(), "density"_a = 1.0, "max_memory_mib"_a = nb::none(),
+  m.def("load", &load, "path"_a.none(), nb::kw_only(), "density"_a = 1.0, "max_memory_mib"_a.none() = nb::none(),
         nb::sig("def load(path: str | os.PathLike[str], *, density: float = 1.0, max_memory_mib: int | None = None) "
                 "-> Body"),
         "Loads an asset (.vox.h5) for queries. Raises voxfmt.AssetError (FILE_NOT_FOUND, NOT_HDF5, a validation\n"
         "code, ...) when it cannot be read or breaks a rule of the format (every rule of validate(level='full')),\n"
         "voxfmt.InternalError (OUT_OF_MEMORY) when reading it would need more than max_memory_mib (default 768),\n"
         "decided from the file's metadata before anything is read.");
-  m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a = nb::none(),
-        "time_budget_us"_a = nb::none(), "proximity"_a = 0.0, "max_level"_a = nb::none(), "cut_level"_a = "spheres",
-        "interpolation"_a = "trilinear",
+  m.def("contacts", &query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, nb::kw_only(), "point_budget"_a.none() = nb::none(),
+        "time_budget_us"_a.none() = nb::none(), "proximity"_a = 0.0, "max_level"_a.none() = nb::none(),
+        "cut_level"_a = "spheres", "interpolation"_a = "trilinear",
         nb::sig("def contacts(a: Body, pose_a: numpy.typing.ArrayLike, b: Body, pose_b: numpy.typing.ArrayLike, *, "
                 "point_budget: int | None = None, time_budget_us: float | None = None, proximity: float = 0.0, "
                 "max_level: int | None = None, cut_level: str = 'spheres', interpolation: str = 'trilinear') "

@@ -130,6 +130,21 @@ def test_overflow_is_counted_and_the_rest_kept(sphere: voxfmt.Body) -> None:
     assert np.array_equal(few.force, full.force)
 
 
+def test_cpu_poses_of_either_byte_order_or_integers_are_read_as_contacts_batch_reads_them(sphere: voxfmt.Body) -> None:
+    scene = voxfmt.BatchScene([sphere])
+    pa = np.tile(np.eye(4), (3, 1, 1))
+    pb = pa.copy()
+    pb[:, 0, 3] = [0.02, 0.04, 0.5]
+    native = scene.contacts(pa, pb)
+    swapped = scene.contacts(pa.astype(">f8"), pb.astype(">f8"))
+    assert np.array_equal(swapped.count, native.count) and np.array_equal(swapped.force, native.force)
+    integers = scene.contacts(pa.astype(np.int64), pa.astype(np.int32))
+    assert np.array_equal(integers.count, scene.contacts(pa, pa).count)
+    # NumPy beside a CUDA array: the CUDA batch's coded error (a NumPy 2 array's device is the str "cpu").
+    with pytest.raises(voxfmt.OptionError, match="poses_a: expected a CUDA array"):
+        scene.contacts(pa.astype(np.float32), FakeCudaArray((3, 4, 4), "float32"))
+
+
 def test_outputs_beyond_the_machines_memory_are_refused_up_front(sphere: voxfmt.Body) -> None:
     # 40,000 environments x 2^24 contacts would be 22 TB of zeroed outputs: a MemoryError or the kernel's kill.
     scene = voxfmt.BatchScene([sphere])

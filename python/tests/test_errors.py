@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -128,3 +129,42 @@ def test_batch_rejects_bad_poses_before_running(sphere: voxfmt.Body) -> None:
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.repeat(np.eye(4)[None], 5, axis=0), sphere, poses)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.zeros((6, 3, 4)), sphere, poses)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, np.eye(4), sphere, np.eye(4), threads=0)
+
+
+def test_paths_as_open_takes_them(tmp_path: Path, sphere_asset: Path, sphere_mesh: Path) -> None:
+    # A name that is not UTF-8 (str with surrogates, or bytes) is a file like any other; a NUL byte, which would cut
+    # the name to another file's, is refused everywhere a path is taken.
+    odd = tmp_path / os.fsdecode(b"\xff.vox.h5")
+    shutil.copy(sphere_asset, odd)
+    body = voxfmt.load(odd)
+    assert body.path == str(odd)
+    assert voxfmt.load(os.fsencode(str(odd))).path == str(odd)
+    assert voxfmt.validate(odd).valid
+    assert voxfmt.inspect(odd)["voxelmap"]
+    missing = tmp_path / os.fsdecode(b"\xfe-missing.vox.h5")
+    assert str(missing) in raises(voxfmt.AssetError, "FILE_NOT_FOUND", voxfmt.load, missing).message
+    summary = voxfmt.bake(sphere_mesh, tmp_path / os.fsdecode(b"\xff-baked.vox.h5"), resolution=16, points=100)
+    assert summary["status"] == "ok" and b"\xff-baked.vox.h5" in os.listdir(os.fsencode(tmp_path))
+    nul = str(sphere_asset) + "\0ignored"
+    for call in (voxfmt.load, voxfmt.validate, voxfmt.inspect, voxfmt.read_mesh):
+        assert "embedded null byte" in raises(voxfmt.OptionError, "BAD_OPTION", call, nul).message
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, str(tmp_path / "x.vox.h5") + "\0z")
+    assert not (tmp_path / "x.vox.h5").exists()
+
+
+def test_numbers_are_judged_alike_compiled_or_not(sphere: voxfmt.Body, sphere_mesh: Path, tmp_path: Path) -> None:
+    # A bool is no count or length (max_level=False once meant the root level), an int beyond int64 is an
+    # OptionError (not nanobind's TypeError), and a bake's 0 voxel size is refused as on the command line.
+    pose = np.eye(4)
+    for options in ({"max_level": False}, {"point_budget": True}, {"proximity": True}, {"point_budget": 2**63}):
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, pose, sphere, pose, **options)
+    assert len(voxfmt.contacts(sphere, pose, sphere, pose, max_level=np.int64(2)).depths) > 0
+    contacts = voxfmt.contacts(sphere, pose, sphere, pose, proximity=np.float32(0.001))
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.wrench, contacts, True)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, sphere.path, max_memory_mib=2**70)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, sphere.path, density=True)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.validate, sphere.path, max_memory_mib=2**70)
+    out = tmp_path / "zero.vox.h5"
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, voxel_size=0.0)
+    raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, points=None, point_spacing=0.0)
+    assert voxfmt.bake(sphere_mesh, out, resolution=16, points=100, voxel_size=None)["status"] == "ok"

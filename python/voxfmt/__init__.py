@@ -68,10 +68,15 @@ _UNSIGNED_BITS = {"resolution": 32, "points": 32, "margin": 32, "seed": 64, "thr
 
 
 def _path(value: Path, what: str) -> str:
+    """A path as open() takes it, as text (a name that is not UTF-8 keeps its bytes as surrogates, which the
+    bindings encode back); a NUL byte, which would name another file, is refused."""
     try:
-        return os.fsdecode(os.fspath(value))
+        path = os.fsdecode(os.fspath(value))
     except TypeError:
         raise OptionError("BAD_OPTION", f"{what}: expected a path, got {type(value).__name__}") from None
+    if "\0" in path:
+        raise OptionError("BAD_OPTION", f"{what}: embedded null byte")
+    return path
 
 
 def _optional_int(name: str, value: Any) -> int | None:
@@ -95,6 +100,9 @@ def _unsigned(name: str, value: Any) -> int:
     if not 0 <= number < 2 ** _UNSIGNED_BITS[name]:
         raise OptionError("BAD_OPTION", f"{name} {number} is out of range")
     return number
+
+
+_BAKE_UNSET_BY_NONE = {"voxel_size": True, "point_spacing": True}
 
 
 def _bake_setting(name: str, value: Any) -> Any:
@@ -143,6 +151,12 @@ def bake(
         )
     if progress is not None and not callable(progress):
         raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
+    # voxel_size and point_spacing: None is not given (as resolution=None); 0, the bake's "unset", is refused as
+    # on the command line, where it would silently be ignored.
+    options = {name: value for name, value in options.items() if value is not None or not _BAKE_UNSET_BY_NONE.get(name)}
+    for name in _BAKE_UNSET_BY_NONE:
+        if name in options and not _real(name, options[name]) > 0:
+            raise OptionError("BAD_OPTION", f"{name} must be a finite number > 0, not {options[name]!r}")
     chosen = {"resolution": resolution, "points": points}
     for (name, value), instead in zip(chosen.items(), ("voxel_size", "point_spacing")):
         if value is not None and options.get(instead) is not None:

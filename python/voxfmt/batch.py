@@ -72,14 +72,26 @@ def _on_cuda(array: Any) -> bool:
     return hasattr(array, "__cuda_array_interface__") or getattr(device, "type", None) == "cuda"
 
 
+def _cpu_poses(poses: Any) -> Any:
+    """Poses for the CPU batch: float32 or float64 as given (the GPU's float32 gives the same results here), in this
+    machine's byte order; integers as float64. Anything else is left for the batch to refuse with its message."""
+    array = np.asarray(poses)
+    if array.dtype.kind in "iu":
+        array = array.astype(np.float64)
+    elif array.dtype.kind == "f" and not array.dtype.isnative:
+        array = array.astype(array.dtype.newbyteorder("="))
+    return np.ascontiguousarray(array)
+
+
 def _declared_device(array: Any) -> int | None:
     """The CUDA device an array names (a PyTorch tensor's ``device.index``, a CuPy array's ``device.id``), or None:
     an array that shows only ``__cuda_array_interface__`` names none, and CUDA tells its device from its address."""
     device = getattr(array, "device", None)
-    index = getattr(device, "index", None)  # torch.device
-    if index is None:
-        index = getattr(device, "id", None)  # cupy.cuda.Device
-    return None if index is None else int(index)
+    for attribute in ("index", "id"):  # torch.device, cupy.cuda.Device (a NumPy 2 array's device is the str "cpu")
+        index = getattr(device, attribute, None)
+        if isinstance(index, (int, np.integer)) and not isinstance(index, bool):
+            return int(index)
+    return None
 
 
 class _NativeCuda:
@@ -383,8 +395,10 @@ class BatchScene:
         float64 on the CPU), pair_index (E,) int32 or None. On CUDA arrays the call is queued on `stream` (default:
         the framework's current stream) and returns at once; with ``check=True`` it then waits to check the
         environments' ``error`` (raising PoseError or OptionError); pass check=False (and ``out``) inside a CUDA
-        graph. On NumPy arrays it runs on `threads` CPU threads (default: every core) and always checks; outputs
-        larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY).
+        graph. On NumPy arrays (or anything NumPy reads as numbers: integers and either byte order are converted) it
+        runs on `threads` CPU threads (default: every core), ``check`` as on CUDA; `stream` is ignored
+        there (as a framework's stream is for its CPU tensors).
+        Outputs larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY).
         ``interpolation``: 'trilinear' or 'tricubic' (as :func:`voxfmt.contacts`'s; on the CPU only)."""
         stiffness, proximity = _real("stiffness", stiffness), _real("proximity", proximity)
         max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
@@ -404,7 +418,7 @@ class BatchScene:
             envs = _environment_count(poses_a, poses_b, pair_index)
             _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
                                   envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
-            raw = _batch_cpu(self.bodies, self.pairs, np.ascontiguousarray(poses_a), np.ascontiguousarray(poses_b),
+            raw = _batch_cpu(self.bodies, self.pairs, _cpu_poses(poses_a), _cpu_poses(poses_b),
                              None if pair_index is None else _pair_indices(pair_index),
                              proximity, stiffness, max_contacts, threads, interpolation)
             result = BatchResult(**raw)

@@ -134,12 +134,22 @@ def loaded_files() -> int:
     return int(_library.voxfmt_mujoco_loaded_files())
 
 
+def _asset_path_bytes(asset_path: str | os.PathLike[str]) -> bytes:
+    """The absolute path as the plugin's C interface takes it; a NUL byte would cut it to another file's name."""
+    path = os.fsencode(os.path.abspath(os.fspath(asset_path)))
+    if b"\0" in path:
+        from ._errors import OptionError
+
+        raise OptionError("BAD_OPTION", "asset_path: embedded null byte")
+    return path
+
+
 def field_bytes(asset_path: str | os.PathLike[str]) -> int:
     """Heap bytes of the field the plugin holds for the asset (what a model using it adds to MuJoCo's own model),
     loading it through the plugin's cache. Raises AssetError for a file the plugin cannot use."""
     load_plugin()
     assert _library is not None
-    n = int(_library.voxfmt_mujoco_field_bytes(os.fsencode(os.path.abspath(asset_path))))
+    n = int(_library.voxfmt_mujoco_field_bytes(_asset_path_bytes(asset_path)))
     if n < 0:
         evaluate(asset_path, np.zeros((0, 3)))  # raises the load's error
     return n
@@ -166,19 +176,22 @@ def evaluate(
     frame, metres: distances (N,), negative inside, and with ``gradients=True`` also the unit gradients (N, 3).
     The asset is loaded through the plugin's cache (the same object MuJoCo's geoms use). Raises AssetError for a
     file the plugin cannot use."""
+    from ._errors import OptionError
+
     load_plugin()
     assert _library is not None
-    p = np.ascontiguousarray(points, dtype=np.float64)
+    raw = np.asarray(points)
+    if raw.dtype.kind not in "iuf":  # as every array of the package: complex, bool or object are no coordinates
+        raise OptionError("BAD_OPTION", f"points: expected an array of real numbers, got dtype {raw.dtype.name}")
+    p = np.ascontiguousarray(raw, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
-        from ._errors import OptionError
-
         raise OptionError("BAD_OPTION", f"points: expected shape (N, 3), got {p.shape}")
     n = p.shape[0]
     distances = np.empty(n)
     grads = np.empty((n, 3)) if gradients else None
     message = ctypes.create_string_buffer(4096)
     status = _library.voxfmt_mujoco_evaluate(
-        os.fsencode(os.path.abspath(asset_path)),
+        _asset_path_bytes(asset_path),
         n,
         p.ctypes.data,
         distances.ctypes.data,
