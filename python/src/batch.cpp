@@ -259,6 +259,14 @@ void bind_batch(nb::module_& m) {
     gpu::make_current(device, &why);
     return why;
   });
+  m.def("_cuda_synchronize_stream", [](uintptr_t stream) {
+    std::string why;
+    {
+      nb::gil_scoped_release release;
+      gpu::synchronize_stream(stream, &why);
+    }
+    return why;
+  });
   nb::class_<DeviceScene>(m, "_DeviceScene")
       .def(nb::init<const std::vector<const Body*>&, const std::vector<std::pair<int64_t, int64_t>>&>(), "bodies"_a,
            "pairs"_a)

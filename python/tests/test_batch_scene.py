@@ -278,6 +278,7 @@ class RecordedCuda:
         self.held = held
         self.current_device = current
         self.made_current: list[int] = []
+        self.synchronized: list[int] = []
 
     def device_of(self, address: int) -> tuple[int, str]:
         return (self.held[address], "") if address in self.held else (-1, "cudaErrorInvalidValue: not a CUDA address")
@@ -288,6 +289,10 @@ class RecordedCuda:
     def make_current(self, device: int) -> str:
         self.made_current.append(device)
         self.current_device = device
+        return ""
+
+    def synchronize(self, stream: int) -> str:
+        self.synchronized.append(stream)
         return ""
 
 
@@ -324,6 +329,38 @@ def test_arrays_that_only_show_the_cuda_interface_are_launched_in_place(
         signature = device_scene.run.__doc__ or ""
         for name in expected:
             assert f"{name}: " in signature, (name, signature)
+
+
+class FakeCudaErrors(FakeCudaArray):
+    """An error output the check can read (all environments fine), as a framework's array answers max()."""
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def max(self) -> int:
+        return 0
+
+
+def test_a_checked_call_waits_for_its_own_stream_before_reading_the_errors(
+        sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch) -> None:
+    # A stream= that is not the framework's current one: the check reads `error` on the current stream, so the
+    # launch's stream is waited for first (after the launch); an unchecked call (a CUDA graph) never waits.
+    from voxfmt import batch
+
+    monkeypatch.setattr(batch, "cuda_status", lambda: (True, "a recorded device"))
+    cuda = RecordedCuda({0xa0000: 0, 0xb0000: 0} | {0x1000 * (n + 1): 0 for n in range(6)})
+    monkeypatch.setattr(batch, "_cuda", cuda)
+    scene = voxfmt.BatchScene([sphere])
+    scene._device_scenes[0] = RecordingDeviceScene()
+    arrays = {name: (FakeCudaErrors if name == "error" else FakeCudaArray)(shape, dtype, address=0x1000 * (n + 1))
+              for n, (name, dtype, shape) in enumerate(batch._output_specs(8, 0))}
+    outputs = voxfmt.BatchResult(**arrays)
+    poses_a = FakeCudaArray((8, 4, 4), "float32", address=0xa0000)
+    poses_b = FakeCudaArray((8, 4, 4), "float32", address=0xb0000)
+    scene.contacts(poses_a, poses_b, out=outputs, stream=77, check=False)
+    assert cuda.synchronized == []
+    scene.contacts(poses_a, poses_b, out=outputs, stream=77)
+    assert cuda.synchronized == [77] and len(scene._device_scenes[0].calls) == 2
 
 
 def cuda_call_on_recorded_devices(sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch, held: dict[int, int],

@@ -113,6 +113,9 @@ class _NativeCuda:
     def make_current(self, device: int) -> str:
         return self._call("_cuda_make_current", device)
 
+    def synchronize(self, stream: int) -> str:
+        return self._call("_cuda_synchronize_stream", stream)
+
 
 _cuda = _NativeCuda()
 
@@ -407,7 +410,8 @@ class BatchScene:
         if _on_cuda(poses_a) or _on_cuda(poses_b):
             if interpolation != "trilinear":
                 raise OptionError("BAD_OPTION", "the CUDA batch reads distances trilinearly only (tricubic: NumPy poses)")
-            result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream)
+            result = self._contacts_cuda(poses_a, poses_b, pair_index, stiffness, proximity, max_contacts, out, stream,
+                                         check)
         else:
             if out is not None:
                 raise OptionError("BAD_OPTION", "out= is for CUDA arrays; on the CPU the outputs are new arrays")
@@ -427,7 +431,7 @@ class BatchScene:
         return result
 
     def _contacts_cuda(self, poses_a: Any, poses_b: Any, pair_index: Any, stiffness: float, proximity: float,
-                       max_contacts: int, out: BatchResult | None, stream: int | None) -> BatchResult:
+                       max_contacts: int, out: BatchResult | None, stream: int | None, wait: bool) -> BatchResult:
         k = max_contacts  # checked by contacts()
         device = _declared_device(poses_a)  # None: CUDA tells it below, once a device is known to be there
         envs = int(_cuda_interface("poses_a", poses_a)["shape"][0])
@@ -459,6 +463,12 @@ class BatchScene:
                 envs=envs, poses_a=_pointer("poses_a", poses_a), poses_b=_pointer("poses_b", poses_b),
                 pair_index=_pointer("pair_index", pair_index), proximity=float(proximity), stiffness=float(stiffness),
                 max_contacts=k, stream=int(stream), **outputs)
+            if wait:
+                # The check reads `error` on the framework's current stream, which need not follow the launch's
+                # (a stream= of the caller's own): the launch's stream is waited for first.
+                why = _cuda.synchronize(int(stream))
+                if why:
+                    raise InternalError("INTERNAL", f"the batch's stream failed: {why}")
         return out
 
 

@@ -31,6 +31,8 @@ int device_of(const void* pointer, std::string& error);
 int current_device(std::string& error);
 /// Makes `device` current; empty, or why not.
 std::string make_current(int device);
+/// Waits for the work queued on `stream` (a cudaStream_t as an integer, 0 the legacy default); empty, or why not.
+std::string synchronize_stream(uintptr_t stream);
 
 /// Copies `bytes` from host memory to new device memory; nullptr (and `error`) on failure.
 void* copy_to_device(const void* host, size_t bytes, std::string& error);

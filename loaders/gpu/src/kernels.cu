@@ -90,6 +90,11 @@ std::string make_current(int device) {
   return status == cudaSuccess ? std::string() : failure(status);
 }
 
+std::string synchronize_stream(uintptr_t stream) {
+  const cudaError_t status = cudaStreamSynchronize(reinterpret_cast<cudaStream_t>(stream));
+  return status == cudaSuccess ? std::string() : failure(status);
+}
+
 void* copy_to_device(const void* host, size_t bytes, std::string& error) {
   void* device = nullptr;
   cudaError_t status = cudaMalloc(&device, bytes > 0 ? bytes : 1);

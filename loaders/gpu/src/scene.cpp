@@ -86,6 +86,12 @@ bool make_current(int device, std::string* why) {
   return error.empty();
 }
 
+bool synchronize_stream(uintptr_t stream, std::string* why) {
+  const std::string error = device::synchronize_stream(stream);
+  if (why) *why = error;
+  return error.empty();
+}
+
 Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<const runtime::CollisionObject>>& assets,
                                              const std::vector<Pair>& pairs) {
   std::string why;

@@ -31,6 +31,9 @@ int device_of(const void* pointer, std::string* why = nullptr);
 int current_device(std::string* why = nullptr);
 /// Makes `device` this thread's current CUDA device (what uploads and launches use); false and `why` on failure.
 bool make_current(int device, std::string* why = nullptr);
+/// Waits until the work queued on `stream` (a cudaStream_t as an integer; 0 the legacy default) is done: what a
+/// caller reading the outputs on another stream needs first. False and `why` on failure.
+bool synchronize_stream(uintptr_t stream, std::string* why = nullptr);
 
 /// E environments and their outputs: the CPU batch's (runtime::BatchScene), as device pointers. The device takes
 /// float32 poses only (`poses_a`, `poses_b`; the `_f64` ones must be null).
