@@ -242,6 +242,12 @@ def test_cuda_poses_of_the_wrong_kind_are_coded_errors(sphere: voxfmt.Body) -> N
         scene.contacts(good, FakeCudaArray((7, 4, 4), "float32"))
     with pytest.raises(voxfmt.OptionError, match="pair_index: expected int32"):
         scene.contacts(good, good, FakeCudaArray((8,), "int64"))
+    with pytest.raises(voxfmt.OptionError, match=r"poses_a: expected shape \(E, 4, 4\), got \(\)"):
+        scene.contacts(FakeCudaArray((), "float32"), good)
+    with pytest.raises(voxfmt.OptionError, match="out: expected a BatchResult"):
+        scene.contacts(good, good, out={"count": None})
+    with pytest.raises(voxfmt.OptionError, match=r"out.points: missing \(out= made for max_contacts=0"):
+        scene.contacts(good, good, max_contacts=3, out=cuda_outputs(8, 0))
     with pytest.raises(voxfmt.OptionError, match="max_contacts"):
         scene.contacts(good, good, max_contacts=-1)
 

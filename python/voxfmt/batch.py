@@ -434,13 +434,22 @@ class BatchScene:
                        max_contacts: int, out: BatchResult | None, stream: int | None, wait: bool) -> BatchResult:
         k = max_contacts  # checked by contacts()
         device = _declared_device(poses_a)  # None: CUDA tells it below, once a device is known to be there
-        envs = int(_cuda_interface("poses_a", poses_a)["shape"][0])
+        shape = tuple(_cuda_interface("poses_a", poses_a)["shape"])
+        if len(shape) != 3:
+            raise OptionError("BAD_OPTION", f"poses_a: expected shape (E, 4, 4), got {shape}")
+        envs = int(shape[0])
+        if out is not None and not isinstance(out, BatchResult):
+            raise OptionError("BAD_OPTION", f"out: expected a BatchResult (scene.new_outputs(poses, max_contacts) "
+                              f"makes one), got {type(out).__name__}")
         _check_cuda_array("poses_a", poses_a, "float32", (envs, 4, 4), device)
         _check_cuda_array("poses_b", poses_b, "float32", (envs, 4, 4), device)
         if pair_index is not None:
             _check_cuda_array("pair_index", pair_index, "int32", (envs,), device)
         if out is not None:
             for name, dtype, shape in _output_specs(envs, k):
+                if getattr(out, name) is None:
+                    raise OptionError("BAD_OPTION", f"out.{name}: missing (out= made for max_contacts=0, called with "
+                                      f"max_contacts={k}: make it with new_outputs(poses, {k}))")
                 _check_cuda_array(f"out.{name}", getattr(out, name), dtype, shape, device)
                 if _cuda_interface(f"out.{name}", getattr(out, name))["data"][1]:
                     raise OptionError("BAD_OPTION", f"out.{name}: read-only (its __cuda_array_interface__ says so)")
