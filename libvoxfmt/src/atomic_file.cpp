@@ -60,12 +60,20 @@ Status check_resolved_output(const std::string& given, const std::string& path) 
   const fs::path folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path() : fs::path(".");
   if (!fs::exists(folder, ec)) return write_failed(given, "folder " + folder.string() + " does not exist");
   if (!fs::is_directory(folder, ec)) return write_failed(given, folder.string() + " is not a folder");
-  // Said before a long job, not by the write at its end.
-  const long name_max = ::pathconf(folder.c_str(), _PC_NAME_MAX);
-  const size_t name_bytes = fs::path(path).filename().string().size();
-  if (name_max > 0 && name_bytes > size_t(name_max))
-    return write_failed(given, "the file's name is " + std::to_string(name_bytes) + " bytes, more than the " +
-                                   std::to_string(name_max) + " its folder's file system allows");
+  // A name its folder's file system cannot hold, or whose temporary it cannot: said before a long job, not by the
+  // write at its end. The file system answers (its limit may be below 255 bytes, or count characters, not bytes).
+  const std::string name = fs::path(path).filename().string();
+  const std::string temporary =
+      (folder / (temporary_stem(name) + std::string(kPartialMarker) + "4294967295-4294967295")).string();
+  for (const std::string& probe : {path, temporary}) {
+    struct stat info {};
+    if (::stat(probe.c_str(), &info) != 0 && errno == ENAMETOOLONG)
+      return write_failed(given, probe == path ? "the file's name (" + std::to_string(name.size()) +
+                                                     " bytes) is longer than its folder's file system allows"
+                                               : "the file's name (" + std::to_string(name.size()) +
+                                                     " bytes) leaves no room on its folder's file system for its "
+                                                     "temporary's (choose a shorter name)");
+  }
   return Status::success();
 }
 
@@ -190,6 +198,18 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
     std::remove(temp.c_str());
     return status;
   };
+  // A file of this user's that is replaced keeps its permissions (a private asset stays private, during the write
+  // too: the temporary is made with them before any byte is written; writers truncate it). Set-id bits are not
+  // carried; another user's file is replaced by one of the umask's mode, as a new file is.
+  struct stat replaced {};
+  const bool keep_mode =
+      ::stat(path.c_str(), &replaced) == 0 && S_ISREG(replaced.st_mode) && replaced.st_uid == ::geteuid();
+  const mode_t mode = replaced.st_mode & 0777;
+  if (keep_mode) {
+    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, mode);
+    if (fd < 0) return write_failed(path, std::string("cannot create the temporary file: ") + std::strerror(errno));
+    ::close(fd);
+  }
   Status written = steps.write ? steps.write(temp) : Status(write_failed(path, "nothing to write"));
   if (!written) return fail(written);
   if (!sync_path(temp, false))
@@ -198,10 +218,7 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
     Status check = steps.before_commit();
     if (!check) return fail(check);
   }
-  // A replaced file keeps its permissions (a private asset stays private); a new one gets the umask's.
-  struct stat replaced {};
-  if (::stat(path.c_str(), &replaced) == 0 && S_ISREG(replaced.st_mode) &&
-      ::chmod(temp.c_str(), replaced.st_mode & 07777) != 0)
+  if (keep_mode && ::chmod(temp.c_str(), mode) != 0)  // past the umask, and what a writer's copy may have set
     return fail(
         write_failed(path, std::string("cannot keep the replaced file's permissions: ") + std::strerror(errno)));
   if (std::rename(temp.c_str(), path.c_str()) != 0)

@@ -140,6 +140,9 @@ def test_cpu_poses_of_either_byte_order_or_integers_are_read_as_contacts_batch_r
     assert np.array_equal(swapped.count, native.count) and np.array_equal(swapped.force, native.force)
     integers = scene.contacts(pa.astype(np.int64), pa.astype(np.int32))
     assert np.array_equal(integers.count, scene.contacts(pa, pa).count)
+    mixed = scene.contacts(pa.astype(np.float32), pb)  # float32 beside float64: both read as float64
+    assert np.array_equal(mixed.count, native.count) and np.array_equal(mixed.force, native.force)
+    assert np.array_equal(scene.contacts(pa.astype(np.float32), pa.astype(np.int64)).count, integers.count)
     # NumPy beside a CUDA array: the CUDA batch's coded error (a NumPy 2 array's device is the str "cpu").
     with pytest.raises(voxfmt.OptionError, match="poses_a: expected a CUDA array"):
         scene.contacts(pa.astype(np.float32), FakeCudaArray((3, 4, 4), "float32"))

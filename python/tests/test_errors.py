@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fractions
 import math
 import os
 import shutil
@@ -160,6 +161,11 @@ def test_numbers_are_judged_alike_compiled_or_not(sphere: voxfmt.Body, sphere_me
         raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, pose, sphere, pose, **options)
     assert len(voxfmt.contacts(sphere, pose, sphere, pose, max_level=np.int64(2)).depths) > 0
     contacts = voxfmt.contacts(sphere, pose, sphere, pose, proximity=np.float32(0.001))
+    # What float() reads that is a real number is one: a 0-d array, a Fraction (as before the rule was shared).
+    for proximity in (np.array(0.001), fractions.Fraction(1, 1000)):
+        assert len(voxfmt.contacts(sphere, pose, sphere, pose, proximity=proximity).depths) == len(contacts.depths)
+    for not_a_number in (np.array(True), 1j, "0.001", np.array([0.001, 0.002])):
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, pose, sphere, pose, proximity=not_a_number)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.wrench, contacts, True)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, sphere.path, max_memory_mib=2**70)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.load, sphere.path, density=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import operator
 import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -72,15 +73,16 @@ def _on_cuda(array: Any) -> bool:
     return hasattr(array, "__cuda_array_interface__") or getattr(device, "type", None) == "cuda"
 
 
-def _cpu_poses(poses: Any) -> Any:
-    """Poses for the CPU batch: float32 or float64 as given (the GPU's float32 gives the same results here), in this
-    machine's byte order; integers as float64. Anything else is left for the batch to refuse with its message."""
-    array = np.asarray(poses)
-    if array.dtype.kind in "iu":
-        array = array.astype(np.float64)
-    elif array.dtype.kind == "f" and not array.dtype.isnative:
-        array = array.astype(array.dtype.newbyteorder("="))
-    return np.ascontiguousarray(array)
+def _cpu_poses(poses_a: Any, poses_b: Any) -> tuple[Any, Any]:
+    """Poses for the CPU batch, as contacts_batch takes them: float32 or float64 as given where both are of one (the
+    GPU's float32 gives the same results here), else both as float64 (integers, mixed dtypes); in this machine's
+    byte order. What is not numbers is left for the batch to refuse with its message."""
+    a, b = np.asarray(poses_a), np.asarray(poses_b)
+    if a.dtype.kind == "f" and b.dtype.kind == "f" and a.dtype.itemsize == b.dtype.itemsize:
+        a, b = a.astype(a.dtype.newbyteorder("="), copy=False), b.astype(b.dtype.newbyteorder("="), copy=False)
+    elif a.dtype.kind in "iuf" and b.dtype.kind in "iuf":
+        a, b = a.astype(np.float64, copy=False), b.astype(np.float64, copy=False)
+    return np.ascontiguousarray(a), np.ascontiguousarray(b)
 
 
 def _declared_device(array: Any) -> int | None:
@@ -237,23 +239,40 @@ def _framework(array: Any) -> Any:
     raise OptionError("BAD_OPTION", f"CUDA arrays of {module} are not supported: use PyTorch or CuPy, or pass out=")
 
 
+def _not_a_number_kind(value: Any) -> bool:
+    """Bools, strings, time spans: things float() or an index may read, but no length, stiffness or count. A 0-d
+    array (NumPy's, or a framework's scalar) is judged by its dtype where NumPy names one."""
+    if isinstance(value, (bool, np.bool_, str, bytes, np.timedelta64, np.datetime64)):
+        return True
+    kind = getattr(getattr(value, "dtype", None), "kind", None)
+    return kind is not None and kind not in "iuf"
+
+
 def _real(name: str, value: Any) -> float:
-    """A number option (not a bool, a string, a time span or None)."""
-    if isinstance(value, (bool, np.timedelta64)) or not isinstance(value, (int, float, np.integer, np.floating)):
+    """A number option: an int or a float, NumPy's, a 0-d array, a Fraction: what float() reads, but not a bool, a
+    string, a time span, a complex number or None."""
+    if _not_a_number_kind(value) or not hasattr(value, "__float__"):
         raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}")
     try:
         return float(value)
     except OverflowError:
         raise OptionError("BAD_OPTION", f"{name}: {value} is beyond a double") from None
+    except (TypeError, ValueError):  # an array of more than one element, a framework's refusal
+        raise OptionError("BAD_OPTION", f"{name}: expected a number, got {value!r}") from None
 
 
 def _whole(name: str, value: Any, low: int, high: int) -> int:
-    """An integer option in low..high: a float would be floored and a bool taken for 0 or 1, silently."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    """An integer option in low..high (an int, NumPy's, a 0-d integer array): a float would be floored and a bool
+    taken for 0 or 1, silently."""
+    try:
+        number = None if _not_a_number_kind(value) else operator.index(value)
+    except TypeError:
+        number = None
+    if number is None:
         raise OptionError("BAD_OPTION", f"{name}: expected an integer, got {value!r}")
-    if not low <= int(value) <= high:
-        raise OptionError("BAD_OPTION", f"{name}: {int(value)} is not in {low}..{high}")
-    return int(value)
+    if not low <= number <= high:
+        raise OptionError("BAD_OPTION", f"{name}: {number} is not in {low}..{high}")
+    return number
 
 
 def _refuse_beyond_memory(what: str, needed_bytes: float) -> None:
@@ -422,7 +441,7 @@ class BatchScene:
             envs = _environment_count(poses_a, poses_b, pair_index)
             _refuse_beyond_memory(f"{envs} environments x {max_contacts} contacts (poses' copies and outputs)",
                                   envs * (2 * 16 * 8 + 40.0 + 33.0 * max_contacts))
-            raw = _batch_cpu(self.bodies, self.pairs, _cpu_poses(poses_a), _cpu_poses(poses_b),
+            raw = _batch_cpu(self.bodies, self.pairs, *_cpu_poses(poses_a, poses_b),
                              None if pair_index is None else _pair_indices(pair_index),
                              proximity, stiffness, max_contacts, threads, interpolation)
             result = BatchResult(**raw)

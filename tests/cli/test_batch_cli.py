@@ -450,7 +450,7 @@ class Batch(unittest.TestCase):
         self.assertEqual(summary["built"], 1)
 
     def test_a_bake_stopped_just_before_its_batch_is_not_a_failure(self):
-        # Ctrl-C or scancel signal the batch and its bakes; the bake may be first. Its death is not recorded as a
+        # scancel (or systemd) signals the batch and its bakes; the bake may be first. Its death is not recorded as a
         # crash (which the report would count): the batch stops, records nothing, and the next run bakes the mesh.
         mesh = os.path.join(self.lib, "b/cube.off")
         proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",

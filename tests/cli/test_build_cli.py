@@ -273,7 +273,8 @@ class BuildBadOutput(unittest.TestCase):
         self.assertEqual(self.partials(self.dir.name), [])
         # One byte more is refused before the bake, not by the write at its end.
         too_long = os.path.join(self.dir.name, "a" * 249 + ".vox.h5")
-        self.expect_write_failed(self.build(too_long), "the file's name is 256 bytes, more than the 255")
+        self.expect_write_failed(self.build(too_long),
+                                 "the file's name (256 bytes) is longer than its folder's file system allows")
 
     def test_empty_path_is_a_usage_error(self):
         r = self.build("")

@@ -184,7 +184,9 @@ class InspectExports(unittest.TestCase):
         self.assertEqual(export["distance_voxels"], self.voxelmap.stored_count)
         self.assertEqual(export["distance_voxels"], self.summary()["voxelmap"]["stored_distances"])
         with open(out, "rb") as f:
-            self.assertEqual(f.read(4), b" BDV", "OpenVDB's magic number 0x56444220, little-endian")
+            header = f.read(21)
+        self.assertEqual(header[:4], b" BDV", "OpenVDB's magic number 0x56444220, little-endian")
+        self.assertEqual(header[20], 1, "grid offsets (readers load grids lazily), as openvdb::io::File writes")
 
     def test_a_vdb_cut_short_by_a_file_size_limit_is_write_failed_and_no_file(self):
         import resource
@@ -208,6 +210,11 @@ class InspectExports(unittest.TestCase):
         self.assertEqual(exports[0]["file"], os.path.join(card, "index.html"))
         self.assertEqual(exports[0]["bytes"] > 0, True)
         self.assertTrue(os.path.isfile(ply) and os.path.isfile(os.path.join(card, "index.html")))
+        for clash, words in ((card, "is a folder"), (os.path.join(card, "shell.ply"), "is --html's folder or in it")):
+            r = self.inspect("--html", card, "--ply", clash)  # refused before anything is written
+            self.assertEqual(r.returncode, 2, r.stderr)
+            self.assertIn(words, r.stderr)
+        self.assertFalse(os.path.exists(os.path.join(card, "shell.ply")))
         # What a killed inspect left beside an output (a dead process's temporary) goes with the next write.
         ended = subprocess.Popen(["true"])
         ended.wait()

@@ -293,12 +293,27 @@ TEST(Files, AReplacedFileKeepsItsPermissions) {
   const std::string file = test::scratch_dir("permissions") + "/private.vox.h5";
   ASSERT_TRUE(write_file_atomically(file, std::string_view("first")));
   ASSERT_EQ(::chmod(file.c_str(), 0600), 0);
-  ASSERT_TRUE(write_file_atomically(file, std::string_view("second")));
+  // Private during the write too: the temporary has the mode before its first byte.
+  AtomicWrite steps;
+  mode_t temporary_mode = 0;
+  steps.write = [&](const std::string& temporary) -> Status {
+    struct stat made {};
+    if (::stat(temporary.c_str(), &made) == 0) temporary_mode = made.st_mode & 07777;
+    std::ofstream(temporary, std::ios::binary) << "second";
+    return Status::success();
+  };
+  ASSERT_TRUE(write_file_atomically(file, steps));
+  EXPECT_EQ(temporary_mode, 0600u);
   struct stat info {};
   ASSERT_EQ(::stat(file.c_str(), &info), 0);
   EXPECT_EQ(info.st_mode & 07777, 0600u);
+  // Set-id bits are never carried over.
+  ASSERT_EQ(::chmod(file.c_str(), 06750), 0);
+  ASSERT_TRUE(write_file_atomically(file, std::string_view("third")));
+  ASSERT_EQ(::stat(file.c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 07777, 0750u);
   std::ifstream written(file);
-  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(written), {}), "second");
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(written), {}), "third");
 }
 
 TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {

@@ -1415,6 +1415,18 @@ class TestLegacyUpgrade(unittest.TestCase):
         self.assertIn("it would be replaced before it is read", error["message"])
         with open(kept, "rb") as f:
             self.assertEqual(f.read(), before, "an input was replaced")
+        # The same through a link in the output folder, which the write would follow onto another input.
+        os.makedirs(os.path.join(root, "in"))
+        sf.write_legacy_fixture_h5py(os.path.join(root, "in", "a.vox.h5"))
+        b = sf.write_fixture_h5py(os.path.join(root, "in", "b.vox.h5"), format_version=[2, 1])
+        with open(b, "rb") as f:
+            before = f.read()
+        os.makedirs(os.path.join(root, "linked"))
+        os.symlink(b, os.path.join(root, "linked", "a.vox.h5"))
+        proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "in"), "-o", os.path.join(root, "linked")])
+        self.assertEqual(proc.returncode, 2, describe(proc))
+        with open(b, "rb") as f:
+            self.assertEqual(f.read(), before, "an input was replaced through a link")
         proc = ss.run([ss.VOXFMT_BIN, "upgrade", os.path.join(root, "empty"), "-o", os.path.join(root, "o2")])
         self.assertEqual(proc.returncode, 2, describe(proc))
         self.assertIn("holds no asset", proc.stderr)

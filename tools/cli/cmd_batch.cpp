@@ -516,9 +516,10 @@ bool Runner::bake_all(const bake::Settings& settings) {
   return interrupted;
 }
 
-// A bake ended by a stop signal is held back a moment before it is recorded: the signal that stops the batch
-// (Ctrl-C to the terminal's process group, Slurm's scancel to every process of the step) may reach the bake first,
-// and such a bake is not the mesh's failure. Signalled alone, it is recorded (CRASHED) once the moment has passed.
+// A bake ended by a stop signal is held back a moment before it is recorded: the signal that stops the batch may
+// reach the bake first where it is sent to every process (Slurm's scancel to the step's, systemd to the unit's;
+// Ctrl-C does not reach the bakes, which run in process groups of their own), and such a bake is not the mesh's
+// failure. Signalled alone, it is recorded (CRASHED) once the moment has passed.
 void Runner::record_finished(const std::vector<ChildResult>& finished) {
   constexpr auto kStopGrace = std::chrono::seconds(1);
   const auto now = std::chrono::steady_clock::now();

@@ -1,4 +1,5 @@
 // `voxfmt inspect FILE [--json]`: a readable summary of one asset.
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <iomanip>
@@ -218,6 +219,15 @@ Status check_outputs(const Options& options) {
               std::filesystem::weakly_canonical(std::filesystem::absolute(*outputs[j].second, ec), ec))
         return Error{IssueCode::BadOption,
                      std::string(outputs[j].first) + " and " + outputs[i].first + " name the same file " + path, path};
+    // The card's folder is replaced whole: no other output may be it or lie in it.
+    if (!options.html.empty()) {
+      const auto card = std::filesystem::weakly_canonical(std::filesystem::absolute(options.html, ec), ec);
+      const auto file = std::filesystem::weakly_canonical(std::filesystem::absolute(path, ec), ec);
+      const auto [end, _] = std::mismatch(card.begin(), card.end(), file.begin(), file.end());
+      if (end == card.end())
+        return Error{IssueCode::BadOption, std::string(outputs[i].first) + " " + path + " is --html's folder or in it",
+                     path};
+    }
   }
   return Status::success();
 }

@@ -91,12 +91,17 @@ Result<std::vector<Item>> plan(const Options& o) {
     }
   }
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) { return a.input < b.input; });
+  // Items run one after another: an output whose write lands on another item's input (by name, or through this
+  // user's links, as writes follow them) would replace it before it is read. Compared as files, links resolved.
+  const auto landing = [&ec](const std::string& path) {
+    const Result<std::string> target = output_target(path);
+    return fs::weakly_canonical(fs::absolute(target ? target.value() : path, ec), ec);
+  };
   std::map<fs::path, const Item*> by_output, by_input;
-  for (const Item& item : items) by_input.emplace(place(item.input), &item);
+  for (const Item& item : items) by_input.emplace(fs::weakly_canonical(fs::absolute(item.input, ec), ec), &item);
   std::vector<Item> unique;
   for (const Item& item : items) {
-    // Items run one after another: an output that is another item's input would replace it before it is read.
-    const auto input = by_input.find(place(item.output));
+    const auto input = by_input.find(landing(item.output));
     if (input != by_input.end() && !fs::equivalent(input->second->input, item.input, ec))
       return Error{IssueCode::BadOption,
                    item.output + " (the upgrade of " + item.input + ") is also an input: it would be replaced " +

@@ -2,7 +2,7 @@
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/exports/exports.h"
 
-#include <openvdb/io/Stream.h>
+#include <openvdb/io/Archive.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/SignedFloodFill.h>
 
@@ -56,6 +56,15 @@ void fill_grids(const Voxelmap& vm, float background, openvdb::FloatGrid& distan
 
 }  // namespace
 
+// What openvdb::io::File writes (a seekable archive: grid offsets, so readers load grids lazily), into any
+// std::ostream: Archive's own write, which only its subclasses may call.
+class SeekableArchive : public openvdb::io::Archive {
+ public:
+  void write_to(std::ostream& out, const openvdb::GridCPtrVec& grids) const {
+    openvdb::io::Archive::write(out, grids, /*seekable=*/true);
+  }
+};
+
 Result<VdbInfo> write_voxelmap_vdb(const Asset& asset, const std::string& path) {
   openvdb::initialize();
   const Voxelmap& vm = asset.voxelmap;
@@ -78,17 +87,20 @@ Result<VdbInfo> write_voxelmap_vdb(const Asset& asset, const std::string& path) 
   }
   AtomicWrite steps;
   steps.write = [&](const std::string& temp) -> Status {
-    // Through a stream we own: openvdb::io::File does not report a write its ofstream failed (a full disk, a
-    // file-size limit), and a cut-short file would pass for a written one.
+    // Into a stream we own and check: openvdb::io::File does not report a write its ofstream failed (a full disk,
+    // a file-size limit), and a cut-short file would pass for a written one.
     std::ofstream out(temp, std::ios::binary);
+    errno = 0;
     try {
-      openvdb::io::Stream(out).write(grids);
+      SeekableArchive().write_to(out, openvdb::GridCPtrVec(grids.begin(), grids.end()));
     } catch (const std::exception& e) {
       return Error{IssueCode::WriteFailed, path + ": cannot write the VDB file (" + e.what() + ")", path};
     }
     out.close();
     if (!out)
-      return Error{IssueCode::WriteFailed, path + ": cannot write the VDB file (" + std::strerror(errno) + ")", path};
+      return Error{IssueCode::WriteFailed,
+                   path + ": cannot write the VDB file (" + (errno ? std::strerror(errno) : "the stream failed") + ")",
+                   path};
     return Status::success();
   };
   const Status written = write_file_atomically(path, steps);

@@ -17,7 +17,8 @@ inline constexpr std::string_view kPartialMarker = ".partial-";
 
 /// What a temporary's name starts with, before the marker, for a target named `target_name` (a name, no folder):
 /// the name itself, or where the name and a temporary's longest suffix would pass the file system's 255 bytes,
-/// its first bytes, `~` and a hash of the whole name. A name that is legal is thus always writable.
+/// its first bytes, `~` and a hash of the whole name: a name of up to 255 bytes is writable where the file system
+/// allows that much (check_output_path refuses, before any work, a name the output's file system cannot hold).
 std::string temporary_stem(const std::string& target_name);
 
 /// Removes the temporaries of `path` (regular files named exactly `STEM.partial-<pid>-<n>`, beside a link's
