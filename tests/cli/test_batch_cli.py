@@ -427,19 +427,24 @@ class Batch(unittest.TestCase):
                 found.append(int(pid))
         return found
 
-    def test_a_crashing_bake_is_recorded_and_retried(self):
-        # A bake that dies of a signal (here SIGSEGV sent by the test, as a broken library would) costs one
-        # recorded failure; the batch goes on, and the next run retries it.
-        mesh = os.path.join(self.lib, "b/cube.off")
+    def slow_batch_and_its_bake(self, mesh):
+        """A batch of one slow bake, and the bake's process id once it runs."""
         proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
-                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.time() + 30
         children = []
         while not children and time.time() < deadline:
             children = self.children_of_this_test()
             time.sleep(0.01)
         self.assertTrue(children, "the bake child was not seen")
-        os.kill(children[0], signal.SIGSEGV)
+        return proc, children[0]
+
+    def test_a_crashing_bake_is_recorded_and_retried(self):
+        # A bake that dies of a signal (here SIGSEGV sent by the test, as a broken library would) costs one
+        # recorded failure; the batch goes on, and the next run retries it.
+        mesh = os.path.join(self.lib, "b/cube.off")
+        proc, bake = self.slow_batch_and_its_bake(mesh)
+        os.kill(bake, signal.SIGSEGV)
         out, _ = proc.communicate(timeout=60)
         self.assertEqual(proc.returncode, 1)
         failure = json.loads(out)["failures"][0]
@@ -453,15 +458,8 @@ class Batch(unittest.TestCase):
         # scancel (or systemd) signals the batch and its bakes; the bake may be first. Its death is not recorded as a
         # crash (which the report would count): the batch stops, records nothing, and the next run bakes the mesh.
         mesh = os.path.join(self.lib, "b/cube.off")
-        proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
-                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.time() + 30
-        children = []
-        while not children and time.time() < deadline:
-            children = self.children_of_this_test()
-            time.sleep(0.01)
-        self.assertTrue(children, "the bake child was not seen")
-        os.kill(children[0], signal.SIGTERM)
+        proc, bake = self.slow_batch_and_its_bake(mesh)
+        os.kill(bake, signal.SIGTERM)
         time.sleep(0.3)
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=60)
@@ -472,13 +470,8 @@ class Batch(unittest.TestCase):
         self.assertEqual((summary["built"], summary["failed"]), (1, 0))
         # Stopped alone (the batch goes on), the bake is recorded as crashed, after the moment's wait.
         os.remove(os.path.join(self.out, "cube.off.vox.h5"))
-        proc = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--resolution", "300", "--points", "20000",
-                                 "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        children = []
-        while not children and time.time() < deadline + 30:
-            children = self.children_of_this_test()
-            time.sleep(0.01)
-        os.kill(children[0], signal.SIGTERM)
+        proc, bake = self.slow_batch_and_its_bake(mesh)
+        os.kill(bake, signal.SIGTERM)
         out, err = proc.communicate(timeout=60)
         self.assertEqual(proc.returncode, 1, err)
         self.assertEqual(json.loads(out)["failures"][0]["code"], "CRASHED")
