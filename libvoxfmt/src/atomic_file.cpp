@@ -198,15 +198,16 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
     std::remove(temp.c_str());
     return status;
   };
-  // A file of this user's that is replaced keeps its permissions (a private asset stays private, during the write
-  // too: the temporary is made with them before any byte is written; writers truncate it). Set-id bits are not
+  // A file of this user's that is replaced keeps its permissions, set just before the rename. A private asset stays
+  // private during the write too: the temporary is made before any byte is written, for its owner alone (and
+  // writable by them, whatever the final mode: a read-only asset is replaced as before). Set-id bits are not
   // carried; another user's file is replaced by one of the umask's mode, as a new file is.
   struct stat replaced {};
   const bool keep_mode =
       ::stat(path.c_str(), &replaced) == 0 && S_ISREG(replaced.st_mode) && replaced.st_uid == ::geteuid();
   const mode_t mode = replaced.st_mode & 0777;
   if (keep_mode) {
-    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, mode);
+    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, (mode & 0700) | 0600);
     if (fd < 0) return write_failed(path, std::string("cannot create the temporary file: ") + std::strerror(errno));
     ::close(fd);
   }

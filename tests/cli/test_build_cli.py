@@ -323,6 +323,35 @@ class BuildBadOutput(unittest.TestCase):
             self.assertEqual(f.read(), before, "the earlier asset changed")
         self.assertEqual(self.partials(folder), [])
 
+    def test_a_read_only_asset_of_ones_own_is_replaced_and_stays_read_only(self):
+        """As a user who is not root (nobody, in a folder of theirs): an asset made read-only is replaced (the folder
+        allows it) and keeps its mode; the temporary was only ever its owner's."""
+        folder = os.path.join(self.dir.name, "mine")
+        os.mkdir(folder)
+        os.chmod(self.dir.name, 0o755)
+        os.chmod(self.mesh, 0o644)
+        if os.geteuid() == 0:
+            os.chown(folder, 65534, 65534)
+
+        def as_nobody():
+            if os.geteuid() == 0:
+                os.setgroups([])
+                os.setgid(65534)
+                os.setuid(65534)
+
+        try:
+            subprocess.run([VOXFMT, "--version"], preexec_fn=as_nobody, capture_output=True, check=True)
+        except (OSError, subprocess.CalledProcessError):
+            self.skipTest("the user nobody cannot run voxfmt from this checkout (a parent folder is private)")
+        out = os.path.join(folder, "out.vox.h5")
+        self.assertEqual(self.build(out, preexec_fn=as_nobody).returncode, 0)
+        os.chmod(out, 0o440)
+        r = self.build(out, resolution="28", preexec_fn=as_nobody)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(json.loads(r.stdout)["status"], "ok")
+        self.assertEqual(stat.S_IMODE(os.stat(out).st_mode), 0o440)
+        self.assertEqual(self.partials(folder), [])
+
     def test_full_disk_keeps_the_earlier_asset(self):
         """A 64 KiB file-size limit (ulimit -f) stands for a full disk: the kernel refuses the write (EFBIG) and,
         by default, sends SIGXFSZ, which voxfmt must not die of (reset here: Python starts children ignoring it)."""

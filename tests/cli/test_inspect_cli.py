@@ -208,7 +208,7 @@ class InspectExports(unittest.TestCase):
         exports = json.loads(r.stdout)["exports"]
         self.assertEqual([e["kind"] for e in exports], ["html", "point_shell"])
         self.assertEqual(exports[0]["file"], os.path.join(card, "index.html"))
-        self.assertEqual(exports[0]["bytes"] > 0, True)
+        self.assertGreater(exports[0]["bytes"], 0)
         self.assertTrue(os.path.isfile(ply) and os.path.isfile(os.path.join(card, "index.html")))
         for clash, words in ((card, "is a folder"), (os.path.join(card, "shell.ply"), "is --html's folder or in it")):
             r = self.inspect("--html", card, "--ply", clash)  # refused before anything is written
