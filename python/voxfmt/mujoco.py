@@ -250,10 +250,16 @@ def part(
     when it compiles the model, from the absolute path written into the MJCF."""
     from . import load
 
-    path = os.path.abspath(os.fspath(asset_path))
+    path = os.path.abspath(os.fsdecode(os.fspath(asset_path)))
+    try:
+        encoded = path.encode()
+    except UnicodeEncodeError:  # a name that is not UTF-8 (os.fsdecode's surrogates): MJCF is UTF-8 text
+        from ._errors import OptionError
+
+        raise OptionError("BAD_OPTION", f"asset_path: {path!r} is not UTF-8, which an MJCF file cannot name") from None
     body = load(path, density=density)
     instance = "voxfmt_" + re.sub(r"[^A-Za-z0-9_]", "_", os.path.basename(path).split(".")[0])
-    instance += "_" + hashlib.sha1(path.encode()).hexdigest()[:8]
+    instance += "_" + hashlib.sha1(encoded).hexdigest()[:8]
     extension = f'<instance name="{instance}"><config key="file" value="{_attribute(path)}"/></instance>'
     asset = f'<mesh name="{instance}"><plugin instance="{instance}"/></mesh>'
     inertia = np.asarray(body.inertia)
@@ -276,7 +282,9 @@ def insert(mjcf: str, *parts: Part) -> str:
     lacks are created."""
     instances: dict[str, Part] = {}
     for p in parts:
-        instances.setdefault(p.instance, p)
+        # Each file once, in this call and across calls (a document that already names the instance has it).
+        if f'<instance name="{p.instance}">' not in mjcf:
+            instances.setdefault(p.instance, p)
     plugin = (
         f'<extension><plugin plugin="{PLUGIN_NAME}">'
         + "".join(p.extension for p in instances.values())
@@ -289,7 +297,7 @@ def insert(mjcf: str, *parts: Part) -> str:
         from ._errors import OptionError
 
         raise OptionError("BAD_OPTION", "mjcf: expected a <mujoco> ... </mujoco> document")
-    out = mjcf[: opening.end()] + plugin + mjcf[opening.end() :]
+    out = mjcf[: opening.end()] + (plugin if instances else "") + mjcf[opening.end() :]
     out = _add_to_section(out, "asset", meshes)
     return _add_to_section(out, "worldbody", bodies)
 

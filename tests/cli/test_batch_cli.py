@@ -238,6 +238,10 @@ class Batch(unittest.TestCase):
         r, summary = self.batch(self.lib, "--report-dir", html, expect=1)  # flat.off fails, as ever
         self.assertEqual(summary["built"], 4)
         self.assertTrue(os.path.isfile(os.path.join(html, "index.html")))
+        # "0/01" is one shard as the batch reads it: its report is written too.
+        one = os.path.join(self.root, "one-shard")
+        r, summary = self.batch(self.lib, "--shard", "0/01", "--report-dir", one, expect=1)
+        self.assertTrue(os.path.isfile(os.path.join(one, "index.html")), r.stderr)
 
     def test_shards_cover_the_library_disjointly(self):
         for i in range(8):  # enough meshes that both shards get some

@@ -118,6 +118,20 @@ def test_one_file_is_loaded_once_for_every_geom(sphere_asset) -> None:  # type: 
     mujoco.MjModel.from_xml_string(xml)  # a second model of the same file: still loaded once
     assert model.ngeom == 4
     assert vm.loaded_files() - before <= 1  # 0 if an earlier test loaded it
+    # Parts of that file inserted one call at a time: its instance and mesh still once (MuJoCo refuses a repeat).
+    again = vm.insert(vm.insert(scene(), parts[0]), parts[1])
+    assert again.count("<mesh ") == 1 and again.count("<instance ") == 1 and again.count("<extension>") == 1
+    assert mujoco.MjModel.from_xml_string(again).ngeom == 3
+
+
+def test_a_path_mjcf_cannot_name_is_a_coded_error(sphere_asset, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import os
+    import shutil
+
+    odd = os.fsdecode(os.fsencode(str(tmp_path)) + b"/ball\xff.vox.h5")  # a name that is not UTF-8
+    shutil.copy(sphere_asset, os.fsencode(odd))
+    with pytest.raises(voxfmt.OptionError, match="not UTF-8"):
+        vm.part(odd, "ball")
 
 
 def test_part_carries_the_assets_mass_properties(sphere_asset) -> None:  # type: ignore[no-untyped-def]

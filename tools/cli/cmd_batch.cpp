@@ -609,7 +609,7 @@ void Runner::report(bool interrupted) const {
 // `batch --report`: the library's report once the batch is done (a shard's batch says when to write it instead).
 // The report's exit code, 0 if written.
 int report_after_batch(const Options& o) {
-  if (o.shard.substr(o.shard.find('/') + 1) != "1") {
+  if (parse_shard(o.shard).count != 1) {  // as the batch read it ("0/01" is one shard)
     std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o.output_dir
               << "` once every shard is done (it reads every shard's manifest)\n";
     return 0;
