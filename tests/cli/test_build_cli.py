@@ -11,6 +11,14 @@ VOXFMT = os.environ.get("VOXFMT_BIN")
 MESHES = os.environ.get("VOXFMT_SAMPLE_MESHES", "")
 
 
+def as_nobody():
+    """preexec_fn: the child runs as the user nobody where the test runs as root (permissions do not stop root)."""
+    if os.geteuid() == 0:
+        os.setgroups([])
+        os.setgid(65534)
+        os.setuid(65534)
+
+
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
 class CommandLine(unittest.TestCase):
     def test_no_command_prints_the_overview_and_an_unknown_one_is_named(self):
@@ -232,6 +240,12 @@ class BuildBadOutput(unittest.TestCase):
         self.assertEqual(json.loads(r.stdout)["code"], "WRITE_FAILED")
         self.assertIn(words, r.stderr)
 
+    def skip_unless_nobody_can_run_voxfmt(self):
+        try:
+            subprocess.run([VOXFMT, "--version"], preexec_fn=as_nobody, capture_output=True, check=True)
+        except (OSError, subprocess.CalledProcessError):
+            self.skipTest("the user nobody cannot run voxfmt from this checkout (a parent folder is private)")
+
     def partials(self, folder):
         return [f for f in os.listdir(folder) if ".partial-" in f]
 
@@ -304,17 +318,7 @@ class BuildBadOutput(unittest.TestCase):
         os.chmod(self.dir.name, 0o755)
         os.chmod(self.mesh, 0o644)
         os.chmod(folder, 0o555)
-
-        def as_nobody():
-            if os.geteuid() == 0:
-                os.setgroups([])
-                os.setgid(65534)
-                os.setuid(65534)
-
-        try:
-            subprocess.run([VOXFMT, "--version"], preexec_fn=as_nobody, capture_output=True, check=True)
-        except (OSError, subprocess.CalledProcessError):
-            self.skipTest("the user nobody cannot run voxfmt from this checkout (a parent folder is private)")
+        self.skip_unless_nobody_can_run_voxfmt()
         try:
             self.expect_write_failed(self.build(out, preexec_fn=as_nobody), "Permission denied")
         finally:
@@ -332,17 +336,7 @@ class BuildBadOutput(unittest.TestCase):
         os.chmod(self.mesh, 0o644)
         if os.geteuid() == 0:
             os.chown(folder, 65534, 65534)
-
-        def as_nobody():
-            if os.geteuid() == 0:
-                os.setgroups([])
-                os.setgid(65534)
-                os.setuid(65534)
-
-        try:
-            subprocess.run([VOXFMT, "--version"], preexec_fn=as_nobody, capture_output=True, check=True)
-        except (OSError, subprocess.CalledProcessError):
-            self.skipTest("the user nobody cannot run voxfmt from this checkout (a parent folder is private)")
+        self.skip_unless_nobody_can_run_voxfmt()
         out = os.path.join(folder, "out.vox.h5")
         self.assertEqual(self.build(out, preexec_fn=as_nobody).returncode, 0)
         os.chmod(out, 0o440)
