@@ -194,10 +194,6 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
   const std::string folder = slash == std::string::npos ? "" : path.substr(0, slash + 1);
   const std::string temp = folder + temporary_stem(path.substr(folder.size())) + std::string(kPartialMarker) +
                            std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  auto fail = [&](Status status) {
-    std::remove(temp.c_str());
-    return status;
-  };
   // A file of this user's that is replaced keeps its permissions, set just before the rename. A private asset stays
   // private during the write too: the temporary is made before any byte is written, for its owner alone (and
   // writable by them, whatever the final mode: a read-only asset is replaced as before). Set-id bits are not
@@ -211,20 +207,27 @@ Status write_file_atomically(const std::string& given, const AtomicWrite& steps)
     if (fd < 0) return write_failed(path, std::string("cannot create the temporary file: ") + std::strerror(errno));
     ::close(fd);
   }
+  // From here the temporary is ours: removed on every way out but the rename, an exception's included.
+  struct RemoveUnlessCommitted {
+    const std::string& temp;
+    bool committed = false;
+    ~RemoveUnlessCommitted() {
+      if (!committed) std::remove(temp.c_str());
+    }
+  } guard{temp};
   Status written = steps.write ? steps.write(temp) : Status(write_failed(path, "nothing to write"));
-  if (!written) return fail(written);
+  if (!written) return written;
   if (!sync_path(temp, false))
-    return fail(write_failed(path, std::string("cannot flush the temporary file to disk: ") + std::strerror(errno)));
+    return write_failed(path, std::string("cannot flush the temporary file to disk: ") + std::strerror(errno));
   if (steps.before_commit) {
     Status check = steps.before_commit();
-    if (!check) return fail(check);
+    if (!check) return check;
   }
   if (keep_mode && ::chmod(temp.c_str(), mode) != 0)  // past the umask, and what a writer's copy may have set
-    return fail(
-        write_failed(path, std::string("cannot keep the replaced file's permissions: ") + std::strerror(errno)));
+    return write_failed(path, std::string("cannot keep the replaced file's permissions: ") + std::strerror(errno));
   if (std::rename(temp.c_str(), path.c_str()) != 0)
-    return fail(
-        write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno)));
+    return write_failed(path, std::string("cannot rename the temporary file into place: ") + std::strerror(errno));
+  guard.committed = true;
   sync_path(parent_directory(path), true);  // best effort: the file is complete either way
   return Status::success();
 }

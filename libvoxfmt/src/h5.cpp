@@ -85,6 +85,20 @@ std::string describe_type(hid_t type) {
 }
 }  // namespace
 
+namespace {
+herr_t find_failed_allocation(unsigned, const H5E_error2_t* err, void* client) {
+  if (err->maj_num == H5E_RESOURCE && (err->min_num == H5E_NOSPACE || err->min_num == H5E_CANTALLOC))
+    *static_cast<bool*>(client) = true;
+  return 0;
+}
+}  // namespace
+
+bool hdf5_ran_out_of_memory() {
+  bool found = false;
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, find_failed_allocation, &found);
+  return found;
+}
+
 std::string last_hdf5_reason() {
   std::string reason;
   H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, collect_innermost, &reason);
@@ -756,6 +770,7 @@ std::vector<std::string> Reader::attribute_names(hid_t object) {
 // ---------------------------------------------------------------- Writer
 
 bool Writer::fail(const std::string& what) {
+  out_of_memory_ = hdf5_ran_out_of_memory();
   failure_ = what + " (" + last_hdf5_reason() + ")";
   return false;
 }

@@ -51,6 +51,8 @@ class Handle {
 void silence_hdf5_errors();
 /// The innermost reason on HDF5's current error stack, e.g. "truncated file: eof = 1024, ...".
 std::string last_hdf5_reason();
+/// Whether HDF5's error stack holds a failed allocation (call before last_hdf5_reason, which clears it).
+bool hdf5_ran_out_of_memory();
 
 /// Longest string attribute a file may hold, in bytes (spec §1): bounds what a hostile file can make us allocate,
 /// and stays below HDF5's 64 KiB limit of a fixed-length attribute in an object header.
@@ -235,11 +237,14 @@ class Writer {
                int deflate_level = 0, const std::vector<uint64_t>& chunk = {}, const T* fill = nullptr);
 
   const std::string& failure() const { return failure_; }
+  /// Whether the failure was HDF5 running out of memory (OUT_OF_MEMORY, not WRITE_FAILED).
+  bool out_of_memory() const { return out_of_memory_; }
 
  private:
   bool fail(const std::string& what);
   hid_t file_;
   std::string failure_;
+  bool out_of_memory_ = false;
 };
 
 }  // namespace voxfmt::h5

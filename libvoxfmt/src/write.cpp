@@ -7,6 +7,7 @@
 #include <cstring>
 #include <future>
 #include <limits>
+#include <new>
 #include <optional>
 #include <system_error>
 
@@ -171,12 +172,15 @@ Status write_in_memory_then_to(const std::string& temp, const std::string& path,
   h5::Writer writer(file);
   bool ok = false;
   std::string reason;
+  bool out_of_memory = false;  // the file is built in memory: a failed allocation is OUT_OF_MEMORY, not the disk's
   std::vector<char> image;
   try {
     ok = write_contents(writer, asset, options);
     reason = writer.failure();
+    out_of_memory = writer.out_of_memory();
     if (ok && H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) {
       ok = false;
+      out_of_memory = h5::hdf5_ran_out_of_memory();
       reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
     }
     const ssize_t size = ok ? H5Fget_file_image(file, nullptr, 0) : -1;
@@ -186,19 +190,24 @@ Status write_in_memory_then_to(const std::string& temp, const std::string& path,
     } else {
       ok = false;
     }
-    if (!ok && reason.empty()) reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
-  } catch (const std::exception& e) {  // allocation or thread failures: still close the file
+    if (!ok && reason.empty()) {
+      out_of_memory = h5::hdf5_ran_out_of_memory();
+      reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
+    }
+  } catch (const std::bad_alloc&) {
+    ok = false;
+    out_of_memory = true;
+    reason = "out of memory building the file";
+  } catch (const std::exception& e) {  // thread failures: still close the file
     ok = false;
     reason = std::string("write failed: ") + e.what();
   }
   H5Fclose(file);  // in memory: nothing to fail on
-  if (!ok) return Error{IssueCode::WriteFailed, path + ": " + reason, path};
+  if (!ok) return Error{out_of_memory ? IssueCode::OutOfMemory : IssueCode::WriteFailed, path + ": " + reason, path};
   return write_bytes(temp, image, path);
 }
 
-}  // namespace
-
-Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
+Status write_checked_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
   // Structure first (the writer indexes by it), then the semantic rules beside the write.
   if (auto error = first_error(path, validate_asset(asset, ValidationLevel::Quick))) return *error;
   std::future<std::optional<Error>> semantic;
@@ -228,6 +237,16 @@ Status write_asset(const std::string& path, const Asset& asset, const WriteOptio
   wait_for_check();
   if (semantic_error) return *semantic_error;  // outranks the write failure it may have caused
   return written;
+}
+
+}  // namespace
+
+Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options) {
+  try {
+    return write_checked_asset(path, asset, options);
+  } catch (const std::bad_alloc&) {  // in the rules' checks: the temporary, if any, is gone (write_file_atomically)
+    return Error{IssueCode::OutOfMemory, path + ": out of memory writing the asset", path};
+  }
 }
 
 }  // namespace voxfmt

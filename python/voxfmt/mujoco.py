@@ -17,6 +17,7 @@ import hashlib
 import os
 import re
 import threading
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -136,12 +137,9 @@ def loaded_files() -> int:
 
 def _asset_path_bytes(asset_path: str | os.PathLike[str]) -> bytes:
     """The absolute path as the plugin's C interface takes it; a NUL byte would cut it to another file's name."""
-    path = os.fsencode(os.path.abspath(os.fspath(asset_path)))
-    if b"\0" in path:
-        from ._errors import OptionError
+    from . import _path
 
-        raise OptionError("BAD_OPTION", "asset_path: embedded null byte")
-    return path
+    return os.fsencode(os.path.abspath(_path(asset_path, "asset_path")))
 
 
 def field_bytes(asset_path: str | os.PathLike[str]) -> int:
@@ -227,8 +225,58 @@ def _numbers(values: Sequence[float] | npt.ArrayLike) -> str:
     return " ".join(f"{float(v):.10g}" for v in np.asarray(values, dtype=float).ravel())
 
 
+def _vector(what: str, values: Sequence[float] | npt.ArrayLike, size: int) -> npt.NDArray[np.float64]:
+    from ._errors import OptionError
+
+    raw = np.asarray(values)
+    if raw.dtype.kind not in "iuf" or raw.shape != (size,):
+        raise OptionError("BAD_OPTION", f"{what}: expected {size} real numbers, got {values!r}")
+    v = raw.astype(np.float64)
+    if not np.isfinite(v).all():
+        raise OptionError("BAD_OPTION", f"{what}: expected finite numbers, got {_numbers(v)}")
+    return v
+
+
+# XML 1.0 holds no other control characters, not even escaped: MJCF could not carry them.
+_NOT_IN_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff\ud800-\udfff]")
+_XML_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]*")
+_GEOM_SET_BY_PART = ("name", "type", "mesh")
+
+
+def _text(what: str, value: object) -> str:
+    from ._errors import OptionError
+
+    if not isinstance(value, str):
+        raise OptionError("BAD_OPTION", f"{what}: expected a string, got {type(value).__name__}")
+    if _NOT_IN_XML.search(value):
+        raise OptionError("BAD_OPTION", f"{what}: {value!r} holds a character an MJCF (XML) file cannot")
+    return value
+
+
 def _attribute(value: str) -> str:
-    return value.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
+    # Line breaks and tabs escaped too: a parser would read them back as spaces.
+    return (
+        value.replace("&", "&amp;")
+        .replace('"', "&quot;")
+        .replace("<", "&lt;")
+        .replace(">", "&gt;")
+        .replace("\n", "&#10;")
+        .replace("\r", "&#13;")
+        .replace("\t", "&#9;")
+    )
+
+
+def _geom_attributes(geom: dict[str, str] | None) -> str:
+    from ._errors import OptionError
+
+    extra = ""
+    for key, value in (geom or {}).items():
+        if not isinstance(key, str) or not _XML_NAME.fullmatch(key):
+            raise OptionError("BAD_OPTION", f"geom: {key!r} is not an attribute name")
+        if key in _GEOM_SET_BY_PART:
+            raise OptionError("BAD_OPTION", f"geom: {key!r} is set by part() itself")
+        extra += f' {key}="{_attribute(_text(f"geom[{key!r}]", str(value)))}"'
+    return extra
 
 
 def part(
@@ -248,15 +296,21 @@ def part(
 
     The asset is read once here (AssetError if it cannot be); MuJoCo reads it again through the plugin's cache
     when it compiles the model, from the absolute path written into the MJCF."""
-    from . import load
+    from . import _path, load
+    from ._errors import OptionError
 
-    path = os.path.abspath(os.fsdecode(os.fspath(asset_path)))
+    path = os.path.abspath(_path(asset_path, "asset_path"))
     try:
         encoded = path.encode()
     except UnicodeEncodeError:  # a name that is not UTF-8 (os.fsdecode's surrogates): MJCF is UTF-8 text
-        from ._errors import OptionError
-
         raise OptionError("BAD_OPTION", f"asset_path: {path!r} is not UTF-8, which an MJCF file cannot name") from None
+    _text("asset_path", path)
+    name = _text("name", name)
+    position = _vector("pos", pos, 3)
+    orientation = _vector("quat", quat, 4)
+    if not orientation.any():
+        raise OptionError("BAD_OPTION", "quat: (0, 0, 0, 0) is no orientation")
+    extra = _geom_attributes(geom)
     body = load(path, density=density)
     instance = "voxfmt_" + re.sub(r"[^A-Za-z0-9_]", "_", os.path.basename(path).split(".")[0])
     instance += "_" + hashlib.sha1(encoded).hexdigest()[:8]
@@ -264,10 +318,9 @@ def part(
     asset = f'<mesh name="{instance}"><plugin instance="{instance}"/></mesh>'
     inertia = np.asarray(body.inertia)
     full = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
-    extra = "".join(f' {k}="{_attribute(str(v))}"' for k, v in (geom or {}).items())
     joint = "" if static else "<freejoint/>"
     xml = (
-        f'<body name="{_attribute(name)}" pos="{_numbers(pos)}" quat="{_numbers(quat)}">{joint}'
+        f'<body name="{_attribute(name)}" pos="{_numbers(position)}" quat="{_numbers(orientation)}">{joint}'
         f'<inertial pos="{_numbers(body.center_of_mass)}" mass="{body.mass:.10g}" fullinertia="{_numbers(full)}"/>'
         f'<geom name="{_attribute(name)}" type="sdf" mesh="{instance}"{extra}><plugin instance="{instance}"/></geom>'
         "</body>"
@@ -279,32 +332,42 @@ def part(
 def insert(mjcf: str, *parts: Part) -> str:
     """``mjcf`` (a whole ``<mujoco>`` document) with the parts added: the plugin's ``<extension>`` entry, each
     file's mesh in ``<asset>`` once, and each part's body at the end of ``<worldbody>``. Sections the document
-    lacks are created."""
-    instances: dict[str, Part] = {}
-    for p in parts:
-        # Each file once, in this call and across calls (a document that already names the instance has it).
-        if f'<instance name="{p.instance}">' not in mjcf:
-            instances.setdefault(p.instance, p)
-    plugin = (
-        f'<extension><plugin plugin="{PLUGIN_NAME}">'
-        + "".join(p.extension for p in instances.values())
-        + "</plugin></extension>"
-    )
-    meshes = "".join(p.asset for p in instances.values())
-    bodies = "".join(p.body for p in parts)
-    opening = re.search(r"<mujoco\b[^>]*>", mjcf)
-    if not opening or "</mujoco>" not in mjcf:
-        from ._errors import OptionError
+    lacks are created; an instance or mesh it already has is not repeated (MuJoCo refuses a repeat). The
+    document is parsed as XML (comments kept; an XML declaration or a comment before ``<mujoco>`` is not): an
+    MJCF file that is not well-formed XML is an OptionError."""
+    from ._errors import OptionError
 
-        raise OptionError("BAD_OPTION", "mjcf: expected a <mujoco> ... </mujoco> document")
-    out = mjcf[: opening.end()] + (plugin if instances else "") + mjcf[opening.end() :]
-    out = _add_to_section(out, "asset", meshes)
-    return _add_to_section(out, "worldbody", bodies)
+    try:
+        root = ET.fromstring(mjcf, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
+    except ET.ParseError as e:
+        raise OptionError("BAD_OPTION", f"mjcf: not a well-formed XML document: {e}") from None
+    if root.tag != "mujoco":
+        raise OptionError("BAD_OPTION", f"mjcf: expected a <mujoco> ... </mujoco> document, got <{root.tag}>")
+    instances = {i.get("name") for i in root.iterfind("extension/plugin/instance")}
+    meshes = {m.get("name") for m in root.iterfind("asset/mesh")}
+    new_instances: dict[str, Part] = {p.instance: p for p in parts if p.instance not in instances}
+    if new_instances:
+        plugin = root.find(f"extension/plugin[@plugin='{PLUGIN_NAME}']")
+        if plugin is None:
+            extension = root.find("extension")
+            if extension is None:
+                extension = ET.Element("extension")
+                root.insert(0, extension)  # before the assets and bodies that name its instances
+            plugin = ET.SubElement(extension, "plugin", plugin=PLUGIN_NAME)
+        for p in new_instances.values():
+            plugin.append(ET.fromstring(p.extension))
+    new_meshes = {p.instance: p for p in parts if p.instance not in meshes}
+    if new_meshes:
+        asset = _last_section(root, "asset")
+        for p in new_meshes.values():
+            asset.append(ET.fromstring(p.asset))
+    if parts:
+        worldbody = _last_section(root, "worldbody")
+        for p in parts:
+            worldbody.append(ET.fromstring(p.body))
+    return ET.tostring(root, encoding="unicode")
 
 
-def _add_to_section(mjcf: str, section: str, content: str) -> str:
-    closing = mjcf.rfind(f"</{section}>")
-    if closing >= 0:
-        return mjcf[:closing] + content + mjcf[closing:]
-    end = mjcf.rfind("</mujoco>")
-    return mjcf[:end] + f"<{section}>{content}</{section}>" + mjcf[end:]
+def _last_section(root: ET.Element, section: str) -> ET.Element:
+    found = root.findall(section)
+    return found[-1] if found else ET.SubElement(root, section)

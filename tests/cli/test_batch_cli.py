@@ -238,10 +238,18 @@ class Batch(unittest.TestCase):
         r, summary = self.batch(self.lib, "--report-dir", html, expect=1)  # flat.off fails, as ever
         self.assertEqual(summary["built"], 4)
         self.assertTrue(os.path.isfile(os.path.join(html, "index.html")))
+        # One JSON document on stdout, the report's summary in it as `voxfmt report --json` prints it.
+        self.assertEqual(summary["report"]["index_html"], os.path.join(html, "index.html"))
+        self.assertEqual((summary["report"]["meshes"], summary["report"]["failed"]), (5, 1), summary["report"])
         # "0/01" is one shard as the batch reads it: its report is written too.
         one = os.path.join(self.root, "one-shard")
         r, summary = self.batch(self.lib, "--shard", "0/01", "--report-dir", one, expect=1)
         self.assertTrue(os.path.isfile(os.path.join(one, "index.html")), r.stderr)
+        self.assertEqual(summary["report"]["meshes"], 5)
+        # A shard of several writes none (`voxfmt report` reads every shard's manifest once all are done).
+        r, summary = self.batch(self.lib, "--shard", "0/2", "--report", expect=None)
+        self.assertIsNone(summary["report"], r.stderr)
+        self.assertIn("once every shard is done", r.stderr)
 
     def test_shards_cover_the_library_disjointly(self):
         for i in range(8):  # enough meshes that both shards get some

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -8,6 +9,8 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <new>
+#include <stdexcept>
 
 #include "analytic_sphere.h"
 #include "test_support.h"
@@ -315,6 +318,78 @@ TEST(Files, AReplacedFileKeepsItsPermissions) {
   std::ifstream written(file);
   EXPECT_EQ(std::string(std::istreambuf_iterator<char>(written), {}), "third");
 }
+
+TEST(Files, AStepThatThrowsLeavesNoTemporary) {
+  const std::string dir = test::scratch_dir("throwing-step");
+  const std::string file = dir + "/a.vox.h5";
+  ASSERT_TRUE(write_file_atomically(file, std::string_view("first")));
+  for (const bool in_write : {true, false}) {
+    AtomicWrite steps;
+    steps.write = [&](const std::string& temporary) -> Status {
+      std::ofstream(temporary, std::ios::binary) << "second";
+      if (in_write) throw std::bad_alloc();
+      return Status::success();
+    };
+    steps.before_commit = [&]() -> Status { throw std::runtime_error("check failed"); };
+    EXPECT_ANY_THROW((void)write_file_atomically(file, steps));
+    size_t files = 0;
+    for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+      ++files;
+      EXPECT_EQ(entry.path().filename(), "a.vox.h5");
+    }
+    EXPECT_EQ(files, 1u);
+    std::ifstream kept(file);
+    EXPECT_EQ(std::string(std::istreambuf_iterator<char>(kept), {}), "first");
+  }
+}
+
+#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)  // their allocators abort instead of failing
+size_t address_space_bytes() {
+  std::ifstream statm("/proc/self/statm");
+  size_t pages = 0;
+  statm >> pages;
+  return pages * size_t(::sysconf(_SC_PAGESIZE));
+}
+
+TEST(Write, MemoryTheWriteCannotGetIsOutOfMemoryNotAWriteFailure) {
+  // The file is built in memory before its bytes go to disk: an allocation failing there (a batch's --max-memory,
+  // a container's limit) is OUT_OF_MEMORY, a limit to raise, not WRITE_FAILED, the disk; and leaves no temporary.
+  const std::string dir = test::scratch_dir("write-out-of-memory");
+  test::SphereSpec spec;
+  spec.points = 400000;  // ~20 MB of arrays
+  const Asset sphere = test::make_sphere_asset(spec);
+  int out_of_memory = 0, written = 0;
+  for (const size_t margin_mib : {1, 2, 4, 8, 16, 32, 256}) {
+    const pid_t child = ::fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+      const rlim_t limit = address_space_bytes() + (margin_mib << 20);
+      const rlimit r{limit, limit};
+      if (::setrlimit(RLIMIT_AS, &r) != 0) ::_exit(20);
+      try {
+        const Status status = write_asset(dir + "/sphere.vox.h5", sphere, test::structural());
+        if (status) ::_exit(0);
+        ::_exit(status.error().code == IssueCode::OutOfMemory   ? 10
+                : status.error().code == IssueCode::WriteFailed ? 11
+                                                                : 12);
+      } catch (...) {
+        ::_exit(13);
+      }
+    }
+    int status = 0;
+    ASSERT_EQ(::waitpid(child, &status, 0), child);
+    ASSERT_TRUE(WIFEXITED(status)) << margin_mib << " MiB: killed by signal " << WTERMSIG(status);
+    const int code = WEXITSTATUS(status);
+    EXPECT_TRUE(code == 0 || code == 10) << margin_mib << " MiB more address space: exit " << code;
+    out_of_memory += code == 10;
+    written += code == 0;
+  }
+  EXPECT_GT(out_of_memory, 0);
+  EXPECT_GT(written, 0);  // and with room enough, the same write succeeds
+  for (const auto& entry : std::filesystem::directory_iterator(dir))
+    EXPECT_EQ(entry.path().filename(), "sphere.vox.h5");
+}
+#endif
 
 TEST(Text, TerminalSafeEscapesControlsAndBytesThatAreNotUtf8) {
   // Printable UTF-8 passes as it is, a multi-byte letter and a four-byte sequence included.

@@ -168,8 +168,48 @@ def test_static_part_and_geom_attributes(sphere_asset) -> None:  # type: ignore[
 
 
 def test_insert_needs_a_mujoco_document(sphere_asset) -> None:  # type: ignore[no-untyped-def]
-    with pytest.raises(voxfmt.OptionError):
-        vm.insert("<worldbody/>", vm.part(sphere_asset, "ball"))
+    ball = vm.part(sphere_asset, "ball")
+    for not_mjcf in ("<worldbody/>", "<mujoco><worldbody></mujoco>", "<!-- <mujoco> --><x></x>"):
+        with pytest.raises(voxfmt.OptionError, match="mjcf"):
+            vm.insert(not_mjcf, ball)
+
+
+def test_insert_reads_the_document_as_xml(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # Tags inside comments, sections written as empty elements, the plugin declared by the author with an
+    # instance of their own: the parts go where MuJoCo reads them, and nothing the author wrote is repeated.
+    ball = vm.part(sphere_asset, "ball", pos=(0, 0, 0.2))
+    author = ball.extension.replace(f'name="{ball.instance}"', 'name="mine"')
+    document = (
+        '<?xml version="1.0"?><mujoco model="m"><!-- </worldbody> <asset> </mujoco> -->'
+        f'<extension><plugin plugin="{vm.PLUGIN_NAME}">{author}</plugin></extension>'
+        f'<option timestep="0.001"/><asset/><worldbody/><worldbody>{BOX}</worldbody></mujoco>'
+    )
+    xml = vm.insert(document, ball)
+    assert "<!-- </worldbody> <asset> </mujoco> -->" in xml  # the author's comment is kept
+    assert xml.count("<extension>") == 1 and xml.count(f'plugin="{vm.PLUGIN_NAME}"') == 1
+    model = mujoco.MjModel.from_xml_string(xml)
+    assert model.ngeom == 2 and model.nbody == 2
+    assert vm.insert(xml, ball).count("<mesh ") == 1  # the part's mesh and instance once, its body again
+
+
+def test_part_refuses_what_mjcf_cannot_hold(sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    for bad in (
+        {"pos": (0, math.nan, 0)},
+        {"pos": (0, 0)},
+        {"quat": (1, 0, 0)},
+        {"quat": (0, 0, 0, 0)},
+        {"geom": {'friction="1" name': "x"}},  # a key that would write an attribute of its own
+        {"geom": {"name": "other"}},  # set by part() itself
+        {"geom": {"rgba": "1 0 0\x01"}},
+    ):
+        with pytest.raises(voxfmt.OptionError):
+            vm.part(sphere_asset, "ball", **bad)  # type: ignore[arg-type]
+    with pytest.raises(voxfmt.OptionError, match="name"):
+        vm.part(sphere_asset, "ball\x00")
+    # Quotes, markup and a line break in a name reach MuJoCo as written.
+    odd = 'a "b" <c> & d\ne'
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene(), vm.part(sphere_asset, odd, pos=(0, 0, 0.2))))
+    assert model.body(1).name == odd
 
 
 def test_evaluate_is_the_runtimes_field(sphere_asset) -> None:  # type: ignore[no-untyped-def]

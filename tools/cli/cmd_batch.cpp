@@ -88,6 +88,8 @@ class Runner {
  public:
   explicit Runner(const Options& o) : o_(o) {}
   int run();
+  /// With --json, the batch's summary (printed by the caller, once the report has been added to it).
+  nlohmann::json& summary() { return summary_; }
 
  private:
   nlohmann::json base_record(const BatchItem& item) const;
@@ -107,9 +109,10 @@ class Runner {
   bool bake_all(const bake::Settings& settings);
   void record_finished(const std::vector<ChildResult>& finished);
   void record_bake(const ChildResult& child);
-  void report(bool interrupted) const;
+  void report(bool interrupted);
 
   const Options& o_;
+  nlohmann::json summary_;
   Shard shard_;
   std::vector<BatchItem> mine_;       ///< this shard's meshes
   size_t all_count_ = 0;              ///< every shard's
@@ -564,28 +567,27 @@ void Runner::record_bake(const ChildResult& child) {
   progress_->report(record, finished_, todo_.size());
 }
 
-void Runner::report(bool interrupted) const {
+void Runner::report(bool interrupted) {
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (o_.json) {
-    std::cout << to_text(nlohmann::json{{"meshes", mine_.size()},
-                                        {"meshes_all_shards", all_count_},
-                                        {"shard", {shard_.index, shard_.count}},
-                                        {"built", counts_.built},
-                                        {"up_to_date", counts_.up_to_date},
-                                        {"failed", counts_.failed},
-                                        {"failed_not_retried", counts_.failed_before},
-                                        {"not_in_inputs", not_in_inputs_},
-                                        {"pruned", o_.prune ? prunable_.size() : 0},
-                                        {"not_started", todo_.size() - finished_},
-                                        {"interrupted", interrupted},
-                                        {"seconds", seconds},
-                                        {"jobs", jobs_},
-                                        {"threads_per_bake", threads_},
-                                        {"output_dir", o_.output_dir},
-                                        {"manifest", manifest_path_},
-                                        {"failures", failures_},
-                                        {"skipped_inputs", skipped_}})
-              << "\n";
+    summary_ = nlohmann::json{{"meshes", mine_.size()},
+                              {"meshes_all_shards", all_count_},
+                              {"shard", {shard_.index, shard_.count}},
+                              {"built", counts_.built},
+                              {"up_to_date", counts_.up_to_date},
+                              {"failed", counts_.failed},
+                              {"failed_not_retried", counts_.failed_before},
+                              {"not_in_inputs", not_in_inputs_},
+                              {"pruned", o_.prune ? prunable_.size() : 0},
+                              {"not_started", todo_.size() - finished_},
+                              {"interrupted", interrupted},
+                              {"seconds", seconds},
+                              {"jobs", jobs_},
+                              {"threads_per_bake", threads_},
+                              {"output_dir", o_.output_dir},
+                              {"manifest", manifest_path_},
+                              {"failures", failures_},
+                              {"skipped_inputs", skipped_}};
   } else {
     std::cout << "voxfmt batch: " << mine_.size() << " mesh(es) in " << terminal_safe(o_.output_dir);
     if (shard_.count > 1) std::cout << " (shard " << shard_.index << "/" << shard_.count << ")";
@@ -607,11 +609,13 @@ void Runner::report(bool interrupted) const {
 }
 
 // `batch --report`: the library's report once the batch is done (a shard's batch says when to write it instead).
-// The report's exit code, 0 if written.
-int report_after_batch(const Options& o) {
+// With --json it goes into the batch's summary as "report" (null for a shard, {"status": "error", ...} when it
+// failed). The report's exit code, 0 if written.
+int report_after_batch(const Options& o, nlohmann::json& summary) {
   if (parse_shard(o.shard).count != 1) {  // as the batch read it ("0/01" is one shard)
     std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o.output_dir
               << "` once every shard is done (it reads every shard's manifest)\n";
+    if (o.json) summary["report"] = nullptr;
     return 0;
   }
   report::LibraryReportOptions options;
@@ -621,9 +625,14 @@ int report_after_batch(const Options& o) {
   options.threads = int(o.jobs);
   if (!o.json && !o.quiet) options.progress = report_progress();
   const Result<report::ReportInfo> info = report::write_library_report(options);
-  if (!info) return report_error("batch", info.error());
-  if (o.json)  // stdout holds one JSON document: the batch's
-    std::cerr << "report: " << info->index_html << "\n";
+  if (!info) {
+    if (o.json)
+      summary["report"] = {
+          {"status", "error"}, {"code", code_name(info.error().code)}, {"message", info.error().message}};
+    return report_error("batch", info.error());
+  }
+  if (o.json)
+    summary["report"] = report_summary_json(info.value());
   else
     print_report_summary(info.value());
   return 0;
@@ -651,8 +660,11 @@ void check_max_memory(size_t mib) {
 int run_batch(const Options& o) {
   try {
     check_max_memory(o.max_memory_mib);
-    int exit_code = Runner(o).run();
-    if (o.report && exit_code < 128) exit_code = std::max(exit_code, report_after_batch(o));  // not once stopped
+    Runner runner(o);
+    int exit_code = runner.run();
+    if (o.report && exit_code < 128)  // not once stopped
+      exit_code = std::max(exit_code, report_after_batch(o, runner.summary()));
+    if (o.json) std::cout << to_text(runner.summary()) << "\n";  // stdout holds one JSON document
     return exit_code;
   } catch (const UsageError& e) {
     return report_error("batch", {e.code, e.what()}, o.json,

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -101,6 +102,8 @@ void add_report_command(CLI::App& app, int& exit_code);
 
 /// The report's one-line summary (`voxfmt report`, `batch --report`).
 void print_report_summary(const report::ReportInfo& info);
+/// The same as `report --json` prints it (and `batch --report --json` puts it under "report").
+nlohmann::json report_summary_json(const report::ReportInfo& info);
 /// "report: 120 / 143 meshes" on stderr when it is a terminal (nothing otherwise).
 std::function<void(size_t, size_t)> report_progress();
 

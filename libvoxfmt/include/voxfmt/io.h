@@ -46,7 +46,8 @@ struct WriteOptions {
 /// Writes `asset` to `path` atomically (write_file_atomically: a temporary `PATH.partial-<pid>-<n>` beside it,
 /// flushed, renamed over `path`), so neither a failed write nor a crash ever leaves a partial file under
 /// `path`. An asset that breaks a rule of `options.validation` is refused with INVALID_ASSET naming the rule
-/// (the earlier file at `path`, if any, stays); a file that cannot be written is WRITE_FAILED.
+/// (the earlier file at `path`, if any, stays); a file that cannot be written is WRITE_FAILED, and memory the
+/// write cannot get (the file is built in memory first) OUT_OF_MEMORY.
 Status write_asset(const std::string& path, const Asset& asset, const WriteOptions& options = {});
 
 /// How a file is read (read_asset, validate_file): what it may cost and which rules it must pass.
