@@ -2,6 +2,8 @@
 // Newton samples it, against the runtime's field on baked sample meshes (closed, open, shell).
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #define NANOVDB_USE_ZIP
 #include <nanovdb/NanoVDB.h>
 #include <nanovdb/util/GridValidator.h>
@@ -297,6 +299,21 @@ TEST(TextureSdf, EveryFormatAndTheSlotsAddressTheirBricks) {
     else
       EXPECT_LT(t->max_quantisation_error, 1e-7);
   }
+}
+
+TEST(TextureSdf, AFormatOrToleranceThatIsNoneIsRefused) {
+  // A format value outside the enum wrote four bytes a texel into a buffer of one (a crash); a NaN tolerance stored
+  // no coarse brick at all.
+  TextureSdfOptions options;
+  options.format = TextureFormat(3);
+  Result<TextureSdf> t = texture_sdf(bunny(), options);
+  ASSERT_FALSE(t);
+  EXPECT_EQ(t.error().code, IssueCode::BadOption);
+  options = {};
+  options.coarse_tolerance_voxels = std::numeric_limits<double>::quiet_NaN();
+  t = texture_sdf(bunny(), options);
+  ASSERT_FALSE(t);
+  EXPECT_EQ(t.error().code, IssueCode::BadOption);
 }
 
 TEST(EngineLayouts, AnObjectWithoutAVoxelmapIsRefused) {

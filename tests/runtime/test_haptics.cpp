@@ -6,8 +6,11 @@
 #include <pthread.h>
 #include <sched.h>
 
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <iostream>
+#include <thread>
 
 #include "analytic_sphere.h"
 #include "voxfmt/runtime/haptics.h"
@@ -304,6 +307,56 @@ TEST(Haptics, ANonFiniteSampleIsRejectedAndNeverPoisonsTheTool) {
   Pose nowhere = at(x);
   nowhere.translation.x() = INFINITY;
   EXPECT_THROW(HapticRenderer(tool(), nowhere), std::invalid_argument);
+  for (const double proximity : {-1e-3, double(NAN)}) {  // dropped contacts, or every contact
+    HapticParameters parameters;
+    parameters.query.proximity = proximity;
+    EXPECT_THROW(HapticRenderer(tool(), at(x), parameters), std::invalid_argument) << proximity;
+  }
+}
+
+TEST(Haptics, AStepTheNumbersCannotHoldIsRejectedWhole) {
+  // A finite but absurd time step overflowed the implicit solve: the tool became NaN for good.
+  const double x = kObjectRadius + kToolRadius - 0.002;
+  for (const double dt : {1e160, 5e-324}) {
+    HapticRenderer renderer(tool(), at(x));
+    renderer.add_object(big_sphere(), at(0));
+    const Wrench before = renderer.step(at(x), 1e-3).device_wrench;
+    const Pose tool_before = renderer.tool_pose();
+    const HapticCycle& odd = renderer.step(at(x + 0.01), dt);
+    EXPECT_TRUE(odd.input_rejected) << dt;
+    EXPECT_TRUE(odd.device_wrench.force.isApprox(before.force) || odd.device_wrench.force == before.force) << dt;
+    EXPECT_TRUE(renderer.tool_pose().translation == tool_before.translation) << dt;
+    for (int i = 0; i < 20; ++i) {
+      const HapticCycle& cycle = renderer.step(at(x), 1e-3);
+      ASSERT_FALSE(cycle.input_rejected) << dt;
+      ASSERT_TRUE(cycle.device_wrench.force.allFinite() && renderer.tool_pose().translation.allFinite()) << dt;
+    }
+  }
+  // A device far away pulls with the saturated force, not with none (its distance squared overflowed).
+  HapticParameters parameters;
+  HapticRenderer renderer(tool(), at(x), parameters);
+  const HapticCycle& far = renderer.step(at(1e160), 1e-3);
+  EXPECT_FALSE(far.input_rejected);
+  EXPECT_NEAR(far.device_wrench.force.x(), -parameters.max_force, 1e-9 * parameters.max_force);
+}
+
+TEST(Haptics, AnObjectPoseThatIsNotFiniteIsRefusedAndNeverPoisonsTheContacts) {
+  // A NaN pose once became the anchor of the pair's coherent front: no contact for the next 1023 cycles.
+  const double x = kObjectRadius + kToolRadius - 0.002;
+  HapticRenderer renderer(tool(), at(x));
+  Pose bad = at(0);
+  bad.translation.x() = NAN;
+  EXPECT_THROW(renderer.add_object(big_sphere(), bad), std::invalid_argument);
+  const size_t id = renderer.add_object(big_sphere(), at(0));
+  EXPECT_THROW(renderer.set_object_pose(id, bad), std::invalid_argument);
+  EXPECT_GT(renderer.step(at(x), 1e-3).contacts, 0u);
+  // The tool itself at a NaN pose (contact_wrench_at takes any pose): no contact, and the next pose finds them.
+  Pose nowhere = at(x);
+  nowhere.translation.y() = NAN;
+  EXPECT_EQ(renderer.contact_wrench_at(nowhere).force.norm(), 0.0);
+  const Wrench after = renderer.contact_wrench_at(at(x));
+  EXPECT_GT(renderer.contacts().size(), 0u);
+  EXPECT_GT(after.force.x(), 0.0);
 }
 
 TEST(RealtimeLoop, RunsTheCyclesAndHandsOffTheLatestValue) {
@@ -334,8 +387,10 @@ TEST(RealtimeLoop, BadSettingsAreRefusedAndTheCycleMayStopItsOwnLoop) {
   // A rate of 0 or NaN once ran a busy loop with NaN steps; 2 GHz divided by a period of 0; a negative spin
   // held stop() for seconds.
   int calls = 0;
-  for (const LoopSettings settings : {LoopSettings{0.0, 80.0}, LoopSettings{double(NAN), 80.0}, LoopSettings{2e9, 0.0},
-                                      LoopSettings{1000.0, -1e7}, LoopSettings{1000.0, double(NAN)}}) {
+  // A period beyond the clock's range (1e-11 Hz) overflowed it and spun millions of cycles.
+  for (const LoopSettings settings :
+       {LoopSettings{0.0, 80.0}, LoopSettings{double(NAN), 80.0}, LoopSettings{2e9, 0.0}, LoopSettings{1e-11, 0.0},
+        LoopSettings{1000.0, -1e7}, LoopSettings{1000.0, double(NAN)}}) {
     RealtimeLoop loop(settings, [&](double, double) { ++calls; });
     const Status started = loop.start(10);
     ASSERT_FALSE(started);
@@ -360,6 +415,18 @@ TEST(RealtimeLoop, BadSettingsAreRefusedAndTheCycleMayStopItsOwnLoop) {
   ASSERT_TRUE(busy.start(20));
   busy.join();
   EXPECT_EQ(busy.stats().cycles, 20u);
+}
+
+TEST(RealtimeLoop, StopReturnsWithinASliceOfASlowPeriodAndRunsNoMoreCycles) {
+  // stop() waited out the period (10 s at 0.1 Hz), then ran one more cycle.
+  std::atomic<int> calls{0};
+  RealtimeLoop loop({0.1, 0.0}, [&](double, double) { ++calls; });
+  ASSERT_TRUE(loop.start());
+  while (calls.load() == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  const auto asked = std::chrono::steady_clock::now();
+  loop.stop();
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - asked).count(), 2.0);
+  EXPECT_EQ(calls.load(), 1);
 }
 
 TEST(RealtimeLoop, ReportsTheSchedulingItWasGranted) {

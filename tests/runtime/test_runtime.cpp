@@ -17,6 +17,7 @@
 #include "exact_surface.h"
 #include "traversal/eigen.h"
 #include "voxfmt/runtime/collision_object.h"
+#include "voxfmt/runtime/detail/contact_reduction.h"
 #include "voxfmt/runtime/haptics.h"
 #include "voxfmt/runtime/query.h"
 
@@ -769,7 +770,31 @@ TEST(Haptics, ACutLevelWeightedBySubtreesKeepsTheForce) {
         << up << " levels up: " << w.force.norm() << " N vs " << reference.force.norm() << " N";
     EXPECT_GT(w.force.normalized().dot(reference.force.normalized()), 0.95) << up << " levels up";
     EXPECT_LT(unweighted_share, 0.7);
+    // A refined cut (the query's refine_cut_contacts) is the same force: its cut points already stand for their
+    // subtrees, which were counted again (1.75x at one level up).
+    parameters.query.refine_cut_contacts = true;
+    HapticRenderer refined(bunny.object, pressed, parameters);
+    refined.add_object(bunny.object, Pose{});
+    EXPECT_EQ(refined.contact_wrench_at(pressed).force, w.force) << up << " levels up";
   }
+}
+
+TEST(Contacts, TheDeepestIsChosenWhateverTheDepthsAndEveryLevelIsReachable) {
+  // Proximity contacts all deeper than -1 m below the surface: the first was taken as the deepest.
+  std::vector<Contact> contacts(5);
+  const double depths[5] = {-3, -1.2, -2, -2.5, -1.8};
+  for (size_t i = 0; i < contacts.size(); ++i) {
+    contacts[i].depth = depths[i];
+    contacts[i].point = Eigen::Vector3d(double(i), double(i * i), 0.0);
+  }
+  const ReducedContacts chosen = reduce_contacts(contacts, 1);
+  ASSERT_EQ(chosen.count, 1u);
+  EXPECT_EQ(chosen.index[0], 1u);
+  // Every level up to the last, and beyond it (SIZE_MAX wrapped to level 0's count) all the points.
+  const PointTree& tree = Bunny::get().object->point_tree();
+  EXPECT_EQ(tree.points_up_to_level(std::numeric_limits<size_t>::max()), tree.size());
+  EXPECT_EQ(tree.points_up_to_level(tree.level_count() - 1), tree.size());
+  EXPECT_LT(tree.points_up_to_level(0), tree.size());
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <new>
 
 #include "field_samples.h"
 #include "voxfmt/engines/layouts.h"
@@ -147,11 +148,15 @@ void pack_brick(const float* samples, uint32_t bx, uint32_t by, uint32_t bz, uin
       }
 }
 
-}  // namespace
-
-Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const TextureSdfOptions& options) {
+Result<TextureSdf> build_texture_sdf(const runtime::CollisionObject& object, const TextureSdfOptions& options) {
   if (!object.has_voxelmap())
     return Error{IssueCode::InvalidAsset, "texture_sdf: the object has no voxelmap (loaded point shell only)"};
+  if (options.format != TextureFormat::Float32 && options.format != TextureFormat::Uint16 &&
+      options.format != TextureFormat::Uint8)
+    return Error{IssueCode::BadOption,
+                 "texture_sdf: format " + std::to_string(int(options.format)) + " is none of Float32, Uint16, Uint8"};
+  if (std::isnan(options.coarse_tolerance_voxels))
+    return Error{IssueCode::BadOption, "texture_sdf: coarse_tolerance_voxels is NaN (negative: the default)"};
   const runtime::SparseVoxelmap& map = object.voxelmap();
   const FieldSamples field(field_of(map));
   const double h = map.voxel_size();
@@ -199,6 +204,16 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
       }
   for (float& v : out.coarse) v *= float(h);
   return out;
+}
+
+}  // namespace
+
+Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const TextureSdfOptions& options) {
+  try {
+    return build_texture_sdf(object, options);
+  } catch (const std::bad_alloc&) {
+    return Error{IssueCode::OutOfMemory, "texture_sdf: out of memory building the texture"};
+  }
 }
 
 }  // namespace voxfmt::engines

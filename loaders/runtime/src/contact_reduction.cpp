@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <limits>
 
 namespace voxfmt::runtime {
 
@@ -15,8 +16,8 @@ ReducedContacts reduce_contacts(const std::vector<Contact>& contacts, size_t max
     return chosen;
   }
   auto argmax = [&](auto&& score) {
-    size_t best = 0;
-    double best_score = -1.0;
+    size_t best = 0;  // also when every score is NaN
+    double best_score = -std::numeric_limits<double>::infinity();
     for (size_t i = 0; i < contacts.size(); ++i) {
       const double s = score(contacts[i]);
       if (s > best_score) best = i, best_score = s;

@@ -33,7 +33,7 @@ Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& w) {
 // The factor in [0, 1] that brings v's length down to the limit (1 when it is within it; 0 for no force at all).
 double saturation_scale(const Eigen::Vector3d& v, double limit) {
   if (limit <= 0) return 0.0;
-  const double n = v.norm();
+  const double n = v.stableNorm();  // a device metres away from the tool: its square would overflow
   return n > limit ? limit / n : 1.0;
 }
 
@@ -70,6 +70,8 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
   if (!(parameters_.tool_mass > 0 && std::isfinite(parameters_.tool_mass)))
     throw std::invalid_argument("HapticRenderer: tool_mass must be finite and > 0");
   if (!finite_pose(start)) throw std::invalid_argument("HapticRenderer: the start pose must be finite");
+  if (!(parameters_.query.proximity >= 0 && std::isfinite(parameters_.query.proximity)))
+    throw std::invalid_argument("HapticRenderer: query.proximity must be finite and >= 0");
   if (parameters_.time_budget_us >= kNoTimeBudgetUs) parameters_.time_budget_us = 0.0;  // none, as a query's
   const HapticParameters& p = parameters_;
   // A negative stiffness or limit threw the tool hundreds of metres; NaN made every later output NaN.
@@ -102,11 +104,16 @@ HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, cons
 
 size_t HapticRenderer::add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose) {
   if (!object || !object->has_voxelmap()) throw std::invalid_argument("HapticRenderer: an object needs a voxelmap");
+  if (!finite_pose(pose)) throw std::invalid_argument("HapticRenderer: an object's pose must be finite");
   objects_.push_back({std::move(object), pose, {}});
   return objects_.size() - 1;
 }
 
-void HapticRenderer::set_object_pose(size_t index, const Pose& pose) { objects_.at(index).pose = pose; }
+void HapticRenderer::set_object_pose(size_t index, const Pose& pose) {
+  Object& object = objects_.at(index);
+  if (!finite_pose(pose)) throw std::invalid_argument("HapticRenderer: an object's pose must be finite");
+  object.pose = pose;
+}
 
 double HapticRenderer::kinetic_energy(const Eigen::Matrix3d& rotation) const {
   const Eigen::Matrix3d inertia_world = rotation * inertia_body_ * rotation.transpose();
@@ -125,6 +132,7 @@ void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
   options.direction = QueryDirection::APointsInB;
   options.normal_source = NormalSource::PointShell;
   options.cut_level = CutLevel::Points;
+  options.refine_cut_contacts = false;  // a cut point stands for its subtree (below): refined, it would count twice
   options.max_level = std::min(options.max_level, level_cap_);
   options.time_budget_us = 0.0;
   // No level cut and no point budget: the queries keep a traversal front per object.
@@ -203,6 +211,7 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   // A pose that is not finite is replaced by the last finite one (before the first: the start, where the tool is).
   const bool pose_ok = finite_pose(device_pose);
   const Pose device = pose_ok ? device_pose : have_last_device_ ? last_device_pose_ : tool_pose_;
+  const HapticCycle previous = cycle_;
   cycle_ = HapticCycle{};
   cycle_.input_rejected = !pose_ok;
   const Eigen::Vector3d com_asset = tool_->center_of_mass();
@@ -214,9 +223,23 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   cycle_.query_cpu_us = thread_cpu_us() - cpu_start;
   adapt_level_cap();
   const ContactTerms contact = contact_terms(com);
+  const Pose last_device = last_device_pose_;
+  const bool had_last_device = have_last_device_;
+  const Eigen::Vector3d velocity = velocity_, angular_velocity = angular_velocity_;
+  const Pose tool_pose = tool_pose_;
+  const double energy = energy_;
   const Coupling coupling = couple(device, dt, com_asset, com);
   energy_ = kinetic_energy(tool_pose_.rotation) + contact.energy + coupling.energy;
   integrate(contact, coupling, dt, com_asset, com);
+  // A step the numbers cannot hold (a time step of 1e160 s, a device at 1e300 m) is rejected whole: one bad sample
+  // never poisons the tool.
+  if (!(velocity_.allFinite() && angular_velocity_.allFinite() && finite_pose(tool_pose_) &&
+        cycle_.device_wrench.force.allFinite() && cycle_.device_wrench.torque.allFinite())) {
+    velocity_ = velocity, angular_velocity_ = angular_velocity, tool_pose_ = tool_pose, energy_ = energy;
+    last_device_pose_ = last_device, have_last_device_ = had_last_device;
+    cycle_ = previous;
+    cycle_.input_rejected = true;
+  }
   return cycle_;
 }
 
@@ -277,8 +300,8 @@ HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double 
   const Eigen::Vector3d stretch = device_com - com;
   const Eigen::Vector3d twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
   Coupling c;
-  c.energy = saturated_spring_energy(p.coupling_stiffness, stretch.norm(), p.max_force) +
-             saturated_spring_energy(p.coupling_angular_stiffness, twist.norm(), p.max_torque);
+  c.energy = saturated_spring_energy(p.coupling_stiffness, stretch.stableNorm(), p.max_force) +
+             saturated_spring_energy(p.coupling_angular_stiffness, twist.stableNorm(), p.max_torque);
   const Eigen::Vector3d force = p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_);
   const Eigen::Vector3d torque =
       p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_);

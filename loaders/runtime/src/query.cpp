@@ -91,11 +91,13 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   // The voxelmap is fixed in its own grid: displacements are measured there too.
   const Eigen::Matrix3f M = core::to_eigen(frame.to_grid);
   const Eigen::Vector3f m = core::to_eigen(frame.to_grid.m);
-  if (allowed) front->state().bind(shell.id(), field.id(), int(options.interpolation));
-  if (allowed && front->state().take_turn(M, m, tree.extent)) {
+  // A pose that is not finite (a simulation that blew up) never anchors a front: its bounds would hold nothing.
+  const bool coherent = allowed && M.allFinite() && m.allFinite();
+  if (coherent) front->state().bind(shell.id(), field.id(), int(options.interpolation));
+  if (coherent && front->state().take_turn(M, m, tree.extent)) {
     detail::traverse_coherent(tree, frame, M, m, target, out.stats, scratch.buffers(), front->state(), emit);
   } else {
-    if (front && !allowed) front->reset();
+    if (front && !coherent) front->reset();
     detail::traverse_tree(tree, frame, target, options, out.stats, scratch.buffers(), emit);
   }
 }

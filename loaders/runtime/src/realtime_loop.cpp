@@ -18,11 +18,12 @@ Status RealtimeLoop::start(uint64_t max_cycles) {
                  "RealtimeLoop: start() from the loop's own cycle (stop it, then start it "
                  "from another thread)"};
   stop();
-  // A rate of 0 or NaN ran a busy loop of NaN time steps; over a GHz the period rounded to 0 and divided by it.
-  constexpr double kMaxRateHz = 1e6;
-  if (!(settings_.rate_hz > 0.0 && settings_.rate_hz <= kMaxRateHz))
+  // A rate of 0 or NaN ran a busy loop of NaN time steps; over a GHz the period rounded to 0 and divided by it;
+  // below ~1e-10 Hz the period overflowed the clock's nanoseconds.
+  constexpr double kMinRateHz = 1e-3, kMaxRateHz = 1e6;
+  if (!(settings_.rate_hz >= kMinRateHz && settings_.rate_hz <= kMaxRateHz))
     return Error{IssueCode::BadOption,
-                 "RealtimeLoop: rate_hz must be in (0, 1e6], not " + std::to_string(settings_.rate_hz)};
+                 "RealtimeLoop: rate_hz must be in [0.001, 1e6], not " + std::to_string(settings_.rate_hz)};
   if (!(settings_.spin_us >= 0.0 && std::isfinite(settings_.spin_us)))
     return Error{IssueCode::BadOption,
                  "RealtimeLoop: spin_us must be finite and >= 0, not " + std::to_string(settings_.spin_us)};
@@ -90,9 +91,13 @@ void RealtimeLoop::run(uint64_t max_cycles) {
   while (!stop_.load(std::memory_order_relaxed) &&
          (max_cycles == 0 || cycles_.load(std::memory_order_relaxed) < max_cycles)) {
     const auto deadline = start + period * int64_t(k);
-    if (Clock::now() < deadline - spin) std::this_thread::sleep_until(deadline - spin);
-    while (Clock::now() < deadline) {
+    // Asleep in slices, so that stop() returns within one (not a whole period) and no cycle runs after it.
+    constexpr auto kSlice = std::chrono::milliseconds(20);
+    for (auto now = Clock::now(); now < deadline - spin && !stop_.load(std::memory_order_relaxed); now = Clock::now())
+      std::this_thread::sleep_until(std::min(deadline - spin, now + kSlice));
+    while (Clock::now() < deadline && !stop_.load(std::memory_order_relaxed)) {
     }
+    if (stop_.load(std::memory_order_relaxed)) break;
     cycle_(double(k) * dt, k == 0 ? dt : double(k - last) * dt);
     last = k;
     cycles_.fetch_add(1, std::memory_order_relaxed);

@@ -116,7 +116,7 @@ struct PointTree {
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }
   /// Number of points in levels [0, level]: the coarse point shell that stops at `level`.
   size_t points_up_to_level(size_t level) const {
-    return level + 1 < level_offsets.size() ? level_offsets[level + 1] : points.size();
+    return level < level_count() ? level_offsets[level + 1] : points.size();
   }
   size_t memory_bytes() const;
 };

@@ -77,7 +77,7 @@ class ScriptedDevice : public HapticDevice {
 };
 
 struct LoopSettings {
-  double rate_hz = 1000.0;  ///< 1 kHz default; 5 kHz and more are fine if a cycle fits; at most 1 MHz
+  double rate_hz = 1000.0;  ///< 1 kHz default; 5 kHz and more are fine if a cycle fits; 0.001 Hz to 1 MHz
   /// The loop sleeps until this long before a deadline, then spins: the kernel wakes a sleeping thread tens of
   /// microseconds late, a fifth of a 5 kHz period. At least 0; one period or more is a busy wait.
   double spin_us = 80.0;
@@ -180,7 +180,8 @@ struct HapticCycle {
   double query_us = 0.0;      ///< wall time of the queries
   double query_cpu_us = 0.0;  ///< CPU time of the queries (what the level cap follows)
   /// The device pose was not finite (the cycle ran with the last finite one), or `dt` was not a finite time
-  /// > 0 (the cycle did not run: the outputs are the previous cycle's). One bad sample never poisons the tool.
+  /// > 0, or the step's result was not finite (a `dt` of 1e160 s, a device at 1e300 m): then the cycle did not
+  /// run, the tool is where it was and the outputs are the previous cycle's. One bad sample never poisons the tool.
   bool input_rejected = false;
 };
 
@@ -188,12 +189,13 @@ class HapticRenderer {
  public:
   /// `tool` needs a point shell; `start` is the tool's (and the device's) pose at the first cycle. Throws
   /// std::invalid_argument for a tool without a point shell, a start pose that is not finite, a `tool_mass` that
-  /// is not > 0, or a stiffness, damping, limit or budget that is negative or not finite.
+  /// is not > 0, or a stiffness, damping, limit, budget or `query.proximity` that is negative or not finite.
   HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
                  const HapticParameters& parameters = {});
 
   /// Adds an object (it needs a voxelmap: else std::invalid_argument) at `pose`; returns its index for
-  /// set_object_pose (which throws std::out_of_range for an index it did not return).
+  /// set_object_pose (which throws std::out_of_range for an index it did not return). Both throw
+  /// std::invalid_argument for a pose that is not finite (or a scale not > 0), and keep the object's last pose.
   size_t add_object(std::shared_ptr<const CollisionObject> object, const Pose& pose);
   void set_object_pose(size_t index, const Pose& pose);
   size_t object_count() const { return objects_.size(); }
