@@ -47,6 +47,28 @@ TEST(BulletSphere, RestsOnAStaticVpsSphereWithoutSinking) {
   EXPECT_GT(world.vps()->counters().pair_tests, 0u);
 }
 
+TEST(BulletSphere, PrimitivesLargerThanTheBandRestOnAStaticVoxelmapRoleSphere) {
+  // A partner without points was seen only by its corners (box) or centre (sphere) in the voxelmap, which beyond
+  // the band (3 voxels) says nothing: a 0.6 m box fell through a static VpsVoxelmapShape, a 0.3 m ball sank into it.
+  struct Case {
+    std::shared_ptr<btCollisionShape> shape;
+    double rest;  ///< centre height at rest on the sphere's top
+  };
+  for (const Case& c : {Case{std::make_shared<btBoxShape>(btVector3(0.3f, 0.05f, 0.3f)), kRadius + 0.05},
+                        Case{std::make_shared<btSphereShape>(0.3f), kRadius + 0.3}}) {
+    c.shape->setMargin(0.001f);
+    World world;
+    world.dynamics().setGravity(btVector3(0, -9.81, 0));
+    world.add_body(std::make_shared<VpsVoxelmapShape>(sphere()), 0, btTransform::getIdentity());
+    btRigidBody* body = world.add_body(
+        c.shape, 1.0, btTransform(btQuaternion::getIdentity(), btVector3(0, btScalar(c.rest + 0.01), 0)));
+    body->setAngularFactor(0);  // balanced on the top: measure the contact height
+    body->setLinearFactor(btVector3(0, 1, 0));
+    for (int step = 0; step < 1000; ++step) world.step(1.0 / 1000);
+    EXPECT_NEAR(body->getCenterOfMassPosition().y(), c.rest, 0.5 * kVoxel) << c.shape->getName();
+  }
+}
+
 TEST(BulletSphere, TheSettingsQueryLimitsEveryShellAndItsDefaultsAreForPhysics) {
   // The physics defaults differ from the runtime's in the one way physics_query_defaults says, and nowhere else.
   const runtime::QueryOptions runtime_defaults, physics = CollisionSettings{}.query;

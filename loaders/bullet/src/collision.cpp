@@ -163,9 +163,12 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
 
   void processCollision(const btCollisionObjectWrapper* body0, const btCollisionObjectWrapper* body1,
                         const btDispatcherInfo& info, btManifoldResult* result) override {
-    if (!manifold_) return;
     const btCollisionObjectWrapper* a_wrap = swapped_ ? body1 : body0;
     const btCollisionObjectWrapper* b_wrap = swapped_ ? body0 : body1;
+    if (!manifold_) {  // a pair the dispatcher would not collide (two static bodies) asked by contactTest: made now
+      manifold_ = m_dispatcher->getNewManifold(a_wrap->getCollisionObject(), b_wrap->getCollisionObject());
+      owns_manifold_ = true;
+    }
     const auto* a_shape = static_cast<const VpsShape*>(a_wrap->getCollisionShape());
     const runtime::Pose pose_a = a_shape->asset_pose(a_wrap->getWorldTransform());
     const CollisionSettings& settings = shared_->settings;
@@ -194,7 +197,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
     if (cut) ++counters.budget_cuts;
     const size_t regions = owns_manifold_ ? std::clamp<size_t>(settings.contact_regions, 1, kMaxRegions) : 1;
     if (regions == 1) {
-      add_to_manifold(contacts.contacts, manifold_, *result);
+      add_to_manifold(contacts.contacts, manifold_, made_threshold_[0], *result);
       if (owns_manifold_) result->refreshContactPoints();
       return;
     }
@@ -221,8 +224,24 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
 
   // Up to the settings' manifold points of `set` into `manifold`.
   void add_to_manifold(const std::vector<runtime::Contact>& set, btPersistentManifold* manifold,
-                       btManifoldResult& result) const {
-    const runtime::ReducedContacts chosen = runtime::reduce_contacts(set, shared_->settings.manifold_points);
+                       btScalar& made_threshold, btManifoldResult& result) const {
+    runtime::ReducedContacts chosen = runtime::reduce_contacts(set, shared_->settings.manifold_points);
+    // Bullet drops a point whose gap is over the manifold's breaking threshold (a few millimetres, from the shapes'
+    // size), and merges points nearer each other than it: a speculative contact of a body approaching fast was
+    // lost, and it passed a thin wall. While nothing is within that threshold, the nearest point alone goes in, the
+    // threshold raised to its gap for this step (its constraint is the one that stops the body); then the
+    // manifold's own threshold again.
+    if (made_threshold == 0) made_threshold = manifold->getContactBreakingThreshold();
+    size_t nearest = 0;
+    for (size_t i = 1; i < chosen.size(); ++i)
+      if (set[chosen.index[i]].depth > set[chosen.index[nearest]].depth) nearest = i;
+    const double nearest_gap = chosen.size() ? -set[chosen.index[nearest]].depth : 0.0;
+    const bool approaching = nearest_gap > double(made_threshold);
+    if (approaching) {
+      chosen.index[0] = chosen.index[nearest];
+      chosen.count = 1;
+    }
+    manifold->setContactBreakingThreshold(approaching ? btScalar(nearest_gap * 1.001) : made_threshold);
     std::array<btVector3, 4> on_b;
     for (size_t i = 0; i < chosen.size(); ++i) {
       const runtime::Contact& c = set[chosen.index[i]];
@@ -265,7 +284,7 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
         manifold = m_dispatcher->getNewManifold(a_wrap->getCollisionObject(), b_wrap->getCollisionObject());
       }
       result.setPersistentManifold(manifold);
-      add_to_manifold(groups[k], manifold, result);
+      add_to_manifold(groups[k], manifold, made_threshold_[k], result);
       result.refreshContactPoints();
     }
   }
@@ -446,6 +465,8 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   static constexpr size_t kMaxRegions = 4;
   btPersistentManifold* manifold_;
   std::array<btPersistentManifold*, kMaxRegions - 1> extra_{};  ///< the other regions' manifolds, made on first use
+  /// Each region's manifold's own breaking threshold, as made (0: not seen yet); raised in a step for its gaps.
+  std::array<btScalar, kMaxRegions> made_threshold_{};
   bool owns_manifold_ = false;
   bool swapped_;
   Shared* shared_;

@@ -66,9 +66,14 @@ void collide_multi_sphere(const ConvexPair& pair, const btMultiSphereShape& b) {
   pair.points_against_b(
       [&](const Eigen::Vector3f& x, Eigen::Vector3f& outward) { return convex_distance(b, pair.tb, x, outward); });
   if (!pair.a.uses_voxelmap()) return;
+  // Its spheres are stored unscaled (Bullet scales them in its support function: centres per axis, radii by x; the
+  // largest factor here, never smaller than the shape).
+  const btVector3 scaling = b.getLocalScaling();
+  const btVector3 magnitude = scaling.absolute();
+  const double radius_scale = double(magnitude[magnitude.maxAxis()]);
   for (int k = 0; k < b.getSphereCount(); ++k) {
-    const Eigen::Vector3d centre = pair.world(b.getSpherePosition(k));
-    pair.in_voxelmap(&centre, 1, double(b.getSphereRadius(k)));
+    const Eigen::Vector3d centre = pair.world(b.getSpherePosition(k) * scaling);
+    pair.in_voxelmap(&centre, 1, double(b.getSphereRadius(k)) * radius_scale);
   }
 }
 

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "partner_pairs.h"
+#include "static_mesh.h"
 #include "triangle_set.h"
 
 namespace voxfmt::bullet::detail {
@@ -70,8 +71,13 @@ void add_in_world(TriangleSet& set, const btVector3& a, const btVector3& b, cons
 class MeshCollector : public btTriangleCallback {
  public:
   MeshCollector(TriangleSet& set, const btTransform& world_from_shape, const btTransform& a_from_world,
-                const btVector3& a_lo, const btVector3& a_hi)
-      : set_(set), world_from_shape_(world_from_shape), a_from_world_(a_from_world), a_lo_(a_lo), a_hi_(a_hi) {}
+                const btVector3& a_lo, const btVector3& a_hi, bool mirrored)
+      : set_(set),
+        world_from_shape_(world_from_shape),
+        a_from_world_(a_from_world),
+        a_lo_(a_lo),
+        a_hi_(a_hi),
+        mirrored_(mirrored) {}
   void processTriangle(btVector3* triangle, int, int) override {
     const btVector3 a = world_from_shape_ * triangle[0], b = world_from_shape_ * triangle[1],
                     c = world_from_shape_ * triangle[2];
@@ -84,7 +90,10 @@ class MeshCollector : public btTriangleCallback {
     if (lo.x() > a_hi_.x() || lo.y() > a_hi_.y() || lo.z() > a_hi_.z() || hi.x() < a_lo_.x() || hi.y() < a_lo_.y() ||
         hi.z() < a_lo_.z())
       return;
-    add_in_world(set_, a, b, c);
+    if (mirrored_)  // turned over by a mirroring scale: turned back (StaticMeshIndex::build does the same)
+      add_in_world(set_, a, c, b);
+    else
+      add_in_world(set_, a, b, c);
   }
 
  private:
@@ -92,6 +101,7 @@ class MeshCollector : public btTriangleCallback {
   const btTransform& world_from_shape_;
   btTransform a_from_world_;
   btVector3 a_lo_, a_hi_;
+  bool mirrored_;
 };
 
 // Collects, in world coordinates, a terrain's triangles that may meet A's box swept up its axis (SweptBox),
@@ -174,7 +184,7 @@ void gather(const VpsShape& a, const btTransform& ta, const btConcaveShape& b, c
     TerrainCollector collect(gathered, tb, swept);
     b.processAllTriangles(&collect, local_lo, local_hi);
   } else {
-    MeshCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi);
+    MeshCollector collect(gathered, tb, ta.inverse(), a_lo, a_hi, mirrors(b.getLocalScaling()));
     b.processAllTriangles(&collect, local_lo, local_hi);
   }
 }

@@ -60,10 +60,13 @@ struct ConvexPair {
   Eigen::Matrix3d rotation_b() const { return to_eigen(tb.getBasis()); }
   Eigen::Vector3d origin_b() const { return to_eigen(tb.getOrigin()); }
   Eigen::Vector3d world(const btVector3& local) const { return origin_b() + rotation_b() * to_eigen(local); }
-  /// A's points against `distance` (x, outward) -> signed distance, when A has points.
+  /// A's points against `distance` (x, outward) -> signed distance, when A has points: a voxelmap-role shape's
+  /// too, where it has them, since a partner without points of its own is otherwise seen only by its corners or
+  /// centre in A's voxelmap, which beyond the band says nothing (a large box fell through a static VPS floor).
   template <class Distance>
   void points_against_b(Distance&& distance) const {
-    if (a.uses_points()) points_against(a, pose_a, partner_pose(tb), distance, options, contacts, scratch, front);
+    if (a.uses_points() || a.object().has_point_shell())
+      points_against(a, pose_a, partner_pose(tb), distance, options, contacts, scratch, front);
   }
   /// Points of B, each with `radius`, in A's voxelmap.
   void in_voxelmap(const Eigen::Vector3d* points, size_t count, double radius) const {

@@ -67,8 +67,12 @@ std::shared_ptr<const StaticMeshIndex> StaticMeshIndex::build(const btConcaveSha
   const btVector3 pad = (hi - lo) * btScalar(0.01) + btVector3(1, 1, 1) * btScalar(1e-6);
   shape.processAllTriangles(&collect, lo - pad, hi + pad);
   index->triangles_.reserve(corners.size() / 3);
+  // A mirroring scale (an odd number of negative factors) turns every triangle over: turned back, its outside
+  // stays the side the mesh's winding says.
+  const bool mirrored = detail::mirrors(shape.getLocalScaling());
   for (size_t t = 0; t + 2 < corners.size(); t += 3)
-    index->triangles_.push_back(detail::BoxedTriangle::of(corners[t], corners[t + 1], corners[t + 2]));
+    index->triangles_.push_back(
+        detail::BoxedTriangle::of(corners[t], corners[t + (mirrored ? 2 : 1)], corners[t + (mirrored ? 1 : 2)]));
   index->vertices_ = std::move(corners);
   index->index();
   index->info_.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -18,6 +18,12 @@
 
 namespace voxfmt::bullet {
 
+namespace detail {
+/// Whether a mesh's local scaling mirrors it (an odd number of negative factors): every triangle then comes from
+/// Bullet turned over, its winding, and so its outside, reversed.
+inline bool mirrors(const btVector3& scaling) { return scaling.x() * scaling.y() * scaling.z() < 0; }
+}  // namespace detail
+
 /// What identifies a mesh shape's triangles cheaply: a shape object freed and another made at its address, or
 /// a mesh rescaled or refitted to a new box, no longer matches.
 struct MeshSignature {
