@@ -290,9 +290,10 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
   }
 
  public:
-  /// How far the pair can close in one step: the relative speed of the centres plus each body's spin times its
-  /// bounding radius, times the step (0 outside a dynamics step). Points within it become speculative contacts,
-  /// which Bullet's solver lets close only that gap: nothing passes through a thin wall in one step.
+  /// How far the pair can close in one step: the relative speed of the centres plus each body's spin times the
+  /// reach of the shape from the body's centre of mass, times the step (0 outside a dynamics step). Points within it
+  /// become speculative contacts, which Bullet's solver lets close only that gap: nothing passes through a thin wall in
+  /// one step.
   static double speculative_distance(const btCollisionObjectWrapper* a, const btCollisionObjectWrapper* b,
                                      btScalar time_step) {
     if (!(time_step > 0)) return 0.0;
@@ -308,7 +309,9 @@ class VpsCollisionAlgorithm : public btCollisionAlgorithm {
       btVector3 centre;
       btScalar radius = 0;
       wrap->getCollisionShape()->getBoundingSphere(centre, radius);
-      speed += spin * double(radius + centre.length());
+      // From the body's centre of mass: a compound's child turns about the body's, not about its own origin.
+      const btVector3 offset = wrap->getWorldTransform() * centre - body->getCenterOfMassPosition();
+      speed += spin * double(radius + offset.length());
     }
     speed += double(relative.length());
     return speed * double(time_step);

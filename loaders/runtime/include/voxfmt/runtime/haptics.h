@@ -111,10 +111,11 @@ class RealtimeLoop {
   RealtimeLoop& operator=(const RealtimeLoop&) = delete;
 
   /// Starts the thread; it runs `max_cycles` cycles (0 = until stop()). BAD_OPTION (and no thread) for a rate
-  /// that is not in (0, 1 MHz], a spin that is negative or not finite, or a call from the loop's own cycle.
+  /// that is not in [0.001 Hz, 1 MHz], a spin that is negative or not finite, or a call from the loop's own cycle.
   Status start(uint64_t max_cycles = 0);
-  /// Asks the thread to stop and joins it; called from the cycle itself, it asks only (the loop ends after the
-  /// cycle, and is joined by stop(), join() or the destructor from another thread).
+  /// Asks the thread to stop and joins it, within 20 ms however slow the rate (no cycle starts after it); called
+  /// from the cycle itself, it asks only (the loop ends after the cycle, and is joined by stop(), join() or the
+  /// destructor from another thread: the loop must outlive its own cycles, never be destroyed from one).
   void stop();
   /// Waits until the thread has run its cycles (from the loop's own cycle: returns at once). One thread at a
   /// time may join, stop or start a loop.
