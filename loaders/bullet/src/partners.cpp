@@ -115,7 +115,11 @@ void TriangleGrid::clear() {
 
 Eigen::Vector3i TriangleGrid::cell_of(const Eigen::Vector3f& x) const {
   Eigen::Vector3i c;
-  for (int a = 0; a < 3; ++a) c[a] = std::clamp(int(std::floor((x[a] - lo[a]) / cell)), 0, dims[a] - 1);
+  for (int a = 0; a < 3; ++a) {
+    // Clamped as a float first: a coordinate far away (or NaN, taken as 0) does not fit an int.
+    const float f = std::floor((x[a] - lo[a]) / cell);
+    c[a] = f >= float(dims[a] - 1) ? dims[a] - 1 : f > 0 ? int(f) : 0;
+  }
   return c;
 }
 
