@@ -229,6 +229,16 @@ TEST(Partners, AMirroredStaticMeshKeepsItsOutside) {
   }
 }
 
+// Counts the points a contact test reports.
+struct ContactCount : btCollisionWorld::ContactResultCallback {
+  int points = 0;
+  btScalar addSingleResult(btManifoldPoint&, const btCollisionObjectWrapper*, int, int, const btCollisionObjectWrapper*,
+                           int, int) override {
+    ++points;
+    return 0;
+  }
+};
+
 // The highest point of the asset's shell (asset frame).
 Eigen::Vector3d highest_point(const runtime::CollisionObject& object) {
   const auto& points = object.point_tree().points;
@@ -251,14 +261,6 @@ TEST(Partners, AScaledMultiSphereIsTestedAtItsScale) {
   ball->setLocalScaling(btVector3(1, 1, 1) * btScalar(scale));
   ball->setMargin(btScalar(0.1 * bunny.h));  // Bullet's 4 cm would be most of the ball
   const Eigen::Vector3d top = highest_point(*bunny.object);
-  struct Count : btCollisionWorld::ContactResultCallback {
-    int points = 0;
-    btScalar addSingleResult(btManifoldPoint&, const btCollisionObjectWrapper*, int, int,
-                             const btCollisionObjectWrapper*, int, int) override {
-      ++points;
-      return 0;
-    }
-  };
   // A voxel above the bunny's highest point: nothing; half a voxel into it: contacts.
   for (const double gap : {1.0, -0.5}) {
     btCollisionObject probe;
@@ -266,7 +268,7 @@ TEST(Partners, AScaledMultiSphereIsTestedAtItsScale) {
     btTransform t = btTransform::getIdentity();
     t.setOrigin(btVector3(btScalar(top.x()), btScalar(top.y() + bunny.h * (1 + gap)), btScalar(top.z())));
     probe.setWorldTransform(t);
-    Count count;
+    ContactCount count;
     world.dynamics().contactTest(&probe, count);
     if (gap > 0)
       EXPECT_EQ(count.points, 0) << "a voxel clear of the bunny's top";
@@ -285,14 +287,7 @@ TEST(Partners, ContactTestBetweenStaticBodiesSeesTheirOverlap) {
   auto box = std::make_shared<btBoxShape>(btVector3(0.02f, 0.02f, 0.02f));
   const Eigen::Vector3d top = highest_point(*bunny.object);  // the box around it: half in the bunny
   btRigidBody* block = world.add_body(box, 0, at(btVector3(btScalar(top.x()), btScalar(top.y()), btScalar(top.z()))));
-  struct Count : btCollisionWorld::ContactResultCallback {
-    int points = 0;
-    btScalar addSingleResult(btManifoldPoint&, const btCollisionObjectWrapper*, int, int,
-                             const btCollisionObjectWrapper*, int, int) override {
-      ++points;
-      return 0;
-    }
-  } pair, any;
+  ContactCount pair, any;
   world.dynamics().contactPairTest(vps, block, pair);
   world.dynamics().contactTest(vps, any);
   EXPECT_GT(pair.points, 0);
