@@ -75,7 +75,7 @@ def texture_layout(asset: Any, *, texture_format: str = "uint16", coarse_toleran
     (voxels): how far the coarse grid may be from the runtime's estimate before a brick is stored (default: the
     asset's estimate quantum).
     """
-    if texture_format not in TEXTURE_FORMATS:
+    if not isinstance(texture_format, str) or texture_format not in TEXTURE_FORMATS:
         raise OptionError("BAD_OPTION", f"texture_format: expected one of {TEXTURE_FORMATS}, got {texture_format!r}")
     tolerance = -1.0 if coarse_tolerance is None else _voxels("coarse_tolerance", coarse_tolerance)
     return dict(_voxfmt._texture_sdf(as_body(asset), texture_format, tolerance))
@@ -131,12 +131,17 @@ def _surface_arrays(vertices: Any, triangles: Any) -> tuple[np.ndarray, np.ndarr
 
 def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: Any = None) -> Any:
     """A ``newton.Mesh`` of the asset's surface carrying the asset's SDF. ``surface`` is the mesh the asset was baked
-    from: a file (read as ``voxfmt build`` reads it, scaled by the asset's recorded ``unit_scale``), a
-    ``(vertices (V, 3), triangles (T, 3))`` pair in the asset's frame, or a ``newton.Mesh`` (its SDF replaced)."""
+    from: a file (read as ``voxfmt build`` reads it, scaled by the asset's recorded ``unit_scale``) or a
+    ``(vertices (V, 3), triangles (T, 3))`` pair in the asset's frame, whose mesh then has the asset's mass
+    properties (volume, centre of mass and inertia at unit density, as Newton's meshes have them: right for an open
+    or broken mesh too, whose triangles enclose no volume); or a ``newton.Mesh``, copied with everything it holds
+    (``is_solid``, its mass properties, normals, ...) but its SDF, which is the asset's."""
     body = as_body(asset)
     if isinstance(surface, newton.Mesh):
-        vertices, triangles = surface.vertices, surface.indices
-    elif isinstance(surface, (str, os.PathLike)):
+        shape_mesh = surface.copy()
+        shape_mesh.sdf = sdf(body, texture_format=texture_format, device=device)
+        return shape_mesh
+    if isinstance(surface, (str, os.PathLike)):
         vertices, triangles = _voxfmt.read_mesh(surface, unit_scale=_unit_scale(body))
     elif isinstance(surface, Sequence) and len(surface) == 2:
         vertices, triangles = surface
@@ -146,7 +151,14 @@ def mesh(asset: Any, surface: Any, *, texture_format: str = "uint16", device: An
             f"{type(surface).__name__}"
         )
     vertices, triangles = _surface_arrays(vertices, triangles)
-    return newton.Mesh(vertices, triangles, sdf=sdf(body, texture_format=texture_format, device=device))
+    shape_mesh = newton.Mesh(
+        vertices, triangles, sdf=sdf(body, texture_format=texture_format, device=device), compute_inertia=False
+    )
+    shape_mesh.mass = float(body.volume)
+    shape_mesh.com = wp.vec3(*(float(c) for c in body.center_of_mass))
+    shape_mesh.inertia = wp.mat33(*(float(i) / float(body.density) for i in np.asarray(body.inertia).ravel()))
+    shape_mesh.has_inertia = True
+    return shape_mesh
 
 
 def add_shape(

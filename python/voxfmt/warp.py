@@ -30,6 +30,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from . import _voxfmt
 from ._asset import as_body, warp_device
 from ._errors import OptionError
@@ -71,6 +73,8 @@ def nvdb(asset: Any, *, width: float | None = None, compress: bool = True) -> tu
     """
     if width is not None and not 0.5 <= _real("width", width) <= 32767:
         raise OptionError("BAD_OPTION", f"width: expected a number of voxels in [0.5, 32767], got {width!r}")
+    if not isinstance(compress, (bool, np.bool_)):  # "no" is true
+        raise OptionError("BAD_OPTION", f"compress: expected True or False, got {compress!r}")
     body = as_body(asset)
     data, info = _voxfmt._nanovdb(body, float(width or 0.0), bool(compress))
     return data, dict(info)
@@ -91,7 +95,7 @@ def volumes(asset: Any, device: Any = None, *, width: float | None = None) -> tu
 def volume(asset: Any, device: Any = None, *, grid: str = "distance", width: float | None = None) -> Any:
     """One of the asset's grids as a ``wp.Volume`` (``grid``: ``"distance"``, the narrow-band level set, or
     ``"coarse"``, the far field); see :func:`volumes`."""
-    if grid not in ("distance", "coarse"):
+    if not isinstance(grid, str) or grid not in ("distance", "coarse"):
         raise OptionError("BAD_OPTION", f"grid: expected 'distance' or 'coarse', got {grid!r}")
     distance, coarse = volumes(asset, device, width=width)
     return distance if grid == "distance" else coarse  # the coarse volume keeps the buffer they share alive

@@ -121,6 +121,33 @@ def test_add_shape_reads_the_mesh_as_the_bake_did(assets: dict[str, Path]) -> No
         assert error.value.code == "BAD_OPTION"
 
 
+def test_a_shapes_mass_properties_are_the_assets_or_the_given_meshs(tmp_path: Path) -> None:
+    # An open box (its top missing): Newton's own integration of the triangles gives 6.67 and a centre of mass
+    # 0.15 below the middle; the asset's solid is the closed box (8, in the middle).
+    asset = tmp_path / "open.vox.h5"
+    voxfmt.bake(MESHES / "cube-ouvert.off", asset, resolution=32, points=500)
+    body = voxfmt.load(asset)
+    shape_mesh = vn.mesh(body, MESHES / "cube-ouvert.off")
+    assert shape_mesh.mass == pytest.approx(body.volume, rel=1e-6)
+    assert np.allclose(np.array(shape_mesh.com), body.center_of_mass, atol=1e-6)
+    assert np.allclose(np.array(shape_mesh.inertia).reshape(3, 3), body.inertia / body.density, rtol=1e-5, atol=1e-9)
+    # A newton.Mesh of the user's is copied with what it holds (a shell with its hull's vertex limit stayed solid and
+    # took another mass); only its SDF is the asset's.
+    vertices, triangles = voxfmt.read_mesh(MESHES / "cube-ouvert.off", unit_scale=_unit_scale(body))
+    given = newton.Mesh(vertices, triangles, is_solid=False, maxhullvert=12)
+    copied = vn.mesh(body, given)
+    assert (copied.is_solid, copied.maxhullvert, copied.mass) == (False, 12, given.mass)
+    assert copied.sdf is not None and given.sdf is None
+    with pytest.raises(voxfmt.OptionError):
+        vn.texture_layout(body, texture_format=np.array(["uint16", "uint8"]))
+
+
+def _unit_scale(body: voxfmt.Body) -> float:
+    import json
+
+    return float(json.loads(body.build_parameters).get("unit_scale", 1.0))
+
+
 def test_a_damaged_asset_is_refused_with_its_code(assets: dict[str, Path], tmp_path: Path) -> None:
     import h5py
 

@@ -13,6 +13,7 @@ import warp as wp
 
 import voxfmt
 import voxfmt.warp
+from conftest import MESHES
 
 
 @wp.kernel
@@ -53,9 +54,24 @@ def test_the_level_set_is_the_runtimes_distance_near_the_surface(assets: dict[st
     near = np.abs(d) < h  # every corner of their cells is stored and within the width
     assert near.sum() > 1000
     assert np.abs(w[near] - d[near]).max() < 1e-6  # metres
-    # Everywhere: the sign (tiles signed from the asset), and the clamp at the width.
+    # Everywhere: the sign (tiles signed from the asset), and the clamp a cell's diagonal past the width (leaves).
     assert np.all(np.sign(w[np.abs(d) > h]) == np.sign(d[np.abs(d) > h]))
-    assert np.abs(w).max() <= width * (1 + 1e-6)
+    assert np.abs(w).max() <= (width + np.sqrt(3) * h) * (1 + 1e-6)
+
+
+def test_an_open_meshs_level_set_keeps_the_runtimes_zero(tmp_path: Path) -> None:
+    # Across a hole's cap the runtime's field jumps (-2.5 to +3.6 voxels between neighbours); clamped at the width
+    # there, a cell's interpolation moved its zero, and points a tenth of a voxel from the surface changed sign.
+    asset = tmp_path / "open.vox.h5"
+    voxfmt.bake(MESHES / "cube-ouvert.off", asset, resolution=32, points=500)
+    body = voxfmt.load(asset)
+    distance, _ = voxfmt.warp.volumes(body, "cpu")
+    points = random_points(body, 200000, seed=1)
+    d = body.signed_distance(points)
+    w = sample(distance, points)
+    near = (np.abs(d) < body.voxel_size) & (np.abs(d) > 1e-3 * body.voxel_size)
+    assert near.sum() > 10000
+    assert np.all(np.sign(w[near]) == np.sign(d[near]))
 
 
 def test_the_far_field_comes_from_the_coarse_grid_within_the_estimate_bound(assets: dict[str, Path]) -> None:
@@ -121,6 +137,13 @@ def test_one_grid_at_a_time_and_the_refusals(assets: dict[str, Path], tmp_path: 
         assert error.value.code == "BAD_OPTION" and repr(device) in str(error.value)
     with pytest.raises(voxfmt.OptionError):
         voxfmt.warp.nvdb(42)
+    # An array of names is no name (NumPy's truth value error), a string no bool ("no" compressed).
+    for call in (lambda: voxfmt.warp.volume(assets["cube"], "cpu", grid=np.array(["distance", "coarse"])),
+                 lambda: voxfmt.warp.nvdb(assets["cube"], compress="no")):
+        with pytest.raises(voxfmt.OptionError) as error:
+            call()
+        assert error.value.code == "BAD_OPTION"
+    assert voxfmt.warp.nvdb(assets["cube"], compress=np.bool_(False))[1]["uncompressed_bytes"] > 0
     missing = tmp_path / "none.vox.h5"
     with pytest.raises(voxfmt.Error) as error:
         voxfmt.warp.volumes(missing)

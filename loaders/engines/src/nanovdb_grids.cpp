@@ -153,10 +153,15 @@ nanovdb::GridHandle<> distance_grid(const runtime::CollisionObject& object, cons
         ++info.distance_leaves;
         float values[core::kBrickVoxels];
         field.brick_values(a, b, c, values);
+        // Clamped a cell's diagonal beyond the width: a cell with a corner within the width then holds the runtime's
+        // values at all its corners (a distance changes by at most √3 voxels across a cell), so a sample there is
+        // the runtime's; clamped at the width itself, such a cell bent the field and moved its zero (a hole's cap,
+        // where the field jumps, changed sign).
+        const float clamp = width + float(std::sqrt(3.0));
         for (int z = 0, n = 0; z < kEdge; ++z)
           for (int y = 0; y < kEdge; ++y)
             for (int x = 0; x < kEdge; ++x, ++n) {
-              const float v = std::clamp(values[n], -width, width);
+              const float v = std::clamp(values[n], -clamp, clamp);
               access.setValue(nanovdb::Coord(a * kEdge + x, b * kEdge + y, c * kEdge + z), float(double(v) * h));
             }
       }

@@ -70,8 +70,9 @@ Result<TextureSdf> texture_sdf(const runtime::CollisionObject& object, const Tex
 // ---- NanoVDB grids (Warp's volumes)
 
 struct NanoVdbOptions {
-  /// Half-width of the "distance" level set, voxels (up to 32767; negative: BAD_OPTION): values are clamped to
-  /// +-width, and every brick with a voxel nearer than that is a leaf; 0 = the band the asset stores completely,
+  /// Half-width of the "distance" level set, voxels (up to 32767; negative: BAD_OPTION): every brick with a voxel
+  /// nearer than that is a leaf, its values clamped to +-(width + √3) (tiles hold +-width); 0 = the band the asset
+  /// stores completely,
   /// distance_band - 1/2 (2.5 voxels from `voxfmt build`'s default band): the leaves are then the asset's value bricks,
   /// and every voxel within the width holds its exact distance.
   double width_voxels = 0;
@@ -88,7 +89,8 @@ struct NanoVdbGrids {
 
 /// Two float32 NanoVDB grids in metres, index (i, j, k) at origin + voxel_size * (i, j, k):
 /// - "distance", class LevelSet: the value bricks (and any coarse brick with a voxel nearer than the width) as
-///   leaves, every voxel active, values the runtime's clamped to +-width; elsewhere tiles of -width inside and
+///   leaves, every voxel active, values the runtime's clamped to +-(width + √3 voxels), so that a cell with a
+///   corner within the width is the runtime's at every corner; elsewhere tiles of -width inside and
 ///   +width outside (the signs of the asset's brick table, not a flood fill, so open meshes keep theirs);
 /// - "coarse", class Unknown, voxel size 8 * voxel_size, index (a, b, c) at the lattice point of voxel (8a, 8b, 8c):
 ///   the asset's lattice, unsigned distances (every point active). Beyond the level set's width the runtime's
