@@ -168,6 +168,26 @@ class BuildBadInput(unittest.TestCase):
         tet = self.write("tet.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")
         r = self.expect_error(tet, "OUT_OF_MEMORY", "--resolution", "16", "--points", "50000000", "--max-memory", "64")
         self.assertIn("point shell (50000000 points)", r.stderr)
+        # A sheet that turns out to be a shell takes a spacing's points twice (one set on each sheet): checked again
+        # then (it was let through, 24,000 points under a limit for 20,000).
+        flat = self.write("flat.off", "OFF\n4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n")
+        r = self.expect_error(flat, "OUT_OF_MEMORY", "--resolution", "16", "--point-spacing", "0.007",
+                              "--max-memory", "12")
+        self.assertIn("point shell", r.stderr)
+
+    def test_an_upper_case_extension_keeps_double_precision(self):
+        # PART.OFF went to assimp's 32-bit floats: a 0.1 m cube 100 km from its origin lost 5 % of its volume.
+        quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+        corners = [(1e5 + 0.1 * x, 0.1 * y, 0.1 * z) for z in (0, 1) for y in (0, 1) for x in (0, 1)]
+        text = "OFF\n8 12 0\n" + "".join("%.17g %.17g %.17g\n" % c for c in corners) + "".join(
+            "3 %d %d %d\n3 %d %d %d\n" % (a, b, c, a, c, d) for a, b, c, d in quads)  # triangles: CGAL's reader
+        volumes = []
+        for name in ("far.off", "FAR.OFF"):
+            r = self.build(self.write(name, text), "--resolution", "32", "--points", "200")
+            self.assertEqual(r.returncode, 0, r.stderr)
+            volumes.append(json.loads(r.stdout)["volume"])
+        self.assertAlmostEqual(volumes[0], 1e-3, delta=1e-9)
+        self.assertEqual(volumes[1], volumes[0])
 
     def test_bad_option_is_a_usage_error(self):
         tet = self.write("tet.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 3\n3 2 0 3\n")

@@ -298,6 +298,7 @@ std::optional<BuildWarning> coarse_grid_warning(const TriangleMesh& mesh, double
 void rebuild_as_shell(const TriangleMesh& mesh, const Settings& options, const InsidePlan& plan, Geometry& g,
                       StageTimes& times) {
   const double thickness = plan.shell_thickness;
+  check_point_shell_memory(mesh, options, thickness);  // a spacing's points twice now: one set on each sheet
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = plan.winding;
   voxelmap_options.shell_thickness = thickness;
@@ -316,7 +317,7 @@ MassProperties mass_properties(const std::string& mesh_path, const TriangleMesh&
   };
   if (plan.shell_thickness > 0) {
     const MassProperties mass = shell_mass_properties(mesh, plan.shell_thickness);
-    check_volume(mass, "a surface of zero area");
+    check_volume(mass, "a surface of zero area, or a shell too thin for the part's size: --shell-thickness");
     return mass;
   }
   if (!plan.winding) return plan.mass;

@@ -60,7 +60,7 @@ std::string lowercase(std::string text) {
 // read with them. Anything else — polygons (assimp triangulates concave ones correctly), a file CGAL's reader
 // refuses or that holds no face, other formats — goes to assimp, which names the problem.
 bool read_triangles_in_double(const std::string& path, double scale, TriangleMesh& out) {
-  const std::string extension = std::filesystem::path(path).extension().string();
+  const std::string extension = lowercase(std::filesystem::path(path).extension().string());  // PART.OBJ too
   if (extension != ".off" && extension != ".obj" && extension != ".ply") return false;
   using Point = CGAL::Exact_predicates_inexact_constructions_kernel::Point_3;
   std::vector<Point> points;
