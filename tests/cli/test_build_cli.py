@@ -175,6 +175,16 @@ class BuildBadInput(unittest.TestCase):
                               "--max-memory", "12")
         self.assertIn("point shell", r.stderr)
 
+    @unittest.skipUnless(MESHES, "VOXFMT_SAMPLE_MESHES not set")
+    def test_a_wide_band_beyond_the_memory_limit_is_refused_up_front(self):
+        # Each triangle is binned to every brick within the band: at 64 voxels the bunny at 96^3 took 1.3 GB in 17 s
+        # under --max-memory 150; the default band fits.
+        bunny = os.path.join(MESHES, "bunny00.off")
+        r = self.expect_error(bunny, "OUT_OF_MEMORY", "--resolution", "96", "--points", "500", "--band", "64",
+                              "--max-memory", "150")
+        self.assertIn("a narrower band", r.stderr)
+        self.assertEqual(self.build(bunny, "--resolution", "96", "--points", "500", "--max-memory", "150").returncode, 0)
+
     def test_an_upper_case_extension_keeps_double_precision(self):
         # PART.OFF went to assimp's 32-bit floats: a 0.1 m cube 100 km from its origin lost 5 % of its volume.
         quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]

@@ -103,21 +103,31 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
 
 // What the sparse bake holds at its peak, estimated before it starts: the brick table and the lattice (with its
 // propagation keys) grow with the volume / 512; the value bricks, their codes and the triangles binned to them with
-// the surface (a brick of 8^3 voxels per ~30 voxel^2 of surface, measured on CGAL's sample meshes). A bake that
-// would not fit is refused here, with the figures, instead of being killed halfway.
-void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const VoxelmapSettings& options) {
+// the surface (a brick of 8^3 voxels per ~30 voxel^2 of surface, measured on CGAL's sample meshes, at the default
+// band; a wider band or a shell, `reach` voxels from the surface, takes a slab that much thicker); and the
+// triangle-brick pairs of the binning (bin_triangles: 8 bytes each, twice while they are merged), a ball of bricks
+// about each triangle (a band of 64 voxels took 1.3 GB at 96^3, refused by nothing). A bake that would not fit is
+// refused here, with the figures, instead of being killed halfway.
+void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const VoxelmapSettings& options,
+                  double half_shell) {
   const double area_voxels = surface_area(mesh) / (g.voxel_size * g.voxel_size);
-  const double value_bricks = std::min(double(g.brick_count()), area_voxels / 30.0 + 64);
+  const double reach = options.distance_band + half_shell + 0.5 + 3.5 * std::sqrt(3.0);
+  const double default_reach = 3 + 0.5 + 3.5 * std::sqrt(3.0);  // the band of 3 the 1/30 was measured at
+  const double value_bricks =
+      std::min(double(g.brick_count()), area_voxels / 30.0 * std::max(1.0, reach / default_reach) + 64);
+  const double ball = 3.14159265358979 / 6 * std::pow(2 * reach / kEdge + 1, 3);
+  const double pairs_per_triangle = std::min(double(g.brick_count()), ball);
   const double bytes = double(g.brick_count()) * 4 + double(g.lattice_count()) * (8 + 4) +
-                       value_bricks * (2 * kBrickVoxels * 2 + 8 * 64) + double(mesh.triangles.size()) * 400;
+                       value_bricks * (2 * kBrickVoxels * 2 + 8 * 64) +
+                       double(mesh.triangles.size()) * std::max(400.0, 16 * pairs_per_triangle);
   const double limit = memory_limit_bytes(options.max_memory_bytes);
   if (bytes <= limit) return;
   char text[400];
   std::snprintf(
       text, sizeof text,
       "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.1f MiB, more than the %.1f MiB "
-      "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution or a larger "
-      "voxel size",
+      "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution, a larger "
+      "voxel size, a narrower band or a thinner shell",
       g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
@@ -1202,7 +1212,7 @@ GridPlan plan_voxelmap_grid(const TriangleMesh& mesh, const VoxelmapSettings& op
     plan.g = plan_grid(mesh, grid_options);
     plan.margin = grid_options.margin;
   }
-  check_memory(mesh, plan.g, options);
+  check_memory(mesh, plan.g, options, plan.half_shell);
   return plan;
 }
 
