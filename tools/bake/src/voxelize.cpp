@@ -108,8 +108,7 @@ GridGeometry plan_grid(const TriangleMesh& mesh, const VoxelmapSettings& options
 // triangle-brick pairs of the binning (bin_triangles: 8 bytes each, twice while they are merged), a ball of bricks
 // about each triangle (a band of 64 voxels took 1.3 GB at 96^3, refused by nothing). A bake that would not fit is
 // refused here, with the figures, instead of being killed halfway.
-void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const VoxelmapSettings& options,
-                  double half_shell) {
+void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const VoxelmapSettings& options, double half_shell) {
   const double area_voxels = surface_area(mesh) / (g.voxel_size * g.voxel_size);
   const double reach = options.distance_band + half_shell + 0.5 + 3.5 * std::sqrt(3.0);
   const double default_reach = 3 + 0.5 + 3.5 * std::sqrt(3.0);  // the band of 3 the 1/30 was measured at
