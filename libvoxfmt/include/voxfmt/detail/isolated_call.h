@@ -259,6 +259,7 @@ class WireReader {
     const auto now = Clock::now();
     long long left = std::numeric_limits<long long>::max();
     auto until = [&](Clock::time_point from, double seconds) {
+      seconds = std::min(seconds, 1e9);  // 31 years: any longer limit is none, and its nanoseconds overflowed
       const auto end = from + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
       // Rounded up: the watchdog never fires before its time (a remaining 0.4 ms is 1 ms, not 0).
       left = std::min<long long>(left, std::chrono::ceil<std::chrono::milliseconds>(end - now).count());
