@@ -343,7 +343,15 @@ TEST(Files, AStepThatThrowsLeavesNoTemporary) {
   }
 }
 
-#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)  // their allocators abort instead of failing
+// Under AddressSanitizer or ThreadSanitizer (GCC's macros, clang's features) the allocator aborts instead of failing.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define VOXFMT_SANITIZED_ALLOCATOR 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define VOXFMT_SANITIZED_ALLOCATOR 1
+#endif
+#endif
+#ifndef VOXFMT_SANITIZED_ALLOCATOR
 size_t address_space_bytes() {
   std::ifstream statm("/proc/self/statm");
   size_t pages = 0;
