@@ -604,11 +604,14 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
 // 1-Lipschitz. So where its voxel stores a distance d, u is |d| within half a quantum; and two neighbouring lattice
 // points s apart satisfy l_a <= (1 + e1)(l_b + s) + e0 h. Both hold for any valid lattice and need no mesh; a
 // doubled or scaled lattice breaks the first, a damaged point the second. (That l is the distance itself, only
-// the mesh can tell.) Floats: l may lie one rounding step below u, hence the relative tolerance.
+// the mesh can tell.) Floats: l may lie one rounding step below u, hence the relative tolerance. A shell's l and d
+// are |u - T/2| and u - T/2 with u, the distance to the mesh, rounded: their rounding is relative to u, which is
+// up to T/2 larger than they are.
 void check_lattice_semantics(const Voxelmap& vm, Checker& c) {
   const double h = vm.voxel_size, e0 = vm.lattice_error[0] * h, e1 = vm.lattice_error[1];
   const double half_quantum = 0.5 * vm.distance_quantum;
   constexpr double kRounding = 1e-6;
+  const double shell_rounding = kRounding * 0.5 * vm.shell_thickness.value_or(0.0);
   const auto l = vm.lattice_dims();
   auto voxel_of = [&](uint32_t a, uint32_t b, uint32_t k) -> std::array<uint32_t, 3> {
     return {Voxelmap::lattice_coordinate(a, vm.dims[0]), Voxelmap::lattice_coordinate(b, vm.dims[1]),
@@ -626,8 +629,8 @@ void check_lattice_semantics(const Voxelmap& vm, Checker& c) {
         if (!stored_reported) {
           const VoxelValue at = vm.voxel(v[0], v[1], v[2]);
           const double u = std::abs(at.distance);
-          if (at.stored && (value < (u - half_quantum) * (1 - kRounding) ||
-                            value > ((1 + e1) * (u + half_quantum) + e0) * (1 + kRounding))) {
+          if (at.stored && (value < (u - half_quantum) * (1 - kRounding) - shell_rounding ||
+                            value > ((1 + e1) * (u + half_quantum) + e0) * (1 + kRounding) + shell_rounding)) {
             c.add(IssueCode::LatticeMismatch, "/voxelmap/lattice",
                   name(a, b, k) + " holds " + fmt(value) + " m, but its voxel stores the distance " + fmt(at.distance) +
                       " m (the lattice must hold it within [u, (1 + e1) u + e0 h])");
@@ -642,7 +645,7 @@ void check_lattice_semantics(const Voxelmap& vm, Checker& c) {
           const double s = h * (double(w[size_t(axis)]) - double(v[size_t(axis)]));
           const double other = vm.lattice[vm.lattice_index(n[0], n[1], n[2])];
           const double low = std::min(value, other), high = std::max(value, other);
-          if (high <= ((1 + e1) * (low + s) + e0) * (1 + kRounding)) continue;
+          if (high <= ((1 + e1) * (low + s) + e0) * (1 + kRounding) + 2 * shell_rounding) continue;
           c.add(IssueCode::LatticeMismatch, "/voxelmap/lattice",
                 name(a, b, k) + " and " + name(n[0], n[1], n[2]) + " hold " + fmt(value) + " and " + fmt(other) +
                     " m, " + fmt(s) + " m apart: distances cannot differ that much (spec §3.3)");

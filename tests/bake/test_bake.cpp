@@ -1452,5 +1452,19 @@ TEST(Bake, ShellThicknessOnAClosedMeshGivesAreaTimesThickness) {
   expect_shell_distances(asset, mesh, "cube.off shell 0.1");
 }
 
+// A shell's distances are the mesh's distance less T/2, rounded where the mesh's distance is: a thick shell's
+// lattice and stored distances differ by that rounding, which is far more than a relative 1e-6 of themselves.
+TEST(Bake, ThickShellsPassTheirOwnLatticeChecks) {
+  for (const double thickness : {6.25, 20.0}) {  // 50 and 160 voxels half-thickness on the 2 m cube
+    Settings options;
+    options.voxelmap.resolution = 32;
+    options.voxelmap.shell_thickness = thickness;
+    options.point_shell.points = 500;
+    BuildReport report;
+    const Asset asset = build_asset(kMeshes + "/cube.off", options, report);
+    EXPECT_EQ(full_errors(asset), std::vector<std::string>()) << "thickness " << thickness;
+  }
+}
+
 }  // namespace
 }  // namespace voxfmt::bake
