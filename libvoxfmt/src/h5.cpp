@@ -93,10 +93,11 @@ herr_t find_failed_allocation(unsigned, const H5E_error2_t* err, void* client) {
 }
 }  // namespace
 
-bool hdf5_ran_out_of_memory() {
-  bool found = false;
-  H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, find_failed_allocation, &found);
-  return found;
+Hdf5Failure last_hdf5_failure() {
+  Hdf5Failure failure;
+  H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, find_failed_allocation, &failure.out_of_memory);
+  failure.reason = last_hdf5_reason();
+  return failure;
 }
 
 std::string last_hdf5_reason() {
@@ -770,8 +771,9 @@ std::vector<std::string> Reader::attribute_names(hid_t object) {
 // ---------------------------------------------------------------- Writer
 
 bool Writer::fail(const std::string& what) {
-  out_of_memory_ = hdf5_ran_out_of_memory();
-  failure_ = what + " (" + last_hdf5_reason() + ")";
+  const Hdf5Failure failure = last_hdf5_failure();
+  out_of_memory_ = failure.out_of_memory;
+  failure_ = what + " (" + failure.reason + ")";
   return false;
 }
 

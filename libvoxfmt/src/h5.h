@@ -51,8 +51,12 @@ class Handle {
 void silence_hdf5_errors();
 /// The innermost reason on HDF5's current error stack, e.g. "truncated file: eof = 1024, ...".
 std::string last_hdf5_reason();
-/// Whether HDF5's error stack holds a failed allocation (call before last_hdf5_reason, which clears it).
-bool hdf5_ran_out_of_memory();
+/// Why HDF5's last call failed, read from (and cleared off) its error stack at once.
+struct Hdf5Failure {
+  std::string reason;          ///< as last_hdf5_reason()
+  bool out_of_memory = false;  ///< a failed allocation: OUT_OF_MEMORY, not the disk's or the file's fault
+};
+Hdf5Failure last_hdf5_failure();
 
 /// Longest string attribute a file may hold, in bytes (spec §1): bounds what a hostile file can make us allocate,
 /// and stays below HDF5's 64 KiB limit of a fixed-length attribute in an object header.

@@ -180,8 +180,9 @@ Status write_in_memory_then_to(const std::string& temp, const std::string& path,
     out_of_memory = writer.out_of_memory();
     if (ok && H5Fflush(file, H5F_SCOPE_GLOBAL) < 0) {
       ok = false;
-      out_of_memory = h5::hdf5_ran_out_of_memory();
-      reason = "cannot finish file (" + h5::last_hdf5_reason() + ")";
+      const h5::Hdf5Failure failure = h5::last_hdf5_failure();
+      out_of_memory = failure.out_of_memory;
+      reason = "cannot finish file (" + failure.reason + ")";
     }
     const ssize_t size = ok ? H5Fget_file_image(file, nullptr, 0) : -1;
     if (ok && size > 0) {
@@ -191,8 +192,9 @@ Status write_in_memory_then_to(const std::string& temp, const std::string& path,
       ok = false;
     }
     if (!ok && reason.empty()) {
-      out_of_memory = h5::hdf5_ran_out_of_memory();
-      reason = "cannot take the file's image (" + h5::last_hdf5_reason() + ")";
+      const h5::Hdf5Failure failure = h5::last_hdf5_failure();
+      out_of_memory = failure.out_of_memory;
+      reason = "cannot take the file's image (" + failure.reason + ")";
     }
   } catch (const std::bad_alloc&) {
     ok = false;

@@ -133,19 +133,13 @@ def test_a_shapes_mass_properties_are_the_assets_or_the_given_meshs(tmp_path: Pa
     assert np.allclose(np.array(shape_mesh.inertia).reshape(3, 3), body.inertia / body.density, rtol=1e-5, atol=1e-9)
     # A newton.Mesh of the user's is copied with what it holds (a shell with its hull's vertex limit stayed solid and
     # took another mass); only its SDF is the asset's.
-    vertices, triangles = voxfmt.read_mesh(MESHES / "cube-ouvert.off", unit_scale=_unit_scale(body))
+    vertices, triangles = voxfmt.read_mesh(MESHES / "cube-ouvert.off", unit_scale=vn._unit_scale(body))
     given = newton.Mesh(vertices, triangles, is_solid=False, maxhullvert=12)
     copied = vn.mesh(body, given)
     assert (copied.is_solid, copied.maxhullvert, copied.mass) == (False, 12, given.mass)
     assert copied.sdf is not None and given.sdf is None
     with pytest.raises(voxfmt.OptionError):
         vn.texture_layout(body, texture_format=np.array(["uint16", "uint8"]))
-
-
-def _unit_scale(body: voxfmt.Body) -> float:
-    import json
-
-    return float(json.loads(body.build_parameters).get("unit_scale", 1.0))
 
 
 def test_a_damaged_asset_is_refused_with_its_code(assets: dict[str, Path], tmp_path: Path) -> None:

@@ -65,7 +65,7 @@ bool finite_pose(const Pose& pose) {
 
 HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
                                const HapticParameters& parameters)
-    : tool_(std::move(tool)), parameters_(parameters), tool_pose_(start), level_cap_(parameters.query.max_level) {
+    : tool_(std::move(tool)), parameters_(parameters), motion_{start}, level_cap_(parameters.query.max_level) {
   if (!tool_ || !tool_->has_point_shell()) throw std::invalid_argument("HapticRenderer: the tool needs a point shell");
   if (!(parameters_.tool_mass > 0 && std::isfinite(parameters_.tool_mass)))
     throw std::invalid_argument("HapticRenderer: tool_mass must be finite and > 0");
@@ -117,8 +117,8 @@ void HapticRenderer::set_object_pose(size_t index, const Pose& pose) {
 
 double HapticRenderer::kinetic_energy(const Eigen::Matrix3d& rotation) const {
   const Eigen::Matrix3d inertia_world = rotation * inertia_body_ * rotation.transpose();
-  return 0.5 * parameters_.tool_mass * velocity_.squaredNorm() +
-         0.5 * angular_velocity_.dot(inertia_world * angular_velocity_);
+  return 0.5 * parameters_.tool_mass * motion_.velocity.squaredNorm() +
+         0.5 * motion_.angular_velocity.dot(inertia_world * motion_.angular_velocity);
 }
 
 void HapticRenderer::gather_contacts(const Pose& tool_pose, double budget_us) {
@@ -210,33 +210,28 @@ const HapticCycle& HapticRenderer::step(const Pose& device_pose, double dt) {
   }
   // A pose that is not finite is replaced by the last finite one (before the first: the start, where the tool is).
   const bool pose_ok = finite_pose(device_pose);
-  const Pose device = pose_ok ? device_pose : have_last_device_ ? last_device_pose_ : tool_pose_;
+  const Pose device = pose_ok ? device_pose : motion_.have_last_device ? motion_.last_device_pose : motion_.pose;
   const HapticCycle previous = cycle_;
   cycle_ = HapticCycle{};
   cycle_.input_rejected = !pose_ok;
   const Eigen::Vector3d com_asset = tool_->center_of_mass();
-  const Eigen::Vector3d com = tool_pose_.apply(com_asset);
+  const Eigen::Vector3d com = motion_.pose.apply(com_asset);
   const auto start = Clock::now();
   const double cpu_start = thread_cpu_us();
-  gather_contacts(tool_pose_, parameters_.time_budget_us);
+  gather_contacts(motion_.pose, parameters_.time_budget_us);
   cycle_.query_us = std::chrono::duration<double, std::micro>(Clock::now() - start).count();
   cycle_.query_cpu_us = thread_cpu_us() - cpu_start;
   adapt_level_cap();
   const ContactTerms contact = contact_terms(com);
-  const Pose last_device = last_device_pose_;
-  const bool had_last_device = have_last_device_;
-  const Eigen::Vector3d velocity = velocity_, angular_velocity = angular_velocity_;
-  const Pose tool_pose = tool_pose_;
-  const double energy = energy_;
+  const ToolState before = motion_;
   const Coupling coupling = couple(device, dt, com_asset, com);
-  energy_ = kinetic_energy(tool_pose_.rotation) + contact.energy + coupling.energy;
+  motion_.energy = kinetic_energy(motion_.pose.rotation) + contact.energy + coupling.energy;
   integrate(contact, coupling, dt, com_asset, com);
   // A step the numbers cannot hold (a time step of 1e160 s, a device at 1e300 m) is rejected whole: one bad sample
   // never poisons the tool.
-  if (!(velocity_.allFinite() && angular_velocity_.allFinite() && finite_pose(tool_pose_) &&
+  if (!(motion_.velocity.allFinite() && motion_.angular_velocity.allFinite() && finite_pose(motion_.pose) &&
         cycle_.device_wrench.force.allFinite() && cycle_.device_wrench.torque.allFinite())) {
-    velocity_ = velocity, angular_velocity_ = angular_velocity, tool_pose_ = tool_pose, energy_ = energy;
-    last_device_pose_ = last_device, have_last_device_ = had_last_device;
+    motion_ = before;
     cycle_ = previous;
     cycle_.input_rejected = true;
   }
@@ -291,20 +286,22 @@ HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double 
   const HapticParameters& p = parameters_;
   const Eigen::Vector3d device_com = device_pose.apply(com_asset);
   Eigen::Vector3d device_velocity = Eigen::Vector3d::Zero(), device_angular_velocity = Eigen::Vector3d::Zero();
-  if (have_last_device_ && dt > 0) {
-    device_velocity = (device_com - last_device_pose_.apply(com_asset)) / dt;
-    device_angular_velocity = rotation_vector(device_pose.rotation * last_device_pose_.rotation.transpose()) / dt;
+  if (motion_.have_last_device && dt > 0) {
+    device_velocity = (device_com - motion_.last_device_pose.apply(com_asset)) / dt;
+    device_angular_velocity =
+        rotation_vector(device_pose.rotation * motion_.last_device_pose.rotation.transpose()) / dt;
   }
-  last_device_pose_ = device_pose;
-  have_last_device_ = true;
+  motion_.last_device_pose = device_pose;
+  motion_.have_last_device = true;
   const Eigen::Vector3d stretch = device_com - com;
-  const Eigen::Vector3d twist = rotation_vector(device_pose.rotation * tool_pose_.rotation.transpose());
+  const Eigen::Vector3d twist = rotation_vector(device_pose.rotation * motion_.pose.rotation.transpose());
   Coupling c;
   c.energy = saturated_spring_energy(p.coupling_stiffness, stretch.stableNorm(), p.max_force) +
              saturated_spring_energy(p.coupling_angular_stiffness, twist.stableNorm(), p.max_torque);
-  const Eigen::Vector3d force = p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - velocity_);
-  const Eigen::Vector3d torque =
-      p.coupling_angular_stiffness * twist + p.coupling_angular_damping * (device_angular_velocity - angular_velocity_);
+  const Eigen::Vector3d force =
+      p.coupling_stiffness * stretch + p.coupling_damping * (device_velocity - motion_.velocity);
+  const Eigen::Vector3d torque = p.coupling_angular_stiffness * twist +
+                                 p.coupling_angular_damping * (device_angular_velocity - motion_.angular_velocity);
   c.force_scale = saturation_scale(force, p.max_force);
   c.torque_scale = saturation_scale(torque, p.max_torque);
   c.force = c.force_scale * force;
@@ -320,7 +317,7 @@ HapticRenderer::Coupling HapticRenderer::couple(const Pose& device_pose, double 
 void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coupling, double dt,
                                const Eigen::Vector3d& com_asset, const Eigen::Vector3d& com) {
   const HapticParameters& p = parameters_;
-  const Eigen::Matrix3d rot = tool_pose_.rotation;
+  const Eigen::Matrix3d rot = motion_.pose.rotation;
   Matrix6d mass = Matrix6d::Zero();
   mass.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() * p.tool_mass;
   mass.bottomRightCorner<3, 3>() = rot * inertia_body_ * rot.transpose();
@@ -333,7 +330,7 @@ void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coup
   stiffness.bottomRightCorner<3, 3>() +=
       Eigen::Matrix3d::Identity() * (coupling.torque_scale * p.coupling_angular_stiffness);
   Vector6d velocity;
-  velocity << velocity_, angular_velocity_;
+  velocity << motion_.velocity, motion_.angular_velocity;
   Vector6d force = contact.wrench;
   force.head<3>() += coupling.force;
   force.tail<3>() += coupling.torque;
@@ -342,11 +339,11 @@ void HapticRenderer::integrate(const ContactTerms& contact, const Coupling& coup
   const Vector6d rhs = mass * velocity + dt * (force + (damping - p.contact_damping * contact.stiffness) * velocity);
   const Matrix6d system = mass + dt * damping + dt * dt * stiffness;
   const Vector6d next = system.ldlt().solve(rhs);
-  velocity_ = next.head<3>();
-  angular_velocity_ = next.tail<3>();
-  const Eigen::Vector3d next_com = com + dt * velocity_;
-  tool_pose_.rotation = exp_rotation(dt * angular_velocity_) * rot;
-  tool_pose_.translation = next_com - tool_pose_.rotation * (tool_pose_.scale * com_asset);
+  motion_.velocity = next.head<3>();
+  motion_.angular_velocity = next.tail<3>();
+  const Eigen::Vector3d next_com = com + dt * motion_.velocity;
+  motion_.pose.rotation = exp_rotation(dt * motion_.angular_velocity) * rot;
+  motion_.pose.translation = next_com - motion_.pose.rotation * (motion_.pose.scale * com_asset);
 }
 
 }  // namespace voxfmt::runtime

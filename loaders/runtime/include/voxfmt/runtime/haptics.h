@@ -210,13 +210,13 @@ class HapticRenderer {
   Wrench contact_wrench_at(const Pose& tool_pose);
 
   /// The simulated tool.
-  const Pose& tool_pose() const { return tool_pose_; }
-  const Eigen::Vector3d& tool_velocity() const { return velocity_; }
-  const Eigen::Vector3d& tool_angular_velocity() const { return angular_velocity_; }
+  const Pose& tool_pose() const { return motion_.pose; }
+  const Eigen::Vector3d& tool_velocity() const { return motion_.velocity; }
+  const Eigen::Vector3d& tool_angular_velocity() const { return motion_.angular_velocity; }
   /// Energy at the start of the last cycle, J: the tool's kinetic energy, the coupling spring's (quadratic up to
   /// max_force / max_torque, linear beyond: the saturated spring's potential) and the contacts' penalty potential
   /// (k depth^2 / 2 per point).
-  double energy() const { return energy_; }
+  double energy() const { return motion_.energy; }
   /// Contacts of the last cycle (all objects, world frame, normals pushing the tool out).
   const std::vector<Contact>& contacts() const { return contacts_; }
   /// The tree level the renderer stops at. At the leaf level (no cut) the queries are coherent: each object keeps
@@ -250,12 +250,16 @@ class HapticRenderer {
   HapticParameters parameters_;
   std::vector<Object> objects_;
   Eigen::Matrix3d inertia_body_;  ///< about the centre of mass, asset frame, kg m^2
-  Pose tool_pose_;
-  Pose last_device_pose_;
-  bool have_last_device_ = false;
-  Eigen::Vector3d velocity_ = Eigen::Vector3d::Zero();          ///< of the centre of mass
-  Eigen::Vector3d angular_velocity_ = Eigen::Vector3d::Zero();  ///< world frame
-  double energy_ = 0.0;
+  /// What a step changes, kept whole so that a step the numbers cannot hold is undone whole.
+  struct ToolState {
+    Pose pose;
+    Pose last_device_pose;
+    bool have_last_device = false;
+    Eigen::Vector3d velocity = Eigen::Vector3d::Zero();          ///< of the centre of mass
+    Eigen::Vector3d angular_velocity = Eigen::Vector3d::Zero();  ///< world frame
+    double energy = 0.0;
+  };
+  ToolState motion_;
   uint32_t level_cap_;
   uint32_t relaxed_cycles_ = 0;
   ContactSet scratch_set_;
