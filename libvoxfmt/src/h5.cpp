@@ -736,7 +736,7 @@ std::optional<std::vector<T>> Reader::dataset(hid_t group, const std::string& gr
   try {
     values.resize(size_t(d->elements()));
   } catch (const std::bad_alloc&) {
-    report(IssueCode::ReadFailed, d->path, "not enough memory for " + std::to_string(d->elements()) + " elements");
+    report(IssueCode::OutOfMemory, d->path, "not enough memory for " + std::to_string(d->elements()) + " elements");
     return std::nullopt;
   }
   if (!read_raw_chunks<T>(*d, values.data()) && !read_rows<T>(*d, 0, d->shape.empty() ? 1 : d->shape[0], values.data()))

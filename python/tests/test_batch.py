@@ -2,6 +2,14 @@
 
 from __future__ import annotations
 
+import concurrent.futures
+import copy
+import multiprocessing
+import os
+import pickle
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -78,3 +86,45 @@ def test_poses_and_references_that_are_not_real_finite_numbers_are_refused(spher
     with pytest.raises(voxfmt.InternalError) as caught:
         voxfmt.contacts_batch(sphere, np.eye(4), sphere, np.broadcast_to(np.eye(4), (10**9, 4, 4)))
     assert caught.value.code == "OUT_OF_MEMORY"
+
+
+def batch_in_worker(body: voxfmt.Body, poses: np.ndarray) -> tuple[float, np.ndarray]:
+    return body.mass, voxfmt.contacts_batch(body, np.eye(4), body, poses, threads=1).count
+
+
+def test_a_body_pickles_and_copies_as_its_file_loaded_again(
+    sphere_asset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    body = voxfmt.load(sphere_asset, density=1000.0)
+    pose = translation(2 * RADIUS - 0.002)
+    expected = voxfmt.contacts(body, np.eye(4), body, pose)
+    assert len(expected) > 0
+    copies = [pickle.loads(pickle.dumps(body, protocol)) for protocol in range(2, pickle.HIGHEST_PROTOCOL + 1)]
+    for again in copies + [copy.copy(body), copy.deepcopy(body), copy.deepcopy([body, body])[1]]:
+        assert type(again) is voxfmt.Body and again is not body
+        assert again.path == str(sphere_asset) and again.density == 1000.0 and again.mass == body.mass
+        np.testing.assert_array_equal(again.points, body.points)
+        c = voxfmt.contacts(again, np.eye(4), again, pose)
+        np.testing.assert_array_equal(c.depths, expected.depths)
+        np.testing.assert_array_equal(c.points, expected.points)
+    # A relative path is pickled absolute: a worker started in another folder finds the same file.
+    monkeypatch.chdir(sphere_asset.parent)
+    relative = pickle.dumps(voxfmt.load(sphere_asset.name))
+    monkeypatch.chdir(tmp_path)
+    assert pickle.loads(relative).path == str(sphere_asset)
+    # A file gone since is the load's coded error.
+    gone = tmp_path / "gone.vox.h5"
+    shutil.copy(sphere_asset, gone)
+    pickled = pickle.dumps(voxfmt.load(gone))
+    os.unlink(gone)
+    with pytest.raises(voxfmt.AssetError) as info:
+        pickle.loads(pickled)
+    assert info.value.code == "FILE_NOT_FOUND"
+    # What a process pool does with it: each worker loads the file and finds the same contacts.
+    poses = np.stack([translation(x * RADIUS) for x in (1.9, 2.0, 3.0)])
+    spawn = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=spawn) as pool:
+        mass, count = pool.submit(batch_in_worker, body, poses).result(timeout=120)
+    assert mass == body.mass
+    np.testing.assert_array_equal(count, voxfmt.contacts_batch(body, np.eye(4), body, poses).count)
+    assert count[0] > 0 and count[2] == 0

@@ -148,6 +148,24 @@ def test_cpu_poses_of_either_byte_order_or_integers_are_read_as_contacts_batch_r
         scene.contacts(pa.astype(np.float32), FakeCudaArray((3, 4, 4), "float32"))
 
 
+def test_cpu_poses_of_half_or_long_double_are_read_as_float64(sphere: voxfmt.Body) -> None:
+    # The batch reads float32 and float64; a pair of another float was passed on as it was and refused, though
+    # contacts() and contacts_batch() take it.
+    scene = voxfmt.BatchScene([sphere])
+    pa = np.tile(np.eye(4), (3, 1, 1))
+    pb = pa.copy()
+    pb[:, 0, 3] = [0.02, 0.04, 0.5]
+    for dtype in (np.float16, np.longdouble):
+        a, b = pa.astype(dtype), pb.astype(dtype)
+        converted = scene.contacts(a, b)
+        as_float64 = scene.contacts(a.astype(np.float64), b.astype(np.float64))
+        assert np.array_equal(converted.count, as_float64.count) and np.array_equal(converted.force, as_float64.force)
+        assert np.array_equal(converted.count, voxfmt.contacts_batch(sphere, a, sphere, b).count)
+    native = scene.contacts(pa, pb)
+    assert np.array_equal(scene.contacts(pa.astype(np.float16), pb.astype(np.float32)).count, native.count)
+    assert np.array_equal(scene.contacts(pa.astype(np.longdouble), pb).force, native.force)
+
+
 def test_outputs_beyond_the_machines_memory_are_refused_up_front(sphere: voxfmt.Body) -> None:
     # 40,000 environments x 2^24 contacts would be 22 TB of zeroed outputs: a MemoryError or the kernel's kill.
     scene = voxfmt.BatchScene([sphere])

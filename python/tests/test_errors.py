@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import concurrent.futures
+import copy
 import fractions
 import math
+import multiprocessing
 import os
+import pickle
 import shutil
 from pathlib import Path
 from typing import Any
@@ -13,6 +17,7 @@ import numpy as np
 import pytest
 
 import voxfmt
+import voxfmt.mujoco
 from conftest import RADIUS, translation
 
 
@@ -174,3 +179,63 @@ def test_numbers_are_judged_alike_compiled_or_not(sphere: voxfmt.Body, sphere_me
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, voxel_size=0.0)
     raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, points=None, point_spacing=0.0)
     assert voxfmt.bake(sphere_mesh, out, resolution=16, points=100, voxel_size=None)["status"] == "ok"
+
+
+ERROR_CLASSES = [voxfmt.Error, voxfmt.AssetError, voxfmt.MeshError, voxfmt.WriteError, voxfmt.OptionError,
+                 voxfmt.PoseError, voxfmt.InternalError, voxfmt.mujoco.MujocoVersionError]
+
+
+@pytest.mark.parametrize("kind", ERROR_CLASSES, ids=lambda kind: kind.__name__)
+def test_errors_pickle_and_copy_with_their_class_and_fields(kind: type[voxfmt.Error]) -> None:
+    # Exception's own pickling replays cls(one string): an error could not come back from a worker process.
+    error = kind("SOME_CODE", "what went wrong", "file.vox.h5", "/voxelmap")
+    error.add_note("a note added on the way")
+    copies = [pickle.loads(pickle.dumps(error, protocol)) for protocol in range(pickle.HIGHEST_PROTOCOL + 1)]
+    for again in copies + [copy.copy(error), copy.deepcopy(error)]:
+        assert type(again) is kind
+        assert (again.code, again.message, again.file, again.object) == ("SOME_CODE", "what went wrong",
+                                                                         "file.vox.h5", "/voxelmap")
+        assert str(again) == str(error) == "SOME_CODE: what went wrong" and again.args == error.args
+        assert again.__notes__ == ["a note added on the way"]
+
+
+def load_in_worker(path: str) -> voxfmt.Body:
+    return voxfmt.load(path)  # (a compiled function itself is no pickle: nanobind's functions are not)
+
+
+def test_a_workers_error_arrives_as_the_same_class_with_its_code(tmp_path: Path) -> None:
+    missing = tmp_path / "missing.vox.h5"
+    spawn = multiprocessing.get_context("spawn")  # a fresh interpreter: everything crosses as pickles
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=spawn) as pool:
+        future = pool.submit(load_in_worker, str(missing))
+        with pytest.raises(voxfmt.AssetError) as info:
+            future.result(timeout=120)
+    assert info.value.code == "FILE_NOT_FOUND" and str(missing) in info.value.message
+    assert str(info.value).startswith("FILE_NOT_FOUND: ")
+
+
+def test_contacts_batch_options_are_judged_as_contacts_judges_them(sphere: voxfmt.Body) -> None:
+    # The compiled batch took a bool for 1 (point_budget=True: the root level only) and answered a float or an int
+    # beyond int64 with a TypeError naming a private function; contacts() says BAD_OPTION.
+    pose, poses = np.eye(4), np.repeat(translation(2 * RADIUS - 0.002)[None], 3, axis=0)
+    tracker = voxfmt.Tracker(sphere, sphere)
+    for options in ({"point_budget": True}, {"point_budget": 2.5}, {"point_budget": 2**70}, {"point_budget": "10"},
+                    {"max_level": False}, {"max_level": 1.0}, {"max_level": 2**64}, {"time_budget_us": True},
+                    {"time_budget_us": "100"}, {"time_budget_us": 2**2000}, {"cut_level": 1}, {"cut_level": None},
+                    {"cut_level": "leaves"}, {"interpolation": 3}, {"interpolation": b"trilinear"}):
+        error = raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts_batch, sphere, pose, sphere, poses,
+                       **options)
+        assert next(iter(options)) in error.message
+        if not isinstance(options.get("cut_level", options.get("interpolation", "")), str):
+            continue  # contacts() is compiled: a value that is no string is its TypeError
+        raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.contacts, sphere, pose, sphere, poses[0], **options)
+    for interpolation in (None, 3):
+        raises(voxfmt.OptionError, "BAD_OPTION", tracker.contacts, pose, poses[0], interpolation=interpolation)
+        raises(voxfmt.OptionError, "BAD_OPTION", tracker.contacts_batch, pose, poses, interpolation=interpolation)
+    # Valid values, NumPy's included, give what contacts() gives.
+    for options in ({"point_budget": np.int64(int(sphere.levels[2]))}, {"max_level": np.int32(1)},
+                    {"max_level": 10**6}, {"time_budget_us": np.float32(1e6)}, {"time_budget_us": 10**6},
+                    {"cut_level": "points", "max_level": 2}, {"interpolation": "tricubic"}):
+        batch = voxfmt.contacts_batch(sphere, pose, sphere, poses, **options)
+        single = voxfmt.contacts(sphere, pose, sphere, poses[0], **options)
+        assert list(batch.count) == [len(single)] * 3 and batch.max_depth[0] == single.max_depth

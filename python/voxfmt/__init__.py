@@ -14,6 +14,7 @@ the wrong Python type to a compiled function is Python's TypeError).
 
 from __future__ import annotations
 
+import copyreg
 import json
 import operator
 import os
@@ -27,7 +28,7 @@ from ._errors import AssetError, Error, InternalError, MeshError, OptionError, P
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
 from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
-from .batch import _real, _refuse_beyond_pose_memory, _whole
+from .batch import _one_of, _real, _refuse_beyond_pose_memory, _whole
 
 __version__: str = _library_version()
 
@@ -88,6 +89,11 @@ def _optional_int(name: str, value: Any) -> int | None:
         return operator.index(value)
     except TypeError:
         raise OptionError("BAD_OPTION", f"{name}: expected an integer, got {value!r}") from None
+
+
+def _query_int(name: str, value: Any) -> int | None:
+    """An integer query option or None, as contacts() takes it (an int64; its range is the query's to check)."""
+    return None if value is None else _whole(name, value, -(2**63), 2**63 - 1)
 
 
 def _unsigned(name: str, value: Any) -> int:
@@ -270,6 +276,13 @@ def contacts_batch(
         raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
     if threads is not None:
         threads = _whole("threads", threads, 1, 1024)
+    # Judged here as contacts() judges them: the compiled batch would take a bool for 1 (point_budget=True: the
+    # root level only) and answer a float with a TypeError naming itself.
+    point_budget, max_level = _query_int("point_budget", point_budget), _query_int("max_level", max_level)
+    if time_budget_us is not None:
+        time_budget_us = _real("time_budget_us", time_budget_us)
+    cut_level = _one_of("cut_level", cut_level, ("spheres", "points"))
+    interpolation = _one_of("interpolation", interpolation, ("trilinear", "tricubic"))
     _refuse_beyond_pose_memory(poses_a, poses_b)
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
@@ -302,7 +315,8 @@ class Tracker:
                  interpolation: str = "trilinear") -> Contacts:
         """contacts(a, pose_a, b, pose_b), coherent with this pair's earlier queries (a query with another
         ``interpolation`` than the last starts from the root)."""
-        return self._tracker._contacts(pose_a, pose_b, _real("proximity", proximity), interpolation)
+        return self._tracker._contacts(pose_a, pose_b, _real("proximity", proximity),
+                                       _one_of("interpolation", interpolation, ("trilinear", "tricubic")))
 
     def contacts_batch(
         self,
@@ -321,9 +335,24 @@ class Tracker:
         _refuse_beyond_pose_memory(poses_a, poses_b)
         out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
                               stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),
-                              tracker=self._tracker, interpolation=interpolation)
+                              tracker=self._tracker,
+                              interpolation=_one_of("interpolation", interpolation, ("trilinear", "tricubic")))
         return Batch(**out)
 
     def reset(self) -> None:
         """Forgets the pair's history: the next query starts from the root."""
         self._tracker.reset()
+
+
+def _reload(path: str, density: float) -> Body:
+    """A pickled Body in the process that unpickles it: its file loaded again (FILE_NOT_FOUND if gone since)."""
+    return load(path, density=density)
+
+
+def _reduce_body(body: Body) -> tuple[Any, ...]:
+    # A Body is its file's data, read-only: what is pickled (and copied) is where that file is and the density
+    # given to load(), not the arrays (a worker of multiprocessing or ProcessPoolExecutor reloads it).
+    return _reload, (os.path.abspath(body.path), body.density)
+
+
+copyreg.pickle(Body, _reduce_body)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = [
     "Error",
     "AssetError",
@@ -25,6 +27,11 @@ class Error(Exception):
         self.message = message
         self.file = file
         self.object = object
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Exception's own replays cls(*self.args), one string here: a worker's error could not be unpickled
+        # (multiprocessing hangs, ProcessPoolExecutor breaks). The state keeps attributes set since (add_note's).
+        return type(self), (self.code, self.message, self.file, self.object), self.__dict__
 
 
 class AssetError(Error):

@@ -75,10 +75,11 @@ def _on_cuda(array: Any) -> bool:
 
 def _cpu_poses(poses_a: Any, poses_b: Any) -> tuple[Any, Any]:
     """Poses for the CPU batch, as contacts_batch takes them: float32 or float64 as given where both are of one (the
-    GPU's float32 gives the same results here), else both as float64 (integers, mixed dtypes); in this machine's
-    byte order. What is not numbers is left for the batch to refuse with its message."""
+    GPU's float32 gives the same results here), else both as float64 (integers, mixed dtypes, float16, long double);
+    in this machine's byte order. What is not numbers is left for the batch to refuse with its message."""
     a, b = np.asarray(poses_a), np.asarray(poses_b)
-    if a.dtype.kind == "f" and b.dtype.kind == "f" and a.dtype.itemsize == b.dtype.itemsize:
+    # The batch reads float32 and float64 only: a pair of float16 or of long double is converted like the rest.
+    if a.dtype.kind == b.dtype.kind == "f" and a.dtype.itemsize == b.dtype.itemsize and a.dtype.itemsize in (4, 8):
         a, b = a.astype(a.dtype.newbyteorder("="), copy=False), b.astype(b.dtype.newbyteorder("="), copy=False)
     elif a.dtype.kind in "iuf" and b.dtype.kind in "iuf":
         a, b = a.astype(np.float64, copy=False), b.astype(np.float64, copy=False)
@@ -275,6 +276,13 @@ def _whole(name: str, value: Any, low: int, high: int) -> int:
     return number
 
 
+def _one_of(name: str, value: Any, choices: tuple[str, str]) -> str:
+    """A named choice, as the compiled checks word its refusal (which a value that is no string never reaches)."""
+    if not isinstance(value, str) or value not in choices:
+        raise OptionError("BAD_OPTION", f"{name} must be {choices[0]!r} or {choices[1]!r}, not {value!r}")
+    return value
+
+
 def _refuse_beyond_memory(what: str, needed_bytes: float) -> None:
     """Refused with figures before anything is allocated, not a MemoryError or the kernel's out-of-memory kill
     (the limit the C++ batch applies too: 3/4 of this machine's memory)."""
@@ -424,8 +432,7 @@ class BatchScene:
         ``interpolation``: 'trilinear' or 'tricubic' (as :func:`voxfmt.contacts`'s; on the CPU only)."""
         stiffness, proximity = _real("stiffness", stiffness), _real("proximity", proximity)
         max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
-        if not isinstance(interpolation, str) or interpolation not in ("trilinear", "tricubic"):
-            raise OptionError("BAD_OPTION", f"interpolation must be 'trilinear' or 'tricubic', not {interpolation!r}")
+        interpolation = _one_of("interpolation", interpolation, ("trilinear", "tricubic"))
         if _on_cuda(poses_a) or _on_cuda(poses_b):
             if interpolation != "trilinear":
                 raise OptionError("BAD_OPTION", "the CUDA batch reads distances trilinearly only (tricubic: NumPy poses)")

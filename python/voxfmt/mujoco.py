@@ -154,12 +154,13 @@ def field_bytes(asset_path: str | os.PathLike[str]) -> int:
 
 
 def lookup_profile(restart: bool = True) -> dict[str, float]:
-    """Profiles the plugin's lookups on this thread: since the last call, the calls MuJoCo made of
-    ``sdf_distance`` and ``sdf_gradient``, the voxelmap lookups they cost (a repeated point is answered from the
-    last evaluations), and the nanoseconds those lookups take replayed in a loop without MuJoCo (``lookup_ns``;
-    what the lookups cost of a step, as opposed to MuJoCo's own search), and ``collisions``, the SDF pair
-    tests MuJoCo ran with one of the plugin's geoms as the SDF. ``restart`` starts a new profile,
-    ``False`` stops profiling. Profiling records every looked-up point: not for timing a step."""
+    """Profiles the plugin's lookups in this process (one profile for every thread and model): since the last
+    call, the calls MuJoCo made of ``sdf_distance`` and ``sdf_gradient``, the voxelmap lookups they cost (a point
+    repeated on a thread is answered from that thread's last evaluations), and the nanoseconds those lookups take
+    replayed in a loop without MuJoCo (``lookup_ns``; what the lookups cost of a step, as opposed to MuJoCo's own
+    search), and ``collisions``, the SDF pair tests MuJoCo ran with one of the plugin's geoms as the SDF.
+    ``restart`` starts a new profile, ``False`` stops profiling. Profiling records every looked-up point: not for
+    timing a step."""
     load_plugin()
     assert _library is not None
     out = np.zeros(5)

@@ -10,7 +10,7 @@ import sys
 import mujoco
 import numpy as np
 import pytest
-from conftest import REPO, SPHERE_RADIUS, SPHERE_VOXEL, UPRIGHT, speed
+from conftest import MESHES, REPO, SPHERE_RADIUS, SPHERE_VOXEL, UPRIGHT, speed
 
 import voxfmt
 import voxfmt.mujoco as vm
@@ -287,3 +287,91 @@ def test_every_format_version_loads(tmp_path, version: str) -> None:  # type: ig
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     points = centre + directions * (spec_fixture.RADIUS + 0.005)
     assert np.abs(vm.evaluate(path, points) - 0.005).max() < 0.1 * spec_fixture.FINE_GRID.voxel_size
+
+
+def test_a_thread_pool_steps_as_one_thread_does(bunny_asset) -> None:  # type: ignore[no-untyped-def]
+    # With a thread pool MuJoCo runs one mjData's collision pairs on several threads at once; the plugin's kept
+    # evaluations were per mjData, so threads read each other's points: every threaded run differed from step 0.
+    parts = [vm.part(bunny_asset, f"b{i}", pos=(1.6 * (i % 3), 1.6 * (i // 3), 0.3), quat=UPRIGHT) for i in range(6)]
+    big_box = '<geom type="box" size="20 20 0.1" pos="0 0 -0.1"/>'
+    model = mujoco.MjModel.from_xml_string(vm.insert(scene().replace(BOX, big_box), *parts))
+
+    def run(threads: int) -> list[np.ndarray]:
+        data = mujoco.MjData(model)
+        if threads:
+            mujoco.mju_threadpool(data, threads)
+        states = []
+        for _ in range(400):
+            mujoco.mj_step(model, data)
+            states.append(np.concatenate([[data.ncon], data.qpos]))
+        return states
+
+    serial = run(0)
+    assert serial[-1][0] > 0  # they landed
+    for _ in range(2):
+        threaded = run(4)
+        first = next((i for i, (a, b) in enumerate(zip(serial, threaded)) if not np.array_equal(a, b)), None)
+        assert first is None, f"the threaded run differs from step {first}"
+
+
+def test_an_mjdata_outlives_its_file(tmp_path, sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # A model compiled from a file in a temporary folder: once the folder is cleaned up, new mjData (resets,
+    # rollouts, copies) use the version the process loaded, as the compiled model does.
+    import copy
+    import shutil
+
+    asset = tmp_path / "ball.vox.h5"
+    shutil.copyfile(sphere_asset, asset)
+    xml = vm.insert(scene(), vm.part(asset, "ball", pos=(0, 0, 0.15)))
+    model = mujoco.MjModel.from_xml_string(xml)
+    before = mujoco.MjData(model)
+    asset.unlink()
+    again = mujoco.MjModel.from_xml_string(xml)  # compiled again: the same version, mesh and field
+    runs = [(model, mujoco.MjData(model)), (model, mujoco.MjData(copy.copy(model))), (model, copy.copy(before)),
+            (again, mujoco.MjData(again))]
+    for m, data in [(model, before), *runs]:
+        for _ in range(200):
+            mujoco.mj_step(m, data)
+    for _, data in runs:
+        assert np.array_equal(data.qpos, before.qpos)
+    assert before.ncon > 0
+    # A name this process never loaded is still an error.
+    with pytest.raises(ValueError, match="FILE_NOT_FOUND"):
+        mujoco.MjModel.from_xml_string(xml.replace("ball.vox.h5", "never.vox.h5"))
+
+
+def test_memory_the_field_cannot_get_is_out_of_memory(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    # The plugin builds its field in the caller's process: an allocation that fails there crashed the interpreter
+    # (an exception unwinding through MuJoCo's C frames). Under address-space limits from a few MiB to beyond the
+    # field's size, every outcome is a field or a coded error.
+    import subprocess
+
+    mesh = MESHES / "bunny00.off"
+    if not mesh.exists():
+        pytest.skip(f"{mesh}: CGAL's sample meshes are not unpacked")
+    asset = tmp_path / "bunny.vox.h5"
+    voxfmt.bake(mesh, asset, resolution=200, points=2000)
+    child = (
+        "import resource, sys\n"
+        "import numpy as np\n"
+        "import voxfmt, voxfmt.mujoco as vm\n"
+        "vm.load_plugin()\n"
+        "size = int([l for l in open('/proc/self/status') if l.startswith('VmSize')][0].split()[1]) * 1024\n"
+        "limit = size + int(sys.argv[2]) * 2**20\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (limit, limit))\n"
+        "try:\n"
+        "    vm.evaluate(sys.argv[1], np.zeros((1, 3)))\n"
+        "    print('OK')\n"
+        "except voxfmt.Error as e:\n"
+        "    print(e.code)\n"
+        "except MemoryError:\n"
+        "    print('MemoryError')\n"
+    )
+    outcomes = []
+    for extra_mib in range(4, 20, 2):
+        run = subprocess.run([sys.executable, "-c", child, str(asset), str(extra_mib)], capture_output=True,
+                             text=True, timeout=120)
+        assert run.returncode == 0, (extra_mib, run.returncode, run.stderr[-2000:])
+        outcomes.append(run.stdout.strip())
+    assert set(outcomes) <= {"OK", "OUT_OF_MEMORY", "MemoryError"}, outcomes
+    assert "OUT_OF_MEMORY" in outcomes and outcomes[-1] == "OK", outcomes

@@ -3,6 +3,7 @@
 #include <sys/stat.h>
 
 #include <filesystem>
+#include <new>
 
 namespace voxfmt::mujoco {
 namespace {
@@ -31,12 +32,16 @@ std::unique_ptr<CachedAsset> load_entry(const std::string& path) {
     entry->error = voxfmt::Error(voxfmt::IssueCode::BadOption, "the plugin instance has no config key 'file'");
     return entry;
   }
-  auto field = AssetField::load(path);
-  if (!field) {
-    entry->error = field.error();
-    return entry;
+  try {
+    auto field = AssetField::load(path);
+    if (!field) {
+      entry->error = field.error();
+      return entry;
+    }
+    entry->field = std::move(field.value());
+  } catch (const std::bad_alloc&) {  // the field is built here, in the caller's process, beyond the read's budget
+    entry->error = voxfmt::Error(voxfmt::IssueCode::OutOfMemory, path + ": not enough memory for the asset's field");
   }
-  entry->field = std::move(field.value());
   return entry;
 }
 
@@ -47,11 +52,18 @@ AssetCache& AssetCache::instance() {
   return cache;
 }
 
-int AssetCache::acquire(const std::string& path) {
+int AssetCache::acquire(const std::string& path, bool loaded_if_gone) {
   const std::string key = key_of(path);
   std::lock_guard<std::mutex> lock(mutex_);
+  if (loaded_if_gone && key[0] == '?') {
+    const auto loaded = last_loaded_.find(path);
+    if (loaded != last_loaded_.end()) return loaded->second;
+  }
   const auto found = handles_.find(key);
-  if (found != handles_.end()) return found->second;
+  if (found != handles_.end()) {
+    if (found->second >= 0 && found->second < kCapacity - 1) last_loaded_[path] = found->second;
+    return found->second;
+  }
   // Full: no file is read (each naming is told so, without a read under the lock).
   if (count_.load(std::memory_order_relaxed) >= kCapacity - 1) return add(nullptr);
   std::unique_ptr<CachedAsset> entry = load_entry(path);
@@ -62,6 +74,7 @@ int AssetCache::acquire(const std::string& path) {
   } else {
     handle = add(std::move(entry));
     if (handle == kCapacity - 1) return handle;  // full: not remembered, so every naming is told so
+    last_loaded_[path] = handle;
   }
   handles_.emplace(key, handle);
   return handle;

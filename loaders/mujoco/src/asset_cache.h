@@ -30,7 +30,11 @@ class AssetCache {
   /// stays loaded, as a model compiled against it may still use it). A failed load is an entry too, so the failure can
   /// be reported where MuJoCo lets a plugin report one (init), and compile and init judge a file alike; it has a
   /// negative handle and takes none of the kCapacity places (a mended file has a new key and loads). Thread-safe.
-  int acquire(const std::string& path);
+  ///
+  /// `kLoadedIfGone`: where `path` no longer resolves (deleted, moved, or relative to another working directory),
+  /// the version last loaded under that name, if any (what a model compiled against it uses).
+  static constexpr bool kLoadedIfGone = true;
+  int acquire(const std::string& path, bool loaded_if_gone = false);
   /// The entry of a handle, or null for a handle this cache never gave. Lock-free for loaded files.
   const CachedAsset* get(double handle) const;
   /// Files loaded so far (each version of a file baked again while the process runs counts).
@@ -41,6 +45,7 @@ class AssetCache {
 
   mutable std::mutex mutex_;
   std::unordered_map<std::string, int> handles_;        ///< key -> handle
+  std::unordered_map<std::string, int> last_loaded_;    ///< path as named -> its latest loaded handle
   std::vector<std::unique_ptr<CachedAsset>> failures_;  ///< handle -1 - i: the i-th failed key
   std::atomic<const CachedAsset*> entries_[kCapacity] = {};
   std::atomic<int> count_{0};

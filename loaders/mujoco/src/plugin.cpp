@@ -17,7 +17,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <mutex>
+#include <new>
 #include <string>
 #include <vector>
 
@@ -64,20 +66,26 @@ double mesh_offset(const AssetField& field) {
   return 0.5 * 2.0 * (box[3] + box[4] + box[5]) / 300.0;
 }
 
-// What an instance keeps per mjData (d->plugin_data): its field, and the last two points it evaluated.
-// MuJoCo's descent asks for the distance at a point, then the gradient there, then the distance again (and for
-// an SDF pair alternates between the two geoms): the gradient is computed with the distance and both are kept,
-// so each point costs one lookup. One mjData is stepped by one thread at a time, so this needs no lock.
+// What an instance keeps per mjData (d->plugin_data): its field. MuJoCo's descent asks for the distance at a
+// point, then the gradient there, then the distance again (and for an SDF pair alternates between the two geoms):
+// the gradient is computed with the distance and both are kept, per thread, for the last few points, so each point
+// costs one lookup. Per thread, not per mjData: with a thread pool MuJoCo runs one mjData's collision pairs on
+// several threads at once. A kept point matches only its own mjData, instance and field (fields live as long as
+// the process), so one kept past its mjData's end is never mistaken for another's.
+struct Instance {
+  const AssetField* field = nullptr;
+};
 struct Evaluation {
+  const mjData* d = nullptr;
+  int instance = -1;
+  const AssetField* field = nullptr;
   double point[3] = {NAN, NAN, NAN};
   double distance = 0;
   Eigen::Vector3f direction = Eigen::Vector3f::Zero();  // normalised only if the gradient is asked for
 };
-struct Instance {
-  const AssetField* field = nullptr;
-  Evaluation recent[2];
-  int next = 0;
-};
+constexpr int kKeptEvaluations = 4;  // the last two points of each geom of a pair
+thread_local Evaluation t_recent[kKeptEvaluations];
+thread_local int t_next = 0;
 
 // Profiling (voxfmt_mujoco_profile): the calls MuJoCo makes, the lookups they cost, and the points looked up,
 // so the lookups alone can be replayed and timed apart from MuJoCo's search. Off by default: one predictable
@@ -99,24 +107,30 @@ std::atomic<bool> g_profiling{false};
 Profile g_profile;
 
 const Evaluation& evaluate(const mjData* d, int instance, const double point[3], int kind) {
-  Instance& self = *reinterpret_cast<Instance*>(d->plugin_data[instance]);
+  const AssetField* field = reinterpret_cast<const Instance*>(d->plugin_data[instance])->field;
   const bool profiling = g_profiling.load(std::memory_order_relaxed);
   if (profiling) {
     const std::lock_guard<std::mutex> lock(g_profile.mutex);
     ++g_profile.calls[kind];
   }
-  for (const Evaluation& e : self.recent)
-    if (e.point[0] == point[0] && e.point[1] == point[1] && e.point[2] == point[2]) return e;
+  for (const Evaluation& e : t_recent)
+    if (e.point[0] == point[0] && e.point[1] == point[1] && e.point[2] == point[2] && e.d == d &&
+        e.instance == instance && e.field == field)
+      return e;
   if (profiling) {
     const std::lock_guard<std::mutex> lock(g_profile.mutex);
     ++g_profile.lookups;
-    if (g_profile.records.size() < kMaxRecords)
-      g_profile.records.push_back({self.field, {point[0], point[1], point[2]}, kind});
+    try {
+      if (g_profile.records.size() < kMaxRecords)
+        g_profile.records.push_back({field, {point[0], point[1], point[2]}, kind});
+    } catch (const std::bad_alloc&) {  // the profile keeps fewer points; the lookup goes on
+    }
   }
-  Evaluation& e = self.recent[self.next];
-  self.next ^= 1;
+  Evaluation& e = t_recent[t_next];
+  t_next = (t_next + 1) % kKeptEvaluations;
+  e.d = d, e.instance = instance, e.field = field;
   for (int a = 0; a < 3; ++a) e.point[a] = point[a];
-  e.distance = self.field->evaluate_raw(point, e.direction);
+  e.distance = field->evaluate_raw(point, e.direction);
   return e;
 }
 
@@ -127,19 +141,43 @@ const AssetField* field_of(const mjtNum* attributes) {
 
 int nstate(const mjModel*, int) { return 0; }
 
+// No exception may cross MuJoCo's C frames (unwinding through them crashes): every callback that can allocate
+// catches, and says why with the error model's code.
+std::string failure_of(const std::exception_ptr& failure) {
+  try {
+    std::rethrow_exception(failure);
+  } catch (const std::bad_alloc&) {
+    return "OUT_OF_MEMORY: not enough memory for the asset's field";
+  } catch (const std::exception& e) {
+    return std::string("INTERNAL: ") + e.what();
+  } catch (...) {
+    return "INTERNAL: unknown failure";
+  }
+}
+
+// An mjData made from a compiled model (MjData, mj_copyModel, mj_copyData) reaches init; the file it names may be
+// gone by then (a temporary folder cleaned up) or have another meaning (the working directory changed): the version
+// this process loaded under that name serves, as it served the compile (and serves a compile then: mesh and field
+// stay one version).
 int init(const mjModel* m, mjData* d, int instance) {
   const char* file = mj_getPluginConfig(m, instance, "file");
-  const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(file ? file : ""));
-  if (!entry || !entry->field) {
-    const std::string reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
-    mju_warning("%s: cannot use '%s': %s", kPluginName, file ? file : "", reason.c_str());
-    return -1;
+  std::string reason;
+  try {
+    const CachedAsset* entry =
+        AssetCache::instance().get(AssetCache::instance().acquire(file ? file : "", AssetCache::kLoadedIfGone));
+    if (entry && entry->field) {
+      // Cache entries live as long as the process, so the instance keeps a plain pointer to its field.
+      auto* self = new Instance;
+      self->field = entry->field.get();
+      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(self);
+      return 0;
+    }
+    reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
+  } catch (...) {
+    reason = failure_of(std::current_exception());
   }
-  // Cache entries live as long as the process, so the instance keeps a plain pointer to its field.
-  auto* self = new Instance;
-  self->field = entry->field.get();
-  d->plugin_data[instance] = reinterpret_cast<uintptr_t>(self);
-  return 0;
+  mju_warning("%s: cannot use '%s': %s", kPluginName, file ? file : "", reason.c_str());
+  return -1;
 }
 
 // mj_copyData keeps the destination's own plugin_data (made by its init): nothing to copy.
@@ -178,7 +216,11 @@ void sdf_attribute(mjtNum attributes[], const char* name[], const char* value[])
   const char* file = "";
   for (int i = 0; i < kAttributeCount; ++i)
     if (name[i] && std::strcmp(name[i], "file") == 0 && value[i]) file = value[i];
-  attributes[0] = AssetCache::instance().acquire(file);
+  try {
+    attributes[0] = AssetCache::instance().acquire(file, AssetCache::kLoadedIfGone);
+  } catch (...) {  // the placeholder shape; init says why
+    attributes[0] = NAN;
+  }
 }
 
 void sdf_aabb(mjtNum aabb[6], const mjtNum* attributes) {
@@ -232,8 +274,12 @@ __attribute__((visibility("default"))) int voxfmt_mujoco_built_version() { retur
 
 /// Bytes of the field the plugin holds for the asset at `path` (loading it through the cache), or -1 if it cannot.
 __attribute__((visibility("default"))) long long voxfmt_mujoco_field_bytes(const char* path) {
-  const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
-  return entry && entry->field ? static_cast<long long>(entry->field->memory_bytes()) : -1;
+  try {
+    const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
+    return entry && entry->field ? static_cast<long long>(entry->field->memory_bytes()) : -1;
+  } catch (...) {
+    return -1;
+  }
 }
 
 /// Files the plugin has loaded in this process: one per file (and version), however many geoms name it.
@@ -244,9 +290,15 @@ __attribute__((visibility("default"))) int voxfmt_mujoco_loaded_files() { return
 __attribute__((visibility("default"))) int voxfmt_mujoco_evaluate(const char* path, int n, const double* points,
                                                                   double* distances, double* gradients, char* error,
                                                                   int error_size) {
-  const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
-  if (!entry || !entry->field) {
-    const std::string reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
+  std::string reason;
+  const CachedAsset* entry = nullptr;
+  try {
+    entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
+    if (!entry || !entry->field) reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
+  } catch (...) {
+    reason = failure_of(std::current_exception());
+  }
+  if (!reason.empty()) {
     if (error && error_size > 0) std::snprintf(error, size_t(error_size), "%s", reason.c_str());
     return -1;
   }
@@ -288,7 +340,10 @@ __attribute__((visibility("default"))) void voxfmt_mujoco_profile(int enable, do
   }
   g_profile.calls[0] = g_profile.calls[1] = g_profile.lookups = g_profile.collisions = 0;
   g_profile.records.clear();
-  if (enable) g_profile.records.reserve(size_t(1) << 16);
+  try {
+    if (enable) g_profile.records.reserve(size_t(1) << 16);
+  } catch (const std::bad_alloc&) {  // records grow as they can
+  }
   g_profiling.store(enable != 0);
 }
 

@@ -352,6 +352,8 @@ struct ChildOutcome {
 /// The child's side of run_isolated: produces the value, sends it through `fd` and exits (none of the parent's
 /// exit handlers). It dies plainly on a crash: the caller's crash handlers (a fuzzer's, a sanitizer's) would take
 /// it for one of the caller's.
+inline constexpr int kChildOutOfMemory = 4;  ///< the child's exit status when an allocation failed in it
+
 template <class Value, class Produce, class Visit>
 [[noreturn]] void produce_and_send(int fd, Produce& produce, Visit& visit) {
   for (int signal_number : {SIGSEGV, SIGBUS, SIGILL, SIGFPE, SIGABRT}) ::signal(signal_number, SIG_DFL);
@@ -362,6 +364,8 @@ template <class Value, class Produce, class Visit>
     WireWriter w(fd);
     visit(w, produced);
     ok = w.flush();
+  } catch (const std::bad_alloc&) {
+    _exit(kChildOutOfMemory);
   } catch (...) {
   }
   _exit(ok ? 0 : 3);
@@ -395,8 +399,8 @@ inline bool wait_for_child(pid_t child, const Watchdog& watchdog, bool sent, int
 
 /// Runs `produce()` in a forked child and fills `value` with what it returned, both sides through
 /// `visit(wire, value)` (one visitor for WireWriter and WireReader, so they cannot drift apart). The child is
-/// stopped when the `watchdog` fires; it dies plainly on a crash (produce_and_send); an exception in it is
-/// `Malformed`.
+/// stopped when the `watchdog` fires; it dies plainly on a crash (produce_and_send); a failed allocation in it is
+/// `OutOfMemory`, another exception `Malformed`.
 template <class Value, class Produce, class Visit>
 ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& produce, Visit&& visit) {
   ChildOutcome outcome;
@@ -431,7 +435,8 @@ ChildOutcome run_isolated(const Watchdog& watchdog, Value& value, Produce&& prod
   if (!r.ok() || out_of_memory) ::kill(child, SIGKILL);
   int status = 0;
   if (!wait_for_child(child, watchdog, r.ok(), status)) return outcome;  // stopped asleep after sending: it stands
-  if (out_of_memory) return {ChildOutcome::OutOfMemory, 0, {}};
+  if (out_of_memory || (WIFEXITED(status) && WEXITSTATUS(status) == kChildOutOfMemory))
+    return {ChildOutcome::OutOfMemory, 0, {}};
   if (r.over_memory()) return {ChildOutcome::OutOfMemory, 0, {}, false, true};
   if (r.ok() && WIFEXITED(status) && WEXITSTATUS(status) == 0) return outcome;
   if (WIFSIGNALED(status) && WTERMSIG(status) != SIGKILL) return {ChildOutcome::Died, WTERMSIG(status), {}};
