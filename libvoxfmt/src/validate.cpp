@@ -720,6 +720,38 @@ void check_mass_semantics(const Asset& a, Checker& c) {
     }
 }
 
+// Spec §3: the grid covers the object. A grid moved or shrunk off its object (an origin shifted, bounds blown up)
+// is a consistent file the engines cannot use: MuJoCo meshes nothing, a query finds no contact.
+void check_grid_holds_object(const Asset& a, Checker& c) {
+  const Voxelmap& vm = a.voxelmap;
+  const double h = vm.voxel_size;
+  Vec3 lo, hi;
+  double slack = 1e-3 * h;  // rounding of the bounds and the origin, far below a voxel
+  for (int axis = 0; axis < 3; ++axis) {
+    lo[axis] = vm.origin[axis] - 0.5 * h;
+    hi[axis] = vm.origin[axis] + (double(vm.dims[axis]) - 0.5) * h;
+    slack = std::max(slack, 1e-12 * std::max(std::abs(lo[axis]), std::abs(hi[axis])));
+  }
+  auto outside = [&](const Vec3& p, int axis) { return !(p[axis] >= lo[axis] - slack && p[axis] <= hi[axis] + slack); };
+  for (int axis = 0; axis < 3; ++axis)
+    if (outside(a.bounds_min, axis) || outside(a.bounds_max, axis)) {
+      c.add(IssueCode::ValueOutOfRange, "/@bounds_min",
+            "the bounds [" + fmt(a.bounds_min[axis]) + ", " + fmt(a.bounds_max[axis]) + "] m on axis " +
+                std::to_string(axis) + " reach past the voxelmap's grid [" + fmt(lo[axis]) + ", " + fmt(hi[axis]) +
+                "] m: the grid must cover the object (spec §3)");
+      return;
+    }
+  const auto& points = a.point_shell.points;
+  for (size_t n = 0; n < points.size(); ++n)
+    for (int axis = 0; axis < 3; ++axis)
+      if (outside(points[n], axis)) {
+        c.add(IssueCode::ValueOutOfRange, "/pointshell/points",
+              "point " + std::to_string(n) + " lies outside the voxelmap's grid on axis " + std::to_string(axis) +
+                  ": the grid must cover the object (spec §3)");
+        return;
+      }
+}
+
 }  // namespace
 
 std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
@@ -741,6 +773,7 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   check_point_shell(asset.point_shell, c);
   check_mass(asset.mass, c);
   check_provenance(asset.provenance, c);
+  if (!has_errors(issues)) check_grid_holds_object(asset, c);
   // Semantic rules need a structurally sound asset (sizes, tree ranges) to index safely.
   if (level == ValidationLevel::Full && !has_errors(issues)) {
     check_voxelmap_semantics(asset.voxelmap, detail::closed_surface(asset.provenance), c);

@@ -112,6 +112,41 @@ TEST_F(Malformed, ChildrenNotBreadthFirst) {
   expect_refused(IssueCode::TreeNotBreadthFirst, "/pointshell/child_begin");
 }
 
+// The grid must cover the object (spec §3): a moved origin or blown-up bounds are consistent numbers engines
+// cannot use (MuJoCo meshes nothing, a query finds no contact).
+TEST_F(Malformed, GridMovedOffItsObject) {
+  auto shift = [](hid_t f, const char* object, const char* name, double by) {
+    hid_t o = H5Oopen(f, object, H5P_DEFAULT);  // (HDF5 1.10 cannot write one opened by name from the file)
+    hid_t a = H5Aopen(o, name, H5P_DEFAULT);
+    ASSERT_GE(a, 0);
+    double v[3];
+    ASSERT_GE(H5Aread(a, H5T_NATIVE_DOUBLE, v), 0);
+    v[0] += by;
+    ASSERT_GE(H5Awrite(a, H5T_NATIVE_DOUBLE, v), 0);
+    H5Aclose(a);
+    H5Oclose(o);
+  };
+  mutate([&](hid_t f) { shift(f, "/voxelmap", "origin", 5.0); });
+  expect_refused(IssueCode::ValueOutOfRange, "voxelmap's grid");
+  ASSERT_TRUE(write_asset(file_, test::make_full_asset(), test::structural()));
+  mutate([&](hid_t f) { shift(f, "/", "bounds_max", 1e6); });
+  expect_refused(IssueCode::ValueOutOfRange, "/@bounds_min");
+}
+
+TEST_F(Malformed, PointOutsideTheGrid) {
+  mutate([](hid_t f) {
+    hid_t d = H5Dopen2(f, "/pointshell/points", H5P_DEFAULT);
+    hid_t space = H5Dget_space(d);
+    std::vector<double> points(size_t(H5Sget_simple_extent_npoints(space)));
+    ASSERT_GE(H5Dread(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, points.data()), 0);
+    points[3 * 2 + 1] = 1e3;  // point 2, y
+    ASSERT_GE(H5Dwrite(d, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, points.data()), 0);
+    H5Sclose(space);
+    H5Dclose(d);
+  });
+  expect_refused(IssueCode::ValueOutOfRange, "/pointshell/points");
+}
+
 TEST_F(Malformed, UnknownMajorVersion) {
   mutate([](hid_t f) {
     hid_t a = H5Aopen(f, "format_version", H5P_DEFAULT);

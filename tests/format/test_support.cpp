@@ -25,7 +25,7 @@ Asset make_full_asset() {
   PointShell& ps = a.point_shell;
   // Root 0 with children 1..3; node 1 has children 4..5, node 3 has child 6.
   for (int i = 0; i < 7; ++i) {
-    ps.points.push_back({0.1 * i, -0.05 * i, 0.01 * i * i});
+    ps.points.push_back({0.1 * i, -0.05 * i, 0.004 * i * i});  // within the grid (spec §3)
     const double len = std::sqrt(1.0 + i * i);
     ps.normals.push_back({float(1 / len), 0.0f, float(i / len)});
     ps.sphere_centers.push_back({0.1 * i + 0.001, 0.0, 0.0});
