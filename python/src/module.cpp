@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "voxfmt/bake/bake.h"
+#include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/report.h"
 #include "voxfmt/io.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -76,6 +77,13 @@ InArray as_float64(nb::handle value, const char* what) {
   if (kind != "i" && kind != "u" && kind != "f")
     fail(IssueCode::BadOption, std::string(what) + ": expected an array of real numbers, got dtype " +
                                    nb::str(converted.attr("dtype").attr("name")).c_str());
+  if (nb::try_cast(converted, array, false)) return array;
+  // Strides that are no multiple of 8 bytes (a field of packed records) no float64 view can take: a copy can.
+  try {
+    converted = nb::module_::import_("numpy").attr("ascontiguousarray")(converted, "dtype"_a = "float64");
+  } catch (const nb::python_error&) {
+    fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
+  }
   if (!nb::try_cast(converted, array, false))
     fail(IssueCode::BadOption, std::string(what) + ": expected an array of numbers");
   return array;
@@ -646,6 +654,10 @@ nb::ndarray<nb::numpy, double> signed_distance(const Body& body, nb::handle poin
   if (p.ndim() != 2 || p.shape(1) != 3)
     fail(IssueCode::BadOption, "points: expected an (M, 3) array, got shape " + shape_text(p));
   const size_t m = p.shape(0);
+  // A broadcast view of a few bytes can ask for any number of points: refused before the output is made.
+  if (double(m) * sizeof(double) > double(voxfmt::default_memory_limit_bytes()))
+    fail(IssueCode::OutOfMemory, "points: " + std::to_string(m) +
+                                     " distances would take more than 3/4 of this machine's memory (smaller batches)");
   OutArray<double> out({m});
   const runtime::SparseVoxelmap& map = body.object->voxelmap();
   {
@@ -695,6 +707,8 @@ void bind_errors() {
       raise_coded(e.error);
     } catch (const voxfmt::BadResultAccess& e) {
       raise_coded(e.error());
+    } catch (const std::bad_alloc&) {  // the package's code for it, as every other consumer's
+      raise_coded(voxfmt::Error(voxfmt::IssueCode::OutOfMemory, "not enough memory for this call's arrays"));
     }
   });
 }

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.lib.recfunctions  # noqa: F401  (np.lib.recfunctions)
 import pytest
 
 import voxfmt
@@ -239,3 +240,14 @@ def test_contacts_batch_options_are_judged_as_contacts_judges_them(sphere: voxfm
         batch = voxfmt.contacts_batch(sphere, pose, sphere, poses, **options)
         single = voxfmt.contacts(sphere, pose, sphere, poses[0], **options)
         assert list(batch.count) == [len(single)] * 3 and batch.max_depth[0] == single.max_depth
+
+
+def test_packed_records_and_broadcast_points(sphere: voxfmt.Body) -> None:
+    # A field of packed records is float64 with strides of 25 bytes, which no float64 view takes: it is copied, not
+    # refused as "not numbers". A broadcast view of 24 bytes asking for 10^11 distances is refused up front.
+    records = np.zeros(4, dtype=[("tag", "u1"), ("x", "f8"), ("y", "f8"), ("z", "f8")])
+    records["x"] = [0.0, 0.05, 0.2, -0.3]
+    points = np.lib.recfunctions.structured_to_unstructured(records[["x", "y", "z"]], copy=False)
+    assert points.strides[0] == 25
+    np.testing.assert_array_equal(sphere.signed_distance(points), sphere.signed_distance(np.array(points)))
+    raises(voxfmt.InternalError, "OUT_OF_MEMORY", sphere.signed_distance, np.broadcast_to(np.zeros(3), (10**11, 3)))
