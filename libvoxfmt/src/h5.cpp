@@ -174,6 +174,15 @@ bool Reader::has_member(hid_t parent, const std::string& name) {
   return exists > 0;
 }
 
+bool Reader::links_to_another_file(hid_t parent, const std::string& name) {
+  H5L_info_t info;
+  if (H5Lget_info(parent, name.c_str(), &info, H5P_DEFAULT) < 0) {
+    H5Eclear2(H5E_DEFAULT);
+    return false;  // opening it reports why
+  }
+  return info.type != H5L_TYPE_HARD && info.type != H5L_TYPE_SOFT;
+}
+
 bool Reader::has_attribute(hid_t object, const std::string& name) {
   htri_t exists = H5Aexists(object, name.c_str());
   if (exists < 0) H5Eclear2(H5E_DEFAULT);
@@ -186,6 +195,11 @@ std::optional<Handle> Reader::open_member(hid_t parent, const std::string& paren
   const char* kind = want_group ? "group" : "dataset";
   if (!has_member(parent, name)) {
     report(IssueCode::MissingObject, path, std::string("required ") + kind + " is missing");
+    return std::nullopt;
+  }
+  // An asset is one file (spec §1): an external link would open, and read, whatever file it names.
+  if (links_to_another_file(parent, name)) {
+    report(IssueCode::ReadFailed, path, "is a link to another file; an asset holds its objects itself");
     return std::nullopt;
   }
   hid_t obj = H5Oopen(parent, name.c_str(), H5P_DEFAULT);
@@ -348,6 +362,10 @@ bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const 
     report(IssueCode::ReadFailed, path, "cannot read the dataset's storage properties (" + last_hdf5_reason() + ")");
     return false;
   }
+  if (H5Pget_external_count(plist.get()) != 0 || H5Pget_layout(plist.get()) == H5D_VIRTUAL) {
+    report(IssueCode::ReadFailed, path, "keeps its data in other files; an asset holds its data itself");
+    return false;
+  }
   const int filters = H5Pget_nfilters(plist.get());
   for (int i = 0; i < filters; ++i) {
     unsigned flags = 0;
@@ -374,7 +392,7 @@ bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const 
 }
 
 std::optional<Layout> Reader::layout(hid_t group, const std::string& name) {
-  if (!has_member(group, name)) return std::nullopt;
+  if (!has_member(group, name) || links_to_another_file(group, name)) return std::nullopt;  // the read reports it
   Handle dset(H5Dopen2(group, name.c_str(), H5P_DEFAULT), H5Dclose);
   if (!dset.valid()) {
     H5Eclear2(H5E_DEFAULT);

@@ -197,6 +197,8 @@ class Reader {
   std::vector<std::string> attribute_names(hid_t object);
 
   void report(IssueCode code, const std::string& path, const std::string& message);
+  /// Whether `name` in `parent` is an external (or user-defined) link: one that leaves the file.
+  bool links_to_another_file(hid_t parent, const std::string& name);
 
  private:
   /// Opens member `name` of `parent` and checks it is a group (or a dataset).

@@ -131,6 +131,34 @@ def write_cases(folder: str | os.PathLike[str]) -> dict[str, Case]:
     shared[tuple(rows[1])] = shared[tuple(rows[0])]
     add("row_shared", ("VALUE_OUT_OF_RANGE",), 1, "two bricks share a brick_values row", grid=sf.FINE_GRID,
         values={"/voxelmap/bricks": shared})
+
+    # -- one file: nothing read from elsewhere --------------------------------------------------------------------
+    def lattice_elsewhere(f: h5py.File) -> None:
+        other = folder / "lattice_elsewhere.data.h5"
+        with h5py.File(other, "w") as o:
+            o.create_dataset("lattice", data=f["/voxelmap/lattice"][()])
+        del f["/voxelmap/lattice"]
+        f["/voxelmap/lattice"] = h5py.ExternalLink(str(other), "/lattice")
+
+    add("external_link", ("READ_FAILED",), 1, "/voxelmap/lattice an external link to a dataset of another file",
+        post=lattice_elsewhere)
+
+    def values_elsewhere(f: h5py.File) -> None:
+        values = f["/voxelmap/brick_values"][()]
+        raw = folder / "brick_values.raw"
+        raw.write_bytes(values.astype("<i2").tobytes())
+        del f["/voxelmap/brick_values"]
+        f.create_dataset("/voxelmap/brick_values", shape=values.shape, dtype="<i2",
+                         external=[(str(raw), 0, values.size * 2)])
+
+    add("external_storage", ("READ_FAILED",), 1, "brick_values stored in a raw file beside the asset",
+        post=values_elsewhere)
+
+    def grid_moved(f: h5py.File) -> None:
+        f["/voxelmap"].attrs["origin"] = f["/voxelmap"].attrs["origin"] + np.array([5.0, 0.0, 0.0])
+
+    add("grid_moved", ("VALUE_OUT_OF_RANGE",), 1, "the voxelmap's origin moved 5 m off its object (spec §3)",
+        post=grid_moved)
     return cases
 
 
