@@ -166,6 +166,20 @@ TEST(AssetField, BeyondTheGridItGrowsWithTheDistance) {
     }
 }
 
+TEST(AssetField, FarAwayPointsStillPointAway) {
+  // Past 1.8e19 voxels the squared offset overflows float, past 1e154 m a double's: the gradient kept pointing
+  // away only while neither did (it lost its axis, then became zero).
+  const Eigen::Vector3d centre(kSphere.center[0], kSphere.center[1], kSphere.center[2]);
+  const Eigen::Vector3d away = Eigen::Vector3d(2, 1, 0).normalized();
+  for (double far : {1e3, 1e18, 1e21, 1e160, 1e300}) {
+    const Eigen::Vector3d p = centre + far * away;
+    double g[3];
+    const double d = field().evaluate(p.data(), g);
+    EXPECT_GT(d, 0.5 * far) << far;  // +inf where the distance itself leaves float's range
+    EXPECT_GT(Eigen::Vector3d(g[0], g[1], g[2]).dot(away), 0.99) << far;  // (the field at the clamped point adds)
+  }
+}
+
 TEST(AssetField, FlatFieldStillHasADirection) {
   // Deep inside, where the coarse estimate is clamped to the band's edge, the gradient points away from the
   // centre rather than being zero.

@@ -161,13 +161,20 @@ double AssetField::evaluate_raw(const double point[3], Eigen::Vector3f& directio
   float distance = lookup(clamped, direction);
   const Eigen::Vector3f out = u - clamped;
   const float out2 = out.squaredNorm();
-  if (out2 > 0.0f) {
+  if (out2 > 0.0f && out2 <= std::numeric_limits<float>::max()) {
     // Along an axis where the point is past the box the distance grows with the offset from it; along the
     // others, with the field at the clamped point.
     const float beyond = std::sqrt(out2), inverse = 1.0f / beyond;
     distance += beyond;
     for (int a = 0; a < 3; ++a)
       if (out[a] != 0.0f) direction[a] = out[a] * inverse;
+  } else if (out2 > 0.0f) {  // squares past float's range (1.8e19 voxels away): the same, scaled first
+    const float largest = out.cwiseAbs().maxCoeff();
+    const Eigen::Vector3f scaled = out / largest;
+    const float length = scaled.norm();
+    distance += largest * length;
+    for (int a = 0; a < 3; ++a)
+      if (out[a] != 0.0f) direction[a] = scaled[a] / length;
   }
   return double(distance) * voxel_size_;
 }
@@ -183,7 +190,7 @@ void AssetField::unit_gradient(const Eigen::Vector3f& direction, const double po
   // A point at infinity points away along its infinite axes; a NaN one nowhere in particular (UnitZ below).
   if (!away.allFinite())
     for (int a = 0; a < 3; ++a) away[a] = std::isinf(away[a]) ? std::copysign(1.0, away[a]) : 0.0;
-  const double n = away.norm();
+  const double n = away.stableNorm();  // beyond 1e154 m the squares overflow
   away = n > 0 ? Eigen::Vector3d(away / n) : Eigen::Vector3d::UnitZ();
   for (int a = 0; a < 3; ++a) gradient[a] = away[a];
 }
