@@ -370,6 +370,123 @@ class Batch(unittest.TestCase):
         r, _ = self.batch("@" + os.path.join(self.root, "lists/more.lst"), expect=2)
         self.assertIn("same asset 'model.obj.vox.h5'", r.stderr)
 
+    def test_a_list_read_from_a_pipe_is_relative_to_the_working_directory(self):
+        """`find ... | voxfmt batch @/dev/stdin` and `voxfmt batch @<(find ...)`: a pipe has no folder of its own
+        (its path's folder is /dev or /dev/fd), so its entries are relative to the working directory, and each
+        asset is named by its entry's path as for a list file."""
+        listing = "lib/a/model.obj\n./lib/b/cube.off\n"
+        r = subprocess.run([VOXFMT, "batch", "@/dev/stdin", "-o", "out", "--json", *SMALL], input=listing,
+                           cwd=self.root, capture_output=True, text=True, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(self.assets(), ["lib/a/model.obj.vox.h5", "lib/b/cube.off.vox.h5"])
+        read, write = os.pipe()  # what bash's <(...) passes: /dev/fd/N
+        os.write(write, listing.encode())
+        os.close(write)
+        try:
+            r = subprocess.run([VOXFMT, "batch", "@/dev/fd/%d" % read, "-o", "fd-out", "--json", *SMALL],
+                               cwd=self.root, pass_fds=(read,), capture_output=True, text=True, timeout=120)
+        finally:
+            os.close(read)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(self.assets(os.path.join(self.root, "fd-out")), self.assets())
+
+    def test_a_manifest_that_cannot_be_written_is_write_failed(self):
+        """A full disk or `ulimit -f` under a manifest append: WRITE_FAILED naming the manifest and the system's
+        reason (exit 2, as for any output that cannot be written), not an unexpected error; bakes in flight are
+        stopped and leave no temporaries."""
+        import resource
+
+        def small_files():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (100, 100))  # an empty compacted manifest fits, a record not
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # so that write() returns EFBIG
+
+        def limited_batch():
+            return subprocess.run([VOXFMT, "batch", self.lib, "-o", self.out, "--json", "-j", "2", *SMALL],
+                                  capture_output=True, text=True, timeout=120, preexec_fn=small_files)
+
+        manifest = os.path.join(self.out, "manifest.jsonl")
+        # The bakes' own assets are over the limit too: their failures' records are the appends that fail.
+        r = limited_batch()
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertIn("WRITE_FAILED: " + manifest + ": cannot write: File too large", r.stderr)
+        self.assertEqual(json.loads(r.stdout)["code"], "WRITE_FAILED")
+        self.assertEqual([f for _, _, files in os.walk(self.out) for f in files if ".partial-" in f], [])
+        self.assertEqual(self.children_of_this_test(), [])
+        # An asset found up to date by its provenance (its record lost): that record's append fails alike.
+        self.batch(self.lib, expect=1)
+        os.remove(manifest)
+        r = limited_batch()
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertIn("WRITE_FAILED: " + manifest + ": cannot write: File too large", r.stderr)
+
+    def test_a_report_that_cannot_be_written_says_why(self):
+        """batch --report under a full disk or `ulimit -f`: WRITE_FAILED with the system's reason, not a bare
+        "cannot write"."""
+        import resource
+
+        self.batch(self.lib, expect=1)
+        limit = os.path.getsize(os.path.join(self.out, "manifest.jsonl")) + 64  # its compaction fits, the report not
+
+        def small_files():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+        r = subprocess.run([VOXFMT, "batch", self.lib, "-o", self.out, "--report", "-q", *SMALL], capture_output=True,
+                           text=True, timeout=120, preexec_fn=small_files)
+        self.assertEqual(r.returncode, 2, r.stdout + r.stderr)
+        self.assertRegex(r.stderr, r"WRITE_FAILED: \S+: cannot write: File too large")
+
+    def test_the_manifest_is_neither_an_asset_nor_an_empty_path(self):
+        """--manifest naming an asset of the batch (however spelled, through a link): the asset's rename would
+        replace the manifest; refused before anything is made. An empty path is refused, not read as the default."""
+        mesh = os.path.join(self.lib, "b/cube.off")
+        asset = os.path.join(self.out, "cube.off.vox.h5")
+        link = os.path.join(self.root, "link.jsonl")
+        os.symlink(asset, link)  # dangling until the asset is baked
+        for manifest in (asset, os.path.join(self.out, ".", "cube.off.vox.h5"), link):
+            r, _ = self.batch(mesh, "--manifest", manifest, expect=2)
+            self.assertIn("BAD_OPTION", r.stderr, manifest)
+            self.assertIn("is the asset of", r.stderr, manifest)
+            self.assertFalse(os.path.exists(self.out), manifest)
+        r, _ = self.batch(mesh, "--manifest", "", expect=2)
+        self.assertIn("BAD_OPTION", r.stderr)
+        self.assertIn("empty path", r.stderr)
+        self.assertFalse(os.path.exists(self.out))
+
+    def test_names_cannot_drive_the_terminal(self):
+        """A mesh's name in the progress bar, an output folder's in the note of --report with --shard: control
+        characters escaped. The bar is cut to the terminal's width at a character, never inside one's UTF-8."""
+        name = "a\x1b[2J" + "\u00e9" * 20 + ".obj"
+        mesh = self.write(name, TET_OBJ)
+        master, slave = os.openpty()  # the bar is drawn on a terminal only (80 columns: the size is not set)
+        try:
+            r = subprocess.run([VOXFMT, "batch", mesh, "-o", self.out, "-j", "1", *SMALL], stdout=subprocess.PIPE,
+                               stderr=slave, timeout=120)
+        finally:
+            os.close(slave)
+        data = b""
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # EIO: the other side is closed and all was read
+                break
+            if not chunk:
+                break
+            data += chunk
+        os.close(master)
+        self.assertEqual(r.returncode, 0, data)
+        terminal = data.decode("utf-8", errors="replace")
+        self.assertNotIn("\ufffd", terminal, "a character cut inside its bytes")
+        self.assertNotIn("\x1b[2J", terminal)
+        bars = [part for part in terminal.split("\r\x1b[K") if part.startswith("[")]
+        self.assertTrue(bars, terminal)
+        self.assertIn("  a\\x1B[2J\u00e9", bars[0])
+        self.assertTrue(all(len(bar.rstrip("\r\n")) <= 79 for bar in bars), bars)
+        out = os.path.join(self.root, "out\x1b[2J")
+        r, _ = self.batch(mesh, "--shard", "0/2", "--report", out=out, expect=None)
+        self.assertIn("run `voxfmt report " + os.path.join(self.root, "out\\x1B[2J`"), r.stderr)
+        self.assertNotIn("\x1b", r.stdout + r.stderr)
+
     def test_usage_errors(self):
         r, _ = self.batch(os.path.join(self.lib, "a/model.obj"), os.path.join(self.lib, "b/model.obj"), expect=2)
         self.assertIn("same asset", r.stderr)

@@ -3,6 +3,7 @@ errors. (The VDB grids' contents are checked with OpenVDB itself in test_vdb_exp
 is read with the spec's own decoder, tests/spec/spec_support.py (bricks, codes and lattice to dense arrays)."""
 import json
 import os
+import shutil
 import struct
 import subprocess
 import sys
@@ -85,6 +86,26 @@ def read_ply(path):
     body = np.frombuffer(data[end:], dtype="<f4")
     assert body.size == count * 6, "body has %d floats for %d vertices" % (body.size, count)
     return body.reshape(count, 6)
+
+
+def read_terminal(command):
+    """What `command` writes on stderr when stderr is a terminal (a pseudo-terminal here), decoded strictly."""
+    master, slave = os.openpty()
+    try:
+        subprocess.run(command, stdout=subprocess.DEVNULL, stderr=slave, timeout=60)
+    finally:
+        os.close(slave)
+    data = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:  # EIO: the terminal's other side is closed and everything was read
+            break
+        if not chunk:
+            break
+        data += chunk
+    os.close(master)
+    return data.decode("utf-8")
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
@@ -307,6 +328,49 @@ class InspectExports(unittest.TestCase):
         r = self.inspect("--html", self.asset)
         self.assertEqual(r.returncode, 2, r.stderr)
         self.assertIn("is a file, not a folder", r.stderr)
+
+    def test_a_usage_error_writes_no_output(self):
+        """A slice index or --level the asset does not have is refused before anything is written: not the picture,
+        the card or another file asked for with it (the PNG and the card were written before --level was checked)."""
+        png, ply, card, vdb = (os.path.join(self.dir, "usage-" + n) for n in ("p.png", "s.ply", "card", "v.vdb"))
+        for args in (["--slice", "z=5", "--png", png, "--ply", ply, "--level", "99"],
+                     ["--html", card, "--ply", ply, "--level", "99"],
+                     ["--html", card, "--vdb", vdb, "--slice", "z=99999", "--png", png],
+                     ["--html", card, "--slice", "z=99999", "--png", png, "--json"]):
+            r = self.inspect(*args)
+            self.assertEqual(r.returncode, 2, (args, r.stdout, r.stderr))
+            self.assertIn("BAD_OPTION", r.stderr, args)
+            for path in (png, ply, card, vdb):
+                self.assertFalse(os.path.exists(path), (args, path))
+        self.assertLess(5, self.dims[2])  # z=5 itself is a slice the asset has
+
+    def test_file_names_cannot_drive_the_terminal(self):
+        """A file name is printed with its control characters escaped, as strings from the file are: inspect's
+        summary and export lines, validate's verdict, upgrade's progress on a terminal, an unknown command's name.
+        --json keeps the name exact (JSON escapes it its own way)."""
+        folder = os.path.join(self.dir, "names")
+        os.makedirs(folder)
+        hostile = os.path.join(folder, "t\x1b]0;title\x07\x1b[2J.vox.h5")
+        shutil.copy(self.asset, hostile)
+        shutil.copy(self.asset, os.path.join(folder, "plain.vox.h5"))
+        shown = "t\\x1B]0;title\\x07\\x1B[2J.vox.h5"
+        ply = os.path.join(self.dir, "s\x1b[2J.ply")
+        for command, where, expected in (
+                (["inspect", hostile], "stdout", shown),
+                (["inspect", hostile, "--ply", ply], "stdout", "s\\x1B[2J.ply"),
+                (["validate", hostile], "stdout", shown),
+                (["\x1b[2Jbogus"], "stderr", "\\x1B[2Jbogus")):
+            r = subprocess.run([VOXFMT, *command], capture_output=True, text=True, timeout=60)
+            for control in ("\x1b", "\x07"):
+                self.assertNotIn(control, r.stdout + r.stderr, command)
+            self.assertIn(expected, getattr(r, where), command)
+        r = subprocess.run([VOXFMT, "inspect", hostile, "--json"], capture_output=True, text=True, timeout=60)
+        self.assertEqual(json.loads(r.stdout)["file"], hostile)
+        # upgrade's progress line, drawn on a terminal only (its own "\r\x1b[K" aside).
+        terminal = read_terminal([VOXFMT, "upgrade", folder, "-o", os.path.join(self.dir, "names-upgraded")])
+        self.assertIn(shown, terminal)
+        for control in ("\x1b]", "\x1b[2J", "\x07"):
+            self.assertNotIn(control, terminal)
 
     def test_json_errors_are_json_on_stdout_too(self):
         truncated = os.path.join(self.dir, "truncated.vox.h5")

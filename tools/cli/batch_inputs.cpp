@@ -34,6 +34,18 @@ void require_regular(const fs::path& path, const std::string& where) {
   if (const std::string kind = not_a_regular_file(path.string()); !kind.empty()) throw UsageError(where + ": " + kind);
 }
 
+// Whether a list file's entries are relative to its folder: not for a pipe or another special file, nor for a
+// descriptor's name (/dev/stdin, /dev/fd/N, /proc/PID/fd/N) even when redirected from a file. Their entries are
+// relative to the working directory, where `find` printed them.
+bool has_own_folder(const std::string& file) {
+  std::error_code ec;
+  if (!fs::is_regular_file(file, ec)) return false;
+  const fs::path path = fs::path(file).lexically_normal();
+  const fs::path parent = path.parent_path();
+  return path != "/dev/stdin" && parent != "/dev/fd" &&
+         !(parent.filename() == "fd" && parent.parent_path().parent_path() == "/proc");
+}
+
 class Collector {
  public:
   explicit Collector(const std::string& output_dir, std::vector<std::string>* skipped) : skipped_(skipped) {
@@ -100,7 +112,8 @@ class Collector {
     if (fs::is_directory(file, ec)) throw UsageError(shown(file) + ": is a folder, not a list file");
     std::ifstream in(file);  // a pipe is fine here: `batch @<(find ...)`
     if (!in) throw UsageError(shown(file) + ": cannot read list file", IssueCode::FileNotFound);
-    const fs::path base = fs::path(file).parent_path();
+    // `@<(find ...)`, `find ... | voxfmt batch @/dev/stdin`: a pipe's "folder" is /dev/fd, where no entry lies.
+    const fs::path base = has_own_folder(file) ? fs::path(file).parent_path() : fs::path();
     std::string line;
     for (size_t number = 1; std::getline(in, line); ++number) {
       const size_t first = line.find_first_not_of(" \t\r");

@@ -30,7 +30,8 @@ struct BatchItem {
 ///  - a directory D: every file below D (recursively, hidden entries skipped) with an extension assimp reads;
 ///    key = path relative to D;
 ///  - `@LIST` or a file ending in .txt/.lst/.list: one path per line ('#' comments, blank lines ignored),
-///    relative to the list file's directory; a listed file keeps its relative path as key (or its file name
+///    relative to the list file's directory (to the working directory for a list read from a pipe or a
+///    descriptor: `@<(find ...)`, `@/dev/stdin`); a listed file keeps its relative path as key (or its file name
 ///    when the entry is absolute or leaves that directory), a listed directory is scanned as above;
 ///  - any other file: a mesh; key = its file name.
 /// The same file reached twice under one key is baked once; under two keys (a link beside its target, a folder and

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <iomanip>
 #include <iostream>
@@ -64,9 +65,13 @@ void BatchProgress::draw(const Snapshot& now) const {
   line << "[" << std::string(size_t(filled), '#') << std::string(size_t(kBar - filled), '.') << "] " << now.finished
        << "/" << now.total << "  " << now.failed << " failed  " << clock_text(now.elapsed_s) << " elapsed  "
        << eta.str();
-  for (const Running& r : now.running) line << "  " << r.name;
+  for (const Running& r : now.running) line << "  " << terminal_safe(r.name);  // a mesh's name may hold escapes
   std::string text = line.str();
-  if (text.size() > size_t(columns - 1)) text.resize(size_t(columns - 1));
+  // At most columns - 1 characters (one a code point), cut before one, never inside its UTF-8 bytes.
+  size_t characters = 0, end = 0;
+  for (; end < text.size(); ++end)
+    if ((uint8_t(text[end]) & 0xC0) != 0x80 && characters++ == size_t(columns - 1)) break;
+  text.resize(end);
   std::cerr << "\r\033[K" << text << std::flush;
 }
 

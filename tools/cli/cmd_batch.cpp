@@ -40,6 +40,7 @@
 #include "json_report.h"
 #include "report.h"
 #include "voxfmt/bake/bake.h"
+#include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/json_path.h"
 #include "voxfmt/io.h"
@@ -109,6 +110,7 @@ class Runner {
   bool bake_all(const bake::Settings& settings);
   void record_finished(const std::vector<ChildResult>& finished);
   void record_bake(const ChildResult& child);
+  void append(const nlohmann::json& record);
   void report(bool interrupted);
 
   const Options& o_;
@@ -339,6 +341,20 @@ void Runner::select_inputs() {
                          ", the report's folder: choose another with --report-dir");
     }
   }
+  // --manifest naming one of the assets (any shard's): the asset's rename would replace the manifest. Compared where
+  // the writes land: through links (a link's target need not exist yet), then folders resolved.
+  if (!o_.manifest.empty()) {
+    const auto landing = [](const std::string& path) {
+      const Result<std::string> target = output_target(path);
+      std::error_code ec;
+      return fs::weakly_canonical(target ? target.value() : path, ec);
+    };
+    const fs::path manifest = landing(o_.manifest);
+    for (const BatchItem& item : all)
+      if (!manifest.empty() && landing(item.output) == manifest)
+        throw UsageError("--manifest " + o_.manifest + " is the asset of " + item.input +
+                         ": the bake would replace the manifest (choose another file)");
+  }
   // Made only once the inputs are known good: a refused batch leaves no empty folder behind.
   std::error_code ec;
   created_output_dir_ = !fs::exists(o_.output_dir, ec);
@@ -373,7 +389,7 @@ void Runner::plan() {
     nlohmann::json record;
     if (up_to_date(item, sha, record)) {
       ++counts_.up_to_date;
-      if (!record.is_null()) manifest_->append(record);
+      if (!record.is_null()) append(record);
       continue;
     }
     if (const nlohmann::json* failure = failed_before(item, sha)) {
@@ -422,7 +438,7 @@ void Runner::find_removed() {
     nlohmann::json record = {
         {"status", "removed"}, {"finished_utc", bake::utc_now()}, {"tool_version", VOXFMT_VERSION_STRING}};
     set_path(record, "output", output);
-    manifest_->append(record);
+    append(record);
   }
 }
 
@@ -494,27 +510,36 @@ bool Runner::bake_all(const bake::Settings& settings) {
   const StopSignals catching;
   ChildPool pool;
   std::error_code ec;
-  while ((next_ < todo_.size() || pool.running() > 0 || !stopped_.empty()) && !g_interrupted) {
-    while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
-      const BatchItem& item = todo_[next_].item;
-      fs::create_directories(fs::path(item.output).parent_path(), ec);
-      std::vector<std::string> command = {exe, "build", "-o", item.output, "--json"};
-      command.insert(command.end(), option_args.begin(), option_args.end());
-      command.insert(command.end(), {"--", item.input});  // a mesh named "-x.off" is a mesh, not an option
-      pool.start(next_, command, limits);
-      running_[next_] = {next_, std::chrono::steady_clock::now(), command};
-      ++next_;
-    }
-    progress_->draw(snapshot());
-    record_finished(pool.poll(250));
-  }
-  const bool interrupted = g_interrupted != 0;
-  if (interrupted) {
+  // Bakes still running when the batch stops (a signal, a record that cannot be written) are killed, and their
+  // temporaries removed.
+  const auto stop_running = [&] {
     pool.kill_all();
     std::vector<std::string> unfinished;  // those stopped_ holds back included
     for (const auto& [id, r] : running_) unfinished.push_back(todo_[r.index].item.output);
     remove_stale_partials(unfinished);
+  };
+  try {
+    while ((next_ < todo_.size() || pool.running() > 0 || !stopped_.empty()) && !g_interrupted) {
+      while (next_ < todo_.size() && pool.running() < jobs_ && !g_interrupted) {
+        const BatchItem& item = todo_[next_].item;
+        fs::create_directories(fs::path(item.output).parent_path(), ec);
+        std::vector<std::string> command = {exe, "build", "-o", item.output, "--json"};
+        command.insert(command.end(), option_args.begin(), option_args.end());
+        command.insert(command.end(), {"--", item.input});  // a mesh named "-x.off" is a mesh, not an option
+        pool.start(next_, command, limits);
+        running_[next_] = {next_, std::chrono::steady_clock::now(), command};
+        ++next_;
+      }
+      progress_->draw(snapshot());
+      record_finished(pool.poll(250));
+    }
+  } catch (...) {
+    stop_running();
+    progress_->clear();
+    throw;
   }
+  const bool interrupted = g_interrupted != 0;
+  if (interrupted) stop_running();
   progress_->clear();
   return interrupted;
 }
@@ -551,7 +576,7 @@ void Runner::record_bake(const ChildResult& child) {
   const BatchItem& item = todo_[r.index].item;
   nlohmann::json record = finish_record(item, child, r.command);
   if (!record.contains("source_sha256")) record["source_sha256"] = todo_[r.index].sha;
-  manifest_->append(record);
+  append(record);
   ++finished_;
   progress_->finished(double(item.input_bytes), child.seconds);
   if (record["status"] == "failed") {
@@ -565,6 +590,16 @@ void Runner::record_bake(const ChildResult& child) {
     ++counts_.built;
   }
   progress_->report(record, finished_, todo_.size());
+}
+
+// A record that cannot be written (disk full, `ulimit -f`) stops the batch as an output that cannot be written:
+// WRITE_FAILED with the manifest's path and the system's reason, not an unexpected error.
+void Runner::append(const nlohmann::json& record) {
+  try {
+    manifest_->append(record);
+  } catch (const std::runtime_error& e) {
+    throw UsageError(e.what(), IssueCode::WriteFailed);
+  }
 }
 
 void Runner::report(bool interrupted) {
@@ -613,7 +648,7 @@ void Runner::report(bool interrupted) {
 // failed). The report's exit code, 0 if written.
 int report_after_batch(const Options& o, nlohmann::json& summary) {
   if (parse_shard(o.shard).count != 1) {  // as the batch read it ("0/01" is one shard)
-    std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << o.output_dir
+    std::cerr << "voxfmt batch: --report with --shard: run `voxfmt report " << terminal_safe(o.output_dir)
               << "` once every shard is done (it reads every shard's manifest)\n";
     if (o.json) summary["report"] = nullptr;
     return 0;
@@ -683,7 +718,8 @@ void add_batch_command(CLI::App& app, int& exit_code) {
       "batch", "Bake many meshes into OUTDIR: parallel, skips what is up to date, resumable after a kill, shardable");
   cmd->add_option("inputs", o->inputs,
                   "Mesh files, directories (scanned recursively for extensions assimp reads) and list files "
-                  "(@FILE, or *.txt/*.lst/*.list: one path per line, relative to the list)")
+                  "(@FILE, or *.txt/*.lst/*.list: one path per line, relative to the list; from a pipe or "
+                  "@/dev/stdin, to the working directory)")
       ->required();
   cmd->add_option("-o,--output", o->output_dir, "Output directory; OUTDIR/<path below the input root>.vox.h5 per mesh")
       ->check(output_path())
@@ -708,9 +744,10 @@ void add_batch_command(CLI::App& app, int& exit_code) {
                       std::to_string(kLeastBakeAddressSpaceMib))
       ->capture_default_str()
       ->transform(whole_number());
-  cmd->add_option(
-      "--manifest", o->manifest,
-      "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl with --shard");
+  cmd->add_option("--manifest", o->manifest,
+                  "Manifest file (JSON Lines); default OUTDIR/manifest.jsonl, or OUTDIR/manifest.shard-I-of-N.jsonl "
+                  "with --shard")
+      ->check(output_path());  // '' would silently be the default
   add_bake_options(*cmd, o->bake);
   cmd->add_flag("--prune", o->prune,
                 "Remove the assets (and records) of meshes the manifest holds that are not among these inputs: "

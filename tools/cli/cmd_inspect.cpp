@@ -56,7 +56,7 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
   const PointShell& ps = a.point_shell;
   std::ostream& o = std::cout;
   auto row = [&](const std::string& key) -> std::ostream& { return o << "  " << std::left << std::setw(20) << key; };
-  o << file << "\n";
+  o << terminal_safe(file) << "\n";
   row("format") << "voxfmt " << a.version.major << "." << a.version.minor << ", metres, right-handed, up "
                 << terminal_safe(a.up_axis) << "\n";
   row("file size") << human_bytes(s.file_size) << "\n";
@@ -98,6 +98,28 @@ void print_text(const std::string& file, const Asset& a, const AssetSummary& s, 
     o << "    " << terminal_safe(w.code) << ": " << terminal_safe(w.message) << "\n";
   for (const Issue& w : warnings)
     o << "warning: " << code_name(w.code) << " " << terminal_safe(w.path) << ": " << terminal_safe(w.message) << "\n";
+}
+
+// The slice index and --level against the asset, before anything is written: a usage error writes no file (the
+// exports check them too, but only once an earlier output has been written).
+Status check_exports_fit(const Options& o, const Asset& asset) {
+  if (!o.png.empty()) {
+    const Result<exports::SliceSpec> spec = exports::parse_slice(o.slice);
+    if (!spec) return spec.error();
+    const auto& dims = asset.voxelmap.dims;
+    const int64_t n = dims[size_t(spec->axis)];
+    if (spec->index >= n)
+      return Error{IssueCode::BadOption, std::string("--slice ") + "xyz"[spec->axis] + "=" +
+                                             std::to_string(spec->index) + ": the index must be in 0.." +
+                                             std::to_string(n - 1) + " (the grid is " + std::to_string(dims[0]) +
+                                             " x " + std::to_string(dims[1]) + " x " + std::to_string(dims[2]) +
+                                             " voxels)"};
+  }
+  const size_t levels = asset.point_shell.level_count();
+  if (!o.ply.empty() && o.level >= 0 && size_t(o.level) >= levels)
+    return Error{IssueCode::BadOption, "--level " + std::to_string(o.level) + ": the point-sphere tree has levels 0.." +
+                                           std::to_string(int64_t(levels) - 1)};
+  return Status::success();
 }
 
 // Writes the files asked for; returns a JSON description of each, or the first error.
@@ -147,18 +169,18 @@ Result<nlohmann::json> write_exports(const Options& o, const Asset& asset) {
 
 void print_export(const nlohmann::json& e) {
   if (e["kind"] == "slice")
-    std::cout << e["file"].get<std::string>() << ": " << e["field"].get<std::string>() << " of slice "
+    std::cout << terminal_safe(e["file"].get<std::string>()) << ": " << e["field"].get<std::string>() << " of slice "
               << e["axis"].get<std::string>() << " = " << e["index"] << ", " << e["columns"] << " x " << e["rows"]
               << " voxels at " << e["zoom"] << " px, " << e["width"] << " x " << e["height"] << " px"
               << (e["surface_in_slice"].get<bool>() ? "" : " (the surface does not cross this slice)") << "\n";
   else if (e["kind"] == "html")
-    std::cout << e["file"].get<std::string>() << ": the asset's report card (" << std::fixed << std::setprecision(1)
-              << double(e["bytes"].get<uint64_t>()) / (1 << 20) << " MB folder)\n";
+    std::cout << terminal_safe(e["file"].get<std::string>()) << ": the asset's report card (" << std::fixed
+              << std::setprecision(1) << double(e["bytes"].get<uint64_t>()) / (1 << 20) << " MB folder)\n";
   else if (e["kind"] == "vdb")
-    std::cout << e["file"].get<std::string>() << ": OpenVDB grids \"distance\" (" << e["distance_voxels"]
+    std::cout << terminal_safe(e["file"].get<std::string>()) << ": OpenVDB grids \"distance\" (" << e["distance_voxels"]
               << " band voxels) and \"layers\" (" << e["layer_voxels"] << " voxels)\n";
   else
-    std::cout << e["file"].get<std::string>() << ": point shell levels 0.." << e["level"] << " of 0.."
+    std::cout << terminal_safe(e["file"].get<std::string>()) << ": point shell levels 0.." << e["level"] << " of 0.."
               << e["levels"].get<uint32_t>() - 1 << ", " << e["points"] << " points with "
               << e["normals"].get<std::string>() << " normals (binary PLY)\n";
 }
@@ -237,20 +259,29 @@ int run(const Options& options) {
     return report_error("inspect", usable.error(), options.json, options.file);
   for (const std::string* output : {&options.png, &options.ply, &options.vdb})
     if (!output->empty()) remove_dead_temporaries(*output);  // what a killed inspect left beside it
-  nlohmann::json card;  // the report card's entry among the exports, where --html asks for one
-  if (!options.html.empty()) {
+  const auto write_card = [&]() -> Result<nlohmann::json> {
     const Result<report::ReportInfo> info = report::write_asset_report(options.file, options.html, options.read);
-    if (!info) return report_error("inspect", info.error(), options.json, options.file);
-    card = {{"file", info->index_html}, {"kind", "html"}, {"bytes", info->bytes}};
-    const bool more = !options.png.empty() || !options.ply.empty() || !options.vdb.empty();
-    if (!options.json && !more) {
-      print_export(card);
-      return kExitOk;
-    }
+    if (!info) return info.error();
+    return nlohmann::json{{"file", info->index_html}, {"kind", "html"}, {"bytes", info->bytes}};
+  };
+  const bool more = !options.png.empty() || !options.ply.empty() || !options.vdb.empty();
+  if (!options.html.empty() && !options.json && !more) {  // the card alone: the asset is read by the card only
+    const Result<nlohmann::json> card = write_card();
+    if (!card) return report_error("inspect", card.error(), options.json, options.file);
+    print_export(card.value());
+    return kExitOk;
   }
   std::vector<Issue> warnings;
   Result<Asset> asset = read_asset(options.file, &warnings, options.read);
   if (!asset) return report_error("inspect", asset.error(), options.json, options.file);
+  if (Status fits = check_exports_fit(options, asset.value()); !fits)
+    return report_error("inspect", fits.error(), options.json, options.file);
+  nlohmann::json card;  // the report card's entry among the exports, where --html asks for one
+  if (!options.html.empty()) {
+    Result<nlohmann::json> written_card = write_card();
+    if (!written_card) return report_error("inspect", written_card.error(), options.json, options.file);
+    card = std::move(written_card.value());
+  }
   Result<nlohmann::json> written = write_exports(options, asset.value());
   if (!written)
     return report_error("inspect", written.error(), options.json,

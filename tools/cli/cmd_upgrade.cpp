@@ -241,7 +241,8 @@ int run(const Options& o) {
   nlohmann::json report = {{"files", nlohmann::json::array()}};
   Tally tally;
   for (size_t n = 0; n < items.size(); ++n) {
-    if (progress) std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << items[n].input << std::flush;
+    if (progress)
+      std::cerr << "\r\033[K[" << n + 1 << "/" << items.size() << "] " << terminal_safe(items[n].input) << std::flush;
     report["files"].push_back(upgrade_one(o, items[n], progress, tally));
   }
   if (progress) std::cerr << "\r\033[K" << std::flush;

@@ -27,7 +27,7 @@ void print_findings(const std::string& file, const std::vector<Issue>& issues, s
     unreadable |= issue.code == IssueCode::FileNotFound;
     over_budget |= issue.code == IssueCode::OutOfMemory;
   }
-  std::cout << file << ": "
+  std::cout << terminal_safe(file) << ": "
             << (!has_errors(issues) ? "valid"
                 : unreadable        ? "UNREADABLE"
                 : over_budget       ? "NOT JUDGED (over the read budget: --max-memory)"

@@ -62,7 +62,7 @@ int main(int argc, char** argv) {
   const std::vector<const CLI::App*> commands = std::as_const(app).get_subcommands(nullptr);
   const auto named = [&](const CLI::App* command) { return command->get_name() == argv[1]; };
   if (argv[1][0] != '-' && std::none_of(commands.begin(), commands.end(), named)) {
-    std::cerr << "voxfmt: unknown command '" << argv[1] << "' (commands:";
+    std::cerr << "voxfmt: unknown command '" << voxfmt::terminal_safe(argv[1]) << "' (commands:";
     for (const CLI::App* command : commands) std::cerr << " " << command->get_name();
     std::cerr << "; voxfmt --help)\n";
     return voxfmt::cli::kExitUsageOrIo;

@@ -1,5 +1,6 @@
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstdlib>
 #include <cstring>
 
@@ -17,6 +18,7 @@
 #include <new>
 #include <optional>
 #include <sstream>
+#include <system_error>
 #include <thread>
 
 #include "asset_views.h"
@@ -254,10 +256,18 @@ nlohmann::json issues_json(const std::vector<Issue>& issues) {
 // Plain writes, not write_file_atomically: every file goes into the temporary folder, and the folder is what
 // is swapped in whole (a flush and rename per file would only add hundreds of syncs).
 Status write_text(const fs::path& path, const std::string& text) {
+  errno = 0;
   std::ofstream out(path, std::ios::binary);
   out.write(text.data(), std::streamsize(text.size()));
   out.close();
-  if (!out) return Error(IssueCode::WriteFailed, path.string() + ": cannot write", path.string());
+  if (!out) {
+    // The system's reason where the stream left one: a full disk or `ulimit -f` says what to do about it.
+    const int reason = errno;
+    return Error(IssueCode::WriteFailed,
+                 path.string() + ": cannot write" +
+                     (reason ? ": " + std::error_code(reason, std::generic_category()).message() : std::string()),
+                 path.string());
+  }
   return Status::success();
 }
 
