@@ -150,6 +150,36 @@ class Batch(unittest.TestCase):
         self.assertEqual(len(self.manifest()), 4)
         self.assertEqual(len({os.path.realpath(os.path.join(self.root, rec["output"])) for rec in self.manifest()}), 4)
 
+    def test_a_library_is_the_same_from_any_working_directory_and_after_it_moves(self):
+        """Records say where their asset is from the manifest's folder too: a batch run again from inside the
+        library (Slurm and cron start elsewhere) finds every record, and a library moved elsewhere keeps its
+        report and its up-to-date assets. (Records kept only the path from the batch's working directory: the rerun
+        found none, baked the failure again, and the report counted every mesh twice.)"""
+        first = subprocess.run([VOXFMT, "batch", "lib", "-o", "out", "--json", "-j", "2", *SMALL], cwd=self.root,
+                               capture_output=True, text=True, timeout=120)
+        self.assertEqual(first.returncode, 1, first.stdout + first.stderr)
+
+        def batch_in(cwd, library, out):
+            r = subprocess.run([VOXFMT, "batch", library, "-o", out, "--json", "-j", "2", *SMALL], cwd=cwd,
+                               capture_output=True, text=True, timeout=120)
+            self.assertEqual(r.returncode, 1, r.stdout + r.stderr)
+            return json.loads(r.stdout)
+
+        inside = batch_in(self.out, "../lib", ".")
+        self.assertEqual((inside["built"], inside["up_to_date"], inside["failed_not_retried"],
+                          inside["not_in_inputs"]), (0, 3, 1, 0))
+        self.assertEqual(len(self.manifest()), 4)
+        moved = os.path.join(self.root, "elsewhere", "library")
+        os.makedirs(os.path.dirname(moved))
+        os.rename(self.out, moved)
+        report = subprocess.run([VOXFMT, "report", moved, "-o", os.path.join(self.root, "rep"), "--json"],
+                                capture_output=True, text=True, timeout=120)
+        summary = json.loads(report.stdout)
+        self.assertEqual((summary["meshes"], summary["failed"], summary["unreadable_assets"]), (4, 1, 0), report.stderr)
+        again = batch_in(self.root, "lib", "elsewhere/library")
+        self.assertEqual((again["built"], again["up_to_date"], again["failed_not_retried"], again["not_in_inputs"]),
+                         (0, 3, 1, 0))
+
     def test_rerun_skips_force_rebuilds_and_option_change_rebuilds(self):
         self.batch(self.lib, expect=1)
         before = {a: os.stat(os.path.join(self.out, a)).st_mtime_ns for a in self.assets()}

@@ -75,7 +75,10 @@ std::map<std::string, nlohmann::json> read_records(const std::string& path, bool
       foreign += !(record.is_discarded() && line.find_first_not_of(" \t") == line.find('{'));
       continue;
     }
-    last[report::manifest_output_key(path_of(record, "output"), &folders)] = record;
+    nlohmann::json located = record;
+    report::locate_output(located, path);
+    const std::string key = report::manifest_output_key(path_of(located, "output"), &folders);
+    last[key] = std::move(located);  // (the key first: an assignment's right side is evaluated before its left)
     if (check_only) break;
   }
   if (last.empty() && foreign > 0)
@@ -189,7 +192,9 @@ const nlohmann::json* Manifest::last(const std::string& output) const {
   return it == last_.end() ? nullptr : &it->second;
 }
 
-void Manifest::append(const nlohmann::json& record) {
+void Manifest::append(const nlohmann::json& given) {
+  nlohmann::json record = given;
+  report::stamp_output_from_manifest(record, path_);
   // One write() per line: O_APPEND puts it at the end as a whole; fdatasync makes it survive a crash.
   write_all(fd_, json_line(record) + "\n", path_);
   if (::fdatasync(fd_) != 0) fail(path_, "cannot flush");

@@ -168,6 +168,9 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
   std::map<std::string, nlohmann::json> last;
   std::map<std::string, std::string> folders;  // manifest_output_key's, resolved once each
   for (const fs::path& file : files) {
+    std::error_code ec;
+    const fs::path real = fs::weakly_canonical(file, ec);  // the file a batch stamped its records from
+    const std::string manifest_path = ec ? file.string() : real.string();
     std::ifstream in(file);
     std::string line;
     bool too_long = false;
@@ -180,6 +183,7 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
         continue;
       }
       drop_mistyped_fields(record);
+      locate_output(record, manifest_path);
       // Across files (the shards' and the whole library's), the record that finished last wins.
       auto [it, inserted] = last.try_emplace(manifest_output_key(path_of(record, "output"), &folders));
       const auto finished = [](const nlohmann::json& r) {
@@ -518,6 +522,8 @@ Status library_row(const LibraryReportOptions& options, nlohmann::json record, s
   row.erase("output_mtime_ns");
   row.erase("input_hex");  // the exact bytes of a path that is not UTF-8: "input" and "output" show it escaped
   row.erase("output_hex");
+  row.erase("output_from_manifest");  // where the asset is from the manifest: "output" was located by it
+  row.erase("output_from_manifest_hex");
   for (const char* key : kReportKeys) row.erase(key);
   row["id"] = i;
   row["name"] = mesh_name(row);

@@ -13,6 +13,9 @@
 #include <streambuf>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
+#include "voxfmt/detail/json_path.h"
 #include "voxfmt/io.h"
 #include "voxfmt/result.h"
 
@@ -108,6 +111,27 @@ inline std::string manifest_output_key(const std::string& output,
     if (folders) (*folders)[folder] = resolved;
   }
   return (std::filesystem::path(resolved) / path.filename()).string();
+}
+
+/// A record's `output` is a path from the working directory of the batch that wrote it; `output_from_manifest`
+/// (0.4) is the same file's path from the manifest's folder, which means that file from any working directory and
+/// after the library moves. Stamped when a record is written to the manifest at `manifest` (the file itself, not a
+/// link to it).
+inline void stamp_output_from_manifest(nlohmann::json& record, const std::string& manifest) {
+  const std::string output = path_of(record, "output");
+  if (output.empty()) return;
+  const std::filesystem::path relative =
+      std::filesystem::path(manifest_output_key(output))
+          .lexically_relative(resolved_folder(std::filesystem::path(manifest).parent_path().string()));
+  if (!relative.empty()) set_path(record, "output_from_manifest", relative.string());
+}
+
+/// A record read from the manifest at `manifest`: its `output` made this working directory's path of the asset,
+/// from `output_from_manifest` where the record has one (older records keep theirs).
+inline void locate_output(nlohmann::json& record, const std::string& manifest) {
+  const std::string relative = path_of(record, "output_from_manifest");
+  if (relative.empty()) return;
+  set_path(record, "output", (std::filesystem::path(manifest).parent_path() / relative).lexically_normal().string());
 }
 
 }  // namespace voxfmt::report
