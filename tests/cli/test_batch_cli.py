@@ -644,6 +644,48 @@ class Batch(unittest.TestCase):
         r, summary = self.batch(os.path.join(self.lib, "b/cube.off"), expect=0)
         self.assertEqual(summary["built"], 1)
 
+    def test_ctrl_z_stops_the_bakes_with_the_batch(self):
+        """SIGTSTP (Ctrl-Z) stops the running bakes too (each is in a process group of its own, which the terminal
+        does not reach: they went on at full speed while the job looked suspended), and SIGCONT continues them; the
+        time stopped counts toward no --timeout."""
+        mesh = self.write("big/cube.off", cube_off(2.0))
+
+        def children(pid):
+            try:
+                with open(f"/proc/{pid}/task/{pid}/children") as f:
+                    return [int(c) for c in f.read().split()]
+            except FileNotFoundError:
+                return []
+
+        def state(pid):
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0]
+
+        # A group of its own under this process: a stop signal to an orphaned group (a CI's setsid) is discarded.
+        p = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--json", "-j", "1", "--resolution", "400",
+                              "--points", "20000", "--timeout", "3"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, preexec_fn=os.setpgrp)
+        try:
+            deadline = time.time() + 30
+            while not children(p.pid) and time.time() < deadline:
+                time.sleep(0.01)
+            bakes = children(p.pid)
+            self.assertTrue(bakes)
+            os.kill(p.pid, signal.SIGTSTP)
+            deadline = time.time() + 10
+            while time.time() < deadline and not (state(p.pid) == "T" and all(state(b) == "T" for b in bakes)):
+                time.sleep(0.01)
+            self.assertEqual((state(p.pid), [state(b) for b in bakes]), ("T", ["T"] * len(bakes)))
+            time.sleep(3.5)  # stopped longer than --timeout: not a TIMEOUT
+            os.kill(p.pid, signal.SIGCONT)
+            out, err = p.communicate(timeout=120)
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        self.assertEqual(p.returncode, 0, out + err)
+        self.assertEqual(json.loads(out)["built"], 1)
+
 
 if __name__ == "__main__":
     unittest.main()

@@ -159,6 +159,15 @@ std::vector<ChildResult> ChildPool::poll(int wait_ms) {
   return finished;
 }
 
+void ChildPool::signal_all(int signal_number) const {
+  for (const Child& c : children_)
+    if (::kill(-c.pid, signal_number) != 0) ::kill(c.pid, signal_number);  // not yet in its own group
+}
+
+void ChildPool::pause_clocks(std::chrono::steady_clock::duration by) {
+  for (Child& c : children_) c.start += by;
+}
+
 void ChildPool::kill_all() {
   for (Child& c : children_) {
     ::kill(c.pid, SIGKILL);

@@ -41,6 +41,11 @@ class ChildPool {
   size_t running() const { return children_.size(); }
   /// SIGKILLs and reaps every running child.
   void kill_all();
+  /// Sends `signal_number` to every running child's process group (SIGSTOP, SIGCONT: Ctrl-Z reaches only the
+  /// parent's group).
+  void signal_all(int signal_number) const;
+  /// Moves every running child's start `by` later: time stopped does not count toward its timeout.
+  void pause_clocks(std::chrono::steady_clock::duration by);
 
  private:
   struct Child {

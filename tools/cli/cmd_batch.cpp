@@ -74,6 +74,8 @@ struct Options {
 
 volatile std::sig_atomic_t g_interrupted = 0;
 void on_signal(int signal_number) { g_interrupted = signal_number; }
+volatile std::sig_atomic_t g_suspend = 0;  // Ctrl-Z (SIGTSTP): the batch stops its bakes, then itself
+void on_suspend(int) { g_suspend = 1; }
 
 std::string signal_name(int signal_number) {
   const char* name = ::strsignal(signal_number);
@@ -486,9 +488,29 @@ class StopSignals {
       sigaction(kSignals[n], nullptr, &before_[n]);
       if (before_[n].sa_handler != SIG_IGN) sigaction(kSignals[n], &action, nullptr);
     }
+    action.sa_handler = on_suspend;
+    sigaction(SIGTSTP, nullptr, &before_suspend_);
+    if (before_suspend_.sa_handler != SIG_IGN) sigaction(SIGTSTP, &action, nullptr);
   }
   ~StopSignals() {
     for (size_t n = 0; n < std::size(kSignals); ++n) sigaction(kSignals[n], &before_[n], nullptr);
+    sigaction(SIGTSTP, &before_suspend_, nullptr);
+  }
+  /// Ctrl-Z: the bakes, each in a process group of its own that the terminal does not reach, are stopped with the
+  /// batch and continued with it; the time stopped counts toward no --timeout.
+  static void suspend(ChildPool& pool) {
+    g_suspend = 0;
+    pool.signal_all(SIGSTOP);
+    const auto stopped = std::chrono::steady_clock::now();
+    struct sigaction stop {
+    }, ours{};
+    stop.sa_handler = SIG_DFL;
+    sigemptyset(&stop.sa_mask);
+    sigaction(SIGTSTP, &stop, &ours);
+    std::raise(SIGTSTP);  // stops here until SIGCONT (an orphaned process group is not stopped: it goes on)
+    sigaction(SIGTSTP, &ours, nullptr);
+    pool.signal_all(SIGCONT);
+    pool.pause_clocks(std::chrono::steady_clock::now() - stopped);
   }
   StopSignals(const StopSignals&) = delete;
   StopSignals& operator=(const StopSignals&) = delete;
@@ -498,6 +520,7 @@ class StopSignals {
 
  private:
   struct sigaction before_[std::size(kSignals)]{};
+  struct sigaction before_suspend_ {};
 };
 
 // Runs todo_ in jobs_ child processes, recording each as it ends. Returns whether a signal stopped the batch.
@@ -532,6 +555,10 @@ bool Runner::bake_all(const bake::Settings& settings) {
       }
       progress_->draw(snapshot());
       record_finished(pool.poll(250));
+      if (g_suspend && !g_interrupted) {
+        progress_->clear();  // the shell's prompt takes the line
+        StopSignals::suspend(pool);
+      }
     }
   } catch (...) {
     stop_running();
