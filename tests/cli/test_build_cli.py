@@ -63,6 +63,18 @@ class BuildBadInput(unittest.TestCase):
         r = self.expect_error(os.path.join(self.dir.name, "nope.off"), "INPUT_NOT_FOUND")
         self.assertIn("nope.off", r.stderr)
 
+    @unittest.skipUnless(os.geteuid() == 0, "needs root to run the bake as another user")
+    def test_a_mesh_the_user_cannot_read_is_input_not_found(self):
+        # Its permissions, not its content: it was IMPORT_FAILED (the importer's "Unable to open file").
+        mesh = self.write("locked.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n")
+        os.chmod(mesh, 0)
+        os.chmod(self.dir.name, 0o777)
+        r = subprocess.run([VOXFMT, "build", mesh, "-o", self.out, "--json"], capture_output=True, text=True,
+                           timeout=120, preexec_fn=as_nobody)
+        self.assertEqual(json.loads(r.stdout)["code"], "INPUT_NOT_FOUND", r.stderr)
+        self.assertIn("Permission denied", r.stderr)
+        self.assertFalse(os.path.exists(self.out))
+
     def test_a_folder_or_a_pipe_is_not_a_mesh(self):
         pipe = os.path.join(self.dir.name, "pipe.obj")
         os.mkfifo(pipe)

@@ -10,8 +10,10 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <mutex>
 #include <string>
@@ -22,6 +24,10 @@
 #include "voxfmt/detail/atomic_file.h"
 #include "voxfmt/detail/isolated_call.h"
 #include "voxfmt/io.h"
+
+#if !defined(_WIN32)
+#include <unistd.h>
+#endif
 
 namespace voxfmt::bake {
 
@@ -320,6 +326,10 @@ TriangleMesh import_mesh(const std::string& path, const ImportSettings& options)
   if (const std::string kind = not_a_regular_file(path); !kind.empty())
     throw BakeError(IssueCode::InputNotFound, path + ": " + kind);
   if (!std::filesystem::exists(path, ec)) throw BakeError(IssueCode::InputNotFound, path + ": no such file");
+#if !defined(_WIN32)
+  if (::access(path.c_str(), R_OK) != 0)  // the file's permissions, not its content: no importer's fault
+    throw BakeError(IssueCode::InputNotFound, path + ": cannot read it: " + std::strerror(errno));
+#endif
   if (!(options.unit_scale > 0) || !std::isfinite(options.unit_scale))
     throw BakeError(IssueCode::BadOption, "unit scale must be a finite number > 0");
   check_declared_counts(path);
