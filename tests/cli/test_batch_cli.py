@@ -7,6 +7,8 @@ import tempfile
 import time
 import unittest
 
+from terminal import run_on_terminal
+
 VOXFMT = os.environ.get("VOXFMT_BIN")
 SMALL = ["--resolution", "12", "--points", "100"]
 
@@ -488,22 +490,8 @@ class Batch(unittest.TestCase):
         characters escaped. The bar is cut to the terminal's width at a character, never inside one's UTF-8."""
         name = "a\x1b[2J" + "\u00e9" * 20 + ".obj"
         mesh = self.write(name, TET_OBJ)
-        master, slave = os.openpty()  # the bar is drawn on a terminal only (80 columns: the size is not set)
-        try:
-            r = subprocess.run([VOXFMT, "batch", mesh, "-o", self.out, "-j", "1", *SMALL], stdout=subprocess.PIPE,
-                               stderr=slave, timeout=120)
-        finally:
-            os.close(slave)
-        data = b""
-        while True:
-            try:
-                chunk = os.read(master, 65536)
-            except OSError:  # EIO: the other side is closed and all was read
-                break
-            if not chunk:
-                break
-            data += chunk
-        os.close(master)
+        r, data = run_on_terminal([VOXFMT, "batch", mesh, "-o", self.out, "-j", "1", *SMALL], stdout=subprocess.PIPE,
+                                  timeout=120)  # the bar is drawn on a terminal only
         self.assertEqual(r.returncode, 0, data)
         terminal = data.decode("utf-8", errors="replace")
         self.assertNotIn("\ufffd", terminal, "a character cut inside its bytes")

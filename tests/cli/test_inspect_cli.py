@@ -9,6 +9,8 @@ import subprocess
 import sys
 import tempfile
 import unittest
+
+from terminal import run_on_terminal
 import zlib
 
 import h5py
@@ -90,22 +92,7 @@ def read_ply(path):
 
 def read_terminal(command):
     """What `command` writes on stderr when stderr is a terminal (a pseudo-terminal here), decoded strictly."""
-    master, slave = os.openpty()
-    try:
-        subprocess.run(command, stdout=subprocess.DEVNULL, stderr=slave, timeout=60)
-    finally:
-        os.close(slave)
-    data = b""
-    while True:
-        try:
-            chunk = os.read(master, 65536)
-        except OSError:  # EIO: the terminal's other side is closed and everything was read
-            break
-        if not chunk:
-            break
-        data += chunk
-    os.close(master)
-    return data.decode("utf-8")
+    return run_on_terminal(command, stdout=subprocess.DEVNULL, timeout=60)[1].decode("utf-8")
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
