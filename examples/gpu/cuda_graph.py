@@ -5,7 +5,7 @@ waits for nothing, so PyTorch can capture it with the rest of a step. The graph 
 was captured with: a step copies new poses into them and replays. This script captures one call, replays it over a
 trajectory of poses, and checks every replay against a direct call on the same poses.
 
-  .venv/bin/python examples/gpu/cuda_graph.py [--envs 4096] [--steps 100]
+  PYTHONPATH=build/python .venv/bin/python examples/gpu/cuda_graph.py [--envs 4096] [--steps 100]
 
 It needs PyTorch with a CUDA device; without one it says why and exits 0 (there is nothing to capture).
 """

@@ -5,7 +5,7 @@ haptic device's handle pulls its proxy; the contact wrench from voxfmt.BatchScen
 is one batched call for all environments: on a CUDA device when PyTorch has one (poses stay on the GPU; nothing is
 copied to the host but the final summary), on the CPU otherwise — the same code either way.
 
-  .venv/bin/python examples/gpu/parallel_probes.py [--envs 4096] [--steps 200] [--device cuda|cpu]
+  PYTHONPATH=build/python .venv/bin/python examples/gpu/parallel_probes.py [--envs 4096] [--steps 200] [--device cuda|cpu]
 
 It prints how far the probes sank (they settle where the spring and the contact stiffness balance, at the
 surface plus spring/stiffness of the pull) and the time a step takes.
@@ -40,10 +40,17 @@ def icosphere_off(path: Path, radius: float) -> None:
                     "".join("3 %d %d %d\n" % t for t in f))
 
 
+def at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1, got {value}")
+    return value
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--envs", type=int, default=4096)
-    parser.add_argument("--steps", type=int, default=500)
+    parser.add_argument("--envs", type=at_least_one, default=4096)
+    parser.add_argument("--steps", type=at_least_one, default=500)
     parser.add_argument("--device", choices=["auto", "cuda", "cpu"], default="auto")
     parser.add_argument("--bunny", default=str(REPO / "build/cgal-data/data/meshes/bunny00.off"))
     parser.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "voxfmt-parallel-probes"))

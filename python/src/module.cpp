@@ -31,6 +31,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/frame.h"
 #include "voxfmt/bake/bake.h"
 #include "voxfmt/detail/cores.h"
 #include "voxfmt/detail/report.h"
@@ -158,7 +159,7 @@ std::optional<double> optional_real_arg(nb::handle value, const char* name) {
 // ---------------------------------------------------------------------------------------------------------------
 // Poses: 4x4 body-to-world matrices that must be rigid.
 
-constexpr double kRigidTolerance = 1e-6;
+using runtime::core::kRigidTolerance;  // the batches' rule (core::pose_from_matrix)
 
 /// Fills `pose` from the 4x4 matrix at `m` (element strides `row`, `col`); an error message if it is not rigid.
 std::optional<std::string> read_pose(const double* m, int64_t row, int64_t col, Pose& pose) {

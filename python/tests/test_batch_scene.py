@@ -5,6 +5,7 @@ pairs; and the checks of CUDA arrays, which run before a device is touched."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -440,6 +441,62 @@ def test_arrays_elsewhere_or_unknown_to_cuda_are_coded_errors(
     with pytest.raises(voxfmt.OptionError, match=message):
         scene.contacts(*POSES_BY_ADDRESS, out=addressed_outputs(8, 0x2000), check=False)
     assert all(not s.calls for s in scene._device_scenes.values()) and cuda.made_current == []
+
+
+class FakeTorchLikeArray(FakeCudaArray):
+    """A CUDA array that names its device, as a PyTorch tensor's device.index does."""
+
+    def __init__(self, shape: tuple[int, ...], dtype: str, address: int, device: int) -> None:
+        super().__init__(shape, dtype, address=address)
+        self.device = type("Device", (), {"index": device})()
+
+
+def test_an_array_naming_another_device_than_cuda_found_for_the_poses_is_refused(
+        sphere: voxfmt.Body, monkeypatch: pytest.MonkeyPatch) -> None:
+    # poses_a names no device (CUDA finds it on 2), poses_b names device 1: each check passed before (one skipped
+    # the comparison while the device was unknown, the other every array that names its own), and the kernel ran
+    # on 2 with a pointer into 1's memory.
+    scene, cuda = cuda_call_on_recorded_devices(sphere, monkeypatch, ALL_ON_DEVICE_2, current=0)
+    poses_b = FakeTorchLikeArray((8, 4, 4), "float32", address=0xb000, device=1)
+    with pytest.raises(voxfmt.OptionError, match=r"poses_b: on CUDA device 1, the poses on 2"):
+        scene.contacts(POSES_BY_ADDRESS[0], poses_b, out=addressed_outputs(8, 0x2000), check=False)
+    assert all(not s.calls for s in scene._device_scenes.values())
+
+
+@pytest.mark.parametrize("options", [{"proximity": math.nan}, {"proximity": -1.0}, {"stiffness": math.inf},
+                                     {"stiffness": -5.0}])
+def test_cuda_options_are_judged_as_the_cpus(sphere: voxfmt.Body, options: dict[str, float]) -> None:
+    # The CUDA path passed them to the kernel: a NaN proximity culled every root (0 contacts, silently).
+    scene = voxfmt.BatchScene([sphere])
+    poses = FakeCudaArray((8, 4, 4), "float32")
+    for on in (poses, np.repeat(np.eye(4, dtype=np.float32)[None], 8, axis=0)):
+        with pytest.raises(voxfmt.OptionError, match=f"{next(iter(options))} must be finite and >= 0"):
+            scene.contacts(on, on, **options)
+
+
+def test_a_tie_goes_to_as_points_as_on_the_gpu(sphere_asset: Path) -> None:
+    # Two loads of one asset at one position: a tie of size, point count and position. The CPU batch broke it by
+    # the objects' addresses (pairs (0, 1) and (1, 0) alike), the GPU gives it to A's points: which shell the
+    # contacts come from differed between the two batches.
+    a, b = voxfmt.load(sphere_asset), voxfmt.load(sphere_asset)
+    scene = voxfmt.BatchScene([a, b], [(0, 1), (1, 0)])
+    poses_a = np.repeat(np.eye(4, dtype=np.float32)[None], 2, axis=0)
+    poses_b = poses_a.copy()
+    c, s = np.cos(0.3), np.sin(0.3)
+    poses_b[:, :3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    r = scene.contacts(poses_a, poses_b, np.array([0, 1], np.int32), max_contacts=4, proximity=0.002)
+    assert (r.count > 0).all()
+    assert not r.point_of_b[:, : int(r.count.min())].any()  # A's points, whichever body A is
+
+
+def test_a_scenes_bodies_and_pairs_are_read_only(sphere: voxfmt.Body) -> None:
+    # A device keeps the scene of its first call: pairs changed after it would be run with the old table.
+    scene = voxfmt.BatchScene([sphere, sphere], [(0, 1)])
+    with pytest.raises(AttributeError):
+        scene.pairs = [(1, 0)]  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        scene.bodies.append(sphere)  # type: ignore[attr-defined]
+    assert scene.pairs == ((0, 1),) and len(scene.bodies) == 2
 
 
 def test_read_only_cuda_outputs_are_refused(sphere: voxfmt.Body) -> None:

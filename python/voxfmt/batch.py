@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import operator
 import os
 from collections.abc import Iterator, Sequence
@@ -32,7 +33,7 @@ _ENV_ERRORS = {
     1: "its tree is deeper than the depth-first walk takes (48 levels; the device walks level by level)",
     2: "a pose has a non-finite entry",
     3: "a pose's last row is not 0 0 0 1",
-    4: "a pose's rotation part is not orthonormal (|R^T R - I| > 1e-6)",
+    4: "a pose's rotation part is not orthonormal (|R^T R - I| > 1e-5)",
     5: "a pose's rotation part has determinant -1 (a reflection)",
     6: "its pair index names no pair of the scene",
     7: "a level of its walk opened more nodes than the device's frontier holds (a fault of voxfmt: please report it)",
@@ -179,6 +180,11 @@ def _launch_device(arrays: dict[str, Any], device: int | None) -> int:
             device = int(held)
         elif held != device:
             raise OptionError("BAD_OPTION", f"{name}: on CUDA device {held}, the poses on {device}")
+    # Arrays that name their device, against the one CUDA found (poses_a may name none, poses_b another).
+    for name, array in arrays.items():
+        named = None if array is None else _declared_device(array)
+        if named is not None and named != device:
+            raise OptionError("BAD_OPTION", f"{name}: on CUDA device {named}, the poses on {device}")
     return int(device)  # type: ignore[arg-type]  (set: the first array, poses_a, names its device or CUDA did)
 
 
@@ -353,33 +359,46 @@ class BatchScene:
     def __init__(self, bodies: Sequence[Body], pairs: Sequence[tuple[int, int]] | None = None) -> None:
         if isinstance(bodies, Body) or not isinstance(bodies, Sequence):
             raise OptionError("BAD_OPTION", f"bodies: expected a sequence of Bodies, got {type(bodies).__name__}")
-        self.bodies = list(bodies)
-        for n, body in enumerate(self.bodies):
+        self._bodies = tuple(bodies)
+        for n, body in enumerate(self._bodies):
             if not isinstance(body, Body):
                 raise OptionError("BAD_OPTION", f"bodies[{n}]: expected a Body (voxfmt.load), got {type(body).__name__}")
-        if not self.bodies:
+        if not self._bodies:
             raise OptionError("BAD_OPTION", "bodies: a scene needs at least one Body")
         if pairs is None:  # one body against itself, or the first against the second
-            pairs = [(0, min(1, len(self.bodies) - 1))]
+            pairs = [(0, min(1, len(self._bodies) - 1))]
         if not isinstance(pairs, (Sequence, np.ndarray)):
             raise OptionError("BAD_OPTION", f"pairs: expected a sequence of (A, B) index pairs, got {pairs!r}")
-        self.pairs = []
+        checked = []
         for pair in pairs:
             if not isinstance(pair, (Sequence, np.ndarray)) or isinstance(pair, str) or len(pair) != 2:
                 raise OptionError("BAD_OPTION", f"pairs: expected (A, B) index pairs, got {pair!r}")
             # A float or a string would be floored or parsed into another pair, silently.
-            self.pairs.append((_whole("pairs: A", pair[0], 0, 2**31 - 1), _whole("pairs: B", pair[1], 0, 2**31 - 1)))
-        if not self.bodies or not self.pairs:
+            checked.append((_whole("pairs: A", pair[0], 0, 2**31 - 1), _whole("pairs: B", pair[1], 0, 2**31 - 1)))
+        self._pairs = tuple(checked)
+        if not self._bodies or not self._pairs:
             raise OptionError("BAD_OPTION", "a BatchScene needs bodies and at least one pair")
-        for a, b in self.pairs:
-            if not (0 <= a < len(self.bodies) and 0 <= b < len(self.bodies)):
+        for a, b in self._pairs:
+            if not (0 <= a < len(self._bodies) and 0 <= b < len(self._bodies)):
                 raise OptionError("BAD_OPTION", f"pair ({a}, {b}) names a body the scene does not have")
         self._device_scenes: dict[int, Any] = {}
 
+    # Read-only: a device keeps the scene it was given at its first call (a new BatchScene for other bodies).
+    @property
+    def bodies(self) -> tuple[Any, ...]:
+        return self._bodies
+
+    @property
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        return self._pairs
+
     def device_bytes(self, device: int = 0) -> int:
-        """Device memory the assets take on CUDA device `device` (uploading them there if not yet: make that device
-        current first, as a call with poses on it does)."""
-        return int(self._device_scene(device).device_bytes)
+        """Device memory the assets take on CUDA device `device` (uploading them there if not yet)."""
+        device = _whole("device", device, 0, 1 << 16)
+        if device in self._device_scenes:
+            return int(self._device_scenes[device].device_bytes)
+        with _current_device(None, device):  # the upload goes to the current device: this one
+            return int(self._device_scene(device).device_bytes)
 
     def _device_scene(self, device: int) -> Any:
         scene = self._device_scenes.get(device)
@@ -431,6 +450,9 @@ class BatchScene:
         Outputs larger than 3/4 of this machine's memory are refused up front (InternalError, OUT_OF_MEMORY).
         ``interpolation``: 'trilinear' or 'tricubic' (as :func:`voxfmt.contacts`'s; on the CPU only)."""
         stiffness, proximity = _real("stiffness", stiffness), _real("proximity", proximity)
+        for name, value in (("stiffness", stiffness), ("proximity", proximity)):  # on CUDA as on the CPU
+            if not (math.isfinite(value) and value >= 0):
+                raise OptionError("BAD_OPTION", f"batch: {name} must be finite and >= 0, not {value!r}")
         max_contacts = _whole("max_contacts", max_contacts, 0, 1 << 24)
         interpolation = _one_of("interpolation", interpolation, ("trilinear", "tricubic"))
         if _on_cuda(poses_a) or _on_cuda(poses_b):

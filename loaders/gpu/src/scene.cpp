@@ -3,6 +3,7 @@
 #include "voxfmt/gpu/batch.h"
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 #include "device.h"
@@ -142,9 +143,16 @@ size_t Scene::device_bytes() const {
 }
 
 Status Scene::contacts(const Environments& in, const Outputs& out, void* stream) const {
+  // Judged as the CPU batch judges them (runtime::BatchScene): a NaN proximity culled every root on the device.
+  if (!(std::isfinite(in.proximity) && in.proximity >= 0))
+    return Error{IssueCode::BadOption, "batch: proximity must be finite and >= 0"};
+  if (!(std::isfinite(in.stiffness) && in.stiffness >= 0))
+    return Error{IssueCode::BadOption, "batch: stiffness must be finite and >= 0"};
+  if (in.count == 0) return Status::success();  // nothing to launch (empty arrays may have null pointers)
   if (!out.count) return Error{IssueCode::BadOption, "the batch needs a `count` output"};
   if (in.poses_a_f64 || in.poses_b_f64)
     return Error{IssueCode::BadOption, "the device batch takes float32 poses (poses_a, poses_b)"};
+  if (!in.poses_a || !in.poses_b) return Error{IssueCode::BadOption, "the batch needs poses_a and poses_b"};
   if (in.interpolation != runtime::Interpolation::Trilinear)
     return Error{IssueCode::BadOption, "the device batch reads distances trilinearly only (tricubic: the CPU batch)"};
   core::BatchInputs<float> inputs;
@@ -168,7 +176,9 @@ Status Scene::contacts(const Environments& in, const Outputs& out, void* stream)
   outputs.contacts = {out.points, out.normals, out.depths, out.point_index, out.point_of_b, out.max_contacts};
   const std::string failure =
       device::launch(inputs, outputs, device_->resident_blocks, device_->frontier_capacity, stream);
-  if (!failure.empty()) return Error{IssueCode::Internal, "the batch's kernel did not start: " + failure};
+  if (!failure.empty())  // the frontier's memory is taken per launch: the device's memory can run out there
+    return Error{failure.find("out of memory") != std::string::npos ? IssueCode::OutOfMemory : IssueCode::Internal,
+                 "the batch's kernel did not start: " + failure};
   return Status::success();
 }
 

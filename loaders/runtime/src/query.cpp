@@ -105,7 +105,7 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
 }  // namespace
 
 QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b,
-                                 const Pose& pose_b, QueryDirection requested) {
+                                 const Pose& pose_b, QueryDirection requested, DirectionTie tie) {
   if (requested != QueryDirection::Auto) return requested;
   const double ta[3] = {pose_a.translation[0], pose_a.translation[1], pose_a.translation[2]};
   const double tb[3] = {pose_b.translation[0], pose_b.translation[1], pose_b.translation[2]};
@@ -113,7 +113,8 @@ QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, c
       core::auto_direction(a.has_point_shell() && b.has_voxelmap(), b.has_point_shell() && a.has_voxelmap(),
                            a.bounding_radius() * pose_a.scale, b.bounding_radius() * pose_b.scale,
                            a.point_tree().size(), b.point_tree().size(), ta, tb);
-  const bool b_points = choice != 0 ? choice > 0 : std::less<const CollisionObject*>()(&b, &a);
+  const bool b_points =
+      choice != 0 ? choice > 0 : tie == DirectionTie::ByAddress && std::less<const CollisionObject*>()(&b, &a);
   return b_points ? QueryDirection::BPointsInA : QueryDirection::APointsInB;
 }
 

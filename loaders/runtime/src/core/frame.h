@@ -23,8 +23,12 @@ enum PoseProblem : int32_t {
   kPoseReflection = 5
 };
 
+/// How far a rotation may be from orthonormal, |R^T R - I| entry by entry: a float32 rotation (quaternion converted,
+/// or composed down a kinematic chain) is some 1e-6 off, a scale or shear far more.
+inline constexpr double kRigidTolerance = 1e-5;
+
 /// Reads a row-major 4x4 matrix (float or double) as a rigid pose, as the Python API's pose check does: finite,
-/// last row 0 0 0 1, |R^T R - I| <= 1e-6 entry by entry, determinant +1.
+/// last row 0 0 0 1, |R^T R - I| <= kRigidTolerance entry by entry, determinant +1.
 template <class T>
 VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
   for (int i = 0; i < 16; ++i)
@@ -39,7 +43,7 @@ VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
       const double dot = R[a] * R[b] + R[3 + a] * R[3 + b] + R[6 + a] * R[6 + b] - (a == b ? 1.0 : 0.0);
-      if (dot > 1e-6 || dot < -1e-6) return kPoseNotOrthonormal;
+      if (dot > kRigidTolerance || dot < -kRigidTolerance) return kPoseNotOrthonormal;
     }
   const double det =
       R[0] * (R[4] * R[8] - R[5] * R[7]) - R[1] * (R[3] * R[8] - R[5] * R[6]) + R[2] * (R[3] * R[7] - R[4] * R[6]);
@@ -47,8 +51,8 @@ VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
 }
 
 /// QueryDirection::Auto's rule, for the runtime and the batch alike: +1 for B's points in A's field, -1 for A's
-/// points in B's, 0 for a tie of size, point count and position (the runtime breaks it by the objects' addresses,
-/// the batch gives it to A's points). The smaller object's points sample the contact region of the larger one
+/// points in B's, 0 for a tie of size, point count and position (runtime::resolve_direction breaks it by the objects'
+/// addresses for single queries, gives it to A's points for the batches, CPU and GPU). The smaller object's points sample the contact region of the larger one
 /// densely; for similar sizes (within 10 %) the choice must not depend on the order the pair comes in (a physics
 /// engine hands it either way): fewer points, then the lower position decide. `ra`, `rb`: bounding radii, scaled.
 VOXFMT_HD int auto_direction(bool a_points_in_b, bool b_points_in_a, double ra, double rb, uint64_t points_a,

@@ -204,9 +204,15 @@ void query_contacts(const CollisionObject& a, const Pose& pose_a, const Collisio
 void query_contacts(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b, const Pose& pose_b,
                     const QueryOptions& options, ContactSet& out, QueryScratch& scratch, QueryState& state);
 
+/// Who takes Auto's tie (objects alike in size, point count and position): the lower address, the same object
+/// whichever order the pair comes in (engines hand pairs either way); or A's points, as the batches do on the CPU
+/// and the GPU alike (an environment's pair has one order, and addresses differ from device to host).
+enum class DirectionTie { ByAddress, APoints };
+
 /// The direction Auto resolves to for these objects and poses (never Auto).
 QueryDirection resolve_direction(const CollisionObject& a, const Pose& pose_a, const CollisionObject& b,
-                                 const Pose& pose_b, QueryDirection requested);
+                                 const Pose& pose_b, QueryDirection requested,
+                                 DirectionTie tie = DirectionTie::ByAddress);
 
 /// Single world points of a partner B (box corners, a sphere's centre with its `radius`) against A's
 /// voxelmap: reported like B's points (point_of_b, normal = where A must move), the contact point being the
