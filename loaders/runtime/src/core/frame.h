@@ -52,9 +52,10 @@ VOXFMT_HD int32_t pose_from_matrix(const T* m, RigidPose& pose) {
 
 /// QueryDirection::Auto's rule, for the runtime and the batch alike: +1 for B's points in A's field, -1 for A's
 /// points in B's, 0 for a tie of size, point count and position (runtime::resolve_direction breaks it by the objects'
-/// addresses for single queries, gives it to A's points for the batches, CPU and GPU). The smaller object's points sample the contact region of the larger one
-/// densely; for similar sizes (within 10 %) the choice must not depend on the order the pair comes in (a physics
-/// engine hands it either way): fewer points, then the lower position decide. `ra`, `rb`: bounding radii, scaled.
+/// addresses for single queries, gives it to A's points for the batches, CPU and GPU). The smaller object's points
+/// sample the contact region of the larger one densely; for similar sizes (within 10 %) the choice must not depend on
+/// the order the pair comes in (a physics engine hands it either way): fewer points, then the lower position decide.
+/// `ra`, `rb`: bounding radii, scaled.
 VOXFMT_HD int auto_direction(bool a_points_in_b, bool b_points_in_a, double ra, double rb, uint64_t points_a,
                              uint64_t points_b, const double ta[3], const double tb[3]) {
   if (!a_points_in_b) return 1;
