@@ -215,12 +215,12 @@ int main(int argc, char** argv) {
   Options options;
   CLI::App app{
       "bunny_drop — the seed's Figure 2: drop the CGAL bunny onto a table and onto a bunny with VPS, "
-      "GImpact, an HACD decomposition and a convex hull; writes CSV, JSON and a PNG"};
+      "GImpact, an HACD decomposition and a convex hull; writes CSV and JSON (scripts/plot_bunny_drop.py draws them)"};
   app.add_option("--asset", options.asset,
                  "baked bunny asset (voxfmt build bunny00.off --resolution 306 --points 35000)")
       ->capture_default_str();
   app.add_option("--mesh", options.mesh, "the bunny mesh, for GImpact, HACD and the hull")->capture_default_str();
-  app.add_option("-o,--out", options.out_dir, "output folder for bunny_drop.csv, .json, .png")->capture_default_str();
+  app.add_option("-o,--out", options.out_dir, "output folder for bunny_drop.csv and .json")->capture_default_str();
   app.add_option("--hacd-cache", options.hacd_cache, "HACD decomposition cache (default: OUT/bunny00.hacd.txt)");
   app.add_option("--hacd-shipped", options.hacd_shipped,
                  "a decomposition to use when the cache has none for this mesh and HACD's parameters")

@@ -190,12 +190,12 @@ int main(int argc, char** argv) {
     if (asset.empty()) {
       fs::create_directories(cache);
       asset = cache + "/bunny.vox.h5";
-      if (!fs::exists(asset)) {
+      voxfmt::bake::Settings settings;
+      settings.import.unit_scale = 0.15;
+      settings.voxelmap.resolution = 128;
+      settings.point_shell.points = 10000;
+      if (!voxfmt::bake::asset_is_current(asset, mesh, settings)) {  // another --mesh: baked again
         std::cerr << "bake: " << mesh << " -> " << asset << "\n";
-        voxfmt::bake::Settings settings;
-        settings.import.unit_scale = 0.15;
-        settings.voxelmap.resolution = 128;
-        settings.point_shell.points = 10000;
         const auto summary = voxfmt::bake::bake_to_file(mesh, asset, settings);
         if (!summary) throw std::runtime_error(summary.error().describe());
       }

@@ -286,12 +286,12 @@ std::string load_or_bake(const std::string& mesh, const std::string& cache, std:
   if (!asset.empty()) return asset;
   fs::create_directories(cache);
   asset = cache + "/bunny00-0.15m-r306-p35000.vox.h5";
-  if (fs::exists(asset)) return asset;
-  std::cerr << "bake: " << mesh << " -> " << asset << "\n";
   voxfmt::bake::Settings settings;
   settings.import.unit_scale = 0.15;
   settings.voxelmap.resolution = 306;
   settings.point_shell.points = 35000;
+  if (voxfmt::bake::asset_is_current(asset, mesh, settings)) return asset;  // else another --mesh: baked again
+  std::cerr << "bake: " << mesh << " -> " << asset << "\n";
   const auto summary = voxfmt::bake::bake_to_file(mesh, asset, settings);
   if (!summary) throw std::runtime_error(summary.error().describe());
   return asset;

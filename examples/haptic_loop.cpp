@@ -36,12 +36,12 @@ using Clock = std::chrono::steady_clock;
 
 std::shared_ptr<const CollisionObject> baked(const std::string& mesh, const std::string& out, int resolution,
                                              uint32_t points, double unit_scale) {
-  if (!fs::exists(out)) {
+  voxfmt::bake::Settings settings;
+  settings.import.unit_scale = unit_scale;
+  settings.voxelmap.resolution = resolution;
+  settings.point_shell.points = points;
+  if (!voxfmt::bake::asset_is_current(out, mesh, settings)) {  // another --meshes folder: baked again
     std::cerr << "bake: " << fs::path(mesh).filename().string() << " -> " << out << "\n";
-    voxfmt::bake::Settings settings;
-    settings.import.unit_scale = unit_scale;
-    settings.voxelmap.resolution = resolution;
-    settings.point_shell.points = points;
     const auto summary = voxfmt::bake::bake_to_file(mesh, out, settings);
     if (!summary) throw std::runtime_error(summary.error().describe());
   }
@@ -188,7 +188,9 @@ int main(int argc, char** argv) {
   app.add_option("--meshes", meshes, "folder of CGAL's sample meshes")->capture_default_str();
   app.add_option("--cache", cache, "folder for the baked assets")->capture_default_str();
   app.add_option("--out", out, "folder for the CSV files and plots")->capture_default_str();
-  app.add_option("--seconds", seconds, "simulated (and real) seconds per run")->capture_default_str();
+  app.add_option("--seconds", seconds, "simulated (and real) seconds per run")
+      ->check(CLI::Range(0.1, 3600.0))
+      ->capture_default_str();
   app.add_flag("--quick", quick, "2 s per run");
   bool no_realtime = false;
   app.add_flag("--no-realtime", no_realtime,

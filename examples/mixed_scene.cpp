@@ -91,7 +91,7 @@ void timed_near_callback(btBroadphasePair& pair, btCollisionDispatcher& dispatch
 }
 
 std::string baked(const std::string& mesh, const std::string& out, voxfmt::bake::Settings settings) {
-  if (fs::exists(out)) return out;
+  if (voxfmt::bake::asset_is_current(out, mesh, settings)) return out;  // else another --mesh or settings: again
   std::cerr << "bake: " << mesh << " -> " << out << "\n";
   settings.threads = 0;
   const auto summary = voxfmt::bake::bake_to_file(mesh, out, settings);

@@ -24,6 +24,13 @@ if [ -f "$PREFIX/SOURCE" ] && grep -qx "hdf5 $VERSION (Debian source package)" "
 fi
 
 work=$PREFIX.work
+# Autoconf refuses a build folder whose path has a space in it ("unsafe absolute working directory name").
+case "$work" in
+  *[[:space:]]*)
+    echo "build-hdf5: $work: HDF5's configure cannot build in a path with spaces; move the checkout" >&2
+    exit 1
+    ;;
+esac
 rm -rf "$work"
 mkdir -p "$work"/apt/{lists/partial,cache/archives/partial} "$work/src"
 mkdir -p .logs

@@ -4,6 +4,7 @@
 # twice: it runs `apt-get update` only when something is missing and installs only what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+mkdir -p .logs  # every step below logs here, whichever of them runs
 
 PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config git clang-format-14 clang-14 libclang-rt-14-dev

@@ -7,6 +7,11 @@
 # The terminal gets one line per step and the results; the long outputs go to files named as it runs
 # ($OUT/logs/). Environment: BUILD_DIR (build), OUT_DIR (out), LIBRARY_DIR.
 set -euo pipefail
+# A mesh and folders given relative to where the job is started, before it moves to the repository.
+[ -n "${1:-}" ] && set -- "$(realpath -m -- "$1")"
+for var in BUILD_DIR OUT_DIR LIBRARY_DIR; do
+  [ -n "${!var:-}" ] && export "$var=$(realpath -m -- "${!var}")"
+done
 cd "$(dirname "$0")/.."
 start=$SECONDS
 # The main job needs no CUDA compiler (install-deps skips its download; scripts/run-tests.sh adds it).

@@ -69,8 +69,7 @@ def main() -> int:
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
     asset = cache / "bunny.vox.h5"
-    if not asset.exists():
-        voxfmt.bake(args.bunny, asset, resolution=96, points=4000, unit_scale=0.15)
+    voxfmt.bake(args.bunny, asset, resolution=96, points=4000, unit_scale=0.15, if_changed=True)
     bunny = voxfmt.load(asset)
     scene = voxfmt.BatchScene([bunny])
     trajectory = torch.tensor(poses_along(args.envs, args.steps, 0.05), device="cuda")

@@ -57,11 +57,10 @@ def main() -> int:
     args = parser.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
-    if not (cache / "bunny.vox.h5").exists():
-        voxfmt.bake(args.bunny, cache / "bunny.vox.h5", resolution=96, points=4000, unit_scale=0.15)
-    if not (cache / "probe.vox.h5").exists():
-        icosphere_off(cache / "probe.off", 0.004)
-        voxfmt.bake(cache / "probe.off", cache / "probe.vox.h5", resolution=16, points=200)
+    # Baked again only where the mesh (another --bunny) or the options changed.
+    voxfmt.bake(args.bunny, cache / "bunny.vox.h5", resolution=96, points=4000, unit_scale=0.15, if_changed=True)
+    icosphere_off(cache / "probe.off", 0.004)
+    voxfmt.bake(cache / "probe.off", cache / "probe.vox.h5", resolution=16, points=200, if_changed=True)
     bunny, probe = voxfmt.load(cache / "bunny.vox.h5"), voxfmt.load(cache / "probe.vox.h5")
     scene = voxfmt.BatchScene([bunny, probe], pairs=[(1, 0)])  # A = the probe (the wrench acts on it)
 

@@ -51,14 +51,14 @@ def main() -> int:
     args = ap.parse_args()
 
     asset = Path(args.out) / f"bunny-{args.resolution}.vox.h5"
-    if not asset.exists():
-        if not Path(args.mesh).exists():
-            print(f"bunny_drop: {args.mesh}: no such mesh (CGAL's sample meshes: cmake unpacks them into build/)",
-                  file=sys.stderr)
-            return 2
-        asset.parent.mkdir(parents=True, exist_ok=True)
-        t0 = time.perf_counter()
-        voxfmt.bake(args.mesh, asset, resolution=args.resolution, points=20000)
+    if not Path(args.mesh).exists():
+        print(f"bunny_drop: {args.mesh}: no such mesh (CGAL's sample meshes: cmake unpacks them into build/)",
+              file=sys.stderr)
+        return 2
+    asset.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    # Baked again only where the mesh (another --mesh) or the options changed.
+    if voxfmt.bake(args.mesh, asset, resolution=args.resolution, points=20000, if_changed=True)["status"] == "ok":
         print(f"baked {asset} in {time.perf_counter() - t0:.1f} s (once)")
 
     # Where the upright bunny stands on z = 0: its lowest point, from the asset's own point shell.

@@ -57,8 +57,7 @@ def main() -> int:
         shapes.write_off(Path(f"{stem}.off"), *mesh)
         shapes.write_obj(Path(f"{stem}.obj"), *mesh)
         asset = Path(f"{stem}.vox.h5")
-        if not asset.exists():
-            voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
+        voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000, if_changed=True)
         files[name.split("-")[0]] = stem
 
     voxfmt.mujoco.load_plugin()

@@ -53,8 +53,7 @@ def main() -> int:
         stem = out / f"{name}-{args.voxel}"
         shapes.write_off(Path(f"{stem}.off"), *mesh)
         asset = Path(f"{stem}.vox.h5")
-        if not asset.exists():
-            voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000)
+        voxfmt.bake(Path(f"{stem}.off"), asset, voxel_size=args.voxel * 1e-3, points=20000, if_changed=True)
         parts[name.split("-")[0]] = (asset, mesh)
 
     builder = newton.ModelBuilder()

@@ -980,6 +980,14 @@ void bind_bake_settings(nb::module_& m) {
 void bind_pipeline(nb::module_& m) {
   bind_bake_settings(m);
   m.def("_bake", &bake, "mesh"_a, "output"_a, "settings"_a, "progress"_a.none());
+  m.def(
+      "_asset_is_current",
+      [](nb::handle asset, nb::handle mesh, const bake::Settings& settings) {
+        const std::string asset_path = path_arg(asset, "out_path"), mesh_path = path_arg(mesh, "mesh_path");
+        nb::gil_scoped_release release;  // a hash of the whole mesh
+        return bake::asset_is_current(asset_path, mesh_path, settings);
+      },
+      "asset"_a, "mesh"_a, "settings"_a);
   m.def("_validate", &validate, "path"_a, "full"_a, "max_memory_mib"_a.none());
   m.def("_inspect", &inspect, "path"_a, "max_memory_mib"_a.none());
   m.def("_time_query", &time_query, "a"_a, "pose_a"_a, "b"_a, "pose_b"_a, "iterations"_a, "point_budget"_a.none(),

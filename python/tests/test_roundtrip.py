@@ -193,3 +193,17 @@ def test_bake_summary_and_progress(sphere_mesh: Path, tmp_path: Path) -> None:
     with pytest.raises(Stop):
         voxfmt.bake(sphere_mesh, stopped, resolution=24, points=500, progress=stop)
     assert not stopped.exists()
+
+
+def test_bake_if_changed_follows_the_mesh_and_the_options(tmp_path, sphere_mesh) -> None:  # type: ignore[no-untyped-def]
+    # A cache of bakes named by its settings alone kept another mesh's asset (the examples' --mesh did nothing).
+    out = tmp_path / "part.vox.h5"
+    assert voxfmt.bake(sphere_mesh, out, resolution=16, points=100, if_changed=True)["status"] == "ok"
+    assert voxfmt.bake(sphere_mesh, out, resolution=16, points=100, if_changed=True)["status"] == "up_to_date"
+    assert voxfmt.bake(sphere_mesh, out, resolution=20, points=100, if_changed=True)["status"] == "ok"
+    moved = tmp_path / "other.off"
+    moved.write_text(sphere_mesh.read_text().replace("OFF\n", "OFF\n# another mesh\n", 1))
+    assert voxfmt.bake(moved, out, resolution=20, points=100, if_changed=True)["status"] == "ok"  # its bytes differ
+    assert voxfmt.bake(moved, out, resolution=20, points=100)["status"] == "ok"  # without: always baked
+    with pytest.raises(voxfmt.OptionError):
+        voxfmt.bake(moved, out, if_changed="yes")

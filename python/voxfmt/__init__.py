@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from ._errors import AssetError, Error, InternalError, MeshError, OptionError, PoseError, WriteError
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
-from ._voxfmt import _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
+from ._voxfmt import _asset_is_current, _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
 from .batch import _one_of, _real, _refuse_beyond_pose_memory, _whole
 
@@ -134,6 +134,7 @@ def bake(
     resolution: int | None = None,
     points: int | None = None,
     progress: Callable[[str, float], object] | None = None,
+    if_changed: bool = False,
     **options: Any,
 ) -> dict[str, Any]:
     """Bakes a mesh (any format assimp reads: OBJ, PLY, STL, OFF, glTF, ...) into an asset at ``out_path``.
@@ -147,6 +148,10 @@ def bake(
 
     ``progress(stage, fraction)`` is called as each stage starts (fraction of the whole bake, 0..1); an
     exception it raises stops the bake and is raised again here.
+
+    ``if_changed=True``: where ``out_path`` already is a bake of this mesh as it is now (its SHA-256) with these
+    options, nothing is baked and ``{"status": "up_to_date", "input": ..., "output": ...}`` is returned: a cache
+    of bakes that follows its meshes and settings (one named by the settings alone keeps another mesh's asset).
 
     Raises MeshError (ZERO_VOLUME, IMPORT_FAILED, ...), OptionError (BAD_OPTION), WriteError, InternalError.
     """
@@ -171,6 +176,10 @@ def bake(
     settings = _BakeSettings()
     for name, value in {**chosen, **options}.items():
         setattr(settings, name, _bake_setting(name, value))
+    if not isinstance(if_changed, bool):
+        raise OptionError("BAD_OPTION", f"if_changed: expected a bool, got {if_changed!r}")
+    if if_changed and _asset_is_current(out_path, mesh_path, settings):
+        return {"status": "up_to_date", "input": os.fspath(mesh_path), "output": os.fspath(out_path)}
     summary = _bake(_path(mesh_path, "mesh_path"), _path(out_path, "out_path"), settings, progress)
     result: dict[str, Any] = json.loads(summary)
     return result

@@ -1452,6 +1452,26 @@ TEST(Bake, ShellThicknessOnAClosedMeshGivesAreaTimesThickness) {
   expect_shell_distances(asset, mesh, "cube.off shell 0.1");
 }
 
+TEST(Bake, AnAssetIsCurrentForItsOwnMeshAndSettingsOnly) {
+  const std::string dir = ::testing::TempDir() + "/voxfmt-asset-is-current";
+  std::filesystem::create_directories(dir);
+  const std::string asset = dir + "/cube.vox.h5";
+  Settings settings;
+  settings.voxelmap.resolution = 16;
+  settings.point_shell.points = 200;
+  EXPECT_FALSE(asset_is_current(asset, kMeshes + "/cube.off", settings));  // not there yet
+  ASSERT_TRUE(bake_to_file(kMeshes + "/cube.off", asset, settings));
+  EXPECT_TRUE(asset_is_current(asset, kMeshes + "/cube.off", settings));
+  EXPECT_FALSE(asset_is_current(asset, kMeshes + "/tetrahedron.off", settings));  // another mesh, same settings
+  Settings finer = settings;
+  finer.voxelmap.resolution = 24;
+  EXPECT_FALSE(asset_is_current(asset, kMeshes + "/cube.off", finer));
+  Settings faster = settings;
+  faster.threads = 1;  // not a parameter of the data
+  EXPECT_TRUE(asset_is_current(asset, kMeshes + "/cube.off", faster));
+  std::filesystem::remove_all(dir);
+}
+
 // A shell's distances are the mesh's distance less T/2, rounded where the mesh's distance is: a thick shell's
 // lattice and stored distances differ by that rounding, which is far more than a relative 1e-6 of themselves.
 TEST(Bake, ThickShellsPassTheirOwnLatticeChecks) {

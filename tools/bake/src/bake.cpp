@@ -423,6 +423,17 @@ Result<std::string> sha256_file(const std::string& path) {
   return lowercase_hex(std::string_view(reinterpret_cast<const char*>(digest), length));
 }
 
+bool asset_is_current(const std::string& asset, const std::string& mesh, const Settings& settings) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(asset, ec)) return false;
+  const Result<Provenance> provenance = read_provenance(asset);
+  if (!provenance) return false;
+  const Result<std::string> sha = sha256_file(mesh);
+  if (!sha || sha.value() != provenance.value().source_sha256) return false;
+  const nlohmann::json stored = nlohmann::json::parse(provenance.value().build_parameters_json, nullptr, false);
+  return !stored.is_discarded() && stored == nlohmann::json::parse(build_parameters_json(settings));
+}
+
 std::map<std::string, std::string> dependency_versions() {
   return {{"voxfmt", VOXFMT_VERSION_STRING},
           {"assimp", std::to_string(aiGetVersionMajor()) + "." + std::to_string(aiGetVersionMinor()) + "." +
