@@ -77,3 +77,26 @@ def make_library(root):
         # Nested deeper than any record: skipped (copying or printing it would recurse 100,000 times).
         f.write('{"output": "deep", "x": ' + "[" * 100000 + "]" * 100000 + "}\n")
     return library, other
+
+
+LONG_NAME = "long_" + "x" * 150 + ".obj"  # a file name wider than the card
+
+
+def make_edge_library(root):
+    """Returns (library, older): a flat sheet (baked as a shell), two failing meshes of one name in two
+    subfolders, and a mesh with a long name; the older bake built a/x.obj, and its long-named asset is gone."""
+    def write_meshes(folder, good_a):
+        for sub in ("a", "b"):
+            os.makedirs(os.path.join(folder, sub), exist_ok=True)
+        files = {"flat.obj": "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n",  # SHELL_MODE
+                 "a/x.obj": TET if good_a else "not a mesh\n", "b/x.obj": "not a mesh\n", LONG_NAME: TET}
+        for name, text in files.items():
+            with open(os.path.join(folder, name), "w") as f:
+                f.write(text)
+    write_meshes(os.path.join(root, "edge-meshes"), False)
+    write_meshes(os.path.join(root, "edge-meshes-old"), True)
+    library, older = os.path.join(root, "edge"), os.path.join(root, "edge-old")
+    run("batch", os.path.join(root, "edge-meshes"), "-o", library, "--resolution", "16", "--points", "200", "-q")
+    run("batch", os.path.join(root, "edge-meshes-old"), "-o", older, "--resolution", "16", "--points", "200", "-q")
+    os.remove(os.path.join(older, LONG_NAME + ".vox.h5"))
+    return library, older

@@ -31,6 +31,38 @@ def browser():
     return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
 
 
+def js_bytes(b):
+    """The page's bytes(): how a size reads in its table, card and summary."""
+    if b >= 1 << 30:
+        return "%.2f GiB" % (b / (1 << 30))
+    if b >= 1 << 20:
+        return "%.1f MiB" % (b / (1 << 20))
+    if b >= 1024:
+        return "%.1f KiB" % (b / 1024)
+    return "%d B" % b
+
+
+# Every text a canvas draws, with where: the plots' tick labels (a y tick's starts at x = 4).
+RECORD_CANVAS_TEXT = """
+window.canvasTexts = [];
+const fillText = CanvasRenderingContext2D.prototype.fillText;
+CanvasRenderingContext2D.prototype.fillText = function (text, x, y) {
+  window.canvasTexts.push([this.canvas.id, String(text), x, y]);
+  return fillText.apply(this, arguments);
+};
+"""
+
+
+def card_field(driver, label):
+    """The card's value of a table row by its label ("" when there is none)."""
+    cells = driver.find_elements(By.XPATH, "//aside[@id='card']//tr[th[text()='%s']]/td" % label)
+    return cells[0].text if cells else ""
+
+
+def card_headings(driver):
+    return [h.text for h in driver.find_elements(By.CSS_SELECTOR, "#card h3")]
+
+
 def open_page(driver, index_html):
     driver.get("file://" + os.path.abspath(index_html))
     WebDriverWait(driver, 20).until(lambda d: d.execute_script("return document.body.dataset.ready") == "true")
@@ -63,6 +95,7 @@ class BrowserReportTest(unittest.TestCase):
         fx.run("report", cls.library, "-o", cls.report, "--against", cls.other)
         cls.records = fx.manifest(cls.library)
         cls.driver = browser()
+        cls.driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": RECORD_CANVAS_TEXT})
         cls.ready_ms = open_page(cls.driver, os.path.join(cls.report, "index.html"))
 
     @classmethod
@@ -89,6 +122,9 @@ class BrowserReportTest(unittest.TestCase):
         self.assertEqual(self.tile("built"), str(statuses.count("ok")))
         self.assertEqual(self.tile("failed"), str(statuses.count("failed")))
         self.assertEqual(self.tile("unreadable assets"), "1")
+        # The damaged asset's bytes are a broken file's: not in the total (the manifest's recorded size neither).
+        readable = [r for r in self.records if r["status"] == "ok" and not r["input"].endswith("damaged.obj")]
+        self.assertEqual(self.tile("asset bytes"), js_bytes(sum(r["file_size_bytes"] for r in readable)))
         self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(self.records), len(self.records)))
         self.assertEqual(len(self.driver.find_elements(By.CSS_SELECTOR, "#table-rows .trow")), len(self.records))
 
@@ -105,10 +141,15 @@ class BrowserReportTest(unittest.TestCase):
         self.assertEqual(self.rows_shown(), "%d of %d meshes" % (len(with_border), len(self.records)))
 
     def test_2b_filter_by_size_and_time(self):
-        sizes = sorted(r["file_size_bytes"] for r in self.records if "file_size_bytes" in r)
+        # An unreadable asset's size is its file's now, not the one the manifest recorded at bake; a failed mesh
+        # has none (the hostile records carry a size all the same).
+        damaged = os.path.getsize(os.path.join(self.library, "damaged.obj.vox.h5"))
+        size = lambda r: (damaged if r["input"].endswith("damaged.obj") else
+                          r.get("file_size_bytes", -1) if r["status"] == "ok" else -1)
+        sizes = sorted(size(r) for r in self.records if size(r) >= 0)
         threshold = sizes[len(sizes) // 2] / 1048576  # the median, in MiB
         self.driver.find_element(By.ID, "filter-size").send_keys("%.6f" % (threshold - 1e-6))
-        expected = sum(1 for r in self.records if r.get("file_size_bytes", -1) >= (threshold - 1e-6) * 1048576)
+        expected = sum(1 for r in self.records if size(r) >= (threshold - 1e-6) * 1048576)
         self.assertEqual(self.rows_shown(), "%d of %d meshes" % (expected, len(self.records)))
         self.driver.find_element(By.ID, "filter-clear").click()
         self.driver.find_element(By.ID, "filter-time").send_keys("100000")
@@ -121,12 +162,23 @@ class BrowserReportTest(unittest.TestCase):
         self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
         self.assertEqual(self.driver.find_element(By.ID, "card-name").text, name)
         self.assertEqual(self.driver.find_element(By.ID, "card-error-code").text, failed["error"]["code"])
+        # No asset was written: no asset section naming a file that never existed.
+        self.assertNotIn("Asset", card_headings(self.driver))
+        self.assertEqual(card_field(self.driver, "file size"), "")
 
     def test_4_damaged_asset_card_shows_its_code(self):
         self.driver.find_element(By.ID, "filter-name").send_keys("damaged")
         self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
         self.assertRegex(self.driver.find_element(By.ID, "card-error-code").text, r"^[A-Z0-9_]+$")
         self.assertIn("invalid", self.driver.find_element(By.ID, "card-validation").text)
+        # The file's size now; the manifest's figures under their own heading, as the bake's.
+        now = os.path.getsize(os.path.join(self.library, "damaged.obj.vox.h5"))
+        self.assertEqual(card_field(self.driver, "file size now"), js_bytes(now))
+        self.assertIn("Recorded at bake (not this file now)", card_headings(self.driver))
+        self.driver.find_element(By.CSS_SELECTOR, "#card .close").click()
+        cells = self.driver.find_elements(By.CSS_SELECTOR, "#table-rows .trow > div")
+        self.assertEqual(cells[5].text, js_bytes(now))  # the table's size column too
+        self.assertEqual(cells[4].text, "")  # and no grid: the recorded one is not this file's
 
     def test_4b_built_asset_card_names_its_format_and_estimates(self):
         self.driver.find_element(By.ID, "filter-name").send_keys("tet.obj")
@@ -163,6 +215,11 @@ class BrowserReportTest(unittest.TestCase):
         # 24 against 96 voxels: smaller files everywhere something was built in both.
         self.assertGreater(counts["shrank"], 0)
         self.assertEqual(counts["grew"], 0)
+        # Built in both manifests, but its asset here is unreadable: a change of state all the same.
+        self.assertEqual(counts["status"], 1)
+        line = self.driver.find_element(By.CSS_SELECTOR, '[data-change-list="status"] > div')
+        self.assertEqual(line.get_attribute("data-output"), "damaged.obj.vox.h5")
+        self.assertRegex(line.text, r"^damaged\.obj ok → unreadable [A-Z0-9_]+$")
 
     def test_6b_hostile_strings_stay_text(self):
         self.driver.find_element(By.ID, "filter-name").send_keys("<img")
@@ -180,9 +237,109 @@ class BrowserReportTest(unittest.TestCase):
         self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "#card-pictures img, #open-3d"))
         self.assertFalse(self.driver.find_elements(By.CSS_SELECTOR, "script[src^='https'], script[src^='file']"))
 
+    def test_6c_an_open_mesh_baked_solid_is_not_called_a_shell(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("sheet")
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+        self.assertEqual(card_field(self.driver, "closed"), "no (open border)")  # OPEN_BORDER only: winding number
+
+    def test_6d_same_names_say_where_they_lie(self):
+        self.driver.find_element(By.ID, "filter-name").send_keys("tet.obj")
+        cells = self.driver.find_elements(By.CSS_SELECTOR, "#table-rows .trow > div:first-child")
+        self.assertEqual(sorted(c.get_attribute("title") for c in cells), ["parts/tet.obj.vox.h5", "tet.obj.vox.h5"])
+        self.assertEqual(sorted(c.find_element(By.CLASS_NAME, "where").text for c in cells),
+                         ["parts/tet.obj.vox.h5", "tet.obj.vox.h5"])
+
+    def test_6e_a_tile_of_no_meshes_shows_its_filter(self):
+        self.assertEqual(self.tile("up to date"), "0")
+        self.driver.find_element(By.CSS_SELECTOR, '.tile[data-count="up to date"]').click()
+        self.assertEqual(self.rows_shown(), "0 of %d meshes" % len(self.records))
+        status = Select(self.driver.find_element(By.ID, "filter-status"))
+        self.assertEqual(status.first_selected_option.text, "up to date")
+
+    def test_6f_plot_ticks_name_their_powers_of_ten(self):
+        texts = self.driver.execute_script("return window.canvasTexts")
+        ticks = lambda canvas: [t for c, t, x, y in texts if c == canvas and x == 4]
+        self.assertTrue(ticks("plot-time") and ticks("plot-size"))
+        for t in ticks("plot-time"):
+            self.assertRegex(t, r"^(1|10|100)(,000)* (µs|ms|s)$")
+        for t in ticks("plot-size"):
+            self.assertRegex(t, r"^(1|10|100) (B|kB|MB|GB|TB)$")
+
+    def test_6g_a_narrow_window_scrolls_head_and_rows_together(self):
+        try:
+            self.driver.set_window_size(640, 1000)
+            WebDriverWait(self.driver, 5).until(lambda d: d.execute_script("return window.innerWidth") < 700)
+            state = self.driver.execute_script("""
+              const t = document.getElementById('table'), body = document.getElementById('table-body');
+              t.scrollLeft = 10000; body.scrollLeft = 10000;  // as far right as either goes
+              const lefts = (cells) => [...cells].map((c) => Math.round(c.getBoundingClientRect().left));
+              const de = document.documentElement;
+              return { page: de.scrollWidth - de.clientWidth, table: t.scrollWidth - t.clientWidth,
+                       head: lefts(document.querySelectorAll('#table-head > div')),
+                       row: lefts(document.querySelector('#table-rows .trow').children) };""")
+            self.assertLessEqual(state["page"], 0)  # no page-wide sideways scroll bar
+            self.assertGreater(state["table"], 0)  # the table scrolls instead
+            self.assertEqual(state["head"], state["row"])
+        finally:
+            self.driver.set_window_size(1400, 1000)
+
     def test_7_no_console_errors(self):
         errors = [e for e in self.driver.get_log("browser") if e["level"] == "SEVERE"]
         self.assertEqual(errors, [])
+
+
+class BrowserEdgeCasesTest(unittest.TestCase):
+    """A flat sheet baked as a shell, two failing meshes of one name in two subfolders against an older bake
+    that built one of them, a file name wider than the card, and the same library without pictures."""
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="voxfmt-report-edges-")
+        cls.library, cls.older = fx.make_edge_library(cls.tmp)
+        cls.report, cls.plain = os.path.join(cls.tmp, "report"), os.path.join(cls.tmp, "plain")
+        fx.run("report", cls.library, "-o", cls.report, "--against", cls.older)
+        fx.run("report", cls.library, "-o", cls.plain, "--no-pictures")
+        cls.driver = browser()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.driver.quit()
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def open_card(self, report, name):
+        open_page(self.driver, os.path.join(report, "index.html"))
+        self.driver.find_element(By.ID, "filter-name").send_keys(name)
+        self.driver.find_element(By.CSS_SELECTOR, "#table-rows .trow").click()
+
+    def test_comparison_keeps_same_names_apart(self):
+        open_page(self.driver, os.path.join(self.report, "index.html"))
+        counts = {e.get_attribute("data-change"): int(e.find_element(By.TAG_NAME, "td").text)
+                  for e in self.driver.find_elements(By.CSS_SELECTOR, "#compare-counts tr")}
+        self.assertEqual((counts["appeared"], counts["disappeared"], counts["status"]), (0, 0, 2))
+        lines = {e.get_attribute("data-output"): e.text
+                 for e in self.driver.find_elements(By.CSS_SELECTOR, '[data-change-list="status"] > div')}
+        self.assertEqual(sorted(lines), ["a/x.obj.vox.h5", fx.LONG_NAME + ".vox.h5"])
+        self.assertRegex(lines["a/x.obj.vox.h5"], r"^x\.obj \(a/x\.obj\.vox\.h5\) ok → failed [A-Z_]+$")
+        # The older bake's asset is gone: it was not built there, whatever its manifest says.
+        self.assertRegex(lines[fx.LONG_NAME + ".vox.h5"], r" unreadable FILE_NOT_FOUND → ok$")
+        self.assertEqual([e for e in self.driver.get_log("browser") if e["level"] == "SEVERE"], [])
+
+    def test_a_sheet_baked_as_a_shell_says_so(self):
+        self.open_card(self.report, "flat.obj")
+        self.assertEqual(card_field(self.driver, "closed"), "no (open border), baked as a shell")
+
+    def test_a_long_name_does_not_widen_the_card(self):
+        self.open_card(self.report, "long_")
+        card = self.driver.find_element(By.ID, "card")
+        self.assertEqual(self.driver.find_element(By.ID, "card-name").text, fx.LONG_NAME)
+        overflow = self.driver.execute_script("return arguments[0].scrollWidth - arguments[0].clientWidth", card)
+        self.assertLessEqual(overflow, 0)
+        self.assertTrue(self.driver.find_elements(By.ID, "open-3d"))
+
+    def test_no_3d_view_is_offered_without_its_data(self):
+        self.open_card(self.plain, "long_")
+        self.assertIn("valid", self.driver.find_element(By.ID, "card-validation").text)
+        self.assertFalse(self.driver.find_elements(By.ID, "open-3d"))
 
 
 class BrowserAssetCardTest(unittest.TestCase):
@@ -206,7 +363,7 @@ class BrowserAssetCardTest(unittest.TestCase):
                 headings = [h.text for h in driver.find_elements(By.CSS_SELECTOR, "#card h3")]
                 self.assertIn("Asset", headings)
                 self.assertNotIn("Input", headings)
-                self.assertNotIn("Bake settings", headings)
+                self.assertIn("Bake settings", headings)  # from the asset's provenance, as `inspect` prints them
                 self.assertRegex(driver.find_element(By.ID, "card").text, r"grid\s+\d+ × \d+ × \d+ voxels")
                 for heading in driver.find_elements(By.CSS_SELECTOR, "#card h3"):
                     following = heading.find_element(By.XPATH, "following-sibling::*[1]")

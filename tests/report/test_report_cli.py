@@ -121,6 +121,70 @@ class ReportTest(unittest.TestCase):
         self.assertNotEqual(rows["parts/tet.obj.vox.h5"]["volume"], rows["tet.obj.vox.h5"]["volume"])
         self.assertNotIn("asset_error", rows["parts/tet.obj.vox.h5"])
 
+    def test_failed_meshes_of_one_name_in_two_subfolders_stay_apart(self):
+        # No asset was written for either: each is keyed by where the manifest places it below the library, here
+        # and in the other bake's rows, so a comparison never takes one for the other.
+        library, older = fx.make_edge_library(self.tmp)
+        out = os.path.join(self.tmp, "edge-report")
+        fx.run("report", library, "-o", out, "--against", older, "--no-pictures")
+        data = load_data(out)
+        failed = sorted(r["output_name"] for r in data["rows"] if r["status"] == "failed")
+        self.assertEqual(failed, ["a/x.obj.vox.h5", "b/x.obj.vox.h5"])
+        against = {r["output"]: r for r in data["against"]["rows"]}
+        self.assertEqual(sorted(against), sorted(r["output_name"] for r in data["rows"]))
+        self.assertEqual((against["a/x.obj.vox.h5"]["status"], against["b/x.obj.vox.h5"]["status"]), ("ok", "failed"))
+        # The other bake's asset that is gone is said to be (its assets are not read, only looked for).
+        self.assertEqual(against[fx.LONG_NAME + ".vox.h5"]["asset_error"]["code"], "FILE_NOT_FOUND")
+        self.assertNotIn("asset_error", against["flat.obj.vox.h5"])
+
+    def test_unreadable_assets_carry_their_real_size_or_none(self):
+        rows = {r["output_name"]: r for r in self.data["rows"]}
+        damaged = rows["damaged.obj.vox.h5"]
+        self.assertEqual(damaged["asset_bytes"], os.path.getsize(os.path.join(self.library, "damaged.obj.vox.h5")))
+        self.assertGreater(damaged["file_size_bytes"], damaged["asset_bytes"])  # the manifest's, as recorded at bake
+        self.assertNotIn("asset_bytes", rows["tet.obj.vox.h5"])
+        # A gone asset has no size at all.
+        library = os.path.join(self.tmp, "gone-asset")
+        shutil.copytree(self.library, library)
+        os.remove(os.path.join(library, "box.obj.vox.h5"))
+        out = os.path.join(self.tmp, "gone-asset-report")
+        fx.run("report", library, "-o", out, "--no-pictures")
+        box = next(r for r in load_data(out)["rows"] if r["output_name"] == "box.obj.vox.h5")
+        self.assertEqual(box["asset_error"]["code"], "FILE_NOT_FOUND")
+        self.assertNotIn("asset_bytes", box)
+
+    def test_the_3d_view_is_offered_only_with_its_data(self):
+        built = [r for r in self.data["rows"] if r["status"] == "ok" and "asset_error" not in r]
+        self.assertTrue(all(r.get("has_3d") is True for r in built))
+        out = os.path.join(self.tmp, "no-pictures")
+        fx.run("report", self.library, "-o", out, "--no-pictures")
+        rows = load_data(out)["rows"]
+        self.assertTrue([r for r in rows if "detail" in r])  # the card's details still load
+        for row in rows:
+            self.assertNotIn("has_3d", row)
+            if "detail" in row:
+                self.assertNotIn("scene", load_asset(out, row))
+
+    def test_only_the_library_and_its_shards_manifests_are_read(self):
+        # A backup beside the manifest must not bring back what the library no longer has; a shard's manifest counts.
+        library = os.path.join(self.tmp, "with-backup")
+        shutil.copytree(self.library, library)
+        gone = dict(fx.manifest(library)[0], output=os.path.join(library, "gone.vox.h5"), input="gone.obj")
+        gone.pop("output_from_manifest", None)
+        for name in ("manifest-backup.jsonl", "manifest.old.jsonl", "manifest.shard-0-of-2.jsonl.bak",
+                     "manifest.shard-x-of-2.jsonl"):
+            with open(os.path.join(library, name), "w") as f:
+                f.write(json.dumps(gone) + "\n")
+        shard = dict(gone, output=os.path.join(library, "sharded.vox.h5"), input="sharded.obj", status="failed")
+        with open(os.path.join(library, "manifest.shard-1-of-2.jsonl"), "w") as f:
+            f.write(json.dumps(shard) + "\n")
+        out = os.path.join(self.tmp, "with-backup-report")
+        summary = json.loads(fx.run("report", library, "-o", out, "--no-pictures", "--json").stdout)
+        self.assertEqual(summary["meshes"], self.summary["meshes"] + 1)
+        names = [r["name"] for r in load_data(out)["rows"]]
+        self.assertIn("sharded.obj", names)
+        self.assertNotIn("gone.obj", names)
+
     def test_a_hostile_record_cannot_point_the_page_elsewhere(self):
         row = next(r for r in self.data["rows"] if r["output_name"] == "hostile.vox.h5")
         self.assertNotIn("detail", row)
@@ -215,6 +279,29 @@ class ReportTest(unittest.TestCase):
             self.assertIn("holds files a report does not write", p.stderr)
             self.assertTrue(os.path.isfile(os.path.join(site, sub, name)))
 
+    def test_a_folder_is_replaced_only_when_it_is_a_report(self):
+        # The names a report writes are common ones: a site's index.html or someone's data.js alone is no report.
+        cases = {"only-index": {"index.html": "<p>my site</p>"},
+                 "only-data": {"data.js": "var mine = 1;\n"},
+                 "page-and-data": {"index.html": "<p>x</p>", "data.js": "window.OTHER = 1;\n"}}
+        for case, files in cases.items():
+            site = os.path.join(self.tmp, "site-" + case)
+            os.makedirs(site)
+            for name, text in files.items():
+                with open(os.path.join(site, name), "w") as f:
+                    f.write(text)
+            p = fx.run("report", self.library, "-o", site, "--no-pictures", check=False)
+            self.assertEqual(p.returncode, 2, (case, p.stderr))
+            self.assertIn("holds files a report does not write", p.stderr)
+            for name, text in files.items():
+                with open(os.path.join(site, name)) as f:
+                    self.assertEqual(f.read(), text, case)
+        # An empty folder holds nothing to lose; a previous report is replaced (test_run_twice_replaces_the_report).
+        empty = os.path.join(self.tmp, "empty-folder")
+        os.makedirs(empty)
+        p = fx.run("report", self.library, "-o", empty, "--no-pictures", check=False)
+        self.assertEqual(p.returncode, 0, p.stderr)
+
     def test_usage_errors(self):
         p = fx.run("report", os.path.join(self.tmp, "nowhere"), check=False)
         self.assertEqual(p.returncode, 2)
@@ -254,6 +341,13 @@ class ReportTest(unittest.TestCase):
         self.assertGreater(data["rows"][0]["pointshell"]["points_per_level"][-1], 0)
         self.assertGreater(data["rows"][0]["volume"], 0)
         self.assertIn("scene", load_asset(out, data["rows"][0]))
+        self.assertTrue(data["rows"][0]["has_3d"])
+        # The bake's warnings and settings, from the asset's provenance, as plain `inspect` prints them.
+        p = fx.run("inspect", os.path.join(self.library, "sheet.obj.vox.h5"), "--html", os.path.join(self.tmp, "sheet"))
+        self.assertEqual(p.returncode, 0, p.stderr)
+        sheet = load_data(os.path.join(self.tmp, "sheet"))["rows"][0]
+        self.assertIn("OPEN_BORDER", [w["code"] for w in sheet["warnings"]])
+        self.assertEqual(sheet["build_parameters"]["resolution"], 24)
         # Bare relative names, run from the asset's own folder (its parent path is empty).
         here = os.path.join(self.tmp, "here")
         os.makedirs(here, exist_ok=True)

@@ -40,8 +40,8 @@ constexpr int kSliceSize = 160;         // pixels of the slice's longer side
 constexpr size_t kScenePoints = 12000;  // point-shell points of the 3D view (whole levels)
 constexpr uint32_t kSceneGrid = 40;     // cells of the 3D view's distance grid on its longest side
 constexpr size_t kMaxFindings = 50;     // validation findings listed per asset
-constexpr const char* kReportKeys[] = {"id",    "name",        "output_name", "detail",      "views",
-                                       "slice", "asset_error", "validation",  "memory_bytes"};
+constexpr const char* kReportKeys[] = {"id",          "name",       "output_name",  "detail", "views",      "slice",
+                                       "asset_error", "validation", "memory_bytes", "has_3d", "asset_bytes"};
 
 std::string utc_now() {
   const std::time_t now = std::time(nullptr);
@@ -62,13 +62,28 @@ struct ManifestRecords {
   size_t skipped_lines = 0;
 };
 
-// The manifest files of a library: manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl.
+// A shard's manifest as `batch --shard I/N` names it: manifest.shard-I-of-N.jsonl, I and N decimal.
+bool shard_manifest_name(const std::string& name) {
+  const std::string prefix = "manifest.shard-", middle = "-of-", suffix = ".jsonl";
+  if (name.size() <= prefix.size() + suffix.size() || name.rfind(prefix, 0) != 0 ||
+      name.compare(name.size() - suffix.size(), suffix.size(), suffix) != 0)
+    return false;
+  const std::string numbers = name.substr(prefix.size(), name.size() - prefix.size() - suffix.size());
+  const size_t of = numbers.find(middle);
+  const auto decimal = [](const std::string& s) {
+    return !s.empty() && s.find_first_not_of("0123456789") == std::string::npos;
+  };
+  return of != std::string::npos && decimal(numbers.substr(0, of)) && decimal(numbers.substr(of + middle.size()));
+}
+
+// The manifest files of a library: manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl. Only those: a
+// manifest-backup.jsonl or manifest.old.jsonl beside them would bring back meshes the library no longer has.
 std::vector<fs::path> manifest_files(const std::string& library) {
   std::vector<fs::path> files;
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(library, ec)) {
     const std::string name = entry.path().filename().string();
-    if (name.rfind("manifest", 0) == 0 && entry.path().extension() == ".jsonl" && entry.is_regular_file(ec))
+    if ((name == "manifest.jsonl" || shard_manifest_name(name)) && entry.is_regular_file(ec))
       files.push_back(entry.path());
   }
   std::sort(files.begin(), files.end());
@@ -211,8 +226,11 @@ std::string mesh_name(const nlohmann::json& record) {
 
 // The asset's path below the library: the longest tail of the manifest's output that names a file in the
 // library (batch records OUTDIR as it was typed, relative to where it ran; a library moved or copied keeps its
-// layout), else the output's file name. What the report shows, and what two bakes are compared by.
-std::string library_relative(const std::string& library, const std::string& output) {
+// layout), else where the record places it below the library (a failed mesh's asset never existed: its
+// subfolder still tells it from a mesh of the same name in another), else the output's file name. What the
+// report shows, and what two bakes are compared by.
+std::string library_relative(const std::string& library, const nlohmann::json& record) {
+  const std::string output = path_of(record, "output");
   std::vector<fs::path> parts;
   for (const fs::path& part : fs::path(output).relative_path()) parts.push_back(part);
   std::error_code ec;
@@ -226,6 +244,14 @@ std::string library_relative(const std::string& library, const std::string& outp
     fs::path tail;
     for (size_t k = first; k < parts.size(); ++k) tail /= parts[k];
     if (fs::is_regular_file(fs::path(library) / tail, ec)) return tail.generic_string();
+  }
+  // A record with output_from_manifest was located from its manifest (locate_output); an older one's absolute
+  // output means the same file from anywhere. A relative output of an older record is from the batch's working
+  // directory, unknown here: only its file name is trusted.
+  if (!path_of(record, "output_from_manifest").empty() || fs::path(output).is_absolute()) {
+    const fs::path below = fs::path(manifest_output_key(output)).lexically_relative(resolved_folder(library));
+    if (!below.empty() && *below.begin() != ".." && *below.begin() != "." && below.is_relative())
+      return below.generic_string();
   }
   return fs::path(output).filename().string();
 }
@@ -301,6 +327,10 @@ Status describe_asset(const std::string& path, const ReadAsset& read_result, con
   const std::vector<Issue>& warnings = read_result.warnings;
   if (!asset) {
     row["asset_error"] = error_json(asset.error());
+    // The file's size now (none when it is gone): the manifest's figures are the bake's, not this file's.
+    std::error_code ec;
+    if (fs::is_regular_file(path, ec))
+      if (const uintmax_t size = fs::file_size(path, ec); !ec) row["asset_bytes"] = size;
     const std::vector<Issue> findings = validate_file(path, read);
     row["validation"] = {{"valid", false}, {"findings", issues_json(findings)}, {"count", findings.size()}};
     return Status::success();
@@ -315,6 +345,17 @@ Status describe_asset(const std::string& path, const ReadAsset& read_result, con
   const nlohmann::json mass =
       inspect.is_object() ? inspect.value("mass_properties", nlohmann::json()) : nlohmann::json();
   if (!row.contains("volume") && mass.is_object() && mass.contains("volume")) row["volume"] = mass["volume"];
+  // And its bake's warnings and settings from its provenance, as plain `inspect` prints them.
+  const nlohmann::json provenance =
+      inspect.is_object() ? inspect.value("provenance", nlohmann::json()) : nlohmann::json();
+  if (provenance.is_object()) {
+    const auto warnings_it = provenance.find("build_warnings");
+    if (!row.contains("warnings") && warnings_it != provenance.end() && warnings_it->is_array())
+      row["warnings"] = *warnings_it;
+    const auto parameters_it = provenance.find("build_parameters");
+    if (!row.contains("build_parameters") && parameters_it != provenance.end())
+      row["build_parameters"] = *parameters_it;
+  }
   nlohmann::json detail = {{"inspect", inspect}};
   const std::string name = std::to_string(id);
   if (pictures) {
@@ -322,6 +363,7 @@ Status describe_asset(const std::string& path, const ReadAsset& read_result, con
     if (write_views_png(asset.value(), kViewSize, (dir / views).string())) row["views"] = views;
     if (write_mid_slice_png(asset.value(), kSliceSize, (dir / slice).string())) row["slice"] = slice;
     detail["scene"] = scene_data(asset.value(), kScenePoints, kSceneGrid);
+    row["has_3d"] = true;  // the card offers the 3D view only then (--no-pictures writes no scene)
   }
   const std::string script = "assets/" + name + ".js";
   if (Status s = write_text(dir / script, "voxfmtReport.addAsset(" + name + ", " + script_value(detail) + ");\n"); !s)
@@ -382,14 +424,29 @@ bool report_entry(const fs::directory_entry& entry) {
   return false;
 }
 
-// A folder that holds only what `voxfmt report` writes (or nothing): safe to replace.
+// The first line every report's data.js starts with: what tells a previous report from a folder of someone's that
+// happens to hold an index.html or a data.js of its own.
+constexpr const char* kDataPrefix = "window.VOXFMT_REPORT = ";
+
+bool report_data_file(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  std::string start(std::strlen(kDataPrefix), '\0');
+  in.read(start.data(), std::streamsize(start.size()));
+  return in && start == kDataPrefix;
+}
+
+// A folder that holds nothing, or a previous report and only what `voxfmt report` writes: safe to replace. Names
+// alone are not enough (a site's index.html, someone's data.js): a report's data.js must say it is one.
 bool replaceable(const fs::path& out) {
   std::error_code ec;
   if (!fs::exists(out, ec)) return true;
   if (!fs::is_directory(out, ec) || fs::is_symlink(out, ec)) return false;
-  for (const auto& entry : fs::directory_iterator(out, ec))
+  bool empty = true;
+  for (const auto& entry : fs::directory_iterator(out, ec)) {
     if (!report_entry(entry)) return false;
-  return !ec;
+    empty = false;
+  }
+  return !ec && (empty || report_data_file(out / "data.js"));
 }
 
 // Leftovers of killed runs beside `out` (STEM.partial-PID, STEM.old-PID whose process is gone; temporary_stem).
@@ -484,15 +541,20 @@ Result<ReportInfo> write_report_folder(fs::path out, const std::function<Status(
   return info;
 }
 
-// The fields the comparison needs of each record of the other library.
+// The fields the comparison needs of each record of the other library. Its assets are not read (that would double
+// the report's time), but one the manifest calls built and that is gone is said to be: a mesh whose asset vanished
+// there and is back here changed state.
 nlohmann::json compact_rows(const std::string& library, const std::vector<nlohmann::json>& records) {
   nlohmann::json rows = nlohmann::json::array();
   for (const nlohmann::json& r : records) {
-    nlohmann::json row = {{"name", mesh_name(r)},
-                          {"output", utf8_escaped(library_relative(library, path_of(r, "output")))},
-                          {"status", text_of(r, "status")}};
+    const std::string relative = library_relative(library, r), status = text_of(r, "status");
+    nlohmann::json row = {{"name", mesh_name(r)}, {"output", utf8_escaped(relative)}, {"status", status}};
     for (const char* key : {"file_size_bytes", "total_s", "error", "warnings", "voxelmap", "tool_version"})
       if (r.contains(key)) row[key] = r[key];
+    std::error_code ec;
+    if ((status == "ok" || status == "up_to_date") &&
+        !fs::is_regular_file(asset_path(library, relative, path_of(r, "output")), ec))
+      row["asset_error"] = {{"code", "FILE_NOT_FOUND"}, {"message", utf8_escaped(relative) + ": not in the library"}};
     rows.push_back(std::move(row));
   }
   return rows;
@@ -516,7 +578,7 @@ nlohmann::json report_data(const char* kind, const std::string& library, const L
 Status library_row(const LibraryReportOptions& options, nlohmann::json record, size_t i, const fs::path& dir,
                    nlohmann::json& row) {
   const std::string output = path_of(record, "output");
-  const std::string relative = library_relative(options.library, output);
+  const std::string relative = library_relative(options.library, record);
   row = std::move(record);
   row.erase("command");  // the bake's argv: long, and the build parameters say the same
   row.erase("output_mtime_ns");
@@ -592,7 +654,7 @@ Result<ReportInfo> write_library_report(const LibraryReportOptions& options) {
     for (nlohmann::json& row : rows.value()) row_array.push_back(std::move(row));
     const nlohmann::json data =
         report_data("library", options.library, options, manifest->skipped_lines, std::move(row_array), against);
-    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
+    return write_text(dir / "data.js", kDataPrefix + script_value(data) + ";\n");
   });
   if (!written) return written.error();
   ReportInfo info = counts;
@@ -617,7 +679,7 @@ Result<ReportInfo> write_asset_report(const std::string& asset, const std::strin
     // absolute first: a bare file name ("b.vox.h5") has an empty parent, which fs::absolute refuses
     const nlohmann::json data = report_data("asset", fs::absolute(asset).parent_path().string(), defaults, 0,
                                             nlohmann::json::array({row}), nullptr);
-    return write_text(dir / "data.js", "window.VOXFMT_REPORT = " + script_value(data) + ";\n");
+    return write_text(dir / "data.js", kDataPrefix + script_value(data) + ";\n");
   });
   if (!written) return written.error();
   ReportInfo info = written.value();

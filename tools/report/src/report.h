@@ -23,8 +23,8 @@ namespace voxfmt::report {
 
 struct LibraryReportOptions {
   std::string library;           ///< folder holding manifest.jsonl and the assets
-  std::string out;               ///< report folder (default LIBRARY/report); replaced only when it holds nothing else
-  std::string manifest;          ///< the manifest to read ("" = LIBRARY/manifest*.jsonl: the library's and its shards')
+  std::string out;               ///< report folder (default LIBRARY/report); replaced only when empty or a report
+  std::string manifest;          ///< the manifest to read ("" = LIBRARY/manifest.jsonl and manifest.shard-I-of-N.jsonl)
   std::string against;           ///< another baked library to compare with ("" = none)
   double size_threshold = 0.10;  ///< relative growth or shrinkage of a file that the comparison lists
   double time_threshold = 0.25;  ///< relative slow-down of a bake that the comparison lists
@@ -44,12 +44,14 @@ struct ReportInfo {
 };
 
 /// Writes the report of a library. FILE_NOT_FOUND when LIBRARY (or AGAINST) has no manifest.jsonl, BAD_OPTION
-/// when OUT exists and holds anything a report does not write, WRITE_FAILED when it cannot be written. A damaged asset
-/// or a damaged manifest line never fails the report: the asset's card carries the coded error.
+/// when OUT exists and is neither empty nor a previous report holding only what a report writes, WRITE_FAILED when
+/// it cannot be written. A damaged asset or a damaged manifest line never fails the report: the asset's card carries
+/// the coded error.
 Result<ReportInfo> write_library_report(const LibraryReportOptions& options);
 
-/// Whether a report could be written into `out`: BAD_OPTION where it is a file system's root or a folder that holds
-/// anything a report does not write (never replaced). Cheap: `batch --report` checks before its bakes.
+/// Whether a report could be written into `out`: BAD_OPTION where it is a file system's root, or a folder that
+/// holds anything a report does not write or is no previous report (its data.js says so): never replaced. Cheap:
+/// `batch --report` checks before its bakes.
 Status check_report_folder(const std::string& out);
 
 /// The same page for one asset (`voxfmt inspect ASSET --html OUT`), its card open. Fails like read_asset when

@@ -35,6 +35,18 @@
     if (s >= 60) return (s / 60).toFixed(1) + ' min';
     return s >= 10 ? s.toFixed(1) + ' s' : s.toFixed(2) + ' s';
   }
+  // Axis ticks sit at powers of ten: named in decimal units ("10 kB", "1 ms"), where bytes() and seconds() would
+  // round them ("9.8 KiB", "0.00 s").
+  function tickBytes(b) {
+    const units = [[1e12, 'TB'], [1e9, 'GB'], [1e6, 'MB'], [1e3, 'kB']];
+    for (const [size, unit] of units) if (b >= size) return Number((b / size).toPrecision(3)) + ' ' + unit;
+    return Number(b.toPrecision(3)) + ' B';
+  }
+  function tickSeconds(s) {
+    if (s >= 1) return Number(s.toPrecision(3)).toLocaleString('en-US') + ' s';
+    if (s >= 1e-3) return Number((s * 1e3).toPrecision(3)) + ' ms';
+    return Number((s * 1e6).toPrecision(3)) + ' µs';
+  }
   // Only the report's own keys, never inherited ones, name files to load.
   const own = (o, key) => Object.prototype.hasOwnProperty.call(o, key) && typeof o[key] === 'string' && /^(img|assets)\/[0-9]+[-a-z]*\.(png|js)$/.test(o[key]);
   const count = (v) => (num(v) === null ? '' : v.toLocaleString('en-US'));
@@ -52,20 +64,31 @@
     const warnings = Array.isArray(r.warnings) ? r.warnings.filter((w) => w && typeof w === 'object') : [];
     const error = r.error && typeof r.error === 'object' ? r.error : r.asset_error && typeof r.asset_error === 'object' ? r.asset_error : null;
     const dims = r.voxelmap && Array.isArray(r.voxelmap.dims) && r.voxelmap.dims.length === 3 ? r.voxelmap.dims.map(Number) : null;
-    const state = r.asset_error ? 'unreadable' : text(r.status) || 'unknown';
+    const unreadable = !!r.asset_error;
+    const state = unreadable ? 'unreadable' : text(r.status) || 'unknown';
+    // Only a readable built asset's grid, size and distances are a file's now: an unreadable asset's in the manifest
+    // are the bake's (the card shows them as recorded at bake, the table its real size), and a failed mesh has no
+    // file. The table, the plots and the totals leave the others out.
+    const readable = !unreadable && (r.status === 'ok' || r.status === 'up_to_date');
+    const current = readable ? dims : null;
     return {
-      raw: r, id: r.id, name: text(r.name), state, warnings,
+      raw: r, id: r.id, name: text(r.name), output: text(r.output_name), state, warnings,
       warningCodes: warnings.map((w) => text(w.code)),
       errorCode: error ? text(error.code) : '',
       error,
       triangles: num(r.input_triangles),
-      dims,
-      resolution: dims ? Math.max(dims[0], dims[1], dims[2]) : null,
-      size: num(r.file_size_bytes),
+      dims: current,
+      recordedDims: dims,
+      resolution: current ? Math.max(current[0], current[1], current[2]) : null,
+      size: unreadable ? num(r.asset_bytes) : readable ? num(r.file_size_bytes) : null,
       time: num(r.total_s) !== null ? r.total_s : num(r.wall_s),
-      stored: r.voxelmap ? num(r.voxelmap.stored_distances) : null,
+      stored: r.voxelmap && readable ? num(r.voxelmap.stored_distances) : null,
     };
   });
+  // Names shared by meshes in different subfolders: those rows also say where they lie below the library.
+  const nameCount = new Map();
+  for (const r of rows) nameCount.set(r.name, (nameCount.get(r.name) || 0) + 1);
+  const ambiguous = (name) => nameCount.get(name) > 1;
   const byId = new Map(rows.map((r) => [r.id, r]));
 
   // ---- header
@@ -97,7 +120,8 @@
       tile('', seconds(sum('time')), 'total bake time'),
       tile('', count(sum('triangles')), 'input triangles'),
       tile('', count(sum('stored')), 'stored distances'),
-      tile('', bytes(sum('size')), 'asset bytes')));
+      // Readable assets only: an unreadable one's bytes are a broken file's (its distances are left out already).
+      tile('', bytes(rows.reduce((a, r) => a + (r.state === 'unreadable' ? 0 : r.size || 0), 0)), 'asset bytes')));
     const codes = (list) => {
       const m = new Map();
       for (const c of list) m.set(c, (m.get(c) || 0) + 1);
@@ -115,7 +139,9 @@
     };
     s.append(...[bars('Failures by code', failures, 'fail'), bars('Warnings by code (meshes)', warnings, 'warn')].flat().filter(Boolean));
     for (const [code] of failures.concat(warnings)) $('filter-code').append(el('option', { value: code }, code));
-    for (const st of [...new Set(rows.map((r) => r.state))].sort()) $('filter-status').append(el('option', { value: st }, st.replace(/_/g, ' ')));
+    // Every state a tile can filter on, present or not: the dropdown always names the filter that emptied the table.
+    const states = new Set(['ok', 'up_to_date', 'failed', 'unreadable', ...rows.map((r) => r.state)]);
+    for (const st of [...states].sort()) $('filter-status').append(el('option', { value: st }, st.replace(/_/g, ' ')));
   }
 
   // ---- comparison with another bake
@@ -123,26 +149,43 @@
     if (!R.against || !Array.isArray(R.against.rows)) return;
     const sec = $('compare');
     sec.hidden = false;
+    // Keyed by the asset's path below each library: meshes of one name in two subfolders stay apart.
     const old = new Map(R.against.rows.map((r) => [text(r.output), r]));
-    const now = new Map(rows.map((r) => [text(r.raw.output_name), r]));
+    const now = new Map(rows.map((r) => [r.output, r]));
     const built = (st) => st === 'ok' || st === 'up_to_date';
+    // Each side's state as its table would show it: an asset the manifest calls built that is gone or unreadable
+    // is not built, whatever the manifest says.
+    const oldState = (o) => (o.asset_error ? 'unreadable' : text(o.status) || 'unknown');
+    const oldError = (o) => (o.error && typeof o.error === 'object' ? o.error : o.asset_error && typeof o.asset_error === 'object' ? o.asset_error : null);
+    const kind = (st) => (built(st) ? 'built' : st);
+    // A name two meshes share (here or there) is followed by the asset's path, which tells them apart.
+    const nameCount = new Map();
+    for (const key of new Set([...old.keys(), ...now.keys()])) {
+      const name = now.has(key) ? now.get(key).name : text(old.get(key).name);
+      nameCount.set(name, (nameCount.get(name) || 0) + 1);
+    }
+    const label = (name, key) => (nameCount.get(name) > 1 ? name + ' (' + key + ')' : name);
     const t = R.thresholds || { size: 0.1, time: 0.25 };
     const changes = { appeared: [], disappeared: [], status: [], grew: [], shrank: [], slower: [] };
     for (const [key, r] of now) {
       const o = old.get(key);
-      if (!o) { changes.appeared.push([r.name, r.state]); continue; }
-      if (built(o.status) !== built(r.raw.status) || (o.error && o.error.code) !== (r.raw.error && r.raw.error.code))
-        changes.status.push([r.name, text(o.status) + (o.error ? ' ' + text(o.error.code) : '') + ' → ' + r.state + (r.errorCode ? ' ' + r.errorCode : '')]);
+      const line = (what) => [label(r.name, key), what, key];
+      if (!o) { changes.appeared.push(line(r.state)); continue; }
+      const os = oldState(o), oe = oldError(o), oc = oe ? text(oe.code) : '';
+      if (kind(os) !== kind(r.state) || oc !== r.errorCode)
+        changes.status.push(line(os.replace(/_/g, ' ') + (oc ? ' ' + oc : '') + ' → ' + r.state.replace(/_/g, ' ') + (r.errorCode ? ' ' + r.errorCode : '')));
+      // Sizes and times of readable bakes on both sides only: an unreadable asset's figures are not its file's.
+      if (!built(os) || !built(r.state)) continue;
       if (num(o.file_size_bytes) && r.size) {
         const ratio = r.size / o.file_size_bytes - 1;
-        if (ratio > t.size) changes.grew.push([r.name, bytes(o.file_size_bytes) + ' → ' + bytes(r.size) + ' (+' + (100 * ratio).toFixed(0) + ' %)']);
-        if (ratio < -t.size) changes.shrank.push([r.name, bytes(o.file_size_bytes) + ' → ' + bytes(r.size) + ' (' + (100 * ratio).toFixed(0) + ' %)']);
+        if (ratio > t.size) changes.grew.push(line(bytes(o.file_size_bytes) + ' → ' + bytes(r.size) + ' (+' + (100 * ratio).toFixed(0) + ' %)'));
+        if (ratio < -t.size) changes.shrank.push(line(bytes(o.file_size_bytes) + ' → ' + bytes(r.size) + ' (' + (100 * ratio).toFixed(0) + ' %)'));
       }
       // Only fresh bakes on both sides: an up-to-date record keeps the older bake's time.
       if (num(o.total_s) && r.time && o.status === 'ok' && r.raw.status === 'ok' && r.time / o.total_s - 1 > t.time)
-        changes.slower.push([r.name, seconds(o.total_s) + ' → ' + seconds(r.time) + ' (×' + (r.time / o.total_s).toFixed(2) + ')']);
+        changes.slower.push(line(seconds(o.total_s) + ' → ' + seconds(r.time) + ' (×' + (r.time / o.total_s).toFixed(2) + ')'));
     }
-    for (const [key, o] of old) if (!now.has(key)) changes.disappeared.push([text(o.name), text(o.status)]);
+    for (const [key, o] of old) if (!now.has(key)) changes.disappeared.push([label(text(o.name), key), oldState(o).replace(/_/g, ' '), key]);
     const labels = {
       appeared: 'appeared', disappeared: 'disappeared', status: 'changed status',
       grew: 'grew by more than ' + Math.round(100 * t.size) + ' %', shrank: 'shrank by more than ' + Math.round(100 * t.size) + ' %',
@@ -154,7 +197,7 @@
     for (const k of Object.keys(changes)) {
       if (!changes[k].length) continue;
       sec.append(el('h3', {}, labels[k]), el('div', { class: 'change-list', 'data-change-list': k },
-        changes[k].map(([name, what]) => el('div', {}, el('b', {}, name), ' ', what))));
+        changes[k].map(([name, what, key]) => el('div', { 'data-output': key, title: key }, el('b', {}, name), ' ', what))));
     }
   }
 
@@ -210,7 +253,7 @@
 
   // ---- the table: only the rows in view are in the DOM (10,000 meshes stay fast)
   const columns = [
-    { key: 'name', label: 'mesh', cell: (r) => r.name },
+    { key: 'name', label: 'mesh', title: (r) => r.output, cell: (r) => [r.name, ambiguous(r.name) ? el('span', { class: 'where' }, ' ' + r.output) : null] },
     { key: 'state', label: 'status', cell: (r) => el('span', { class: 'status ' + r.state }, r.state.replace(/_/g, ' ')) },
     { key: 'codes', label: 'codes', cell: (r) => [r.errorCode ? el('span', { class: 'code error' }, r.errorCode) : null, ...r.warningCodes.map((c) => el('span', { class: 'code' }, c))] },
     { key: 'triangles', label: 'triangles', num: true, cell: (r) => count(r.triangles) },
@@ -265,7 +308,7 @@
     box.style.top = first * ROW + 'px';
     box.replaceChildren(...visible.slice(first, last).map((r) =>
       el('div', { class: 'trow', role: 'row', 'data-id': r.id, onclick: () => openCard(r.id) },
-        columns.map((c) => el('div', { class: c.num ? 'num' : '', role: 'cell' }, c.cell(r))))));
+        columns.map((c) => el('div', { class: c.num ? 'num' : '', role: 'cell', title: c.title ? c.title(r) : null }, c.cell(r))))));
   }
   function setFilter(change) {
     Object.assign(filter, change);
@@ -333,23 +376,24 @@
     card.dataset.id = id;
     const p = r.build_parameters && typeof r.build_parameters === 'object' ? r.build_parameters : {};
     const warnings = row.warnings.map((w) => el('li', {}, el('span', { class: 'code' }, text(w.code)), text(w.message)));
+    // An open surface is baked solid by the winding number unless the bake fell back to a shell (SHELL_MODE) or
+    // was asked for one (--shell-thickness).
+    const shell = row.warningCodes.includes('SHELL_MODE') || num(p.shell_thickness) > 0;
+    const closed = r.closed === undefined ? '' : (r.closed ? 'yes' : 'no (open border)') + (shell ? ', baked as a shell' : '');
     card.replaceChildren(...[
       single ? null : el('button', { class: 'close', type: 'button', onclick: closeCard, title: 'close (Esc)' }, '×'),
-      el('h2', { id: 'card-name' }, row.name),
+      el('h2', { id: 'card-name', title: row.output || null }, row.name),
+      ambiguous(row.name) && !single ? el('div', { class: 'note', id: 'card-where' }, row.output) : null,
       el('div', {}, el('span', { class: 'status ' + row.state, id: 'card-status' }, row.state.replace(/_/g, ' ')), r.tool_version ? ' · voxfmt ' + text(r.tool_version) : '', r.finished_utc ? ' · ' + text(r.finished_utc) : ''),
       row.error ? el('div', { class: 'error-box', id: 'card-error' }, el('span', { class: 'code error', id: 'card-error-code' }, text(row.error.code)), text(row.error.message)) : null,
       el('div', { class: 'pictures', id: 'card-pictures' },
         own(r, 'views') ? el('figure', {}, el('img', { src: r.views, alt: 'front, side and top views of the point shell', width: 384, height: 128 }), el('figcaption', {}, 'point shell: front · side · top')) : null,
         own(r, 'slice') ? el('figure', {}, el('img', { src: r.slice, alt: 'middle slice of the voxelmap' }), el('figcaption', {}, 'mid slice: inside red, outside blue, surface black')) : null),
-      own(r, 'detail') ? el('div', { id: 'viewer' }, el('button', { type: 'button', id: 'open-3d', onclick: () => open3d(row) }, 'Open the 3D view')) : null,
+      own(r, 'detail') && r.has_3d === true ? el('div', { id: 'viewer' }, el('button', { type: 'button', id: 'open-3d', onclick: () => open3d(row) }, 'Open the 3D view')) : null,
       titled('Input', [['file', text(r.input)], ['triangles', count(r.input_triangles)], ['vertices', count(r.input_vertices)], ['bytes', bytes(r.input_bytes)],
-        ['closed', r.closed === undefined ? '' : r.closed ? 'yes' : 'no (baked as a shell)'], ['sha256', text(r.source_sha256)]]),
+        ['closed', closed], ['sha256', text(r.source_sha256)]]),
       warnings.length ? [el('h3', {}, 'Bake warnings'), el('ul', { class: 'findings', id: 'card-warnings' }, warnings)] : null,
-      titled('Asset', [['file', text(r.output)], ['file size', bytes(r.file_size_bytes)], ['memory (loaded)', bytes(r.memory_bytes)],
-        ['grid', row.dims ? row.dims.join(' × ') + ' voxels' : ''], ['voxel size', r.voxelmap && num(r.voxelmap.voxel_size) ? (r.voxelmap.voxel_size * 1000).toPrecision(4) + ' mm' : ''],
-        ['stored distances', count(row.stored)],
-        ['points per level', r.pointshell && Array.isArray(r.pointshell.points_per_level) ? r.pointshell.points_per_level.join(', ') : ''],
-        ['volume', num(r.volume) !== null ? r.volume.toPrecision(4) + ' m³' : '']]),
+      assetSection(row),
       titled('Bake settings', Object.entries(p).map(([k, v]) => [k.replace(/_/g, ' '), text(v)])),
       r.timings_s && typeof r.timings_s === 'object' ? [el('h3', {}, 'Time per stage'),
         table([...Object.entries(r.timings_s).map(([k, v]) => [k, seconds(v)]), ['total', seconds(r.total_s)], ['wall (with the process)', seconds(r.wall_s)], ['peak memory', bytes(r.peak_memory_bytes)]])] : null,
@@ -359,6 +403,21 @@
     loadDetail(row).then((d) => d && provenance(d)).catch((e) => {
       $('card-provenance').append(el('p', { class: 'note' }, e.message));
     });
+  }
+  // The asset's facts: none for a mesh that failed (no file was ever written); for an unreadable one, the file as it
+  // is now, and the manifest's figures labelled as the bake's.
+  function assetSection(row) {
+    const r = row.raw;
+    if (row.state !== 'unreadable' && r.status !== 'ok' && r.status !== 'up_to_date') return null;
+    const figures = [['grid', row.recordedDims ? row.recordedDims.join(' × ') + ' voxels' : ''],
+      ['voxel size', r.voxelmap && num(r.voxelmap.voxel_size) ? (r.voxelmap.voxel_size * 1000).toPrecision(4) + ' mm' : ''],
+      ['stored distances', r.voxelmap ? count(num(r.voxelmap.stored_distances)) : ''],
+      ['points per level', r.pointshell && Array.isArray(r.pointshell.points_per_level) ? r.pointshell.points_per_level.join(', ') : ''],
+      ['volume', num(r.volume) !== null ? r.volume.toPrecision(4) + ' m³' : '']];
+    if (row.state !== 'unreadable')
+      return titled('Asset', [['file', text(r.output)], ['file size', bytes(r.file_size_bytes)], ['memory (loaded)', bytes(r.memory_bytes)], ...figures]);
+    return [...titled('Asset', [['file', text(r.output)], ['file size now', row.size === null ? 'no file' : bytes(row.size)]]),
+      ...(titled('Recorded at bake (not this file now)', [['file size', bytes(r.file_size_bytes)], ...figures]) || [])];
   }
   function validation(r) {
     if (!r.validation) return null;
@@ -646,8 +705,8 @@
   } else {
     summary();
     compare();
-    plot($('plot-time'), 'triangles', 'time', 'input triangles', 'bake time', count, seconds);
-    plot($('plot-size'), 'resolution', 'size', 'longest grid side (voxels)', 'file size', count, bytes);
+    plot($('plot-time'), 'triangles', 'time', 'input triangles', 'bake time', count, tickSeconds);
+    plot($('plot-size'), 'resolution', 'size', 'longest grid side (voxels)', 'file size', count, tickBytes);
     tableHead();
     $('filter-name').addEventListener('input', (e) => { filter.name = e.target.value; apply(); });
     $('filter-status').addEventListener('change', (e) => { filter.status = e.target.value; apply(); });
