@@ -168,19 +168,45 @@ bool Reader::open() {
   return true;
 }
 
+bool Reader::stays_in_file() {
+  // An asset is one file (spec §1): a link that leaves it (external, or user-defined) would open and read whatever
+  // file it names, reached directly or through a soft link. Every link of the file is looked at once, before any
+  // object is opened (an asset has a few dozen; past kMaxLinks the file is no asset).
+  struct LinkVisit {
+    std::string leaving;
+    size_t count = 0;
+  } visit;
+  constexpr size_t kMaxLinks = 100000;
+  const herr_t visited = H5Lvisit(
+      file(), H5_INDEX_NAME, H5_ITER_NATIVE,
+      [](hid_t, const char* name, const H5L_info_t* info, void* data) -> herr_t {
+        auto& v = *static_cast<LinkVisit*>(data);
+        if (info->type != H5L_TYPE_HARD && info->type != H5L_TYPE_SOFT) {
+          v.leaving = name;
+          return 1;
+        }
+        return ++v.count > kMaxLinks ? 1 : 0;
+      },
+      &visit);
+  if (visited < 0) {  // a damaged object header or group: nothing in it can be trusted
+    report(IssueCode::ReadFailed, "/", "cannot walk the file's links (" + last_hdf5_reason() + ")");
+    return false;
+  }
+  if (!visit.leaving.empty()) {
+    report(IssueCode::ReadFailed, "/" + visit.leaving, "is a link to another file; an asset holds its objects itself");
+    return false;
+  }
+  if (visit.count > kMaxLinks) {
+    report(IssueCode::ValueOutOfRange, "/", "holds more than " + std::to_string(kMaxLinks) + " links: not an asset");
+    return false;
+  }
+  return true;
+}
+
 bool Reader::has_member(hid_t parent, const std::string& name) {
   htri_t exists = H5Lexists(parent, name.c_str(), H5P_DEFAULT);
   if (exists < 0) H5Eclear2(H5E_DEFAULT);
   return exists > 0;
-}
-
-bool Reader::links_to_another_file(hid_t parent, const std::string& name) {
-  H5L_info_t info;
-  if (H5Lget_info(parent, name.c_str(), &info, H5P_DEFAULT) < 0) {
-    H5Eclear2(H5E_DEFAULT);
-    return false;  // opening it reports why
-  }
-  return info.type != H5L_TYPE_HARD && info.type != H5L_TYPE_SOFT;
 }
 
 bool Reader::has_attribute(hid_t object, const std::string& name) {
@@ -195,11 +221,6 @@ std::optional<Handle> Reader::open_member(hid_t parent, const std::string& paren
   const char* kind = want_group ? "group" : "dataset";
   if (!has_member(parent, name)) {
     report(IssueCode::MissingObject, path, std::string("required ") + kind + " is missing");
-    return std::nullopt;
-  }
-  // An asset is one file (spec §1): an external link would open, and read, whatever file it names.
-  if (links_to_another_file(parent, name)) {
-    report(IssueCode::ReadFailed, path, "is a link to another file; an asset holds its objects itself");
     return std::nullopt;
   }
   hid_t obj = H5Oopen(parent, name.c_str(), H5P_DEFAULT);
@@ -392,7 +413,7 @@ bool Reader::check_storage(hid_t dset, const std::vector<uint64_t>& dims, const 
 }
 
 std::optional<Layout> Reader::layout(hid_t group, const std::string& name) {
-  if (!has_member(group, name) || links_to_another_file(group, name)) return std::nullopt;  // the read reports it
+  if (!has_member(group, name)) return std::nullopt;
   Handle dset(H5Dopen2(group, name.c_str(), H5P_DEFAULT), H5Dclose);
   if (!dset.valid()) {
     H5Eclear2(H5E_DEFAULT);

@@ -197,8 +197,9 @@ class Reader {
   std::vector<std::string> attribute_names(hid_t object);
 
   void report(IssueCode code, const std::string& path, const std::string& message);
-  /// Whether `name` in `parent` is an external (or user-defined) link: one that leaves the file.
-  bool links_to_another_file(hid_t parent, const std::string& name);
+  /// False (reported) where a link of the file leaves it (external, user-defined), directly or behind a soft link:
+  /// an asset is one file (spec §1). Called once the header is read, before any other object is opened.
+  bool stays_in_file();
 
  private:
   /// Opens member `name` of `parent` and checks it is a group (or a dataset).

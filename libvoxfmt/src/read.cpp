@@ -236,7 +236,7 @@ std::optional<Asset> load_asset_in_process(const std::string& path, std::vector<
   if (!r.open()) return std::nullopt;
   const hid_t root = r.file();
   Asset asset;
-  if (!check_header(r, asset.version)) return std::nullopt;
+  if (!check_header(r, asset.version) || !r.stays_in_file()) return std::nullopt;
   std::error_code size_error;
   const uint64_t file_bytes = std::filesystem::file_size(path, size_error);
   const std::optional<DenseReadBudget> budget = check_read_cost(r, asset.version, size_error ? 0 : file_bytes, options);
@@ -272,7 +272,7 @@ std::optional<Provenance> load_provenance_in_process(const std::string& path, st
   r.set_progress(report_read_progress);
   if (!r.open()) return std::nullopt;
   FormatVersion version;
-  if (!check_header(r, version)) return std::nullopt;
+  if (!check_header(r, version) || !r.stays_in_file()) return std::nullopt;
   Provenance provenance;
   if (auto g = r.group(r.file(), "/", "provenance")) read_provenance(r, g->get(), provenance);
   if (!no_errors_since(issues, first)) return std::nullopt;

@@ -502,6 +502,7 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
   in.poses_a_f64 = poses.a.data();
   in.poses_b_f64 = poses.b.data();
   in.proximity = options.proximity;
+  in.tie = runtime::DirectionTie::ByAddress;  // each pose's contacts are contacts()'s, ties included
   Result<runtime::BatchScene> scene = runtime::BatchScene::create({a.object, b.object}, {{0u, 1u}});
   if (!scene) throw CodedError(scene.error());
 

@@ -487,6 +487,11 @@ def test_a_tie_goes_to_as_points_as_on_the_gpu(sphere_asset: Path) -> None:
     r = scene.contacts(poses_a, poses_b, np.array([0, 1], np.int32), max_contacts=4, proximity=0.002)
     assert (r.count > 0).all()
     assert not r.point_of_b[:, : int(r.count.min())].any()  # A's points, whichever body A is
+    # contacts_batch() is contacts() for many poses, ties included (the address rule, either order).
+    for first, second in ((a, b), (b, a)):
+        single = voxfmt.contacts(first, poses_a[0], second, poses_b[0], proximity=0.002)
+        batch = voxfmt.contacts_batch(first, poses_a[:1], second, poses_b[:1], proximity=0.002)
+        assert int(batch.count[0]) == len(single)
 
 
 def test_a_scenes_bodies_and_pairs_are_read_only(sphere: voxfmt.Body) -> None:

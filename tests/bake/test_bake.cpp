@@ -1469,6 +1469,8 @@ TEST(Bake, AnAssetIsCurrentForItsOwnMeshAndSettingsOnly) {
   Settings faster = settings;
   faster.threads = 1;  // not a parameter of the data
   EXPECT_TRUE(asset_is_current(asset, kMeshes + "/cube.off", faster));
+  std::filesystem::resize_file(asset, std::filesystem::file_size(asset) * 9 / 10);  // damaged past its provenance
+  EXPECT_FALSE(asset_is_current(asset, kMeshes + "/cube.off", settings));
   std::filesystem::remove_all(dir);
 }
 

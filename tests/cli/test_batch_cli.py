@@ -181,6 +181,14 @@ class Batch(unittest.TestCase):
         again = batch_in(self.root, "lib", "elsewhere/library")
         self.assertEqual((again["built"], again["up_to_date"], again["failed_not_retried"], again["not_in_inputs"]),
                          (0, 3, 1, 0))
+        # A manifest in a linked folder, its assets reached by "..": located from the folder the link resolves to.
+        os.makedirs(os.path.join(self.root, "real", "a", "b", "logs"))
+        os.symlink(os.path.join("real", "a", "b", "logs"), os.path.join(self.root, "logs"))
+        for _ in range(2):
+            linked = subprocess.run([VOXFMT, "batch", "lib", "-o", "elsewhere/library", "--manifest", "logs/m.jsonl",
+                                     "--json", "-j", "2", *SMALL], cwd=self.root, capture_output=True, text=True,
+                                    timeout=120)
+            self.assertEqual(json.loads(linked.stdout)["not_in_inputs"], 0, linked.stdout + linked.stderr)
 
     def test_rerun_skips_force_rebuilds_and_option_change_rebuilds(self):
         self.batch(self.lib, expect=1)
@@ -651,7 +659,7 @@ class Batch(unittest.TestCase):
 
         # A group of its own under this process: a stop signal to an orphaned group (a CI's setsid) is discarded.
         p = subprocess.Popen([VOXFMT, "batch", mesh, "-o", self.out, "--json", "-j", "1", "--resolution", "400",
-                              "--points", "20000", "--timeout", "3"], stdout=subprocess.PIPE,
+                              "--points", "20000", "--timeout", "8"], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True, preexec_fn=os.setpgrp)
         try:
             deadline = time.time() + 30
@@ -664,7 +672,7 @@ class Batch(unittest.TestCase):
             while time.time() < deadline and not (state(p.pid) == "T" and all(state(b) == "T" for b in bakes)):
                 time.sleep(0.01)
             self.assertEqual((state(p.pid), [state(b) for b in bakes]), ("T", ["T"] * len(bakes)))
-            time.sleep(3.5)  # stopped longer than --timeout: not a TIMEOUT
+            time.sleep(8.5)  # stopped longer than --timeout (the bake itself runs 1-3 s): not a TIMEOUT
             os.kill(p.pid, signal.SIGCONT)
             out, err = p.communicate(timeout=120)
         finally:

@@ -143,6 +143,17 @@ def write_cases(folder: str | os.PathLike[str]) -> dict[str, Case]:
     add("external_link", ("READ_FAILED",), 1, "/voxelmap/lattice an external link to a dataset of another file",
         post=lattice_elsewhere)
 
+    def lattice_elsewhere_through_a_soft_link(f: h5py.File) -> None:
+        other = folder / "soft_external.data.h5"
+        with h5py.File(other, "w") as o:
+            o.create_dataset("lattice", data=f["/voxelmap/lattice"][()])
+        del f["/voxelmap/lattice"]
+        f["/elsewhere"] = h5py.ExternalLink(str(other), "/lattice")
+        f["/voxelmap/lattice"] = h5py.SoftLink("/elsewhere")
+
+    add("soft_link_to_external", ("READ_FAILED",), 1, "/voxelmap/lattice a soft link to an external link",
+        post=lattice_elsewhere_through_a_soft_link)
+
     def values_elsewhere(f: h5py.File) -> None:
         values = f["/voxelmap/brick_values"][()]
         raw = folder / "brick_values.raw"

@@ -67,10 +67,16 @@ void BatchProgress::draw(const Snapshot& now) const {
        << eta.str();
   for (const Running& r : now.running) line << "  " << terminal_safe(r.name);  // a mesh's name may hold escapes
   std::string text = line.str();
-  // At most columns - 1 characters (one a code point), cut before one, never inside its UTF-8 bytes.
-  size_t characters = 0, end = 0;
-  for (; end < text.size(); ++end)
-    if ((uint8_t(text[end]) & 0xC0) != 0x80 && characters++ == size_t(columns - 1)) break;
+  // At most columns - 1 columns, cut before a character, never inside its UTF-8 bytes. A character of three or four
+  // bytes is counted two columns wide (CJK, emoji), one of one or two bytes one: never more than the terminal holds.
+  size_t used = 0, end = 0;
+  for (; end < text.size(); ++end) {
+    const uint8_t byte = uint8_t(text[end]);
+    if ((byte & 0xC0) == 0x80) continue;  // inside a character
+    const size_t width = byte >= 0xE0 ? 2 : 1;
+    if (used + width > size_t(columns - 1)) break;
+    used += width;
+  }
   text.resize(end);
   std::cerr << "\r\033[K" << text << std::flush;
 }

@@ -148,6 +148,8 @@ Status Scene::contacts(const Environments& in, const Outputs& out, void* stream)
     return Error{IssueCode::BadOption, "batch: proximity must be finite and >= 0"};
   if (!(std::isfinite(in.stiffness) && in.stiffness >= 0))
     return Error{IssueCode::BadOption, "batch: stiffness must be finite and >= 0"};
+  if (in.tie != runtime::DirectionTie::APoints)
+    return Error{IssueCode::BadOption, "the device batch gives ties to A's points (addresses are the host's)"};
   if (in.count == 0) return Status::success();  // nothing to launch (empty arrays may have null pointers)
   if (!out.count) return Error{IssueCode::BadOption, "the batch needs a `count` output"};
   if (in.poses_a_f64 || in.poses_b_f64)

@@ -149,8 +149,8 @@ Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOpti
           }
           const CollisionObject& a = *objects_[pairs_[size_t(pair)][0]];
           const CollisionObject& b = *objects_[pairs_[size_t(pair)][1]];
-          QueryOptions env_query = query;  // the GPU's direction, ties included (core::b_points_in_a)
-          env_query.direction = resolve_direction(a, pa, b, pb, query.direction, DirectionTie::APoints);
+          QueryOptions env_query = query;  // by default the GPU's direction, ties included (core::b_points_in_a)
+          env_query.direction = resolve_direction(a, pa, b, pb, query.direction, in.tie);
           if (trajectory)
             query_contacts(a, pa, b, pb, env_query, set, scratch, trajectory->state);
           else

@@ -430,8 +430,15 @@ bool asset_is_current(const std::string& asset, const std::string& mesh, const S
   if (!provenance) return false;
   const Result<std::string> sha = sha256_file(mesh);
   if (!sha || sha.value() != provenance.value().source_sha256) return false;
+  if (provenance.value().generator_version != VOXFMT_VERSION_STRING) return false;  // an older bake: baked anew
   const nlohmann::json stored = nlohmann::json::parse(provenance.value().build_parameters_json, nullptr, false);
-  return !stored.is_discarded() && stored == nlohmann::json::parse(build_parameters_json(settings));
+  if (stored.is_discarded() || stored != nlohmann::json::parse(build_parameters_json(settings))) return false;
+  ReadOptions quick;  // and it still reads: a file damaged past its provenance is baked again
+  quick.level = ValidationLevel::Quick;
+  quick.max_memory_bytes = std::numeric_limits<uint64_t>::max() / 2;  // this bake's own asset, however large
+  for (const Issue& issue : validate_file(asset, quick))
+    if (issue.severity == Severity::Error) return false;
+  return true;
 }
 
 std::map<std::string, std::string> dependency_versions() {

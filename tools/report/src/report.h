@@ -128,12 +128,14 @@ inline void stamp_output_from_manifest(nlohmann::json& record, const std::string
   if (!relative.empty()) set_path(record, "output_from_manifest", relative.string());
 }
 
-/// A record read from the manifest at `manifest`: its `output` made this working directory's path of the asset,
-/// from `output_from_manifest` where the record has one (older records keep theirs).
+/// A record read from the manifest at `manifest`: its `output` made the asset's path (absolute), from
+/// `output_from_manifest` where the record has one (older records keep theirs). From the manifest's folder with its
+/// links resolved, as the stamp was taken: lexically, a ".." after a linked folder goes elsewhere.
 inline void locate_output(nlohmann::json& record, const std::string& manifest) {
   const std::string relative = path_of(record, "output_from_manifest");
   if (relative.empty()) return;
-  set_path(record, "output", (std::filesystem::path(manifest).parent_path() / relative).lexically_normal().string());
+  const std::filesystem::path folder = resolved_folder(std::filesystem::path(manifest).parent_path().string());
+  set_path(record, "output", (folder / relative).lexically_normal().string());
 }
 
 }  // namespace voxfmt::report

@@ -258,6 +258,9 @@ struct BatchEnvironments {
   /// How points' distances are read (QueryOptions::interpolation): Tricubic on the CPU only (gpu::Scene refuses
   /// it with BAD_OPTION).
   Interpolation interpolation = Interpolation::Trilinear;
+  /// Who takes Auto's tie (resolve_direction): A's points, as the GPU batch does (gpu::Scene takes no other);
+  /// ByAddress gives an environment the contacts a single query_contacts gives.
+  DirectionTie tie = DirectionTie::APoints;
 };
 
 /// Per-environment outputs the caller sized (only `count` is required; null arrays are skipped); gpu::Scene takes

@@ -199,8 +199,9 @@ std::string build_parameters_json(const Settings& settings);
 /// Versions of the libraries the bake uses (provenance `dependency_versions`).
 std::map<std::string, std::string> dependency_versions();
 /// True when `asset` is a bake of `mesh` as it is now (its provenance's source SHA-256) with `settings` (its build
-/// parameters): what a program that caches its bakes checks before it reuses one (a cache named by the settings
-/// alone silently kept another mesh's asset). False for a missing or unreadable asset.
+/// parameters) by this version of voxfmt, and still reads (quick validation): what a program that caches its bakes
+/// checks before it reuses one (a cache named by the settings alone silently kept another mesh's asset). False for
+/// a missing, damaged or older asset (what `voxfmt batch` checks of an asset its manifest cannot vouch for).
 bool asset_is_current(const std::string& asset, const std::string& mesh, const Settings& settings);
 /// Lowercase hex SHA-256 of a regular file's bytes; INPUT_NOT_FOUND when it is none (a folder, a pipe) or cannot be
 /// read, READ_FAILED when a read fails part way.
