@@ -133,22 +133,22 @@ def write_cases(folder: str | os.PathLike[str]) -> dict[str, Case]:
         values={"/voxelmap/bricks": shared})
 
     # -- one file: nothing read from elsewhere --------------------------------------------------------------------
-    def lattice_elsewhere(f: h5py.File) -> None:
-        other = folder / "lattice_elsewhere.data.h5"
+    def lattice_moved_out(f: h5py.File, name: str) -> h5py.ExternalLink:
+        """The lattice moved into another file `name` beside the asset; the link to it there."""
+        other = folder / name
         with h5py.File(other, "w") as o:
             o.create_dataset("lattice", data=f["/voxelmap/lattice"][()])
         del f["/voxelmap/lattice"]
-        f["/voxelmap/lattice"] = h5py.ExternalLink(str(other), "/lattice")
+        return h5py.ExternalLink(str(other), "/lattice")
+
+    def lattice_elsewhere(f: h5py.File) -> None:
+        f["/voxelmap/lattice"] = lattice_moved_out(f, "lattice_elsewhere.data.h5")
 
     add("external_link", ("READ_FAILED",), 1, "/voxelmap/lattice an external link to a dataset of another file",
         post=lattice_elsewhere)
 
     def lattice_elsewhere_through_a_soft_link(f: h5py.File) -> None:
-        other = folder / "soft_external.data.h5"
-        with h5py.File(other, "w") as o:
-            o.create_dataset("lattice", data=f["/voxelmap/lattice"][()])
-        del f["/voxelmap/lattice"]
-        f["/elsewhere"] = h5py.ExternalLink(str(other), "/lattice")
+        f["/elsewhere"] = lattice_moved_out(f, "soft_external.data.h5")
         f["/voxelmap/lattice"] = h5py.SoftLink("/elsewhere")
 
     add("soft_link_to_external", ("READ_FAILED",), 1, "/voxelmap/lattice a soft link to an external link",
