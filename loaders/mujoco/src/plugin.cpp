@@ -141,40 +141,38 @@ const AssetField* field_of(const mjtNum* attributes) {
 
 int nstate(const mjModel*, int) { return 0; }
 
-// No exception may cross MuJoCo's C frames (unwinding through them crashes): every callback that can allocate
-// catches, and says why with the error model's code.
-std::string failure_of(const std::exception_ptr& failure) {
+// The field of the file named `path` through the cache (loading it the first time), or null with why in `reason`
+// ("CODE: message"). No exception may cross MuJoCo's C frames (unwinding through them crashes): every failure,
+// memory included, comes back as a reason.
+const AssetField* field_named(const char* path, bool loaded_if_gone, std::string& reason) {
   try {
-    std::rethrow_exception(failure);
+    const CachedAsset* entry =
+        AssetCache::instance().get(AssetCache::instance().acquire(path ? path : "", loaded_if_gone));
+    if (entry && entry->field) return entry->field.get();  // cache entries live as long as the process
+    reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
   } catch (const std::bad_alloc&) {
-    return "OUT_OF_MEMORY: not enough memory for the asset's field";
+    reason = "OUT_OF_MEMORY: not enough memory for the asset's field";
   } catch (const std::exception& e) {
-    return std::string("INTERNAL: ") + e.what();
+    reason = std::string("INTERNAL: ") + e.what();
   } catch (...) {
-    return "INTERNAL: unknown failure";
+    reason = "INTERNAL: unknown failure";
   }
+  return nullptr;
 }
 
 // An mjData made from a compiled model (MjData, mj_copyModel, mj_copyData) reaches init; the file it names may be
-// gone by then (a temporary folder cleaned up) or have another meaning (the working directory changed): the version
-// this process loaded under that name serves, as it served the compile (and serves a compile then: mesh and field
-// stay one version).
+// gone by then (a temporary folder cleaned up, a relative name after a change of working directory that no longer
+// resolves): the version this process last loaded under that name serves, as it serves a compile then.
 int init(const mjModel* m, mjData* d, int instance) {
   const char* file = mj_getPluginConfig(m, instance, "file");
   std::string reason;
-  try {
-    const CachedAsset* entry =
-        AssetCache::instance().get(AssetCache::instance().acquire(file ? file : "", AssetCache::kLoadedIfGone));
-    if (entry && entry->field) {
-      // Cache entries live as long as the process, so the instance keeps a plain pointer to its field.
-      auto* self = new Instance;
-      self->field = entry->field.get();
-      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(self);
+  if (const AssetField* field = field_named(file, AssetCache::kLoadedIfGone, reason)) {
+    try {
+      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance{field});
       return 0;
+    } catch (const std::bad_alloc&) {
+      reason = "OUT_OF_MEMORY: not enough memory for the plugin's instance";
     }
-    reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
-  } catch (...) {
-    reason = failure_of(std::current_exception());
   }
   mju_warning("%s: cannot use '%s': %s", kPluginName, file ? file : "", reason.c_str());
   return -1;
@@ -274,12 +272,9 @@ __attribute__((visibility("default"))) int voxfmt_mujoco_built_version() { retur
 
 /// Bytes of the field the plugin holds for the asset at `path` (loading it through the cache), or -1 if it cannot.
 __attribute__((visibility("default"))) long long voxfmt_mujoco_field_bytes(const char* path) {
-  try {
-    const CachedAsset* entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
-    return entry && entry->field ? static_cast<long long>(entry->field->memory_bytes()) : -1;
-  } catch (...) {
-    return -1;
-  }
+  std::string reason;
+  const AssetField* field = field_named(path, false, reason);
+  return field ? static_cast<long long>(field->memory_bytes()) : -1;
 }
 
 /// Files the plugin has loaded in this process: one per file (and version), however many geoms name it.
@@ -291,19 +286,12 @@ __attribute__((visibility("default"))) int voxfmt_mujoco_evaluate(const char* pa
                                                                   double* distances, double* gradients, char* error,
                                                                   int error_size) {
   std::string reason;
-  const CachedAsset* entry = nullptr;
-  try {
-    entry = AssetCache::instance().get(AssetCache::instance().acquire(path ? path : ""));
-    if (!entry || !entry->field) reason = entry ? entry->error.describe() : std::string("INTERNAL: no cache entry");
-  } catch (...) {
-    reason = failure_of(std::current_exception());
-  }
-  if (!reason.empty()) {
+  const AssetField* field = field_named(path, false, reason);
+  if (!field) {
     if (error && error_size > 0) std::snprintf(error, size_t(error_size), "%s", reason.c_str());
     return -1;
   }
-  for (int i = 0; i < n; ++i)
-    distances[i] = entry->field->evaluate(points + 3 * i, gradients ? gradients + 3 * i : nullptr);
+  for (int i = 0; i < n; ++i) distances[i] = field->evaluate(points + 3 * i, gradients ? gradients + 3 * i : nullptr);
   return 0;
 }
 
