@@ -263,6 +263,22 @@ class Batch(unittest.TestCase):
         self.assertEqual(report.returncode, 0, report.stderr)
         self.assertEqual(json.loads(report.stdout)["unreadable_assets"], 0)
 
+    def test_a_failed_mesh_whose_name_is_not_utf8_is_named_exactly_in_the_summary(self):
+        # The summary's failures showed such a name as U+FFFD (its bytes lost); now as the manifest does.
+        lib = os.path.join(self.root.encode(), b"odd-broken")
+        os.makedirs(lib)
+        with open(os.path.join(lib, b"m\xff.obj"), "w") as f:
+            f.write("this is not a mesh\n")
+        out = os.path.join(self.root, "odd-broken-out")
+        for retried in (True, False):  # baked and failed, then unchanged since it failed
+            r, summary = self.batch(lib.decode("utf-8", "surrogateescape"), out=out, expect=1)
+            [failure] = summary["failures"]
+            self.assertEqual(failure["retried"], retried)
+            self.assertNotIn("\ufffd", failure["input"])
+            self.assertTrue(failure["input"].endswith("m\\xFF.obj"), failure["input"])
+            self.assertEqual(bytes.fromhex(failure["input_hex"]), os.path.join(lib, b"m\xff.obj"))
+            self.assertEqual(bytes.fromhex(failure["output_hex"]), os.path.join(out.encode(), b"m\xff.obj.vox.h5"))
+
     def test_a_report_folder_that_would_hold_assets_is_refused_before_the_bake(self):
         self.write("lib/report/model.obj", TET_OBJ)
         r, _ = self.batch(self.lib, "--report", expect=2)

@@ -152,6 +152,15 @@ class Runner {
   std::vector<nlohmann::json> failures_;
 };
 
+// A failed mesh in the summary's "failures": its paths as the manifest stores them (escaped text, and the exact
+// bytes in hex where they are not UTF-8), so a program finds the very file.
+nlohmann::json failure_entry(const BatchItem& item, const nlohmann::json& error, bool retried) {
+  nlohmann::json entry = {{"code", error["code"]}, {"message", error["message"]}, {"retried", retried}};
+  set_path(entry, "input", item.input);
+  set_path(entry, "output", item.output);
+  return entry;
+}
+
 nlohmann::json Runner::base_record(const BatchItem& item) const {
   nlohmann::json record = {{"status", "ok"},
                            {"error", nullptr},
@@ -397,11 +406,7 @@ void Runner::plan() {
     if (const nlohmann::json* failure = failed_before(item, sha)) {
       ++counts_.failed;
       ++counts_.failed_before;
-      failures_.push_back({{"input", item.input},
-                           {"output", item.output},
-                           {"code", (*failure)["error"]["code"]},
-                           {"message", (*failure)["error"]["message"]},
-                           {"retried", false}});
+      failures_.push_back(failure_entry(item, (*failure)["error"], false));
       continue;
     }
     todo_.push_back({item, sha});
@@ -495,10 +500,16 @@ class StopSignals {
   ~StopSignals() {
     for (size_t n = 0; n < std::size(kSignals); ++n) sigaction(kSignals[n], &before_[n], nullptr);
     sigaction(SIGTSTP, &before_suspend_, nullptr);
+    // A Ctrl-Z caught after the last bake's check is not lost: the batch stops now, as it would have.
+    if (g_suspend) {
+      g_suspend = 0;
+      std::raise(SIGTSTP);
+    }
   }
   /// Ctrl-Z: the bakes, each in a process group of its own that the terminal does not reach, are stopped with the
   /// batch and continued with it; the time stopped counts toward no --timeout.
-  static void suspend(ChildPool& pool) {
+  /// Returns how long the batch was stopped.
+  static std::chrono::steady_clock::duration suspend(ChildPool& pool) {
     g_suspend = 0;
     pool.signal_all(SIGSTOP);
     const auto stopped = std::chrono::steady_clock::now();
@@ -510,7 +521,9 @@ class StopSignals {
     std::raise(SIGTSTP);  // stops here until SIGCONT (an orphaned process group is not stopped: it goes on)
     sigaction(SIGTSTP, &ours, nullptr);
     pool.signal_all(SIGCONT);
-    pool.pause_clocks(std::chrono::steady_clock::now() - stopped);
+    const auto stopped_for = std::chrono::steady_clock::now() - stopped;
+    pool.pause_clocks(stopped_for);
+    return stopped_for;
   }
   StopSignals(const StopSignals&) = delete;
   StopSignals& operator=(const StopSignals&) = delete;
@@ -557,7 +570,8 @@ bool Runner::bake_all(const bake::Settings& settings) {
       record_finished(pool.poll(250));
       if (g_suspend && !g_interrupted) {
         progress_->clear();  // the shell's prompt takes the line
-        StopSignals::suspend(pool);
+        const auto stopped_for = StopSignals::suspend(pool);
+        for (auto& [id, r] : running_) r.start += stopped_for;  // the bar's per-bake times and ETA leave it out
       }
     }
   } catch (...) {
@@ -608,11 +622,7 @@ void Runner::record_bake(const ChildResult& child) {
   progress_->finished(double(item.input_bytes), child.seconds);
   if (record["status"] == "failed") {
     ++counts_.failed;
-    failures_.push_back({{"input", item.input},
-                         {"output", item.output},
-                         {"code", record["error"]["code"]},
-                         {"message", record["error"]["message"]},
-                         {"retried", true}});
+    failures_.push_back(failure_entry(item, record["error"], true));
   } else {
     ++counts_.built;
   }
