@@ -28,6 +28,52 @@ def load_asset(report, row):
         return parsed(f.read(), "voxfmtReport.addAsset(%d, " % row["id"], ");")
 
 
+def png_pixels(path):
+    """(width, height, rows of RGB tuples) of an 8-bit RGB PNG, every filter type undone."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, width = 8, b"", 0
+    while pos < len(data):
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        if kind == b"IHDR":
+            width, height, depth, colour = int.from_bytes(body[:4], "big"), int.from_bytes(body[4:8], "big"), body[8], body[9]
+            assert (depth, colour) == (8, 2), (depth, colour)
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + length
+    raw, stride, rows, previous = zlib.decompress(idat), 3 * width, [], bytearray(3 * width)
+    for y in range(height):
+        kind, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
+        for i in range(stride):
+            a = line[i - 3] if i >= 3 else 0
+            b, c = previous[i], previous[i - 3] if i >= 3 else 0
+            if kind == 1:
+                line[i] = (line[i] + a) & 255
+            elif kind == 2:
+                line[i] = (line[i] + b) & 255
+            elif kind == 3:
+                line[i] = (line[i] + (a + b) // 2) & 255
+            elif kind == 4:
+                p_ = a + b - c
+                pa, pb, pc = abs(p_ - a), abs(p_ - b), abs(p_ - c)
+                line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
+        rows.append([tuple(line[3 * x:3 * x + 3]) for x in range(width)])
+        previous = line
+    return width, height, rows
+
+
+def box_obj(lo, hi, first):
+    """A closed box's OBJ vertices and faces, its vertices numbered from `first`."""
+    v = [(x, y, z) for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])]
+    faces = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (3, 7, 8, 4), (1, 5, 7, 3), (2, 4, 8, 6)]
+    text = "".join("v %g %g %g\n" % p for p in v)
+    for a, b, c, d in faces:
+        text += "f %d %d %d\nf %d %d %d\n" % (a + first, b + first, c + first, a + first, c + first, d + first)
+    return text
+
+
 class ReportTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -373,6 +419,40 @@ class ReportTest(unittest.TestCase):
                    "--manifest", os.path.join(self.tmp, "custom.jsonl"))
         self.assertIn("report: ", p.stdout)
         self.assertEqual(len(load_data(os.path.join(other, "report"))["rows"]), fx.MESH_COUNT)
+
+
+class UpAxisViewsTest(unittest.TestCase):
+    """The pictures stand the asset the right way up for each of the six up axes (a negative one drew it upside
+    down, and an X axis as if Y were up)."""
+
+    def test_the_up_axis_points_up_in_the_pictures(self):
+        tmp = tempfile.mkdtemp(prefix="voxfmt-report-up-")
+        self.addCleanup(shutil.rmtree, tmp, True)
+        for axis in ("+X", "-X", "+Y", "-Y", "+Z", "-Z"):
+            # A mushroom along the up axis: a thin stem, then a wide cap further up.
+            index, sign = "XYZ".index(axis[1]), 1 if axis[0] == "+" else -1
+            def box(low, high, width):
+                lo, hi = [-width] * 3, [width] * 3
+                lo[index], hi[index] = (low, high) if sign > 0 else (-high, -low)
+                return lo, hi
+            meshes = os.path.join(tmp, "meshes" + axis)
+            os.makedirs(meshes)
+            with open(os.path.join(meshes, "mushroom.obj"), "w") as f:
+                f.write(box_obj(*box(0, 2, 0.2), 0) + box_obj(*box(2, 2.6, 1.0), 8))
+            library, report = os.path.join(tmp, "library" + axis), os.path.join(tmp, "report" + axis)
+            fx.run("batch", meshes, "-o", library, "--resolution", "48", "--points", "3000", "--up-axis=" + axis, "-q")
+            fx.run("report", library, "-o", report)
+            [row] = [r for r in load_data(report)["rows"] if r["status"] == "ok"]
+            self.assertEqual(load_asset(report, row)["scene"]["view"]["up"], [index, sign])
+            for picture, panels in ((row["views"], 3), (row["slice"], 1)):
+                width, height, rows = png_pixels(os.path.join(report, picture))
+                for panel in range(panels - (panels == 3)):  # the top view looks down the axis
+                    columns = range(panel * width // panels, (panel + 1) * width // panels)
+                    # The shell's points in a view, the inside (red) in the slice: the wider cap shows as more.
+                    shown = (lambda p: p != (255, 255, 255)) if panels == 3 else (lambda p: p[0] > p[2] + 20)
+                    drawn = [y for y in range(height) for x in columns if shown(rows[y][x])]
+                    top = sum(1 for y in drawn if y < height / 2)
+                    self.assertGreater(top, len(drawn) - top, "%s: %s panel %d is upside down" % (axis, picture, panel))
 
 
 if __name__ == "__main__":

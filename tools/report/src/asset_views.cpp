@@ -28,39 +28,53 @@ std::string deflate_base64(const std::vector<uint8_t>& bytes) {
   return text;
 }
 
-// The up axis's index (1 for "+Y", 2 for "+Z"); the views are a person's: front, side, top.
-int up_index(const Asset& asset) { return asset.up_axis.find('Z') != std::string::npos ? 2 : 1; }
-
-struct View {
-  int right, up;         // asset axes drawn left-to-right and bottom-to-top
-  int toward;            // the axis pointing at the viewer
-  double sign;           // +1: the viewer looks down -toward
-  double up_sign = 1.0;  // -1: the `up` axis points down the picture (a top view of a Y-up asset: +z is nearer)
+// A signed axis of the asset: which coordinate, and +1 or -1.
+struct Axis {
+  int index;
+  double sign;
+  Axis operator-() const { return {index, -sign}; }
+  double of(const Vec3& q) const { return sign * q[size_t(index)]; }
 };
 
+// How a person looks at the asset from the front, its up axis (+X ... -Z) pointing up the picture: right x up =
+// toward (the viewer), right-handed. Y up looks along -Z, Z up along +Y, X up along +Z; an up axis that points
+// down a coordinate turns the picture half round (right and up both flip), so the object stands the right way up.
+struct ViewFrame {
+  Axis right, up, toward;
+};
+
+ViewFrame front_frame(const std::string& up_axis) {
+  const double sign = !up_axis.empty() && up_axis[0] == '-' ? -1.0 : 1.0;
+  ViewFrame f{{0, 1.0}, {1, 1.0}, {2, 1.0}};  // +Y
+  if (up_axis.find('Z') != std::string::npos) f = {{0, 1.0}, {2, 1.0}, {1, -1.0}};
+  if (up_axis.find('X') != std::string::npos) f = {{1, 1.0}, {0, 1.0}, {2, -1.0}};
+  f.right.sign *= sign;
+  f.up.sign *= sign;
+  return f;
+}
+
 // One orthographic view of the point shell: each point a small disc, lit by its outward normal (headlight from
-// the viewer plus a little from above), nearest point wins.
-void draw_view(RasterImage& image, int x0, int size, const Asset& asset, const View& view) {
+// the viewer plus a little from the asset's up), nearest point wins.
+void draw_view(RasterImage& image, int x0, int size, const Asset& asset, const ViewFrame& view, const Axis& world_up) {
   const PointShell& shell = asset.point_shell;
   const Vec3& lo = asset.bounds_min;
   const Vec3& hi = asset.bounds_max;
   const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-12});
   const double scale = (size - 8) / extent;
-  const double cx = 0.5 * (lo[size_t(view.right)] + hi[size_t(view.right)]);
-  const double cy = 0.5 * (lo[size_t(view.up)] + hi[size_t(view.up)]);
+  const Vec3 mid{0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
+  const double cx = view.right.of(mid), cy = view.up.of(mid);
   std::vector<float> depth(size_t(size) * size, -std::numeric_limits<float>::infinity());
   // Splat radius: points cover the surface at this scale (spacing ~ sqrt(area / n), area ~ 2 extent^2).
   const double spacing = extent * std::sqrt(2.0 / std::max<size_t>(shell.size(), 1));
   const int radius = std::clamp(int(std::ceil(0.6 * spacing * scale)), 1, 4);
   for (size_t p = 0; p < shell.size(); ++p) {
     const Vec3& q = shell.points[p];
-    const Vec3f& n = shell.normals[p];
-    const double toward = view.sign * q[size_t(view.toward)];
-    const int px = x0 + size / 2 + int(std::lround((q[size_t(view.right)] - cx) * scale));
-    const int py = size / 2 - int(std::lround(view.up_sign * (q[size_t(view.up)] - cy) * scale));
-    // Outward normal = -inward; facing the viewer where it points along +toward.
-    const double facing = -view.sign * double(n[size_t(view.toward)]);
-    const double above = -double(n[size_t(view.up)]);
+    // Outward normal = -inward.
+    const Vec3 outward{-double(shell.normals[p][0]), -double(shell.normals[p][1]), -double(shell.normals[p][2])};
+    const double toward = view.toward.of(q);
+    const int px = x0 + size / 2 + int(std::lround((view.right.of(q) - cx) * scale));
+    const int py = size / 2 - int(std::lround((view.up.of(q) - cy) * scale));
+    const double facing = view.toward.of(outward), above = world_up.of(outward);
     const double light = std::clamp(0.25 + 0.6 * std::max(facing, 0.0) + 0.15 * std::max(above, 0.0), 0.0, 1.0);
     const Rgb colour{uint8_t(60 + 150 * light), uint8_t(90 + 140 * light), uint8_t(120 + 125 * light)};
     for (int dy = -radius; dy <= radius; ++dy)
@@ -79,28 +93,25 @@ void draw_view(RasterImage& image, int x0, int size, const Asset& asset, const V
 }  // namespace
 
 Status write_views_png(const Asset& asset, int size, const std::string& path) {
-  const int up = up_index(asset);
-  // Front (looking along -z, or -y when z is up), side (along -x), top (down the up axis).
-  const int depth_axis = up == 1 ? 2 : 1;
-  const double depth_sign = up == 1 ? 1.0 : -1.0;
-  const View front{0, up, depth_axis, depth_sign};
-  const View side{depth_axis, up, 0, -1.0 * depth_sign};
-  const View top{0, depth_axis, up, 1.0, up == 1 ? -1.0 : 1.0};
+  // Front; side (the viewer at the front's right); top (the viewer above, the front's side at the bottom).
+  const ViewFrame front = front_frame(asset.up_axis);
+  const ViewFrame side{-front.toward, front.up, front.right};
+  const ViewFrame top{front.right, -front.toward, front.up};
   RasterImage image(3 * size, size, Rgb{255, 255, 255});
-  draw_view(image, 0, size, asset, front);
-  draw_view(image, size, size, asset, side);
-  draw_view(image, 2 * size, size, asset, top);
+  draw_view(image, 0, size, asset, front, front.up);
+  draw_view(image, size, size, asset, side, front.up);
+  draw_view(image, 2 * size, size, asset, top, front.up);
   return image.write_png(path);
 }
 
 Status write_mid_slice_png(const Asset& asset, int size, const std::string& path) {
   const Voxelmap& vm = asset.voxelmap;
-  const int axis = up_index(asset) == 1 ? 2 : 1;  // the front view's depth axis: the slice faces the viewer
-  const int col = 0, row = axis == 2 ? 1 : 2;
-  const uint32_t columns = vm.dims[size_t(col)], rows = vm.dims[size_t(row)];
+  const ViewFrame front = front_frame(asset.up_axis);  // the slice faces the front view's viewer, drawn as it is
+  const size_t axis = size_t(front.toward.index), col = size_t(front.right.index), row = size_t(front.up.index);
+  const uint32_t columns = vm.dims[col], rows = vm.dims[row];
   std::array<uint32_t, 3> first{0, 0, 0}, extent = vm.dims;
-  first[size_t(axis)] = vm.dims[size_t(axis)] / 2;
-  extent[size_t(axis)] = 1;
+  first[axis] = vm.dims[axis] / 2;
+  extent[axis] = 1;
   std::vector<int16_t> layers(size_t(columns) * rows);
   vm.read_block(first, extent, nullptr, layers.data());
   const auto [lowest, highest] = vm.layer_range();
@@ -108,10 +119,14 @@ Status write_mid_slice_png(const Asset& asset, int size, const std::string& path
   const int width = std::max(1, int(std::lround(columns * scale))),
             height = std::max(1, int(std::lround(rows * scale)));
   RasterImage image(width, height, Rgb{255, 255, 255});
+  // Column c from the picture's left and row r from its bottom, as the block holds them (x fastest).
   auto layer_at = [&](int64_t c, int64_t r) {
     c = std::clamp<int64_t>(c, 0, columns - 1);
     r = std::clamp<int64_t>(r, 0, rows - 1);
-    return int(layers[size_t(r) * columns + size_t(c)]);
+    std::array<size_t, 3> at{0, 0, 0};
+    at[col] = size_t(front.right.sign > 0 ? c : columns - 1 - c);
+    at[row] = size_t(front.up.sign > 0 ? r : rows - 1 - r);
+    return int(layers[(at[2] * extent[1] + at[1]) * extent[0] + at[0]]);
   };
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x) {
@@ -205,6 +220,10 @@ nlohmann::json scene_data(const Asset& asset, size_t max_points, uint32_t max_gr
   const Vec3& hi = asset.bounds_max;
   data["bounds"] = {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}};
   data["up_axis"] = asset.up_axis;
+  // The front view's frame, so that the 3D view's camera stands as the pictures do: [axis, sign] each.
+  const ViewFrame front = front_frame(asset.up_axis);
+  const auto axis = [](const Axis& a) { return nlohmann::json::array({a.index, a.sign}); };
+  data["view"] = {{"right", axis(front.right)}, {"up", axis(front.up)}, {"toward", axis(front.toward)}};
   data["shell"] = shell_data(asset.point_shell, lo, hi, max_points);
   data["field"] = field_data(asset.voxelmap, max_grid);
   return data;

@@ -571,15 +571,17 @@
     drawSlice();
 
     // Orbit by hand: three's OrbitControls is an ES module, which file:// pages cannot load.
-    const upIndex = scene.up_axis && scene.up_axis.includes('Z') ? 2 : 1;
-    camera.up.set(0, 0, 0).setComponent(upIndex, 1);
+    // The pictures' front frame ([axis, sign] each; +Y up when a page predates it): the camera orbits the up axis.
+    const frame = scene.view || { right: [0, 1], up: [1, 1], toward: [2, 1] };
+    const along = (axis, length) => new THREE.Vector3(0, 0, 0).setComponent(axis[0], axis[1] * length);
+    camera.up.copy(along(frame.up, 1));
     let yaw = 0.6, pitch = 0.35, distance = extent * 2.4;
     function render() {
       const c = Math.cos(pitch), s = Math.sin(pitch);
-      const eye = upIndex === 1 ? [distance * c * Math.sin(yaw), distance * s, distance * c * Math.cos(yaw)] : [distance * c * Math.sin(yaw), -distance * c * Math.cos(yaw), distance * s];
-      camera.position.set(eye[0], eye[1], eye[2]);
+      const eye = along(frame.right, distance * c * Math.sin(yaw)).add(along(frame.toward, distance * c * Math.cos(yaw))).add(along(frame.up, distance * s));
+      camera.position.copy(eye);
       camera.lookAt(0, 0, 0);
-      sun.position.copy(camera.position).add(new THREE.Vector3(0, 0, 0).setComponent(upIndex, extent));
+      sun.position.copy(camera.position).add(along(frame.up, extent));
       renderer.render(world, camera);
     }
     let drag = null;
