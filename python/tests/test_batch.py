@@ -88,6 +88,24 @@ def test_poses_and_references_that_are_not_real_finite_numbers_are_refused(spher
     assert caught.value.code == "OUT_OF_MEMORY"
 
 
+def test_pose_lists_are_read_as_their_arrays(sphere: voxfmt.Body) -> None:
+    # A list is made an array once (it was converted three times); the batch is the array's, every kind of list.
+    poses_b = random_poses(6, seed=11)
+    expected = voxfmt.contacts_batch(sphere, np.eye(4), sphere, poses_b, with_contacts=True)
+    tracker = voxfmt.Tracker(sphere, sphere)
+    for a, b in ((np.eye(4).astype(int).tolist(), poses_b.tolist()), (tuple(map(tuple, np.eye(4))), list(poses_b))):
+        for batch in (voxfmt.contacts_batch(sphere, a, sphere, b, with_contacts=True),
+                      tracker.contacts_batch(a, b, with_contacts=True)):
+            np.testing.assert_array_equal(batch.count, expected.count)
+            np.testing.assert_array_equal(batch.force, expected.force)
+            np.testing.assert_array_equal(batch.points, expected.points)
+        tracker.reset()
+    with pytest.raises(voxfmt.OptionError, match="real numbers"):
+        voxfmt.contacts_batch(sphere, np.eye(4, dtype=bool).tolist(), sphere, poses_b)
+    with pytest.raises(voxfmt.OptionError, match="ragged"):
+        voxfmt.contacts_batch(sphere, np.eye(4), sphere, [np.eye(4), np.eye(3)])
+
+
 def batch_in_worker(body: voxfmt.Body, poses: np.ndarray) -> tuple[float, np.ndarray]:
     return body.mass, voxfmt.contacts_batch(body, np.eye(4), body, poses, threads=1).count
 

@@ -28,7 +28,7 @@ from ._errors import AssetError, Error, InternalError, MeshError, OptionError, P
 from ._voxfmt import Body, Contacts, QueryStats, _library_version, contacts, load, read_mesh, wrench
 from ._voxfmt import _asset_is_current, _bake, _BakeSettings, _contacts_batch, _inspect, _Tracker, _validate
 from .batch import BatchResult, BatchScene, cuda_status
-from .batch import _one_of, _real, _refuse_beyond_pose_memory, _whole
+from .batch import _one_of, _poses_once, _real, _refuse_beyond_pose_memory, _whole
 
 __version__: str = _library_version()
 
@@ -292,6 +292,7 @@ def contacts_batch(
         time_budget_us = _real("time_budget_us", time_budget_us)
     cut_level = _one_of("cut_level", cut_level, ("spheres", "points"))
     interpolation = _one_of("interpolation", interpolation, ("trilinear", "tricubic"))
+    poses_a, poses_b = _poses_once(poses_a), _poses_once(poses_b)
     _refuse_beyond_pose_memory(poses_a, poses_b)
     out = _contacts_batch(a, poses_a, b, poses_b, threads=threads, with_contacts=with_contacts,
                           stiffness=_real("stiffness", stiffness), point_budget=point_budget,
@@ -341,6 +342,7 @@ class Tracker:
         with the one before (and with this tracker's earlier queries). The GIL is released."""
         if not isinstance(with_contacts, bool):
             raise OptionError("BAD_OPTION", "with_contacts: expected a bool")
+        poses_a, poses_b = _poses_once(poses_a), _poses_once(poses_b)
         _refuse_beyond_pose_memory(poses_a, poses_b)
         out = _contacts_batch(self.a, poses_a, self.b, poses_b, with_contacts=with_contacts,
                               stiffness=_real("stiffness", stiffness), proximity=_real("proximity", proximity),

@@ -305,6 +305,19 @@ def _refuse_beyond_pose_memory(poses_a: Any, poses_b: Any) -> None:
     _refuse_beyond_memory(f"{count} poses' matrices, transforms and outputs", count * 1024.0)
 
 
+def _poses_once(poses: Any) -> Any:
+    """A list or tuple of poses as one array, made once: np.shape and the binding's two readings would each convert
+    it again (three conversions: 60 ms of 20,000 poses). Numbers become float64, as the binding reads them; anything
+    else is left for the binding to refuse with its own message."""
+    if not isinstance(poses, (list, tuple)):
+        return poses
+    try:
+        array = np.asarray(poses)
+    except ValueError:  # a ragged list
+        raise OptionError("BAD_OPTION", "poses: expected (K, 4, 4) matrices or one (4, 4), got a ragged list") from None
+    return np.asarray(array, dtype=np.float64) if array.dtype.kind in "iuf" else poses
+
+
 def _pose_count(poses: Any) -> int:
     """K of a (K, 4, 4) stack (1 for one (4, 4) pose), from its shape alone: nothing is copied."""
     try:
