@@ -314,12 +314,6 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
     }
     std::string value = buffer ? buffer : "";
     if (buffer) H5free_memory(buffer);
-    if (value.size() > kMaxStringBytes) {
-      report(IssueCode::ValueOutOfRange, path,
-             "string of " + std::to_string(value.size()) + " bytes, more than the format's limit of " +
-                 std::to_string(kMaxStringBytes));
-      return std::nullopt;
-    }
     return checked_text(std::move(value), path);
   }
   size_t size = H5Tget_size(type.get());
@@ -345,6 +339,14 @@ std::optional<std::string> Reader::string_attribute(hid_t object, const std::str
 }
 
 std::optional<std::string> Reader::checked_text(std::string bytes, const std::string& path) {
+  // Within the limit whatever the storage (a null-padded fixed string may fill its type with no null: 60,001
+  // bytes of text in a type of 60,001).
+  if (bytes.size() > kMaxStringBytes) {
+    report(IssueCode::ValueOutOfRange, path,
+           "string of " + std::to_string(bytes.size()) + " bytes, more than the format's limit of " +
+               std::to_string(kMaxStringBytes));
+    return std::nullopt;
+  }
   // Bytes from the file become text only once they are known to be UTF-8 (spec §1): every consumer, Python's
   // str among them, can then take them as they are.
   if (is_utf8(bytes)) return bytes;

@@ -210,7 +210,8 @@ class Reader {
                                        std::string& path);
   bool check_type(hid_t type, H5T_class_t cls, size_t size, bool is_signed, const char* name, const std::string& path);
   bool check_shape(hid_t space, const Shape& expected, const std::string& path, std::vector<uint64_t>& actual);
-  /// `bytes` as text if they are UTF-8, else a STRING_NOT_UTF8 finding at `path`.
+  /// `bytes` as text if they are UTF-8 and within the format's length, else a STRING_NOT_UTF8 or VALUE_OUT_OF_RANGE
+  /// finding at `path`.
   std::optional<std::string> checked_text(std::string bytes, const std::string& path);
   /// Filters and chunk grid of a dataset, checked before its data is decoded.
   bool check_storage(hid_t dset, const std::vector<uint64_t>& dims, const std::string& path);

@@ -36,10 +36,19 @@ class LegacyRules {
         path_(path),
         vm_(vm),
         closed_(closed),
-        min_outside_(int(std::floor(vm.distance_band + 0.5))) {}
+        min_outside_(int(std::floor(vm.distance_band + 0.5))),
+        band_m_(vm.distance_band * vm.voxel_size) {}
 
   void voxel(uint64_t i, uint64_t j, uint64_t k, int layer, float d) {
     if (!std::isnan(d)) {
+      // Stored only within the band (spec §3.1): the conversion clamps codes to it, so a distance beyond it would
+      // silently read as the band's edge.
+      if (!outside_ && std::abs(double(d)) > band_m_ + 0.5 * vm_.distance_quantum) {
+        report(
+            IssueCode::DistanceOutsideBand, path_ + "/distances",
+            voxel_name(i, j, k) + " stores the distance " + fmt(d) + " m, beyond the band of " + fmt(band_m_) + " m");
+        outside_ = true;
+      }
       const double expected = std::clamp(std::floor(-double(d) / vm_.voxel_size + 0.5), -32767.0, 32767.0);
       if (!mismatch_ && layer != int(expected)) {
         report(IssueCode::LayerDistanceMismatch, path_ + "/layers",
@@ -83,7 +92,8 @@ class LegacyRules {
   const Voxelmap& vm_;
   bool closed_;
   int min_outside_;
-  bool mismatch_ = false, too_small_ = false, step_ = false, jump_ = false;
+  double band_m_;
+  bool mismatch_ = false, too_small_ = false, step_ = false, jump_ = false, outside_ = false;
 };
 
 /// One slab of a 1.x grid: the voxel layers of one layer of bricks (z0 .. z_end - 1) and the next layer (the

@@ -78,7 +78,10 @@ void read_voxelmap(h5::Reader& r, hid_t g, const FormatVersion& version, Validat
   if (r.has_attribute(g, "shell_thickness"))
     if (auto v = r.numeric_attribute<double>(g, p, "shell_thickness", {})) {
       vm.shell_thickness = (*v)[0];
-      if (!(*vm.shell_thickness > 0) || !std::isfinite(*vm.shell_thickness))
+      // NaN and infinity are NON_FINITE_VALUE, as for every other attribute that must be finite.
+      if (!std::isfinite(*vm.shell_thickness))
+        r.report(IssueCode::NonFiniteValue, p + "/@shell_thickness", "shell thickness is not finite");
+      else if (!(*vm.shell_thickness > 0))
         r.report(IssueCode::ValueOutOfRange, p + "/@shell_thickness", "must be finite and > 0");
     }
   check_vocabulary(r, r.string_attribute(g, p, "index_order"), p + "/@index_order", {"zyx"});

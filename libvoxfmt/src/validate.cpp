@@ -781,6 +781,16 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
     check_point_shell_semantics(asset, c);
     check_mass_semantics(asset, c);
   }
+  // A 1.x file has no bricks or lattice: they are this reader's conversion of its dense grids (spec §3.4), so a
+  // finding about them names the grid it came from.
+  if (asset.version.major == 1)
+    for (Issue& issue : issues)
+      for (const char* converted : {"/voxelmap/bricks", "/voxelmap/brick_values", "/voxelmap/lattice"})
+        if (issue.path == converted) {
+          const bool distances = issue.code == IssueCode::DistanceJump || issue.code == IssueCode::DistanceOutsideBand;
+          issue.path = distances ? "/voxelmap/distances" : "/voxelmap/layers";
+          break;
+        }
   return issues;
 }
 
@@ -790,8 +800,15 @@ std::optional<Asset> read_and_check(const std::string& path, const ReadOptions& 
   try {
     std::optional<Asset> asset = load_asset(path, issues, options);
     if (asset) {
-      std::vector<Issue> more = validate_asset(*asset, options.level);
-      issues.insert(issues.end(), more.begin(), more.end());
+      // A 1.x grid's voxel rules ran while it was converted, and the brick rules run again on the conversion: a
+      // voxel rule is reported once per file (issue-codes.md), at its first finding.
+      auto already = [&](IssueCode code) {
+        return std::any_of(issues.begin(), issues.end(), [&](const Issue& i) { return i.code == code; });
+      };
+      for (Issue& issue : validate_asset(*asset, options.level)) {
+        const bool voxel_rule = issue.code == IssueCode::DistanceJump || issue.code == IssueCode::DistanceOutsideBand;
+        if (!(voxel_rule && already(issue.code))) issues.push_back(std::move(issue));
+      }
     }
     if (has_errors(issues)) return std::nullopt;
     return asset;

@@ -426,6 +426,30 @@ class TestHostile(MalformedBase):
                             values={"/provenance/build_parameters": "{\"x\": \"%s\"}" % ("a" * size)})
             self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="build_parameters")
 
+    def test_fixed_length_string_filling_its_type_beyond_the_limit(self):
+        """§1: a string of more than 60,000 bytes is VALUE_OUT_OF_RANGE, also where it is null-padded and fills
+        its type of 60,001 bytes without a null (it was read as 60,001 bytes of text); 60,000 such bytes are
+        fine."""
+        def params(size):
+            return "{\"x\": \"%s\"}" % ("a" * (size - 9))
+        self.assertEqual(len(params(60001)), 60001)
+        path = self.bad("nullpad_60001", string_mode="fixed_nullpad_exact",
+                        values={"/provenance/build_parameters": params(60001)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="build_parameters")
+        path = self.bad("nullpad_60000", string_mode="fixed_nullpad_exact",
+                        values={"/provenance/build_parameters": params(60000)})
+        proc = ss.run([ss.VOXFMT_BIN, "validate", path, "--json"])
+        self.assertEqual(proc.returncode, 0, describe(proc))
+
+    def test_shell_thickness_not_finite(self):
+        """§3.2: shell_thickness finite, > 0. NaN or infinity is NON_FINITE_VALUE (issue-codes.md), as for every
+        other attribute that must be finite; 0 is VALUE_OUT_OF_RANGE."""
+        for name, value, code in (("nan", np.nan, "NON_FINITE_VALUE"), ("inf", np.inf, "NON_FINITE_VALUE"),
+                                  ("zero", 0.0, "VALUE_OUT_OF_RANGE")):
+            path = self.bad("shell_" + name, values={"/voxelmap/shell_thickness": np.float64(value)})
+            entry = self.assert_rejected(path, code, path_contains="shell_thickness")
+            self.assertEqual([i["code"] for i in entry["issues"] if "shell_thickness" in i["path"]], [code])
+
     def test_voxel_size_1e300_small(self):
         path = self.bad("h_tiny", values={"/voxelmap/voxel_size": np.float64(1e-300)})
         self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="voxel_size")
@@ -888,6 +912,39 @@ class TestMalformedLegacy(MalformedBase):
                    else p for p in sf.VOXELMAP_2_0_PATHS]
         blamed = [(i["code"], i["path"]) for i in entry["issues"] if any(f in i["path"] for f in foreign)]
         self.assertEqual(blamed, [], "findings about objects a 1.1 file does not have")
+
+    def test_stored_distance_beyond_the_band_legacy(self):
+        """§3.1: distances are stored only for |d| <= distance_band * h, in 1.x files too. A voxel 2.5-3 voxels out
+        storing its exact distance (its layer agrees) was read as the band's edge, its code clamped, and judged
+        valid: DISTANCE_OUTSIDE_BAND (full level), as in a 2.x file."""
+        h, band = sf.VOXEL_SIZE, sf.DISTANCE_BAND
+        d = sf.signed_distance_grid()
+        dist = sf.distances_expected()
+        i, j, k = voxel_where((d > (band + 0.5) * h) & (d < (band + 1.0) * h) & np.isnan(dist))
+        dist[k, j, i] = np.float32(d[k, j, i])
+        self.assertEqual(sf.layers_expected()[k, j, i], np.floor(-d[k, j, i] / h + 0.5), "test bug: layer")
+        path = self.bad("beyond_band_legacy", values={"/voxelmap/distances": dist})
+        self.assert_rejected(path, "DISTANCE_OUTSIDE_BAND", path_contains="/voxelmap/distances")
+        self.assert_not_found_at_quick_level(path, "DISTANCE_OUTSIDE_BAND")
+
+    def test_voxel_rules_reported_once_naming_the_files_grids(self):
+        """issue-codes.md: each kind of finding once per file; §8: a finding names the file's object. A stored
+        distance deep inside with its sign flipped (its layer agrees) breaks the voxel rules, which were checked
+        twice (on the 1.x grid, then on its conversion to bricks): DISTANCE_JUMP came twice, the second time
+        with SIGN_MISMATCH at /voxelmap/brick_values, an object a 1.1 file does not have."""
+        h = sf.VOXEL_SIZE
+        dist, lay = sf.distances_expected(), sf.layers_expected()
+        k, j, i = np.argwhere(np.isfinite(dist) & (dist < -1.5 * h))[0]
+        dist[k, j, i] = -dist[k, j, i]
+        lay[k, j, i] = np.floor(-float(dist[k, j, i]) / h + 0.5)
+        path = self.bad("sign_flipped_legacy", values={"/voxelmap/distances": dist, "/voxelmap/layers": lay})
+        entry = self.assert_rejected(path, ("DISTANCE_JUMP", "SIGN_MISMATCH"))
+        codes = [i["code"] for i in entry["issues"]]
+        self.assertIn("SIGN_MISMATCH", codes)
+        self.assertEqual(len(codes), len(set(codes)), "a kind of finding reported twice: %s" % entry["issues"])
+        own = ("/voxelmap/layers", "/voxelmap/distances")
+        self.assertEqual([(i["code"], i["path"]) for i in entry["issues"] if i["path"] not in own], [],
+                         "findings about objects a 1.1 file does not have")
 
     def test_voxel_size_1e300_small_legacy(self):
         """§3.2 range of voxel_size, in a 1.1 file: VALUE_OUT_OF_RANGE at the default (full) level too."""
