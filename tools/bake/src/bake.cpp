@@ -151,7 +151,9 @@ class StageTimes {
 bool encloses_volume(const MassProperties& mass, const TriangleMesh& mesh) {
   const auto [lo, hi] = bounding_box(mesh);
   const double diagonal = length(hi - lo);
-  return mass.volume > 1e-9 * diagonal * diagonal * diagonal;
+  // A flat, closed sheet's volume is rounding, some 1e-16 of area x diagonal. A billionth of the bounding box alone
+  // took parts far apart (a 1 m cube and a 1 mm one 1 km away) for a sheet: whichever of the two is smaller.
+  return mass.volume > 1e-9 * diagonal * std::min(diagonal * diagonal, surface_area(mesh));
 }
 
 // How the bake takes the surface's inside, decided from the repair's report before any voxel exists.
@@ -217,8 +219,8 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
   Geometry g;
   VoxelmapSettings voxelmap_options = options.voxelmap;
   voxelmap_options.winding_number_sign = plan.winding;
-  // A winding bake in which no voxel is more than half a voxel inside stops after its band: it becomes a shell.
-  g.voxelmap_report.stop_if_shallow = plan.winding && plan.shell_thickness == 0;
+  // A bake in which no voxel is more than half a voxel inside stops after its band: it becomes a shell.
+  g.voxelmap_report.stop_if_shallow = plan.shell_thickness == 0;
   tbb::task_group tasks;
   std::exception_ptr shell_error;
   tasks.run([&] {
@@ -247,9 +249,10 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
 
 // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or parts thinner
 // than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
+// A closed surface too: one thinner than a voxel (a needle at a coarse grid) left no inside at all, unsaid.
 bool encloses_nothing(const InsidePlan& plan, const Geometry& g) {
   return plan.shell_thickness == 0 &&
-         (plan.closed_but_flat || (plan.winding && (g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1)));
+         (plan.closed_but_flat || g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1);
 }
 
 // Why a surface that encloses nothing is baked as a shell two voxels thick, and what to do about it: thin parts
@@ -258,7 +261,9 @@ BuildWarning shell_mode_warning(const TriangleMesh& mesh, const InsidePlan& plan
   const double thickness = 2 * g.voxelmap.voxel_size;
   const uint64_t inside = g.voxelmap_report.inside_centres;
   char text[480];
-  if (inside > 0 || (plan.winding && share_with_inside_behind(mesh) >= 0.5)) {
+  // A closed surface that is not flat has an inside behind it everywhere.
+  const bool closed_solid = !plan.winding && !plan.closed_but_flat;
+  if (inside > 0 || closed_solid || (plan.winding && share_with_inside_behind(mesh) >= 0.5)) {
     char centres[96] = "no voxel centre lies inside it";
     if (inside > 0)
       std::snprintf(centres, sizeof centres, "%llu voxel centres lie inside it, none more than half a voxel deep",

@@ -50,6 +50,13 @@ void append_node(const aiScene& scene, const aiNode& node, const aiMatrix4x4& pa
     for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
       const aiFace& face = mesh.mFaces[f];
       if (face.mNumIndices != 3) continue;  // points and lines carry no surface
+      // Some readers (PLY's) pass a face's index on unchecked: past the vertices, the bake would read past them.
+      for (unsigned i = 0; i < 3; ++i)
+        if (face.mIndices[i] >= mesh.mNumVertices)
+          throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: face " + std::to_string(f) +
+                                                       " of mesh '" + mesh.mName.C_Str() + "' names vertex " +
+                                                       std::to_string(face.mIndices[i]) + " of " +
+                                                       std::to_string(mesh.mNumVertices) + " (a corrupt file)");
       out.triangles.push_back({base + face.mIndices[0], base + face.mIndices[1], base + face.mIndices[2]});
     }
   }

@@ -67,9 +67,10 @@ TriangleMesh repair_mesh(const TriangleMesh& mesh, RepairReport& report, bool ch
 /// Builds the layered distance-field voxelmap of a repaired (outward-oriented) mesh, sparsely: exact distances in
 /// the band (value bricks), exact unsigned distances at the brick corners (the lattice) for everything beyond.
 /// `timings`, if given, receives the sub-stages ("voxelmap: band", "voxelmap: lattice", "voxelmap: estimates").
-/// What the winding rule's band found (build_voxelmap's `report`): voxel centres inside the surface, and those more
-/// than half a voxel inside (layer >= 1). With `stop_if_shallow`, a bake where none is deep returns right after
-/// the band (`stopped`, the voxelmap incomplete): the caller bakes a shell instead and need not wait for the rest.
+/// What the band found (build_voxelmap's `report`; not for a shell): voxel centres inside the surface, and those more
+/// than half a voxel inside (layer >= 1), counted in full only where none is deep. With `stop_if_shallow`, a bake where
+/// none is deep returns right after the band (`stopped`, the voxelmap incomplete): the caller bakes a shell instead and
+/// need not wait for the rest.
 struct VoxelmapReport {
   bool stop_if_shallow = false;
   bool stopped = false;

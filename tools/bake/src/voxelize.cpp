@@ -1276,9 +1276,11 @@ void bake_band(const BrickRowsInput& in, Voxelmap& vm) {
 
 // Inside voxel centres, and those more than half a voxel deep: a stored distance <= -h/2, an estimate (at least
 // band - 1/2 voxels deep) or a coarse brick inside.
+// Counted in full only where no voxel is deep (the shell's warning says how many are inside): a solid, every closed
+// mesh's common case, ends at its first deep voxel.
 void count_inside(const Voxelmap& vm, VoxelmapReport& report) {
   uint64_t inside = 0, deep = 0;
-  for (size_t n = 0; n < vm.bricks.size(); ++n) {
+  for (size_t n = 0; n < vm.bricks.size() && deep == 0; ++n) {
     const int32_t entry = vm.bricks[n];
     if (entry == Voxelmap::kCoarseInside) {
       inside += kBrickVoxels;
@@ -1398,7 +1400,7 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
                           bounding_box(mesh)};
   bake_band(in, vm);
   lap(BakeStage::VoxelmapBand);
-  if (report && rule == SignRule::Winding) {
+  if (report && rule != SignRule::Shell) {
     count_inside(vm, *report);
     if (report->stop_if_shallow && report->deep_centres == 0) {
       report->stopped = true;
