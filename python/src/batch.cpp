@@ -96,9 +96,11 @@ nb::dict batch_cpu(const std::vector<const Body*>& bodies, const std::vector<std
   const runtime::BatchOutputs out{count.data,  max_depth.data, force.data,   torque.data, overflow.data, error.data,
                                   uint32_t(k), points.data,    normals.data, depths.data, index.data,    of_b.data};
   Status done = Status::success();
+  SignalCheck interrupted;
   {
     nb::gil_scoped_release release;
-    done = scene.contacts(in, out, threads ? unsigned(*threads) : 0u);
+    done = scene.contacts(in, out, threads ? unsigned(*threads) : 0u,
+                          [&](const runtime::BatchScene::Visit&) { interrupted(); });
   }
   if (!done) throw CodedError(done.error());
   nb::dict d;

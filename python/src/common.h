@@ -6,9 +6,11 @@
 #include <nanobind/ndarray.h>
 
 #include <algorithm>
+#include <chrono>
 #include <initializer_list>
 #include <memory>
 #include <string>
+#include <thread>
 
 #include "voxfmt/result.h"
 #include "voxfmt/runtime/collision_object.h"
@@ -49,6 +51,26 @@ struct OutArray {
     nb::capsule owner(data, [](void* p) noexcept { delete[] static_cast<T*>(p); });
     array = nb::ndarray<nb::numpy, T>(data, shape, owner);
   }
+};
+
+/// Ctrl-C in a long call that has released the GIL: Python only notes the signal, so without a look the call ran
+/// to its end (minutes for a big batch). Called from the call's workers, it acts on the calling thread only (a
+/// batch's worker 0; only the main thread handles signals), at most every 20 ms: takes the GIL, and throws the
+/// handler's exception (KeyboardInterrupt), which stops the workers and is raised from the call.
+class SignalCheck {
+ public:
+  void operator()() {
+    if (std::this_thread::get_id() != caller_) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (now < next_) return;
+    next_ = now + std::chrono::milliseconds(20);
+    nb::gil_scoped_acquire gil;
+    if (PyErr_CheckSignals() != 0) throw nb::python_error();
+  }
+
+ private:
+  std::thread::id caller_ = std::this_thread::get_id();
+  std::chrono::steady_clock::time_point next_ = std::chrono::steady_clock::now() + std::chrono::milliseconds(20);
 };
 
 /// A loaded asset as Python holds it (voxfmt.Body).

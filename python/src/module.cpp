@@ -515,10 +515,15 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
     trajectory.emplace(runtime::BatchScene::Trajectory{tracker->scratch, tracker->state});
   }
   Status done = Status::success();
+  SignalCheck interrupted;
   {
     nb::gil_scoped_release release;
     done = scene.value().each_environment(
-        in, options, thread_count, [&](const runtime::BatchScene::Visit& v) { outputs.record(v); },
+        in, options, thread_count,
+        [&](const runtime::BatchScene::Visit& v) {
+          outputs.record(v);
+          interrupted();
+        },
         trajectory ? &*trajectory : nullptr);
   }
   if (!done) throw CodedError(done.error());
@@ -529,7 +534,7 @@ BatchDict contacts_batch(const Body& a, nb::handle poses_a, const Body& b, nb::h
 // Bake, validate, inspect.
 
 /// The bake's progress callable: called with the GIL between stages; an exception it raises stops the bake at
-/// the next stage and is raised again from bake().
+/// the next stage and is raised again from bake(). Without one, a signal's (KeyboardInterrupt) does.
 struct ProgressBridge {
   nb::object callable;
   std::optional<nb::python_error> raised;
@@ -540,7 +545,9 @@ struct ProgressBridge {
     if (raised) throw Stop();
     nb::gil_scoped_acquire gil;
     try {
-      callable(std::string(stage), fraction);
+      // Without a callable, Ctrl-C stops the bake at its next stage (else the bake ran on and wrote the file).
+      if (callable.is_none() && PyErr_CheckSignals() != 0) throw nb::python_error();
+      if (!callable.is_none()) callable(std::string(stage), fraction);
     } catch (nb::python_error& e) {
       raised.emplace(std::move(e));
       throw Stop();
@@ -551,8 +558,7 @@ struct ProgressBridge {
 std::string bake(nb::handle mesh_object, nb::handle output_object, const bake::Settings& s, nb::object progress) {
   const std::string mesh = path_arg(mesh_object, "mesh_path"), output = path_arg(output_object, "out_path");
   ProgressBridge bridge{progress, std::nullopt};
-  bake::ProgressCallback callback;
-  if (!progress.is_none()) callback = [&bridge](std::string_view stage, double f) { bridge(stage, f); };
+  const bake::ProgressCallback callback = [&bridge](std::string_view stage, double f) { bridge(stage, f); };
   std::optional<Result<bake::Summary>> summary;
   std::exception_ptr escaped;
   {

@@ -172,7 +172,8 @@ Status BatchScene::each_environment(const BatchEnvironments& in, const QueryOpti
   return Status::success();
 }
 
-Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads) const {
+Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads,
+                            const std::function<void(const Visit&)>& after) const {
   if (const Status checked = check_batch(in, out); !checked) return checked;
   QueryOptions options;
   options.direction = QueryDirection::Auto;
@@ -181,10 +182,11 @@ Status BatchScene::contacts(const BatchEnvironments& in, const BatchOutputs& out
   return each_environment(in, options, threads, [&](const Visit& v) {
     if (v.error != 0) {
       write_error(out, v.environment, v.error);
-      return;
+    } else {
+      write_environment(v.contacts, v.reference, in, out, v.environment);
+      if (out.error) out.error[v.environment] = 0;
     }
-    write_environment(v.contacts, v.reference, in, out, v.environment);
-    if (out.error) out.error[v.environment] = 0;
+    if (after) after(v);
   });
 }
 

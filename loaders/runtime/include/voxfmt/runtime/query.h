@@ -297,8 +297,12 @@ class BatchScene {
 
   /// Every environment on `threads` workers (0: every usable core), taken in chunks in turn. BAD_OPTION (nothing
   /// written) without a `count` output, without poses for a non-empty batch, or for a proximity or stiffness that
-  /// is negative or not finite; a bad environment is its `error`, the others are still answered.
-  Status contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads = 0) const;
+  /// is negative or not finite; a bad environment is its `error`, the others are still answered. `after`, if
+  /// given, is called on its worker once an environment's outputs are written (a caller's cancellation, e.g.
+  /// Python's Ctrl-C): an exception it throws stops the workers and is thrown again here.
+  struct Visit;
+  Status contacts(const BatchEnvironments& in, const BatchOutputs& out, unsigned threads = 0,
+                  const std::function<void(const Visit&)>& after = {}) const;
 
   /// One environment's query, handed to each_environment's visitor on the worker that ran it.
   struct Visit {

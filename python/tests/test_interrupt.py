@@ -1,0 +1,98 @@
+"""Ctrl-C (SIGINT) stops a long call that released the GIL, and what it used stays usable. Each call runs in a child
+process, so that a KeyboardInterrupt arriving late (after the call, as it did) never reaches pytest itself."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+# The child: a call sized to take about LONG_S seconds (from a short one timed first; its inputs made before),
+# SIGINT 0.2 s after it starts, then the same objects queried again. Prints how long the interrupt took to arrive.
+_CHILD = r"""
+import json, os, signal, sys, threading, time
+import numpy as np
+import voxfmt
+
+LONG_S = 20.0
+kind, path = sys.argv[1], sys.argv[2]
+body = voxfmt.load(path)
+tracker = voxfmt.Tracker(body, body)
+scene = voxfmt.BatchScene([body], [(0, 0)])
+
+
+def prepare(n):
+    # The call on n poses, its inputs made beforehand.
+    poses = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    poses[:, 0, 3] = 0.06  # overlapping spheres: every pose has contacts
+    eye = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    if kind == "contacts_batch":
+        return lambda: voxfmt.contacts_batch(body, np.eye(4), body, poses, threads=2).count
+    if kind == "tracker":
+        return lambda: tracker.contacts_batch(eye, poses).count
+    eye32, poses32 = eye.astype(np.float32), poses.astype(np.float32)
+    return lambda: scene.contacts(eye32, poses32, threads=2).count
+
+
+small = prepare(2000)
+start = time.perf_counter()
+expected = small()
+n = int(2000 * LONG_S / max(time.perf_counter() - start, 1e-3))
+long_call = prepare(n)
+threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+start = time.perf_counter()
+try:
+    long_call()
+    outcome = "completed"
+except KeyboardInterrupt:
+    outcome = "interrupted"
+elapsed = time.perf_counter() - start
+again = small()
+print(json.dumps({"outcome": outcome, "elapsed": elapsed, "usable": bool(np.array_equal(again, expected))}))
+"""
+
+
+@pytest.mark.parametrize("kind", ["contacts_batch", "tracker", "batch_scene"])
+def test_sigint_stops_a_long_call(sphere_asset: Path, kind: str) -> None:
+    run = subprocess.run([sys.executable, "-c", _CHILD, kind, str(sphere_asset)], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert result["outcome"] == "interrupted"
+    # The call takes ~20 s uninterrupted; a look every 20 ms stops it within a chunk of poses (generous for a
+    # loaded machine).
+    assert result["elapsed"] < 5.0, result
+    assert result["usable"], result
+
+
+# A bake without a progress callable, SIGINT during its voxelmap: it stops at its next stage, writes nothing.
+_BAKE_CHILD = r"""
+import json, os, signal, sys, threading, time
+import voxfmt
+
+mesh, out = sys.argv[1], sys.argv[2]
+threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+start = time.perf_counter()
+try:
+    voxfmt.bake(mesh, out, resolution=400, points=50000, threads=2)
+    outcome = "completed"
+except KeyboardInterrupt:
+    outcome = "interrupted"
+print(json.dumps({"outcome": outcome, "elapsed": time.perf_counter() - start, "written": os.path.exists(out)}))
+"""
+
+
+def test_sigint_stops_a_bake_without_progress(sphere_mesh: Path, tmp_path: Path) -> None:
+    out = tmp_path / "big.vox.h5"
+    run = subprocess.run([sys.executable, "-c", _BAKE_CHILD, str(sphere_mesh), str(out)], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert result["outcome"] == "interrupted" and not result["written"], result
+    # The same bake still runs afterwards, in this process.
+    import voxfmt
+    voxfmt.bake(sphere_mesh, out, resolution=32, points=500, threads=1)
+    assert voxfmt.load(out).voxel_size > 0
