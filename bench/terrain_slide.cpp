@@ -135,8 +135,8 @@ std::vector<btTransform> circle_path(const std::shared_ptr<const voxfmt::runtime
     btTransform t(q, btVector3(0, 0, 0));
     const voxfmt::runtime::Pose pose = shape.asset_pose(t);
     double lowest = 1e30;
-    for (const Eigen::Vector3f& p : object.point_tree().points) {
-      const Eigen::Vector3d w = pose.apply(p.cast<double>());
+    for (size_t i = 0; i < object.point_tree().size(); ++i) {
+      const Eigen::Vector3d w = pose.apply(object.point_tree().asset_point(i));
       lowest = std::min(lowest, w.y() - wave(w.x() + x, w.z() + z));
     }
     const double depth = h * (1.25 + 0.75 * std::sin(0.1 * s));
@@ -154,8 +154,8 @@ btTransform sunk_pose(const std::shared_ptr<const voxfmt::runtime::CollisionObje
   const voxfmt::runtime::Pose pose = voxfmt::bullet::VpsMixedShape(body).asset_pose(t);
   below.clear();
   double deepest = -1e30;
-  for (const Eigen::Vector3f& p : body->point_tree().points) {
-    const Eigen::Vector3d w = pose.apply(p.cast<double>());
+  for (size_t i = 0; i < body->point_tree().size(); ++i) {
+    const Eigen::Vector3d w = pose.apply(body->point_tree().asset_point(i));
     below.push_back(wave(w.x(), w.z()) - w.y());
     deepest = std::max(deepest, below.back());
   }
@@ -399,7 +399,7 @@ WallCheck check_contacts(btHeightfieldTerrainShape& terrain, const voxfmt::runti
                          const std::vector<voxfmt::runtime::Contact>& contacts) {
   WallCheck check;
   const std::vector<Triangle> near = triangles_in(terrain, x_max - 0.4, x_max + 0.2);
-  const auto world = [&](size_t i) { return pose.apply(object.point_tree().points[i].cast<double>()); };
+  const auto world = [&](size_t i) { return pose.apply(object.point_tree().asset_point(i)); };
   std::vector<bool> contact(object.point_tree().size(), false);
   for (const voxfmt::runtime::Contact& c : contacts)
     if (!c.point_of_b && c.depth > 0) {
@@ -431,8 +431,8 @@ nlohmann::json beside_walls(const std::shared_ptr<const voxfmt::runtime::Collisi
   const btTransform at = sunk_pose(object, 1e-3, below);
   const voxfmt::runtime::Pose pose = voxfmt::bullet::VpsMixedShape(object).asset_pose(at);
   double x_max = -1e30;
-  for (const Eigen::Vector3f& p : object->point_tree().points)
-    x_max = std::max(x_max, pose.apply(p.cast<double>()).x());
+  for (size_t i = 0; i < object->point_tree().size(); ++i)
+    x_max = std::max(x_max, pose.apply(object->point_tree().asset_point(i)).x());
   std::cout << "\n"
             << std::setw(10) << "wall m" << std::setw(22) << "pair test p50/max us" << std::setw(18) << "below surface"
             << std::setw(14) << "contacts" << std::setw(16) << "deepest mm" << std::setw(18) << "depth error mm"

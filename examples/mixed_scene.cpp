@@ -399,8 +399,9 @@ int main(int argc, char** argv) {
     const voxfmt::exports::Rgb colours[] = {{200, 60, 40}, {40, 110, 200}, {40, 150, 70}, {170, 90, 170}};
     for (size_t b = 0; b < vps_shapes.size(); ++b) {
       const auto pose = vps_shapes[b]->asset_pose(vps_bodies[b]->getWorldTransform());
-      for (const Eigen::Vector3f& p : vps_shapes[b]->object().point_tree().points) {
-        const Eigen::Vector3d w = pose.apply(p.cast<double>());
+      const voxfmt::runtime::PointTree& tree = vps_shapes[b]->object().point_tree();
+      for (size_t i = 0; i < tree.size(); ++i) {
+        const Eigen::Vector3d w = pose.apply(tree.asset_point(i));
         const auto [px, py] = to_px(w.x(), w.y());
         image.set(px, py, colours[b % 4]);
       }

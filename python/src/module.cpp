@@ -731,9 +731,18 @@ void bind_body(nb::module_& m) {
           "points",
           [](nb::handle self) {
             const auto& t = nb::cast<const Body&>(self).object->point_tree();
-            return view<float>(t.points.empty() ? nullptr : t.points.front().data(), {t.size(), 3}, {3, 1}, self);
+            if (t.anchor.isZero())
+              return nb::cast(
+                  view<float>(t.points.empty() ? nullptr : t.points.front().data(), {t.size(), 3}, {3, 1}, self));
+            // Held from the tree's anchor (far from the frame's origin): the asset frame's, as a copy.
+            OutArray<float> out({t.size(), 3});
+            for (size_t i = 0; i < t.size(); ++i)
+              for (int a = 0; a < 3; ++a) out.data[3 * i + a] = float(t.asset_point(i)[a]);
+            return nb::cast(out.array);
           },
-          "(N, 3) float32 point shell, breadth-first tree order: level l is points[levels[l]:levels[l+1]].")
+          "(N, 3) float32 point shell, breadth-first tree order: level l is points[levels[l]:levels[l+1]] (a copy\n"
+          "for a shell more than 16 times its size from the frame's origin, whose points the runtime holds from its\n"
+          "centre).")
       .def_prop_ro(
           "normals",
           [](nb::handle self) {

@@ -65,7 +65,7 @@ TEST(Haptics, ForceOfAKnownPenetrationMatchesTheClosedForm) {
   Eigen::Vector3d expected = Eigen::Vector3d::Zero();
   const PointTree& tree = tool()->point_tree();
   for (size_t i = 0; i < tree.size(); ++i) {
-    const Eigen::Vector3d p = tree.points[i].cast<double>() + Eigen::Vector3d(x, 0, 0);
+    const Eigen::Vector3d p = tree.asset_point(i) + Eigen::Vector3d(x, 0, 0);
     const double depth = kObjectRadius - p.norm();
     if (depth > 0) expected += parameters.contact_stiffness * depth * tree.normals[i].cast<double>();
   }

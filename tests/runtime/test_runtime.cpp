@@ -219,7 +219,7 @@ TEST(SparseVoxelmap, SampleMatchesExactDistanceNearTheSurface) {
   for (size_t s = 0; s < n; ++s) {
     const size_t i = size_t(rng() % tree.size());
     const double t = offset(rng) * bunny.h;  // along the inward normal, within two voxels of the surface
-    const Eigen::Vector3d p = tree.points[i].cast<double>() + t * tree.normals[i].cast<double>();
+    const Eigen::Vector3d p = tree.asset_point(i) + t * tree.normals[i].cast<double>();
     const FieldSample sample = map.sample(map.to_grid(p));
     const double exact = bunny.exact->signed_distance(to_vec3(p));
     const double error = std::fabs(sample.distance * bunny.h - exact) / bunny.h;
@@ -283,7 +283,7 @@ size_t check_against_exact(const Bunny& bunny, const Pose& pa, const Pose& pb, c
   const Eigen::Vector3d grow = Eigen::Vector3d::Constant(std::max(proximity_reach, 0.0) / pb.scale);
   const Eigen::Vector3d box_min = bunny.object->bounds_min() - grow, box_max = bunny.object->bounds_max() + grow;
   for (size_t i = 0; i < tree.size(); ++i) {
-    const Eigen::Vector3d world = pa.apply(tree.points[i].cast<double>());
+    const Eigen::Vector3d world = pa.apply(tree.asset_point(i));
     const Eigen::Vector3d in_b = pb.rotation.transpose() * (world - pb.translation) / pb.scale;
     if ((in_b.array() < box_min.array()).any() || (in_b.array() > box_max.array()).any()) continue;
     const double d = exact_distance(bunny, pb, world);

@@ -26,8 +26,9 @@ VpsShape::VpsShape(std::shared_ptr<const runtime::CollisionObject> object, Role 
   local_min_ = btVector3(BT_LARGE_FLOAT, BT_LARGE_FLOAT, BT_LARGE_FLOAT);
   local_max_ = -local_min_;
   if (object_->has_point_shell()) {
-    for (const Eigen::Vector3f& p : object_->point_tree().points) {
-      const btVector3 q = asset_to_shape_(to_bt_vector(p.cast<double>()));
+    const runtime::PointTree& tree = object_->point_tree();
+    for (size_t i = 0; i < tree.size(); ++i) {
+      const btVector3 q = asset_to_shape_(to_bt_vector(tree.asset_point(i)));
       local_min_.setMin(q);
       local_max_.setMax(q);
     }
@@ -91,7 +92,9 @@ void VpsShape::processAllTriangles(btTriangleCallback* callback, const btVector3
   const double inradius = s * object_->point_spacing();
   const double circumradius = 2.0 * inradius;
   const Eigen::Vector3d lo = to_eigen(aabb_min), hi = to_eigen(aabb_max);
-  auto to_shape = [&](const Eigen::Vector3f& p) { return Eigen::Vector3d(s * (qt * (p.cast<double>() - com))); };
+  // The tree's points and centres are from its anchor.
+  const Eigen::Vector3d from = com - tree.anchor;
+  auto to_shape = [&](const Eigen::Vector3f& p) { return Eigen::Vector3d(s * (qt * (p.cast<double>() - from))); };
   auto box_distance2 = [&](const Eigen::Vector3d& p) { return (p - p.cwiseMax(lo).cwiseMin(hi)).squaredNorm(); };
   thread_local std::vector<uint32_t> stack;
   stack.assign(1, 0);

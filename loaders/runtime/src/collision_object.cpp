@@ -16,14 +16,31 @@ Eigen::Vector3f to_float(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v
 Eigen::Vector3f to_float(const voxfmt::Vec3f& v) { return Eigen::Vector3f(v[0], v[1], v[2]); }
 Eigen::Vector3d to_double(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
 
+// The tree's anchor (PointTree::anchor): zero, or the shell's centre where it lies more than 16 times its size
+// from the origin (a float there would round it by more than about 1e-6 of its size).
+Eigen::Vector3d anchor_of(const voxfmt::PointShell& shell) {
+  if (shell.size() == 0) return Eigen::Vector3d::Zero();
+  Eigen::Vector3d lo = to_double(shell.points[0]), hi = lo;
+  for (size_t i = 0; i < shell.size(); ++i) {
+    lo = lo.cwiseMin(to_double(shell.points[i]));
+    hi = hi.cwiseMax(to_double(shell.points[i]));
+  }
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  return centre.norm() > 16.0 * (hi - lo).norm() ? centre : Eigen::Vector3d::Zero();
+}
+
 PointTree make_tree(const voxfmt::PointShell& shell) {
   PointTree tree;
   const size_t n = shell.size();
+  tree.anchor = anchor_of(shell);
+  const auto from_anchor = [&](const voxfmt::Vec3& x) -> Eigen::Vector3f {
+    return (to_double(x) - tree.anchor).cast<float>();
+  };
   tree.points.reserve(n);
   tree.normals.reserve(n);
   tree.nodes.resize(n);
   for (size_t i = 0; i < n; ++i) {
-    tree.points.push_back(to_float(shell.points[i]));
+    tree.points.push_back(from_anchor(shell.points[i]));
     tree.normals.push_back(to_float(shell.normals[i]));
   }
   // Single precision moves a centre or a point by up to 2^-24 of its largest coordinate (6e-8 relative): grow
@@ -32,11 +49,12 @@ PointTree make_tree(const voxfmt::PointShell& shell) {
   double largest = 0;
   for (size_t i = 0; i < n; ++i)
     for (int a = 0; a < 3; ++a)
-      largest = std::max({largest, std::abs(shell.points[i][a]), std::abs(shell.sphere_centers[i][a])});
+      largest = std::max({largest, std::abs(shell.points[i][a] - tree.anchor[a]),
+                          std::abs(shell.sphere_centers[i][a] - tree.anchor[a])});
   const float rounding_pad = float(4e-7 * largest);
   for (size_t i = 0; i < n; ++i) {
     PointTree::Node& node = tree.nodes[i];
-    node.centre = core::to_core(to_float(shell.sphere_centers[i]));
+    node.centre = core::to_core(from_anchor(shell.sphere_centers[i]));
     node.radius = float(shell.sphere_radii[i]) * (1.0f + 1e-6f) + rounding_pad;
     node.first_child = shell.child_begin[i];
     node.child_count = shell.child_count[i];
@@ -120,8 +138,8 @@ voxfmt::Result<std::shared_ptr<const CollisionObject>> CollisionObject::from_che
   if (object->principal_axes_.determinant() < 0) object->principal_axes_.col(2) *= -1.0;
 
   double radius2 = 0.0;
-  for (const Eigen::Vector3f& p : object->tree_.points)
-    radius2 = std::max(radius2, (p.cast<double>() - object->center_of_mass_).squaredNorm());
+  for (size_t i = 0; i < object->tree_.size(); ++i)
+    radius2 = std::max(radius2, (object->tree_.asset_point(i) - object->center_of_mass_).squaredNorm());
   if (object->tree_.size() == 0) {  // a point-less object is bounded by its box
     for (int corner = 0; corner < 8; ++corner) {
       const Eigen::Vector3d c((corner & 1) ? object->bounds_max_.x() : object->bounds_min_.x(),

@@ -60,21 +60,23 @@ void shell_in_field(const CollisionObject& shell, const Pose& shell_pose, const 
   if (!shell.has_point_shell() || !field.has_voxelmap()) return;
   const SparseVoxelmap& map = field.voxelmap();
   const PointTree& tree = shell.point_tree();
-  // shell asset frame -> world -> field asset frame -> field grid (voxel units): the query core's frame.
+  // shell points (from its anchor) -> world -> field asset frame -> field grid (voxel units): the query core's frame.
   const double origin[3] = {map.origin().x(), map.origin().y(), map.origin().z()};
+  const core::Shell core_shell = core::shell_of(tree);
+  const core::RigidPose core_shell_pose = core::anchored(core::to_core(shell_pose), core_shell.anchor),
+                        core_field_pose = core::to_core(field_pose);
+  const Pose points_pose = core::to_eigen(core_shell_pose);
   const core::Frame frame =
-      core::frame_of(core::to_core(shell_pose), core::to_core(field_pose), origin, map.voxel_size(), options.proximity);
+      core::frame_of(core_shell_pose, core_field_pose, origin, map.voxel_size(), options.proximity);
   const double metres_per_unit = frame.metres_per_unit;
   const double sign = shell_is_b ? -1.0 : 1.0;
 
   // Normals as the batched core computes them (one definition: core::contact_normal).
   const core::Field core_field = field_of(map);
-  const core::Shell core_shell = core::shell_of(tree);
-  const core::RigidPose core_shell_pose = core::to_core(shell_pose), core_field_pose = core::to_core(field_pose);
   const bool gradient_normals = options.normal_source == NormalSource::DistanceGradient;
   auto emit = [&](const QueryScratch::Buffers::Hit& hit) {
     Contact contact;
-    contact.point = shell_pose.apply(tree.points[hit.node].cast<double>());
+    contact.point = points_pose.apply(tree.points[hit.node].cast<double>());
     double normal[3];
     const core::Vec3 gradient = core::to_core(hit.gradient);
     core::contact_normal(core_field, frame, core_field_pose, core_shell, core_shell_pose, hit.node, gradient_normals,

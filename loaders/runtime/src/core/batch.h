@@ -98,7 +98,7 @@ VOXFMT_HD void contact_normal(const Field& field, const Frame& frame, const Rigi
 struct EnvQuery {
   const Shell* shell;
   const Field* field;
-  RigidPose shell_pose, field_pose;
+  RigidPose shell_pose, field_pose;  ///< the shell's anchored (core::anchored): it places the points as stored
   Frame frame;
   bool gradient_normals;
   double sign;  ///< +1: A's points (normals as they are); -1: B's points (A must move the other way)
@@ -121,7 +121,7 @@ VOXFMT_HD EnvQuery env_query(const Body& a, const RigidPose& pa, const Body& b, 
   const Body& field_body = b_in_a ? a : b;
   q.shell = &shell_body.shell;
   q.field = &field_body.field;
-  q.shell_pose = b_in_a ? pb : pa;
+  q.shell_pose = anchored(b_in_a ? pb : pa, shell_body.shell.anchor);  // the points are from the anchor
   q.field_pose = b_in_a ? pa : pb;
   q.runs = shell_body.has_shell && field_body.has_field;
   q.frame = frame_of(q.shell_pose, q.field_pose, field_body.origin, field_body.voxel_size, proximity);

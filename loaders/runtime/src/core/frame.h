@@ -68,6 +68,16 @@ VOXFMT_HD int auto_direction(bool a_points_in_b, bool b_points_in_a, double ra, 
   return 0;
 }
 
+/// `pose` acting on coordinates relative to `anchor` (a point of its asset frame, PointTree::anchor): x ->
+/// pose(anchor + x), its translation pose(anchor) in double. A zero anchor leaves the pose as it is, bit for bit.
+VOXFMT_HD RigidPose anchored(const RigidPose& p, const double anchor[3]) {
+  RigidPose q = p;
+  for (int r = 0; r < 3; ++r)
+    q.t[r] = p.R[3 * r] * (p.scale * anchor[0]) + p.R[3 * r + 1] * (p.scale * anchor[1]) +
+             p.R[3 * r + 2] * (p.scale * anchor[2]) + p.t[r];
+  return q;
+}
+
 /// The shell's frame in the target's grid: u = to_grid(x) for x in the shell's asset frame, lengths times
 /// radius_scale; a distance d (grid units) is d * metres_per_unit metres.
 struct Frame {

@@ -13,10 +13,11 @@ namespace voxfmt::runtime::core {
 /// A point-sphere tree (spec §4) in the runtime's form: node n is point n, breadth first.
 struct Shell {
   const Node* nodes = nullptr;
-  const Vec3* points = nullptr;   ///< asset frame, metres
+  const Vec3* points = nullptr;   ///< metres, relative to `anchor`
   const Vec3* normals = nullptr;  ///< inward unit normals
   uint32_t count = 0;
-  uint32_t levels = 0;  ///< tree depth: the walk's stack holds at most one range per level
+  uint32_t levels = 0;           ///< tree depth: the walk's stack holds at most one range per level
+  double anchor[3] = {0, 0, 0};  ///< PointTree::anchor: the asset-frame point the points and centres are from
 };
 
 /// Deepest tree the walk takes (a stack of this many ranges per thread); a loader refuses deeper ones up front.

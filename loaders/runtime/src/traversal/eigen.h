@@ -50,6 +50,7 @@ inline Shell shell_of(const PointTree& tree) {
   s.normals = reinterpret_cast<const Vec3*>(tree.normals.data());
   s.count = uint32_t(tree.size());
   s.levels = uint32_t(tree.level_count());
+  for (int a = 0; a < 3; ++a) s.anchor[a] = tree.anchor[a];
   return s;
 }
 
@@ -78,6 +79,23 @@ inline RigidPose to_core(const Pose& pose) {
   }
   p.scale = pose.scale;
   return p;
+}
+
+/// The core's pose as a runtime one, exactly (no arithmetic).
+inline Pose to_eigen(const RigidPose& p) {
+  Pose pose;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) pose.rotation(r, c) = p.R[3 * r + c];
+    pose.translation[r] = p.t[r];
+  }
+  pose.scale = p.scale;
+  return pose;
+}
+
+/// `pose` acting on `tree`'s points and sphere centres, which are relative to its anchor (core::anchored).
+inline Pose anchored(const Pose& pose, const PointTree& tree) {
+  const double anchor[3] = {tree.anchor[0], tree.anchor[1], tree.anchor[2]};
+  return to_eigen(anchored(to_core(pose), anchor));
 }
 
 }  // namespace voxfmt::runtime::core

@@ -97,12 +97,13 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
                             QueryScratch& scratch) {
   if (!shell_object.has_point_shell()) return;
   const PointTree& tree = shell_object.point_tree();
-  const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
-  const Eigen::Vector3f m = pose.translation.cast<float>();
+  const Pose placed = core::anchored(pose, tree);  // the points are from the tree's anchor
+  const Eigen::Matrix3f M = (placed.rotation * placed.scale).cast<float>();
+  const Eigen::Vector3f m = placed.translation.cast<float>();
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  detail::traverse_tree(tree, core::frame_from(M, m, float(pose.scale), float(options.proximity)), target, options,
-                        out.stats, scratch.buffers(), detail::function_contacts(tree, pose, distance, options, out));
+  detail::traverse_tree(tree, core::frame_from(M, m, float(placed.scale), float(options.proximity)), target, options,
+                        out.stats, scratch.buffers(), detail::function_contacts(tree, placed, distance, options, out));
 }
 
 template <class SignedDistance, class LowerBound>
@@ -115,11 +116,12 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
     return;
   }
   const PointTree& tree = shell_object.point_tree();
-  const Eigen::Matrix3f M = (pose.rotation * pose.scale).cast<float>();
-  const Eigen::Vector3f m = pose.translation.cast<float>();
+  const Pose placed = core::anchored(pose, tree);  // the points are from the tree's anchor
+  const Eigen::Matrix3f M = (placed.rotation * placed.scale).cast<float>();
+  const Eigen::Vector3f m = placed.translation.cast<float>();
   // Displacements in the partner's frame, where its distance function is fixed.
-  const Eigen::Matrix3f Mr = (partner.rotation.transpose() * pose.rotation * pose.scale).cast<float>();
-  const Eigen::Vector3f mr = (partner.rotation.transpose() * (pose.translation - partner.translation)).cast<float>();
+  const Eigen::Matrix3f Mr = (partner.rotation.transpose() * placed.rotation * placed.scale).cast<float>();
+  const Eigen::Vector3f mr = (partner.rotation.transpose() * (placed.translation - partner.translation)).cast<float>();
   // The partner's function has no identity here (0): its pair keeps its front.
   front.state().bind(shell_object.id(), 0);
   if (!front.state().take_turn(Mr, mr, tree.extent)) {
@@ -128,9 +130,9 @@ void query_against_function(const CollisionObject& shell_object, const Pose& pos
   }
   detail::FunctionTarget<std::remove_reference_t<SignedDistance>, std::remove_reference_t<LowerBound>> target{
       distance, lower_bound};
-  detail::traverse_coherent(tree, core::frame_from(M, m, float(pose.scale), float(options.proximity)), Mr, mr, target,
+  detail::traverse_coherent(tree, core::frame_from(M, m, float(placed.scale), float(options.proximity)), Mr, mr, target,
                             out.stats, scratch.buffers(), front.state(),
-                            detail::function_contacts(tree, pose, distance, options, out));
+                            detail::function_contacts(tree, placed, distance, options, out));
 }
 
 template <class SignedDistance>

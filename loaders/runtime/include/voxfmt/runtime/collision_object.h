@@ -103,16 +103,23 @@ struct PointTree {
   using Node = core::Node;
 
   std::vector<Node> nodes;
-  std::vector<Eigen::Vector3f> points;   ///< asset frame, metres
+  std::vector<Eigen::Vector3f> points;   ///< metres, relative to `anchor` (asset_point() gives the asset frame's)
   std::vector<Eigen::Vector3f> normals;  ///< inward unit normals
   std::vector<uint32_t> level_offsets;
-  /// The largest |x| of any point or sphere of the tree (asset frame, metres): how far a rigid motion can move
-  /// any of them at most, for coherent queries.
+  /// The asset-frame point the points and sphere centres are relative to: zero, unless the shell lies far from
+  /// its frame's origin (more than 16 times its own size), where it is the shell's centre, so that single
+  /// precision keeps a voxel's fraction (a part in a plant's or a map's coordinates, 1e6 m out, was rounded to
+  /// decimetres). Queries fold it into the pose in double (anchored()).
+  Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
+  /// The largest |x| of any point or sphere of the tree (relative to `anchor`, metres): how far a rigid motion
+  /// can move any of them at most, for coherent queries.
   float extent = 0;
 
   size_t size() const { return points.size(); }
-  /// Centre of node n's sphere (asset frame, metres).
+  /// Centre of node n's sphere (metres, relative to `anchor`).
   Eigen::Vector3f centre(size_t n) const { return {nodes[n].centre.x, nodes[n].centre.y, nodes[n].centre.z}; }
+  /// Point n in the asset frame.
+  Eigen::Vector3d asset_point(size_t n) const { return points[n].cast<double>() + anchor; }
   size_t level_count() const { return level_offsets.empty() ? 0 : level_offsets.size() - 1; }
   /// Number of points in levels [0, level]: the coarse point shell that stops at `level`.
   size_t points_up_to_level(size_t level) const {

@@ -64,7 +64,7 @@ struct FieldLayout {
 /// point is needed: one cache line holds two, and a node's children are contiguous. A 16-byte node of quantised
 /// values was measured no faster (bench/results/sampled-gradient): the floats stay.
 struct alignas(32) Node {
-  Vec3 centre;       ///< centre of the sphere around the node's point and its descendants (asset frame, metres)
+  Vec3 centre;       ///< centre of the sphere around the node's point and its descendants (metres, from the anchor)
   float radius = 0;  ///< metres
   /// |centre - parent's centre| + radius (metres; 0 for the root): a parent's distance bound minus this bounds
   /// the node's, so a child out of reach is dropped without a lookup of its own.
