@@ -9,6 +9,7 @@
 #include <chrono>
 #include <initializer_list>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 
@@ -78,6 +79,10 @@ struct Body {
   std::shared_ptr<const runtime::CollisionObject> object;
   double density = 1.0;
   std::string path;
+  /// What a pickled Body loads again: the file as the load found it (a relative path against the working directory
+  /// then, not at pickling), and the same memory budget.
+  std::string absolute_path;
+  std::optional<int64_t> max_memory_mib;
 };
 
 /// Binds the batched queries of every environment (batch.cpp): the CPU path, and the CUDA one where built.

@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <filesystem>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -645,7 +646,10 @@ Body load(nb::handle path_object, nb::handle density_object, nb::handle max_memo
   const double density = real_arg(density_object, "density");
   if (!(std::isfinite(density) && density > 0)) fail(IssueCode::BadOption, "density must be a finite number > 0");
   runtime::LoadOptions options;
-  options.read = read_options(true, optional_int_arg(max_memory_mib, "max_memory_mib"));
+  const std::optional<int64_t> budget = optional_int_arg(max_memory_mib, "max_memory_mib");
+  options.read = read_options(true, budget);
+  std::error_code ec;
+  const std::filesystem::path absolute = std::filesystem::absolute(path, ec);
   std::optional<Result<std::shared_ptr<const CollisionObject>>> object;
   {
     nb::gil_scoped_release release;
@@ -654,7 +658,7 @@ Body load(nb::handle path_object, nb::handle density_object, nb::handle max_memo
   if (!object->ok()) throw CodedError(object->error());
   if (!object->value()->has_voxelmap() || !object->value()->has_point_shell())
     fail(IssueCode::MissingObject, path + ": the asset has no voxelmap or no point shell");
-  return Body{object->value(), density, path};
+  return Body{object->value(), density, path, ec ? path : absolute.string(), budget};
 }
 
 nb::ndarray<nb::numpy, double> signed_distance(const Body& body, nb::handle points) {
@@ -803,6 +807,8 @@ void bind_body(nb::module_& m) {
           "(min (3,), max (3,)) bounding box in the asset frame, metres.", nb::rv_policy::automatic)
       .def_prop_ro(
           "path", [](const Body& b) { return fs_text(b.path); }, "The file it was loaded from.")
+      .def_prop_ro("_absolute_path", [](const Body& b) { return fs_text(b.absolute_path); })
+      .def_prop_ro("_max_memory_mib", [](const Body& b) { return b.max_memory_mib; })
       .def_prop_ro(
           "build_parameters", [](const Body& b) { return b.object->provenance().build_parameters_json; },
           "The bake's options that shaped the data, as the asset records them (a JSON object, text).")

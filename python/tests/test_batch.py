@@ -125,11 +125,15 @@ def test_a_body_pickles_and_copies_as_its_file_loaded_again(
         c = voxfmt.contacts(again, np.eye(4), again, pose)
         np.testing.assert_array_equal(c.depths, expected.depths)
         np.testing.assert_array_equal(c.points, expected.points)
-    # A relative path is pickled absolute: a worker started in another folder finds the same file.
+    # A relative path is pickled as the file the load found: a worker started in another folder, or a pickle made
+    # after a chdir, finds the same file.
     monkeypatch.chdir(sphere_asset.parent)
-    relative = pickle.dumps(voxfmt.load(sphere_asset.name))
+    loaded_here = voxfmt.load(sphere_asset.name, max_memory_mib=4096)
+    relative = pickle.dumps(loaded_here)
     monkeypatch.chdir(tmp_path)
     assert pickle.loads(relative).path == str(sphere_asset)
+    again = pickle.loads(pickle.dumps(loaded_here))  # pickled after the chdir
+    assert again.path == str(sphere_asset) and again._max_memory_mib == 4096  # the load's budget too
     # A file gone since is the load's coded error.
     gone = tmp_path / "gone.vox.h5"
     shutil.copy(sphere_asset, gone)

@@ -355,15 +355,16 @@ class Tracker:
         self._tracker.reset()
 
 
-def _reload(path: str, density: float) -> Body:
+def _reload(path: str, density: float, max_memory_mib: int | None = None) -> Body:
     """A pickled Body in the process that unpickles it: its file loaded again (FILE_NOT_FOUND if gone since)."""
-    return load(path, density=density)
+    return load(path, density=density, max_memory_mib=max_memory_mib)
 
 
 def _reduce_body(body: Body) -> tuple[Any, ...]:
-    # A Body is its file's data, read-only: what is pickled (and copied) is where that file is and the density
-    # given to load(), not the arrays (a worker of multiprocessing or ProcessPoolExecutor reloads it).
-    return _reload, (os.path.abspath(body.path), body.density)
+    # A Body is its file's data, read-only: what is pickled (and copied) is the file load() found (its absolute
+    # path as of the load) with the density and memory budget given to it, not the arrays (a worker of
+    # multiprocessing or ProcessPoolExecutor reloads it).
+    return _reload, (body._absolute_path, body.density, body._max_memory_mib)
 
 
 copyreg.pickle(Body, _reduce_body)
