@@ -73,6 +73,11 @@ bool check_voxelmap_attributes(const Voxelmap& vm, const FormatVersion& version,
   else if (!(vm.distance_band >= 1 && vm.distance_band <= kMaxDistanceBand))
     c.add(IssueCode::ValueOutOfRange, g + "/@distance_band",
           "distance band " + fmt(vm.distance_band) + " voxels is outside [1, " + fmt(kMaxDistanceBand) + "]");
+  // Thicker, and a shell's lattice values would pass what a runtime's single-precision voxel units hold (spec §3.2).
+  if (vm.shell_thickness && std::isfinite(*vm.shell_thickness) && std::isfinite(vm.voxel_size) &&
+      *vm.shell_thickness > kMaxDistanceBand * vm.voxel_size)
+    c.add(IssueCode::ValueOutOfRange, g + "/@shell_thickness",
+          "shell thickness " + fmt(*vm.shell_thickness) + " m is more than " + fmt(kMaxDistanceBand) + " voxels");
   if (!detail::grid_size_allowed(vm.dims, version)) {
     c.add(IssueCode::ValueOutOfRange, g + "/@dims", "dims must be >= 1 each with " + detail::grid_size_limit(version));
     return false;
@@ -98,9 +103,12 @@ void check_quanta(const Voxelmap& vm, Checker& c) {
   quantum(vm.estimate_quantum, "estimate_quantum");
   if (!std::isfinite(vm.lattice_error[0]) || !std::isfinite(vm.lattice_error[1]))
     c.add(IssueCode::NonFiniteValue, g + "/@lattice_error", "lattice error is not finite");
-  else if (!(vm.lattice_error[0] >= 0 && vm.lattice_error[1] >= 0 && vm.lattice_error[1] <= 1))
+  else if (!(vm.lattice_error[0] >= 0 && vm.lattice_error[0] <= kMaxDistanceBand && vm.lattice_error[1] >= 0 &&
+             vm.lattice_error[1] <= 1))
     c.add(IssueCode::ValueOutOfRange, g + "/@lattice_error",
-          "lattice error must have [0] >= 0 voxels and [1] in [0, 1] (a fraction of the distance)");
+          "lattice error must have [0] in [0, " + fmt(kMaxDistanceBand) +
+              "] voxels (more lifts the lattice's ceiling past what a runtime holds) and [1] in [0, 1] (a fraction "
+              "of the distance)");
 }
 
 /// The arrays' shapes, the brick table's entries and its rows of brick_values; false where what it found leaves

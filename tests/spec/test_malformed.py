@@ -676,6 +676,17 @@ class TestMalformedBricks(MalformedBase):
         path = self.bad("lattice_error_nan", values={"/voxelmap/lattice_error": np.array([np.nan, 0.0])})
         self.assert_rejected(path, "NON_FINITE_VALUE", path_contains="lattice_error")
 
+    def test_lattice_error_or_shell_thickness_past_what_a_reader_holds(self):
+        """§3.2 (2.2): eps0 <= 32767 voxels and T <= 32767 voxels. A lattice error of 1e300 lifted the lattice's
+        ceiling to infinity: lattice values of 3e38 m validated, and the runtime read NaN distances."""
+        path = self.bad("lattice_error_huge", values={"/voxelmap/lattice_error": np.array([1e300, 0.1])})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="lattice_error")
+        path = self.bad("lattice_error_32768", values={"/voxelmap/lattice_error": np.array([32768.0, 0.0])})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="lattice_error")
+        path = self.bad("shell_too_thick", values={"/voxelmap/shell_thickness": np.float64(40000 * self.H)})
+        entry = self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="shell_thickness")
+        self.assertIn("32767 voxels", " ".join(i["message"] for i in entry["issues"]))
+
     # -- semantic rules (full level) ----------------------------------------------------------------------------
 
     def test_stored_distance_beyond_the_band(self):
