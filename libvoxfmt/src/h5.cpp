@@ -100,6 +100,11 @@ Hdf5Failure last_hdf5_failure() {
   return failure;
 }
 
+std::mutex& process_mutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+
 std::string last_hdf5_reason() {
   std::string reason;
   H5Ewalk2(H5E_DEFAULT, H5E_WALK_UPWARD, collect_innermost, &reason);

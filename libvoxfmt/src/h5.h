@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -51,6 +52,10 @@ class Handle {
 void silence_hdf5_errors();
 /// The innermost reason on HDF5's current error stack, e.g. "truncated file: eof = 1024, ...".
 std::string last_hdf5_reason();
+
+/// Held by whatever uses HDF5 in this process outside a forked child (the writer), and by an isolated read while it
+/// forks and waits: a child forked while another thread is inside HDF5 inherits HDF5's lock held and sleeps.
+std::mutex& process_mutex();
 /// Why HDF5's last call failed, read from (and cleared off) its error stack at once.
 struct Hdf5Failure {
   std::string reason;          ///< as last_hdf5_reason()

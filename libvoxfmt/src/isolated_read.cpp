@@ -12,6 +12,7 @@
 #include <mutex>
 #include <new>
 
+#include "h5.h"
 #include "load.h"
 #include "voxfmt/detail/isolated_call.h"
 
@@ -160,10 +161,10 @@ template <class Value, class ReadInProcess, class Visit>
 std::optional<Value> read_isolated(const std::string& path, std::vector<Issue>& issues, ReadInProcess&& read,
                                    Visit&& visit) {
   if (!read_isolation()) return read(path, issues);
-  // One isolated read at a time in this process: a child forked while another of our threads is inside HDF5
-  // would wait forever for HDF5's lock, which that thread holds in the parent only.
-  static std::mutex one_at_a_time;
-  std::lock_guard<std::mutex> lock(one_at_a_time);
+  // One isolated read at a time in this process, and none while a write is inside HDF5: a child forked while
+  // another of our threads is inside HDF5 would wait forever for HDF5's lock, which that thread holds in the parent
+  // only (a bake writing on one thread stalled a load on another for the watchdog's 5 s, twice).
+  std::lock_guard<std::mutex> lock(h5::process_mutex());
   // The parent stops the child only when neither the shared counter nor the pipe has moved while the child used
   // kIdleLimitS of CPU time (a starved child is not a hung one; see Watchdog). A real read never pauses that long
   // between pieces of at most 2^22 elements, whatever the file's size or the machine's load; a parse that loops in

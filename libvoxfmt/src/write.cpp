@@ -163,6 +163,7 @@ Status write_bytes(const std::string& file, const std::vector<char>& bytes, cons
 // cannot be closed, and the library crashes closing it again at exit.
 Status write_in_memory_then_to(const std::string& temp, const std::string& path, const Asset& asset,
                                const WriteOptions& options) {
+  std::unique_lock<std::mutex> hdf5(h5::process_mutex());  // until the file is closed (isolated reads fork)
   h5::Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
   if (!fapl.valid() || H5Pset_fapl_core(fapl.get(), 4 << 20, false) < 0)
     return Error{IssueCode::WriteFailed, path + ": cannot set up HDF5 (" + h5::last_hdf5_reason() + ")", path};
@@ -205,6 +206,8 @@ Status write_in_memory_then_to(const std::string& temp, const std::string& path,
     reason = std::string("write failed: ") + e.what();
   }
   H5Fclose(file);  // in memory: nothing to fail on
+  fapl.reset();
+  hdf5.unlock();
   if (!ok) return Error{out_of_memory ? IssueCode::OutOfMemory : IssueCode::WriteFailed, path + ": " + reason, path};
   return write_bytes(temp, image, path);
 }

@@ -66,8 +66,9 @@ struct ReadOptions {
 /// Reading a file parses it in a child process by default (POSIX): HDF5 1.10 crashes or hangs on some damaged
 /// files, and the child's death becomes a READ_FAILED error instead of the caller's. Costs a fork and a copy of
 /// the data through a pipe. Turn it off for trusted files, debuggers and fuzzers (in-process crashes are what a
-/// fuzzer looks for), or when another thread of the process may be inside HDF5 at the time of a read (a forked
-/// child cannot take HDF5's lock from it): set_read_isolation(false), or VOXFMT_READ_ISOLATION=0 in the
+/// fuzzer looks for), or when another thread of the process may be inside the same HDF5 library through other code
+/// at the time of a read (a forked child cannot take HDF5's lock from it; this library's own writes and reads take
+/// turns): set_read_isolation(false), or VOXFMT_READ_ISOLATION=0 in the
 /// environment. Not thread-safe; set it before reading. The bake's mesh import follows the same switch (assimp's
 /// importers crash on some malformed meshes; in the child that is IMPORT_FAILED).
 void set_read_isolation(bool enabled);
