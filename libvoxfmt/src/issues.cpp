@@ -44,6 +44,7 @@ constexpr CodeInfo kCodes[] = {
     {IssueCode::SignMismatch, "SIGN_MISMATCH", Severity::Error},
     {IssueCode::StringNotUtf8, "STRING_NOT_UTF8", Severity::Error},
     {IssueCode::LatticeMismatch, "LATTICE_MISMATCH", Severity::Error},
+    {IssueCode::PointOffSurface, "POINT_OFF_SURFACE", Severity::Error},
     {IssueCode::InputNotFound, "INPUT_NOT_FOUND", Severity::Error},
     {IssueCode::UnsupportedFormat, "UNSUPPORTED_FORMAT", Severity::Error},
     {IssueCode::ImportFailed, "IMPORT_FAILED", Severity::Error},

@@ -675,6 +675,22 @@ std::optional<double> nearest_distance(const Voxelmap& vm, const Vec3& p) {
   return v.distance;
 }
 
+// Spec §4 (2.2): a point on the surface is within sqrt(3)/2 h of its nearest voxel, so with a band of 1.5 voxels or
+// more that voxel stores a distance (outside shell mode: a thick shell's inner sheet may not exist).
+void check_points_on_surface(const Asset& a, Checker& c) {
+  const Voxelmap& vm = a.voxelmap;
+  const bool from_2_2 = a.version.major > 2 || (a.version.major == 2 && a.version.minor >= 2);
+  if (!from_2_2 || vm.shell_thickness || vm.distance_band < 1.5) return;
+  size_t off = 0, first = 0;
+  for (size_t n = 0; n < a.point_shell.size(); ++n)
+    if (!nearest_distance(vm, a.point_shell.points[n]) && off++ == 0) first = n;
+  if (off > 0)
+    c.add(IssueCode::PointOffSurface, "/pointshell/points",
+          std::to_string(off) + " of " + std::to_string(a.point_shell.size()) + " points (point " +
+              std::to_string(first) + " the first) have no stored distance at their nearest voxel: they do not lie " +
+              "on the voxelmap's surface");
+}
+
 void check_point_shell_semantics(const Asset& a, Checker& c) {
   const PointShell& ps = a.point_shell;
   const Voxelmap& vm = a.voxelmap;
@@ -694,6 +710,7 @@ void check_point_shell_semantics(const Asset& a, Checker& c) {
   if (tested > 0 && outward * 10 > tested)
     c.add(IssueCode::NormalNotInward, "/pointshell/normals",
           std::to_string(outward) + " of " + std::to_string(tested) + " normals point out of the voxelmap's inside");
+  check_points_on_surface(a, c);
   // Spec §4: every node's sphere encloses its own point and the points of all its descendants. Each point is
   // checked against the spheres of all its ancestors (N x depth work).
   std::vector<uint32_t> parent(ps.size(), UINT32_MAX);

@@ -170,6 +170,16 @@ def write_cases(folder: str | os.PathLike[str]) -> dict[str, Case]:
 
     add("grid_moved", ("VALUE_OUT_OF_RANGE",), 1, "the voxelmap's origin moved 5 m off its object (spec §3)",
         post=grid_moved)
+
+    def voxelmap_emptied(f: h5py.File) -> None:
+        f["/voxelmap/bricks"][...] = -1  # every brick coarse, outside: no surface anywhere
+        del f["/voxelmap/brick_values"]
+        f["/voxelmap"].create_dataset("brick_values", shape=(0, 512), maxshape=(None, 512), dtype="<i2",
+                                      chunks=(1, 512))
+
+    add("voxelmap_emptied", ("POINT_OFF_SURFACE",), 1,
+        "a 2.2 file whose bricks are all coarse: its points lie on no surface of its voxelmap (spec §4)",
+        format_version=[2, 2], post=voxelmap_emptied)
     return cases
 
 

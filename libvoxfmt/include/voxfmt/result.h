@@ -51,6 +51,7 @@ enum class IssueCode {
   SignMismatch,
   StringNotUtf8,
   LatticeMismatch,
+  PointOffSurface,
   // Errors of the bake, the exports and batch runs (never validation findings).
   InputNotFound,
   UnsupportedFormat,
