@@ -20,6 +20,7 @@ struct Scene::Device {
   uint32_t* pair_b = nullptr;
   unsigned resident_blocks = 0;
   uint32_t frontier_capacity = 1;  ///< core::frontier_capacity of the scene's shells
+  int ordinal = -1;                ///< the CUDA device the scene was uploaded to (current at upload)
   ~Device() {
     for (void* p : allocations) device::release(p);
   }
@@ -109,6 +110,8 @@ Result<std::shared_ptr<Scene>> Scene::upload(const std::vector<std::shared_ptr<c
   scene->device_ = std::make_unique<Device>();
   scene->pairs_ = pairs.size();
   Device& d = *scene->device_;
+  d.ordinal = current_device(&why);
+  if (d.ordinal < 0) return Error{IssueCode::Internal, "no current CUDA device for the batch: " + why};
   std::vector<core::Body> bodies;
   std::string error;
   for (const auto& asset : assets) {
@@ -151,6 +154,13 @@ Status Scene::contacts(const Environments& in, const Outputs& out, void* stream)
   if (in.tie != runtime::DirectionTie::APoints)
     return Error{IssueCode::BadOption, "the device batch gives ties to A's points (addresses are the host's)"};
   if (in.count == 0) return Status::success();  // nothing to launch (empty arrays may have null pointers)
+  // Launched on another device, the kernel would read the scene's arrays through pointers of its own device.
+  std::string why;
+  if (const int current = current_device(&why); current != device_->ordinal)
+    return Error{IssueCode::BadOption, "the scene lives on CUDA device " + std::to_string(device_->ordinal) +
+                                           ", the current one is " +
+                                           (current < 0 ? "none (" + why + ")" : std::to_string(current)) +
+                                           ": make it current (cudaSetDevice) before contacts()"};
   if (!out.count) return Error{IssueCode::BadOption, "the batch needs a `count` output"};
   if (in.poses_a_f64 || in.poses_b_f64)
     return Error{IssueCode::BadOption, "the device batch takes float32 poses (poses_a, poses_b)"};

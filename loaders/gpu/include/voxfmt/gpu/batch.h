@@ -64,7 +64,8 @@ class Scene {
   /// Queues every environment on `stream` (a cudaStream_t; nullptr = the default stream) and returns at once: a
   /// block of threads per environment, the walk's frontier from the stream's memory pool (stream ordered), nothing
   /// synchronised, so the call can be captured in a CUDA graph and calls on several streams do not share memory.
-  /// An error only when the launch itself fails (BAD_OPTION for a missing `count` output or float64 poses).
+  /// An error only when the launch itself fails (BAD_OPTION for a missing `count` output, float64 poses, or a
+  /// current CUDA device other than the one the scene was uploaded to).
   Status contacts(const Environments& in, const Outputs& out, void* stream = nullptr) const;
 
  private:
