@@ -96,6 +96,31 @@ TEST(QueryCore, EveryLowerBoundKernelGivesTheScalarBoundsBitForBit) {
   EXPECT_FALSE(core::lower_bounds_with(core::SimdKernel::Avx2, unpadded, points.data(), 8, vector.data()));
 }
 
+TEST(QueryCore, TheVectorKernelBoundsPointsSoFarOutThatTheirSquaresOverflow) {
+  // Beyond ~1.8e19 voxels (1e17 m at a 2 mm voxel) |u - box|^2 overflows float: the scalar kernel takes the root in
+  // double (hypot_f), and the vector one must too. An inf bound culled every sphere a huge proximity reached, so
+  // a fresh query found nothing where the coherent one (scalar bounds) found every point.
+  const BakedBunny& bunny = BakedBunny::get();
+  const core::Field field = field_of(bunny.object->voxelmap());
+  std::vector<core::Vec3> points;
+  for (const float far : {1e18f, 2e19f, 1e25f, -3e30f, 1e38f})
+    for (int axis = 0; axis < 4; ++axis)  // along each axis and along the diagonal
+      points.push_back(axis == 3
+                           ? core::make_vec3(far, far, far)
+                           : core::make_vec3(axis == 0 ? far : 5.0f, axis == 1 ? far : 5.0f, axis == 2 ? far : 5.0f));
+  points.push_back(core::make_vec3(3.0f, 4.0f, 5.0f));  // an ordinary point in the same batch keeps its bits
+  std::vector<float> scalar(points.size()), vector(points.size());
+  ASSERT_TRUE(core::lower_bounds_with(core::SimdKernel::Scalar, field, points.data(), points.size(), scalar.data()));
+  if (!core::lower_bounds_with(core::SimdKernel::Avx2, field, points.data(), points.size(), vector.data()))
+    GTEST_SKIP() << "this CPU has no AVX2: only the scalar kernel runs here";
+  for (size_t p = 0; p < points.size(); ++p) {
+    EXPECT_TRUE(std::isfinite(vector[p])) << p << ": " << vector[p];
+    EXPECT_EQ(std::memcmp(&scalar[p], &vector[p], sizeof(float)), 0)
+        << "point " << p << " (" << points[p].x << ", " << points[p].y << ", " << points[p].z << "): scalar "
+        << scalar[p] << ", avx2 " << vector[p];
+  }
+}
+
 TEST(QueryCore, BatchEnvironmentFindsTheRuntimesContactsAndWrench) {
   const BakedBunny& bunny = BakedBunny::get();
   const CollisionObject& object = *bunny.object;

@@ -166,7 +166,16 @@ VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
     outside[a] = max_f8(
         max_f8(_mm256_sub_ps(_mm256_set1_ps(box_min[a]), l.x[a]), _mm256_sub_ps(l.x[a], _mm256_set1_ps(box_max[a]))),
         _mm256_setzero_ps());
-  const __m256 box_distance = length8(outside[0], outside[1], outside[2]);
+  __m256 box_distance = length8(outside[0], outside[1], outside[2]);
+  // Past ~1.8e19 voxels the squares overflow to inf, which culls everything: those lanes as hypot_f (double).
+  if (_mm256_movemask_ps(_mm256_cmp_ps(box_distance, _mm256_set1_ps(3.40282347e+38f), _CMP_GT_OQ)) != 0) {
+    alignas(32) float o[3][8], d[8];
+    for (int a = 0; a < 3; ++a) _mm256_store_ps(o[a], outside[a]);
+    _mm256_store_ps(d, box_distance);
+    for (int lane = 0; lane < 8; ++lane)
+      if (d[lane] > 3.40282347e+38f) d[lane] = hypot_f(make_vec3(o[0][lane], o[1][lane], o[2][lane]), 0.0f);
+    box_distance = _mm256_load_ps(d);
+  }
   if (_mm256_movemask_ps(l.covered) == 0) {
     _mm256_storeu_ps(out, box_distance);
     return;
