@@ -344,6 +344,13 @@ TEST(Bullet, ShapeInertiaComesFromTheAsset) {
   // contact, -1 turned the box inside out (never paired), NaN made the box and the inertia NaN.
   for (const float bad : {0.0f, -1.0f, std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()})
     EXPECT_THROW(shape.setLocalScaling(btVector3(bad, bad, bad)), std::invalid_argument) << bad;
+  // Non-uniform, given or passed on by a compound stretched along y: refused, not taken as x (the shape would
+  // collide as an unstretched body).
+  EXPECT_THROW(shape.setLocalScaling(btVector3(0.5f, 1.0f, 0.5f)), std::invalid_argument);
+  EXPECT_THROW(shape.setLocalScaling(btVector3(2.0f, 2.0f, 0.0f)), std::invalid_argument);
+  btCompoundShape compound;
+  compound.addChildShape(btTransform::getIdentity(), &shape);
+  EXPECT_THROW(compound.setLocalScaling(btVector3(1, 2, 1)), std::invalid_argument);
   EXPECT_EQ(shape.getLocalScaling(), btVector3(0.5f, 0.5f, 0.5f));
   EXPECT_EQ(shape.asset_pose(t).scale, 0.5);
 }

@@ -9,9 +9,15 @@
 #include <BulletDynamics/Dynamics/btDiscreteDynamicsWorldMt.h>
 #include <btBulletDynamicsCommon.h>
 
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
 #include <mutex>
 #include <set>
+#include <stdexcept>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -259,6 +265,178 @@ TEST(BulletThreads, BulletMtWorldWithTaskSchedulerRunsThePile) {
   if (!threaded) {
     EXPECT_EQ(mt.threads_used, 1u);  // what "not thread safe" means here: no parallelism at all
   }
+}
+
+// ---- The pool itself: resizing from another thread, and loop bodies that throw.
+
+// Ends the process when `seconds` pass before it is destroyed: a hang fails the test instead of blocking ctest.
+class Watchdog {
+ public:
+  Watchdog(const char* what, int seconds)
+      : thread_([this, what, seconds] {
+          std::unique_lock<std::mutex> lock(mutex_);
+          if (!done_cv_.wait_for(lock, std::chrono::seconds(seconds), [this] { return done_; })) {
+            std::fprintf(stderr, "hang: %s did not finish in %d s\n", what, seconds);
+            std::_Exit(3);
+          }
+        }) {}
+  ~Watchdog() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    done_cv_.notify_one();
+    thread_.join();
+  }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable done_cv_;
+  bool done_ = false;
+  std::thread thread_;
+};
+
+// Counts the iterations it runs and the threads that ran them; a chunk takes about `sleep_us`.
+struct CountingBody : btIParallelForBody {
+  mutable std::atomic<int> iterations{0};
+  mutable std::mutex mutex;
+  mutable std::set<std::thread::id> threads;
+  int sleep_us = 0;
+  void forLoop(int begin, int end) const override {
+    if (sleep_us) std::this_thread::sleep_for(std::chrono::microseconds(sleep_us));
+    iterations += end - begin;
+    std::lock_guard<std::mutex> lock(mutex);
+    threads.insert(std::this_thread::get_id());
+  }
+};
+
+TEST(BulletThreads, SetNumThreadsWhileAnotherThreadLoopsWaitsForTheLoop) {
+  Watchdog watchdog("setNumThreads during parallelFor", 60);
+  ThreadPoolScheduler scheduler(4);
+  std::atomic<bool> looping{true};
+  int wrong = 0;
+  std::thread loops([&] {
+    for (int k = 0; k < 3000; ++k) {
+      CountingBody body;
+      scheduler.parallelFor(0, 64, 1, body);
+      wrong += body.iterations != 64;
+    }
+    looping = false;
+  });
+  int resizes = 0;
+  while (looping) scheduler.setNumThreads(1 + resizes++ % 4);
+  loops.join();
+  EXPECT_EQ(wrong, 0);
+  EXPECT_GT(resizes, 10);
+  scheduler.setNumThreads(3);
+  EXPECT_EQ(scheduler.getNumThreads(), 3);
+}
+
+TEST(BulletThreads, SetNumThreadsFromALoopBodyTakesEffectAfterTheLoop) {
+  Watchdog watchdog("setNumThreads from a loop body", 60);
+  ThreadPoolScheduler scheduler(4);
+  struct Resize : btIParallelForBody {
+    ThreadPoolScheduler& scheduler;
+    explicit Resize(ThreadPoolScheduler& s) : scheduler(s) {}
+    void forLoop(int begin, int) const override {
+      if (begin == 5) scheduler.setNumThreads(2);
+    }
+  };
+  scheduler.parallelFor(0, 32, 1, Resize(scheduler));
+  EXPECT_EQ(scheduler.getNumThreads(), 2);
+  CountingBody body;
+  scheduler.parallelFor(0, 32, 1, body);
+  EXPECT_EQ(body.iterations, 32);
+}
+
+// A body that throws on one thread: parallelFor rethrows once no thread is left in the body, and the threads
+// are fit for the next loop.
+struct ThrowingBody : btIParallelForBody {
+  enum class Where { Caller, Worker };
+  Where where;
+  std::thread::id caller = std::this_thread::get_id();
+  mutable std::atomic<int> inside{0}, worker_entries{0};
+  mutable std::atomic<bool> thrown{false};
+  explicit ThrowingBody(Where w) : where(w) {}
+  void forLoop(int, int) const override {
+    ++inside;
+    const bool on_caller = std::this_thread::get_id() == caller;
+    if (!on_caller) ++worker_entries;
+    if (on_caller && where == Where::Worker) {
+      // Keeps the caller in the loop until a worker has taken a chunk (it throws).
+      for (int k = 0; k < 5000 && !thrown; ++k) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    std::this_thread::sleep_for(std::chrono::microseconds(300));
+    if (on_caller == (where == Where::Caller) && !thrown.exchange(true)) {
+      --inside;
+      throw std::runtime_error("body failed");
+    }
+    --inside;
+  }
+};
+
+TEST(BulletThreads, ABodyThrowingOnTheCallingThreadIsRethrownAfterTheWorkersLeaveIt) {
+  Watchdog watchdog("a throwing loop body", 60);
+  ThreadPoolScheduler scheduler(4);
+  ThrowingBody body(ThrowingBody::Where::Caller);
+  EXPECT_THROW(scheduler.parallelFor(0, 400, 1, body), std::runtime_error);
+  EXPECT_EQ(body.inside, 0);  // nobody is still in the body when parallelFor leaves
+  const int entries = body.worker_entries;
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(body.worker_entries, entries);  // nor enters it after
+  // The calling thread is not left marked as a task (it would run every later loop alone).
+  CountingBody next;
+  next.sleep_us = 2000;
+  scheduler.parallelFor(0, 40, 1, next);
+  EXPECT_EQ(next.iterations, 40);
+  EXPECT_GE(next.threads.size(), 2u);
+}
+
+TEST(BulletThreads, ABodyThrowingOnAWorkerIsRethrownOnTheCallingThread) {
+  Watchdog watchdog("a throwing loop body", 60);
+  ThreadPoolScheduler scheduler(3);
+  ThrowingBody body(ThrowingBody::Where::Worker);
+  EXPECT_THROW(scheduler.parallelFor(0, 400, 1, body), std::runtime_error);
+  EXPECT_EQ(body.inside, 0);
+  CountingBody next;
+  next.sleep_us = 2000;
+  scheduler.parallelFor(0, 40, 1, next);
+  EXPECT_EQ(next.iterations, 40);
+  EXPECT_GE(next.threads.size(), 2u);
+}
+
+// A near callback that throws (a user's, or bad_alloc in an algorithm): the manifolds made before it are on
+// the dispatcher's list, and the thread's later manifolds are not held back for a step.
+TEST(BulletThreads, ANearCallbackThrowingLeavesTheDispatcherConsistent) {
+  ThreadPoolScheduler scheduler(1);
+  btDefaultCollisionConfiguration configuration;
+  ParallelCollisionDispatcher dispatcher(&configuration, scheduler);
+  btDbvtBroadphase broadphase;
+  btCollisionWorld world(&dispatcher, &broadphase, &configuration);
+  btBoxShape box(btVector3(1, 1, 1));
+  btCollisionObject a, b;
+  a.setCollisionShape(&box);
+  b.setCollisionShape(&box);
+  b.setWorldTransform(btTransform(btQuaternion::getIdentity(), btVector3(btScalar(1.5), 0, 0)));
+  world.addCollisionObject(&a);
+  world.addCollisionObject(&b);
+  static bool throw_next = false;
+  dispatcher.setNearCallback([](btBroadphasePair& pair, btCollisionDispatcher& d, const btDispatcherInfo& info) {
+    btCollisionDispatcher::defaultNearCallback(pair, d, info);
+    if (std::exchange(throw_next, false)) throw std::runtime_error("near callback failed");
+  });
+  throw_next = true;
+  EXPECT_THROW(world.performDiscreteCollisionDetection(), std::runtime_error);
+  EXPECT_EQ(dispatcher.getNumManifolds(), 1);  // the pair's manifold, made before the throw
+  btPersistentManifold* extra = dispatcher.getNewManifold(&a, &b);
+  EXPECT_EQ(dispatcher.getNumManifolds(), 2);  // not queued as if inside the step
+  dispatcher.releaseManifold(extra);
+  world.performDiscreteCollisionDetection();
+  ASSERT_EQ(dispatcher.getNumManifolds(), 1);
+  EXPECT_GT(dispatcher.getManifoldByIndexInternal(0)->getNumContacts(), 0);
+  world.removeCollisionObject(&b);
+  EXPECT_EQ(dispatcher.getNumManifolds(), 0);
+  world.removeCollisionObject(&a);
 }
 
 }  // namespace

@@ -70,6 +70,13 @@ void VpsShape::setLocalScaling(const btVector3& scaling) {
   if (!(std::isfinite(double(scaling.x())) && scaling.x() > 0))
     throw std::invalid_argument("VpsShape::setLocalScaling: the scale (x) must be a finite number > 0, got " +
                                 std::to_string(double(scaling.x())));
+  // A non-uniform scale (given, or a compound's passed on to its children) taken as x collided with a body of
+  // another shape than the one simulated: refused, as a bad scale is.
+  const double x = double(scaling.x()), tolerance = 1e-5 * x;
+  if (!(std::abs(double(scaling.y()) - x) <= tolerance && std::abs(double(scaling.z()) - x) <= tolerance))
+    throw std::invalid_argument("VpsShape::setLocalScaling: only uniform scaling is supported, got (" +
+                                std::to_string(x) + ", " + std::to_string(double(scaling.y())) + ", " +
+                                std::to_string(double(scaling.z())) + ")");
   scale_ = double(scaling.x());
   local_scaling_ = btVector3(scaling.x(), scaling.x(), scaling.x());
 }

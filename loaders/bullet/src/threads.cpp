@@ -8,8 +8,11 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <exception>
+#include <mutex>
 #include <system_error>
 #include <thread>
+#include <utility>
 
 namespace voxfmt::bullet {
 namespace {
@@ -57,11 +60,13 @@ bool bullet_is_thread_safe() {
 
 // Workers sleep on `wake` between loops; a loop is published under the mutex (so the workers see its fields),
 // its chunks are claimed through `next`, and the caller waits on `finished` until every worker has left it.
+// `loops` is held by the loop in progress and by a resize, so workers are never stopped mid-loop.
 struct ThreadPoolScheduler::Pool {
-  std::mutex loops;  // one loop at a time, whoever calls
+  std::mutex loops;  // one loop (or resize) at a time, whoever calls
   std::mutex mutex;
   std::condition_variable wake, finished;
   std::vector<std::thread> workers;
+  std::atomic<int> threads{1};  // workers + 1, readable while a resize runs
   bool stop = false;
   uint64_t generation = 0;  // loops published so far
   int running = 0;          // workers not yet done with the current loop
@@ -70,6 +75,8 @@ struct ThreadPoolScheduler::Pool {
   int64_t end = 0, grain = 1;
   std::atomic<int64_t> next{0};
   btScalar sum = 0;
+  std::exception_ptr failure;  // the first exception a body threw in this loop
+  int pending = 0;             // a size asked for from inside a task: applied when the loop ends
 
   // A worker that cannot be started (a process at its thread limit) is not an error, as for voxfmt::run_workers:
   // the pool runs with those started (getNumThreads says how many) and the calling thread.
@@ -79,6 +86,7 @@ struct ThreadPoolScheduler::Pool {
       for (int k = 0; k < count; ++k) workers.emplace_back([this, seen = generation] { worker(seen); });
     } catch (const std::system_error&) {
     }
+    threads.store(int(workers.size()) + 1);
   }
 
   void join() {
@@ -90,21 +98,40 @@ struct ThreadPoolScheduler::Pool {
     for (std::thread& worker : workers) worker.join();
     workers.clear();
     stop = false;
+    threads.store(1);
+  }
+
+  // Under `loops`.
+  void resize(int count) {
+    if (count == threads.load()) return;
+    join();
+    start(count - 1);
   }
 
   void work() {
-    t_in_task = true;
+    // Cleared however the body leaves: a thread left marked would run every later loop alone.
+    struct InTask {
+      InTask() { t_in_task = true; }
+      ~InTask() { t_in_task = false; }
+    } in_task;
     btScalar partial = 0;
-    for (;;) {
-      const int64_t begin = next.fetch_add(grain, std::memory_order_relaxed);
-      if (begin >= end) break;
-      const int stop_at = int(std::min(end, begin + grain));
-      if (for_body)
-        for_body->forLoop(int(begin), stop_at);
-      else
-        partial += sum_body->sumLoop(int(begin), stop_at);
+    try {
+      for (;;) {
+        const int64_t begin = next.fetch_add(grain, std::memory_order_relaxed);
+        if (begin >= end) break;
+        const int stop_at = int(std::min(end, begin + grain));
+        if (for_body)
+          for_body->forLoop(int(begin), stop_at);
+        else
+          partial += sum_body->sumLoop(int(begin), stop_at);
+      }
+    } catch (...) {
+      // The other threads take no more chunks; the caller rethrows once every thread has left the body.
+      next.store(end, std::memory_order_relaxed);
+      std::lock_guard<std::mutex> lock(mutex);
+      if (!failure) failure = std::current_exception();
+      return;
     }
-    t_in_task = false;
     if (sum_body) {
       std::lock_guard<std::mutex> lock(mutex);
       sum += partial;
@@ -135,14 +162,25 @@ struct ThreadPoolScheduler::Pool {
       grain = chunk;
       next.store(begin, std::memory_order_relaxed);
       sum = 0;
+      failure = nullptr;
       running = int(workers.size());
       ++generation;
     }
     wake.notify_all();
     work();
-    std::unique_lock<std::mutex> lock(mutex);
-    finished.wait(lock, [&] { return running == 0; });
-    return sum;
+    std::exception_ptr thrown;
+    btScalar total;
+    int resize_to;
+    {
+      std::unique_lock<std::mutex> lock(mutex);
+      finished.wait(lock, [&] { return running == 0; });
+      thrown = std::exchange(failure, nullptr);
+      total = sum;
+      resize_to = std::exchange(pending, 0);
+    }
+    if (resize_to) resize(resize_to);
+    if (thrown) std::rethrow_exception(thrown);
+    return total;
   }
 };
 
@@ -151,21 +189,30 @@ ThreadPoolScheduler::ThreadPoolScheduler(int threads)
   setNumThreads(threads);
 }
 
-ThreadPoolScheduler::~ThreadPoolScheduler() { pool_->join(); }
+ThreadPoolScheduler::~ThreadPoolScheduler() {
+  std::lock_guard<std::mutex> one_loop(pool_->loops);
+  pool_->join();
+}
 
-int ThreadPoolScheduler::getNumThreads() const { return int(pool_->workers.size()) + 1; }
+int ThreadPoolScheduler::getNumThreads() const { return pool_->threads.load(); }
 
 void ThreadPoolScheduler::setNumThreads(int threads) {
   threads = std::clamp(threads, 1, getMaxNumThreads());
-  if (threads == getNumThreads()) return;
-  pool_->join();
-  pool_->start(threads - 1);
+  if (t_in_task) {
+    // From a loop body: the loop holds `loops` and may run on the very workers a resize would join.
+    std::lock_guard<std::mutex> lock(pool_->mutex);
+    pool_->pending = threads;
+    return;
+  }
+  // Waits for a loop that another thread runs.
+  std::lock_guard<std::mutex> one_loop(pool_->loops);
+  pool_->resize(threads);
 }
 
 void ThreadPoolScheduler::parallelFor(int begin, int end, int grain, const btIParallelForBody& body) {
   grain = std::max(grain, 1);
   if (begin >= end) return;
-  if (t_in_task || pool_->workers.empty() || end - begin <= grain) {
+  if (t_in_task || pool_->threads.load() == 1 || end - begin <= grain) {
     body.forLoop(begin, end);
     return;
   }
@@ -175,7 +222,7 @@ void ThreadPoolScheduler::parallelFor(int begin, int end, int grain, const btIPa
 btScalar ThreadPoolScheduler::parallelSum(int begin, int end, int grain, const btIParallelSumBody& body) {
   grain = std::max(grain, 1);
   if (begin >= end) return 0;
-  if (t_in_task || pool_->workers.empty() || end - begin <= grain) return body.sumLoop(begin, end);
+  if (t_in_task || pool_->threads.load() == 1 || end - begin <= grain) return body.sumLoop(begin, end);
   return pool_->run(begin, end, grain, nullptr, &body);
 }
 
@@ -186,11 +233,14 @@ class PairLoop : public btIParallelForBody {
   PairLoop(ParallelCollisionDispatcher& dispatcher, btBroadphasePair* pairs, const btDispatcherInfo& info)
       : dispatcher_(dispatcher), pairs_(pairs), info_(info), near_(dispatcher.getNearCallback()) {}
   void forLoop(int begin, int end) const override {
+    // Cleared however a near callback leaves: a thread left tagged would queue its later manifold changes.
+    struct Untag {
+      ~Untag() { t_current = {}; }
+    } untag;
     for (int i = begin; i < end; ++i) {
       t_current = {&dispatcher_, i};
       near_(pairs_[i], dispatcher_, info_);
     }
-    t_current = {};
   }
 
  private:
@@ -215,7 +265,15 @@ void ParallelCollisionDispatcher::dispatchAllCollisionPairs(btOverlappingPairCac
   }
   const int count = pairs->getNumOverlappingPairs();
   if (count == 0) return;
+  // Applied also when a near callback throws: the manifolds made so far belong to their algorithms.
+  struct Apply {
+    ParallelCollisionDispatcher& self;
+    ~Apply() { self.apply_changes(); }
+  } apply{*this};
   scheduler_.parallelFor(0, count, grain_, PairLoop(*this, pairs->getOverlappingPairArrayPtr(), info));
+}
+
+void ParallelCollisionDispatcher::apply_changes() {
   // The list as a sequential dispatcher leaves it (the solver's order follows it): changes in pair order,
   // each pair's in the order they happened.
   std::lock_guard<std::mutex> lock(mutex_);

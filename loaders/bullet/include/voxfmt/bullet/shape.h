@@ -33,7 +33,7 @@ class VpsShape : public btConcaveShape {
   Role role() const { return role_; }
   bool uses_points() const { return role_ != Role::Voxelmap; }
   bool uses_voxelmap() const { return role_ != Role::PointShell; }
-  /// Uniform scale (Bullet's local scaling; x is used, non-uniform scaling is not supported).
+  /// Uniform scale (Bullet's local scaling; a non-uniform one is refused).
   double scale() const { return scale_; }
 
   /// Points tested per query when this shape carries the points: whole tree levels up to this budget
@@ -56,7 +56,7 @@ class VpsShape : public btConcaveShape {
 
   // btCollisionShape
   void getAabb(const btTransform& t, btVector3& aabb_min, btVector3& aabb_max) const override;
-  /// Uniform: x is the scale (y and z are ignored). Throws std::invalid_argument unless it is finite and > 0.
+  /// Uniform only. Throws std::invalid_argument unless x is finite and > 0 and y and z equal it (within 1e-5 of it).
   void setLocalScaling(const btVector3& scaling) override;
   const btVector3& getLocalScaling() const override { return local_scaling_; }
   /// Principal moments of the asset's mass properties for `mass` (uniform density), scaled.

@@ -101,8 +101,11 @@ class ThreadPoolScheduler : public btITaskScheduler {
 
   int getMaxNumThreads() const override { return int(BT_MAX_THREAD_COUNT); }
   int getNumThreads() const override;
-  /// Not while a parallelFor runs.
+  /// From another thread, waits for the parallelFor in progress; from inside a loop body, takes effect when
+  /// that loop ends.
   void setNumThreads(int threads) override;
+  /// An exception thrown by a loop body is rethrown here once every thread has left the body (the remaining
+  /// chunks are skipped); the first one when several threads throw.
   void parallelFor(int begin, int end, int grain, const btIParallelForBody& body) override;
   btScalar parallelSum(int begin, int end, int grain, const btIParallelSumBody& body) override;
 
@@ -135,6 +138,8 @@ class ParallelCollisionDispatcher : public btCollisionDispatcher {
     btPersistentManifold* manifold;
     bool created;
   };
+
+  void apply_changes();
 
   btITaskScheduler& scheduler_;
   int grain_;
