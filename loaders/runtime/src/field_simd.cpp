@@ -156,6 +156,19 @@ VOXFMT_AVX2 inline void entries8(const Field& f, Lanes& l) {
     if (in_value & (1 << lane)) __builtin_prefetch(&f.codes[code[lane]]);
 }
 
+// The length of the 8 vectors `v`, as length8, where that is finite. Past ~1.8e19 voxels the squares overflow to
+// inf, which would cull everything: those lanes as hypot_f (in double), as the scalar kernel takes them.
+VOXFMT_AVX2 inline __m256 finite_length8(const __m256 v[3]) {
+  const __m256 length = length8(v[0], v[1], v[2]);
+  if (_mm256_movemask_ps(_mm256_cmp_ps(length, _mm256_set1_ps(3.40282347e+38f), _CMP_GT_OQ)) == 0) return length;
+  alignas(32) float o[3][8], d[8];
+  for (int a = 0; a < 3; ++a) _mm256_store_ps(o[a], v[a]);
+  _mm256_store_ps(d, length);
+  for (int lane = 0; lane < 8; ++lane)
+    if (d[lane] > 3.40282347e+38f) d[lane] = hypot_f(make_vec3(o[0][lane], o[1][lane], o[2][lane]), 0.0f);
+  return _mm256_load_ps(d);
+}
+
 // Pass 3: the bounds (lower_bound: the nearest voxel's bound less the offset to it; outside the grid the distance
 // to the object's box).
 VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
@@ -166,16 +179,7 @@ VOXFMT_AVX2 inline void bounds8(const Field& f, const Lanes& l, float* out) {
     outside[a] = max_f8(
         max_f8(_mm256_sub_ps(_mm256_set1_ps(box_min[a]), l.x[a]), _mm256_sub_ps(l.x[a], _mm256_set1_ps(box_max[a]))),
         _mm256_setzero_ps());
-  __m256 box_distance = length8(outside[0], outside[1], outside[2]);
-  // Past ~1.8e19 voxels the squares overflow to inf, which culls everything: those lanes as hypot_f (double).
-  if (_mm256_movemask_ps(_mm256_cmp_ps(box_distance, _mm256_set1_ps(3.40282347e+38f), _CMP_GT_OQ)) != 0) {
-    alignas(32) float o[3][8], d[8];
-    for (int a = 0; a < 3; ++a) _mm256_store_ps(o[a], outside[a]);
-    _mm256_store_ps(d, box_distance);
-    for (int lane = 0; lane < 8; ++lane)
-      if (d[lane] > 3.40282347e+38f) d[lane] = hypot_f(make_vec3(o[0][lane], o[1][lane], o[2][lane]), 0.0f);
-    box_distance = _mm256_load_ps(d);
-  }
+  const __m256 box_distance = finite_length8(outside);
   if (_mm256_movemask_ps(l.covered) == 0) {
     _mm256_storeu_ps(out, box_distance);
     return;
