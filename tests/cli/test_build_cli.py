@@ -7,6 +7,8 @@ import tempfile
 import time
 import unittest
 
+from cli_case import FolderCase
+
 VOXFMT = os.environ.get("VOXFMT_BIN")
 MESHES = os.environ.get("VOXFMT_SAMPLE_MESHES", "")
 
@@ -33,20 +35,7 @@ class CommandLine(unittest.TestCase):
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
-class BuildBadInput(unittest.TestCase):
-    def setUp(self):
-        self.dir = tempfile.TemporaryDirectory()
-        self.out = os.path.join(self.dir.name, "out.vox.h5")
-
-    def tearDown(self):
-        self.dir.cleanup()
-
-    def write(self, name, text):
-        path = os.path.join(self.dir.name, name)
-        with open(path, "w") as f:
-            f.write(text)
-        return path
-
+class BuildBadInput(FolderCase):
     def build(self, *args):
         return subprocess.run([VOXFMT, "build", *args, "-o", self.out, "--json"], capture_output=True, text=True, timeout=120)
 

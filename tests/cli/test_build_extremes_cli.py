@@ -3,8 +3,9 @@ is where the mesh's is."""
 import json
 import os
 import subprocess
-import tempfile
 import unittest
+
+from cli_case import FolderCase
 
 VOXFMT = os.environ.get("VOXFMT_BIN")
 
@@ -30,20 +31,7 @@ def off_text(*boxes):
 
 
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
-class BuildExtremes(unittest.TestCase):
-    def setUp(self):
-        self.dir = tempfile.TemporaryDirectory()
-        self.out = os.path.join(self.dir.name, "out.vox.h5")
-
-    def tearDown(self):
-        self.dir.cleanup()
-
-    def write(self, name, text):
-        path = os.path.join(self.dir.name, name)
-        with open(path, "w") as f:
-            f.write(text)
-        return path
-
+class BuildExtremes(FolderCase):
     def build(self, mesh, *options):
         return subprocess.run([VOXFMT, "build", mesh, "-o", self.out, "--json", *options], capture_output=True,
                               text=True, timeout=120)
