@@ -375,6 +375,16 @@ struct ThrowingBody : btIParallelForBody {
   }
 };
 
+// After a loop whose body threw, the next loop runs whole and on more than one thread (a thread left marked as a
+// task would run every later loop alone).
+void expect_a_later_loop_spread(ThreadPoolScheduler& scheduler) {
+  CountingBody next;
+  next.sleep_us = 2000;
+  scheduler.parallelFor(0, 40, 1, next);
+  EXPECT_EQ(next.iterations, 40);
+  EXPECT_GE(next.threads.size(), 2u);
+}
+
 TEST(BulletThreads, ABodyThrowingOnTheCallingThreadIsRethrownAfterTheWorkersLeaveIt) {
   Watchdog watchdog("a throwing loop body", 60);
   ThreadPoolScheduler scheduler(4);
@@ -384,12 +394,7 @@ TEST(BulletThreads, ABodyThrowingOnTheCallingThreadIsRethrownAfterTheWorkersLeav
   const int entries = body.worker_entries;
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
   EXPECT_EQ(body.worker_entries, entries);  // nor enters it after
-  // The calling thread is not left marked as a task (it would run every later loop alone).
-  CountingBody next;
-  next.sleep_us = 2000;
-  scheduler.parallelFor(0, 40, 1, next);
-  EXPECT_EQ(next.iterations, 40);
-  EXPECT_GE(next.threads.size(), 2u);
+  expect_a_later_loop_spread(scheduler);    // the calling thread is not left marked as a task
 }
 
 TEST(BulletThreads, ABodyThrowingOnAWorkerIsRethrownOnTheCallingThread) {
@@ -398,11 +403,7 @@ TEST(BulletThreads, ABodyThrowingOnAWorkerIsRethrownOnTheCallingThread) {
   ThrowingBody body(ThrowingBody::Where::Worker);
   EXPECT_THROW(scheduler.parallelFor(0, 400, 1, body), std::runtime_error);
   EXPECT_EQ(body.inside, 0);
-  CountingBody next;
-  next.sleep_us = 2000;
-  scheduler.parallelFor(0, 40, 1, next);
-  EXPECT_EQ(next.iterations, 40);
-  EXPECT_GE(next.threads.size(), 2u);
+  expect_a_later_loop_spread(scheduler);
 }
 
 // A near callback that throws (a user's, or bad_alloc in an algorithm): the manifolds made before it are on
