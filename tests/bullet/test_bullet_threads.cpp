@@ -313,21 +313,24 @@ struct CountingBody : btIParallelForBody {
 TEST(BulletThreads, SetNumThreadsWhileAnotherThreadLoopsWaitsForTheLoop) {
   Watchdog watchdog("setNumThreads during parallelFor", 60);
   ThreadPoolScheduler scheduler(4);
-  std::atomic<bool> looping{true};
+  // Loops run for as long as the resizes do (a fixed count of loops could end, on a loaded machine, before the
+  // resizes begin).
+  std::atomic<bool> resizing{true};
+  std::atomic<int> loops_run{0};
   int wrong = 0;
   std::thread loops([&] {
-    for (int k = 0; k < 3000; ++k) {
+    while (resizing || loops_run < 10) {
       CountingBody body;
       scheduler.parallelFor(0, 64, 1, body);
       wrong += body.iterations != 64;
+      ++loops_run;
     }
-    looping = false;
   });
-  int resizes = 0;
-  while (looping) scheduler.setNumThreads(1 + resizes++ % 4);
+  for (int k = 0; k < 200; ++k) scheduler.setNumThreads(1 + k % 4);
+  resizing = false;
   loops.join();
   EXPECT_EQ(wrong, 0);
-  EXPECT_GT(resizes, 10);
+  EXPECT_GE(loops_run, 10);
   scheduler.setNumThreads(3);
   EXPECT_EQ(scheduler.getNumThreads(), 3);
 }
