@@ -128,7 +128,7 @@ TEST(RoundTrip, AReadBesideAWriteOnAnotherThreadWaitsForItInsteadOfStalling) {
   }
   stop = true;
   writer.join();
-  EXPECT_LT(slowest, 2.5);
+  EXPECT_LT(slowest, 4.5);  // a stalled child sleeps 5 s; a read waiting its turn, far less (even under ASan)
 }
 
 TEST(ReadProvenance, ReadsOnlyTheProvenanceAndRefusesWhatReadAssetRefuses) {
