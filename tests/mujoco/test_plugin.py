@@ -375,3 +375,49 @@ def test_memory_the_field_cannot_get_is_out_of_memory(tmp_path) -> None:  # type
         outcomes.append(run.stdout.strip())
     assert set(outcomes) <= {"OK", "OUT_OF_MEMORY", "MemoryError"}, outcomes
     assert "OUT_OF_MEMORY" in outcomes and outcomes[-1] == "OK", outcomes
+
+
+def test_a_pickled_mjdata_steps_as_the_original(tmp_path, sphere_asset) -> None:  # type: ignore[no-untyped-def]
+    # Pickling an mjData copies plugin_data as bytes, and the plugin kept a heap pointer there: unpickled in
+    # another process, the first step crashed (rc 139); in the same one, both mjData freed it (rc 134 at exit).
+    # Each side runs in a child interpreter, which must step the copy as the original steps and exit normally.
+    import json
+    import pickle
+    import subprocess
+
+    xml = vm.insert(scene(), vm.part(sphere_asset, "ball", pos=(0, 0, 0.15)))
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    for _ in range(100):
+        mujoco.mj_step(model, data)
+    (tmp_path / "data.pkl").write_bytes(pickle.dumps(data))
+    (tmp_path / "scene.xml").write_text(xml)
+    for _ in range(300):
+        mujoco.mj_step(model, data)
+    assert data.ncon > 0
+    child = (
+        "import json, pickle, sys\n"
+        "import mujoco, numpy as np, voxfmt.mujoco as vm\n"
+        "vm.load_plugin()\n"
+        "if sys.argv[2] == 'other':\n"
+        "    copies = [pickle.loads(open(sys.argv[1] + '/data.pkl', 'rb').read())]\n"
+        "else:  # the original made here, and its copy\n"
+        "    m = mujoco.MjModel.from_xml_string(open(sys.argv[1] + '/scene.xml').read())\n"
+        "    copies = [mujoco.MjData(m)]\n"
+        "    for _ in range(100):\n"
+        "        mujoco.mj_step(m, copies[0])\n"
+        "    copies.append(pickle.loads(pickle.dumps(copies[0])))\n"
+        "for d in copies:\n"
+        "    for _ in range(300):\n"
+        "        mujoco.mj_step(d.model, d)\n"
+        "print(json.dumps(np.concatenate([[c.ncon] for c in copies] + [c.qpos for c in copies]).tolist()))\n"
+        "del copies, d\n"
+        "import gc; gc.collect()\n"
+    )
+    for mode, count in [("same", 2), ("other", 1)]:
+        run = subprocess.run([sys.executable, "-c", child, str(tmp_path), mode], capture_output=True,
+                             text=True, timeout=120)
+        assert run.returncode == 0, (mode, run.returncode, run.stderr[-2000:])
+        values = json.loads(run.stdout.strip().splitlines()[-1])
+        expected = [float(data.ncon)] * count + list(data.qpos) * count
+        assert values == expected, (mode, values, expected)

@@ -18,10 +18,15 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <functional>
 #include <mutex>
 #include <new>
+#include <random>
 #include <string>
+#include <unordered_map>
 #include <vector>
+
+#include <unistd.h>
 
 #include "asset_cache.h"
 
@@ -66,15 +71,145 @@ double mesh_offset(const AssetField& field) {
   return 0.5 * 2.0 * (box[3] + box[4] + box[5]) / 300.0;
 }
 
-// What an instance keeps per mjData (d->plugin_data): its field. MuJoCo's descent asks for the distance at a
-// point, then the gradient there, then the distance again (and for an SDF pair alternates between the two geoms):
-// the gradient is computed with the distance and both are kept, per thread, for the last few points, so each point
-// costs one lookup. Per thread, not per mjData: with a thread pool MuJoCo runs one mjData's collision pairs on
-// several threads at once. A kept point matches only its own mjData, instance and field (fields live as long as
-// the process), so one kept past its mjData's end is never mistaken for another's.
-struct Instance {
-  const AssetField* field = nullptr;
+// What an instance keeps per mjData is its field, and evaluate must find it from (d, instance) alone. MuJoCo
+// keeps d->plugin_data for that, but some copies of an mjData copy that word as bytes (the Python bindings'
+// pickle: mj_makeData, whose init runs here, then the saved buffer over it): a pointer there was another
+// process's address, or a second owner of the original's and freed twice. So the word is only a hint, a handle
+// (this process's nonce, a slot) checked against the slot's owner; the registry, keyed by (mjData, instance), is
+// the truth. A handle that is not the mjData's own is looked up by key and mended; destroy frees by key.
+struct Slot {  // atomics: a copied handle may name a slot another thread is giving to a new mjData
+  std::atomic<const mjData*> d{nullptr};
+  std::atomic<int> instance{-1};
+  std::atomic<const AssetField*> field{nullptr};
 };
+
+class Registry {
+ public:
+  static Registry& get() {
+    static Registry* registry = new Registry;  // never destroyed: mjData may outlive static destructors
+    return *registry;
+  }
+
+  // The handle of (d, instance)'s slot, now holding `field`; 0 if out of memory or slots.
+  uintptr_t add(const mjData* d, int instance, const AssetField* field) {
+    try {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      const Key key{d, instance};
+      auto found = slots_.find(key);  // one left by an mjData MuJoCo freed without destroy (a failed init)
+      uint32_t index;
+      if (found != slots_.end()) {
+        index = found->second;
+      } else {
+        const bool reused = !free_.empty();
+        if (reused) {
+          index = free_.back();
+        } else {
+          if (used_ == uint32_t(kChunks) << kChunkBits) return 0;
+          index = used_;
+          if (!chunks_[index >> kChunkBits].load(std::memory_order_relaxed))
+            chunks_[index >> kChunkBits].store(new Slot[size_t(1) << kChunkBits], std::memory_order_release);
+        }
+        slots_.emplace(key, index);  // may throw: nothing is taken yet
+        if (reused)
+          free_.pop_back();
+        else
+          ++used_;
+      }
+      Slot& slot = *at(index);
+      slot.field.store(field, std::memory_order_relaxed);
+      slot.instance.store(instance, std::memory_order_relaxed);
+      slot.d.store(d, std::memory_order_release);
+      return handle(index);
+    } catch (const std::bad_alloc&) {
+      return 0;
+    }
+  }
+
+  void remove(const mjData* d, int instance) {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    const auto found = slots_.find(Key{d, instance});
+    if (found == slots_.end()) return;
+    Slot& slot = *at(found->second);
+    slot.d.store(nullptr, std::memory_order_relaxed);
+    slot.instance.store(-1, std::memory_order_relaxed);
+    slot.field.store(nullptr, std::memory_order_relaxed);
+    try {
+      free_.push_back(found->second);
+    } catch (const std::bad_alloc&) {  // the slot is lost, not reused
+    }
+    slots_.erase(found);
+  }
+
+  // The field of (d, instance), or null if its init never ran in this process.
+  const AssetField* field(const mjData* d, int instance) {
+    uintptr_t* word = const_cast<uintptr_t*>(&d->plugin_data[instance]);
+    if (const Slot* slot = resolve(__atomic_load_n(word, __ATOMIC_RELAXED)))
+      if (slot->d.load(std::memory_order_acquire) == d && slot->instance.load(std::memory_order_relaxed) == instance)
+        return slot->field.load(std::memory_order_relaxed);
+    uint32_t index;
+    {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      const auto found = slots_.find(Key{d, instance});
+      if (found == slots_.end()) return nullptr;
+      index = found->second;
+    }
+    // Mended once: threads of a pool that get here together store the same word.
+    __atomic_store_n(word, handle(index), __ATOMIC_RELAXED);
+    return at(index)->field.load(std::memory_order_relaxed);
+  }
+
+ private:
+  struct Key {
+    const mjData* d;
+    int instance;
+    bool operator==(const Key& o) const { return d == o.d && instance == o.instance; }
+  };
+  struct KeyHash {
+    size_t operator()(const Key& k) const {
+      return std::hash<const void*>()(k.d) ^ (std::hash<int>()(k.instance) * 0x9E3779B97F4A7C15ull);
+    }
+  };
+  // Slots in chunks that never move or go, so a handle is read without the lock.
+  static constexpr int kChunkBits = 10;
+  static constexpr uint32_t kChunks = 4096;  // 4M instances alive at once
+
+  Registry() {
+    // Another process's handles (a pickle) carry another nonce; a clash only costs a slot check that fails.
+    uint64_t seed = uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()) ^ (uint64_t(getpid()) << 32) ^
+                    reinterpret_cast<uintptr_t>(this);
+    try {
+      seed ^= std::random_device()();
+    } catch (...) {  // the clock and pid serve
+    }
+    seed *= 0x9E3779B97F4A7C15ull;
+    nonce_ = uint32_t(seed >> 32) | 1u;
+  }
+  uintptr_t handle(uint32_t index) const { return (uintptr_t(nonce_) << 32) | index; }
+  Slot* at(uint32_t index) const {
+    return chunks_[index >> kChunkBits].load(std::memory_order_acquire) + (index & ((1u << kChunkBits) - 1));
+  }
+  const Slot* resolve(uintptr_t handle) const {
+    if (uint32_t(uint64_t(handle) >> 32) != nonce_) return nullptr;
+    const uint32_t index = uint32_t(handle);
+    if (index >= uint32_t(kChunks) << kChunkBits) return nullptr;
+    const Slot* chunk = chunks_[index >> kChunkBits].load(std::memory_order_acquire);
+    return chunk ? chunk + (index & ((1u << kChunkBits) - 1)) : nullptr;
+  }
+
+  uint32_t nonce_ = 1;
+  std::atomic<Slot*> chunks_[kChunks] = {};
+  std::mutex mutex_;  // the rest
+  uint32_t used_ = 0;
+  std::vector<uint32_t> free_;
+  std::unordered_map<Key, uint32_t, KeyHash> slots_;
+};
+
+// MuJoCo's descent asks for the distance at a point, then the gradient there, then the distance again (and for an
+// SDF pair alternates between the two geoms): the gradient is computed with the distance and both are kept, per
+// thread, for the last few points, so each point costs one lookup. Per thread, not per mjData: with a thread pool
+// MuJoCo runs one mjData's collision pairs on several threads at once. A kept point matches only its own mjData,
+// instance and field (fields live as long as the process), so one kept past its mjData's end is never mistaken for
+// another's.
 struct Evaluation {
   const mjData* d = nullptr;
   int instance = -1;
@@ -106,8 +241,18 @@ constexpr size_t kMaxRecords = size_t(1) << 21;
 std::atomic<bool> g_profiling{false};
 Profile g_profile;
 
+// An mjData whose init never ran in this process (plugin_data copied into one MuJoCo did not make) has no
+// field: it is far from everything, said once, rather than a crash.
+Evaluation g_nowhere{nullptr, -1, nullptr, {NAN, NAN, NAN}, mjMAXVAL, Eigen::Vector3f::Zero()};
+std::atomic<bool> g_said_nowhere{false};
+
 const Evaluation& evaluate(const mjData* d, int instance, const double point[3], int kind) {
-  const AssetField* field = reinterpret_cast<const Instance*>(d->plugin_data[instance])->field;
+  const AssetField* field = Registry::get().field(d, instance);
+  if (!field) {
+    if (!g_said_nowhere.exchange(true))
+      mju_warning("%s: an mjData this process did not make has no field: its geoms collide with nothing", kPluginName);
+    return g_nowhere;
+  }
   const bool profiling = g_profiling.load(std::memory_order_relaxed);
   if (profiling) {
     const std::lock_guard<std::mutex> lock(g_profile.mutex);
@@ -167,20 +312,17 @@ int init(const mjModel* m, mjData* d, int instance) {
   const char* file = mj_getPluginConfig(m, instance, "file");
   std::string reason;
   if (const AssetField* field = field_named(file, AssetCache::kLoadedIfGone, reason)) {
-    try {
-      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance{field});
-      return 0;
-    } catch (const std::bad_alloc&) {
-      reason = "OUT_OF_MEMORY: not enough memory for the plugin's instance";
-    }
+    if ((d->plugin_data[instance] = Registry::get().add(d, instance, field))) return 0;
+    reason = "OUT_OF_MEMORY: not enough memory for the plugin's instance";
   }
   mju_warning("%s: cannot use '%s': %s", kPluginName, file ? file : "", reason.c_str());
   return -1;
 }
 
-// mj_copyData keeps the destination's own plugin_data (made by its init): nothing to copy.
+// mj_copyData keeps the destination's own plugin_data (made by its init): nothing to copy. By key, not by the
+// word, which may be a copy of another mjData's.
 void destroy(mjData* d, int instance) {
-  delete reinterpret_cast<Instance*>(d->plugin_data[instance]);
+  Registry::get().remove(d, instance);
   d->plugin_data[instance] = 0;
 }
 
@@ -199,7 +341,10 @@ mjtNum sdf_distance(const mjtNum point[3], const mjData* d, int instance) {
 
 void sdf_gradient(mjtNum gradient[3], const mjtNum point[3], const mjData* d, int instance) {
   const Evaluation& e = evaluate(d, instance, point, 1);
-  reinterpret_cast<const Instance*>(d->plugin_data[instance])->field->unit_gradient(e.direction, point, gradient);
+  if (e.field)
+    e.field->unit_gradient(e.direction, point, gradient);
+  else
+    gradient[0] = gradient[1] = gradient[2] = 0;
 }
 
 mjtNum sdf_staticdistance(const mjtNum point[3], const mjtNum* attributes) {
