@@ -229,6 +229,11 @@ nb::dict export_core(const Body& body) {
   doubles.data[3] = b.voxel_size;
   doubles.data[7] = b.bounding_radius;
   d["body_doubles"] = doubles.array;
+  // The points and centres are from this asset-frame point (PointTree::anchor: zero unless the shell lies far
+  // from its origin); a runner that places them must add it, or refuse a non-zero one.
+  OutArray<double> anchor({3});
+  for (int a = 0; a < 3; ++a) anchor.data[a] = b.shell.anchor[a];
+  d["anchor"] = anchor.array;
   d["levels"] = b.shell.levels;
   return d;
 }

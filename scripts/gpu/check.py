@@ -82,6 +82,10 @@ class CudaBackend:
         self.device_bytes = int(free_before - cupy.cuda.runtime.memGetInfo()[0])  # measured, pool rounding and all
         self.array_bytes = int(sum(a.nbytes for a in self.d.values()))
         self.host = {k: np.ascontiguousarray(data[k]) for k in ("field_floats", "field_dims", "body_doubles")}
+        # standalone.cu rebuilds the shell without an anchor: an asset near its frame's origin only (the bunny).
+        if np.any(np.asarray(data.get("anchor", np.zeros(3))) != 0):
+            raise SystemExit("check.py: this asset's shell is anchored far from its origin; the standalone runner "
+                             "places points from the origin only")
         self.count = int(data["points"].shape[0])
         self.levels = int(data["levels"])
         self.device = cupy.cuda.runtime.getDeviceProperties(cupy.cuda.runtime.getDevice())["name"].decode()
