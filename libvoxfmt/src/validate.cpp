@@ -681,6 +681,13 @@ void check_points_on_surface(const Asset& a, Checker& c) {
   const Voxelmap& vm = a.voxelmap;
   const bool from_2_2 = a.version.major > 2 || (a.version.major == 2 && a.version.minor >= 2);
   if (!from_2_2 || vm.shell_thickness || vm.distance_band < 1.5) return;
+  // Coordinates so large that double cannot place a point within a tenth of a voxel (1e11 voxels out, the slack of
+  // check_grid_holds_object) leave its nearest voxel unknown: not judged.
+  double largest = 0;
+  for (int axis = 0; axis < 3; ++axis)
+    largest =
+        std::max({largest, std::abs(vm.origin[axis]), std::abs(a.bounds_min[axis]), std::abs(a.bounds_max[axis])});
+  if (1e-12 * largest > 0.1 * vm.voxel_size) return;
   size_t off = 0, first = 0;
   for (size_t n = 0; n < a.point_shell.size(); ++n)
     if (!nearest_distance(vm, a.point_shell.points[n]) && off++ == 0) first = n;
