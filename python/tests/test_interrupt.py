@@ -17,6 +17,10 @@ import json, os, signal, sys, threading, time
 import numpy as np
 import voxfmt
 
+# As at a terminal: a child of a background job (a CI runner) may inherit SIGINT ignored, and Python then installs
+# no handler of its own.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
 LONG_S = 20.0
 kind, path = sys.argv[1], sys.argv[2]
 body = voxfmt.load(path)
@@ -72,6 +76,10 @@ def test_sigint_stops_a_long_call(sphere_asset: Path, kind: str) -> None:
 _BAKE_CHILD = r"""
 import json, os, signal, sys, threading, time
 import voxfmt
+
+# As at a terminal: a child of a background job (a CI runner) may inherit SIGINT ignored, and Python then installs
+# no handler of its own.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 mesh, out = sys.argv[1], sys.argv[2]
 threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
