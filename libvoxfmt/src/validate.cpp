@@ -675,6 +675,12 @@ std::optional<double> nearest_distance(const Voxelmap& vm, const Vec3& p) {
   return v.distance;
 }
 
+// The rules on a voxel's stored distance, which a 1.x grid's conversion has already run (legacy_voxelmap.cpp): their
+// findings name /voxelmap/distances, once per file.
+bool is_voxel_distance_rule(IssueCode code) {
+  return code == IssueCode::DistanceJump || code == IssueCode::DistanceOutsideBand;
+}
+
 // Spec §4 (2.2): a point on the surface is within sqrt(3)/2 h of its nearest voxel, so with a band of 1.5 voxels or
 // more that voxel stores a distance (outside shell mode: a thick shell's inner sheet may not exist).
 void check_points_on_surface(const Asset& a, Checker& c) {
@@ -819,8 +825,7 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
     for (Issue& issue : issues)
       for (const char* converted : {"/voxelmap/bricks", "/voxelmap/brick_values", "/voxelmap/lattice"})
         if (issue.path == converted) {
-          const bool distances = issue.code == IssueCode::DistanceJump || issue.code == IssueCode::DistanceOutsideBand;
-          issue.path = distances ? "/voxelmap/distances" : "/voxelmap/layers";
+          issue.path = is_voxel_distance_rule(issue.code) ? "/voxelmap/distances" : "/voxelmap/layers";
           break;
         }
   return issues;
@@ -837,10 +842,8 @@ std::optional<Asset> read_and_check(const std::string& path, const ReadOptions& 
       auto already = [&](IssueCode code) {
         return std::any_of(issues.begin(), issues.end(), [&](const Issue& i) { return i.code == code; });
       };
-      for (Issue& issue : validate_asset(*asset, options.level)) {
-        const bool voxel_rule = issue.code == IssueCode::DistanceJump || issue.code == IssueCode::DistanceOutsideBand;
-        if (!(voxel_rule && already(issue.code))) issues.push_back(std::move(issue));
-      }
+      for (Issue& issue : validate_asset(*asset, options.level))
+        if (!(is_voxel_distance_rule(issue.code) && already(issue.code))) issues.push_back(std::move(issue));
     }
     if (has_errors(issues)) return std::nullopt;
     return asset;
