@@ -682,11 +682,11 @@ bool is_voxel_distance_rule(IssueCode code) {
 }
 
 // Spec §4 (2.2): a point on the surface is within sqrt(3)/2 h of its nearest voxel, so with a band of 1.5 voxels or
-// more that voxel stores a distance (outside shell mode: a thick shell's inner sheet may not exist).
+// more that voxel stores a distance (a shell's sheet points too: those the shell swallows are not on its surface).
 void check_points_on_surface(const Asset& a, Checker& c) {
   const Voxelmap& vm = a.voxelmap;
   const bool from_2_2 = a.version.major > 2 || (a.version.major == 2 && a.version.minor >= 2);
-  if (!from_2_2 || vm.shell_thickness || vm.distance_band < 1.5) return;
+  if (!from_2_2 || vm.distance_band < 1.5) return;
   // Coordinates so large that double cannot place a point within a tenth of a voxel (1e11 voxels out, the slack of
   // check_grid_holds_object) leave its nearest voxel unknown: not judged.
   double largest = 0;

@@ -204,11 +204,16 @@ void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options,
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 
-// A shell's points lie on its two sheets: half as many on each.
-PointShell sample_shell(const TriangleMesh& mesh, PointShellSettings settings, double thickness) {
+// A shell's points lie on its two sheets: half as many on each, less those the shell swallows (more than a quarter
+// voxel inside it, so that each point's nearest voxel stores a distance, spec section 4).
+PointShell sample_shell(const TriangleMesh& mesh, const Settings& options, double thickness) {
+  PointShellSettings settings = options.point_shell;
   if (thickness > 0 && settings.point_spacing == 0) settings.points = std::max<uint32_t>(1, settings.points / 2);
   PointShell sampled = sample_point_shell(mesh, settings);
-  if (thickness > 0) offset_to_shell_sheets(sampled, thickness / 2);
+  if (thickness > 0) {
+    offset_to_shell_sheets(sampled, thickness / 2);
+    drop_points_inside_shell(sampled, mesh, thickness / 2, 0.25 * planned_voxel_size(mesh, options.voxelmap));
+  }
   return sampled;
 }
 
@@ -225,8 +230,7 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
   std::exception_ptr shell_error;
   tasks.run([&] {
     try {
-      g.shell = times.run(BakeStage::PointShell,
-                          [&] { return sample_shell(mesh, options.point_shell, plan.shell_thickness); });
+      g.shell = times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options, plan.shell_thickness); });
       times.run(BakeStage::SphereTree, [&] { build_sphere_tree(g.shell, options.point_shell.branching); });
     } catch (...) {
       shell_error = std::current_exception();
@@ -310,7 +314,7 @@ void rebuild_as_shell(const TriangleMesh& mesh, const Settings& options, const I
   std::vector<StageTiming> voxelmap_stages;
   g.voxelmap = times.run(BakeStage::Voxelmap, [&] { return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages); });
   times.set(voxelmap_stages);
-  g.shell = times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options.point_shell, thickness); });
+  g.shell = times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options, thickness); });
   times.run(BakeStage::SphereTree, [&] { build_sphere_tree(g.shell, options.point_shell.branching); });
 }
 

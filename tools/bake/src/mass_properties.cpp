@@ -1,11 +1,13 @@
 // Stage 5: volume, centre of mass and inertia of a closed surface (divergence theorem over tetrahedra), or of
 // the voxelmap's inside.
 #include <oneapi/tbb/blocked_range.h>
+#include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <cmath>
 
+#include "closest_triangle.h"
 #include "stages.h"
 #include "vec3_math.h"
 
@@ -204,6 +206,31 @@ void offset_to_shell_sheets(PointShell& shell, double half_thickness) {
   }
   shell.points = std::move(points);
   shell.normals = std::move(normals);
+}
+
+size_t drop_points_inside_shell(PointShell& shell, const TriangleMesh& mesh, double half_thickness, double tolerance) {
+  std::vector<std::array<Vec3, 3>> corners(mesh.triangles.size());
+  for (size_t t = 0; t < corners.size(); ++t)
+    for (int c = 0; c < 3; ++c) corners[t][size_t(c)] = mesh.vertices[mesh.triangles[t][size_t(c)]];
+  const ClosestTriangle closest(corners);
+  const double inside = std::max(0.0, half_thickness - tolerance);
+  const size_t n = shell.points.size();
+  std::vector<uint8_t> keep(n);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i)
+      keep[i] = closest.nearest(shell.points[i], inside * inside, 0).first >= inside * inside;
+  });
+  size_t kept = 0;
+  for (size_t i = 0; i < n; ++i)
+    if (keep[i]) {
+      shell.points[kept] = shell.points[i];
+      shell.normals[kept] = shell.normals[i];
+      ++kept;
+    }
+  if (kept == 0) return 0;  // unreachable for a real surface (its outermost points are on the outer sheet)
+  shell.points.resize(kept);
+  shell.normals.resize(kept);
+  return n - kept;
 }
 
 }  // namespace voxfmt::bake

@@ -78,6 +78,8 @@ struct VoxelmapReport {
 };
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings,
                         std::vector<StageTiming>* timings = nullptr, VoxelmapReport* report = nullptr);
+/// The voxel size build_voxelmap will use (a shell's too); throws as it would on a mesh or settings it refuses.
+double planned_voxel_size(const TriangleMesh& mesh, const VoxelmapSettings& settings);
 /// The bytes a bake may use at its peak: `max_memory_bytes` (--max-memory), or 0: 3/4 of this machine's memory.
 double memory_limit_bytes(uint64_t max_memory_bytes);
 
@@ -105,6 +107,10 @@ MassProperties shell_mass_properties(const TriangleMesh& mesh, double thickness)
 /// Shell mode: every point of a sampled surface (tree not built yet) becomes two, half the thickness to either
 /// side along its normal, on the shell's two sheets.
 void offset_to_shell_sheets(PointShell& shell, double half_thickness);
+/// Shell mode: drops the sheet points (tree not built yet) nearer the surface than `half_thickness - tolerance`. They
+/// lie inside the shell, where a sheet does not exist: on the inner side of a part thinner than the shell, or across
+/// a fold or a concave edge. Returns how many were dropped (none if that would leave no point).
+size_t drop_points_inside_shell(PointShell& shell, const TriangleMesh& mesh, double half_thickness, double tolerance);
 
 }  // namespace voxfmt::bake
 

@@ -1415,6 +1415,10 @@ Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& option
   return vm;
 }
 
+double planned_voxel_size(const TriangleMesh& mesh, const VoxelmapSettings& settings) {
+  return plan_grid(mesh, settings).voxel_size;
+}
+
 double memory_limit_bytes(uint64_t max_memory_bytes) {
   return max_memory_bytes > 0 ? double(max_memory_bytes) : double(default_memory_limit_bytes());
 }
