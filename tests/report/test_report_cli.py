@@ -373,6 +373,34 @@ class ReportTest(unittest.TestCase):
         self.assertIn("BAD_OPTION", p.stderr)
         self.assertTrue(os.path.isfile(os.path.join(precious, "thesis.tex")))
 
+    def test_a_folder_of_assets_without_a_manifest(self):
+        # Assets baked one by one, or copied from elsewhere: each *.vox.h5 below the folder gets its card, from the
+        # file alone; a damaged one carries its code; other files are not assets.
+        folder = os.path.join(self.tmp, "loose")
+        os.makedirs(os.path.join(folder, "sub", "deeper"))
+        shutil.copy(os.path.join(self.library, "tet.obj.vox.h5"), os.path.join(folder, "tet.vox.h5"))
+        shutil.copy(os.path.join(self.library, "tet.obj.vox.h5"), os.path.join(folder, "sub", "deeper", "tet.vox.h5"))
+        shutil.copy(os.path.join(self.library, "damaged.obj.vox.h5"), os.path.join(folder, "sub", "damaged.vox.h5"))
+        with open(os.path.join(folder, "notes.txt"), "w") as f:
+            f.write("not an asset")
+        p = fx.run("report", folder, "--json")
+        summary = json.loads(p.stdout)
+        self.assertEqual((summary["meshes"], summary["built"], summary["failed"]), (3, 3, 0))
+        self.assertEqual(summary["unreadable_assets"], 1)
+        rows = {r["output_name"]: r for r in load_data(os.path.join(folder, "report"))["rows"]}
+        self.assertEqual(sorted(rows), ["sub/damaged.vox.h5", "sub/deeper/tet.vox.h5", "tet.vox.h5"])
+        for name in ("tet.vox.h5", "sub/deeper/tet.vox.h5"):
+            self.assertTrue(rows[name]["validation"]["valid"], name)
+            self.assertGreater(rows[name]["volume"], 0)
+            self.assertEqual(rows[name]["file_size_bytes"], os.path.getsize(os.path.join(folder, name)))
+        self.assertIn("asset_error", rows["sub/damaged.vox.h5"])
+        # A folder with neither a manifest nor an asset says so.
+        empty = os.path.join(self.tmp, "no-assets")
+        os.makedirs(empty)
+        p = fx.run("report", empty, check=False)
+        self.assertEqual(p.returncode, 2)
+        self.assertIn("no manifest.jsonl and no *.vox.h5 asset here", p.stderr)
+
     def test_inspect_html(self):
         asset = os.path.join(self.library, "tet.obj.vox.h5")
         out = os.path.join(self.tmp, "card")

@@ -58,7 +58,9 @@ void add_report_command(CLI::App& app, int& exit_code) {
       "report",
       "Write an HTML report of a baked library (a `voxfmt batch` output folder): summary, table, a card "
       "with pictures per asset, a 3D view; opens from the file system, no server");
-  cmd->add_option("library", options->report.library, "Library folder (holding manifest.jsonl)")->required();
+  cmd->add_option("library", options->report.library,
+                  "Library folder: a `voxfmt batch` output (its manifest.jsonl), or any folder of *.vox.h5 assets")
+      ->required();
   cmd->add_option("-o,--output", options->report.out, "Report folder (default: LIBRARY/report)")->check(output_path());
   cmd->add_option("--manifest", options->report.manifest,
                   "Manifest to read (default: LIBRARY/manifest.jsonl and the shards' manifest.shard-I-of-N.jsonl)")

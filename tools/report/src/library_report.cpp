@@ -160,6 +160,30 @@ std::string text_of(const nlohmann::json& record, const char* key) {
   return it != record.end() && it->is_string() ? it->get<std::string>() : std::string();
 }
 
+// A folder of assets no batch wrote (`voxfmt build` one by one, copied from elsewhere): a record per *.vox.h5 below
+// it, by path, as if each were built. Directory links are not followed (a link to a parent would never end).
+std::vector<nlohmann::json> assets_below(const std::string& folder) {
+  std::vector<std::string> found;
+  std::error_code ec;
+  const std::string suffix = ".vox.h5";
+  for (auto it = fs::recursive_directory_iterator(folder, fs::directory_options::skip_permission_denied, ec);
+       !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() > suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0 &&
+        it->is_regular_file(ec))
+      found.push_back(it->path().lexically_relative(folder).generic_string());
+  }
+  std::sort(found.begin(), found.end());
+  std::vector<nlohmann::json> records;
+  for (const std::string& relative : found) {
+    nlohmann::json record = {{"status", "ok"}};
+    set_path(record, "output", relative);
+    if (const uintmax_t size = fs::file_size(fs::path(folder) / relative, ec); !ec) record["file_size_bytes"] = size;
+    records.push_back(std::move(record));
+  }
+  return records;
+}
+
 Result<ManifestRecords> read_manifest(const std::string& library, const std::string& manifest_file) {
   std::vector<fs::path> files;
   if (!manifest_file.empty()) {
@@ -168,15 +192,21 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
   } else {
     files = manifest_files(library);
   }
+  std::error_code ec;
+  if (files.empty() && manifest_file.empty() && fs::is_directory(library, ec)) {
+    ManifestRecords m{assets_below(library), 0};
+    if (!m.records.empty()) return m;
+  }
   if (files.empty()) {
-    std::error_code ec;
     const std::string where =
         !manifest_file.empty()
             ? manifest_file + (fs::is_directory(manifest_file, ec) ? ": a folder, not a manifest" : ": no such file")
-        : !fs::exists(library, ec)       ? library + ": no such folder"
-        : !fs::is_directory(library, ec) ? library + ": a file, not a library folder"
-                                         : library + ": no manifest.jsonl here";
-    return Error(IssueCode::FileNotFound, where + " (a library is the output folder of `voxfmt batch`)",
+        : !fs::exists(library, ec) ? library + ": no such folder"
+        : !fs::is_directory(library, ec)
+            ? library + ": a file, not a library folder (one asset's page: `voxfmt inspect ASSET --html OUT`)"
+            : library + ": no manifest.jsonl and no *.vox.h5 asset here";
+    return Error(IssueCode::FileNotFound,
+                 where + " (a library is the output folder of `voxfmt batch`, or any folder of assets)",
                  manifest_file.empty() ? library : manifest_file);
   }
   ManifestRecords m;

@@ -22,7 +22,7 @@
 namespace voxfmt::report {
 
 struct LibraryReportOptions {
-  std::string library;           ///< folder holding manifest.jsonl and the assets
+  std::string library;           ///< folder holding manifest.jsonl and the assets, or only assets (*.vox.h5 below it)
   std::string out;               ///< report folder (default LIBRARY/report); replaced only when empty or a report
   std::string manifest;          ///< the manifest to read ("" = LIBRARY/manifest.jsonl and manifest.shard-I-of-N.jsonl)
   std::string against;           ///< another baked library to compare with ("" = none)
@@ -43,7 +43,8 @@ struct ReportInfo {
   uint64_t bytes = 0;            ///< size of the report folder
 };
 
-/// Writes the report of a library. FILE_NOT_FOUND when LIBRARY (or AGAINST) has no manifest.jsonl, BAD_OPTION
+/// Writes the report of a library: a batch's (its manifest), or a folder of assets with no manifest (each *.vox.h5
+/// below it, as built). FILE_NOT_FOUND when LIBRARY (or AGAINST) has neither, BAD_OPTION
 /// when OUT exists and is neither empty nor a previous report holding only what a report writes, WRITE_FAILED when
 /// it cannot be written. A damaged asset or a damaged manifest line never fails the report: the asset's card carries
 /// the coded error.

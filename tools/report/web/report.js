@@ -107,6 +107,8 @@
     const s = $('summary');
     const by = (status) => rows.filter((r) => r.raw.status === status).length;
     const sum = (key) => rows.reduce((a, r) => a + (r[key] || 0), 0);
+    // A folder of assets without a manifest knows no bake times or inputs: unknown, not zero.
+    const known = (key, show) => (rows.some((r) => r[key] !== null) ? show(sum(key)) : '—');
     const warned = rows.filter((r) => r.warnings.length).length;
     const tile = (cls, value, label, state) => el('div', { class: 'tile ' + cls, 'data-count': label, onclick: state ? () => setFilter({ status: state }) : null },
       el('b', {}, value), el('span', {}, label));
@@ -117,8 +119,8 @@
       tile('failed', count(by('failed')), 'failed', 'failed'),
       tile('failed', count(rows.filter((r) => r.state === 'unreadable').length), 'unreadable assets', 'unreadable'),
       tile('warn', count(warned), 'with warnings'),
-      tile('', seconds(sum('time')), 'total bake time'),
-      tile('', count(sum('triangles')), 'input triangles'),
+      tile('', known('time', seconds), 'total bake time'),
+      tile('', known('triangles', count), 'input triangles'),
       tile('', count(sum('stored')), 'stored distances'),
       // Readable assets only: an unreadable one's bytes are a broken file's (its distances are left out already).
       tile('', bytes(rows.reduce((a, r) => a + (r.state === 'unreadable' ? 0 : r.size || 0), 0)), 'asset bytes')));
@@ -210,7 +212,9 @@
     ctx.fillRect(0, 0, W, H);
     if (!pts.length) {
       ctx.fillStyle = '#5c6776';
-      ctx.fillText('no built meshes', W / 2 - 40, H / 2);
+      // Built meshes without these figures: assets reported without their batch's manifest.
+      const message = rows.some((r) => r.state === 'ok' || r.state === 'up_to_date') ? 'no ' + yLabel + ' recorded (no manifest)' : 'no built meshes';
+      ctx.fillText(message, W / 2 - 3 * message.length, H / 2);
       return;
     }
     const lx = pts.map((r) => Math.log10(r[xKey])), ly = pts.map((r) => Math.log10(r[yKey]));
