@@ -450,6 +450,13 @@ class TestHostile(MalformedBase):
             entry = self.assert_rejected(path, code, path_contains="shell_thickness")
             self.assertEqual([i["code"] for i in entry["issues"] if "shell_thickness" in i["path"]], [code])
 
+    def test_point_spacing_past_the_object(self):
+        """§4: point_spacing at most 16 times the bounds' diagonal. 1e300 m validated, and Bullet padded the shape's
+        box by half of it (an infinite box in single precision)."""
+        path = self.bad("spacing_huge", values={"/pointshell/point_spacing": np.float64(1e300)})
+        self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="point_spacing",
+                             message_re="16 times the object's diagonal")
+
     def test_voxel_size_1e300_small(self):
         path = self.bad("h_tiny", values={"/voxelmap/voxel_size": np.float64(1e-300)})
         self.assert_rejected(path, "VALUE_OUT_OF_RANGE", path_contains="voxel_size")
