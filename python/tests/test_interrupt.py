@@ -104,3 +104,45 @@ def test_sigint_stops_a_bake_without_progress(sphere_mesh: Path, tmp_path: Path)
     import voxfmt
     voxfmt.bake(sphere_mesh, out, resolution=32, points=500, threads=1)
     assert voxfmt.load(out).voxel_size > 0
+
+
+# With a progress callable, SIGINT 0.3 s into the voxelmap's stage, while its band runs: the callable is told the
+# stage's progress about 5 times a second on the bake's own thread, so the interrupt lands there (it waited for the
+# stage's end: 4 s of this 1000^3 bake on 2 cores).
+_BAND_CHILD = r"""
+import json, os, signal, sys, threading, time
+import voxfmt
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
+mesh, out = sys.argv[1], sys.argv[2]
+sent = []
+shares = []
+
+
+def progress(stage, fraction):
+    shares.append(fraction)
+    if stage == "voxelmap + point shell" and not sent:
+        sent.append(time.perf_counter() + 0.3)
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+
+
+try:
+    voxfmt.bake(mesh, out, resolution=1000, points=50000, threads=2, progress=progress)
+    outcome = "completed"
+except KeyboardInterrupt:
+    outcome = "interrupted"
+print(json.dumps({"outcome": outcome, "latency": time.perf_counter() - sent[0], "last_share": shares[-1],
+                  "written": os.path.exists(out)}))
+"""
+
+
+def test_sigint_stops_a_bake_within_its_voxelmap(sphere_mesh: Path, tmp_path: Path) -> None:
+    out = tmp_path / "band.vox.h5"
+    run = subprocess.run([sys.executable, "-c", _BAND_CHILD, str(sphere_mesh), str(out)], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert result["outcome"] == "interrupted" and not result["written"], result
+    assert result["last_share"] < 0.72, result  # before "assemble": within the voxelmap's stage
+    assert result["latency"] < 1.5, result

@@ -134,6 +134,17 @@ class StageTimes {
       for (const BakeStageInfo& info : kBakeStages)
         if (t.stage == info.name) set(info.stage, t.seconds);
   }
+  /// Progress within `stage` (one reported as progress): `share` of it done, told as that share of the way to the
+  /// next reported stage.
+  void within(BakeStage stage, double share) const {
+    const BakeStageInfo& info = stage_info(stage);
+    if (!progress_ || info.progress_start < 0) return;
+    double next = 1.0;
+    for (const BakeStageInfo& other : kBakeStages)
+      if (other.progress_start > info.progress_start) next = std::min(next, other.progress_start);
+    progress_(info.name, info.progress_start + share * (next - info.progress_start));
+  }
+
   std::vector<StageTiming> timings() const {
     std::vector<StageTiming> out;
     for (const BakeStageInfo& info : kBakeStages)
@@ -239,7 +250,8 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
   std::vector<StageTiming> voxelmap_stages;
   try {
     g.voxelmap = times.run(BakeStage::Voxelmap, [&] {
-      return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report);
+      return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report,
+                            [&](double share) { times.within(BakeStage::VoxelmapAndPointShell, share); });
     });
   } catch (...) {
     tasks.wait();

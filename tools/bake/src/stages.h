@@ -76,8 +76,12 @@ struct VoxelmapReport {
   bool stopped = false;
   uint64_t inside_centres = 0, deep_centres = 0;
 };
+/// `progress`, if given, is told the share of the voxelmap done (0 to 1) now and then, on the calling thread; an
+/// exception it throws stops the bake and leaves build_voxelmap.
+using VoxelmapProgress = std::function<void(double share)>;
 Voxelmap build_voxelmap(const TriangleMesh& mesh, const VoxelmapSettings& settings,
-                        std::vector<StageTiming>* timings = nullptr, VoxelmapReport* report = nullptr);
+                        std::vector<StageTiming>* timings = nullptr, VoxelmapReport* report = nullptr,
+                        const VoxelmapProgress& progress = {});
 /// The voxel size build_voxelmap will use (a shell's too); throws as it would on a mesh or settings it refuses.
 double planned_voxel_size(const TriangleMesh& mesh, const VoxelmapSettings& settings);
 /// The bytes a bake may use at its peak: `max_memory_bytes` (--max-memory), or 0: 3/4 of this machine's memory.

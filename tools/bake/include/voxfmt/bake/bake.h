@@ -157,7 +157,9 @@ struct Summary {
 };
 
 /// The bake's stages as they start (the names of kBakeStages with a progress share), with the share of the whole
-/// bake done so far (0..1, by the typical cost of each stage), for progress bars; then "done" at 1.
+/// bake done so far (0..1, by the typical cost of each stage), for progress bars; then "done" at 1. The long
+/// "voxelmap + point shell" is told again as it goes (at most 5 times a second), its share rising toward the next
+/// stage's. Every call is on the thread that called the bake; an exception the callback throws stops the bake.
 using ProgressCallback = std::function<void(std::string_view stage, double fraction)>;
 
 struct Baked {
