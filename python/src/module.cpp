@@ -995,6 +995,11 @@ void bind_bake_settings(nb::module_& m) {
   bake_setting<uint64_t>(cls, names, "seed", [](S& s) -> uint64_t& { return s.point_shell.seed; });
   bake_setting<int>(cls, names, "deflate", [](S& s) -> int& { return s.deflate; });
   bake_setting<unsigned>(cls, names, "threads", [](S& s) -> unsigned& { return s.threads; });
+  // `--max-memory`, in MiB as there (0: the bake's default, 3/4 of this machine's memory).
+  cls.def_prop_rw(
+      "max_memory_mib", [](S& s) { return s.voxelmap.max_memory_bytes >> 20; },
+      [](S& s, uint64_t mib) { s.voxelmap.max_memory_bytes = mib << 20; });
+  names.emplace_back("max_memory_mib");
   cls.attr("names") = nb::cast(names);
 }
 

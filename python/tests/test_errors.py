@@ -88,9 +88,16 @@ def test_bake_errors(tmp_path: Path, sphere_mesh: Path) -> None:
         {"seed": -1},  # a uint64: never wrapped to 2^64 - 1
         {"resolution": 64, "voxel_size": 0.01},  # exclude each other, as on the command line
         {"points": 500, "point_spacing": 0.01},
+        {"max_memory_mib": 0},  # 0 is the bake's default: refused as on the command line
+        {"max_memory_mib": 2**40},
+        {"max_memory_mib": 1.5},
     ):
         raises(voxfmt.OptionError, "BAD_OPTION", voxfmt.bake, sphere_mesh, out, **options)
     assert not out.exists()
+    # A bake that would need more than max_memory_mib is refused before it starts, as `voxfmt build --max-memory`.
+    raises(voxfmt.InternalError, "OUT_OF_MEMORY", voxfmt.bake, sphere_mesh, out, resolution=2048, max_memory_mib=64)
+    assert not out.exists()
+    assert voxfmt.bake(sphere_mesh, out, resolution=16, points=200, max_memory_mib=64)["status"] == "ok"
     raises(voxfmt.WriteError, "WRITE_FAILED", voxfmt.bake, sphere_mesh, tmp_path / "no" / "dir" / "x.vox.h5",
            resolution=16, points=200)
 

@@ -65,7 +65,8 @@ Path = str | os.PathLike[str]
 # The options of `voxfmt build` as keywords of bake() (dashes become underscores), with their defaults: those of
 # bake::Settings, read from the extension (the CLI's options read the same struct).
 _BAKE_DEFAULTS: dict[str, Any] = {name: getattr(_BakeSettings(), name) for name in _BakeSettings.names}
-_UNSIGNED_BITS = {"resolution": 32, "points": 32, "margin": 32, "seed": 64, "threads": 32, "deflate": 31}
+_UNSIGNED_BITS = {"resolution": 32, "points": 32, "margin": 32, "seed": 64, "threads": 32, "deflate": 31,
+                  "max_memory_mib": 40}
 
 
 def _path(value: Path, what: str) -> str:
@@ -108,7 +109,7 @@ def _unsigned(name: str, value: Any) -> int:
     return number
 
 
-_BAKE_UNSET_BY_NONE = {"voxel_size": True, "point_spacing": True}
+_BAKE_UNSET_BY_NONE = {"voxel_size": True, "point_spacing": True, "max_memory_mib": True}
 
 
 def _bake_setting(name: str, value: Any) -> Any:
@@ -144,7 +145,9 @@ def bake(
     as underscores: voxel_size (metres, instead of resolution), point_spacing (metres, instead of points),
     each excluding the other as on the command line (resolution 128 and points 10000 when neither is given),
     branching, margin, band, shell_thickness, unit_scale, up_axis, self_intersection_check (bool; the CLI's
-    --no-self-intersection-check is ``False``), seed, deflate, threads (0 = all cores).
+    --no-self-intersection-check is ``False``), seed, deflate, threads (0 = all cores), max_memory_mib (what the
+    voxelmap and the point shell may each need at their peak, beyond which the bake is refused up front:
+    InternalError OUT_OF_MEMORY; default 3/4 of this machine's memory).
 
     ``progress(stage, fraction)`` is called as each stage starts (fraction of the whole bake, 0..1), and again as
     the long "voxelmap + point shell" stage goes (about 5 times a second); an exception it raises stops the bake
@@ -163,8 +166,8 @@ def bake(
         )
     if progress is not None and not callable(progress):
         raise OptionError("BAD_OPTION", "progress must be a callable (stage, fraction) or None")
-    # voxel_size and point_spacing: None is not given (as resolution=None); 0, the bake's "unset", is refused as
-    # on the command line, where it would silently be ignored.
+    # voxel_size, point_spacing and max_memory_mib: None is not given (as resolution=None); 0, the bake's "unset", is
+    # refused as on the command line, where it would silently be ignored.
     options = {name: value for name, value in options.items() if value is not None or not _BAKE_UNSET_BY_NONE.get(name)}
     for name in _BAKE_UNSET_BY_NONE:
         if name in options and not _real(name, options[name]) > 0:

@@ -207,11 +207,11 @@ void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options,
   const double bytes = points * kBytesPerPoint, limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
   if (bytes <= limit) return;
   char text[300];
-  std::snprintf(
-      text, sizeof text,
-      "the point shell (%.0f points) would need about %.1f MiB, more than the %.1f MiB allowed (--max-memory; "
-      "default 3/4 of this machine's memory): use fewer points or a wider point spacing",
-      points, bytes / 1048576.0, limit / 1048576.0);
+  std::snprintf(text, sizeof text,
+                "the point shell (%.0f points) would need about %.1f MiB, more than the %.1f MiB allowed "
+                "(--max-memory, max_memory_mib in Python; default 3/4 of this machine's memory): use fewer points "
+                "or a wider point spacing",
+                points, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
 

@@ -123,12 +123,12 @@ void check_memory(const TriangleMesh& mesh, const GridGeometry& g, const Voxelma
                        double(mesh.triangles.size()) * std::max(400.0, 16 * pairs_per_triangle);
   const double limit = memory_limit_bytes(options.max_memory_bytes);
   if (bytes <= limit) return;
-  char text[400];
+  char text[512];
   std::snprintf(
       text, sizeof text,
       "the voxelmap (%u x %u x %u voxels, ~%.0f value bricks) would need about %.1f MiB, more than the %.1f MiB "
-      "allowed (--max-memory; default 3/4 of this machine's memory): use a lower resolution, a larger "
-      "voxel size, a narrower band or a thinner shell",
+      "allowed (--max-memory, max_memory_mib in Python; default 3/4 of this machine's memory): use a lower "
+      "resolution, a larger voxel size, a narrower band or a thinner shell",
       g.dims[0], g.dims[1], g.dims[2], value_bricks, bytes / 1048576.0, limit / 1048576.0);
   throw BakeError(IssueCode::OutOfMemory, text);
 }
