@@ -58,6 +58,24 @@ class BuildExtremes(FolderCase):
         self.assertIn("vertex 8", r.stderr)
         self.assertFalse(os.path.exists(self.out))
 
+    def test_an_off_face_naming_a_negative_vertex_is_an_import_error(self):
+        """assimp's OFF reader takes "-1" for vertex 0, logs nothing and reads on: the face joined the wrong vertex
+        (then dropped as degenerate), and a corrupt file baked. A file of polygons, which assimp reads instead of
+        CGAL, still bakes."""
+        vertices = "".join("%d %d %d\n" % c for c in CUBE_CORNERS)
+        faces = CUBE_FACES[:-1] + [(1, -1, 3)]
+        text = "OFF\n# a comment\n8 12 0\n" + vertices + "".join("3 %d %d %d\n" % f for f in faces)
+        r = self.build(self.write("negative.off", text), "--resolution", "16", "--points", "100")
+        self.assertEqual(r.returncode, 1, r.stderr)
+        self.assertEqual(json.loads(r.stdout)["code"], "IMPORT_FAILED")
+        self.assertIn("face 11 names vertex -1", r.stderr)
+        self.assertFalse(os.path.exists(self.out))
+        quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+        text = "OFF 8 6 0\n" + vertices + "".join("4 %d %d %d %d\n" % q for q in quads)
+        r = self.build(self.write("quads.off", text), "--resolution", "16", "--points", "100")
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertAlmostEqual(json.loads(r.stdout)["volume"], 1.0, delta=1e-9)
+
     def test_a_small_part_far_from_a_large_one_encloses_its_volume(self):
         """A 1 m cube and a 1 mm cube 1 km away: the solid's volume is a billionth of its bounding box's, which the
         bake took for a flat, closed sheet, and then for a shell too thin to hold anything (ZERO_VOLUME) at 5 cm

@@ -15,7 +15,10 @@
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
+#include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -187,10 +190,56 @@ class CorruptGeometryLog {
   CorruptGeometry* stream_ = nullptr;
 };
 
+// A line of an ASCII OFF file without its comment, split into words; false at the end of the file.
+bool off_words(std::istream& in, std::vector<std::string>& words) {
+  std::string line;
+  while (std::getline(in, line)) {
+    line = line.substr(0, line.find('#'));
+    std::istringstream split(line);
+    words.clear();
+    for (std::string word; split >> word;) words.push_back(word);
+    if (!words.empty()) return true;
+  }
+  return false;
+}
+
+// assimp's OFF reader takes a negative face index ("-1") for vertex 0 and reads on, with nothing in its log: the face
+// joins the wrong vertex. CGAL's reader refuses such a file, but also files assimp reads right (polygons, which assimp
+// triangulates): so a file CGAL refused is looked through for a negative index. The first one, if any.
+std::optional<std::string> off_negative_index(const std::string& path) {
+  std::ifstream in(path);
+  std::vector<std::string> words;
+  if (!off_words(in, words)) return std::nullopt;
+  const std::string header = words[0];
+  if (header.size() < 3 || header.compare(header.size() - 3, 3, "OFF") != 0) return std::nullopt;
+  for (const std::string& word : words)
+    if (word == "BINARY") return std::nullopt;  // binary OFF: its indices are read as integers, not text
+  std::vector<std::string> counts(words.begin() + 1 + (header.find('n') != std::string::npos), words.end());
+  if (counts.empty() && off_words(in, words)) counts = words;
+  uint64_t vertices = 0, faces = 0;
+  try {
+    if (counts.size() < 2) return std::nullopt;
+    vertices = std::stoull(counts[0]);
+    faces = std::stoull(counts[1]);
+  } catch (...) {
+    return std::nullopt;  // assimp names what is wrong with the header
+  }
+  for (uint64_t v = 0; v < vertices; ++v)
+    if (!off_words(in, words)) return std::nullopt;
+  for (uint64_t f = 0; f < faces && off_words(in, words); ++f)
+    for (size_t i = 1; i < words.size(); ++i)
+      if (words[i][0] == '-' && i <= std::strtoull(words[0].c_str(), nullptr, 10))
+        return "face " + std::to_string(f) + " names vertex " + words[i];
+  return std::nullopt;
+}
+
 // The parse itself: CGAL's readers, then assimp.
 TriangleMesh import_in_process(const std::string& path, const ImportSettings& options) {
   TriangleMesh mesh;
   if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
+  if (lowercase(std::filesystem::path(path).extension().string()) == ".off")
+    if (const std::optional<std::string> negative = off_negative_index(path))
+      throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: " + *negative + " (a corrupt file)");
 
   std::string corrupt;
   const CorruptGeometryLog log(corrupt);
