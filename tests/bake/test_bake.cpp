@@ -637,7 +637,7 @@ TEST(Bake, TimingsAndProgressFollowTheStageList) {
     EXPECT_LT(reported[n].second, to);
     ++within;
     // Between the band's start and the lattice's shares (voxelize.cpp): from the band's rows.
-    in_band += reported[n].second > from + 0.06 * (to - from) + 1e-9 && reported[n].second < from + 0.5 * (to - from);
+    in_band += reported[n].second > from + 0.06 * (to - from) + 1e-9 && reported[n].second < from + 0.45 * (to - from);
   }
   EXPECT_EQ(starts, expected);
   // The triangles binned, the band's start, its first row, the lattice, its propagation, the estimates.

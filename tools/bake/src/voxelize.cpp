@@ -1013,12 +1013,49 @@ void lattice_near_surface(const GridGeometry& g, const std::vector<IndexTriangle
   });
 }
 
+// A parallel loop's progress: every worker adds its work, and the thread that made the ticker (which works in the
+// loop too) reports at most every 0.2 s, its first piece of work at once. So the callback runs where the bake was
+// called, as every other report does (Python checks Ctrl-C there), and a report that throws cancels the loop (TBB
+// rethrows it).
+class ProgressTicker {
+ public:
+  ProgressTicker(const VoxelmapProgress& report, double from, double to, uint64_t total)
+      : report_(report), from_(from), to_(to), total_(std::max<uint64_t>(total, 1)) {}
+  void add(uint64_t work) {
+    const uint64_t done = done_.fetch_add(work, std::memory_order_relaxed) + work;
+    if (!report_ || std::this_thread::get_id() != caller_) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (now < next_) return;
+    next_ = now + std::chrono::milliseconds(200);
+    report_(from_ + (to_ - from_) * std::min(1.0, double(done) / double(total_)));
+  }
+
+ private:
+  const VoxelmapProgress& report_;
+  const double from_, to_;
+  const uint64_t total_;
+  const std::thread::id caller_ = std::this_thread::get_id();
+  std::atomic<uint64_t> done_{0};
+  std::chrono::steady_clock::time_point next_{};  // the caller's alone
+};
+
+// Shares of a voxelmap's time its parts start at, for its progress: CGAL's bunny spends 49 / 36 / 16 % in the band,
+// lattice and estimates at 1024 and 24 / 73 / 2 % at 4096, a sphere at 1000 35 / 42 / 22 %, a 2 M triangle sphere
+// at 256 seconds preparing its triangles and then 90 % in the band. The lattice's share is its sweeps', then its
+// search's beyond the band (at 2048: 8 and 10 s of the voxelmap's 34 s).
+constexpr double kBinnedShare = 0.03, kBandShare = 0.06, kLatticeShare = 0.45, kSweptShare = 0.6,
+                 kPropagatedShare = 0.75, kEstimatesShare = 0.8;
+
 // Carries nearest triangles along one axis, both ways, every line in parallel; `sweep` counts the sweeps so far
 // (three per round). Two neighbours compared in this axis's previous sweep and unchanged since are not compared
 // again: that changed neither. Returns how many points changed.
 size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, int axis, int sweep,
-                     Lattice& L) {
+                     Lattice& L, const VoxelmapProgress& progress) {
   const AxisLines lines(L, axis);
+  // Each of the rounds' sweeps an equal part of the lattice's share until it is propagated.
+  const double part = (kSweptShare - kLatticeShare) / (3 * kMaxSweepRounds);
+  ProgressTicker ticker(progress, kLatticeShare + part * sweep, kLatticeShare + part * (sweep + 1),
+                        uint64_t(lines.count));
   const int64_t n = lines.length;
   const int settled_before = sweep - 2;  // a stamp below this: unchanged since this axis's previous sweep began
   return tbb::parallel_reduce(
@@ -1046,6 +1083,7 @@ size_t sweep_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& tr
           for (int64_t s = 1; s < n; ++s) visit(s, s - 1);
           for (int64_t s = n - 2; s >= 0; --s) visit(s, s + 1);
         }
+        ticker.add(uint64_t(range.end() - range.begin()));
         return changes;
       },
       std::plus<size_t>());
@@ -1136,8 +1174,9 @@ SurfaceCells surface_cells(const GridGeometry& g, const std::vector<IndexTriangl
 // Every point beyond r has an upper bound after the sweeps, the distance to a real triangle: unless the surface's
 // cells already bound it within kFarSlack, the hierarchy searches only within it for the nearest one.
 void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hierarchy, const SurfaceCells& cells,
-                                double r, Lattice& L) {
+                                double r, Lattice& L, const VoxelmapProgress& progress) {
   const double r2 = r * r;
+  ProgressTicker ticker(progress, kSweptShare, kPropagatedShare, uint64_t(L.dims[2]));
   tbb::parallel_for(int64_t(0), L.dims[2], [&](int64_t c) {
     for (int64_t b = 0; b < L.dims[1]; ++b)
       for (int64_t a = 0; a < L.dims[0]; ++a) {
@@ -1163,11 +1202,12 @@ void search_lattice_beyond_band(const GridGeometry& g, const ClosestTriangle& hi
         std::memcpy(&nearest_bits, &nearest, sizeof nearest_bits);
         key = std::min(key, uint64_t(nearest_bits) << 32 | f);
       }
+    ticker.add(1);
   });
 }
 
 Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle>& triangles, const BrickLists& lists,
-                          const ClosestTriangle& hierarchy, double r) {
+                          const ClosestTriangle& hierarchy, double r, const VoxelmapProgress& progress) {
   Lattice L;
   for (int a = 0; a < 3; ++a) L.dims[size_t(a)] = g.bricks[size_t(a)] + 1;
   L.keys.assign(size_t(L.dims[0] * L.dims[1] * L.dims[2]), kNoTriangle);
@@ -1175,11 +1215,12 @@ Lattice propagate_lattice(const GridGeometry& g, const std::vector<IndexTriangle
   lattice_near_surface(g, triangles, lists, L);
   for (int round = 0, sweep = 0; round < kMaxSweepRounds; ++round) {
     size_t changes = 0;
-    for (int axis = 0; axis < 3; ++axis) changes += sweep_lattice(g, triangles, axis, sweep++, L);
+    for (int axis = 0; axis < 3; ++axis) changes += sweep_lattice(g, triangles, axis, sweep++, L, progress);
     if (changes == 0) break;
   }
   std::vector<uint8_t>().swap(L.changed);
-  search_lattice_beyond_band(g, hierarchy, surface_cells(g, triangles), r, L);
+  if (progress) progress(kSweptShare);
+  search_lattice_beyond_band(g, hierarchy, surface_cells(g, triangles), r, L, progress);
   return L;
 }
 
@@ -1254,37 +1295,6 @@ std::vector<std::array<int64_t, 3>> brick_rows(const BrickLists& lists, const Gr
   }
   return all;
 }
-
-// A parallel loop's progress: every worker adds its work, and the thread that made the ticker (which works in the
-// loop too) reports at most every 0.2 s, its first row at once. So the callback runs where the bake was called, as
-// every other report does (Python checks Ctrl-C there), and a report that throws cancels the loop (TBB rethrows it).
-class ProgressTicker {
- public:
-  ProgressTicker(const VoxelmapProgress& report, double from, double to, uint64_t total)
-      : report_(report), from_(from), to_(to), total_(std::max<uint64_t>(total, 1)) {}
-  void add(uint64_t work) {
-    const uint64_t done = done_.fetch_add(work, std::memory_order_relaxed) + work;
-    if (!report_ || std::this_thread::get_id() != caller_) return;
-    const auto now = std::chrono::steady_clock::now();
-    if (now < next_) return;
-    next_ = now + std::chrono::milliseconds(200);
-    report_(from_ + (to_ - from_) * std::min(1.0, double(done) / double(total_)));
-  }
-
- private:
-  const VoxelmapProgress& report_;
-  const double from_, to_;
-  const uint64_t total_;
-  const std::thread::id caller_ = std::this_thread::get_id();
-  std::atomic<uint64_t> done_{0};
-  std::chrono::steady_clock::time_point next_{};  // the caller's alone
-};
-
-// Shares of a voxelmap's time its parts start at, for its progress: CGAL's bunny at 1024 spends 49 / 36 / 16 % in
-// the band, lattice and estimates, a sphere at 1000 35 / 42 / 22 %, a 2 M triangle sphere at 256 seconds preparing
-// its triangles and then 90 % in the band.
-constexpr double kBinnedShare = 0.03, kBandShare = 0.06, kLatticeShare = 0.5, kPropagatedShare = 0.65,
-                 kEstimatesShare = 0.8;
 
 // The band: every row of bricks in parallel, then their value bricks gathered into the voxelmap in row order.
 void bake_band(const BrickRowsInput& in, Voxelmap& vm, const VoxelmapProgress& progress) {
@@ -1368,7 +1378,7 @@ void relax_lattice(const GridGeometry& g, const GridShape& shape, std::vector<fl
 // (2^-24 relative) and values kept as floats.
 void fill_lattice(const BrickRowsInput& in, Voxelmap& vm, const VoxelmapProgress& progress) {
   const GridGeometry& g = in.g;
-  const Lattice L = propagate_lattice(g, in.triangles, in.lists, in.hierarchy, in.r);
+  const Lattice L = propagate_lattice(g, in.triangles, in.lists, in.hierarchy, in.r, progress);
   if (progress) progress(kPropagatedShare);
   vm.lattice.resize(L.keys.size());
   tbb::parallel_for(size_t(0), L.keys.size(), [&](size_t n) {
