@@ -56,8 +56,8 @@ void add_report_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<Options>();
   CLI::App* cmd = app.add_subcommand(
       "report",
-      "Write an HTML report of a baked library (a `voxfmt batch` output folder): summary, table, a card "
-      "with pictures per asset, a 3D view; opens from the file system, no server");
+      "Write an HTML report of a baked library (a `voxfmt batch` output folder, or any folder of assets): summary, "
+      "table, a card with pictures per asset, a 3D view; opens from the file system, no server");
   cmd->add_option("library", options->report.library,
                   "Library folder: a `voxfmt batch` output (its manifest.jsonl), or any folder of *.vox.h5 assets")
       ->required();
@@ -94,6 +94,8 @@ void add_report_command(CLI::App& app, int& exit_code) {
       "\nExamples:\n"
       "  voxfmt report out/library                        # writes out/library/report/index.html\n"
       "  voxfmt report new/ --against old/ -o diff/       # what changed between two bakes\n"
+      "  voxfmt report assets/                            # a folder without a manifest: every *.vox.h5 below it\n"
+      "One asset's page: voxfmt inspect ASSET --html OUT.\n"
       "Open index.html in a browser (file://). A damaged asset gets its card with the coded error.\n");
   cmd->callback([options, &exit_code] {
     options->report.progress = report_progress();
