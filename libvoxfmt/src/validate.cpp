@@ -277,17 +277,14 @@ void check_point_shell(const PointShell& ps, Checker& c) {
   if (sizes_ok) check_tree(ps, c);
 }
 
-// Spec §4: a spacing is that of at least one point on a surface inside the bounds; 16 times their diagonal allows
-// a 1-point shell of a crumpled surface, and refuses a spacing consumers would pad a shape's box with (1e300 m).
+// Spec §4: no spacing consumers would pad a shape's box with beyond the object's scale (1e300 m validated).
 void check_point_spacing_scale(const Asset& a, Checker& c) {
   if (!a.point_shell.point_spacing) return;
-  double diagonal2 = 0;
-  for (int axis = 0; axis < 3; ++axis) diagonal2 += std::pow(a.bounds_max[axis] - a.bounds_min[axis], 2);
-  const double limit = 16 * std::max(std::sqrt(diagonal2), a.voxelmap.voxel_size);
+  const double limit = max_point_spacing(a.bounds_min, a.bounds_max, a.voxelmap.voxel_size);
   if (*a.point_shell.point_spacing <= limit) return;
   c.add(IssueCode::ValueOutOfRange, "/pointshell/@point_spacing",
         "point spacing " + fmt(*a.point_shell.point_spacing) + " m is more than 16 times the object's diagonal (" +
-            fmt(limit) + " m)");
+            fmt(limit) + " m, the limit)");
 }
 
 void check_mass(const MassProperties& m, Checker& c) {

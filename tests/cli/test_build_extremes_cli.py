@@ -30,6 +30,19 @@ def off_text(*boxes):
             "".join("3 %d %d %d\n" % f for f in faces))
 
 
+def accordion(pleats, period, depth, height):
+    """An open zigzag sheet: `pleats` folds `period` apart along x, `depth` deep along z, `height` tall along y."""
+    vertices, faces = [], []
+    for i in range(2 * pleats + 1):
+        x, z = i * period / 2, depth * (i % 2)
+        vertices += [(x, 0, z), (x, height, z)]
+        if i:
+            a = 2 * (i - 1)
+            faces += [(a, a + 2, a + 3), (a, a + 3, a + 1)]
+    return ("OFF\n%d %d 0\n" % (len(vertices), len(faces)) + "".join("%.17g %.17g %.17g\n" % v for v in vertices) +
+            "".join("3 %d %d %d\n" % f for f in faces))
+
+
 @unittest.skipUnless(VOXFMT, "VOXFMT_BIN not set")
 class BuildExtremes(FolderCase):
     def build(self, mesh, *options):
@@ -87,6 +100,23 @@ class BuildExtremes(FolderCase):
         self.assertAlmostEqual(summary["volume"], 1 + 1e-9, delta=1e-9)
         self.assertNotIn("SHELL_MODE", self.warnings(summary))
         self.validate()
+
+    def test_crumpled_surfaces_with_few_points(self):
+        """A shell whose every sampled point lies inside it (a few points on a sheet folded tighter than the shell) is
+        refused as an option, not written as a file the validator refuses and blamed on the bake; one point on a
+        surface of far more area than its box has gets the spec's largest spacing, not an invalid one."""
+        sheet = self.write("pleats.off", accordion(40, 0.005, 0.1, 0.1))
+        r = self.build(sheet, "--shell-thickness", "0.05", "--resolution", "32", "--points", "2")
+        self.assertEqual(r.returncode, 2, r.stderr)
+        self.assertEqual(json.loads(r.stdout)["code"], "BAD_OPTION")
+        self.assertIn("inside the shell", r.stderr)
+        self.assertFalse(os.path.exists(self.out))
+        crumpled = self.write("crumpled.off", accordion(1000, 1e-5, 0.01, 0.01))
+        for points in ("1", "2"):  # a shell thinner than the folds' gaps: its points survive
+            with self.subTest(points=points):
+                r = self.build(crumpled, "--resolution", "16", "--points", points, "--shell-thickness", "1e-6")
+                self.assertEqual(r.returncode, 0, r.stderr)
+                self.assertEqual([i["code"] for i in self.validate().get("issues", [])], [])
 
     def test_a_closed_part_thinner_than_a_voxel_bakes_as_a_shell(self):
         """A closed 1000:1:1 needle at 31 m voxels: no voxel centre lies inside it, so the asset had no inside at

@@ -394,6 +394,14 @@ class ReportTest(unittest.TestCase):
             self.assertGreater(rows[name]["volume"], 0)
             self.assertEqual(rows[name]["file_size_bytes"], os.path.getsize(os.path.join(folder, name)))
         self.assertIn("asset_error", rows["sub/damaged.vox.h5"])
+        # Compared with a copy of itself: no change, though the damaged asset is read only on this side.
+        copy = os.path.join(self.tmp, "loose-copy")
+        shutil.copytree(folder, copy, ignore=shutil.ignore_patterns("report"))
+        p = fx.run("report", folder, "--against", copy, "-o", os.path.join(self.tmp, "loose-vs-copy"))
+        data = load_data(os.path.join(self.tmp, "loose-vs-copy"))
+        self.assertEqual(len(data["against"]["rows"]), 3)
+        self.assertTrue(all(r.get("unread") for r in data["against"]["rows"]))
+        self.assertNotIn("unread", json.dumps(data["rows"]))
         # A folder with neither a manifest nor an asset says so.
         empty = os.path.join(self.tmp, "no-assets")
         os.makedirs(empty)

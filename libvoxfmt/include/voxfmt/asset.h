@@ -2,6 +2,7 @@
 // loaders and the bake tools share these types.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstddef>
@@ -29,6 +30,15 @@ inline constexpr FormatVersion kFormatVersion{2, 2};
 
 /// The voxel sizes a valid file may have (spec §3): beyond them the numbers mean nothing physical.
 inline constexpr double kMinVoxelSize = 1e-9, kMaxVoxelSize = 1e6;
+
+/// The largest point spacing a valid file may have (spec §4): 16 times the diagonal of [bounds_min, bounds_max], or 16
+/// voxels if more. A writer whose nominal spacing is larger (a point or two on a crumpled surface) writes this.
+inline double max_point_spacing(const Vec3& bounds_min, const Vec3& bounds_max, double voxel_size) {
+  double diagonal2 = 0;
+  for (int axis = 0; axis < 3; ++axis)
+    diagonal2 += (bounds_max[axis] - bounds_min[axis]) * (bounds_max[axis] - bounds_min[axis]);
+  return 16 * std::max(std::sqrt(diagonal2), voxel_size);
+}
 
 /// Point shell organised as a breadth-first point-sphere tree (spec §4). Node n is point n.
 struct PointShell {

@@ -12,7 +12,6 @@
 namespace voxfmt::runtime {
 namespace {
 
-Eigen::Vector3f to_float(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]).cast<float>(); }
 Eigen::Vector3f to_float(const voxfmt::Vec3f& v) { return Eigen::Vector3f(v[0], v[1], v[2]); }
 Eigen::Vector3d to_double(const voxfmt::Vec3& v) { return Eigen::Vector3d(v[0], v[1], v[2]); }
 

@@ -65,7 +65,7 @@ bool finite_pose(const Pose& pose) {
 
 HapticRenderer::HapticRenderer(std::shared_ptr<const CollisionObject> tool, const Pose& start,
                                const HapticParameters& parameters)
-    : tool_(std::move(tool)), parameters_(parameters), motion_{start}, level_cap_(parameters.query.max_level) {
+    : tool_(std::move(tool)), parameters_(parameters), motion_{start, {}}, level_cap_(parameters.query.max_level) {
   if (!tool_ || !tool_->has_point_shell()) throw std::invalid_argument("HapticRenderer: the tool needs a point shell");
   if (!(parameters_.tool_mass > 0 && std::isfinite(parameters_.tool_mass)))
     throw std::invalid_argument("HapticRenderer: tool_mass must be finite and > 0");

@@ -135,10 +135,13 @@ class StageTimes {
         if (t.stage == info.name) set(info.stage, t.seconds);
   }
   /// Progress within `stage` (one reported as progress): `share` of it done, told as that share of the way to the
-  /// next reported stage.
-  void within(BakeStage stage, double share) const {
+  /// next reported stage, at most every 0.2 s (a Python callable takes the GIL each time).
+  void within(BakeStage stage, double share) {
     const BakeStageInfo& info = stage_info(stage);
     if (!progress_ || info.progress_start < 0) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (now < next_within_) return;
+    next_within_ = now + std::chrono::milliseconds(200);
     double next = 1.0;
     for (const BakeStageInfo& other : kBakeStages)
       if (other.progress_start > info.progress_start) next = std::min(next, other.progress_start);
@@ -157,6 +160,7 @@ class StageTimes {
   const ProgressCallback& progress_;
   std::array<double, kCount> seconds_{};
   std::array<bool, kCount> timed_{};
+  std::chrono::steady_clock::time_point next_within_{};
 };
 
 bool encloses_volume(const MassProperties& mass, const TriangleMesh& mesh) {
@@ -195,16 +199,19 @@ struct Geometry {
 };
 
 // The point shell's peak, before it starts: about 420 bytes a point (candidates, the Poisson-disk grid, the tree;
-// measured with the bunny at 0.2, 1 and 2 M points). Beside the voxelmap's own check, so that `--points` or
-// `--point-spacing` too is refused up front rather than killed halfway.
+// measured with the bunny at 0.2, 1 and 2 M points), and for a shell the search that drops its swallowed points
+// (about 250 bytes a triangle at its build: drop_points_inside_shell). Beside the voxelmap's own check, so that
+// `--points` or `--point-spacing` too is refused up front rather than killed halfway.
 void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options, double shell_thickness) {
-  constexpr double kBytesPerPoint = 420;
+  constexpr double kBytesPerPoint = 420, kBytesPerShellTriangle = 250;
   const double target = point_shell_target(mesh, options.point_shell);
   // Past 50 million points sampling refuses the spacing itself (BAD_OPTION), with its own message.
   if (!(target <= 50e6)) return;
   // A shell's two sheets each get a spacing's count (a point count is shared between them: sample_shell).
   const double points = shell_thickness > 0 && options.point_shell.point_spacing > 0 ? 2 * target : target;
-  const double bytes = points * kBytesPerPoint, limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
+  const double bytes =
+      points * kBytesPerPoint + (shell_thickness > 0 ? double(mesh.triangles.size()) * kBytesPerShellTriangle : 0.0);
+  const double limit = memory_limit_bytes(options.voxelmap.max_memory_bytes);
   if (bytes <= limit) return;
   char text[300];
   std::snprintf(text, sizeof text,
@@ -382,6 +389,11 @@ Asset assemble(const std::string& mesh_path, const TriangleMesh& mesh, const Set
   }
   asset.voxelmap = std::move(geometry.voxelmap);
   asset.point_shell = std::move(geometry.shell);
+  // A point or two on a crumpled surface have a nominal spacing beyond the object's scale: the spec's limit instead.
+  if (asset.point_shell.point_spacing)
+    asset.point_shell.point_spacing =
+        std::min(*asset.point_shell.point_spacing,
+                 max_point_spacing(asset.bounds_min, asset.bounds_max, asset.voxelmap.voxel_size));
   asset.provenance = provenance_of(mesh_path, options, warnings);
   return asset;
 }

@@ -209,10 +209,12 @@ void offset_to_shell_sheets(PointShell& shell, double half_thickness) {
 }
 
 size_t drop_points_inside_shell(PointShell& shell, const TriangleMesh& mesh, double half_thickness, double tolerance) {
-  std::vector<std::array<Vec3, 3>> corners(mesh.triangles.size());
-  for (size_t t = 0; t < corners.size(); ++t)
-    for (int c = 0; c < 3; ++c) corners[t][size_t(c)] = mesh.vertices[mesh.triangles[t][size_t(c)]];
-  const ClosestTriangle closest(corners);
+  const ClosestTriangle closest = [&] {  // the corners' copy freed once the tree holds its own
+    std::vector<std::array<Vec3, 3>> corners(mesh.triangles.size());
+    for (size_t t = 0; t < corners.size(); ++t)
+      for (int c = 0; c < 3; ++c) corners[t][size_t(c)] = mesh.vertices[mesh.triangles[t][size_t(c)]];
+    return ClosestTriangle(corners);
+  }();
   const double inside = std::max(0.0, half_thickness - tolerance);
   const size_t n = shell.points.size();
   std::vector<uint8_t> keep(n);
@@ -227,7 +229,11 @@ size_t drop_points_inside_shell(PointShell& shell, const TriangleMesh& mesh, dou
       shell.normals[kept] = shell.normals[i];
       ++kept;
     }
-  if (kept == 0) return 0;  // unreachable for a real surface (its outermost points are on the outer sheet)
+  if (kept == 0)  // a few points on a crumpled surface, all swallowed by the sheets of its folds
+    throw BakeError(IssueCode::BadOption,
+                    "every one of the " + std::to_string(n) +
+                        " sampled sheet points lies inside the shell: use more points (--points) or a thinner shell "
+                        "(--shell-thickness)");
   shell.points.resize(kept);
   shell.normals.resize(kept);
   return n - kept;

@@ -113,7 +113,7 @@ MassProperties shell_mass_properties(const TriangleMesh& mesh, double thickness)
 void offset_to_shell_sheets(PointShell& shell, double half_thickness);
 /// Shell mode: drops the sheet points (tree not built yet) nearer the surface than `half_thickness - tolerance`. They
 /// lie inside the shell, where a sheet does not exist: on the inner side of a part thinner than the shell, or across
-/// a fold or a concave edge. Returns how many were dropped (none if that would leave no point).
+/// a fold or a concave edge. Returns how many were dropped; BAD_OPTION if none would be left.
 size_t drop_points_inside_shell(PointShell& shell, const TriangleMesh& mesh, double half_thickness, double tolerance);
 
 }  // namespace voxfmt::bake

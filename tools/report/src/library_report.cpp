@@ -176,7 +176,7 @@ std::vector<nlohmann::json> assets_below(const std::string& folder) {
   std::sort(found.begin(), found.end());
   std::vector<nlohmann::json> records;
   for (const std::string& relative : found) {
-    nlohmann::json record = {{"status", "ok"}};
+    nlohmann::json record = {{"status", "ok"}, {"unread", true}};  // "ok" by no bake's word: read as described
     set_path(record, "output", relative);
     if (const uintmax_t size = fs::file_size(fs::path(folder) / relative, ec); !ec) record["file_size_bytes"] = size;
     records.push_back(std::move(record));
@@ -192,12 +192,13 @@ Result<ManifestRecords> read_manifest(const std::string& library, const std::str
   } else {
     files = manifest_files(library);
   }
-  std::error_code ec;
-  if (files.empty() && manifest_file.empty() && fs::is_directory(library, ec)) {
+  std::error_code folder_ec;
+  if (files.empty() && manifest_file.empty() && fs::is_directory(library, folder_ec)) {
     ManifestRecords m{assets_below(library), 0};
     if (!m.records.empty()) return m;
   }
   if (files.empty()) {
+    std::error_code ec;
     const std::string where =
         !manifest_file.empty()
             ? manifest_file + (fs::is_directory(manifest_file, ec) ? ": a folder, not a manifest" : ": no such file")
@@ -579,7 +580,7 @@ nlohmann::json compact_rows(const std::string& library, const std::vector<nlohma
   for (const nlohmann::json& r : records) {
     const std::string relative = library_relative(library, r), status = text_of(r, "status");
     nlohmann::json row = {{"name", mesh_name(r)}, {"output", utf8_escaped(relative)}, {"status", status}};
-    for (const char* key : {"file_size_bytes", "total_s", "error", "warnings", "voxelmap", "tool_version"})
+    for (const char* key : {"file_size_bytes", "total_s", "error", "warnings", "voxelmap", "tool_version", "unread"})
       if (r.contains(key)) row[key] = r[key];
     std::error_code ec;
     if ((status == "ok" || status == "up_to_date") &&
@@ -616,6 +617,7 @@ Status library_row(const LibraryReportOptions& options, nlohmann::json record, s
   row.erase("output_hex");
   row.erase("output_from_manifest");  // where the asset is from the manifest: "output" was located by it
   row.erase("output_from_manifest_hex");
+  row.erase("unread");  // a folder's asset is read here: its row says what the read found
   for (const char* key : kReportKeys) row.erase(key);
   row["id"] = i;
   row["name"] = mesh_name(row);

@@ -174,7 +174,9 @@
       const line = (what) => [label(r.name, key), what, key];
       if (!o) { changes.appeared.push(line(r.state)); continue; }
       const os = oldState(o), oe = oldError(o), oc = oe ? text(oe.code) : '';
-      if (kind(os) !== kind(r.state) || oc !== r.errorCode)
+      // A folder's asset without a manifest was not read for the comparison: whether it was readable is not known.
+      const unknown = o.unread === true && r.state === 'unreadable';
+      if (!unknown && (kind(os) !== kind(r.state) || oc !== r.errorCode))
         changes.status.push(line(os.replace(/_/g, ' ') + (oc ? ' ' + oc : '') + ' → ' + r.state.replace(/_/g, ' ') + (r.errorCode ? ' ' + r.errorCode : '')));
       // Sizes and times of readable bakes on both sides only: an unreadable asset's figures are not its file's.
       if (!built(os) || !built(r.state)) continue;
