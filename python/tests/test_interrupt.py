@@ -93,13 +93,19 @@ print(json.dumps({"outcome": outcome, "elapsed": time.perf_counter() - start, "w
 """
 
 
-def test_sigint_stops_a_bake_without_progress(sphere_mesh: Path, tmp_path: Path) -> None:
-    out = tmp_path / "big.vox.h5"
-    run = subprocess.run([sys.executable, "-c", _BAKE_CHILD, str(sphere_mesh), str(out)], capture_output=True,
-                         text=True, timeout=300)
+def interrupted_bake(child: str, mesh: Path, out: Path) -> dict[str, object]:
+    """Runs a bake child to its end: what it printed, once it checked the bake was interrupted and wrote nothing."""
+    run = subprocess.run([sys.executable, "-c", child, str(mesh), str(out)], capture_output=True, text=True,
+                         timeout=300)
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout.strip().splitlines()[-1])
     assert result["outcome"] == "interrupted" and not result["written"], result
+    return result
+
+
+def test_sigint_stops_a_bake_without_progress(sphere_mesh: Path, tmp_path: Path) -> None:
+    out = tmp_path / "big.vox.h5"
+    interrupted_bake(_BAKE_CHILD, sphere_mesh, out)
     # The same bake still runs afterwards, in this process.
     import voxfmt
     voxfmt.bake(sphere_mesh, out, resolution=32, points=500, threads=1)
@@ -138,11 +144,6 @@ print(json.dumps({"outcome": outcome, "latency": time.perf_counter() - sent[0], 
 
 
 def test_sigint_stops_a_bake_within_its_voxelmap(sphere_mesh: Path, tmp_path: Path) -> None:
-    out = tmp_path / "band.vox.h5"
-    run = subprocess.run([sys.executable, "-c", _BAND_CHILD, str(sphere_mesh), str(out)], capture_output=True,
-                         text=True, timeout=300)
-    assert run.returncode == 0, run.stderr
-    result = json.loads(run.stdout.strip().splitlines()[-1])
-    assert result["outcome"] == "interrupted" and not result["written"], result
+    result = interrupted_bake(_BAND_CHILD, sphere_mesh, tmp_path / "band.vox.h5")
     assert result["last_share"] < 0.72, result  # before "assemble": within the voxelmap's stage
     assert result["latency"] < 1.5, result
