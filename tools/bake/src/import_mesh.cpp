@@ -204,8 +204,9 @@ bool off_words(std::istream& in, std::vector<std::string>& words) {
 }
 
 // assimp's OFF reader takes a negative face index ("-1") for vertex 0 and reads on, with nothing in its log: the face
-// joins the wrong vertex. CGAL's reader refuses such a file, but also files assimp reads right (polygons, which assimp
-// triangulates): so a file CGAL refused is looked through for a negative index. The first one, if any.
+// joins the wrong vertex; CGAL's converts it to an unsigned integer, which is undefined. So an OFF file is looked
+// through for a negative index before either reads it: the first one, if any. Vertex lines are only counted, and a
+// face line is split only where it holds a '-'.
 std::optional<std::string> off_negative_index(const std::string& path) {
   std::ifstream in(path);
   std::vector<std::string> words;
@@ -224,22 +225,35 @@ std::optional<std::string> off_negative_index(const std::string& path) {
   } catch (...) {
     return std::nullopt;  // assimp names what is wrong with the header
   }
+  std::string line;
+  const auto next_line = [&] {  // the next line with something before its comment
+    while (std::getline(in, line)) {
+      line.resize(std::min(line.size(), line.find('#')));
+      if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
+    }
+    return false;
+  };
   for (uint64_t v = 0; v < vertices; ++v)
-    if (!off_words(in, words)) return std::nullopt;
-  for (uint64_t f = 0; f < faces && off_words(in, words); ++f)
+    if (!next_line()) return std::nullopt;
+  for (uint64_t f = 0; f < faces && next_line(); ++f) {
+    if (line.find('-') == std::string::npos) continue;
+    std::istringstream split(line);
+    words.clear();
+    for (std::string word; split >> word;) words.push_back(word);
     for (size_t i = 1; i < words.size(); ++i)
       if (words[i][0] == '-' && i <= std::strtoull(words[0].c_str(), nullptr, 10))
         return "face " + std::to_string(f) + " names vertex " + words[i];
+  }
   return std::nullopt;
 }
 
 // The parse itself: CGAL's readers, then assimp.
 TriangleMesh import_in_process(const std::string& path, const ImportSettings& options) {
   TriangleMesh mesh;
-  if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
   if (lowercase(std::filesystem::path(path).extension().string()) == ".off")
     if (const std::optional<std::string> negative = off_negative_index(path))
       throw BakeError(IssueCode::ImportFailed, path + ": cannot read mesh: " + *negative + " (a corrupt file)");
+  if (read_triangles_in_double(path, options.unit_scale, mesh)) return mesh;
 
   std::string corrupt;
   const CorruptGeometryLog log(corrupt);
