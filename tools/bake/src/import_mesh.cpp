@@ -190,17 +190,20 @@ class CorruptGeometryLog {
   CorruptGeometry* stream_ = nullptr;
 };
 
-// A line of an ASCII OFF file without its comment, split into words; false at the end of the file.
-bool off_words(std::istream& in, std::vector<std::string>& words) {
-  std::string line;
+// The next line of an ASCII OFF file with something before its comment, without the comment; false at the end.
+bool off_line(std::istream& in, std::string& line) {
   while (std::getline(in, line)) {
-    line = line.substr(0, line.find('#'));
-    std::istringstream split(line);
-    words.clear();
-    for (std::string word; split >> word;) words.push_back(word);
-    if (!words.empty()) return true;
+    line.resize(std::min(line.size(), line.find('#')));
+    if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
   }
   return false;
+}
+
+std::vector<std::string> words_of(const std::string& line) {
+  std::istringstream split(line);
+  std::vector<std::string> words;
+  for (std::string word; split >> word;) words.push_back(word);
+  return words;
 }
 
 // assimp's OFF reader takes a negative face index ("-1") for vertex 0 and reads on, with nothing in its log: the face
@@ -209,14 +212,17 @@ bool off_words(std::istream& in, std::vector<std::string>& words) {
 // face line is split only where it holds a '-'.
 std::optional<std::string> off_negative_index(const std::string& path) {
   std::ifstream in(path);
-  std::vector<std::string> words;
-  if (!off_words(in, words)) return std::nullopt;
+  std::string line;
+  if (!off_line(in, line)) return std::nullopt;
+  std::vector<std::string> words = words_of(line);
   const std::string header = words[0];
   if (header.size() < 3 || header.compare(header.size() - 3, 3, "OFF") != 0) return std::nullopt;
   for (const std::string& word : words)
     if (word == "BINARY") return std::nullopt;  // binary OFF: its indices are read as integers, not text
-  std::vector<std::string> counts(words.begin() + 1 + (header.find('n') != std::string::npos), words.end());
-  if (counts.empty() && off_words(in, words)) counts = words;
+  // After the keyword (and an nOFF's dimension) come the counts, on its line or the next.
+  const size_t first_count = std::min(words.size(), size_t(1 + (header.find('n') != std::string::npos)));
+  std::vector<std::string> counts(words.begin() + std::ptrdiff_t(first_count), words.end());
+  if (counts.empty() && off_line(in, line)) counts = words_of(line);
   uint64_t vertices = 0, faces = 0;
   try {
     if (counts.size() < 2) return std::nullopt;
@@ -225,21 +231,11 @@ std::optional<std::string> off_negative_index(const std::string& path) {
   } catch (...) {
     return std::nullopt;  // assimp names what is wrong with the header
   }
-  std::string line;
-  const auto next_line = [&] {  // the next line with something before its comment
-    while (std::getline(in, line)) {
-      line.resize(std::min(line.size(), line.find('#')));
-      if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
-    }
-    return false;
-  };
   for (uint64_t v = 0; v < vertices; ++v)
-    if (!next_line()) return std::nullopt;
-  for (uint64_t f = 0; f < faces && next_line(); ++f) {
+    if (!off_line(in, line)) return std::nullopt;
+  for (uint64_t f = 0; f < faces && off_line(in, line); ++f) {
     if (line.find('-') == std::string::npos) continue;
-    std::istringstream split(line);
-    words.clear();
-    for (std::string word; split >> word;) words.push_back(word);
+    words = words_of(line);
     for (size_t i = 1; i < words.size(); ++i)
       if (words[i][0] == '-' && i <= std::strtoull(words[0].c_str(), nullptr, 10))
         return "face " + std::to_string(f) + " names vertex " + words[i];

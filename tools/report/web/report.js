@@ -59,6 +59,8 @@
     return;
   }
 
+  const built = (st) => st === 'ok' || st === 'up_to_date';
+
   // ---- the rows, with the fields the page sorts and filters on
   const rows = R.rows.map((r) => {
     const warnings = Array.isArray(r.warnings) ? r.warnings.filter((w) => w && typeof w === 'object') : [];
@@ -154,7 +156,6 @@
     // Keyed by the asset's path below each library: meshes of one name in two subfolders stay apart.
     const old = new Map(R.against.rows.map((r) => [text(r.output), r]));
     const now = new Map(rows.map((r) => [r.output, r]));
-    const built = (st) => st === 'ok' || st === 'up_to_date';
     // Each side's state as its table would show it: an asset the manifest calls built that is gone or unreadable
     // is not built, whatever the manifest says.
     const oldState = (o) => (o.asset_error ? 'unreadable' : text(o.status) || 'unknown');
@@ -215,7 +216,7 @@
     if (!pts.length) {
       ctx.fillStyle = '#5c6776';
       // Built meshes without these figures: assets reported without their batch's manifest.
-      const message = rows.some((r) => r.state === 'ok' || r.state === 'up_to_date') ? 'no ' + yLabel + ' recorded (no manifest)' : 'no built meshes';
+      const message = rows.some((r) => built(r.state)) ? 'no ' + yLabel + ' recorded (no manifest)' : 'no built meshes';
       ctx.fillText(message, W / 2 - 3 * message.length, H / 2);
       return;
     }
