@@ -870,7 +870,8 @@ namespace {
 // the same format as zlib's, about twice as fast at the same level. Chunks whose every value is bitwise `*fill` are
 // skipped.
 template <class T>
-bool write_chunks_in_parallel(hid_t dset, const ChunkGrid<T>& g, const T* data, int level, const T* fill) {
+bool write_chunks_in_parallel(hid_t dset, const ChunkGrid<T>& g, const T* data, int level, const T* fill,
+                              WriteTicker* ticker) {
   std::vector<std::vector<unsigned char>> compressed(size_t(g.count));
   struct Scratch {
     std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor;
@@ -886,9 +887,12 @@ bool write_chunks_in_parallel(hid_t dset, const ChunkGrid<T>& g, const T* data, 
   };
   const bool compressed_all = for_each_chunk_in_parallel(0, g.count, make_scratch, [&](uint64_t c, Scratch& s) {
     std::fill(s.block.begin(), s.block.end(), g.fill);  // the padding of edge chunks
+    uint64_t values = 0;
     g.for_each_row(c, [&](uint64_t at, uint64_t from, uint64_t n) {
       std::memcpy(s.block.data() + from, data + at, size_t(n) * sizeof(T));
+      values += n;
     });
+    if (ticker) ticker->add(values * sizeof(T));
     // Bitwise, so NaN fills compare equal. Such a chunk is not written: compressed[c] stays empty.
     if (fill &&
         std::all_of(s.block.begin(), s.block.end(), [&](const T& v) { return std::memcmp(&v, fill, sizeof(T)) == 0; }))
@@ -945,12 +949,13 @@ bool Writer::dataset(hid_t group, const std::string& name, const std::vector<uin
   if (chunked && deflate_level > 0 && host_is_little_endian() &&
       grid.set_shape(dims.size(), dims.data(), chunk.data())) {
     grid.fill = fill ? *fill : T{};
-    if (!write_chunks_in_parallel(dset.get(), grid, data, std::min(deflate_level, 9), fill))
+    if (!write_chunks_in_parallel(dset.get(), grid, data, std::min(deflate_level, 9), fill, ticker_))
       return fail("cannot write dataset " + name);
     return true;
   }
   if (H5Dwrite(dset.get(), TypeTraits<T>::memory_type(), H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
     return fail("cannot write dataset " + name);
+  if (ticker_) ticker_->add(count * sizeof(T));
   return true;
 }
 

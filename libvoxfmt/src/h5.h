@@ -232,9 +232,16 @@ class Reader {
 };
 
 /// Writes objects into one file; every call returns false and records the reason on failure.
+/// Told the bytes of every chunk compressed, from whichever thread compressed it (the writer's included).
+class WriteTicker {
+ public:
+  virtual ~WriteTicker() = default;
+  virtual void add(uint64_t bytes) = 0;
+};
+
 class Writer {
  public:
-  explicit Writer(hid_t file) : file_(file) {}
+  explicit Writer(hid_t file, WriteTicker* ticker = nullptr) : file_(file), ticker_(ticker) {}
   hid_t file() const { return file_; }
 
   std::optional<Handle> create_group(hid_t parent, const std::string& name);
@@ -256,6 +263,7 @@ class Writer {
  private:
   bool fail(const std::string& what);
   hid_t file_;
+  WriteTicker* ticker_;
   std::string failure_;
   bool out_of_memory_ = false;
 };

@@ -1,6 +1,8 @@
 // Internal: one pass that reads a file and collects structural findings.
 #pragma once
 
+#include <atomic>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -20,6 +22,14 @@ std::optional<Asset> load_asset(const std::string& path, std::vector<Issue>& iss
 /// The one way every consumer judges a file (read_asset, validate_file): the read, then validate_asset at
 /// `options.level`. Appends every finding to `issues`; returns the asset when none of them is an error.
 std::optional<Asset> read_and_check(const std::string& path, const ReadOptions& options, std::vector<Issue>& issues);
+
+/// How far a check has come, and a way to stop it: validate_asset with `progress`, counting the value bricks whose
+/// rules are checked (WriteOptions::progress) and stopping early, its findings incomplete, once `stop` is set.
+struct CheckProgress {
+  std::atomic<uint64_t> bricks_checked{0};
+  std::atomic<bool> stop{false};
+};
+std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level, CheckProgress* progress);
 
 /// Reads only the root header (format name, version) and the provenance group; isolated like load_asset.
 std::optional<Provenance> load_provenance(const std::string& path, std::vector<Issue>& issues);

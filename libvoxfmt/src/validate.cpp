@@ -363,12 +363,18 @@ class VoxelmapRules {
   }
 
   // Checks the value bricks among `bricks` (table indices) in order, appending findings to `issues`.
-  void check(const std::vector<size_t>& bricks, size_t begin, size_t end, std::vector<Issue>& issues) {
+  // With `progress`: counted 64 bricks at a time, and stopped when asked.
+  void check(const std::vector<size_t>& bricks, size_t begin, size_t end, std::vector<Issue>& issues,
+             detail::CheckProgress* progress) {
     Findings f{issues};
     const auto bd = vm_.brick_dims();
     for (size_t n = begin; n < end && !f.all(); ++n) {
       const size_t b = bricks[n];
       brick(uint32_t(b % bd[0]), uint32_t(b / bd[0] % bd[1]), uint32_t(b / (size_t(bd[0]) * bd[1])), f);
+      if (progress && (n - begin) % 64 == 63) {
+        progress->bricks_checked.fetch_add(64, std::memory_order_relaxed);
+        if (progress->stop.load(std::memory_order_relaxed)) return;
+      }
     }
   }
 
@@ -575,7 +581,7 @@ class VoxelmapRules {
   std::unique_ptr<detail::EstimateTransform> settled_;  ///< settled estimates' rule (2.2); null: interpolated
 };
 
-void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c) {
+void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& c, detail::CheckProgress* progress) {
   std::vector<size_t> bricks;
   bricks.reserve(vm.value_brick_count());
   for (size_t b = 0; b < vm.bricks.size(); ++b)
@@ -585,7 +591,7 @@ void check_voxelmap_semantics(const Voxelmap& vm, bool closed_surface, Checker& 
   std::vector<std::vector<Issue>> found(threads);
   run_workers(threads, [&](unsigned t) {
     VoxelmapRules(vm, closed_surface)
-        .check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t]);
+        .check(bricks, bricks.size() * t / threads, bricks.size() * (t + 1) / threads, found[t], progress);
   });
   std::vector<IssueCode> reported;
   for (const auto& issues : found)
@@ -803,6 +809,10 @@ void check_grid_holds_object(const Asset& a, Checker& c) {
 }  // namespace
 
 std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
+  return detail::validate_asset(asset, level, nullptr);
+}
+
+std::vector<Issue> detail::validate_asset(const Asset& asset, ValidationLevel level, CheckProgress* progress) {
   std::vector<Issue> issues;
   Checker c(issues);
   c.finite(asset.bounds_min, "/@bounds_min");
@@ -825,7 +835,8 @@ std::vector<Issue> validate_asset(const Asset& asset, ValidationLevel level) {
   if (!has_errors(issues)) check_point_spacing_scale(asset, c);
   // Semantic rules need a structurally sound asset (sizes, tree ranges) to index safely.
   if (level == ValidationLevel::Full && !has_errors(issues)) {
-    check_voxelmap_semantics(asset.voxelmap, detail::closed_surface(asset.provenance), c);
+    check_voxelmap_semantics(asset.voxelmap, detail::closed_surface(asset.provenance), c, progress);
+    if (progress && progress->stop) return issues;  // the write it checks for is abandoned
     check_lattice_semantics(asset.voxelmap, c);
     check_point_shell_semantics(asset, c);
     check_mass_semantics(asset, c);

@@ -239,6 +239,69 @@ TEST(Write, FullRulesAreCheckedBeforeTheFileIsReplaced) {
   EXPECT_TRUE(write_asset(path, wrong, quick));
 }
 
+TEST(Write, TellsItsProgressOnTheCallingThread) {
+  test::SphereSpec fine;
+  fine.voxel_size = 0.002;  // some 500 value bricks: several chunks to compress and bricks to check
+  const Asset sphere = test::make_sphere_asset(fine);
+  const std::string path = test::scratch_dir("write-progress") + "/a.vox.h5";
+  std::vector<double> told;
+  bool elsewhere = false;
+  const std::thread::id caller = std::this_thread::get_id();
+  WriteOptions options;
+  options.progress_interval_s = 0;  // every piece of work
+  options.progress = [&](double done) {
+    told.push_back(done);
+    elsewhere = elsewhere || std::this_thread::get_id() != caller;
+  };
+  ASSERT_TRUE(write_asset(path, sphere, options));
+  EXPECT_FALSE(elsewhere);
+  ASSERT_GE(told.size(), 5u);
+  EXPECT_EQ(told.front(), 0.0);  // at once
+  EXPECT_TRUE(std::is_sorted(told.begin(), told.end()));
+  EXPECT_GT(told.back(), 0.9);
+  EXPECT_LE(told.back(), 1.0);
+}
+
+TEST(Write, AProgressThatThrowsStopsTheWriteAndKeepsTheOldFile) {
+  test::SphereSpec fine;
+  fine.voxel_size = 0.002;
+  const Asset sphere = test::make_sphere_asset(fine);
+  const std::string dir = test::scratch_dir("write-progress-stop");
+  const std::string path = dir + "/a.vox.h5";
+  ASSERT_TRUE(write_asset(path, test::make_full_asset(), test::structural()));
+  const auto old_size = std::filesystem::file_size(path);
+  struct Cancelled {};  // not a std::exception: it must come through as it was thrown
+  // Thrown at once, while chunks are compressed (on a worker that catches everything) and while the check ends.
+  for (const int at : {0, 1, 3, 1000}) {
+    for (const ValidationLevel level : {ValidationLevel::Quick, ValidationLevel::Full}) {
+      int calls = 0;
+      WriteOptions options;
+      options.validation = level;
+      options.progress_interval_s = 0;
+      options.progress = [&](double) {
+        if (calls++ == at) throw Cancelled{};
+      };
+      bool thrown = false;
+      try {
+        const Status status = write_asset(path, sphere, options);
+        EXPECT_TRUE(status) << status.error().message;
+      } catch (const Cancelled&) {
+        thrown = true;
+      }
+      EXPECT_EQ(thrown, at != 1000) << "throw at call " << at;
+      if (thrown) {
+        EXPECT_EQ(std::filesystem::file_size(path), old_size) << at;
+      } else {  // fewer reports than that: the sphere was written
+        EXPECT_LT(calls, at);
+        EXPECT_NE(std::filesystem::file_size(path), old_size);
+        ASSERT_TRUE(write_asset(path, test::make_full_asset(), test::structural()));
+      }
+      EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()), 1)
+          << "a temporary left after a throw at call " << at;
+    }
+  }
+}
+
 TEST(Write, ReportsAnUnwritableDirectory) {
   const Status status = write_asset("/nonexistent-dir/x.vox.h5", test::make_full_asset(), test::structural());
   ASSERT_FALSE(status);

@@ -41,6 +41,11 @@ struct WriteOptions {
   /// Runs once the temporary file is complete, flushed and validated, just before it replaces the target: an
   /// error aborts the write (the temporary is removed, the target left as it was) and is returned.
   std::function<Status()> before_commit;
+  /// Told the share of the write done (0..1: the grids compressed, the value bricks checked) on the calling
+  /// thread, at once, then at most every `progress_interval_s` until the file is complete. An exception it throws
+  /// stops the write (the temporary is removed, the target left as it was) and leaves write_asset.
+  std::function<void(double done)> progress;
+  double progress_interval_s = 0.2;
 };
 
 /// Writes `asset` to `path` atomically (write_file_atomically: a temporary `PATH.partial-<pid>-<n>` beside it,

@@ -273,9 +273,10 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
 // No voxel more than half a voxel inside (layer >= 1): an open sheet that closes around nothing, or parts thinner
 // than a voxel; the fractional voxels along it are not a volume the voxelmap can represent.
 // A closed surface too: one thinner than a voxel (a needle at a coarse grid) left no inside at all, unsaid.
+// The band's count says so (a scan of every voxel's layer took 3 s at 2048^3, on one thread).
 bool encloses_nothing(const InsidePlan& plan, const Geometry& g) {
   return plan.shell_thickness == 0 &&
-         (plan.closed_but_flat || g.voxelmap_report.stopped || g.voxelmap.layer_range().second < 1);
+         (plan.closed_but_flat || g.voxelmap_report.stopped || g.voxelmap_report.deep_centres == 0);
 }
 
 // Why a surface that encloses nothing is baked as a shell two voxels thick, and what to do about it: thin parts
@@ -617,10 +618,13 @@ Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& ou
   // whatever the path held): a throw there is reported and the file stays.
   return guarded<Summary>(mesh_path, [&]() -> Result<Summary> {
     const BakeStageInfo& write = stage_info(BakeStage::Write);
-    if (progress) progress(write.name, write.progress_start);
     const auto write_start = std::chrono::steady_clock::now();
     WriteOptions write_options;  // validation: Full, beside the write
     write_options.deflate_level = settings.deflate;
+    if (progress)
+      write_options.progress = [&](double done) {
+        progress(write.name, write.progress_start + (1 - write.progress_start) * done);
+      };
     const Status written = write_asset(output_path, baked->asset, write_options);
     if (!written) {
       Error error = written.error();

@@ -158,8 +158,9 @@ struct Summary {
 
 /// The bake's stages as they start (the names of kBakeStages with a progress share), with the share of the whole
 /// bake done so far (0..1, by the typical cost of each stage), for progress bars; then "done" at 1. The long
-/// "voxelmap + point shell" is told again as it goes (at most 5 times a second), its share rising toward the next
-/// stage's. Every call is on the thread that called the bake; an exception the callback throws stops the bake.
+/// "voxelmap + point shell" and "write" are told again as they go (at most 5 times a second), their share rising
+/// toward the next stage's. Every call is on the thread that called the bake; an exception the callback throws stops
+/// the bake.
 using ProgressCallback = std::function<void(std::string_view stage, double fraction)>;
 
 struct Baked {
@@ -181,8 +182,8 @@ Result<Baked> bake_mesh(const std::string& mesh_path, const Settings& settings, 
 /// Bakes `mesh_path` and writes the asset to `output_path`: every rule of `voxfmt validate --level full` is
 /// checked in memory (beside the write) and the file replaces `output_path` atomically only when it passes.
 /// Errors: those of bake_mesh, INVALID_ASSET (a bake bug: nothing is written), WRITE_FAILED. An exception the
-/// progress callback throws stops the bake (INTERNAL, naming it); up to "write" nothing is written, at "done" the
-/// file is already in place and stays.
+/// progress callback throws stops the bake (INTERNAL, naming it); up to and within "write" nothing is written, at
+/// "done" the file is already in place and stays.
 Result<Summary> bake_to_file(const std::string& mesh_path, const std::string& output_path, const Settings& settings,
                              const ProgressCallback& progress = {});
 
