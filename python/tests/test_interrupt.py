@@ -188,3 +188,35 @@ def test_sigint_stops_a_bake_within_its_write(sphere_mesh: Path, tmp_path: Path)
     assert 0.74 < result["last_share"] < 1, result  # within the write's work
     assert result["latency"] < 0.5, result
     assert result["left"] == [], result  # no temporary either
+
+
+# SIGINT while a point shell of a million points is sampled, after the voxelmap is done: the bake is told on and
+# stops the sampling (it waited for it: 23 s of this bake on 2 cores).
+_SHELL_CHILD = r"""
+import json, os, signal, sys, threading, time
+import voxfmt
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
+
+mesh, out = sys.argv[1], sys.argv[2]
+sent = []
+
+
+def progress(stage, fraction):
+    if stage == "voxelmap + point shell" and not sent:
+        sent.append(time.perf_counter() + 1.5)
+        threading.Timer(1.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+
+
+try:
+    voxfmt.bake(mesh, out, resolution=32, points=1000000, threads=2, progress=progress)
+    outcome = "completed"
+except KeyboardInterrupt:
+    outcome = "interrupted"
+print(json.dumps({"outcome": outcome, "latency": time.perf_counter() - sent[0], "written": os.path.exists(out)}))
+"""
+
+
+def test_sigint_stops_a_bake_within_its_point_shell(sphere_mesh: Path, tmp_path: Path) -> None:
+    result = interrupted_bake(_SHELL_CHILD, sphere_mesh, tmp_path / "shell.vox.h5")
+    assert result["latency"] < 1.0, result

@@ -149,10 +149,11 @@ def bake(
     voxelmap and the point shell may each need at their peak, beyond which the bake is refused up front:
     InternalError OUT_OF_MEMORY; default 3/4 of this machine's memory).
 
-    ``progress(stage, fraction)`` is called as each stage starts (fraction of the whole bake, 0..1), and again as
-    the long "voxelmap + point shell" stage computes its voxelmap (up to 5 times a second); an exception it raises
-    stops the bake and is raised again here. Without it, Ctrl-C stops the bake as promptly (a point shell of
-    millions of points, sampled beside the voxelmap, is waited for).
+    ``progress(stage, fraction)`` is called as each stage starts (fraction of the whole bake, 0..1), and again (up
+    to 5 times a second) as the long "voxelmap + point shell" stage computes its voxelmap or waits for its point
+    shell, and as "write" compresses and checks the asset; an exception it raises stops the bake and is raised
+    again here. Without it, Ctrl-C stops the bake as promptly (with ``threads=1``, a point shell of millions of
+    points is waited for).
 
     ``if_changed=True``: where ``out_path`` already is a bake of this mesh as it is now (its SHA-256) with these
     options, nothing is baked and ``{"status": "up_to_date", "input": ..., "output": ...}`` is returned: a cache

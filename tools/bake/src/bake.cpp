@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <ctime>
@@ -25,6 +26,7 @@
 #include <string>
 #include <string_view>
 #include <system_error>
+#include <thread>
 #include <type_traits>
 
 #include "stages.h"
@@ -224,10 +226,11 @@ void check_point_shell_memory(const TriangleMesh& mesh, const Settings& options,
 
 // A shell's points lie on its two sheets: half as many on each, less those the shell swallows (more than a quarter
 // voxel inside it, so that each point's nearest voxel stores a distance, spec section 4).
-PointShell sample_shell(const TriangleMesh& mesh, const Settings& options, double thickness) {
+PointShell sample_shell(const TriangleMesh& mesh, const Settings& options, double thickness,
+                        const std::atomic<bool>* abandon = nullptr) {
   PointShellSettings settings = options.point_shell;
   if (thickness > 0 && settings.point_spacing == 0) settings.points = std::max<uint32_t>(1, settings.points / 2);
-  PointShell sampled = sample_point_shell(mesh, settings);
+  PointShell sampled = sample_point_shell(mesh, settings, abandon);
   if (thickness > 0) {
     offset_to_shell_sheets(sampled, thickness / 2);
     drop_points_inside_shell(sampled, mesh, thickness / 2, 0.25 * planned_voxel_size(mesh, options.voxelmap));
@@ -246,21 +249,36 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
   g.voxelmap_report.stop_if_shallow = plan.shell_thickness == 0;
   tbb::task_group tasks;
   std::exception_ptr shell_error;
+  std::atomic<bool> abandon{false}, shell_done{false};
   tasks.run([&] {
     try {
-      g.shell = times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options, plan.shell_thickness); });
+      g.shell =
+          times.run(BakeStage::PointShell, [&] { return sample_shell(mesh, options, plan.shell_thickness, &abandon); });
       times.run(BakeStage::SphereTree, [&] { build_sphere_tree(g.shell, options.point_shell.branching); });
     } catch (...) {
       shell_error = std::current_exception();
     }
+    shell_done = true;
   });
   std::vector<StageTiming> voxelmap_stages;
+  double share = 0;
+  auto tell = [&](double done) {
+    share = done;
+    times.within(BakeStage::VoxelmapAndPointShell, share);
+  };
   try {
     g.voxelmap = times.run(BakeStage::Voxelmap, [&] {
-      return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report,
-                            [&](double share) { times.within(BakeStage::VoxelmapAndPointShell, share); });
+      return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report, tell);
     });
+    // A point shell of millions of points can outlast the voxelmap (25 s for a million): told on while it runs, so
+    // that a caller may stop it. A worker runs it, unless there is none (--threads 1): then it runs in wait().
+    if (tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism) > 1)
+      while (!shell_done) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        tell(share);
+      }
   } catch (...) {
+    abandon = true;
     tasks.wait();
     throw;
   }

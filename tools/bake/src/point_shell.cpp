@@ -59,7 +59,8 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
 
 /// Dart throwing over the candidates (already in random order): keeps a candidate when no kept point lies
 /// within `radius`. A hash grid of cell `radius` makes each test look at 27 cells.
-std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit, size_t expected) {
+std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit, size_t expected,
+                               const std::atomic<bool>* abandon) {
   std::unordered_map<uint64_t, std::vector<uint32_t>> cells;
   cells.reserve(2 * std::min(limit, expected));
   auto key = [](int64_t x, int64_t y, int64_t z) {
@@ -68,6 +69,8 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
   const double r2 = radius * radius;
   std::vector<size_t> kept;
   for (size_t c = 0; c < candidates.size() && kept.size() < limit; ++c) {
+    if (abandon && c % 65536 == 0 && abandon->load(std::memory_order_relaxed))
+      throw BakeError(IssueCode::Internal, "point shell abandoned");
     const Vec3& p = candidates[c].point;
     // Cell coordinates, clamped before the conversion (hash collisions are harmless: distances decide).
     auto cell = [&](double coordinate) { return int64_t(std::clamp(std::floor(coordinate / radius), -4e18, 4e18)); };
@@ -107,7 +110,8 @@ double point_shell_target(const TriangleMesh& mesh, const PointShellSettings& op
   return target_for_area(surface_area(mesh), options);
 }
 
-PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& options) {
+PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& options,
+                              const std::atomic<bool>* abandon) {
   double area = surface_area(mesh);
   if (!(area > 0)) throw BakeError(IssueCode::ZeroVolume, "the surface has zero area");
   const double wanted = target_for_area(area, options);
@@ -121,13 +125,13 @@ PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings
 
   std::vector<size_t> kept;
   if (options.point_spacing > 0) {
-    kept = dart_throw(candidates, options.point_spacing, candidates.size(), target);
+    kept = dart_throw(candidates, options.point_spacing, candidates.size(), target, abandon);
   } else {
     // A maximal Poisson-disk set of radius r holds about 0.7 * area / r^2 points; aim a little denser than
     // the target, then keep the first `target` accepted (a random subset, still at least r apart).
     double radius = std::sqrt(0.7 * area / double(target));
     for (int iteration = 0; iteration < 8; ++iteration) {
-      kept = dart_throw(candidates, radius, candidates.size(), target);
+      kept = dart_throw(candidates, radius, candidates.size(), target, abandon);
       if (kept.size() >= target) break;
       radius *= std::sqrt(double(kept.size()) / double(target)) * 0.97;
     }

@@ -3,6 +3,8 @@
 // the library's edge (nothing throws across the public API).
 #pragma once
 
+#include <atomic>
+
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -90,8 +92,10 @@ double memory_limit_bytes(uint64_t max_memory_bytes);
 // ---------------------------------------------------------------- 4. point shell
 
 /// Samples evenly spread surface points (Poisson-disk by dart throwing over area-weighted candidates) with
-/// inward face normals. Returns points and normals only (tree fields empty).
-PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& settings);
+/// inward face normals. Returns points and normals only (tree fields empty). Once `*abandon` is set (the bake it
+/// serves failed beside it) it stops within some 65,000 candidates, throwing BakeError INTERNAL.
+PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings& settings,
+                              const std::atomic<bool>* abandon = nullptr);
 /// How many points sample_point_shell aims for: `points`, or with a point spacing the surface's area over
 /// 0.75 spacing^2 (so a spacing's count is known, and judged, before any sampling).
 double point_shell_target(const TriangleMesh& mesh, const PointShellSettings& settings);
