@@ -58,10 +58,11 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
 }
 
 /// Dart throwing over the candidates (already in random order): keeps a candidate when no kept point lies
-/// within `radius`. A hash grid of cell `radius` makes each test look at 27 cells.
+/// within `radius`. A hash grid of cell `radius` makes each test look at 27 cells; a cell holds its points' own
+/// coordinates (reaching them through their candidates, at random across 8 per point, was 40 % of the time).
 std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double radius, size_t limit, size_t expected,
                                const std::atomic<bool>* abandon) {
-  std::unordered_map<uint64_t, std::vector<uint32_t>> cells;
+  std::unordered_map<uint64_t, std::vector<Vec3>> cells;
   cells.reserve(2 * std::min(limit, expected));
   auto key = [](int64_t x, int64_t y, int64_t z) {
     return (uint64_t(x & 0x1fffff) << 42) | (uint64_t(y & 0x1fffff) << 21) | uint64_t(z & 0x1fffff);
@@ -81,14 +82,14 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
         for (int64_t dx = -1; dx <= 1 && free; ++dx) {
           auto it = cells.find(key(x + dx, y + dy, z + dz));
           if (it == cells.end()) continue;
-          for (uint32_t other : it->second)
-            if (distance2(candidates[kept[other]].point, p) < r2) {
+          for (const Vec3& other : it->second)
+            if (distance2(other, p) < r2) {
               free = false;
               break;
             }
         }
     if (!free) continue;
-    cells[key(x, y, z)].push_back(uint32_t(kept.size()));
+    cells[key(x, y, z)].push_back(p);
     kept.push_back(c);
   }
   return kept;
