@@ -132,7 +132,7 @@ PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings
     // the target, then keep the first `target` accepted (a random subset, still at least r apart).
     double radius = std::sqrt(0.7 * area / double(target));
     for (int iteration = 0; iteration < 8; ++iteration) {
-      kept = dart_throw(candidates, radius, candidates.size(), target, abandon);
+      kept = dart_throw(candidates, radius, target, target, abandon);  // the first `target` kept do not change
       if (kept.size() >= target) break;
       radius *= std::sqrt(double(kept.size()) / double(target)) * 0.97;
     }
