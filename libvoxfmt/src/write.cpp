@@ -153,7 +153,7 @@ class WriteProgress final : public h5::WriteTicker {
   detail::CheckProgress* check() { return &check_; }
 
   void report(bool now) {
-    if (!callback_ || stopped_ || std::this_thread::get_id() != caller_) return;
+    if (!callback_ || std::this_thread::get_id() != caller_ || stopped_) return;
     const auto t = std::chrono::steady_clock::now();
     if (!now && t < next_) return;
     next_ = t + interval_;
