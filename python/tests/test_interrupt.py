@@ -93,9 +93,9 @@ print(json.dumps({"outcome": outcome, "elapsed": time.perf_counter() - start, "w
 """
 
 
-def interrupted_bake(child: str, mesh: Path, out: Path) -> dict[str, object]:
+def interrupted_bake(child: str, mesh: Path, out: Path, *args: str) -> dict[str, object]:
     """Runs a bake child to its end: what it printed, once it checked the bake was interrupted and wrote nothing."""
-    run = subprocess.run([sys.executable, "-c", child, str(mesh), str(out)], capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-c", child, str(mesh), str(out), *args], capture_output=True, text=True,
                          timeout=300)
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout.strip().splitlines()[-1])
@@ -112,16 +112,16 @@ def test_sigint_stops_a_bake_without_progress(sphere_mesh: Path, tmp_path: Path)
     assert voxfmt.load(out).voxel_size > 0
 
 
-# With a progress callable, SIGINT 0.3 s into the voxelmap's stage, while its band runs: the callable is told the
-# stage's progress about 5 times a second on the bake's own thread, so the interrupt lands there (it waited for the
-# stage's end: 4 s of this 1000^3 bake on 2 cores).
-_BAND_CHILD = r"""
+# With a progress callable, SIGINT some seconds into the voxelmap's stage (argv: mesh, out, seconds, resolution,
+# points), the callable told the stage's progress about 5 times a second on the bake's own thread.
+_VOXELMAP_STAGE_CHILD = r"""
 import json, os, signal, sys, threading, time
 import voxfmt
 
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
 mesh, out = sys.argv[1], sys.argv[2]
+delay, resolution, points = float(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 sent = []
 shares = []
 
@@ -129,12 +129,12 @@ shares = []
 def progress(stage, fraction):
     shares.append(fraction)
     if stage == "voxelmap + point shell" and not sent:
-        sent.append(time.perf_counter() + 0.3)
-        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        sent.append(time.perf_counter() + delay)
+        threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
 
 
 try:
-    voxfmt.bake(mesh, out, resolution=1000, points=50000, threads=2, progress=progress)
+    voxfmt.bake(mesh, out, resolution=resolution, points=points, threads=2, progress=progress)
     outcome = "completed"
 except KeyboardInterrupt:
     outcome = "interrupted"
@@ -143,8 +143,10 @@ print(json.dumps({"outcome": outcome, "latency": time.perf_counter() - sent[0], 
 """
 
 
+# SIGINT 0.3 s in, while the band runs: the interrupt lands there (it waited for the stage's end: 4 s of this 1000^3
+# bake on 2 cores).
 def test_sigint_stops_a_bake_within_its_voxelmap(sphere_mesh: Path, tmp_path: Path) -> None:
-    result = interrupted_bake(_BAND_CHILD, sphere_mesh, tmp_path / "band.vox.h5")
+    result = interrupted_bake(_VOXELMAP_STAGE_CHILD, sphere_mesh, tmp_path / "band.vox.h5", "0.3", "1000", "50000")
     assert result["last_share"] < 0.72, result  # before "assemble": within the voxelmap's stage
     assert result["latency"] < 1.5, result
 
@@ -190,33 +192,8 @@ def test_sigint_stops_a_bake_within_its_write(sphere_mesh: Path, tmp_path: Path)
     assert result["left"] == [], result  # no temporary either
 
 
-# SIGINT while a point shell of a million points is sampled, after the voxelmap is done: the bake is told on and
-# stops the sampling (it waited for it: 23 s of this bake on 2 cores).
-_SHELL_CHILD = r"""
-import json, os, signal, sys, threading, time
-import voxfmt
-
-signal.signal(signal.SIGINT, signal.default_int_handler)
-
-mesh, out = sys.argv[1], sys.argv[2]
-sent = []
-
-
-def progress(stage, fraction):
-    if stage == "voxelmap + point shell" and not sent:
-        sent.append(time.perf_counter() + 1.5)
-        threading.Timer(1.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
-
-
-try:
-    voxfmt.bake(mesh, out, resolution=32, points=1000000, threads=2, progress=progress)
-    outcome = "completed"
-except KeyboardInterrupt:
-    outcome = "interrupted"
-print(json.dumps({"outcome": outcome, "latency": time.perf_counter() - sent[0], "written": os.path.exists(out)}))
-"""
-
-
+# SIGINT 1.5 s in, while a point shell of a million points is sampled after the voxelmap is done: the bake is told on
+# and stops the sampling (it waited for it: 23 s of this bake on 2 cores).
 def test_sigint_stops_a_bake_within_its_point_shell(sphere_mesh: Path, tmp_path: Path) -> None:
-    result = interrupted_bake(_SHELL_CHILD, sphere_mesh, tmp_path / "shell.vox.h5")
+    result = interrupted_bake(_VOXELMAP_STAGE_CHILD, sphere_mesh, tmp_path / "shell.vox.h5", "1.5", "32", "1000000")
     assert result["latency"] < 1.0, result
