@@ -231,7 +231,6 @@ class Reader {
   std::function<void()> progress_;
 };
 
-/// Writes objects into one file; every call returns false and records the reason on failure.
 /// Told the bytes of every chunk compressed, from whichever thread compressed it (the writer's included).
 class WriteTicker {
  public:
@@ -239,6 +238,7 @@ class WriteTicker {
   virtual void add(uint64_t bytes) = 0;
 };
 
+/// Writes objects into one file; every call returns false and records the reason on failure.
 class Writer {
  public:
   explicit Writer(hid_t file, WriteTicker* ticker = nullptr) : file_(file), ticker_(ticker) {}

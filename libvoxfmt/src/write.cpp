@@ -126,11 +126,9 @@ uint64_t bytes_of(const V& values) {
 
 // The bytes write_contents hands HDF5 in datasets (attributes are negligible).
 uint64_t dataset_bytes(const Asset& a) {
-  const Voxelmap& vm = a.voxelmap;
   const PointShell& ps = a.point_shell;
-  return bytes_of(vm.bricks) + bytes_of(vm.brick_values) + bytes_of(vm.lattice) + bytes_of(ps.points) +
-         bytes_of(ps.normals) + bytes_of(ps.sphere_centers) + bytes_of(ps.sphere_radii) + bytes_of(ps.child_begin) +
-         bytes_of(ps.child_count) + bytes_of(ps.level_offsets);
+  return a.voxelmap.memory_bytes() + bytes_of(ps.points) + bytes_of(ps.normals) + bytes_of(ps.sphere_centers) +
+         bytes_of(ps.sphere_radii) + bytes_of(ps.child_begin) + bytes_of(ps.child_count) + bytes_of(ps.level_offsets);
 }
 
 // WriteOptions::progress: the datasets' bytes compressed and, with the full check, the value bricks checked (their
