@@ -270,7 +270,7 @@ Geometry build_geometry(const TriangleMesh& mesh, const Settings& options, const
     g.voxelmap = times.run(BakeStage::Voxelmap, [&] {
       return build_voxelmap(mesh, voxelmap_options, &voxelmap_stages, &g.voxelmap_report, tell);
     });
-    // A point shell of millions of points can outlast the voxelmap (25 s for a million): told on while it runs, so
+    // A point shell of millions of points can outlast the voxelmap (14 s for a million): told on while it runs, so
     // that a caller may stop it. A worker runs it, unless there is none (--threads 1): then it runs in wait().
     if (tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism) > 1)
       while (!shell_done) {

@@ -25,8 +25,15 @@ struct Candidate {
   Vec3f inward_normal;
 };
 
+// Every 65,536 steps of a loop over candidates: throws once the bake the shell serves has failed beside it.
+void stop_if_abandoned(const std::atomic<bool>* abandon, size_t step) {
+  if (abandon && step % 65536 == 0 && abandon->load(std::memory_order_relaxed))
+    throw BakeError(IssueCode::Internal, "point shell abandoned");
+}
+
 /// Area-weighted random points on the surface, each with its face's inward normal.
-std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count, uint64_t seed, double& area) {
+std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count, uint64_t seed, double& area,
+                                          const std::atomic<bool>* abandon) {
   std::vector<double> cumulative(mesh.triangles.size());
   std::vector<Vec3f> normals(mesh.triangles.size());
   area = 0;
@@ -41,6 +48,7 @@ std::vector<Candidate> surface_candidates(const TriangleMesh& mesh, size_t count
   std::mt19937_64 rng(seed);
   std::vector<Candidate> out(count);
   for (Candidate& c : out) {
+    stop_if_abandoned(abandon, size_t(&c - out.data()));
     const double pick = unit(rng) * area;
     const size_t t = std::min(size_t(std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin()),
                               cumulative.size() - 1);
@@ -70,8 +78,7 @@ std::vector<size_t> dart_throw(const std::vector<Candidate>& candidates, double 
   const double r2 = radius * radius;
   std::vector<size_t> kept;
   for (size_t c = 0; c < candidates.size() && kept.size() < limit; ++c) {
-    if (abandon && c % 65536 == 0 && abandon->load(std::memory_order_relaxed))
-      throw BakeError(IssueCode::Internal, "point shell abandoned");
+    stop_if_abandoned(abandon, c);
     const Vec3& p = candidates[c].point;
     // Cell coordinates, clamped before the conversion (hash collisions are harmless: distances decide).
     auto cell = [&](double coordinate) { return int64_t(std::clamp(std::floor(coordinate / radius), -4e18, 4e18)); };
@@ -122,21 +129,20 @@ PointShell sample_point_shell(const TriangleMesh& mesh, const PointShellSettings
                     "the point shell would need more than 50 million points (point spacing too small)");
   const size_t target = size_t(wanted);
   const std::vector<Candidate> candidates =
-      surface_candidates(mesh, std::max<size_t>(8 * target, 64), options.seed, area);
+      surface_candidates(mesh, std::max<size_t>(8 * target, 64), options.seed, area, abandon);
 
   std::vector<size_t> kept;
   if (options.point_spacing > 0) {
     kept = dart_throw(candidates, options.point_spacing, candidates.size(), target, abandon);
   } else {
     // A maximal Poisson-disk set of radius r holds about 0.7 * area / r^2 points; aim a little denser than
-    // the target, then keep the first `target` accepted (a random subset, still at least r apart).
+    // the target, keeping the first `target` accepted (a random subset, still at least r apart).
     double radius = std::sqrt(0.7 * area / double(target));
     for (int iteration = 0; iteration < 8; ++iteration) {
       kept = dart_throw(candidates, radius, target, target, abandon);  // the first `target` kept do not change
       if (kept.size() >= target) break;
       radius *= std::sqrt(double(kept.size()) / double(target)) * 0.97;
     }
-    if (kept.size() > target) kept.resize(target);
   }
   PointShell shell;
   for (size_t c : kept) {
